@@ -1,0 +1,9 @@
+"""Everything that decides: the Agent interface, its registry and the agents.
+
+    from agents import make_agent, agent_names
+    agent = make_agent("raceline")
+"""
+from .base import Agent, agent_names, make_agent, register_agent
+from . import simple  # noqa: F401  registers the built-in agents
+
+__all__ = ["Agent", "agent_names", "make_agent", "register_agent"]

@@ -1,0 +1,40 @@
+"""Simple agents: the raceline follower, and random / constant drivers for tests and benchmarks."""
+from __future__ import annotations
+
+import numpy as np
+
+from racing_env.controllers import RacelineFollower
+
+from .base import register_agent
+
+register_agent("raceline", RacelineFollower)
+
+
+@register_agent("random")
+class RandomAgent:
+    """Uniformly random actions in [-1, 1]^2 (seeded by reset)."""
+
+    def __init__(self):
+        self.rng = np.random.default_rng()
+
+    def reset(self, track, agent_id: str, seed: int | None = None) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, observation) -> np.ndarray:
+        return self.rng.uniform(-1.0, 1.0, 2).astype(np.float32)
+
+
+@register_agent("constant")
+class ConstantAgent:
+    """The same action every step (default: half throttle, straight)."""
+
+    def __init__(self, throttle: float = 0.5, steering: float = 0.0):
+        if not (-1 <= throttle <= 1 and -1 <= steering <= 1):
+            raise ValueError(f"throttle and steering must be in [-1, 1], got {throttle}, {steering}")
+        self.action = np.array([throttle, steering], dtype=np.float32)
+
+    def reset(self, track, agent_id: str, seed: int | None = None) -> None:
+        pass
+
+    def act(self, observation) -> np.ndarray:
+        return self.action.copy()

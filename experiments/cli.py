@@ -1,0 +1,109 @@
+"""The ``alpha-racer`` command line: ``race``, ``tracks``, ``raceline``, ``fuzz``."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+DEFAULT_AGENTS = ["raceline", "raceline", "raceline"]
+
+
+def _cmd_race(args) -> int:
+    from .race import run_race, write_outputs
+    result, frames = run_race(args.agents, track=args.track, seed=args.seed,
+                              max_cycles=args.steps, start=args.start, laps=args.laps,
+                              render=not args.no_animation)
+    print(result.table())
+    paths = write_outputs(result, frames, Path(args.out), animation=args.format)
+    for kind, p in paths.items():
+        print(f"{kind}: {p}")
+    return 0
+
+
+def _cmd_tracks(args) -> int:
+    from racing_env.tracks import make_track, track_names
+    for name in track_names():
+        if args.details:
+            t = make_track(name)
+            print(f"{name:<28} {t.length:8.2f} m  width {t.width.min():.3f}..{t.width.max():.3f} m")
+        else:
+            print(name)
+    print("random:SEED                  (procedural, any integer seed)")
+    return 0
+
+
+def _cmd_raceline(args) -> int:
+    from racing_env.raceline import get_raceline, plot_raceline
+    from racing_env.tracks import make_track
+    track = make_track(args.track, scale=args.scale)
+    rl = get_raceline(track)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = track.name.replace(":", "_")
+    rl.to_csv(out / f"{stem}_raceline.csv")
+    plot_raceline(track, rl, out / f"{stem}_raceline.png")
+    lap = float(rl.lap_time) if hasattr(rl, "lap_time") else float(
+        sum((rl.s[1:] - rl.s[:-1]) / (0.5 * (rl.vx[1:] + rl.vx[:-1]))))
+    print(f"{track!r}\nracing line: {len(rl.s)} points, length {rl.s[-1]:.2f} m, "
+          f"speed {rl.vx.min():.2f}..{rl.vx.max():.2f} m/s, lap time estimate {lap:.2f} s")
+    print(f"wrote {out / f'{stem}_raceline.csv'} and {out / f'{stem}_raceline.png'}")
+    return 0
+
+
+def _cmd_fuzz(args) -> int:
+    from .fuzz import run_fuzz
+    report = run_fuzz(steps=args.steps, n_races=args.races, n_cars=args.cars, track=args.track,
+                      seed=args.seed)
+    print(report.text())
+    return 0 if report.ok else 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="alpha-racer", description=__doc__)
+    sub = p.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("race", help="race agents head to head, print the result, write an animation")
+    r.add_argument("--agents", nargs="+", default=DEFAULT_AGENTS,
+                   help="registry names, one per car (see agents.agent_names())")
+    r.add_argument("--track", default="default")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--steps", type=int, default=500, help="control periods of 0.1 s (default 500)")
+    r.add_argument("--laps", type=int, default=None, help="end when the first car completes this many laps")
+    r.add_argument("--start", choices=["regions", "grid", "random"], default="regions")
+    r.add_argument("--out", default="results/race")
+    r.add_argument("--format", choices=["gif", "mp4"], default="gif")
+    r.add_argument("--no-animation", action="store_true")
+    r.set_defaults(fn=_cmd_race)
+
+    t = sub.add_parser("tracks", help="list the available tracks")
+    t.add_argument("--details", action="store_true", help="build each track and print its size")
+    t.set_defaults(fn=_cmd_tracks)
+
+    rl = sub.add_parser("raceline", help="compute a track's minimum-curvature racing line")
+    rl.add_argument("--track", default="default",
+                    help="default, oval, random:SEED, tumftm:NAME or a TUMFTM .csv path")
+    rl.add_argument("--scale", type=float, default=None, help="length scale for TUMFTM data (default 1/43)")
+    rl.add_argument("--out", default="results/raceline")
+    rl.set_defaults(fn=_cmd_raceline)
+
+    f = sub.add_parser("fuzz", help="random-action fuzz of the simulator: no NaN, no exception, states in bounds")
+    f.add_argument("--steps", type=int, default=1_000_000, help="total car-steps")
+    f.add_argument("--races", type=int, default=256)
+    f.add_argument("--cars", type=int, default=3)
+    f.add_argument("--track", default="default")
+    f.add_argument("--seed", type=int, default=0)
+    f.set_defaults(fn=_cmd_fuzz)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.fn(args)
+    except ValueError as exc:
+        print(f"alpha-racer {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

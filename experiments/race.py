@@ -1,0 +1,135 @@
+"""Run one race between agents and summarise it (the ``alpha-racer race`` command)."""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from agents import make_agent
+from racing_env import RacingParallelEnv
+
+
+@dataclass
+class RaceResult:
+    """What happened in a race. ``states`` (T + 1, N, 6) holds every car's Frenet state."""
+
+    agents: list[str]
+    track: str                    # track spec, as given to make_track
+    seed: int
+    dt: float
+    states: np.ndarray
+    progress: np.ndarray          # (N,) m driven
+    lap_times: list[list[float]]  # per car, s per completed lap
+    contacts: np.ndarray          # (N,) steps with contact
+    off_tracks: np.ndarray        # (N,) steps off track
+    decision_ms: np.ndarray       # (N,) mean wall time per act() [ms]
+    env_step_ms: float            # mean env.step wall time [ms]
+    agent_stats: list[dict] = field(default_factory=list)
+
+    @property
+    def order(self) -> np.ndarray:
+        """Car indices from winner to last, by total progress."""
+        return np.argsort(-self.progress, kind="stable")
+
+    def table(self) -> str:
+        """Human-readable result table."""
+        lead = self.progress.max()
+        speed = lead / max(len(self.states) - 1, 1) / self.dt
+        rows = [f"Race on '{self.track}' (seed {self.seed}), {len(self.states) - 1} steps "
+                f"= {(len(self.states) - 1) * self.dt:.1f} s",
+                f"{'pos':>3}  {'car':<6} {'agent':<10} {'progress m':>10} {'gap m':>7} {'gap s':>6} "
+                f"{'laps':>4} {'best lap s':>10} {'contacts':>8} {'off-track':>9} {'fallbacks':>9} "
+                f"{'ms/decision':>11}"]
+        for pos, i in enumerate(self.order, 1):
+            laps = self.lap_times[i]
+            lap_durations = np.diff([0.0] + laps)
+            best = f"{lap_durations[1:].min():.2f}" if len(laps) > 1 else "-"
+            gap = lead - self.progress[i]
+            fb = self.agent_stats[i].get("fallbacks", 0) if self.agent_stats else 0
+            rows.append(f"{pos:>3}  car_{i:<2} {self.agents[i]:<10} {self.progress[i]:>10.2f} "
+                        f"{gap:>7.2f} {gap / max(speed, 1e-9):>6.2f} {len(laps):>4} {best:>10} "
+                        f"{self.contacts[i]:>8} {self.off_tracks[i]:>9} {fb:>9} {self.decision_ms[i]:>11.3f}")
+        rows.append(f"env step: {self.env_step_ms:.3f} ms mean")
+        return "\n".join(rows)
+
+    def summary(self) -> dict:
+        return {"agents": self.agents, "track": self.track, "seed": self.seed,
+                "steps": len(self.states) - 1, "order": [f"car_{i}" for i in self.order],
+                "progress_m": self.progress.round(4).tolist(), "lap_times_s": self.lap_times,
+                "contacts": self.contacts.tolist(), "off_tracks": self.off_tracks.tolist(),
+                "decision_ms": self.decision_ms.round(4).tolist(), "env_step_ms": round(self.env_step_ms, 4),
+                "agent_stats": self.agent_stats}
+
+
+def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_cycles: int = 500,
+             start: str = "regions", laps: int | None = None, render: bool = False,
+             progress_bar: bool = True, agent_kwargs: list[dict] | None = None):
+    """Race ``agent_names`` (registry names, one per car) and return ``(RaceResult, frames)``.
+
+    ``frames`` is a list of RGB arrays when ``render`` is true, else empty.
+    """
+    if not agent_names:
+        raise ValueError("a race needs at least one agent")
+    env = RacingParallelEnv(track=track, n_cars=len(agent_names), max_cycles=max_cycles,
+                            laps=laps, start=start)
+    kwargs = agent_kwargs or [{} for _ in agent_names]
+    agents = [make_agent(name, **kw) for name, kw in zip(agent_names, kwargs)]
+    obs, _ = env.reset(seed=seed)
+    for k, (a, agent_id) in enumerate(zip(agents, env.possible_agents)):
+        a.reset(env.track, agent_id, seed + 1000 * (k + 1))
+    n = len(agents)
+    states = [env.core.state[0].copy()]
+    frames = [env.render_frame()] if render else []
+    decide = np.zeros(n)
+    env_time = 0.0
+    steps = 0
+    with tqdm(total=max_cycles, desc="race", unit="step", delay=3.0, disable=not progress_bar) as bar:
+        while env.agents:
+            actions = {}
+            for k, agent_id in enumerate(env.possible_agents):
+                t0 = time.perf_counter()
+                actions[agent_id] = agents[k].act(obs[agent_id])
+                decide[k] += time.perf_counter() - t0
+            t0 = time.perf_counter()
+            obs, _, _, _, _ = env.step(actions)
+            env_time += time.perf_counter() - t0
+            steps += 1
+            states.append(env.core.state[0].copy())
+            if render:
+                frames.append(env.render_frame())
+            bar.update(1)
+    core = env.core
+    result = RaceResult(
+        agents=list(agent_names), track=track if isinstance(track, str) else env.track.name, seed=seed, dt=env.config.dt,
+        states=np.array(states), progress=core.progress()[0].copy(),
+        lap_times=[list(t) for t in core.lap_times[0]], contacts=core.contacts[0].copy(),
+        off_tracks=core.offtracks[0].copy(), decision_ms=1e3 * decide / max(steps, 1),
+        env_step_ms=1e3 * env_time / max(steps, 1),
+        agent_stats=[dict(getattr(a, "stats", {}) or {}) for a in agents])
+    env.close()
+    return result, frames
+
+
+def write_outputs(result: RaceResult, frames: list, out: Path, animation: str = "gif") -> dict:
+    """Write ``result.json``, ``trajectories.png`` and the animation into ``out``; returns paths."""
+    from racing_env.raceline import get_raceline
+    from racing_env.render import plot_trajectories, save_animation
+    from racing_env.tracks import make_track
+
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"summary": out / "result.json", "trajectories": out / "trajectories.png"}
+    tmp = paths["summary"].with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(result.summary(), indent=2))
+    tmp.replace(paths["summary"])
+    track = make_track(result.track)
+    rl = get_raceline(track)
+    plot_trajectories(track, result.states, paths["trajectories"], raceline_xy=(rl.x, rl.y),
+                      labels=[f"car_{i} ({a})" for i, a in enumerate(result.agents)])
+    if frames:
+        paths["animation"] = out / f"race.{animation}"
+        save_animation(frames, paths["animation"], fps=int(round(1.0 / result.dt)))
+    return paths

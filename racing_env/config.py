@@ -1,0 +1,126 @@
+"""Typed configuration of a race: rules, start positions, episode and observation settings."""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+
+from .vehicle import VehicleParams
+
+START_MODES = ("grid", "regions", "random")
+MAX_CARS = 8
+
+
+def _positive(obj, *names):
+    for name in names:
+        v = getattr(obj, name)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ValueError(f"{type(obj).__name__}.{name} must be a positive number, got {v!r}")
+
+
+@dataclass(frozen=True)
+class RulesConfig:
+    """The paper's racing rules (section 2.2), applied after every control period.
+
+    * Contact: two cars closer than ``contact_ds`` along the track *and* ``contact_dn``
+      sideways (their bodies overlap, by default) are slowed: the car in front to
+      ``front_factor * vx`` (paper: 1/2), the car behind to ``rear_factor * vx`` (paper: 1/3).
+    * Off track: a car beyond an edge (``n > w_left`` or ``n < -w_right``) is slowed to
+      ``offtrack_factor * vx`` (paper: 1/2) and re-aligned with the track
+      (``mu = 0``; we also zero ``vy`` and ``omega``).
+    * A wall ``wall_margin`` m beyond each edge stops a car sideways.
+    """
+
+    contact: bool = True
+    contact_ds: float = 0.12      # [m] default: one car length
+    contact_dn: float = 0.06      # [m] default: one car width
+    front_factor: float = 0.5
+    rear_factor: float = 1.0 / 3.0
+    offtrack: bool = True
+    offtrack_factor: float = 0.5
+    wall_margin: float = 0.15     # [m]
+    max_substeps: int = 100       # cap of RK4 sub-steps per control period
+    substep_gain: float = 1.0     # >1 takes more sub-steps than stability needs
+
+    def __post_init__(self):
+        _positive(self, "contact_ds", "contact_dn", "wall_margin", "max_substeps", "substep_gain")
+        for name in ("front_factor", "rear_factor", "offtrack_factor"):
+            v = getattr(self, name)
+            if not (0.0 <= v <= 1.0):
+                raise ValueError(f"RulesConfig.{name} must be in [0, 1], got {v!r}")
+
+    def pack(self) -> np.ndarray:
+        """Vector for the compiled step (layout: ``simulator.R_*``)."""
+        return np.array([float(self.contact), self.contact_ds, self.contact_dn, self.front_factor,
+                         self.rear_factor, float(self.offtrack), self.offtrack_factor,
+                         float(self.max_substeps), self.substep_gain])
+
+
+@dataclass(frozen=True)
+class StartConfig:
+    """Where cars start.
+
+    * ``grid``: a two-column grid behind ``s0``, car_0 on pole, rows ``grid_gap`` m apart.
+    * ``regions``: the paper's start regions R1 (front-most, ending at ``s0``), R2, R3, ...
+      each ``region_length`` m long and ``region_gap`` m apart; each car gets one region (a
+      random order unless ``order`` is given to reset) and a uniform random position in it,
+      with a random lateral offset of at most ``lateral_jitter`` of the usable half width.
+    * ``random``: anywhere on the track, at least ``min_gap`` m apart along it.
+    """
+
+    mode: str = "regions"
+    s0: float = 0.0
+    grid_gap: float = 0.3
+    region_length: float = 0.4
+    region_gap: float = 0.6
+    lateral_jitter: float = 0.8
+    min_gap: float = 0.3
+    speed: float = 0.0            # initial vx [m/s]
+
+    def __post_init__(self):
+        if self.mode not in START_MODES:
+            raise ValueError(f"start mode must be one of {START_MODES}, got {self.mode!r}")
+        _positive(self, "grid_gap", "region_length", "min_gap")
+        if self.region_gap < 0 or not (0 <= self.lateral_jitter <= 1) or self.speed < 0:
+            raise ValueError(f"invalid StartConfig: region_gap {self.region_gap} (>= 0), "
+                             f"lateral_jitter {self.lateral_jitter} (in [0, 1]), "
+                             f"speed {self.speed} (>= 0)")
+
+
+@dataclass(frozen=True)
+class RaceConfig:
+    """Everything that defines a race apart from the track.
+
+    ``max_cycles`` control periods of ``dt`` s (default 500 x 0.1 s = 50 s, the paper's race);
+    with ``laps`` set, the race also ends when the first car completes that many laps.
+    Observations carry a curvature preview of ``n_preview`` values ``preview_ds`` m apart.
+    """
+
+    n_cars: int = 3
+    dt: float = 0.1
+    max_cycles: int = 500
+    laps: int | None = None
+    vehicle: VehicleParams = field(default_factory=VehicleParams)
+    rules: RulesConfig = field(default_factory=RulesConfig)
+    start: StartConfig = field(default_factory=StartConfig)
+    n_preview: int = 10
+    preview_ds: float = 0.25
+
+    def __post_init__(self):
+        if not (isinstance(self.n_cars, (int, np.integer)) and 1 <= self.n_cars <= MAX_CARS):
+            raise ValueError(f"n_cars must be an integer in 1..{MAX_CARS}, got {self.n_cars!r}")
+        if not (isinstance(self.max_cycles, (int, np.integer)) and self.max_cycles >= 1):
+            raise ValueError(f"max_cycles must be a positive integer, got {self.max_cycles!r}")
+        if self.laps is not None and not (isinstance(self.laps, (int, np.integer)) and self.laps >= 1):
+            raise ValueError(f"laps must be None or a positive integer, got {self.laps!r}")
+        if not (isinstance(self.n_preview, (int, np.integer)) and self.n_preview >= 0):
+            raise ValueError(f"n_preview must be a non-negative integer, got {self.n_preview!r}")
+        _positive(self, "dt", "preview_ds")
+
+    def with_(self, **changes) -> "RaceConfig":
+        """A copy with some fields changed (validated)."""
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        return asdict(self)

@@ -1,0 +1,246 @@
+"""The one race core: ``B`` races of ``N`` cars on a track, stepped together.
+
+:class:`BatchedRaces` is the batched path (data collection, RL training) and the engine inside
+the PettingZoo and Gymnasium environments, which run it with ``n_races=1``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .config import RaceConfig, StartConfig
+from .simulator import TrackTables, observe, observe_parallel, step_races, step_races_parallel
+
+PARALLEL_MIN_RACES = 16
+"""Batches of at least this many races are stepped by the multi-threaded kernels."""
+from .track import Track
+from .tracks import make_track
+
+S_CLIP = 1.0e4
+"""Bound [m] of the relative progress entries of an observation."""
+
+
+def start_states(track: Track, n_cars: int, start: StartConfig, width: float,
+                 rng: np.random.Generator, order=None) -> np.ndarray:
+    """Initial states (n_cars, 6) for one race; see :class:`StartConfig` for the modes.
+
+    ``order`` (regions mode): ``order[i]`` is the region index (0 = R1, front-most) of car i;
+    default a random permutation.
+    """
+    x = np.zeros((n_cars, 6))
+    wl, wr = track.widths(np.array([start.s0]))
+    usable = max(float(min(wl[0], wr[0])) - width / 2.0, 0.0)
+    if start.mode == "grid":
+        for i in range(n_cars):
+            row, col = divmod(i, 2)
+            x[i, 0] = start.s0 - row * start.grid_gap - col * start.grid_gap / 2.0
+            x[i, 1] = (0.5 if col == 0 else -0.5) * usable
+    elif start.mode == "regions":
+        span = n_cars * start.region_length + (n_cars - 1) * start.region_gap
+        if span > 0.5 * track.length:
+            raise ValueError(f"{n_cars} start regions span {span:.2f} m, over half the track "
+                             f"length {track.length:.2f} m; shorten region_length/region_gap")
+        order = rng.permutation(n_cars) if order is None else np.asarray(order)
+        if sorted(order.tolist()) != list(range(n_cars)):
+            raise ValueError(f"start order must be a permutation of 0..{n_cars - 1}, got {order.tolist()}")
+        for i in range(n_cars):
+            front = start.s0 - order[i] * (start.region_length + start.region_gap)
+            x[i, 0] = front - rng.uniform(0.0, start.region_length)
+            x[i, 1] = rng.uniform(-1.0, 1.0) * start.lateral_jitter * usable
+    else:  # random
+        if n_cars * start.min_gap > track.length:
+            raise ValueError(f"{n_cars} cars at least {start.min_gap} m apart do not fit on "
+                             f"a {track.length:.2f} m track")
+        s = []
+        while len(s) < n_cars:
+            c = rng.uniform(0.0, track.length)
+            if all(abs((c - o + track.length / 2) % track.length - track.length / 2) >= start.min_gap for o in s):
+                s.append(c)
+        x[:, 0] = s
+        wl, wr = track.widths(x[:, 0])
+        lim = np.maximum(np.minimum(wl, wr) - width / 2.0, 0.0)
+        x[:, 1] = rng.uniform(-1.0, 1.0, n_cars) * start.lateral_jitter * lim
+    x[:, 3] = start.speed
+    return x
+
+
+class BatchedRaces:
+    """``n_races`` independent races of ``config.n_cars`` cars on one track.
+
+    Arrays (B = n_races, N = n_cars, D = obs_dim):
+
+    * ``state`` (B, N, 6): per car ``(s, n, mu, vx, vy, omega)``, s unwrapped [m].
+    * :meth:`step` takes normalised actions (B, N, 2) in [-1, 1]: throttle (-1 full brake,
+      +1 full throttle, mapped affinely onto [d_min, d_max]) and steering (mapped onto
+      [-delta_max, delta_max], +1 steers left). Values outside [-1, 1] are clipped; NaN raises.
+    * Observations (B, N, D) float32, layout in :func:`racing_env.simulator.observe`.
+
+    Each race keeps its own step counter, lap counts and lap times; the start/finish line of
+    a race is the start position of its front-most car.
+    """
+
+    def __init__(self, track: "Track | str" = "default", config: RaceConfig | None = None,
+                 n_races: int = 1, seed: int | None = None):
+        if not (isinstance(n_races, (int, np.integer)) and n_races >= 1):
+            raise ValueError(f"n_races must be a positive integer, got {n_races!r}")
+        self.track = make_track(track)
+        self.config = config or RaceConfig()
+        self.n_races = int(n_races)
+        self._tables = TrackTables.from_track(self.track, self.config.rules.wall_margin)
+        self._params = self.config.vehicle.pack()
+        self._rules = self.config.rules.pack()
+        self.rng = np.random.default_rng(seed)
+        self._alloc()
+
+    # ------------------------------------------------------------------ set-up
+    def _alloc(self):
+        b, n = self.n_races, self.config.n_cars
+        self.state = np.zeros((b, n, 6))
+        self.start = np.zeros((b, n, 6))
+        self.t = np.zeros(b, dtype=np.int64)
+        self.s_line = np.zeros(b)
+        self.laps = np.zeros((b, n), dtype=np.int64)
+        self.lap_times: list[list[list[float]]] = [[[] for _ in range(n)] for _ in range(b)]
+        self.contacts = np.zeros((b, n), dtype=np.int64)
+        self.offtracks = np.zeros((b, n), dtype=np.int64)
+        self.reward = np.zeros((b, n))
+        self.contact = np.zeros((b, n), dtype=np.int8)
+        self.offtrack = np.zeros((b, n), dtype=np.int8)
+        self.substeps = np.zeros((b, n), dtype=np.int32)
+        self._obs = np.zeros((b, n, self.obs_dim), dtype=np.float32)
+        self._phys = np.zeros((b, n, 2))
+        v = self.config.vehicle
+        self._d_mid, self._d_half = 0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min)
+
+    @property
+    def n_cars(self) -> int:
+        return self.config.n_cars
+
+    @property
+    def obs_dim(self) -> int:
+        return 6 * self.config.n_cars + self.config.n_preview
+
+    def set_n_cars(self, n_cars: int) -> None:
+        """Change the number of cars (takes effect now; call :meth:`reset` next)."""
+        if n_cars != self.config.n_cars:
+            self.config = self.config.with_(n_cars=n_cars)
+            self._alloc()
+
+    def reset(self, seed: int | None = None, races=None, order=None, start: StartConfig | None = None):
+        """Put races (default: all; or an index array) on the start line; returns observations.
+
+        ``seed`` reseeds the race generator (same seed, same starts). ``order`` fixes the
+        start regions of the cars (see :func:`start_states`); ``start`` overrides the config.
+        """
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        idx = np.arange(self.n_races) if races is None else np.atleast_1d(races)
+        start = start or self.config.start
+        for b in idx:
+            self.state[b] = start_states(self.track, self.n_cars, start, self.config.vehicle.width,
+                                         self.rng, order)
+            self.start[b] = self.state[b]
+            self.s_line[b] = self.state[b, :, 0].max()
+            self.t[b] = 0
+            self.laps[b] = 0
+            self.lap_times[b] = [[] for _ in range(self.n_cars)]
+            self.contacts[b] = 0
+            self.offtracks[b] = 0
+        self.reward[idx] = 0.0
+        self.contact[idx] = 0
+        self.offtrack[idx] = 0
+        return self.observe()
+
+    # ------------------------------------------------------------------ stepping
+    def to_physical(self, actions) -> np.ndarray:
+        """Normalised actions (..., 2) -> physical (d, delta); clips to [-1, 1], rejects NaN."""
+        a = np.asarray(actions, dtype=np.float64)
+        if a.shape != self._phys.shape:
+            raise ValueError(f"actions must have shape {self._phys.shape} (races, cars, 2), got {a.shape}")
+        if not np.isfinite(a).all():
+            b, i, _ = np.argwhere(~np.isfinite(a))[0]
+            raise ValueError(f"action of car {i} in race {b} is not finite: {a[b, i].tolist()}")
+        np.clip(a, -1.0, 1.0, out=self._phys)
+        self._phys[..., 0] = self._d_mid + self._d_half * self._phys[..., 0]
+        self._phys[..., 1] *= self.config.vehicle.delta_max
+        return self._phys
+
+    def step_physical(self, phys: np.ndarray):
+        """Advance all races by one control period with physical inputs (B, N, 2) = (d, delta)."""
+        tb = self._tables
+        before = self.state[:, :, 0].copy()
+        kernel = step_races_parallel if self.n_races >= PARALLEL_MIN_RACES else step_races
+        kernel(self.state, phys, tb.kappa, tb.w_left, tb.w_right, tb.wall_left, tb.wall_right,
+                   tb.ds, tb.length, self._params, self.config.dt, self._rules,
+                   self.reward, self.contact, self.offtrack, self.substeps)
+        if not np.isfinite(self.state).all():
+            b, i = np.argwhere(~np.isfinite(self.state).all(axis=2))[0]
+            raise FloatingPointError(f"simulation produced a non-finite state for car {i} in race {b} "
+                                     f"at step {self.t[b]}: {self.state[b, i].tolist()} "
+                                     f"(inputs {phys[b, i].tolist()})")
+        self.t += 1
+        self.contacts += self.contact
+        self.offtracks += self.offtrack
+        self._count_laps(before)
+
+    def _count_laps(self, before: np.ndarray):
+        length = self.track.length
+        rel_after = (self.state[:, :, 0] - self.s_line[:, None]) / length
+        laps = np.maximum(np.floor(rel_after), 0).astype(np.int64)
+        crossed = np.argwhere(laps > self.laps)
+        for b, i in crossed:
+            s0, s1 = before[b, i], self.state[b, i, 0]
+            line = self.s_line[b] + laps[b, i] * length
+            frac = (line - s0) / (s1 - s0) if s1 > s0 else 1.0
+            self.lap_times[b][i].append(float((self.t[b] - 1 + frac) * self.config.dt))
+        self.laps = np.maximum(self.laps, laps)
+
+    def step(self, actions):
+        """One control period for every race with normalised actions (B, N, 2).
+
+        Returns ``(obs, reward, terminated, truncated)``: obs (B, N, D) float32, reward (B, N)
+        (change of s_i - max_{j != i} s_j [m]), terminated (B,) (a car finished ``laps``),
+        truncated (B,) (``max_cycles`` reached). Per-car flags of this step are in
+        ``contact``, ``offtrack`` and ``substeps``; totals in ``contacts``, ``offtracks``.
+        """
+        self.step_physical(self.to_physical(actions))
+        return self.observe(), self.reward.copy(), self.terminated(), self.truncated()
+
+    def terminated(self) -> np.ndarray:
+        if self.config.laps is None:
+            return np.zeros(self.n_races, dtype=bool)
+        return self.laps.max(axis=1) >= self.config.laps
+
+    def truncated(self) -> np.ndarray:
+        return self.t >= self.config.max_cycles
+
+    def observe(self) -> np.ndarray:
+        tb = self._tables
+        kernel = observe_parallel if self.n_races >= PARALLEL_MIN_RACES else observe
+        kernel(self.state, tb.kappa, tb.ds, tb.length, self.config.preview_ds,
+                self.config.n_preview, S_CLIP, self._obs)
+        return self._obs.copy()
+
+    def progress(self) -> np.ndarray:
+        """Distance driven since the start [m], (B, N)."""
+        return self.state[:, :, 0] - self.start[:, :, 0]
+
+    def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) of one car's observation, shape (D,) each."""
+        tb, v, n = self._tables, self.config.vehicle, self.n_cars
+        wall = float(max(tb.wall_left.max(), tb.wall_right.max())) + 1e-6
+        vmax = 1.5 * max(v.top_speed, self.config.start.speed) + 1.0
+        own_hi = np.array([self.track.length, wall, np.pi, vmax, vmax, 100.0])
+        own_lo = np.array([0.0, -wall, -np.pi, 0.0, -vmax, -100.0])
+        rel_hi = np.array([S_CLIP, 2 * wall, np.pi, vmax, 2 * vmax, 200.0])
+        kmax = float(np.abs(tb.kappa).max()) + 1e-6
+        hi = np.concatenate([own_hi, np.tile(rel_hi, n - 1), np.full(self.config.n_preview, kmax)])
+        lo = np.concatenate([own_lo, np.tile(-rel_hi, n - 1), np.full(self.config.n_preview, -kmax)])
+        return lo.astype(np.float32), hi.astype(np.float32)
+
+    def state_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) of one car's physical state used as the documented envelope (6,)."""
+        tb, v = self._tables, self.config.vehicle
+        wall = float(max(tb.wall_left.max(), tb.wall_right.max())) + 1e-6
+        vmax = 1.5 * max(v.top_speed, self.config.start.speed) + 1.0
+        return (np.array([-np.inf, -wall, -np.pi, 0.0, -vmax, -100.0]),
+                np.array([np.inf, wall, np.pi, vmax, vmax, 100.0]))

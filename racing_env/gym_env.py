@@ -1,0 +1,89 @@
+"""Gymnasium single-agent env: one learner races opponents that are given as agents."""
+from __future__ import annotations
+
+from typing import Sequence
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .config import RaceConfig, StartConfig
+from .parallel_env import RacingParallelEnv
+from .track import Track
+
+
+class HeadToHeadEnv(gym.Env):
+    """The learner drives ``car_0``; every other car is driven by an opponent agent.
+
+    Registered as ``alpha_racer/HeadToHead-v0``.
+
+    **Action space**: ``Box(-1, 1, (2,), float32)``, ``[throttle, steering]`` as in
+    :class:`racing_env.RacingParallelEnv`.
+
+    **Observation space**: ``car_0``'s observation in :class:`RacingParallelEnv` (own Frenet
+    state, opponents relative to it, curvature preview), ``Box`` float32 of ``6 N + n_preview``.
+
+    **Reward**: ``car_0``'s relative progress per step, the change of ``s_0 - max_{j>0} s_j`` [m].
+
+    **Episode end**: ``terminated`` when a car completes ``laps`` (if set); ``truncated`` after
+    ``max_cycles`` steps (default 500 = 50 s).
+
+    **Arguments**: ``opponents``: a sequence of agents (objects with ``reset(track, agent_id,
+    seed)`` and ``act(observation) -> action``), one per opponent car; default two
+    :class:`racing_env.controllers.RacelineFollower` s at 0.8 and 0.85 of the racing-line
+    speed. ``n_cars`` defaults to ``1 + len(opponents)``. Other keywords (``track``,
+    ``max_cycles``, ``laps``, ``start``, ``vehicle``, ``rules``, ``config``, ``render_mode``)
+    go to :class:`RacingParallelEnv`. ``reset(options=...)`` accepts ``start`` and ``order``.
+
+    **Info**: the learner's per-step info of the parallel env.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+
+    def __init__(self, opponents: Sequence | None = None, track: "str | Track" = "default",
+                 render_mode: str | None = None, config: RaceConfig | None = None,
+                 start: "str | StartConfig | None" = None, **kwargs):
+        if opponents is None:
+            from .controllers import RacelineFollower
+            opponents = [RacelineFollower(speed_scale=0.8), RacelineFollower(speed_scale=0.85)]
+        self.opponents = list(opponents)
+        for k, opp in enumerate(self.opponents):
+            if not (callable(getattr(opp, "act", None)) and callable(getattr(opp, "reset", None))):
+                raise ValueError(f"opponent {k} ({opp!r}) must have reset(track, agent_id, seed) "
+                                 f"and act(observation) methods")
+        n_cars = kwargs.pop("n_cars", 1 + len(self.opponents))
+        if n_cars != 1 + len(self.opponents):
+            raise ValueError(f"n_cars = {n_cars} but {len(self.opponents)} opponents were given; "
+                             f"n_cars must be 1 + number of opponents")
+        self.race = RacingParallelEnv(track=track, n_cars=n_cars, render_mode=render_mode,
+                                      config=config, start=start, **kwargs)
+        self.render_mode = render_mode
+        self.learner = self.race.possible_agents[0]
+        self.observation_space = self.race.observation_space(self.learner)
+        self.action_space = self.race.action_space(self.learner)
+        self._last_obs = None
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        race_seed = int(self.np_random.integers(2 ** 31))
+        obs, infos = self.race.reset(seed=race_seed, options=options)
+        for k, opp in enumerate(self.opponents):
+            opp.reset(self.race.track, self.race.possible_agents[k + 1], race_seed + k + 1)
+        self._last_obs = obs
+        return obs[self.learner], infos[self.learner]
+
+    def step(self, action):
+        actions = {self.learner: np.asarray(action, dtype=np.float32)}
+        for k, opp in enumerate(self.opponents):
+            agent = self.race.possible_agents[k + 1]
+            actions[agent] = opp.act(self._last_obs[agent])
+        obs, rew, term, trunc, infos = self.race.step(actions)
+        self._last_obs = obs
+        a = self.learner
+        return obs[a], rew[a], term[a], trunc[a], infos[a]
+
+    def render(self):
+        return self.race.render()
+
+    def close(self):
+        self.race.close()

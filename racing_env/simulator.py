@@ -1,0 +1,244 @@
+"""Compiled (numba) step of many races at once: integration, racing rules, reward, observations.
+
+Everything here works on plain arrays so that one call advances ``B`` races of ``N`` cars:
+
+* ``state``  (B, N, 6) float64, per car ``(s, n, mu, vx, vy, omega)`` with unwrapped ``s``;
+* ``action`` (B, N, 2) float64, physical ``(d, delta)`` (already within the vehicle's bounds);
+* a :class:`TrackTables` of per-grid-point curvature, edges and walls.
+
+One control period ``dt`` is integrated with classical RK4 sub-steps whose number adapts to
+the stiffness of the lateral dynamics (many at a standing start, two at racing speed), so the
+integration is stable at every speed. After the dynamics the paper's rules apply (see
+:class:`racing_env.config.RulesConfig`): contact slow-down and off-track slow-down with
+re-alignment. A car cannot go more than ``wall_margin`` beyond an edge (a wall stops it
+sideways) and cannot roll backwards (``vx >= 0``: a brake stops a car, it does not reverse it).
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import types
+from dataclasses import dataclass
+
+import numpy as np
+import numba
+from numba import njit, prange
+from pathlib import Path
+
+from .track import Track
+from .vehicle import P_BF, P_BR, P_CF, P_CR, P_DF, P_DR, P_IZ, P_LF, P_LR, P_M, P_VLOW, bind, frenet_ode
+
+
+def _kernel_cache_dir() -> str | None:
+    """numba caches compiled kernels per source file, blind to changes in the files they call
+    (vehicle.py). Keep our cache in a folder named by a hash of both sources instead."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return None
+    h = hashlib.sha1()
+    for mod in (Path(__file__), Path(__file__).with_name("vehicle.py")):
+        h.update(mod.read_bytes())
+    base = Path(os.environ.get("ALPHA_RACER_CACHE", Path.home() / ".cache" / "alpha_racer"))
+    return str(base / "numba" / h.hexdigest()[:16])
+
+
+_saved_cache_dir = numba.config.CACHE_DIR
+numba.config.CACHE_DIR = _kernel_cache_dir() or _saved_cache_dir
+
+_ode = njit(cache=True)(bind(frenet_ode, math))
+
+# rule vector layout (see RulesConfig.pack)
+R_CONTACT_ON, R_CONTACT_DS, R_CONTACT_DN, R_FRONT, R_REAR, R_OFF_ON, R_OFF_FACTOR, R_MAX_SUB, R_SUB_GAIN = range(9)
+
+
+@dataclass(frozen=True)
+class TrackTables:
+    """Per-grid-point tables of a track, shape (M,) each, for the compiled kernels."""
+
+    kappa: np.ndarray
+    w_left: np.ndarray
+    w_right: np.ndarray
+    wall_left: np.ndarray
+    wall_right: np.ndarray
+    ds: float
+    length: float
+
+    @classmethod
+    def from_track(cls, track: Track, wall_margin: float) -> "TrackTables":
+        """Walls sit ``wall_margin`` m beyond each edge, and never closer than 10% of the
+        radius of curvature to its centre (keeps ``1 - n kappa >= 0.1``)."""
+        k = track.kappa
+        with np.errstate(divide="ignore"):
+            lim_l = np.where(k > 0, 0.9 / np.abs(k), np.inf)
+            lim_r = np.where(k < 0, 0.9 / np.abs(k), np.inf)
+        wall_l = np.minimum(track.w_left + wall_margin, lim_l)
+        wall_r = np.minimum(track.w_right + wall_margin, lim_r)
+        f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
+        return cls(f64(k), f64(track.w_left), f64(track.w_right), f64(wall_l), f64(wall_r),
+                   float(track.ds), float(track.length))
+
+
+@njit(cache=True, inline="always")
+def _lookup(table, s, ds, length):
+    f = (s % length) / ds
+    i = int(f)
+    t = f - i
+    m = table.shape[0]
+    i = i % m
+    return table[i] * (1.0 - t) + table[(i + 1) % m] * t
+
+
+@njit(cache=True)
+def _n_substeps(vx, p, dt, gain, max_sub):
+    """Sub-steps for stable RK4: h * lambda_max <= 2 / gain (RK4 is stable to about 2.8)."""
+    ca_f = p[P_BF] * p[P_CF] * p[P_DF]
+    ca_r = p[P_BR] * p[P_CR] * p[P_DR]
+    # with the low-speed force fade, C / (m v) peaks near C / (m 2 v_low)
+    v = math.sqrt(vx * vx + 4.0 * p[P_VLOW] * p[P_VLOW])
+    lam = (ca_f + ca_r) / (p[P_M] * v) + (ca_f * p[P_LF] ** 2 + ca_r * p[P_LR] ** 2) / (p[P_IZ] * v)
+    k = int(math.ceil(dt * lam * gain / 2.0))
+    return min(max(k, 2), max_sub)
+
+
+@njit(cache=True)
+def integrate_car(x, d, delta, kappa_tab, ds, length, p, dt, n_sub):
+    """Advance one car's state ``x`` (6,) in place over ``dt`` with ``n_sub`` RK4 steps."""
+    h = dt / n_sub
+    for _ in range(n_sub):
+        s, n, mu, vx, vy, om = x[0], x[1], x[2], x[3], x[4], x[5]
+        k1 = _ode(n, mu, vx, vy, om, d, delta, _lookup(kappa_tab, s, ds, length), p)
+        s2 = s + 0.5 * h * k1[0]
+        k2 = _ode(n + 0.5 * h * k1[1], mu + 0.5 * h * k1[2], vx + 0.5 * h * k1[3],
+                  vy + 0.5 * h * k1[4], om + 0.5 * h * k1[5], d, delta,
+                  _lookup(kappa_tab, s2, ds, length), p)
+        s3 = s + 0.5 * h * k2[0]
+        k3 = _ode(n + 0.5 * h * k2[1], mu + 0.5 * h * k2[2], vx + 0.5 * h * k2[3],
+                  vy + 0.5 * h * k2[4], om + 0.5 * h * k2[5], d, delta,
+                  _lookup(kappa_tab, s3, ds, length), p)
+        s4 = s + h * k3[0]
+        k4 = _ode(n + h * k3[1], mu + h * k3[2], vx + h * k3[3], vy + h * k3[4], om + h * k3[5],
+                  d, delta, _lookup(kappa_tab, s4, ds, length), p)
+        for j in range(6):
+            x[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+        if x[3] < 0.0:
+            x[3] = 0.0
+        if x[2] > math.pi or x[2] < -math.pi:
+            x[2] = (x[2] + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _step_races(state, action, kappa_tab, w_left, w_right, wall_left, wall_right, ds, length,
+               p, dt, rules, reward, contact, offtrack, substeps):
+    """Advance every race in ``state`` (B, N, 6) by one control period, in place.
+
+    Writes per car: ``reward`` (B, N) the change of (s_i - max_{j != i} s_j) (just the change
+    of s_i when N == 1), ``contact`` (B, N) 1 if the contact rule hit the car, ``offtrack``
+    (B, N) 1 if the car ended the step beyond an edge, ``substeps`` (B, N) RK4 sub-steps used.
+    """
+    n_races, n_cars = state.shape[0], state.shape[1]
+    max_sub = int(rules[R_MAX_SUB])
+    gain = rules[R_SUB_GAIN]
+    half = 0.5 * length
+    for b in prange(n_races):
+        factor = np.empty(n_cars)
+        before = np.empty(n_cars)
+        for i in range(n_cars):
+            before[i] = state[b, i, 0]
+        for i in range(n_cars):
+            x = state[b, i]
+            k = _n_substeps(x[3], p, dt, gain, max_sub)
+            substeps[b, i] = k
+            integrate_car(x, action[b, i, 0], action[b, i, 1], kappa_tab, ds, length, p, dt, k)
+            # wall: a car cannot go further than the wall; it stops sideways there
+            wl = _lookup(wall_left, x[0], ds, length)
+            wr = _lookup(wall_right, x[0], ds, length)
+            if x[1] > wl or x[1] < -wr:
+                x[1] = wl if x[1] > wl else -wr
+                x[2] = 0.0
+                x[4] = 0.0
+                x[5] = 0.0
+        # rules
+        for i in range(n_cars):
+            factor[i] = 1.0
+            contact[b, i] = 0
+            offtrack[b, i] = 0
+        if rules[R_CONTACT_ON] > 0.0:
+            for i in range(n_cars):
+                for j in range(i + 1, n_cars):
+                    dsij = (state[b, i, 0] - state[b, j, 0] + half) % length - half
+                    if abs(dsij) < rules[R_CONTACT_DS] and \
+                            abs(state[b, i, 1] - state[b, j, 1]) < rules[R_CONTACT_DN]:
+                        front, rear = (i, j) if dsij >= 0.0 else (j, i)
+                        factor[front] = min(factor[front], rules[R_FRONT])
+                        factor[rear] = min(factor[rear], rules[R_REAR])
+                        contact[b, i] = 1
+                        contact[b, j] = 1
+        for i in range(n_cars):
+            x = state[b, i]
+            if x[1] > _lookup(w_left, x[0], ds, length) or x[1] < -_lookup(w_right, x[0], ds, length):
+                offtrack[b, i] = 1
+                if rules[R_OFF_ON] > 0.0:
+                    factor[i] = min(factor[i], rules[R_OFF_FACTOR])
+                    x[2] = 0.0
+                    x[4] = 0.0
+                    x[5] = 0.0
+            x[3] *= factor[i]
+        # reward: change of (s_i - max_{j != i} s_j)
+        for i in range(n_cars):
+            if n_cars == 1:
+                reward[b, i] = state[b, i, 0] - before[i]
+                continue
+            lead_before = -np.inf
+            lead_after = -np.inf
+            for j in range(n_cars):
+                if j != i:
+                    lead_before = max(lead_before, before[j])
+                    lead_after = max(lead_after, state[b, j, 0])
+            reward[b, i] = (state[b, i, 0] - lead_after) - (before[i] - lead_before)
+
+
+def _observe(state, kappa_tab, ds, length, preview_ds, n_preview, s_clip, out):
+    """Per-car observations ``out`` (B, N, 6 + 6 (N - 1) + n_preview) float32 from ``state``.
+
+    Layout for car i: own ``(s mod length, n, mu, vx, vy, omega)``; then for every other car j
+    in index order ``(s_j - s_i, n_j - n_i, wrap(mu_j - mu_i), vx_j - vx_i, vy_j - vy_i,
+    omega_j - omega_i)`` with unwrapped s difference clipped to +-s_clip; then kappa at
+    ``s_i + k * preview_ds`` for k = 0..n_preview-1.
+    """
+    n_races, n_cars = state.shape[0], state.shape[1]
+    for b in prange(n_races):
+        for i in range(n_cars):
+            o = out[b, i]
+            xi = state[b, i]
+            o[0] = xi[0] % length
+            for c in range(1, 6):
+                o[c] = xi[c]
+            col = 6
+            for j in range(n_cars):
+                if j == i:
+                    continue
+                xj = state[b, j]
+                o[col] = min(max(xj[0] - xi[0], -s_clip), s_clip)
+                o[col + 1] = xj[1] - xi[1]
+                o[col + 2] = (xj[2] - xi[2] + math.pi) % (2.0 * math.pi) - math.pi
+                for c in range(3, 6):
+                    o[col + c] = xj[c] - xi[c]
+                col += 6
+            for k in range(n_preview):
+                o[col + k] = _lookup(kappa_tab, xi[0] + k * preview_ds, ds, length)
+
+
+# Each kernel is compiled twice from the same source: serial (one race, no thread start-up
+# cost: the PettingZoo/Gymnasium envs) and parallel over races (the batched path).
+# (distinct qualnames keep numba's on-disk caches of the two variants apart)
+def _variant(fn, suffix):
+    g = types.FunctionType(fn.__code__, fn.__globals__, fn.__name__ + suffix, fn.__defaults__)
+    g.__qualname__ = fn.__qualname__ + suffix
+    return g
+
+
+step_races = njit(cache=True)(_variant(_step_races, "_serial"))
+step_races_parallel = njit(cache=True, parallel=True)(_variant(_step_races, "_parallel"))
+observe = njit(cache=True)(_variant(_observe, "_serial"))
+observe_parallel = njit(cache=True, parallel=True)(_variant(_observe, "_parallel"))
+
+numba.config.CACHE_DIR = _saved_cache_dir

@@ -1,0 +1,242 @@
+"""Track sources: the built-in circuits, a seeded procedural generator, and the TUMFTM CSV loader.
+
+* ``make_track("default")`` is our own circuit (about 33 m of 0.5 m wide track, sized for the
+  1:43 cars of :mod:`racing_env.vehicle`): a long straight, a hairpin, a chicane, fast
+  sweepers and a few medium corners.
+* ``make_track("oval")`` a simple oval, handy for tests.
+* ``make_track("random:SEED")`` / :func:`random_track` a random closed track from a seed.
+* ``load_tumftm_csv(path, scale=...)`` reads the TUMFTM racetrack-database format
+  (``# x_m,y_m,w_tr_right_m,w_tr_left_m``).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .track import Track
+
+DEFAULT_HALF_WIDTH = 0.25
+"""Half width [m] of the built-in tracks: 0.5 m fits three 0.06 m wide cars abreast with room."""
+
+# The default circuit as (kind, length or angle, radius) pieces, driven counter-clockwise.
+# Angles in degrees (left positive); the two "close" straights get the lengths that close the loop.
+_DEFAULT_LAYOUT = (
+    ("straight", "close", None),  # main straight (start/finish at s = 0)
+    ("arc", 180.0, 0.8),          # hairpin
+    ("straight", 2.0, None),
+    ("arc", -60.0, 2.5),          # fast right sweeper
+    ("straight", "close", None),
+    ("arc", 60.0, 2.5),           # fast left sweeper
+    ("straight", 1.0, None),
+    ("arc", -40.0, 0.8),          # chicane
+    ("arc", 80.0, 0.8),
+    ("arc", -40.0, 0.8),
+    ("straight", 1.5, None),
+    ("arc", 90.0, 1.2),           # medium left
+    ("straight", 1.0, None),
+    ("arc", -90.0, 1.0),          # tight right
+    ("arc", 150.0, 1.1),          # long left onto the straight
+    ("straight", 1.0, None),
+    ("arc", 30.0, 2.0),
+)
+
+
+def _layout_geometry(layout, close_lengths=None, ds=0.01):
+    """Integrate a piece list into (x, y). Returns points and the closure displacement."""
+    heading, pos, pts = 0.0, np.zeros(2), []
+    k_close = 0
+    for kind, a, r in layout:
+        if kind == "straight":
+            length = close_lengths[k_close] if a == "close" else a
+            k_close += a == "close"
+            kap = 0.0
+        else:
+            length = abs(np.deg2rad(a)) * r
+            kap = np.sign(a) / r
+        m = max(int(np.ceil(length / ds)), 1)
+        h = length / m
+        for _ in range(m):
+            pts.append(pos.copy())
+            # exact arc step
+            if kap == 0.0:
+                pos = pos + h * np.array([np.cos(heading), np.sin(heading)])
+            else:
+                new = heading + kap * h
+                pos = pos + np.array([np.sin(new) - np.sin(heading), np.cos(heading) - np.cos(new)]) / kap
+                heading = new
+    return np.array(pts), pos
+
+
+def _solve_closure(layout):
+    """Lengths of the 'close' straights (two of them) that bring the loop back to its start."""
+    base_len = np.zeros(2)
+    _, end0 = _layout_geometry(layout, base_len)
+    cols = []
+    for k in range(2):
+        e = np.zeros(2)
+        e[k] = 1.0
+        _, end = _layout_geometry(layout, e)
+        cols.append(end - end0)
+    lengths = np.linalg.solve(np.column_stack(cols), -end0)
+    if np.any(lengths <= 0):
+        raise ValueError(f"track layout cannot be closed with positive straights: {lengths}")
+    return lengths
+
+
+def default_track(half_width: float = DEFAULT_HALF_WIDTH) -> Track:
+    """The built-in default circuit (counter-clockwise, constant width 2 * half_width)."""
+    lengths = _solve_closure(_DEFAULT_LAYOUT)
+    pts, _ = _layout_geometry(_DEFAULT_LAYOUT, lengths, ds=0.05)
+    pts = _smooth_closed(pts, window=9)
+    w = np.full(len(pts), half_width)
+    return Track.from_centerline(pts[:, 0], pts[:, 1], w, w, name="default")
+
+
+def oval_track(straight: float = 6.0, radius: float = 1.5,
+               half_width: float = DEFAULT_HALF_WIDTH) -> Track:
+    """A stadium oval: two straights of ``straight`` m joined by half circles of ``radius`` m."""
+    layout = (("straight", straight, None), ("arc", 180.0, radius),
+              ("straight", straight, None), ("arc", 180.0, radius))
+    pts, _ = _layout_geometry(layout, ds=0.05)
+    pts = _smooth_closed(pts, window=5)
+    w = np.full(len(pts), half_width)
+    return Track.from_centerline(pts[:, 0], pts[:, 1], w, w, name="oval")
+
+
+def _smooth_closed(pts: np.ndarray, window: int) -> np.ndarray:
+    """Circular moving average: softens curvature jumps between pieces (clothoid-like)."""
+    kernel = np.ones(window) / window
+    pad = window // 2
+    out = np.empty_like(pts)
+    for d in range(2):
+        ext = np.concatenate([pts[-pad:, d], pts[:, d], pts[:pad, d]])
+        out[:, d] = np.convolve(ext, kernel, mode="valid")
+    return out
+
+
+def random_track(seed: int, length: float = 30.0, half_width: float = DEFAULT_HALF_WIDTH,
+                 n_control: int | None = None, max_tries: int = 50) -> Track:
+    """A random closed track from ``seed``: a star-shaped loop of random radii, smoothed.
+
+    The loop is scaled to ``length`` m (approximately) and redrawn until the inner edge stays
+    clear of every centre of curvature (tightest radius > 1.5 * half_width). Same seed, same
+    track.
+    """
+    if length <= 0 or half_width <= 0:
+        raise ValueError(f"random_track needs positive length and half_width, got {length}, {half_width}")
+    rng = np.random.default_rng(seed)
+    for _ in range(max_tries):
+        k = n_control or int(rng.integers(8, 14))
+        angles = np.sort(rng.uniform(0, 2 * np.pi, k))
+        angles += np.linspace(0, 2 * np.pi, k, endpoint=False) - angles  # keep ordered,
+        angles += rng.uniform(-0.3, 0.3, k) * (2 * np.pi / k)             # jittered spacing
+        radii = rng.uniform(0.55, 1.0, k)
+        # periodic spline through control points, densely sampled
+        from scipy.interpolate import CubicSpline
+        t = np.append(angles, angles[0] + 2 * np.pi)
+        r = np.append(radii, radii[0])
+        spr = CubicSpline(t, r, bc_type="periodic")
+        th = np.linspace(angles[0], angles[0] + 2 * np.pi, 400, endpoint=False)
+        rr = spr(th)
+        if np.any(rr <= 0.1):
+            continue
+        pts = np.column_stack([rr * np.cos(th), rr * np.sin(th)])
+        perim = np.sum(np.hypot(*np.diff(np.vstack([pts, pts[:1]]), axis=0).T))
+        pts *= length / perim
+        w = np.full(len(pts), half_width)
+        try:
+            track = Track.from_centerline(pts[:, 0], pts[:, 1], w, w, name=f"random:{seed}")
+        except ValueError:
+            continue
+        if np.max(np.abs(track.kappa)) * half_width * 1.5 < 1.0:
+            return track
+    raise ValueError(f"random_track(seed={seed}) found no valid track in {max_tries} tries; "
+                     f"try a larger length ({length}) or smaller half_width ({half_width})")
+
+
+def load_tumftm_csv(path: str | os.PathLike, scale: float = 1.0, name: str | None = None) -> Track:
+    """Load a TUMFTM racetrack-database CSV (``# x_m,y_m,w_tr_right_m,w_tr_left_m``).
+
+    ``scale`` multiplies every length (positions and widths), so a full-size circuit can host
+    the small default cars, e.g. ``scale=1/43``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"track file not found: {path}")
+    if not scale > 0:
+        raise ValueError(f"scale must be positive, got {scale}")
+    try:
+        data = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
+    except ValueError as exc:
+        raise ValueError(f"{path}: not a TUMFTM track CSV ({exc})") from None
+    if data.shape[1] != 4:
+        raise ValueError(f"{path}: expected 4 columns x_m,y_m,w_tr_right_m,w_tr_left_m, "
+                         f"got {data.shape[1]}")
+    data = data * scale
+    return Track.from_centerline(data[:, 0], data[:, 1], data[:, 2], data[:, 3],
+                                 name=name or path.stem)
+
+
+def tumftm_dir() -> Path | None:
+    """Folder of TUMFTM circuits if present: $ALPHA_RACER_TUMFTM or ../shared/tracks/tumftm."""
+    env = os.environ.get("ALPHA_RACER_TUMFTM")
+    cands = [Path(env)] if env else []
+    here = Path(__file__).resolve()
+    cands += [p / "shared" / "tracks" / "tumftm" for p in here.parents[:4]]
+    for c in cands:
+        if c.is_dir():
+            return c
+    return None
+
+
+BUILTIN = {"default": default_track, "oval": oval_track}
+
+
+def track_names() -> list[str]:
+    """Names accepted by :func:`make_track` (plus ``random:SEED`` and TUMFTM names/paths)."""
+    names = sorted(BUILTIN)
+    d = tumftm_dir()
+    if d is not None:
+        names += [f"tumftm:{p.stem}" for p in sorted(d.glob("*.csv"))]
+    return names
+
+
+_CACHE: dict[tuple, Track] = {}
+
+
+def make_track(spec: "str | Track", scale: float | None = None) -> Track:
+    """Build a track from a name: ``default``, ``oval``, ``random:SEED``, ``tumftm:NAME``
+    (a circuit from the TUMFTM folder, default scale 1/43) or a path to a TUMFTM CSV file.
+    A :class:`Track` is returned unchanged. Results are memoised per process.
+    """
+    if isinstance(spec, Track):
+        return spec
+    if not isinstance(spec, str):
+        raise ValueError(f"track must be a name or a Track, got {type(spec).__name__}")
+    key = (spec, scale)
+    if key in _CACHE:
+        return _CACHE[key]
+    if spec in BUILTIN:
+        track = BUILTIN[spec]()
+    elif spec.startswith("random:"):
+        try:
+            seed = int(spec.split(":", 1)[1])
+        except ValueError:
+            raise ValueError(f"random track needs an integer seed, e.g. 'random:3', got {spec!r}") from None
+        track = random_track(seed)
+    elif spec.startswith("tumftm:"):
+        d = tumftm_dir()
+        name = spec.split(":", 1)[1]
+        if d is None or not (d / f"{name}.csv").is_file():
+            raise ValueError(f"TUMFTM track {name!r} not found (folder: {d}); "
+                             f"set ALPHA_RACER_TUMFTM to the racetrack-database tracks folder")
+        track = load_tumftm_csv(d / f"{name}.csv", scale=scale or 1 / 43)
+    elif spec.endswith(".csv"):
+        track = load_tumftm_csv(spec, scale=scale or 1.0)
+    else:
+        raise ValueError(f"unknown track {spec!r}; expected one of {sorted(BUILTIN)}, "
+                         f"'random:SEED', 'tumftm:NAME' or a .csv path")
+    _CACHE[key] = track
+    return track

@@ -1,0 +1,237 @@
+"""Integration, rules and reward of the compiled step, through BatchedRaces."""
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from racing_env import BatchedRaces, RaceConfig, RulesConfig, make_track
+from racing_env.simulator import integrate_car
+from racing_env.vehicle import VehicleParams
+
+P = VehicleParams()
+NO_RULES = RulesConfig(contact=False, offtrack=False)
+
+
+def races(n_cars=1, rules=None, track="oval", n_races=1, **cfg):
+    return BatchedRaces(track, RaceConfig(n_cars=n_cars, rules=rules or RulesConfig(), **cfg),
+                        n_races=n_races, seed=0)
+
+
+def place(r, states):
+    r.reset()
+    r.state[0] = np.asarray(states, dtype=float)
+    r.start[0] = r.state[0]
+    r.s_line[0] = r.state[0, :, 0].max()
+
+
+def phys(r, d=0.0, delta=0.0):
+    a = np.zeros((r.n_races, r.n_cars, 2))
+    a[..., 0], a[..., 1] = d, delta
+    return a
+
+
+def test_rk4_substeps_match_a_fine_reference():
+    track = make_track("default")
+    r = races(track=track, rules=NO_RULES)
+    x0 = np.array([2.0, 0.05, 0.02, 2.5, 0.0, 0.3])
+    place(r, [x0])
+    r.step_physical(phys(r, 0.4, 0.08))
+    ref = x0.copy()
+    tb = r._tables
+    integrate_car(ref, 0.4, 0.08, tb.kappa, tb.ds, tb.length, r._params, 0.1, 400)
+    # positions to 0.1 mm; rates (the stiff yaw mode) to 1 %
+    np.testing.assert_allclose(r.state[0, 0, :3], ref[:3], atol=1e-4)
+    np.testing.assert_allclose(r.state[0, 0, 3:], ref[3:], rtol=1e-2, atol=5e-3)
+
+
+def test_coasting_on_a_straight_decelerates_by_resistance_and_drag():
+    # hand check: d = 0 on the straight; vx' = -(C3 + C4 vx^2) / m (tanh ~ 1); 0.1 s of it
+    r = races(rules=NO_RULES)
+    place(r, [[1.0, 0.0, 0.0, 2.0, 0.0, 0.0]])
+    r.step_physical(phys(r))
+    expected = 2.0 - 0.1 * (P.C3 + P.C4 * 4.0) / P.m
+    assert r.state[0, 0, 3] == pytest.approx(expected, abs=2e-3)
+    assert r.state[0, 0, 0] == pytest.approx(1.0 + 0.1 * 0.5 * (2.0 + expected), abs=2e-3)
+
+
+def test_standing_start_full_lock_stays_finite_and_moves_forward():
+    r = races(rules=NO_RULES)
+    place(r, [[0.0, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    for _ in range(30):
+        r.step_physical(phys(r, P.d_max, P.delta_max))
+        assert np.isfinite(r.state).all()
+    assert r.state[0, 0, 0] > 0.1 and r.state[0, 0, 3] >= 0.0
+
+
+def test_brake_never_reverses():
+    r = races(rules=NO_RULES)
+    place(r, [[1.0, 0.0, 0.0, 0.5, 0.0, 0.0]])
+    for _ in range(20):
+        r.step_physical(phys(r, P.d_min))
+    assert r.state[0, 0, 3] == pytest.approx(0.0, abs=1e-6)
+    assert r.state[0, 0, 0] >= 1.0 - 1e-6
+
+
+def _contact_pair(rules):
+    r = races(n_cars=2, rules=rules)
+    # car 0 just ahead of car 1, overlapping bodies
+    place(r, [[1.05, 0.0, 0.0, 2.0, 0.0, 0.0], [1.0, 0.01, 0.0, 2.0, 0.0, 0.0]])
+    r.step_physical(phys(r, 0.2))
+    return r
+
+
+def test_contact_slows_front_by_half_and_rear_by_a_third():
+    free = _contact_pair(RulesConfig(contact=False))
+    hit = _contact_pair(RulesConfig())
+    assert hit.contact[0].tolist() == [1, 1] and free.contact[0].tolist() == [0, 0]
+    assert hit.state[0, 0, 3] == pytest.approx(free.state[0, 0, 3] / 2)
+    assert hit.state[0, 1, 3] == pytest.approx(free.state[0, 1, 3] / 3)
+
+
+def test_contact_across_the_start_line_uses_wrapped_distance():
+    r = races(n_cars=2)
+    length = r.track.length
+    # car 1 is a lap down but physically alongside car 0: contact must still apply
+    place(r, [[length + 0.02, 0.0, 0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
+    r.step_physical(phys(r))
+    assert r.contact[0].tolist() == [1, 1]
+
+
+def test_no_contact_when_side_by_side_with_room():
+    r = races(n_cars=2)
+    place(r, [[1.0, 0.1, 0.0, 2.0, 0.0, 0.0], [1.0, -0.1, 0.0, 2.0, 0.0, 0.0]])
+    r.step_physical(phys(r, 0.2))
+    assert r.contact[0].tolist() == [0, 0]
+
+
+def test_off_track_halves_speed_and_realigns():
+    free = races(rules=NO_RULES)
+    off = races()
+    w = off.track.w_left[0]
+    x0 = [[1.0, w + 0.05, 0.2, 2.0, 0.1, 0.5]]
+    place(free, x0)
+    place(off, x0)
+    free.step_physical(phys(free, 0.2))
+    off.step_physical(phys(off, 0.2))
+    assert off.offtrack[0, 0] == 1
+    assert off.state[0, 0, 3] == pytest.approx(free.state[0, 0, 3] / 2)
+    assert off.state[0, 0, 2] == 0.0 and off.state[0, 0, 4] == 0.0 and off.state[0, 0, 5] == 0.0
+
+
+def test_wall_stops_a_car_sideways():
+    r = races(rules=NO_RULES)
+    wall = r._tables.wall_left[0]
+    place(r, [[1.0, wall - 0.01, 1.2, 3.0, 0.0, 0.0]])   # heading hard left at the wall
+    r.step_physical(phys(r, 1.0))
+    assert r.state[0, 0, 1] <= wall + 1e-9
+
+
+def test_reward_is_change_of_gap_to_best_opponent():
+    r = races(n_cars=3, rules=NO_RULES)
+    place(r, [[2.0, 0.0, 0.0, 2.0, 0, 0], [1.0, 0.15, 0.0, 1.0, 0, 0], [0.5, -0.15, 0.0, 3.0, 0, 0]])
+    before = r.state[0, :, 0].copy()
+    r.step_physical(phys(r, 0.1))
+    after = r.state[0, :, 0]
+    for i in range(3):
+        others = [j for j in range(3) if j != i]
+        expect = (after[i] - after[others].max()) - (before[i] - before[others].max())
+        assert r.reward[0, i] == pytest.approx(expect)
+
+
+def test_single_car_reward_is_progress_and_has_no_jump_at_the_line():
+    r = races(n_cars=1, rules=NO_RULES)
+    length = r.track.length
+    place(r, [[length - 0.1, 0.0, 0.0, 2.5, 0.0, 0.0]])
+    s0 = r.state[0, 0, 0]
+    r.step_physical(phys(r, 0.5))
+    assert r.state[0, 0, 0] > length                         # unwrapped
+    assert r.reward[0, 0] == pytest.approx(r.state[0, 0, 0] - s0)
+    assert 0.2 < r.reward[0, 0] < 0.35
+
+
+def test_driving_backwards_costs_reward():
+    r = races(n_cars=2, rules=NO_RULES)
+    place(r, [[0.05, 0.1, np.pi, 2.0, 0, 0], [3.0, -0.1, 0.0, 0.0, 0, 0]])
+    total = 0.0
+    for _ in range(5):
+        r.step_physical(phys(r, 0.3))
+        total += r.reward[0, 0]
+    assert total < -0.5 and r.state[0, 0, 0] < 0.0        # crossed the line backwards, no jump
+
+
+def test_laps_and_lap_times_are_counted():
+    r = races(n_cars=1, rules=NO_RULES, laps=1)
+    length = r.track.length
+    place(r, [[0.0, 0.0, 0.0, 2.0, 0.0, 0.0]])
+    r.state[0, 0, 0] = length - 0.05
+    r.step_physical(phys(r, 0.3))
+    assert r.laps[0, 0] == 1 and r.terminated()[0]
+    t = r.lap_times[0][0][0]
+    assert 0.0 < t < 0.1       # crossed within the first control period
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), n_cars=st.integers(1, 8))
+def test_batched_races_equal_single_races(seed, n_cars):
+    rng = np.random.default_rng(seed)
+    batch = BatchedRaces("default", RaceConfig(n_cars=n_cars), n_races=3, seed=seed)
+    batch.reset(start=None)
+    actions = rng.uniform(-1, 1, (6, 3, n_cars, 2))
+    singles = []
+    for b in range(3):
+        one = BatchedRaces("default", RaceConfig(n_cars=n_cars), n_races=1)
+        one.reset()
+        one.state[0] = batch.state[b]
+        one.start[0] = batch.start[b]
+        one.s_line[0] = batch.s_line[b]
+        singles.append(one)
+    for a in actions:
+        batch.step(a)
+        for b, one in enumerate(singles):
+            one.step(a[b:b + 1])
+    for b, one in enumerate(singles):
+        np.testing.assert_array_equal(batch.state[b], one.state[0])
+
+
+def test_parallel_kernel_equals_serial_kernel():
+    rng = np.random.default_rng(1)
+    big = BatchedRaces("default", RaceConfig(n_cars=3), n_races=32, seed=5)   # parallel path
+    small = BatchedRaces("default", RaceConfig(n_cars=3), n_races=8, seed=5)  # serial path
+    big.reset()
+    small.reset()
+    small.state[:] = big.state[:8]
+    for _ in range(20):
+        a = rng.uniform(-1, 1, (32, 3, 2))
+        ob, rb, _, _ = big.step(a)
+        os_, rs, _, _ = small.step(a[:8])
+    np.testing.assert_array_equal(big.state[:8], small.state)
+    np.testing.assert_array_equal(ob[:8], os_)
+
+
+def test_bad_actions_raise_clear_errors():
+    r = races(n_cars=2)
+    r.reset()
+    with pytest.raises(ValueError, match="shape"):
+        r.step(np.zeros((1, 3, 2)))
+    a = np.zeros((1, 2, 2))
+    a[0, 1, 0] = np.nan
+    with pytest.raises(ValueError, match="car 1 in race 0 is not finite"):
+        r.step(a)
+
+
+def test_start_regions_put_cars_in_the_requested_order():
+    r = races(n_cars=3, track="default")
+    r.reset(seed=3, order=[2, 0, 1])       # car_1 in R1, car_2 in R2, car_0 in R3
+    s = r.state[0, :, 0]
+    assert s[1] > s[2] > s[0]
+    with pytest.raises(ValueError, match="permutation"):
+        r.reset(order=[0, 0, 1])
+
+
+def test_config_validation_names_the_value():
+    with pytest.raises(ValueError, match="n_cars must be an integer in 1..8, got 9"):
+        RaceConfig(n_cars=9)
+    with pytest.raises(ValueError, match="front_factor"):
+        RulesConfig(front_factor=1.5)
+    with pytest.raises(ValueError, match="max_cycles"):
+        RaceConfig(max_cycles=0)
