@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .config import RaceConfig, StartConfig
-from .simulator import TrackTables, observe, observe_parallel, step_races, step_races_parallel
+from .simulator import TrackTables, advance, advance_parallel, observe, observe_parallel
 
 PARALLEL_MIN_RACES = 16
 """Batches of at least this many races are stepped by the multi-threaded kernels."""
@@ -109,7 +109,9 @@ class BatchedRaces:
         self._obs = np.zeros((b, n, self.obs_dim), dtype=np.float32)
         self._phys = np.zeros((b, n, 2))
         v = self.config.vehicle
-        self._d_mid, self._d_half = 0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min)
+        self._act_map = np.array([0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min), v.delta_max])
+        self._lap_event = np.full((b, n), -1.0)
+        self._where = np.zeros(2, dtype=np.int64)
 
     @property
     def n_cars(self) -> int:
@@ -151,58 +153,42 @@ class BatchedRaces:
         return self.observe()
 
     # ------------------------------------------------------------------ stepping
-    def to_physical(self, actions) -> np.ndarray:
-        """Normalised actions (..., 2) -> physical (d, delta); clips to [-1, 1], rejects NaN."""
+    def _advance(self, actions, normalised: bool):
         a = np.asarray(actions, dtype=np.float64)
         if a.shape != self._phys.shape:
             raise ValueError(f"actions must have shape {self._phys.shape} (races, cars, 2), got {a.shape}")
-        if not np.isfinite(a).all():
-            b, i, _ = np.argwhere(~np.isfinite(a))[0]
-            raise ValueError(f"action of car {i} in race {b} is not finite: {a[b, i].tolist()}")
-        np.clip(a, -1.0, 1.0, out=self._phys)
-        self._phys[..., 0] = self._d_mid + self._d_half * self._phys[..., 0]
-        self._phys[..., 1] *= self.config.vehicle.delta_max
-        return self._phys
-
-    def step_physical(self, phys: np.ndarray):
-        """Advance all races by one control period with physical inputs (B, N, 2) = (d, delta)."""
         tb = self._tables
-        before = self.state[:, :, 0].copy()
-        kernel = step_races_parallel if self.n_races >= PARALLEL_MIN_RACES else step_races
-        kernel(self.state, phys, tb.kappa, tb.w_left, tb.w_right, tb.wall_left, tb.wall_right,
-                   tb.ds, tb.length, self._params, self.config.dt, self._rules,
-                   self.reward, self.contact, self.offtrack, self.substeps)
-        if not np.isfinite(self.state).all():
-            b, i = np.argwhere(~np.isfinite(self.state).all(axis=2))[0]
+        kernel = advance_parallel if self.n_races >= PARALLEL_MIN_RACES else advance
+        code = kernel(self.state, a, normalised, self._act_map, tb.kappa, tb.w_left, tb.w_right,
+                      tb.wall_left, tb.wall_right, tb.ds, tb.length, self._params, self.config.dt,
+                      self._rules, self.t, self.s_line, self.laps, self.contacts, self.offtracks,
+                      self._lap_event, self.reward, self.contact, self.offtrack, self.substeps,
+                      self._where)
+        if code:
+            b, i = self._where
+            if code == 1:
+                raise ValueError(f"action of car {i} in race {b} is not finite: {a[b, i].tolist()}")
             raise FloatingPointError(f"simulation produced a non-finite state for car {i} in race {b} "
                                      f"at step {self.t[b]}: {self.state[b, i].tolist()} "
-                                     f"(inputs {phys[b, i].tolist()})")
-        self.t += 1
-        self.contacts += self.contact
-        self.offtracks += self.offtrack
-        self._count_laps(before)
+                                     f"(action {a[b, i].tolist()})")
+        if self.laps.any():
+            for b, i in np.argwhere(self._lap_event >= 0.0):
+                self.lap_times[b][i].append(float(self._lap_event[b, i]))
 
-    def _count_laps(self, before: np.ndarray):
-        length = self.track.length
-        rel_after = (self.state[:, :, 0] - self.s_line[:, None]) / length
-        laps = np.maximum(np.floor(rel_after), 0).astype(np.int64)
-        crossed = np.argwhere(laps > self.laps)
-        for b, i in crossed:
-            s0, s1 = before[b, i], self.state[b, i, 0]
-            line = self.s_line[b] + laps[b, i] * length
-            frac = (line - s0) / (s1 - s0) if s1 > s0 else 1.0
-            self.lap_times[b][i].append(float((self.t[b] - 1 + frac) * self.config.dt))
-        self.laps = np.maximum(self.laps, laps)
+    def step_physical(self, phys):
+        """Advance all races by one control period with physical inputs (B, N, 2) = (d, delta)."""
+        self._advance(phys, normalised=False)
 
     def step(self, actions):
         """One control period for every race with normalised actions (B, N, 2).
 
-        Returns ``(obs, reward, terminated, truncated)``: obs (B, N, D) float32, reward (B, N)
-        (change of s_i - max_{j != i} s_j [m]), terminated (B,) (a car finished ``laps``),
-        truncated (B,) (``max_cycles`` reached). Per-car flags of this step are in
-        ``contact``, ``offtrack`` and ``substeps``; totals in ``contacts``, ``offtracks``.
+        Actions are clipped to [-1, 1]; a NaN raises ``ValueError`` naming the race and car
+        (and nothing is stepped). Returns ``(obs, reward, terminated, truncated)``: obs (B, N, D)
+        float32, reward (B, N) (change of s_i - max_{j != i} s_j [m]), terminated (B,) (a car
+        finished ``laps``), truncated (B,) (``max_cycles`` reached). Per-car flags of this step
+        are in ``contact``, ``offtrack`` and ``substeps``; totals in ``contacts``, ``offtracks``.
         """
-        self.step_physical(self.to_physical(actions))
+        self._advance(actions, normalised=True)
         return self.observe(), self.reward.copy(), self.terminated(), self.truncated()
 
     def terminated(self) -> np.ndarray:

@@ -11,6 +11,9 @@ from .track import Track
 from .vehicle import VehicleParams
 
 
+_INFO_KEYS = ("contact", "off_track", "laps", "progress", "substeps", "contacts", "off_tracks")
+
+
 class RacingParallelEnv(ParallelEnv):
     """N cars race on a closed track; each wants to gain progress on the leading opponent.
 
@@ -127,8 +130,10 @@ class RacingParallelEnv(ParallelEnv):
     def reset(self, seed=None, options=None):
         options = options or {}
         unknown = set(options) - {"n_cars", "start", "order"}
-        if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; expected n_cars, start, order")
+        if unknown:  # the PettingZoo checkers pass arbitrary options; ignore them loudly
+            import gymnasium
+            gymnasium.logger.warn(f"ignoring unknown reset options {sorted(unknown)}; "
+                                  f"known: n_cars, start, order")
         if "n_cars" in options and options["n_cars"] != self.core.n_cars:
             self.core.set_n_cars(options["n_cars"])
             self._set_agents()
@@ -137,8 +142,9 @@ class RacingParallelEnv(ParallelEnv):
         self.agents = list(self.possible_agents)
         if self.render_mode == "human":
             self.render()
+        infos = self._infos()
         return ({a: obs[0, i] for i, a in enumerate(self.agents)},
-                {a: self._info(i) for i, a in enumerate(self.agents)})
+                {a: infos[i] for i, a in enumerate(self.agents)})
 
     def step(self, actions):
         if not self.agents:
@@ -149,25 +155,28 @@ class RacingParallelEnv(ParallelEnv):
                 raise ValueError(f"missing action for {a}; every live agent acts each step")
             acts[0, self._index[a]] = actions[a]
         obs, rew, term, trunc = self.core.step(acts)
-        term_b, trunc_b = bool(term[0]), bool(trunc[0])
+        term_b, trunc_b = bool(term[0]), bool(trunc[0]) and not bool(term[0])
         agents = self.agents
+        rew = rew[0].tolist()
+        infos = self._infos()
         observations = {a: obs[0, self._index[a]] for a in agents}
-        rewards = {a: float(rew[0, self._index[a]]) for a in agents}
+        rewards = {a: rew[self._index[a]] for a in agents}
         terminations = dict.fromkeys(agents, term_b)
-        truncations = dict.fromkeys(agents, trunc_b and not term_b)
-        infos = {a: self._info(self._index[a]) for a in agents}
+        truncations = dict.fromkeys(agents, trunc_b)
+        infos = {a: infos[self._index[a]] for a in agents}
         if term_b or trunc_b:
             self.agents = []
         if self.render_mode == "human":
             self.render()
         return observations, rewards, terminations, truncations, infos
 
-    def _info(self, i: int) -> dict:
+    def _infos(self) -> list[dict]:
+        """Per-car info dicts (see the class docstring), in car order."""
         c = self.core
-        return {"contact": bool(c.contact[0, i]), "off_track": bool(c.offtrack[0, i]),
-                "laps": int(c.laps[0, i]), "progress": float(c.state[0, i, 0] - c.start[0, i, 0]),
-                "substeps": int(c.substeps[0, i]), "contacts": int(c.contacts[0, i]),
-                "off_tracks": int(c.offtracks[0, i])}
+        cols = zip(c.contact[0].astype(bool).tolist(), c.offtrack[0].astype(bool).tolist(),
+                   c.laps[0].tolist(), (c.state[0, :, 0] - c.start[0, :, 0]).tolist(),
+                   c.substeps[0].tolist(), c.contacts[0].tolist(), c.offtracks[0].tolist())
+        return [dict(zip(_INFO_KEYS, col)) for col in cols]
 
     def state(self) -> np.ndarray:
         return self.core.state[0].reshape(-1).astype(np.float32)

@@ -90,13 +90,13 @@ def _lookup(table, s, ds, length):
 
 @njit(cache=True)
 def _n_substeps(vx, p, dt, gain, max_sub):
-    """Sub-steps for stable RK4: h * lambda_max <= 2 / gain (RK4 is stable to about 2.8)."""
+    """Sub-steps for stable RK4: h * lambda_max <= 2.5 / gain (RK4 is stable to about 2.8)."""
     ca_f = p[P_BF] * p[P_CF] * p[P_DF]
     ca_r = p[P_BR] * p[P_CR] * p[P_DR]
     # with the low-speed force fade, C / (m v) peaks near C / (m 2 v_low)
     v = math.sqrt(vx * vx + 4.0 * p[P_VLOW] * p[P_VLOW])
     lam = (ca_f + ca_r) / (p[P_M] * v) + (ca_f * p[P_LF] ** 2 + ca_r * p[P_LR] ** 2) / (p[P_IZ] * v)
-    k = int(math.ceil(dt * lam * gain / 2.0))
+    k = int(math.ceil(dt * lam * gain / 2.5))
     return min(max(k, 2), max_sub)
 
 
@@ -126,74 +126,120 @@ def integrate_car(x, d, delta, kappa_tab, ds, length, p, dt, n_sub):
             x[2] = (x[2] + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def _step_races(state, action, kappa_tab, w_left, w_right, wall_left, wall_right, ds, length,
-               p, dt, rules, reward, contact, offtrack, substeps):
-    """Advance every race in ``state`` (B, N, 6) by one control period, in place.
-
-    Writes per car: ``reward`` (B, N) the change of (s_i - max_{j != i} s_j) (just the change
-    of s_i when N == 1), ``contact`` (B, N) 1 if the contact rule hit the car, ``offtrack``
-    (B, N) 1 if the car ended the step beyond an edge, ``substeps`` (B, N) RK4 sub-steps used.
-    """
-    n_races, n_cars = state.shape[0], state.shape[1]
-    max_sub = int(rules[R_MAX_SUB])
-    gain = rules[R_SUB_GAIN]
+def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_right, ds, length,
+                   p, dt, rules, reward, contact, offtrack, substeps):
+    """Physics, rules and reward of race ``b`` for one control period (inputs ``phys`` (N, 2))."""
+    n_cars = state.shape[1]
     half = 0.5 * length
-    for b in prange(n_races):
-        factor = np.empty(n_cars)
-        before = np.empty(n_cars)
+    factor = np.ones(n_cars)
+    before = np.empty(n_cars)
+    for i in range(n_cars):
+        before[i] = state[b, i, 0]
+        x = state[b, i]
+        k = _n_substeps(x[3], p, dt, rules[R_SUB_GAIN], int(rules[R_MAX_SUB]))
+        substeps[b, i] = k
+        integrate_car(x, phys[i, 0], phys[i, 1], kappa_tab, ds, length, p, dt, k)
+        # wall: a car cannot go further than the wall; it stops sideways there
+        wl = _lookup(wall_left, x[0], ds, length)
+        wr = _lookup(wall_right, x[0], ds, length)
+        if x[1] > wl or x[1] < -wr:
+            x[1] = wl if x[1] > wl else -wr
+            x[2] = 0.0
+            x[4] = 0.0
+            x[5] = 0.0
+        contact[b, i] = 0
+        offtrack[b, i] = 0
+    if rules[R_CONTACT_ON] > 0.0:
         for i in range(n_cars):
-            before[i] = state[b, i, 0]
-        for i in range(n_cars):
-            x = state[b, i]
-            k = _n_substeps(x[3], p, dt, gain, max_sub)
-            substeps[b, i] = k
-            integrate_car(x, action[b, i, 0], action[b, i, 1], kappa_tab, ds, length, p, dt, k)
-            # wall: a car cannot go further than the wall; it stops sideways there
-            wl = _lookup(wall_left, x[0], ds, length)
-            wr = _lookup(wall_right, x[0], ds, length)
-            if x[1] > wl or x[1] < -wr:
-                x[1] = wl if x[1] > wl else -wr
+            for j in range(i + 1, n_cars):
+                dsij = (state[b, i, 0] - state[b, j, 0] + half) % length - half   # wrapped
+                if abs(dsij) < rules[R_CONTACT_DS] and \
+                        abs(state[b, i, 1] - state[b, j, 1]) < rules[R_CONTACT_DN]:
+                    front, rear = (i, j) if dsij >= 0.0 else (j, i)
+                    factor[front] = min(factor[front], rules[R_FRONT])
+                    factor[rear] = min(factor[rear], rules[R_REAR])
+                    contact[b, i] = 1
+                    contact[b, j] = 1
+    for i in range(n_cars):
+        x = state[b, i]
+        if x[1] > _lookup(w_left, x[0], ds, length) or x[1] < -_lookup(w_right, x[0], ds, length):
+            offtrack[b, i] = 1
+            if rules[R_OFF_ON] > 0.0:
+                factor[i] = min(factor[i], rules[R_OFF_FACTOR])
                 x[2] = 0.0
                 x[4] = 0.0
                 x[5] = 0.0
-        # rules
+        x[3] *= factor[i]
+    # reward: change of (s_i - max_{j != i} s_j), on unwrapped s
+    for i in range(n_cars):
+        if n_cars == 1:
+            reward[b, i] = state[b, i, 0] - before[i]
+            continue
+        lead_before = -np.inf
+        lead_after = -np.inf
+        for j in range(n_cars):
+            if j != i:
+                lead_before = max(lead_before, before[j])
+                lead_after = max(lead_after, state[b, j, 0])
+        reward[b, i] = (state[b, i, 0] - lead_after) - (before[i] - lead_before)
+    return before
+
+
+def _advance(state, action, normalised, act_map, kappa_tab, w_left, w_right, wall_left, wall_right,
+             ds, length, p, dt, rules, t, s_line, laps, contacts, offtracks, lap_event,
+             reward, contact, offtrack, substeps, where):
+    """Advance every race in ``state`` (B, N, 6) by one control period, in place.
+
+    ``action`` (B, N, 2): normalised [-1, 1] actions if ``normalised`` (clipped, then mapped
+    with ``act_map = (d_mid, d_half, delta_max)``), else physical ``(d, delta)``.
+    Per-car outputs (B, N): ``reward`` the change of (s_i - max_{j != i} s_j) (the change of
+    s_i when N == 1), ``contact`` / ``offtrack`` 1 if that rule applied this step,
+    ``substeps`` RK4 sub-steps used, ``lap_event`` the race time [s] of a lap completed this
+    step or -1. Running totals updated: ``t`` (B,), ``laps``, ``contacts``, ``offtracks``.
+    Returns 0, or 1 if an action is not finite / 2 if a state became non-finite, with the
+    race and car in ``where`` (2,); nothing is stepped when an action is bad.
+    """
+    n_races, n_cars = state.shape[0], state.shape[1]
+    for b in range(n_races):
         for i in range(n_cars):
-            factor[i] = 1.0
-            contact[b, i] = 0
-            offtrack[b, i] = 0
-        if rules[R_CONTACT_ON] > 0.0:
-            for i in range(n_cars):
-                for j in range(i + 1, n_cars):
-                    dsij = (state[b, i, 0] - state[b, j, 0] + half) % length - half
-                    if abs(dsij) < rules[R_CONTACT_DS] and \
-                            abs(state[b, i, 1] - state[b, j, 1]) < rules[R_CONTACT_DN]:
-                        front, rear = (i, j) if dsij >= 0.0 else (j, i)
-                        factor[front] = min(factor[front], rules[R_FRONT])
-                        factor[rear] = min(factor[rear], rules[R_REAR])
-                        contact[b, i] = 1
-                        contact[b, j] = 1
+            if not (math.isfinite(action[b, i, 0]) and math.isfinite(action[b, i, 1])):
+                where[0] = b
+                where[1] = i
+                return 1
+    for b in prange(n_races):
+        phys = np.empty((n_cars, 2))
         for i in range(n_cars):
-            x = state[b, i]
-            if x[1] > _lookup(w_left, x[0], ds, length) or x[1] < -_lookup(w_right, x[0], ds, length):
-                offtrack[b, i] = 1
-                if rules[R_OFF_ON] > 0.0:
-                    factor[i] = min(factor[i], rules[R_OFF_FACTOR])
-                    x[2] = 0.0
-                    x[4] = 0.0
-                    x[5] = 0.0
-            x[3] *= factor[i]
-        # reward: change of (s_i - max_{j != i} s_j)
+            a0, a1 = action[b, i, 0], action[b, i, 1]
+            if normalised:
+                a0 = min(max(a0, -1.0), 1.0)
+                a1 = min(max(a1, -1.0), 1.0)
+                a0 = act_map[0] + act_map[1] * a0
+                a1 = act_map[2] * a1
+            phys[i, 0] = a0
+            phys[i, 1] = a1
+        before = _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_right,
+                                ds, length, p, dt, rules, reward, contact, offtrack, substeps)
+        # bookkeeping: laps (the line is s_line + k L), time of crossing within the period
         for i in range(n_cars):
-            if n_cars == 1:
-                reward[b, i] = state[b, i, 0] - before[i]
-                continue
-            lead_before = -np.inf
-            lead_after = -np.inf
-            for j in range(n_cars):
-                if j != i:
-                    lead_before = max(lead_before, before[j])
-                    lead_after = max(lead_after, state[b, j, 0])
-            reward[b, i] = (state[b, i, 0] - lead_after) - (before[i] - lead_before)
+            contacts[b, i] += contact[b, i]
+            offtracks[b, i] += offtrack[b, i]
+            lap_event[b, i] = -1.0
+            done = math.floor((state[b, i, 0] - s_line[b]) / length)
+            if done > laps[b, i]:
+                line = s_line[b] + done * length
+                s0, s1 = before[i], state[b, i, 0]
+                frac = (line - s0) / (s1 - s0) if s1 > s0 else 1.0
+                lap_event[b, i] = (t[b] + frac) * dt
+                laps[b, i] = done
+        t[b] += 1
+    for b in range(n_races):
+        for i in range(n_cars):
+            for c in range(6):
+                if not math.isfinite(state[b, i, c]):
+                    where[0] = b
+                    where[1] = i
+                    return 2
+    return 0
 
 
 def _observe(state, kappa_tab, ds, length, preview_ds, n_preview, s_clip, out):
@@ -236,8 +282,9 @@ def _variant(fn, suffix):
     return g
 
 
-step_races = njit(cache=True)(_variant(_step_races, "_serial"))
-step_races_parallel = njit(cache=True, parallel=True)(_variant(_step_races, "_parallel"))
+_step_one_race = njit(cache=True)(_step_one_race)
+advance = njit(cache=True)(_variant(_advance, "_serial"))
+advance_parallel = njit(cache=True, parallel=True)(_variant(_advance, "_parallel"))
 observe = njit(cache=True)(_variant(_observe, "_serial"))
 observe_parallel = njit(cache=True, parallel=True)(_variant(_observe, "_parallel"))
 

@@ -55,7 +55,7 @@ def _segments_intersect(p: np.ndarray) -> tuple[int, int] | None:
     return None
 
 
-def validate_centerline(x, y, w_right, w_left) -> tuple[np.ndarray, ...]:
+def validate_centerline(x, y, w_right, w_left, allow_crossing: bool = False) -> tuple[np.ndarray, ...]:
     """Check raw centre-line data and return it as float arrays with a repeated end point removed.
 
     Raises ``ValueError`` naming what is wrong and where (point index and coordinates).
@@ -94,12 +94,29 @@ def validate_centerline(x, y, w_right, w_left) -> tuple[np.ndarray, ...]:
         _fail(f"track is not closed: the last point ({x[-1]:.3f}, {y[-1]:.3f}) is {gap:.3f} m "
               f"from the first ({x[0]:.3f}, {y[0]:.3f}), over 5x the median point spacing "
               f"{typical:.3f} m")
-    hit = _segments_intersect(np.column_stack([x, y]))
+    hit = None if allow_crossing else _segments_intersect(np.column_stack([x, y]))
     if hit is not None:
         i, j = hit
         _fail(f"track centre line intersects itself: segment {i} starting at "
-              f"({x[i]:.3f}, {y[i]:.3f}) crosses segment {j} starting at ({x[j]:.3f}, {y[j]:.3f})")
+              f"({x[i]:.3f}, {y[i]:.3f}) crosses segment {j} starting at ({x[j]:.3f}, {y[j]:.3f}) "
+              f"(for a circuit with a bridge pass allow_crossing=True)")
     return x, y, w_right, w_left
+
+
+def _narrow_tight(name, s_grid, kappa, w_l, w_r, limit=0.8):
+    """Narrow the inner width to ``limit / |kappa|`` where it reaches further; warn."""
+    import warnings
+    with np.errstate(divide="ignore"):
+        cap = limit / np.abs(kappa)
+    new_l = np.where(kappa > 0, np.minimum(w_l, cap), w_l)
+    new_r = np.where(kappa < 0, np.minimum(w_r, cap), w_r)
+    cut = np.maximum(w_l - new_l, w_r - new_r)
+    if cut.max() > 0:
+        k = int(np.argmax(cut))
+        warnings.warn(f"track '{name}': inner width narrowed at {int((cut > 0).sum())} grid points "
+                      f"(most, by {cut[k]:.3f} m, at s = {s_grid[k]:.2f} m) to keep it inside "
+                      f"{limit:.0%} of the radius of curvature", stacklevel=4)
+    return new_l, new_r
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,7 +144,8 @@ class Track:
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_centerline(cls, x, y, w_right, w_left, name: str = "custom",
-                        ds: float | None = None) -> "Track":
+                        ds: float | None = None, allow_crossing: bool = False,
+                        narrow_tight: bool = False) -> "Track":
         """Build a track from a closed centre line (x, y) [m] with right/left widths [m].
 
         The points go around the track once (the first point may or may not be repeated at
@@ -135,9 +153,12 @@ class Track:
         [m] (default: lap length / 1000, clipped to [0.005, 2.0] m).
         Raises ``ValueError`` for open, self-intersecting, too short, non-finite or
         non-positive-width input, and for a track whose inner edge lies beyond the centre of
-        curvature (the Frenet frame would fold).
+        curvature (the Frenet frame would fold). ``allow_crossing`` accepts a centre line
+        that crosses itself (a bridge, as at Suzuka). ``narrow_tight`` instead narrows the inner
+        width where it would reach past 80% of the radius of curvature (real hairpins in
+        surveyed data), with a warning saying where and by how much.
         """
-        x, y, w_right, w_left = validate_centerline(x, y, w_right, w_left)
+        x, y, w_right, w_left = validate_centerline(x, y, w_right, w_left, allow_crossing)
         # periodic interpolating spline parametrised by chord length, then resampled by arc length
         pts = np.column_stack([x, y])
         chord = np.hypot(*np.diff(np.vstack([pts, pts[:1]]), axis=0).T)
@@ -161,10 +182,10 @@ class Track:
         gx, gy = spx(u_of_s), spy(u_of_s)
         w_r = np.maximum(wr(u_of_s), 1e-6)
         w_l = np.maximum(wl(u_of_s), 1e-6)
-        return cls._from_grid(name, s_grid, gx, gy, w_l, w_r, length)
+        return cls._from_grid(name, s_grid, gx, gy, w_l, w_r, length, narrow_tight)
 
     @classmethod
-    def _from_grid(cls, name, s_grid, gx, gy, w_l, w_r, length) -> "Track":
+    def _from_grid(cls, name, s_grid, gx, gy, w_l, w_r, length, narrow_tight=False) -> "Track":
         knots = np.append(s_grid, length)
         sx = CubicSpline(knots, np.append(gx, gx[0]), bc_type="periodic")
         sy = CubicSpline(knots, np.append(gy, gy[0]), bc_type="periodic")
@@ -172,6 +193,8 @@ class Track:
         ddx, ddy = sx(s_grid, 2), sy(s_grid, 2)
         psi = np.unwrap(np.arctan2(dy, dx))
         kappa = (dx * ddy - dy * ddx) / np.maximum(np.hypot(dx, dy), 1e-12) ** 3
+        if narrow_tight:
+            w_l, w_r = _narrow_tight(name, s_grid, kappa, w_l, w_r)
         track = cls(name=name, s_grid=s_grid, x=gx, y=gy, psi=psi, kappa=kappa,
                     w_left=w_l, w_right=w_r, length=float(length), _sx=sx, _sy=sy,
                     _tree=cKDTree(np.column_stack([gx, gy])))

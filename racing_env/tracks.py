@@ -156,11 +156,15 @@ def random_track(seed: int, length: float = 30.0, half_width: float = DEFAULT_HA
                      f"try a larger length ({length}) or smaller half_width ({half_width})")
 
 
-def load_tumftm_csv(path: str | os.PathLike, scale: float = 1.0, name: str | None = None) -> Track:
+def load_tumftm_csv(path: str | os.PathLike, scale: float = 1.0, name: str | None = None,
+                    allow_crossing: bool = False, narrow_tight: bool = True) -> Track:
     """Load a TUMFTM racetrack-database CSV (``# x_m,y_m,w_tr_right_m,w_tr_left_m``).
 
     ``scale`` multiplies every length (positions and widths), so a full-size circuit can host
-    the small default cars, e.g. ``scale=1/43``.
+    the small default cars, e.g. ``scale=1/43``. Surveyed hairpins often put the inner edge
+    at the centre of curvature, which the Frenet frame cannot represent: ``narrow_tight``
+    (default) narrows the inner width there, with a warning (see
+    :meth:`Track.from_centerline`). ``allow_crossing`` accepts a circuit with a bridge.
     """
     path = Path(path)
     if not path.is_file():
@@ -176,7 +180,8 @@ def load_tumftm_csv(path: str | os.PathLike, scale: float = 1.0, name: str | Non
                          f"got {data.shape[1]}")
     data = data * scale
     return Track.from_centerline(data[:, 0], data[:, 1], data[:, 2], data[:, 3],
-                                 name=name or path.stem)
+                                 name=name or path.stem, allow_crossing=allow_crossing,
+                                 narrow_tight=narrow_tight)
 
 
 def tumftm_dir() -> Path | None:
@@ -190,6 +195,10 @@ def tumftm_dir() -> Path | None:
             return c
     return None
 
+
+CROSSING_CIRCUITS = {"Suzuka"}
+"""TUMFTM circuits whose centre line crosses itself on a bridge (contact uses Frenet
+distance, so cars on the bridge and under it do not touch)."""
 
 BUILTIN = {"default": default_track, "oval": oval_track}
 
@@ -232,7 +241,8 @@ def make_track(spec: "str | Track", scale: float | None = None) -> Track:
         if d is None or not (d / f"{name}.csv").is_file():
             raise ValueError(f"TUMFTM track {name!r} not found (folder: {d}); "
                              f"set ALPHA_RACER_TUMFTM to the racetrack-database tracks folder")
-        track = load_tumftm_csv(d / f"{name}.csv", scale=scale or 1 / 43)
+        track = load_tumftm_csv(d / f"{name}.csv", scale=scale or 1 / 43,
+                                allow_crossing=name in CROSSING_CIRCUITS)
     elif spec.endswith(".csv"):
         track = load_tumftm_csv(spec, scale=scale or 1.0)
     else:
