@@ -30,8 +30,8 @@ class HeadToHeadEnv(gym.Env):
 
     **Arguments**: ``opponents``: a sequence of agents (objects with ``reset(track, agent_id,
     seed)`` and ``act(observation) -> action``), one per opponent car; default two
-    :class:`racing_env.controllers.RacelineFollower` s at 0.8 and 0.85 of the racing-line
-    speed. ``n_cars`` defaults to ``1 + len(opponents)``. Other keywords (``track``,
+    :class:`racing_env.controllers.RacelineFollower` s on the speed profiles of friction
+    0.75 and 0.8. ``n_cars`` defaults to ``1 + len(opponents)``. Other keywords (``track``,
     ``max_cycles``, ``laps``, ``start``, ``vehicle``, ``rules``, ``config``, ``render_mode``)
     go to :class:`RacingParallelEnv`. ``reset(options=...)`` accepts ``start`` and ``order``.
 
@@ -45,7 +45,7 @@ class HeadToHeadEnv(gym.Env):
                  start: "str | StartConfig | None" = None, **kwargs):
         if opponents is None:
             from .controllers import RacelineFollower
-            opponents = [RacelineFollower(speed_scale=0.8), RacelineFollower(speed_scale=0.85)]
+            opponents = [RacelineFollower(mu=0.75), RacelineFollower(mu=0.8)]
         self.opponents = list(opponents)
         for k, opp in enumerate(self.opponents):
             if not (callable(getattr(opp, "act", None)) and callable(getattr(opp, "reset", None))):

@@ -11,9 +11,11 @@ Two stages, both on a closed :class:`~racing_env.track.Track`:
    ``r_k = c_k + n_k N_k`` is linearised in ``n``: the first derivatives ``x', y'`` and the
    denominator are frozen at the current iterate, the second derivatives are linear in ``n``
    through periodic finite-difference matrices. Each linearisation is a box-constrained
-   least-squares problem (a convex QP) solved by :func:`scipy.optimize.lsq_linear`; the line is
-   re-linearised until the offsets move by less than ``RacelineConfig.tol`` [m] (at most
-   ``max_iter`` times; otherwise a :class:`RacelineConvergenceWarning`). The offsets are then
+   least-squares problem (a convex QP) solved by OSQP through CasADi (DAQP as a fallback). The
+   line is re-linearised until the QP solution moves the offsets by less than
+   ``RacelineConfig.tol`` [m] (at most ``max_iter`` times, otherwise a
+   :class:`RacelineConvergenceWarning`); where the iteration stops contracting (it can cycle at
+   a tight hairpin) the update is under-relaxed. The offsets are then
    interpolated back (periodic cubic spline, clipped to the bounds) to every track grid point.
 
 2. **Speed profile** ``vx(s)`` along the line for a friction coefficient ``mu`` (the paper's
@@ -51,7 +53,6 @@ from pathlib import Path
 import numpy as np
 from scipy import sparse
 from scipy.interpolate import CubicSpline
-from scipy.optimize import lsq_linear
 
 from .track import Track
 from .vehicle import VehicleParams
@@ -111,7 +112,7 @@ class RacelineConfig:
     mu_nominal: float = 0.85
     point_spacing: float = 0.05
     tol: float = 1e-4
-    max_iter: int = 50
+    max_iter: int = 100
     smoothing: float = 1e-6
 
     def __post_init__(self):
@@ -158,6 +159,69 @@ def _periodic_diff_matrices(n: int, h: float):
     return d1, d2
 
 
+def _to_casadi(sp_matrix, pattern=None):
+    """scipy sparse -> casadi DM, on ``pattern`` (a csc matrix) when given."""
+    import casadi
+    pat = sparse.csc_matrix(sp_matrix if pattern is None else pattern)
+    pat.sort_indices()
+    sp = casadi.Sparsity(pat.shape[0], pat.shape[1], pat.indptr.tolist(), pat.indices.tolist())
+    if pattern is None:
+        vals = pat.data
+    else:
+        rows = pat.indices
+        cols = np.repeat(np.arange(pat.shape[1]), np.diff(pat.indptr))
+        vals = np.asarray(sparse.csr_matrix(sp_matrix)[rows, cols]).ravel()
+    return casadi.DM(sp, vals)
+
+
+class _BoxQP:
+    """``min 1/2 x' H x + g' x  s.t.  lo <= x <= hi`` for a fixed sparsity pattern of ``H``.
+
+    OSQP (through CasADi's ``conic``) with solution polishing, warm-started from ``x0``; DAQP
+    (an exact dual active-set solver, also in CasADi) if OSQP does not report success.
+    """
+
+    def __init__(self, pattern, lo, hi):
+        import casadi
+        self.pattern = sparse.csc_matrix(pattern)
+        self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
+        nvar = self.pattern.shape[0]
+        hsp = _to_casadi(self.pattern).sparsity()
+        prob = {"h": hsp, "a": casadi.Sparsity(0, nvar)}
+        self._osqp = casadi.conic("raceline_osqp", "osqp", prob, {
+            "error_on_fail": False,
+            "osqp": {"eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 20000, "polish": True,
+                     "verbose": False}})
+        self._daqp = None
+        self._prob = prob
+        self._lam = None
+
+    def solve(self, h, g, x0=None):
+        """Minimiser, shape (n,), clipped to the bounds; raises RuntimeError if both solvers fail."""
+        import casadi
+        hdm = _to_casadi(h, self.pattern)
+        args = dict(h=hdm, g=np.asarray(g, float), lbx=self.lo, ubx=self.hi)
+        if x0 is not None:
+            args["x0"] = x0
+        if self._lam is not None:
+            args["lam_x0"] = self._lam
+        res = self._osqp(**args)
+        if not self._osqp.stats().get("success", False):
+            if self._daqp is None:
+                self._daqp = casadi.conic("raceline_daqp", "daqp", self._prob,
+                                          {"error_on_fail": False})
+            res = self._daqp(**args)
+            if not self._daqp.stats().get("success", False):
+                raise RuntimeError("racing-line QP failed in OSQP and DAQP: "
+                                   f"{self._osqp.stats().get('return_status')}, "
+                                   f"{self._daqp.stats().get('return_status')}")
+        x = np.asarray(res["x"], dtype=float).ravel()
+        self._lam = np.asarray(res["lam_x"], dtype=float).ravel()
+        if not np.all(np.isfinite(x)):
+            raise RuntimeError("racing-line QP returned non-finite offsets")
+        return np.clip(x, self.lo, self.hi)
+
+
 def offset_bounds(track: Track, s_track, vehicle: VehicleParams, margin: float):
     """Lower / upper bounds ``(n_lo, n_hi)`` [m] on the racing-line offset at centre-line ``s_track``.
 
@@ -198,33 +262,32 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
     d1, d2 = _periodic_diff_matrices(n_pts, h)
     ddx_c, ddy_c = d2 @ cx, d2 @ cy
     d2nx, d2ny = d2 @ sparse.diags(nx), d2 @ sparse.diags(ny)
-    reg = math.sqrt(config.smoothing) / track.length * d1 if config.smoothing > 0 else None
 
     def kappa_of(n):
         px, py = cx + n * nx, cy + n * ny
         dx, dy = d1 @ px, d1 @ py
         return (dx * (d2 @ py) - dy * (d2 @ px)) / np.hypot(dx, dy) ** 3
 
+    qp = _BoxQP(sparse.csc_matrix(abs(d2).T @ abs(d2) + abs(d1).T @ abs(d1)), lo, hi)
+    reg = (config.smoothing / track.length ** 2) * (d1.T @ d1)
     n = np.clip(np.zeros(n_pts), lo, hi)
-    converged, change, it = False, np.inf, 0
+    converged, change, prev_change, alpha, it = False, np.inf, np.inf, 1.0, 0
     for it in range(1, int(config.max_iter) + 1):
         px, py = cx + n * nx, cy + n * ny
         dx, dy = d1 @ px, d1 @ py
         den = np.hypot(dx, dy) ** 3
-        a = sparse.diags(dx / den) @ d2ny - sparse.diags(dy / den) @ d2nx
+        a = sparse.diags(dx / den) @ d2ny - sparse.diags(dy / den) @ d2nx   # kappa = a n + b
         b = (dx * ddy_c - dy * ddx_c) / den
-        rhs = -b
-        if reg is not None:
-            a = sparse.vstack([a, reg])
-            rhs = np.r_[rhs, np.zeros(n_pts)]
-        sol = lsq_linear(a.tocsr(), rhs, bounds=(lo, hi), method="trf", tol=1e-12,
-                         lsmr_tol="auto", max_iter=2000)
-        n_new = np.clip(sol.x, lo, hi)
-        change = float(np.max(np.abs(n_new - n)))
-        n = n_new
+        n_new = qp.solve(a.T @ a + reg, a.T @ b, x0=n)
+        change = float(np.max(np.abs(n_new - n)))     # fixed-point residual [m]
         if change < config.tol:
+            n = n_new
             converged = True
             break
+        if change >= prev_change:                     # not contracting (a limit cycle at a
+            alpha = max(0.5 * alpha, 0.1)             # tight hairpin): under-relax the update
+        prev_change = change
+        n = np.clip(n + alpha * (n_new - n), lo, hi)
     if not converged:
         warnings.warn(f"minimum-curvature racing line on track '{track.name}' did not converge in "
                       f"max_iter={config.max_iter} iterations (last offset change {change:.2e} m > "
@@ -234,3 +297,503 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
                 cost=float(np.sum(kappa_of(n) ** 2)),
                 cost_center=float(np.sum(kappa_of(np.zeros(n_pts)) ** 2)))
     return s_sub, n, info
+
+
+# ====================================================================== speed profile
+def accel_limits(v, kappa, mu: float, vehicle: VehicleParams | None = None):
+    """Largest acceleration and deceleration [m/s^2] (both >= 0) at speed ``v`` [m/s] on a path
+    of curvature ``kappa`` [1/m] with friction ``mu`` [-]; arrays broadcast.
+
+    ``a_acc = min(((C1 - C2 v) d_max - C3 - C4 v^2) / m, a_fric)``,
+    ``a_brk = min(-((C1 - C2 v) d_min - C3 - C4 v^2) / m, a_fric)`` with the friction-circle
+    remainder ``a_fric = mu g sqrt(1 - (v^2 |kappa| / (mu g))^2)`` (0 at the grip limit).
+    """
+    p = vehicle or VehicleParams()
+    v = np.asarray(v, dtype=float)
+    mug = mu * G
+    r = np.minimum(v * v * np.abs(kappa) / mug, 1.0)
+    fric = mug * np.sqrt(1.0 - r * r)
+    drive = ((p.C1 - p.C2 * v) * p.d_max - p.C3 - p.C4 * v * v) / p.m
+    brake = -((p.C1 - p.C2 * v) * p.d_min - p.C3 - p.C4 * v * v) / p.m
+    return np.maximum(np.minimum(drive, fric), 0.0), np.maximum(np.minimum(brake, fric), 0.0)
+
+
+def speed_limit(kappa, mu: float, vehicle: VehicleParams | None = None):
+    """Steady-state speed cap [m/s]: ``min(sqrt(mu g / |kappa|), vehicle.top_speed)``."""
+    p = vehicle or VehicleParams()
+    k = np.abs(np.asarray(kappa, dtype=float))
+    with np.errstate(divide="ignore"):
+        v_corner = np.where(k > 0, np.sqrt(mu * G / np.maximum(k, 1e-300)), np.inf)
+    return np.minimum(v_corner, p.top_speed)
+
+
+def speed_profile(kappa, ds, mu: float, vehicle: VehicleParams | None = None, max_sweeps: int = 50):
+    """Periodic speed profile ``(vx, ax)`` [m/s], [m/s^2] on a closed path, shapes (M,).
+
+    ``kappa`` [1/m] at the M points, ``ds[k]`` [m] the distance from point k to point k+1
+    (the last one closes the lap). Starts from :func:`speed_limit` and repeats a forward
+    (acceleration) and a backward (braking) pass around the lap until no speed changes; the
+    result satisfies ``v[k+1]^2 - v[k]^2 <= 2 ds[k] a_acc(v[k], kappa[k])`` and
+    ``v[k]^2 - v[k+1]^2 <= 2 ds[k] a_brk(v[k+1], kappa[k+1])`` (indices mod M) exactly.
+    ``ax[k] = (v[k+1]^2 - v[k]^2) / (2 ds[k])`` is the acceleration on segment k.
+    """
+    p = vehicle or VehicleParams()
+    kappa = np.asarray(kappa, dtype=float)
+    ds = np.asarray(ds, dtype=float)
+    if kappa.shape != ds.shape or kappa.ndim != 1 or len(kappa) < 2:
+        raise ValueError(f"speed_profile needs kappa and ds of equal 1-D shape, got {kappa.shape}, {ds.shape}")
+    if not (np.all(np.isfinite(kappa)) and np.all(np.isfinite(ds)) and np.all(ds > 0)):
+        raise ValueError("speed_profile needs finite kappa and finite positive ds")
+    if not (math.isfinite(mu) and mu > 0):
+        raise ValueError(f"friction mu must be positive and finite, got {mu!r}")
+    m = len(kappa)
+    v2 = (speed_limit(kappa, mu, p) ** 2).tolist()
+    kab = np.abs(kappa).tolist()
+    dsl = ds.tolist()
+    mug = mu * G
+    c1, c2, c3, c4, mass, dmax, dmin = p.C1, p.C2, p.C3, p.C4, p.m, p.d_max, p.d_min
+    sqrt = math.sqrt
+    start = int(np.argmin(v2))
+    for _ in range(max_sweeps):
+        changed = False
+        for j in range(m):                                   # forward: acceleration
+            k = (start + j) % m
+            k1 = k + 1 if k + 1 < m else 0
+            vk2 = v2[k]
+            if v2[k1] > vk2:                              # only a rise can break the limit
+                vk = sqrt(vk2)
+                r = min(vk2 * kab[k] / mug, 1.0)
+                a = min(((c1 - c2 * vk) * dmax - c3 - c4 * vk2) / mass, mug * sqrt(1.0 - r * r))
+                cand = vk2 + 2.0 * dsl[k] * max(a, 0.0)
+                if cand < v2[k1]:
+                    v2[k1] = cand
+                    changed = True
+        for j in range(m):                                   # backward: braking
+            k1 = (start - j) % m
+            k = k1 - 1 if k1 > 0 else m - 1
+            vk2 = v2[k1]
+            if v2[k] > vk2:
+                vk = sqrt(vk2)
+                r = min(vk2 * kab[k1] / mug, 1.0)
+                a = min(-((c1 - c2 * vk) * dmin - c3 - c4 * vk2) / mass, mug * sqrt(1.0 - r * r))
+                cand = vk2 + 2.0 * dsl[k] * max(a, 0.0)
+                if cand < v2[k]:
+                    v2[k] = cand
+                    changed = True
+        if not changed:
+            break
+    else:
+        raise RuntimeError(f"speed profile did not settle in {max_sweeps} sweeps")
+    v2 = np.asarray(v2)
+    vx = np.sqrt(v2)
+    ax = (np.roll(v2, -1) - v2) / (2.0 * ds)
+    return vx, ax
+
+
+def lap_time_of(vx, ds) -> float:
+    """Lap time [s] of a periodic profile: ``sum 2 ds[k] / (v[k] + v[k+1])``."""
+    vx = np.asarray(vx, dtype=float)
+    return float(np.sum(2.0 * np.asarray(ds) / np.maximum(vx + np.roll(vx, -1), 1e-12)))
+
+
+# ====================================================================== the result
+_ARRAYS = ("s", "x", "y", "psi", "kappa", "vx", "ax", "n", "s_track", "n_lo", "n_hi", "mus",
+           "vx_lib", "ax_lib")
+_SCALARS = ("length", "track_length", "mu_nominal", "lap_time", "iterations", "converged",
+            "last_change", "cost", "cost_center", "compute_time")
+
+
+@dataclass(eq=False)
+class Raceline:
+    """A racing line with its speed library. Per-point arrays have shape (M,), one entry per
+    grid point of the track (``s_track == track.s_grid``), in driving order:
+
+    * ``s`` [m] arc length along the racing line (``s[0] = 0``), ``length`` [m] its lap length;
+    * ``x, y`` [m] position, ``psi`` [rad] heading (unwrapped), ``kappa`` [1/m] curvature
+      (left turn positive);
+    * ``vx`` [m/s] speed and ``ax`` [m/s^2] acceleration of the nominal profile
+      (``mu = mu_nominal``); ``ax[k]`` is the constant acceleration from point k to k+1;
+    * ``n`` [m] lateral offset from the centre line (left positive), ``s_track`` [m] centre-line
+      arc length of each point, ``n_lo, n_hi`` [m] the bounds the offsets were held to;
+    * ``mus`` (K,) friction values of the library, ``vx_lib, ax_lib`` (K, M) their profiles.
+
+    Scalars: ``track_length`` [m] (centre line), ``lap_time`` [s] of the nominal profile,
+    ``iterations`` / ``converged`` / ``last_change`` [m] of the minimum-curvature iteration,
+    ``cost`` / ``cost_center`` summed squared curvature [1/m^2] of line / centre line on the
+    optimisation stations, ``compute_time`` [s]. ``from_cache`` tells whether it was loaded.
+    """
+
+    s: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    psi: np.ndarray
+    kappa: np.ndarray
+    vx: np.ndarray
+    ax: np.ndarray
+    n: np.ndarray
+    s_track: np.ndarray
+    n_lo: np.ndarray
+    n_hi: np.ndarray
+    mus: np.ndarray
+    vx_lib: np.ndarray
+    ax_lib: np.ndarray
+    length: float
+    track_length: float
+    mu_nominal: float
+    lap_time: float
+    iterations: int
+    converged: bool
+    last_change: float
+    cost: float
+    cost_center: float
+    compute_time: float
+    track_name: str = ""
+    track_fingerprint: str = ""
+    key: str = ""
+    from_cache: bool = False
+    track: Track | None = field(default=None, repr=False)
+
+    # ------------------------------------------------------------------ checks
+    def validate(self) -> None:
+        """Raise ``ValueError`` if any array is non-finite or shapes disagree."""
+        m = len(self.s)
+        for name in _ARRAYS:
+            a = getattr(self, name)
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"raceline {name} has non-finite values")
+            want = (len(self.mus), m) if name in ("vx_lib", "ax_lib") else \
+                (len(self.mus),) if name == "mus" else (m,)
+            if a.shape != want:
+                raise ValueError(f"raceline {name} has shape {a.shape}, expected {want}")
+        for name in _SCALARS:
+            if not math.isfinite(float(getattr(self, name))):
+                raise ValueError(f"raceline {name} is not finite: {getattr(self, name)!r}")
+        if m < 2 or np.any(np.diff(self.s) <= 0) or self.length <= self.s[-1]:
+            raise ValueError("raceline arc length s is not increasing")
+        if np.any(self.vx <= 0) or np.any(self.vx_lib <= 0) or np.any(np.diff(self.mus) <= 0):
+            raise ValueError("raceline speeds must be positive and mus increasing")
+
+    # ------------------------------------------------------------------ lookups
+    @property
+    def ds(self) -> np.ndarray:
+        """Segment lengths [m] along the racing line, shape (M,): ``ds[k] = s[k+1] - s[k]``."""
+        return np.diff(np.append(self.s, self.length))
+
+    def _interp(self, table: np.ndarray, s_track):
+        """Periodic linear interpolation of a per-point table at (unwrapped) centre-line s."""
+        m = len(self.s_track)
+        f = np.mod(np.asarray(s_track, dtype=float), self.track_length) * (m / self.track_length)
+        fl = np.floor(f)
+        i0 = fl.astype(np.int64) % m
+        t = f - fl
+        return table[..., i0] * (1.0 - t) + table[..., (i0 + 1) % m] * t
+
+    def offset_at(self, s_track):
+        """Racing-line offset ``n`` [m] (left positive) at centre-line arc length ``s_track`` [m]
+        (any shape, unwrapped allowed); same shape as ``s_track``."""
+        return self._interp(self.n, s_track)
+
+    def _check_mu(self, mu) -> float:
+        mu_f = float(mu)
+        lo, hi = float(self.mus[0]), float(self.mus[-1])
+        if not (math.isfinite(mu_f) and lo - 1e-12 <= mu_f <= hi + 1e-12):
+            raise ValueError(f"friction mu={mu!r} is outside the speed library range "
+                             f"[{lo}, {hi}]")
+        return min(max(mu_f, lo), hi)
+
+    def profile(self, mu=None):
+        """``(vx, ax)`` per point [m/s], [m/s^2] for friction ``mu`` (default ``mu_nominal``),
+        linearly interpolated between the library's neighbouring profiles; shapes (M,)."""
+        if mu is None:
+            return self.vx, self.ax
+        mu = self._check_mu(mu)
+        j = int(np.clip(np.searchsorted(self.mus, mu, side="right") - 1, 0, len(self.mus) - 2))
+        w = (mu - self.mus[j]) / (self.mus[j + 1] - self.mus[j])
+        vx = (1.0 - w) * self.vx_lib[j] + w * self.vx_lib[j + 1]
+        ax = (1.0 - w) * self.ax_lib[j] + w * self.ax_lib[j + 1]
+        return vx, ax
+
+    def speed_at(self, s_track, mu=None):
+        """Reference speed ``vx`` [m/s] at centre-line ``s_track`` [m] (any shape, unwrapped
+        allowed) for friction ``mu`` (scalar in ``[mus[0], mus[-1]]``, default ``mu_nominal``).
+        Raises ``ValueError`` for a ``mu`` outside the library range."""
+        return self._interp(self.profile(mu)[0], s_track)
+
+    def accel_at(self, s_track, mu=None):
+        """Reference acceleration ``ax`` [m/s^2] at centre-line ``s_track`` (like :meth:`speed_at`)."""
+        return self._interp(self.profile(mu)[1], s_track)
+
+    def heading_at(self, s_track):
+        """Racing-line heading ``psi`` [rad], wrapped to (-pi, pi], at centre-line ``s_track`` [m]."""
+        c = self._interp(np.cos(self.psi), s_track)
+        sn = self._interp(np.sin(self.psi), s_track)
+        return np.arctan2(sn, c)
+
+    def kappa_at(self, s_track):
+        """Racing-line curvature ``kappa`` [1/m] at centre-line ``s_track`` [m]."""
+        return self._interp(self.kappa, s_track)
+
+    def s_line_at(self, s_track):
+        """Arc length along the racing line [m] at centre-line ``s_track`` [m], unwrapped the
+        same way (``s_track + k * track_length`` maps to ``... + k * length``)."""
+        s_track = np.asarray(s_track, dtype=float)
+        lap = np.floor(s_track / self.track_length)
+        s_ext = np.append(self.s, self.length)
+        st_ext = np.append(self.s_track, self.track_length)
+        return lap * self.length + np.interp(s_track - lap * self.track_length, st_ext, s_ext)
+
+    def lap_time_at(self, mu=None) -> float:
+        """Lap time [s] of the profile for ``mu`` (default ``mu_nominal``)."""
+        return lap_time_of(self.profile(mu)[0], self.ds)
+
+    # ------------------------------------------------------------------ output
+    def to_csv(self, path) -> Path:
+        """Write the nominal racing line as CSV (columns :data:`CSV_COLUMNS`, units in the names:
+        ``_m`` metres, ``_rad`` radians, ``_radpm`` 1/m, ``_mps`` m/s, ``_mps2`` m/s^2)."""
+        path = Path(path)
+        data = np.column_stack([self.s, self.x, self.y, self.psi, self.kappa, self.vx, self.ax,
+                                self.n, self.s_track])
+        if not np.all(np.isfinite(data)):
+            raise ValueError("refusing to write a racing line with non-finite values")
+        header = (f"racing line of track '{self.track_name}' ({self.track_fingerprint}), "
+                  f"mu = {self.mu_nominal}, length {self.length:.4f} m, lap time {self.lap_time:.4f} s\n"
+                  + ",".join(CSV_COLUMNS))
+        np.savetxt(path, data, delimiter=",", header=header, fmt="%.9g")
+        return path
+
+    def plot(self, path, track: Track | None = None, mu=None) -> Path:
+        """Write a PNG of the track edges, centre line and racing line coloured by speed."""
+        return plot_raceline(track if track is not None else self.track, self, path, mu=mu)
+
+    def to_npz_dict(self) -> dict:
+        """Arrays and metadata for :func:`numpy.savez` (no objects, loadable without pickle)."""
+        d = {name: np.asarray(getattr(self, name), dtype=float) for name in _ARRAYS}
+        for name in _SCALARS:
+            d[name] = np.asarray(float(getattr(self, name)))
+        meta = dict(track_name=self.track_name, track_fingerprint=self.track_fingerprint,
+                    key=self.key, version=CACHE_VERSION)
+        d["meta"] = np.asarray(json.dumps(meta))
+        return d
+
+    @classmethod
+    def from_npz_dict(cls, d) -> "Raceline":
+        """Inverse of :meth:`to_npz_dict`; raises ``ValueError``/``KeyError`` on bad content."""
+        meta = json.loads(str(d["meta"][()]))
+        kw = {name: np.array(d[name], dtype=float) for name in _ARRAYS}
+        for name in _SCALARS:
+            kw[name] = float(d[name][()])
+        kw["iterations"] = int(kw["iterations"])
+        kw["converged"] = bool(kw["converged"])
+        rl = cls(**kw, track_name=str(meta["track_name"]),
+                 track_fingerprint=str(meta["track_fingerprint"]), key=str(meta["key"]))
+        rl._meta_version = meta.get("version")
+        rl.validate()
+        return rl
+
+    def __repr__(self) -> str:
+        return (f"Raceline(track={self.track_name!r}, points={len(self.s)}, length={self.length:.3f} m, "
+                f"lap_time={self.lap_time:.3f} s at mu={self.mu_nominal}, "
+                f"v {self.vx.min():.2f}..{self.vx.max():.2f} m/s, iterations={self.iterations}, "
+                f"converged={self.converged})")
+
+
+# ====================================================================== computation
+def _line_geometry(px, py):
+    """Arc length, lap length, heading and curvature of the closed polyline (px, py), shape (M,)."""
+    chord = np.hypot(np.diff(np.append(px, px[0])), np.diff(np.append(py, py[0])))
+    if np.any(chord <= 1e-12):
+        raise ValueError("racing line has repeated points")
+    u = np.concatenate([[0.0], np.cumsum(chord)])
+    spx = CubicSpline(u, np.append(px, px[0]), bc_type="periodic")
+    spy = CubicSpline(u, np.append(py, py[0]), bc_type="periodic")
+    # arc length of the spline (Gauss-Legendre, 3 nodes per segment)
+    nodes, weights = np.polynomial.legendre.leggauss(3)
+    a, b = u[:-1], u[1:]
+    uu = 0.5 * (a + b)[:, None] + 0.5 * (b - a)[:, None] * nodes[None, :]
+    speed = np.hypot(spx(uu, 1), spy(uu, 1))
+    seg = 0.5 * (b - a) * (speed @ weights)
+    s = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+    length = float(np.sum(seg))
+    dx, dy = spx(u[:-1], 1), spy(u[:-1], 1)
+    ddx, ddy = spx(u[:-1], 2), spy(u[:-1], 2)
+    psi = np.unwrap(np.arctan2(dy, dx))
+    kappa = (dx * ddy - dy * ddx) / np.hypot(dx, dy) ** 3
+    return s, length, psi, kappa
+
+
+def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
+                     config: RacelineConfig | None = None) -> Raceline:
+    """Compute (no cache) the minimum-curvature racing line and its speed library on ``track``."""
+    vehicle = vehicle or VehicleParams()
+    config = config or RacelineConfig()
+    t0 = time.perf_counter()
+    s_sub, n_sub, info = minimum_curvature_offsets(track, vehicle, config)
+    s_track = np.asarray(track.s_grid, dtype=float)
+    n_lo, n_hi = offset_bounds(track, s_track, vehicle, config.margin)
+    spn = CubicSpline(np.append(s_sub, track.length), np.append(n_sub, n_sub[0]), bc_type="periodic")
+    n = np.clip(spn(s_track), n_lo, n_hi)
+    px, py = track.to_cartesian(s_track, n)
+    s, length, psi, kappa = _line_geometry(np.asarray(px), np.asarray(py))
+    ds = np.diff(np.append(s, length))
+    mus = config.mus
+    lib = [speed_profile(kappa, ds, float(mu), vehicle) for mu in mus]
+    vx_lib = np.array([v for v, _ in lib])
+    ax_lib = np.array([a for _, a in lib])
+    j = int(np.argmin(np.abs(mus - config.mu_nominal)))
+    rl = Raceline(s=s, x=np.asarray(px, float), y=np.asarray(py, float), psi=psi, kappa=kappa,
+                  vx=vx_lib[j].copy(), ax=ax_lib[j].copy(), n=n, s_track=s_track, n_lo=n_lo,
+                  n_hi=n_hi, mus=mus, vx_lib=vx_lib, ax_lib=ax_lib, length=length,
+                  track_length=float(track.length), mu_nominal=float(config.mu_nominal),
+                  lap_time=lap_time_of(vx_lib[j], ds), iterations=int(info["iterations"]),
+                  converged=bool(info["converged"]), last_change=float(info["last_change"]),
+                  cost=info["cost"], cost_center=info["cost_center"],
+                  compute_time=time.perf_counter() - t0, track_name=track.name,
+                  track_fingerprint=track.fingerprint(), key=cache_key(track, vehicle, config),
+                  track=track)
+    rl.validate()
+    return rl
+
+
+# ====================================================================== caching
+_MEMO: dict[str, Raceline] = {}
+
+
+def cache_key(track: Track, vehicle: VehicleParams, config: RacelineConfig) -> str:
+    """Hash [hex, 24 chars] of the track geometry, the vehicle parameters and the config."""
+    blob = json.dumps({"version": CACHE_VERSION, "track": track.fingerprint(),
+                       "vehicle": vehicle.to_dict(), "config": asdict(config)}, sort_keys=True)
+    return hashlib.sha1(blob.encode()).hexdigest()[:24]
+
+
+def cache_dir() -> Path:
+    """Folder of cached racing lines: ``$ALPHA_RACER_CACHE/raceline`` if the variable is set,
+    else ``~/.cache/alpha_racer/raceline``."""
+    env = os.environ.get("ALPHA_RACER_CACHE")
+    base = Path(env).expanduser() if env else Path.home() / ".cache" / "alpha_racer"
+    return base / "raceline"
+
+
+def cache_path(track: Track, vehicle: VehicleParams | None = None,
+               config: RacelineConfig | None = None) -> Path:
+    """The .npz file :func:`get_raceline` uses for these inputs."""
+    key = cache_key(track, vehicle or VehicleParams(), config or RacelineConfig())
+    safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in track.name)[:40]
+    return cache_dir() / f"{safe}_{key}.npz"
+
+
+def _load(path: Path, key: str) -> Raceline | None:
+    try:
+        with np.load(path, allow_pickle=False) as d:
+            rl = Raceline.from_npz_dict(d)
+        if rl.key != key or getattr(rl, "_meta_version", None) != CACHE_VERSION:
+            return None
+        return rl
+    except Exception:                # corrupt, truncated, old or foreign file: recompute
+        return None
+
+
+def _save(path: Path, rl: Raceline) -> None:
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=path.stem + ".", suffix=".tmp.npz", dir=path.parent)
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, **rl.to_npz_dict())
+        os.replace(tmp, path)
+        tmp = None
+    except OSError as exc:
+        warnings.warn(f"could not write racing-line cache {path}: {exc}", RuntimeWarning, stacklevel=3)
+    finally:
+        if tmp is not None and os.path.exists(tmp):
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+
+
+def get_raceline(track: "Track | str", vehicle: VehicleParams | None = None,
+                 config: RacelineConfig | None = None, use_cache: bool = True) -> Raceline:
+    """The racing line of ``track`` (a :class:`Track` or a :func:`~racing_env.tracks.make_track`
+    name) for ``vehicle`` and ``config``, from the in-process memo, else the disk cache
+    (:func:`cache_path`), else computed by :func:`compute_raceline` and stored (written to a
+    temporary file and moved into place, so readers never see half a file). An unreadable,
+    corrupt or mismatched cache file is recomputed and overwritten. ``use_cache=False`` skips
+    both caches (and writes nothing).
+    """
+    if not isinstance(track, Track):
+        from .tracks import make_track
+        track = make_track(track)
+    vehicle = vehicle if vehicle is not None else VehicleParams()
+    config = config if config is not None else RacelineConfig()
+    if not isinstance(vehicle, VehicleParams):
+        raise ValueError(f"vehicle must be a VehicleParams, got {type(vehicle).__name__}")
+    if not isinstance(config, RacelineConfig):
+        raise ValueError(f"config must be a RacelineConfig, got {type(config).__name__}")
+    if not use_cache:
+        return compute_raceline(track, vehicle, config)
+    key = cache_key(track, vehicle, config)
+    path = cache_path(track, vehicle, config)
+    memo_key = f"{path}"
+    rl = _MEMO.get(memo_key)
+    if rl is not None and rl.key == key:
+        return rl
+    rl = _load(path, key) if path.is_file() else None
+    if rl is not None:
+        rl.from_cache = True
+        rl.track = track
+    else:
+        rl = compute_raceline(track, vehicle, config)
+        _save(path, rl)
+    _MEMO[memo_key] = rl
+    return rl
+
+
+def clear_memo() -> None:
+    """Forget the in-process memo of :func:`get_raceline` (disk files stay)."""
+    _MEMO.clear()
+
+
+# ====================================================================== plotting
+def plot_raceline(track: Track, raceline: Raceline, path, mu=None, dpi: int = 150) -> Path:
+    """Write a PNG [path] of the track edges, the centre line and the racing line coloured by
+    speed [m/s] (profile for ``mu``, default nominal). Uses matplotlib's Agg canvas directly, so
+    it never touches the global backend."""
+    if track is None:
+        raise ValueError("plot_raceline needs the track (raceline.track is not set)")
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection
+    from matplotlib.figure import Figure
+
+    path = Path(path)
+    vx = raceline.profile(mu)[0]
+    fig = Figure(figsize=(8, 6))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(111)
+    (xl, yl), (xr, yr) = track.edges()
+    close = lambda a: np.append(a, a[0])
+    ax.plot(close(xl), close(yl), color="0.2", lw=1.0)
+    ax.plot(close(xr), close(yr), color="0.2", lw=1.0)
+    ax.plot(close(track.x), close(track.y), color="0.6", lw=0.8, ls="--", label="centre line")
+    pts = np.column_stack([close(raceline.x), close(raceline.y)])
+    segs = np.stack([pts[:-1], pts[1:]], axis=1)
+    lc = LineCollection(segs, cmap="viridis", linewidths=2.0)
+    lc.set_array(0.5 * (vx + np.roll(vx, -1)))
+    ax.add_collection(lc)
+    fig.colorbar(lc, ax=ax, label="speed [m/s]")
+    ax.plot(raceline.x[0], raceline.y[0], "r>", ms=8, label="start")
+    mu_txt = raceline.mu_nominal if mu is None else float(mu)
+    ax.set_title(f"{raceline.track_name}: racing line, mu = {mu_txt:g}, "
+                 f"lap {lap_time_of(vx, raceline.ds):.2f} s")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    return path
+
+
+__all__ = ["CSV_COLUMNS", "G", "Raceline", "RacelineConfig", "RacelineConvergenceWarning",
+           "accel_limits", "cache_dir", "cache_key", "cache_path", "clear_memo", "compute_raceline",
+           "get_raceline", "lap_time_of", "minimum_curvature_offsets", "offset_bounds",
+           "plot_raceline", "speed_limit", "speed_profile", "vehicle_grip_mu"]

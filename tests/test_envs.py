@@ -33,9 +33,13 @@ def test_max_cycles():
     max_cycles_test(sys.modules["racing_env"])
 
 
+@pytest.mark.filterwarnings("ignore:human rendering needs a display")
 def test_render_modes():
-    with pytest.warns(UserWarning, match="display"):
-        render_test(lambda render_mode=None: racing_env.env(n_cars=3, render_mode=render_mode))
+    render_test(lambda render_mode=None: racing_env.env(n_cars=3, render_mode=render_mode))
+    env = racing_env.parallel_env(n_cars=2, render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
 
 
 def _rollout(env, seed, steps, rng_seed=0):
@@ -120,7 +124,7 @@ def test_gymnasium_env_passes_checkers():
 
 
 def test_gymnasium_env_opponents_drive():
-    env = HeadToHeadEnv(opponents=[RacelineFollower(speed_scale=0.8)], max_cycles=80, start="grid")
+    env = HeadToHeadEnv(opponents=[RacelineFollower(mu=0.7)], max_cycles=80, start="grid")
     obs, info = env.reset(seed=1)
     assert obs.shape == env.observation_space.shape == (6 * 2 + 10,)
     total = 0.0

@@ -1,0 +1,353 @@
+"""Tests of racing_env.raceline: minimum-curvature path, speed profile/library, lookups, cache."""
+from __future__ import annotations
+
+import math
+import os
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from racing_env import raceline as R
+from racing_env.raceline import (CSV_COLUMNS, G, Raceline, RacelineConfig, RacelineConvergenceWarning,
+                                 accel_limits, compute_raceline, get_raceline, speed_profile)
+from racing_env.track import Track
+from racing_env.tracks import make_track, random_track, tumftm_dir
+from racing_env.vehicle import VehicleParams
+
+VEH = VehicleParams()
+
+
+# ---------------------------------------------------------------------- fixtures / helpers
+@pytest.fixture(scope="module")
+def default_rl() -> Raceline:
+    return compute_raceline(make_track("default"))
+
+
+@pytest.fixture(scope="module")
+def oval_rl() -> Raceline:
+    return compute_raceline(make_track("oval"))
+
+
+def circle_track(radius=1.5, half_width=0.25, n=200) -> Track:
+    th = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    w = np.full(n, half_width)
+    return Track.from_centerline(radius * np.cos(th), radius * np.sin(th), w, w, name="circle")
+
+
+def limits_by_hand(v, kappa, mu, p=VEH):
+    """Independent re-statement of the acceleration limits (friction circle + drive train)."""
+    v = np.asarray(v, float)
+    fric = mu * G * np.sqrt(np.clip(1.0 - (v ** 2 * np.abs(kappa) / (mu * G)) ** 2, 0.0, None))
+    drive = ((p.C1 - p.C2 * v) * p.d_max - p.C3 - p.C4 * v ** 2) / p.m
+    brake = -((p.C1 - p.C2 * v) * p.d_min - p.C3 - p.C4 * v ** 2) / p.m
+    return np.maximum(np.minimum(drive, fric), 0), np.maximum(np.minimum(brake, fric), 0)
+
+
+def check_profile(kappa, ds, vx, mu, tol=1e-9):
+    """v <= sqrt(mu g/|kappa|), v <= top speed, and the per-segment acceleration limits."""
+    v_corner = np.sqrt(mu * G / np.maximum(np.abs(kappa), 1e-12))
+    assert np.all(vx <= v_corner * (1 + 1e-9) + tol)
+    assert np.all(vx <= VEH.top_speed + tol)
+    assert np.all(vx > 0)
+    v1 = np.roll(vx, -1)                    # includes the wrap from the last point to the first
+    k1 = np.roll(kappa, -1)
+    a_acc, _ = limits_by_hand(vx, kappa, mu)
+    _, a_brk = limits_by_hand(v1, k1, mu)
+    assert np.all(v1 ** 2 - vx ** 2 <= 2 * a_acc * ds + tol)
+    assert np.all(vx ** 2 - v1 ** 2 <= 2 * a_brk * ds + tol)
+
+
+def check_line(rl: Raceline, track: Track, config=RacelineConfig()):
+    rl.validate()
+    for name in ("s", "x", "y", "psi", "kappa", "vx", "ax", "n", "s_track", "vx_lib", "ax_lib"):
+        assert np.all(np.isfinite(getattr(rl, name))), name
+    half = VEH.width / 2 + config.margin
+    assert np.all(rl.n <= track.w_left - half + 1e-9)
+    assert np.all(rl.n >= -track.w_right + half - 1e-9)
+    np.testing.assert_allclose(rl.s_track, track.s_grid)
+    # positions really are the centre-line points moved by n along the normal
+    x, y = track.to_cartesian(rl.s_track, rl.n)
+    np.testing.assert_allclose(rl.x, x, atol=1e-9)
+    np.testing.assert_allclose(rl.y, y, atol=1e-9)
+    # lower summed squared curvature than the centre line (at the same points and as an integral)
+    assert rl.cost < rl.cost_center
+    assert np.sum(rl.kappa ** 2) < np.sum(track.kappa ** 2)
+    assert np.sum(rl.kappa ** 2 * rl.ds) < np.sum(track.kappa ** 2 * track.ds)
+    for j, mu in enumerate(rl.mus):
+        check_profile(rl.kappa, rl.ds, rl.vx_lib[j], mu)
+    assert rl.converged
+
+
+# ---------------------------------------------------------------------- config
+@pytest.mark.parametrize("kw, word", [
+    (dict(margin=-0.01), "margin"), (dict(mu_min=0.0), "mu_min"), (dict(mu_min=1.0, mu_max=0.5), "mu_min"),
+    (dict(mu_nominal=1.2), "mu_nominal"), (dict(n_mu=1), "n_mu"), (dict(n_mu=2.5), "n_mu"),
+    (dict(point_spacing=0), "point_spacing"), (dict(tol=float("nan")), "tol"), (dict(max_iter=0), "max_iter"),
+    (dict(smoothing=-1.0), "smoothing"), (dict(margin="x"), "margin"),
+])
+def test_config_rejects_bad_values(kw, word):
+    with pytest.raises(ValueError, match=word):
+        RacelineConfig(**kw)
+
+
+def test_config_mus_include_nominal():
+    c = RacelineConfig(mu_min=0.5, mu_max=1.0, n_mu=6, mu_nominal=0.85)
+    assert np.all(np.diff(c.mus) > 0) and 0.85 in c.mus and c.mus[0] == 0.5 and c.mus[-1] == 1.0
+    assert len(RacelineConfig(n_mu=6, mu_nominal=0.9).mus) == 6     # already on the grid
+    assert 0.85 < R.vehicle_grip_mu(VEH) < 0.95                        # the reason for the default
+
+
+def test_too_narrow_track_raises():
+    with pytest.raises(ValueError, match="too narrow"):
+        compute_raceline(make_track("oval"), config=RacelineConfig(margin=0.3))
+
+
+# ---------------------------------------------------------------------- the path
+def test_default_track_line(default_rl):
+    check_line(default_rl, make_track("default"))
+    assert default_rl.compute_time < 10.0
+
+
+def test_oval_uses_the_width(oval_rl):
+    track = make_track("oval")
+    check_line(oval_rl, track)
+    n, lo, hi = oval_rl.n, oval_rl.n_lo, oval_rl.n_hi
+    corner = track.kappa > 0.5 * track.kappa.max()
+    # label the two corners and the two straights as contiguous runs
+    edges = np.flatnonzero(np.diff(np.r_[corner, corner[0]].astype(int)))
+    runs = np.split(np.roll(np.arange(len(n)), -(edges[0] + 1)), np.cumsum(np.diff(edges)))
+    corners = [r for r in runs if corner[r[0]]]
+    straights = [r for r in runs if not corner[r[0]]]
+    assert len(corners) == 2 and len(straights) == 2
+    for r in corners:                         # apex at the inside (left: the oval turns left)
+        assert n[r].max() >= hi[r].max() - 1e-3
+        mid = r[len(r) // 2]
+        assert n[mid] > 0.5 * hi[mid]
+    for r in straights:                       # wide on the straight, i.e. outside at entry/exit
+        assert n[r].min() <= lo[r].min() + 1e-3
+    # the car swings out: offsets span (almost) the whole usable width
+    assert n.max() - n.min() > 0.95 * (hi.max() - lo.min())
+
+
+def test_circle_cornering_speed_by_hand():
+    """On a circle the best line is the outer edge; speed = sqrt(mu g / kappa_line) all round."""
+    radius, half_width = 1.5, 0.25
+    cfg = RacelineConfig()
+    rl = compute_raceline(circle_track(radius, half_width), config=cfg)
+    r_line = radius + half_width - VEH.width / 2 - cfg.margin
+    np.testing.assert_allclose(rl.n, -(r_line - radius), atol=2e-3)
+    np.testing.assert_allclose(rl.kappa, 1.0 / r_line, rtol=5e-3)
+    np.testing.assert_allclose(rl.length, 2 * np.pi * r_line, rtol=1e-3)
+    for mu in (0.5, 0.7, cfg.mu_nominal, 1.0):
+        v_hand = min(math.sqrt(mu * G * r_line), VEH.top_speed)
+        np.testing.assert_allclose(rl.speed_at(rl.s_track, mu), v_hand, rtol=5e-3)
+    np.testing.assert_allclose(rl.ax, 0.0, atol=0.05)
+    np.testing.assert_allclose(rl.lap_time, 2 * np.pi * r_line / math.sqrt(cfg.mu_nominal * G * r_line),
+                               rtol=5e-3)
+
+
+def test_convergence_warning():
+    with pytest.warns(RacelineConvergenceWarning, match="did not converge"):
+        rl = compute_raceline(make_track("default"), config=RacelineConfig(max_iter=1))
+    assert not rl.converged and rl.iterations == 1
+    assert np.all(np.isfinite(rl.vx))
+
+
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000))
+def test_random_tracks_valid_line(seed):
+    try:
+        track = random_track(seed)
+    except ValueError:
+        assume(False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RacelineConvergenceWarning)
+        rl = compute_raceline(track)
+    check_line(rl, track)
+
+
+@pytest.mark.skipif(tumftm_dir() is None, reason="TUMFTM track folder not present")
+def test_tumftm_monza_valid_line():
+    if not (tumftm_dir() / "Monza.csv").is_file():
+        pytest.skip("Monza.csv not in the TUMFTM folder")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)      # track loader notes (not ours)
+        track = make_track("tumftm:Monza")
+    rl = compute_raceline(track)
+    check_line(rl, track)
+    assert rl.compute_time < 15.0
+    assert 20.0 < rl.lap_time < 60.0
+
+
+# ---------------------------------------------------------------------- speed profile
+def test_speed_profile_constraints_and_periodicity(default_rl):
+    rl = default_rl
+    for mu in (0.5, 0.85, 1.0):
+        vx, ax = speed_profile(rl.kappa, rl.ds, mu)
+        check_profile(rl.kappa, rl.ds, vx, mu)
+        np.testing.assert_allclose(ax, (np.roll(vx, -1) ** 2 - vx ** 2) / (2 * rl.ds))
+        # periodic: starting the lap elsewhere gives the same (rotated) profile
+        for shift in (1, 137, len(vx) // 2):
+            v2, _ = speed_profile(np.roll(rl.kappa, shift), np.roll(rl.ds, shift), mu)
+            np.testing.assert_allclose(v2, np.roll(vx, shift), rtol=1e-9, atol=1e-9)
+    # the nominal profile both accelerates and brakes and reaches top speed on the main straight
+    assert rl.ax.max() > 0.5 and rl.ax.min() < -0.5
+    assert rl.vx.max() > 0.95 * VEH.top_speed
+
+
+def test_accel_limits_match_hand_formula():
+    v = np.linspace(0.0, VEH.top_speed, 7)[:, None]
+    k = np.array([0.0, 0.3, 1.0, 3.0])[None, :]
+    for mu in (0.5, 1.0):
+        a1, b1 = accel_limits(v, k, mu, VEH)
+        a2, b2 = limits_by_hand(v, k, mu)
+        np.testing.assert_allclose(a1, a2)
+        np.testing.assert_allclose(b1, b2)
+    # on a straight at standing start: drive train limits (0.235 N / 0.041 kg)
+    a, b = accel_limits(0.0, 0.0, 1.0, VEH)
+    assert a == pytest.approx((VEH.C1 - VEH.C3) / VEH.m)
+
+
+def test_speed_profile_straight_runs_at_top_speed():
+    vx, ax = speed_profile(np.zeros(50), np.full(50, 0.1), 0.8)
+    np.testing.assert_allclose(vx, VEH.top_speed)
+    np.testing.assert_allclose(ax, 0.0, atol=1e-9)
+    with pytest.raises(ValueError):
+        speed_profile(np.zeros(5), np.zeros(5), 0.8)
+
+
+# ---------------------------------------------------------------------- library
+def test_library_exact_at_grid_and_monotone(default_rl):
+    rl = default_rl
+    s = rl.s_track
+    for j, mu in enumerate(rl.mus):
+        np.testing.assert_array_equal(rl.speed_at(s, mu), rl.vx_lib[j])
+    np.testing.assert_array_equal(rl.speed_at(s), rl.vx)
+    np.testing.assert_array_equal(rl.speed_at(s, rl.mu_nominal), rl.vx)
+    # profiles themselves are ordered in mu, hence so is their interpolation
+    assert np.all(np.diff(rl.vx_lib, axis=0) >= -1e-9)
+    mus = np.linspace(rl.mus[0], rl.mus[-1], 37)
+    v = np.array([rl.speed_at(s, mu) for mu in mus])
+    assert np.all(np.diff(v, axis=0) >= -1e-9)
+    lap = [rl.lap_time_at(mu) for mu in mus]
+    assert np.all(np.diff(lap) <= 1e-9)
+    # halfway between two grid mus is the mean of their profiles
+    np.testing.assert_allclose(rl.speed_at(s, 0.5 * (rl.mus[0] + rl.mus[1])),
+                               0.5 * (rl.vx_lib[0] + rl.vx_lib[1]))
+
+
+@pytest.mark.parametrize("mu", [0.3, 1.2, -1.0, float("nan"), float("inf")])
+def test_mu_out_of_range_raises(default_rl, mu):
+    with pytest.raises(ValueError, match=r"outside the speed library range \[0.5, 1.0\]") as exc:
+        default_rl.speed_at(1.0, mu)
+    assert str(mu) in str(exc.value)
+
+
+# ---------------------------------------------------------------------- lookups and output
+def test_lookups_vectorised_and_unwrapped(default_rl):
+    rl = default_rl
+    L = rl.track_length
+    np.testing.assert_allclose(rl.offset_at(rl.s_track), rl.n, atol=1e-12)
+    np.testing.assert_allclose(rl.heading_at(rl.s_track), np.arctan2(np.sin(rl.psi), np.cos(rl.psi)),
+                               atol=1e-9)
+    s = np.linspace(-L, 3 * L, 200).reshape(20, 10)
+    for f in (rl.offset_at, rl.speed_at, rl.heading_at, rl.kappa_at):
+        out = f(s)
+        assert out.shape == s.shape and np.all(np.isfinite(out))
+        np.testing.assert_allclose(f(s + 2 * L), out, atol=1e-9)
+    assert np.ndim(rl.speed_at(3.0)) == 0 and float(rl.speed_at(3.0)) > 0
+    sl = rl.s_line_at(np.linspace(0, 2 * L, 500))
+    assert np.all(np.diff(sl) > 0)
+    assert rl.s_line_at(L) == pytest.approx(rl.length)
+    # the heading really is the direction of travel along the line
+    d = np.arctan2(np.diff(rl.y), np.diff(rl.x)) - 0.5 * (rl.psi[1:] + rl.psi[:-1])
+    assert np.max(np.abs(np.arctan2(np.sin(d), np.cos(d)))) < 0.02
+
+
+def test_csv_and_plot(default_rl, tmp_path):
+    p = default_rl.to_csv(tmp_path / "line.csv")
+    lines = p.read_text().splitlines()
+    assert lines[1] == "# " + ",".join(CSV_COLUMNS)
+    data = np.loadtxt(p, delimiter=",", comments="#")
+    assert data.shape == (len(default_rl.s), len(CSV_COLUMNS))
+    np.testing.assert_allclose(data[:, 5], default_rl.vx, rtol=1e-8)
+    np.testing.assert_allclose(data[:, 7], default_rl.n, atol=1e-9)
+    png = R.plot_raceline(make_track("default"), default_rl, tmp_path / "line.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert default_rl.plot(tmp_path / "line2.png").stat().st_size > 10_000
+
+
+# ---------------------------------------------------------------------- caching
+@pytest.fixture
+def counting_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path))
+    R.clear_memo()
+    calls = []
+    real = R.compute_raceline
+
+    def counted(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(R, "compute_raceline", counted)
+    yield calls
+    R.clear_memo()
+
+
+def test_cache_round_trip(counting_cache, tmp_path):
+    track = make_track("oval")
+    rl1 = get_raceline(track)
+    assert len(counting_cache) == 1 and not rl1.from_cache
+    path = R.cache_path(track)
+    assert path.is_file() and path.parent == tmp_path / "raceline"
+    assert get_raceline(track) is rl1                        # in-process memo
+    R.clear_memo()
+    rl2 = get_raceline(track)
+    assert len(counting_cache) == 1 and rl2.from_cache      # from disk, not recomputed
+    for name in ("s", "x", "y", "psi", "kappa", "vx", "ax", "n", "s_track", "mus", "vx_lib", "ax_lib"):
+        np.testing.assert_array_equal(getattr(rl2, name), getattr(rl1, name))
+    assert rl2.lap_time == rl1.lap_time and rl2.key == rl1.key and rl2.track is track
+    assert not [p for p in path.parent.iterdir() if p.suffix != ".npz" or ".tmp" in p.name]
+    # a different config or vehicle is a different entry
+    get_raceline(track, config=RacelineConfig(margin=0.02))
+    assert len(counting_cache) == 2
+    assert R.cache_path(track, VehicleParams(width=0.05)) != path
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncated", "empty", "foreign", "nan"])
+def test_corrupt_cache_is_recomputed(counting_cache, damage):
+    track = make_track("oval")
+    rl1 = get_raceline(track)
+    path = R.cache_path(track)
+    raw = path.read_bytes()
+    if damage == "garbage":
+        path.write_bytes(b"not an npz file at all")
+    elif damage == "truncated":
+        path.write_bytes(raw[: len(raw) // 2])
+    elif damage == "empty":
+        path.write_bytes(b"")
+    elif damage == "foreign":                  # a valid file for another config under this name
+        other = compute_raceline(track, config=RacelineConfig(margin=0.02))
+        np.savez(path, **other.to_npz_dict())
+    elif damage == "nan":
+        d = rl1.to_npz_dict()
+        d["vx"] = d["vx"].copy()
+        d["vx"][3] = np.nan
+        np.savez(path, **d)
+    R.clear_memo()
+    n_before = len(counting_cache)
+    rl2 = get_raceline(track)
+    assert len(counting_cache) == n_before + 1 and not rl2.from_cache
+    np.testing.assert_allclose(rl2.vx, rl1.vx)
+    R.clear_memo()
+    assert get_raceline(track).from_cache                   # the file was rewritten and is good
+
+
+def test_get_raceline_accepts_names_and_skips_cache(counting_cache, tmp_path):
+    rl = get_raceline("oval", use_cache=False)
+    assert isinstance(rl, Raceline) and not os.path.exists(tmp_path / "raceline")
+    with pytest.raises(ValueError, match="config"):
+        get_raceline("oval", config={"margin": 0.1})
