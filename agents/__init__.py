@@ -3,7 +3,7 @@
     from agents import make_agent, agent_names
     agent = make_agent("raceline")
 """
-from .base import Agent, agent_names, make_agent, register_agent
+from .base import Agent, agent_names, make_agent, make_agent_spec, register_agent
 from . import simple  # noqa: F401  registers the built-in agents
 
-__all__ = ["Agent", "agent_names", "make_agent", "register_agent"]
+__all__ = ["Agent", "agent_names", "make_agent", "make_agent_spec", "register_agent"]

@@ -52,3 +52,28 @@ def make_agent(name: str, **kwargs: Any) -> Agent:
         raise TypeError(f"agent factory {name!r} returned {type(agent).__name__}, which lacks "
                         f"reset(track, agent_id, seed) / act(observation)")
     return agent
+
+
+def _parse_value(text: str):
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(text.lower(), text)
+
+
+def make_agent_spec(spec: str) -> Agent:
+    """Build an agent from a spec ``name`` or ``name:key=value,key=value`` (command line form),
+    e.g. ``"raceline:mu=0.75,line_fraction=0.8"``; values are parsed as int, float, bool or str."""
+    name, _, params = spec.partition(":")
+    kwargs = {}
+    for item in filter(None, params.split(",")):
+        key, eq, value = item.partition("=")
+        if not eq or not key:
+            raise ValueError(f"bad agent parameter {item!r} in {spec!r}; expected key=value")
+        kwargs[key.strip()] = _parse_value(value.strip())
+    try:
+        return make_agent(name, **kwargs)
+    except TypeError as exc:
+        raise ValueError(f"agent {spec!r}: {exc}") from None

