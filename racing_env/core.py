@@ -210,23 +210,28 @@ class BatchedRaces:
         """Distance driven since the start [m], (B, N)."""
         return self.state[:, :, 0] - self.start[:, :, 0]
 
-    def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """(low, high) of one car's observation, shape (D,) each."""
-        tb, v, n = self._tables, self.config.vehicle, self.n_cars
-        wall = float(max(tb.wall_left.max(), tb.wall_right.max())) + 1e-6
-        vmax = 1.5 * max(v.top_speed, self.config.start.speed) + 1.0
-        own_hi = np.array([self.track.length, wall, np.pi, vmax, vmax, 100.0])
-        own_lo = np.array([0.0, -wall, -np.pi, 0.0, -vmax, -100.0])
-        rel_hi = np.array([S_CLIP, 2 * wall, np.pi, vmax, 2 * vmax, 200.0])
-        kmax = float(np.abs(tb.kappa).max()) + 1e-6
-        hi = np.concatenate([own_hi, np.tile(rel_hi, n - 1), np.full(self.config.n_preview, kmax)])
-        lo = np.concatenate([own_lo, np.tile(-rel_hi, n - 1), np.full(self.config.n_preview, -kmax)])
-        return lo.astype(np.float32), hi.astype(np.float32)
-
     def state_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """(low, high) of one car's physical state used as the documented envelope (6,)."""
+        """(low, high) of one car's state (6,): the documented physical envelope.
+
+        ``n`` within the walls, ``mu`` wrapped to [-pi, pi], ``0 <= vx``, ``|vx|, |vy| <=
+        1.5 * top speed + 1`` m/s, ``|omega| <= 100`` rad/s; ``s`` is unbounded (unwrapped).
+        The fuzz (``alpha-racer fuzz``) checks every state against it.
+        """
         tb, v = self._tables, self.config.vehicle
         wall = float(max(tb.wall_left.max(), tb.wall_right.max())) + 1e-6
         vmax = 1.5 * max(v.top_speed, self.config.start.speed) + 1.0
         return (np.array([-np.inf, -wall, -np.pi, 0.0, -vmax, -100.0]),
                 np.array([np.inf, wall, np.pi, vmax, vmax, 100.0]))
+
+    def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) of one car's observation (D,), float32, from :meth:`state_bounds`."""
+        lo, hi = self.state_bounds()
+        own_lo, own_hi = lo.copy(), hi.copy()
+        own_lo[0], own_hi[0] = 0.0, self.track.length                  # own s is wrapped
+        rel_hi = np.concatenate([[S_CLIP], hi[1:] - lo[1:]])
+        rel_hi[2] = np.pi                                                  # wrapped difference
+        kmax = float(np.abs(self._tables.kappa).max()) + 1e-6
+        n, k = self.n_cars, self.config.n_preview
+        high = np.concatenate([own_hi, np.tile(rel_hi, n - 1), np.full(k, kmax)])
+        low = np.concatenate([own_lo, np.tile(-rel_hi, n - 1), np.full(k, -kmax)])
+        return low.astype(np.float32), high.astype(np.float32)
