@@ -42,10 +42,9 @@ def _cmd_raceline(args) -> int:
     stem = track.name.replace(":", "_")
     rl.to_csv(out / f"{stem}_raceline.csv")
     plot_raceline(track, rl, out / f"{stem}_raceline.png")
-    lap = float(rl.lap_time) if hasattr(rl, "lap_time") else float(
-        sum((rl.s[1:] - rl.s[:-1]) / (0.5 * (rl.vx[1:] + rl.vx[:-1]))))
-    print(f"{track!r}\nracing line: {len(rl.s)} points, length {rl.s[-1]:.2f} m, "
-          f"speed {rl.vx.min():.2f}..{rl.vx.max():.2f} m/s, lap time estimate {lap:.2f} s")
+    print(f"{track!r}\nracing line: {len(rl.s)} points, length {rl.length:.2f} m, "
+          f"speed {rl.vx.min():.2f}..{rl.vx.max():.2f} m/s, lap time estimate {rl.lap_time:.2f} s "
+          f"(mu = {rl.mu_nominal}), {rl.iterations} QP iterations, {rl.compute_time:.2f} s")
     print(f"wrote {out / f'{stem}_raceline.csv'} and {out / f'{stem}_raceline.png'}")
     return 0
 

@@ -31,6 +31,11 @@ def _fail(msg: str) -> None:
     raise ValueError(msg)
 
 
+def _cross2(u, v) -> float:
+    """z-component of the cross product of two 2-D vectors."""
+    return float(u[0] * v[1] - u[1] * v[0])
+
+
 def _segments_intersect(p: np.ndarray) -> tuple[int, int] | None:
     """First pair (i, j) of non-adjacent segments of the closed polyline ``p`` (M, 2) that cross."""
     m = len(p)
@@ -46,10 +51,10 @@ def _segments_intersect(p: np.ndarray) -> tuple[int, int] | None:
                 continue
             if lo[j, 1] > hi[i, 1] or hi[j, 1] < lo[i, 1]:
                 continue
-            d1 = np.cross(b[i] - a[i], a[j] - a[i])
-            d2 = np.cross(b[i] - a[i], b[j] - a[i])
-            d3 = np.cross(b[j] - a[j], a[i] - a[j])
-            d4 = np.cross(b[j] - a[j], b[i] - a[j])
+            d1 = _cross2(b[i] - a[i], a[j] - a[i])
+            d2 = _cross2(b[i] - a[i], b[j] - a[i])
+            d3 = _cross2(b[j] - a[j], a[i] - a[j])
+            d4 = _cross2(b[j] - a[j], b[i] - a[j])
             if d1 * d2 < 0 and d3 * d4 < 0:
                 return (int(min(i, j)), int(max(i, j)))
     return None

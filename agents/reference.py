@@ -1,0 +1,512 @@
+"""The paper's policy parametrization: theta = (q, zeta, s1, s2, s3) and the MPC reference.
+
+Section "Policy Parametrization" of the paper restricts every car's policy to an MPC that tracks
+a *reference trajectory*; five numbers shape both:
+
+* ``q``    weight of the position-tracking cost, ``Q = q I`` (``R = I`` on input rates);
+* ``zeta`` scale of the race-line velocities (the *perturbed race line*);
+* ``s1``   lateral clearance wanted when overtaking;
+* ``s2``   how sharply the overtake / block shifts decay with longitudinal distance;
+* ``s3``   blocking strength.
+
+:func:`reference_trajectory` builds the reference ``(s_ref, n_ref)`` for the MPC's predicted
+states ``k = 1..K`` exactly as the paper does (see its docstring for the one sign we changed),
+:func:`opponent_neighbours` picks the car just ahead ``j^*`` and just behind ``j_*``.
+
+Conventions (same as :mod:`racing_env`): Frenet state ``(s, n, mu, vx, vy, omega)`` with
+*unwrapped* ``s`` [m] (``s`` and ``s + k L`` are the same place on different laps), ``n`` [m]
+lateral offset, left positive, ``mu`` [rad] heading relative to the centre line, ``vx, vy``
+[m/s] body-frame velocities, ``omega`` [rad/s] yaw rate. Every longitudinal difference in this
+module is a difference of unwrapped progress, never a wrapped one.
+
+Everything is numpy, with no Python loop over the horizon; per-(race line, track) tables are
+computed once and cached, so one call costs a few tens of microseconds (K = 15, 2 opponents).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from racing_env.vehicle import VehicleParams
+
+__all__ = ["THETA_NAMES", "THETA_LOW", "THETA_HIGH", "THETA_UNITS", "Theta", "Reference",
+           "opponent_neighbours", "reference_trajectory", "clear_cache"]
+
+# ====================================================================== theta
+THETA_NAMES = ("q", "zeta", "s1", "s2", "s3")
+"""Names of the policy parameters, in array order."""
+
+THETA_UNITS = ("-", "-", "m", "1/m^2", "s/m")
+"""Units of the policy parameters, in array order."""
+
+THETA_LOW = np.array([5.0, 0.7, 0.0, 0.5, 0.0])
+THETA_HIGH = np.array([500.0, 1.05, 0.3, 20.0, 5.0])
+THETA_LOW.setflags(write=False)
+THETA_HIGH.setflags(write=False)
+THETA_BOUNDS_DOC = """Bounds of theta (``THETA_LOW``, ``THETA_HIGH``) and why.
+
+* ``q`` in [5, 500] [-]: ``Q = q I`` weighs squared position errors [m^2] against ``R = I`` on
+  squared input-rate steps (throttle in [-1, 1], steering [rad], typical steps 0.01..0.1).
+  A 5 cm error costs ``q * 2.5e-3``: at ``q = 5`` that equals a 0.1 input step (loose, smooth
+  tracking), at ``q = 500`` a full-scale step (tight tracking that starts to oscillate, as the
+  paper describes). Outside this range the MPC either ignores the reference or is badly
+  conditioned.
+* ``zeta`` in [0.7, 1.05] [-]: scale of the race-line speeds. 0.7 is a cautious 30 % below
+  the race line; the race line is computed at friction 0.85 against a grip of about 0.90, and
+  cornering speed scales like sqrt(grip), so about 1.03 is the tyre limit; 1.05 lets a policy
+  ask for slightly more than it can get (late braking / aggression) but not for absurd speeds.
+* ``s1`` in [0, 0.3] [m]: lateral clearance wanted from a neighbour when overtaking. 0 turns
+  overtaking off; 0.3 m is more than half the 0.5 m wide built-in tracks (cars are 0.06 m
+  wide), enough to ask for a full change of side.
+* ``s2`` in [0.5, 20] [1/m^2]: the shifts decay like ``exp(-s2 ds^2)`` with the longitudinal
+  gap ``ds``; the 1/e distance ``1/sqrt(s2)`` runs from 1.41 m (about the length of half a
+  horizon at racing speed, K dt v = 1.5 s * 2..4 m/s) down to 0.22 m (two car lengths).
+* ``s3`` in [0, 5] [s/m]: blocking moves the reference a fraction ``1 - exp(-s3 dv)`` of the
+  lateral gap toward a faster car, ``dv`` [m/s] its speed advantage. 0 turns blocking off;
+  with 5 a 0.1 m/s faster car draws 39 % of the gap, a 0.5 m/s faster one 92 %.
+"""
+
+
+def _check_theta_value(name: str, value: float, lo: float, hi: float) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"theta parameter {name} must be a number, got {value!r}") from None
+    if not (math.isfinite(v) and lo <= v <= hi):
+        raise ValueError(f"theta parameter {name} = {v!r} is outside its bounds [{lo:g}, {hi:g}]")
+    return v
+
+
+@dataclass(frozen=True)
+class Theta:
+    """One car's policy parameters (see :data:`THETA_BOUNDS_DOC` for units and bounds).
+
+    ``q`` [-] tracking weight, ``zeta`` [-] race-line speed scale, ``s1`` [m] overtaking
+    clearance, ``s2`` [1/m^2] longitudinal decay, ``s3`` [s/m] blocking strength. Construction
+    validates the bounds (``ValueError`` naming parameter, value and bounds).
+    """
+
+    q: float
+    zeta: float
+    s1: float
+    s2: float
+    s3: float
+
+    __doc__ += "\n" + THETA_BOUNDS_DOC
+
+    def __post_init__(self):
+        for i, name in enumerate(THETA_NAMES):
+            v = _check_theta_value(name, getattr(self, name), THETA_LOW[i], THETA_HIGH[i])
+            object.__setattr__(self, name, v)
+
+    def as_array(self) -> np.ndarray:
+        """``[q, zeta, s1, s2, s3]`` as a float array, shape (5,)."""
+        return np.array([self.q, self.zeta, self.s1, self.s2, self.s3], dtype=float)
+
+    @classmethod
+    def from_array(cls, a) -> "Theta":
+        """Theta from a length-5 array-like in :data:`THETA_NAMES` order; ``ValueError`` on a
+        wrong shape or a value outside its bounds (naming parameter, value and bounds)."""
+        if isinstance(a, Theta):
+            return a
+        arr = np.asarray(a, dtype=float)
+        if arr.shape != (5,):
+            raise ValueError(f"theta must have shape (5,) {THETA_NAMES}, got shape {arr.shape}")
+        return cls(*(float(x) for x in arr))
+
+    @classmethod
+    def sample(cls, rng: np.random.Generator | int | None = None) -> "Theta":
+        """Uniform sample within ``[THETA_LOW, THETA_HIGH]`` (``rng`` a Generator or a seed)."""
+        rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        a = rng.uniform(THETA_LOW, THETA_HIGH)
+        return cls.from_array(np.clip(a, THETA_LOW, THETA_HIGH))
+
+
+# ====================================================================== neighbours
+def opponent_neighbours(ego_s: float, opp_s, length: float) -> tuple[int, int]:
+    """Indices ``(ahead, behind)`` into ``opp_s`` of the car just ahead (``j^*``) and just
+    behind (``j_*``) the ego, ``-1`` where there is none.
+
+    ``ego_s`` [m] scalar and ``opp_s`` [m] shape (m,), m >= 0, are *unwrapped* progress.
+    The choice: neighbours are ranked by the unwrapped progress difference ``d = opp_s - ego_s``
+    (race order), not by the physical gap ``d mod length``:
+
+    * ahead = the smallest ``d >= 0`` (a car exactly level counts as ahead), behind = the
+      largest ``d < 0``; ties go to the lowest index;
+    * a car 0.2 m behind across the start/finish line (ego ``L + 0.1``, car ``L - 0.1``) has
+      ``d = -0.2``: it is just behind, with no special case at the line;
+    * a car a full lap ahead (``d = L + 0.1``) is *not* 0.1 m ahead; it is "ahead" only if no
+      car is nearer in unwrapped progress. Likewise a lapped car physically in front of the ego
+      is a car far behind in race order. This keeps the neighbours the cars one is racing for
+      position with (and keeps the shift formulas' ``exp(-s2 ds^2)`` negligible for them).
+
+    ``length`` [m] (positive, finite) is the lap length; it is validated but, by the choice
+    above, not used to wrap differences.
+    """
+    e = float(ego_s)
+    if not math.isfinite(e):
+        raise ValueError(f"ego_s must be finite, got {ego_s!r}")
+    L = float(length)
+    if not (math.isfinite(L) and L > 0):
+        raise ValueError(f"length must be a positive finite number, got {length!r}")
+    o = np.asarray(opp_s, dtype=float)
+    if o.ndim != 1:
+        raise ValueError(f"opp_s must be a 1-D array of unwrapped positions, got shape {o.shape}")
+    if o.size == 0:
+        return -1, -1
+    if not np.all(np.isfinite(o)):
+        i = int(np.flatnonzero(~np.isfinite(o))[0])
+        raise ValueError(f"opp_s[{i}] must be finite, got {o[i]!r}")
+    return _neighbours_list((o - e).tolist())
+
+
+# ====================================================================== tables
+class _Tables:
+    """Per-(race line, track, friction) lookup tables on the track grid, repeated over two laps
+    plus one point (index 2M = index 0 two laps on) so that a horizon starting anywhere on a lap
+    interpolates without wrapping (``st2``, ``tt2``, ``vel2``, ``wl2``, ``wr2``); single-lap
+    tables plus one point (``nrl``, ``kap``, ``wl``, ``wr``) for scalar look-ups."""
+
+    __slots__ = ("L", "T", "M", "inv_ds", "st", "tt", "st2", "tt2", "vel2", "dvel2", "wl2",
+                 "wr2", "nrl", "kap", "wl", "wr", "refs")
+
+    def __init__(self, raceline, track, friction):
+        L = float(track.length)
+        if abs(float(raceline.track_length) - L) > 1e-6 * max(L, 1.0):
+            raise ValueError(f"raceline is for a track of length {raceline.track_length} m, "
+                             f"but the track is {L} m long")
+        st = np.asarray(raceline.s_track, dtype=float)
+        M = len(st)
+        if M < 2 or np.max(np.abs(st - np.arange(M) * (L / M))) > 1e-6 * L:
+            raise ValueError("raceline.s_track must be the track's uniform grid i * L / M")
+        vx = np.asarray(raceline.profile(friction)[0], dtype=float)
+        n = np.asarray(raceline.n, dtype=float)
+        kap_c = np.asarray(track.kappa, dtype=float)
+        psi_c = np.asarray(track.psi, dtype=float)
+        if not (len(kap_c) == len(psi_c) == M == len(vx) == len(n)):
+            raise ValueError("raceline and track grids differ in size")
+        # race-line heading relative to the centre line, and its Frenet velocities
+        mu_rl = np.angle(np.exp(1j * (np.asarray(raceline.psi, dtype=float) - psi_c)))
+        den = 1.0 - n * kap_c
+        if np.any(den <= 0):
+            raise ValueError("race line lies beyond the centre line's radius of curvature")
+        sdot = vx * np.cos(mu_rl) / den
+        ndot = vx * np.sin(mu_rl)
+        # time along the race line (constant acceleration between grid points, as lap_time_of)
+        seg = np.diff(np.append(np.asarray(raceline.s, dtype=float), raceline.length))
+        dt_seg = 2.0 * seg / np.maximum(vx + np.roll(vx, -1), 1e-12)
+        ext = lambda a: np.append(a, a[0])
+        ext2 = lambda a: np.concatenate([a, a, a[:1]])
+        wl = np.asarray(track.w_left, dtype=float)
+        wr = np.asarray(track.w_right, dtype=float)
+        self.L, self.M = L, M
+        self.inv_ds = M / L
+        grid = np.arange(2 * M + 1) * (L / M)
+        self.st = grid[:M + 1]
+        self.st2 = grid
+        tt = np.concatenate([[0.0], np.cumsum(dt_seg)])
+        self.tt = tt
+        self.T = float(tt[-1])
+        self.tt2 = np.concatenate([tt[:-1], tt + self.T])
+        self.vel2 = np.stack([ext2(sdot), ext2(ndot)])                 # (2, 2M+1)
+        self.dvel2 = np.diff(self.vel2, axis=1)                        # (2, 2M)
+        self.wl2, self.wr2 = ext2(wl), ext2(wr)
+        self.nrl, self.kap, self.wl, self.wr = ext(n), ext(kap_c), ext(wl), ext(wr)
+        for a in (self.st, self.st2, self.tt, self.tt2, self.vel2, self.dvel2, self.wl2,
+                  self.wr2, self.nrl, self.kap, self.wl, self.wr):
+            a.setflags(write=False)
+        self.refs = (raceline, track)   # keep them alive so their ids stay unique
+
+
+_CACHE: dict = {}
+_CACHE_MAX = 32
+
+
+def _tables(raceline, track, friction) -> _Tables:
+    key = (id(raceline), id(track), friction)
+    tab = _CACHE.get(key)
+    if tab is None:
+        if len(_CACHE) >= _CACHE_MAX:
+            _CACHE.clear()
+        tab = _CACHE[key] = _Tables(raceline, track, friction)
+    return tab
+
+
+def clear_cache() -> None:
+    """Forget the cached per-race-line tables (call after mutating a race line in place)."""
+    _CACHE.clear()
+
+
+# ====================================================================== reference
+class Reference:
+    """Result of :func:`reference_trajectory`; arrays have shape (K,), entry ``k-1`` belongs to
+    the MPC's predicted state ``k = 1..K``.
+
+    * ``s_ref`` [m] unwrapped reference progress (= the perturbed race line's ``s_pert``);
+    * ``n_ref`` [m] lateral reference, ``clip(n_pert + n_ot + n_bl)`` to the track minus half
+      the car's width;
+    * ``n_pert`` [m] perturbed race line, ``n_ot`` [m] overtake shift, ``n_bl`` [m] block shift;
+    * ``v_pert`` [m/s] perturbed race-line progress rate ``zeta * s_dot_rl`` at step ``k``;
+    * ``ahead`` / ``behind``: opponent row indices of ``j^*`` / ``j_*`` (``-1`` if none).
+    """
+
+    __slots__ = ("s_ref", "n_ref", "n_pert", "n_ot", "n_bl", "v_pert", "ahead", "behind")
+
+    def __init__(self, s_ref, n_ref, n_pert, n_ot, n_bl, v_pert, ahead, behind):
+        self.s_ref, self.n_ref, self.n_pert = s_ref, n_ref, n_pert
+        self.n_ot, self.n_bl, self.v_pert = n_ot, n_bl, v_pert
+        self.ahead, self.behind = ahead, behind
+
+    @property
+    def s_pert(self) -> np.ndarray:
+        """Perturbed race-line progress [m] (identical to ``s_ref``)."""
+        return self.s_ref
+
+    def __repr__(self) -> str:
+        return (f"Reference(K={len(self.s_ref)}, s {self.s_ref[0]:.3f}..{self.s_ref[-1]:.3f} m, "
+                f"ahead={self.ahead}, behind={self.behind}, "
+                f"max|n_ot|={np.max(np.abs(self.n_ot)):.3g} m, "
+                f"max|n_bl|={np.max(np.abs(self.n_bl)):.3g} m)")
+
+
+_STATE_NAMES = ("s", "n", "mu", "vx", "vy", "omega")
+
+
+def _bad_state(name: str, arr: np.ndarray) -> None:
+    flat = arr.reshape(-1, 6)
+    r, c = np.argwhere(~np.isfinite(flat))[0]
+    where = f"{name}[{r}]" if arr.ndim == 2 else name
+    raise ValueError(f"{where} state {_STATE_NAMES[c]} is not finite: {flat[r, c]!r}")
+
+
+def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt: float = 0.1,
+                         vehicle_width: float | None = None, friction: float | None = None
+                         ) -> Reference:
+    """The MPC reference of the paper for one car.
+
+    Parameters
+    ----------
+    theta : :class:`Theta` or array-like (5,)
+        ``(q, zeta, s1, s2, s3)``; validated against ``THETA_LOW``/``THETA_HIGH``
+        (``q`` is not used here, it weighs the MPC cost).
+    ego : array (6,)
+        The car's Frenet state ``(s, n, mu, vx, vy, omega)``, ``s`` unwrapped.
+    opponents : array (m, 6), m = 0..7 (or ``None``)
+        The other cars' states, same convention.
+    raceline : :class:`racing_env.raceline.Raceline` of ``track``
+    track : :class:`racing_env.track.Track`
+    K : int, dt : float [s]
+        Horizon steps and step length.
+    vehicle_width : float [m]
+        Width used for the track clip (default ``VehicleParams().width`` = 0.06 m).
+    friction : float
+        Speed profile of the race line's library (default: nominal).
+
+    Construction (``k = 1..K``, every longitudinal difference on unwrapped progress):
+
+    1. *Perturbed race line.* Start at the race-line point nearest the ego: ``s = s_ego``,
+       ``n = n_rl(s_ego)``. Sample the race line in time, point ``m`` being where a car on the
+       race-line speed profile is ``m dt`` later (``m = 0..K``), take its Frenet velocities
+       ``vbar_m = (v cos mu_rl / (1 - n_rl kappa), v sin mu_rl)`` (``mu_rl`` the race-line
+       heading relative to the centre line) and integrate the scaled velocities:
+       ``p_pert^k = p_pert^{k-1} + zeta vbar_{k-1} dt``. ``v_pert^k = zeta s_dot_rl(m = k)``.
+       (Explicit Euler as printed in the paper: with ``zeta = 1`` the points drift from the
+       race line by the second-order term, a few mm to cm over 15 steps.)
+    2. *Opponents* keep their Frenet progress rate ``s_dot_j = (vx cos mu - vy sin mu) /
+       (1 - n kappa)`` and lateral position: ``s_j^k = s_j + k dt s_dot_j``, ``n_j^k = n_j``.
+       Only ``j^*`` (just ahead) and ``j_*`` (just behind), see :func:`opponent_neighbours`.
+    3. *Overtake shift* ``n_ot^k = sum_j sign(n_ego - n_j) max((s1 - |n_ego - n_j|)
+       exp(-s2 (s_pert^k - s_j^k)^2), 0)`` with lateral positions at time t. ``sign(0)``
+       (level cars) picks the side of the opponent with more room to the track edge at
+       ``s_j`` (left on a tie).
+    4. *Block shift* ``n_bl^k = sum_j 1(v_pert^k <= v_j) 1(s_pert^k >= s_j^k)
+       (n_j^k - n_pert^k) (1 - exp(-s3 (v_j - v_pert^k))) exp(-s2 (s_pert^k - s_j^k)^2)``,
+       ``v`` being Frenet progress rates [m/s]. **Sign change:** the paper prints the factor
+       ``1 - exp(-s3 (v_pert - v_j))``, which under its own indicator ``v_pert <= v_j`` is
+       ``<= 0`` and unbounded below for ``s3 > 0``: it would push the ego *away* from the
+       faster car behind, possibly by many times the gap, the opposite of the stated intent
+       ("changes the trajectory of the ego vehicle towards trailing vehicle to block it"). We
+       use ``1 - exp(-s3 (v_j - v_pert))``, a fraction in ``[0, 1)`` of the lateral gap.
+    5. ``n_ref = clip(n_pert + n_ot + n_bl, -w_right(s_ref) + w/2, w_left(s_ref) - w/2)``
+       (the paper clips to the track; we keep the car's body on it); ``s_ref = s_pert``.
+
+    Returns a :class:`Reference`. Raises ``ValueError`` on a bad shape, a non-finite state, a
+    theta out of bounds, ``K < 1``, ``dt <= 0`` or a car beyond the centre line's radius of
+    curvature (``1 - n kappa <= 0``).
+    """
+    th = theta if isinstance(theta, Theta) else Theta.from_array(theta)
+    K, dt = _check_horizon(K, dt)
+    x = np.asarray(ego, dtype=float)
+    if x.shape != (6,):
+        raise ValueError(f"ego state must have shape (6,) (s, n, mu, vx, vy, omega), got {x.shape}")
+    if not np.isfinite(x).all():
+        _bad_state("ego", x)
+    if opponents is None:
+        m = 0
+    else:
+        opp = np.asarray(opponents, dtype=float)
+        if opp.ndim == 1 and opp.shape == (6,):
+            opp = opp[None, :]
+        elif opp.size == 0:
+            opp = opp.reshape(0, 6)
+        if opp.ndim != 2 or opp.shape[1] != 6:
+            raise ValueError(f"opponents must have shape (m, 6), got {opp.shape}")
+        m = opp.shape[0]
+        if m and not np.isfinite(opp).all():
+            _bad_state("opponents", opp)
+    w_half = _DEFAULT_HALF_WIDTH if vehicle_width is None else 0.5 * float(vehicle_width)
+    tab = _tables(raceline, track, friction)
+    L, T, inv_ds = tab.L, tab.T, tab.inv_ds
+    steps, steps1 = _steps(K, dt)                          # dt*(0..K), dt*(1..K)
+    s_e, n_e = float(x[0]), float(x[1])
+    base = math.floor(s_e / L) * L                         # start of the ego's lap [m]
+    s_e_w = s_e - base                                     # in [0, L)
+
+    # ---- 1. perturbed race line, sampled in time from the ego's s
+    tk = steps + _interp1(tab.tt, s_e_w, inv_ds)           # (K+1,) race-line times [s]
+    if tk[-1] >= 2.0 * T:                                  # horizon longer than a lap
+        tk = tk - np.floor(tk / T) * T
+    f = np.interp(tk, tab.tt2, tab.st2)                    # race-line s at tk (0..2L) [m]
+    f *= inv_ds
+    i = f.astype(np.intp)
+    np.minimum(i, 2 * tab.M - 1, out=i)
+    f -= i
+    vel = tab.dvel2[:, i]
+    vel *= f
+    vel += tab.vel2[:, i]                                  # (2, K+1) race-line (s_dot, n_dot)
+    pert = np.cumsum(vel[:, :K], axis=1)
+    pert *= th.zeta * dt
+    s_pert, n_pert = pert                                  # views (K,)
+    s_pert += s_e
+    n_pert += _interp1(tab.nrl, s_e_w, inv_ds)
+    v_pert = vel[0, 1:]
+    v_pert *= th.zeta                                      # (K,) zeta * s_dot_rl at step k
+
+    n_ref = n_pert.copy()
+    n_ot = n_bl = None                                     # stay None while no shift applies
+    ahead = behind = -1
+    if m:
+        rows = opp.tolist()
+        ahead, behind = _neighbours_list([r[0] - s_e for r in rows])
+        s1, s2, s3 = th.s1, th.s2, th.s3
+        js, sj0, vjs, njs, coef = [], [], [], [], []
+        for j in (ahead, behind):
+            if j < 0:
+                continue
+            sj, nj, muj, vxj, vyj, _ = rows[j]
+            sj_w = sj - math.floor(sj / L) * L
+            den = 1.0 - nj * _interp1(tab.kap, sj_w, inv_ds)
+            if den <= 0:
+                raise ValueError(f"opponents[{j}] at n = {nj!r} lies beyond the centre line's "
+                                 f"radius of curvature (1 - n kappa = {den:.3g} <= 0)")
+            # overtake coefficient sign(dn) max(s1 - |dn|, 0) (decay > 0 factors out of max)
+            dn = n_e - nj
+            c = s1 - abs(dn)
+            if c > 0:
+                if dn > 0:
+                    sgn = 1.0
+                elif dn < 0:
+                    sgn = -1.0
+                else:                                      # level: side with more room
+                    room_l = _interp1(tab.wl, sj_w, inv_ds) - nj
+                    room_r = _interp1(tab.wr, sj_w, inv_ds) + nj
+                    sgn = 1.0 if room_l >= room_r else -1.0
+                c *= sgn
+            else:
+                c = 0.0
+            js.append(j)
+            sj0.append(sj)
+            vjs.append((vxj * math.cos(muj) - vyj * math.sin(muj)) / den)   # Frenet s_dot
+            njs.append(nj)
+            coef.append(c)
+        vj = np.array(vjs)[:, None]                        # (J, 1)
+        gap = s_pert - np.array(sj0)[:, None]              # (J, K) s_pert^k - s_j^k, unwrapped
+        gap -= vj * steps1
+        decay = gap * gap
+        decay *= -s2
+        np.exp(decay, out=decay)                           # (J, K)
+        # ---- 3. overtake
+        if any(coef):
+            n_ot = np.array(coef) @ decay
+            n_ref += n_ot
+        # ---- 4. block: 1(v_pert <= v_j) 1(gap >= 0) (n_j - n_pert)
+        #      (1 - exp(-s3 (v_j - v_pert))) decay   (sign of the s3 factor: see docstring)
+        if s3 > 0 and max(vjs) >= float(v_pert.min()):
+            dv = vj - v_pert                               # (J, K) >= 0 where j is faster
+            act = dv >= 0
+            act &= gap >= 0
+            if act.any():
+                dv *= -s3
+                np.minimum(dv, 0.0, out=dv)
+                np.expm1(dv, out=dv)                       # -(1 - exp(-s3 (v_j - v_pert)))
+                dv *= n_pert - np.array(njs)[:, None]      # (n_pert - n_j) flips the sign back
+                dv *= decay
+                dv *= act
+                n_bl = dv.sum(axis=0)
+                n_ref += n_bl
+    if n_ot is None:
+        n_ot = np.zeros(K)
+    if n_bl is None:
+        n_bl = np.zeros(K)
+
+    # ---- 5. clip to the track at s_ref
+    s_w = s_pert - base                                    # [0, 2L) unless the horizon is long
+    if s_w[-1] >= 2.0 * L:
+        s_w = s_w - np.floor(s_w / L) * L
+    hi = np.interp(s_w, tab.st2, tab.wl2)
+    hi -= w_half
+    lo = np.interp(s_w, tab.st2, tab.wr2)
+    lo -= w_half
+    np.minimum(n_ref, hi, out=n_ref)
+    lo *= -1.0
+    np.maximum(n_ref, lo, out=n_ref)
+    return Reference(s_pert, n_ref, n_pert, n_ot, n_bl, v_pert, ahead, behind)
+
+
+_DEFAULT_HALF_WIDTH = 0.5 * VehicleParams().width
+_STEPS: dict = {}
+
+
+def _check_horizon(K, dt):
+    if isinstance(K, bool) or int(K) != K or int(K) < 1:
+        raise ValueError(f"K must be an integer >= 1, got {K!r}")
+    dt_f = float(dt)
+    if not (math.isfinite(dt_f) and dt_f > 0):
+        raise ValueError(f"dt must be a positive finite number [s], got {dt!r}")
+    return int(K), dt_f
+
+
+def _steps(K: int, dt: float):
+    key = (K, dt)
+    v = _STEPS.get(key)
+    if v is None:
+        a = dt * np.arange(K + 1)
+        a.setflags(write=False)
+        b = a[1:]
+        v = _STEPS[key] = (a, b)
+    return v
+
+
+def _interp1(table: np.ndarray, s_w: float, inv_ds: float) -> float:
+    """Linear interpolation of an extended grid table at one wrapped s in [0, L)."""
+    f = s_w * inv_ds
+    i = int(f)
+    if i >= len(table) - 1:
+        return float(table[-1])
+    t = f - i
+    return float(table[i]) * (1.0 - t) + float(table[i + 1]) * t
+
+
+def _neighbours_list(d) -> tuple[int, int]:
+    """(ahead, behind) from a list of unwrapped differences (pure Python, m <= a few)."""
+    ahead = behind = -1
+    best_a, best_b = math.inf, -math.inf
+    for i, di in enumerate(d):
+        if di >= 0.0:
+            if di < best_a:
+                best_a, ahead = di, i
+        elif di > best_b:
+            best_b, behind = di, i
+    return ahead, behind
