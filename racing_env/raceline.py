@@ -62,7 +62,7 @@ from .vehicle import VehicleParams
 G = 9.81
 """Gravitational acceleration [m/s^2]."""
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: offsets no longer clipped at the target bounds (no curvature kinks)
 """Bumped whenever the algorithm or the file layout changes (invalidates old cache files)."""
 
 CSV_COLUMNS = ("s_m", "x_m", "y_m", "psi_rad", "kappa_radpm", "vx_mps", "ax_mps2", "n_m",
@@ -453,7 +453,7 @@ class Raceline:
     * ``vx`` [m/s] speed and ``ax`` [m/s^2] acceleration of the nominal profile
       (``mu = mu_nominal``); ``ax[k]`` is the constant acceleration from point k to k+1;
     * ``n`` [m] lateral offset from the centre line (left positive), ``s_track`` [m] centre-line
-      arc length of each point, ``n_lo, n_hi`` [m] the bounds the offsets were held to;
+      arc length of each point, ``n_lo, n_hi`` [m] the target bounds of the offsets (edges minus half the car and the margin; the interpolated line may enter the margin by spline overshoot, well under 1 mm);
     * ``mus`` (K,) friction values of the library, ``vx_lib, ax_lib`` (K, M) their profiles.
 
     Scalars: ``track_length`` [m] (centre line), ``lap_time`` [s] of the nominal profile,
@@ -675,7 +675,10 @@ def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
     s_track = np.asarray(track.s_grid, dtype=float)
     n_lo, n_hi = offset_bounds(track, s_track, vehicle, config.margin)
     spn = CubicSpline(np.append(s_sub, track.length), np.append(n_sub, n_sub[0]), bc_type="periodic")
-    n = np.clip(spn(s_track), n_lo, n_hi)
+    # Clip only at the physical bounds (edge minus half the car): a cubic spline through the
+    # stations overshoots the target bounds by fractions of a millimetre, which the margin
+    # absorbs; clipping at the target bounds would put kinks (curvature spikes) in the line.
+    n = np.clip(spn(s_track), n_lo - config.margin, n_hi + config.margin)
     px, py = track.to_cartesian(s_track, n)
     s, length, psi, kappa = _line_geometry(np.asarray(px), np.asarray(py))
     ds = np.diff(np.append(s, length))

@@ -7,7 +7,7 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 from racing_env import raceline as R
@@ -64,9 +64,11 @@ def check_line(rl: Raceline, track: Track, config=RacelineConfig(), curvature=Tr
     rl.validate()
     for name in ("s", "x", "y", "psi", "kappa", "vx", "ax", "n", "s_track", "vx_lib", "ax_lib"):
         assert np.all(np.isfinite(getattr(rl, name))), name
-    half = VEH.width / 2 + config.margin
+    # inside the track minus half the car; at most a millimetre into the margin (spline overshoot)
+    half = VEH.width / 2
     assert np.all(rl.n <= track.w_left - half + 1e-9)
     assert np.all(rl.n >= -track.w_right + half - 1e-9)
+    assert np.all(rl.n <= rl.n_hi + 1e-3) and np.all(rl.n >= rl.n_lo - 1e-3)
     np.testing.assert_allclose(rl.s_track, track.s_grid)
     # positions really are the centre-line points moved by n along the normal
     x, y = track.to_cartesian(rl.s_track, rl.n)
@@ -177,6 +179,7 @@ def test_convergence_warning():
 
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 10_000))
+@example(seed=140)           # clipping the spline at the target bounds once made curvature spikes here
 def test_random_tracks_valid_line(seed):
     try:
         track = random_track(seed)
