@@ -214,6 +214,7 @@ class MPC:
         """Forget the warm start (call at the start of every race)."""
         self._U = None
         self._s_nom = None
+        self._follower = getattr(self, "_follower", None)
 
     # -------------------------------------------------------------- internals
     def _kappa_at_substeps(self, x0, U):
@@ -234,6 +235,31 @@ class MPC:
         kap = tb.kappa[i % len(tb.kappa)] * (1 - w) + tb.kappa[(i + 1) % len(tb.kappa)] * w
         return np.ascontiguousarray(kap.T)                                          # (m, K)
 
+    def _follower_warm_start(self, x0):
+        """Inputs (2, K) from rolling out the raceline follower's law in the simulator model:
+        an on-track initial guess when the shifted previous plan has left the track."""
+        from racing_env.simulator import TrackTables, integrate_car, _n_substeps
+        if self._follower is None:
+            from racing_env.controllers import RacelineFollower
+            self._follower = RacelineFollower(self.vehicle)
+            self._follower.reset(self.track)
+            self._tables = TrackTables.from_track(self.track, 0.15)
+            self._p = self.vehicle.pack()
+        K, tb, v = self.cfg.horizon, self._tables, self.vehicle
+        x = np.array(x0, dtype=float)
+        U = np.empty((2, K))
+        obs = np.zeros(6)
+        for k in range(K):
+            obs[:] = x
+            obs[0] = x[0] % tb.length
+            a = self._follower.act(obs)
+            U[:, k] = a
+            d = 0.5 * (v.d_max + v.d_min) + 0.5 * (v.d_max - v.d_min) * float(a[0])
+            n_sub = _n_substeps(x[3], self._p, self.cfg.dt, 1.0, 100)
+            integrate_car(x, d, v.delta_max * float(a[1]), tb.kappa, tb.ds, tb.length, self._p,
+                          self.cfg.dt, n_sub)
+        return U
+
     def _bounds_n(self, s):
         wl, wr = self.track.widths(s)
         half = 0.5 * self.vehicle.width + self.cfg.track_margin
@@ -249,10 +275,29 @@ class MPC:
             self._U = np.tile(np.array([[0.0], [0.0]]), (1, K))
             self._U[1, :] = u_prev[1]
         U = self._U
+        if x0[3] < 2.0 * cfg.v_low:
+            # a (nearly) stopped car's brake has no effect and so no gradient: linearised at a
+            # braking warm start the QP would see no way to move; linearise at drive instead
+            U = U.copy()
+            U[0] = np.maximum(U[0], 0.2)
         status = "ok"
-        for _ in range(cfg.sqp_iterations):
+        iterations, it = cfg.sqp_iterations, 0
+        restarted = False
+        while it < iterations:
+            it += 1
             kap = self._kappa_at_substeps(x0, U)
             X, A, B = (np.asarray(o) for o in self._traj(x0, U, kap))
+            lo_n, hi_n = self._bounds_n(X[0])
+            off = np.maximum(X[1] - hi_n, lo_n - X[1]).max() if np.isfinite(X).all() else np.inf
+            if off > self.vehicle.width and not restarted:
+                # the warm start leaves the track: linearise around a follower rollout instead
+                U = self._follower_warm_start(x0)
+                self._s_nom = None
+                restarted = True
+                self.stats["restarts"] = self.stats.get("restarts", 0) + 1
+                iterations += 1
+                it -= 1
+                continue
             if not (np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all()):
                 status = "nonfinite prediction"
                 break
