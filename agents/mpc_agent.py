@@ -1,0 +1,94 @@
+"""The fixed-parameter MPC agent: the paper's policy pi(x; theta) for one fixed theta."""
+from __future__ import annotations
+
+import numpy as np
+
+from racing_env.track import Track
+from racing_env.tracks import make_track
+from racing_env.vehicle import VehicleParams
+
+from .base import register_agent
+from .mpc import MPC, MPCConfig
+from .reference import Theta, reference_trajectory
+
+
+def joint_state_from_observation(obs: np.ndarray, n_cars: int, length: float):
+    """(ego (6,), others (N-1, 6)) Frenet states from an env observation.
+
+    The ego's ``s`` is its wrapped arc length; the others' are ego ``s`` plus their unwrapped
+    progress difference, so every longitudinal difference stays on unwrapped progress.
+    """
+    ego = np.asarray(obs[:6], dtype=float)
+    rel = np.asarray(obs[6:6 * n_cars], dtype=float).reshape(n_cars - 1, 6)
+    others = rel + ego[None, :]
+    others[:, 2] = np.angle(np.exp(1j * others[:, 2]))
+    return ego, others
+
+
+def progress_rate(state: np.ndarray, track: Track) -> np.ndarray:
+    """Frenet progress rate ``s_dot`` [m/s] of states (..., 6)."""
+    s, n, mu, vx, vy = (state[..., i] for i in range(5))
+    kappa = track.curvature(s)
+    return (vx * np.cos(mu) - vy * np.sin(mu)) / (1.0 - n * kappa)
+
+
+@register_agent("mpc")
+class MPCAgent:
+    """MPC tracking the theta-parametrised reference (paper section 2.2) with fixed theta.
+
+    ``theta`` keywords ``q, zeta, s1, s2, s3`` (defaults: a mid-range, safe setting), an
+    :class:`MPCConfig`, :class:`VehicleParams`, and the env's ``n_preview`` (to read the
+    observation layout). ``stats`` reports solves, fallbacks,
+    restarts from the follower rollout, and solve times.
+    """
+
+    def __init__(self, q: float = 20.0, zeta: float = 0.9, s1: float = 0.1, s2: float = 4.0,
+                 s3: float = 1.0, config: MPCConfig | None = None,
+                 vehicle: VehicleParams | None = None, n_preview: int = 10):
+        self.theta = Theta(q=q, zeta=zeta, s1=s1, s2=s2, s3=s3)
+        self.n_preview = n_preview      # the env's RaceConfig.n_preview (observation layout)
+        self.config = config or MPCConfig()
+        self.vehicle = vehicle or VehicleParams()
+        self.mpc: MPC | None = None
+        self.track: Track | None = None
+
+    def reset(self, track, agent_id: str = "car_0", seed: int | None = None) -> None:
+        from racing_env.raceline import get_raceline
+        track = make_track(track)
+        if self.mpc is None or self.track is not track:
+            self.mpc = MPC(track, self.vehicle, self.config)
+        self.track = track
+        self.raceline = get_raceline(track, self.vehicle)
+        self.mpc.reset()
+        self.agent_id = agent_id
+        self._u_prev = np.zeros(2)
+
+    @property
+    def stats(self) -> dict:
+        st = self.mpc.stats if self.mpc is not None else {}
+        ms = np.asarray(st.get("solve_ms", []), dtype=float)
+        return {"solves": st.get("solves", 0), "fallbacks": st.get("fallbacks", 0),
+                "restarts": st.get("restarts", 0),
+                "solve_ms_median": float(np.median(ms)) if ms.size else float("nan"),
+                "solve_ms_p99": float(np.percentile(ms, 99)) if ms.size else float("nan")}
+
+    def act(self, observation) -> np.ndarray:
+        if self.mpc is None:
+            raise RuntimeError("MPCAgent.act() before reset(track, ...)")
+        obs = np.asarray(observation, dtype=float)
+        n_cars, rest = divmod(len(obs) - self.n_preview, 6)
+        if rest or n_cars < 1:
+            raise ValueError(f"observation of length {len(obs)} does not fit 6 N + n_preview "
+                             f"with n_preview = {self.n_preview}")
+        ego, others = joint_state_from_observation(obs, n_cars, self.track.length)
+        ref = reference_trajectory(self.theta, ego, others if len(others) else None,
+                                   self.raceline, self.track, K=self.config.horizon,
+                                   dt=self.config.dt)
+        neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
+        opp = None
+        if neighbours:
+            o = others[neighbours]
+            opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, self.track)])
+        u = self.mpc.solve(ego, ref.s_ref, ref.n_ref, self.theta.q, opp, self._u_prev)
+        self._u_prev = u
+        return u.astype(np.float32)

@@ -1,0 +1,79 @@
+"""The fixed-parameter MPC agent in closed loop: track edges, separation, a short race."""
+import warnings
+
+import numpy as np
+import pytest
+
+pytest.importorskip("daqp")
+
+from agents import make_agent_spec  # noqa: E402
+from agents.mpc_agent import MPCAgent, joint_state_from_observation  # noqa: E402
+from racing_env import RacingParallelEnv, RulesConfig, StartConfig  # noqa: E402
+
+
+def drive(env, agents, steps):
+    obs, _ = env.reset(seed=0)
+    for a, agent_id in zip(agents, env.possible_agents):
+        a.reset(env.track, agent_id, 0)
+    states = []
+    for _ in range(steps):
+        obs, _, _, _, info = env.step({i: a.act(obs[i]) for a, i in zip(agents, env.possible_agents)})
+        states.append(env.core.state[0].copy())
+        if not env.agents:
+            break
+    return np.array(states), info
+
+
+@pytest.fixture(autouse=True)
+def quiet():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
+def test_joint_state_reconstruction_keeps_unwrapped_differences():
+    obs = np.zeros(6 * 3 + 10)
+    obs[:6] = [1.0, 0.1, 0.0, 2.0, 0.0, 0.0]
+    obs[6:12] = [-0.5, 0.1, 0.0, 0.5, 0.0, 0.0]
+    obs[12:18] = [40.0, -0.2, 0.0, -1.0, 0.0, 0.0]
+    ego, others = joint_state_from_observation(obs, 3, 38.86)
+    np.testing.assert_allclose(others[:, 0], [0.5, 41.0])
+    np.testing.assert_allclose(others[:, 1], [0.2, -0.1])
+    np.testing.assert_allclose(others[:, 3], [2.5, 1.0])
+
+
+def test_standing_start_laps_within_the_track():
+    env = RacingParallelEnv(n_cars=1, max_cycles=150, start="grid")
+    states, info = drive(env, [MPCAgent()], 150)
+    assert info["car_0"]["off_tracks"] == 0
+    assert states[-1, 0, 0] - states[0, 0, 0] > 35.0            # about a lap in 15 s
+    wl, wr = env.track.widths(states[:, 0, 0])
+    assert np.all(states[:, 0, 1] <= wl) and np.all(states[:, 0, 1] >= -wr)
+
+
+def test_keeps_separation_from_a_parked_car():
+    # car_1 parked on the racing line ahead; the MPC car must not run into it
+    env = RacingParallelEnv(n_cars=2, max_cycles=60,
+                            start=StartConfig(mode="grid", grid_gap=0.3, speed=0.0),
+                            rules=RulesConfig())
+    parked = make_agent_spec("constant:throttle=-1.0")
+    obs, _ = env.reset(seed=0)
+    env.core.state[0, 1, :] = [env.core.state[0, 0, 0] + 3.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    mpc = MPCAgent(s1=0.2)
+    mpc.reset(env.track, "car_0", 0)
+    parked.reset(env.track, "car_1", 0)
+    obs = {a: env.core.observe()[0, i] for i, a in enumerate(env.possible_agents)}
+    for _ in range(60):
+        obs, _, _, _, info = env.step({"car_0": mpc.act(obs["car_0"]), "car_1": parked.act(obs["car_1"])})
+    assert info["car_0"]["contacts"] == 0
+    assert env.core.state[0, 0, 0] > env.core.state[0, 1, 0] + 1.0   # and got past it
+
+
+def test_three_mpc_cars_race_from_the_start_regions():
+    env = RacingParallelEnv(n_cars=3, max_cycles=150)
+    agents = [MPCAgent(), MPCAgent(zeta=0.85), MPCAgent(zeta=0.8)]
+    states, info = drive(env, agents, 150)
+    assert np.isfinite(states).all()
+    for a in agents:
+        assert a.stats["fallbacks"] <= 3                     # no fallback storms
+        assert a.stats["solves"] == 150
