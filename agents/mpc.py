@@ -49,11 +49,10 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
+from racing_env.controllers import follower_action
+from racing_env.simulator import _n_substeps, integrate_car
 from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
-
-SCHEMA = 1
-
 
 @dataclass(frozen=True)
 class MPCConfig:
@@ -69,6 +68,8 @@ class MPCConfig:
     sep_window: float = 2.0       # only opponents within this progress distance constrain
     soft_rho: float = 1e-4        # DAQP rho_soft: reciprocal weight of soft violations
     sqp_iterations: int = 1       # 1 = real-time iteration
+    restart_offtrack: float = 0.06  # warm start from a follower rollout when the shifted plan
+                                    # leaves the track by more than this [m]
 
     def __post_init__(self):
         if not (isinstance(self.horizon, int) and 2 <= self.horizon <= 100):
@@ -89,10 +90,10 @@ def _cache_root() -> Path:
     return Path(os.environ.get("ALPHA_RACER_CACHE", Path.home() / ".cache" / "alpha_racer")) / "mpc"
 
 
-def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig):
-    """CasADi Function ``(x0[6], U[2xK], KAP[substeps x K]) -> (X[6xK], A[36xK], B[12xK])``:
-    the horizon simulated from x0 with stage sensitivities, compiled to C and cached on disk
-    (interpreted, with a warning, when no C compiler is available)."""
+def stage_function(vehicle: VehicleParams, cfg: MPCConfig):
+    """CasADi ``stage(x[6], u[2], kap[substeps]) -> (x_next, vec(dx_next/dx), vec(dx_next/du))``:
+    one 0.1 s stage of ``substeps`` RK4 steps of the simulator's model (``frenet_ode``) with
+    the prediction's ``v_low``; ``u`` are the env's normalised inputs."""
     import casadi as ca
     from racing_env.vehicle import frenet_ode_casadi
 
@@ -101,7 +102,6 @@ def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig):
     x = ca.SX.sym("x", 6)
     u = ca.SX.sym("u", 2)
     kap = ca.SX.sym("kap", cfg.substeps)
-
     # decision variables are the env's normalised inputs in [-1, 1]^2 (so R = I weighs a full
     # throttle swing like a full steering swing); map them to physical (d, delta) here
     d_phys = 0.5 * (vehicle.d_max + vehicle.d_min) + 0.5 * (vehicle.d_max - vehicle.d_min) * u[0]
@@ -118,12 +118,23 @@ def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig):
         k3 = f(xn + h / 2 * k2, kap[j])
         k4 = f(xn + h * k3, kap[j])
         xn = xn + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    stage = ca.Function("stage", [x, u, kap],
-                        [xn, ca.vec(ca.jacobian(xn, x)), ca.vec(ca.jacobian(xn, u))])
+    return ca.Function("stage", [x, u, kap],
+                       [xn, ca.densify(ca.vec(ca.jacobian(xn, x))),
+                        ca.densify(ca.vec(ca.jacobian(xn, u)))])
+
+
+def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig):
+    """The horizon ``(x0[6], U[2xK], KAP[substeps x K]) -> (X[6xK], A[36xK], B[12xK])``: the
+    stage function folded K times (mapaccum), compiled to C and cached on disk (interpreted,
+    with a warning, when no C compiler is available)."""
+    import casadi as ca
+
+    stage = stage_function(vehicle, cfg)
     traj = stage.mapaccum("mpc_traj", cfg.horizon)
-    key = hashlib.sha1(repr((SCHEMA, p, cfg.horizon, cfg.dt, cfg.substeps, ca.__version__,
-                             Path(__file__).with_name("mpc.py").stat().st_size)).encode()).hexdigest()[:16]
-    lib = _cache_root() / f"mpc_traj_{key}.so"
+    gen = ca.CodeGenerator("mpc_traj.c", {"with_header": False})
+    gen.add(traj)
+    code = gen.dump()
+    lib = _cache_root() / f"mpc_traj_{hashlib.sha1(code.encode()).hexdigest()[:16]}.so"
     if not lib.exists():
         cc = shutil.which("gcc") or shutil.which("cc")
         if cc is None:
@@ -132,14 +143,54 @@ def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig):
         lib.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
             src = Path(tmp) / "mpc_traj.c"
-            gen = ca.CodeGenerator("mpc_traj.c", {"with_header": False})
-            gen.add(traj)
-            gen.generate(tmp + os.sep)
+            src.write_text(code)
             out = Path(tmp) / lib.name
             subprocess.run([cc, "-O2", "-fPIC", "-shared", str(src), "-o", str(out)], check=True,
                            capture_output=True)
-            os.replace(out, lib)
-    return ca.external("mpc_traj", str(lib))
+            os.replace(out, lib)            # atomic: a killed compile leaves no broken library
+    return _CompiledTrajectory(lib, cfg.horizon, cfg.substeps)
+
+
+class _CompiledTrajectory:
+    """Calls the generated C function through ctypes on preallocated numpy buffers (the
+    CasADi Python call with DM conversions costs more than the maths itself here)."""
+
+    def __init__(self, lib: Path, horizon: int, substeps: int):
+        import ctypes
+        self._lib = ctypes.CDLL(str(lib))
+        fn = self._lib.mpc_traj
+        i64 = ctypes.c_longlong
+        sizes = [i64() for _ in range(4)]
+        self._lib.mpc_traj_work(*[ctypes.byref(v) for v in sizes])
+        n_arg, n_res, n_iw, n_w = (v.value for v in sizes)
+        K = horizon
+        self.x0 = np.zeros(6)
+        self.U = np.zeros(2 * K)
+        self.kap = np.zeros(substeps * K)
+        self.X = np.zeros(6 * K)
+        self.A = np.zeros(36 * K)
+        self.B = np.zeros(12 * K)
+        self._iw = np.zeros(max(n_iw, 1), dtype=np.int64)
+        self._w = np.zeros(max(n_w, 1))
+        dp = ctypes.POINTER(ctypes.c_double)
+        ptr = lambda a: a.ctypes.data_as(dp)
+        self._arg = (dp * max(n_arg, 3))(ptr(self.x0), ptr(self.U), ptr(self.kap))
+        self._res = (dp * max(n_res, 3))(ptr(self.X), ptr(self.A), ptr(self.B))
+        self._args = (self._arg, self._res, self._iw.ctypes.data_as(ctypes.POINTER(i64)), ptr(self._w), 0)
+        fn.restype = ctypes.c_int
+        self._fn = fn
+        self.K = K
+
+    def __call__(self, x0, U, kap):
+        """Same inputs and outputs as the CasADi Function (U (2, K), kap (m, K) arrays)."""
+        self.x0[:] = x0
+        self.U[:] = np.asarray(U).T.ravel()
+        self.kap[:] = np.asarray(kap).T.ravel()
+        if self._fn(*self._args):
+            raise RuntimeError("compiled MPC prediction failed")
+        K = self.K
+        return (self.X.reshape(K, 6).T.copy(), self.A.reshape(K, 36).T.copy(),
+                self.B.reshape(K, 12).T.copy())
 
 
 @njit(cache=True)
@@ -170,6 +221,17 @@ def condense(A, B, n_steps):
                         T[r, c] = acc
                 M[:, :] = T
     return G
+
+
+@njit(cache=True)
+def _rollout(x, n_ref, mu_ref, kappa_ref, v_ref, kappa_tab, ds, length, gains, p, act_map, dt, U):
+    """Roll the follower law forward from state ``x`` in the simulator's model; inputs into U."""
+    for k in range(U.shape[1]):
+        a0, a1 = follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, gains)
+        U[0, k] = a0
+        U[1, k] = a1
+        integrate_car(x, act_map[0] + act_map[1] * a0, act_map[2] * a1, kappa_tab, ds, length,
+                      p, dt, _n_substeps(x[3], p, dt, 1.0, 100))
 
 
 # ---------------------------------------------------------------------------- the solver
@@ -238,26 +300,18 @@ class MPC:
     def _follower_warm_start(self, x0):
         """Inputs (2, K) from rolling out the raceline follower's law in the simulator model:
         an on-track initial guess when the shifted previous plan has left the track."""
-        from racing_env.simulator import TrackTables, integrate_car, _n_substeps
+        from racing_env.simulator import TrackTables
         if self._follower is None:
             from racing_env.controllers import RacelineFollower
             self._follower = RacelineFollower(self.vehicle)
             self._follower.reset(self.track)
             self._tables = TrackTables.from_track(self.track, 0.15)
-            self._p = self.vehicle.pack()
-        K, tb, v = self.cfg.horizon, self._tables, self.vehicle
-        x = np.array(x0, dtype=float)
-        U = np.empty((2, K))
-        obs = np.zeros(6)
-        for k in range(K):
-            obs[:] = x
-            obs[0] = x[0] % tb.length
-            a = self._follower.act(obs)
-            U[:, k] = a
-            d = 0.5 * (v.d_max + v.d_min) + 0.5 * (v.d_max - v.d_min) * float(a[0])
-            n_sub = _n_substeps(x[3], self._p, self.cfg.dt, 1.0, 100)
-            integrate_car(x, d, v.delta_max * float(a[1]), tb.kappa, tb.ds, tb.length, self._p,
-                          self.cfg.dt, n_sub)
+        tb, v = self._tables, self.vehicle
+        U = np.empty((2, self.cfg.horizon))
+        _rollout(np.array(x0, dtype=float), *self._follower.tables(), tb.kappa, tb.ds, tb.length,
+                 self._follower.gains(), self.vehicle.pack(),
+                 np.array([0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min), v.delta_max]),
+                 self.cfg.dt, U)
         return U
 
     def _bounds_n(self, s):
@@ -286,10 +340,10 @@ class MPC:
         while it < iterations:
             it += 1
             kap = self._kappa_at_substeps(x0, U)
-            X, A, B = (np.asarray(o) for o in self._traj(x0, U, kap))
+            X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
             lo_n, hi_n = self._bounds_n(X[0])
             off = np.maximum(X[1] - hi_n, lo_n - X[1]).max() if np.isfinite(X).all() else np.inf
-            if off > self.vehicle.width and not restarted:
+            if off > cfg.restart_offtrack and not restarted:
                 # the warm start leaves the track: linearise around a follower rollout instead
                 U = self._follower_warm_start(x0)
                 self._s_nom = None
@@ -332,22 +386,19 @@ class MPC:
                     s_jk = s_j + v_j * kk
                     ds = s_pred - s_jk
                     dn = n_pred - n_j
-                    near = np.abs(ds) < cfg.sep_window
-                    if not near.any():
+                    near = np.flatnonzero(np.abs(ds) < cfg.sep_window)
+                    if not near.size:
                         continue
-                    use_lat = np.abs(dn) / cfg.sep_n >= np.abs(ds) / cfg.sep_s
-                    for k in np.flatnonzero(near):
-                        if use_lat[k]:
-                            row, gap, sign = Gn[k], dn[k], 1.0 if dn[k] >= 0 else -1.0
-                            need = cfg.sep_n
-                        else:
-                            row, gap, sign = Gs[k], ds[k], 1.0 if ds[k] >= 0 else -1.0
-                            need = cfg.sep_s
-                        # sign * (gap + row du) >= need
-                        rows.append((sign * row)[None, :])
-                        lo.append(np.array([need - sign * gap]))
-                        hi.append(np.array([1e30]))
-                        soft.append(np.ones(1, dtype=bool))
+                    ds, dn = ds[near], dn[near]
+                    lat = (np.abs(dn) / cfg.sep_n >= np.abs(ds) / cfg.sep_s)[:, None]
+                    gap = np.where(lat[:, 0], dn, ds)
+                    sign = np.where(gap >= 0, 1.0, -1.0)
+                    need = np.where(lat[:, 0], cfg.sep_n, cfg.sep_s)
+                    # sign * (gap + row du) >= need, row from n (lateral) or s (longitudinal)
+                    rows.append(sign[:, None] * np.where(lat, Gn[near], Gs[near]))
+                    lo.append(need - sign * gap)
+                    hi.append(np.full(near.size, 1e30))
+                    soft.append(np.ones(near.size, dtype=bool))
             Acon = np.vstack(rows)
             blo = np.concatenate([self._lo_u - u_vec] + lo)
             bhi = np.concatenate([self._hi_u - u_vec] + hi)

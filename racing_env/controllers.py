@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from .track import Track
 from .tracks import make_track
@@ -76,29 +77,53 @@ class RacelineFollower:
                                              t.ds)[1:-1])
         self._kappa_ref = f * np.interp(t.s_grid, rl.s_track, rl.kappa, period=t.length) + (1 - f) * t.kappa
         self._v_ref = self.speed_scale * rl.speed_at(t.s_grid, mu=self.mu)
+        self._gains = self.gains()
         self.agent_id = agent_id
 
-    def _at(self, table: np.ndarray, s: float) -> float:
-        t = self.track
-        f = (s % t.length) / t.ds
-        i = int(f)
-        w = f - i
-        return float(table[i % len(table)] * (1 - w) + table[(i + 1) % len(table)] * w)
+    def gains(self) -> np.ndarray:
+        """Packed controller constants for :func:`follower_action`."""
+        v = self.vehicle
+        return np.array([self.preview_min, self.preview_time, self.speed_preview, self.k_speed,
+                         v.lf + v.lr, self.k_us, v.C1, v.C2, v.C3, v.C4, v.d_min, v.d_max,
+                         v.delta_max])
+
+    def tables(self):
+        """(n_ref, mu_ref, kappa_ref, v_ref) on the track grid, the follower's references."""
+        return self._n_ref, self._mu_ref, self._kappa_ref, self._v_ref
 
     def act(self, observation) -> np.ndarray:
         """Normalised ``[throttle, steering]`` (float32, in [-1, 1]) from an env observation."""
         if self.track is None:
             raise RuntimeError("RacelineFollower.act() before reset(track, ...)")
-        s, n, mu, vx, vy = (float(v) for v in observation[:5])
-        v = self.vehicle
-        preview = max(self.preview_min, self.preview_time * vx)
-        beta = math.atan2(vy, max(vx, 0.1))
-        kappa_cmd = (self._at(self._kappa_ref, s + 0.5 * preview)
-                     + 2.0 / preview * (self._at(self._mu_ref, s) - (mu + beta))
-                     + 1.0 / preview ** 2 * (self._at(self._n_ref, s) - n))
-        delta = math.atan((v.lf + v.lr) * kappa_cmd) + self.k_us * vx * vx * kappa_cmd
-        v_ref = self._at(self._v_ref, s + self.speed_preview * vx)
-        d = (v.C3 + v.C4 * vx * vx) / max(v.C1 - v.C2 * vx, 1e-6) + self.k_speed * (v_ref - vx)
-        d = min(max(d, v.d_min), v.d_max)
-        d_norm = (2.0 * d - (v.d_max + v.d_min)) / (v.d_max - v.d_min)
-        return np.array([d_norm, min(max(delta / v.delta_max, -1.0), 1.0)], dtype=np.float32)
+        a = follower_action(np.asarray(observation[:6], dtype=np.float64), self._n_ref,
+                            self._mu_ref, self._kappa_ref, self._v_ref, self.track.ds,
+                            self.track.length, self._gains)
+        return np.array(a, dtype=np.float32)
+
+
+@njit(cache=True)
+def _table_at(table, s, ds, length):
+    f = (s % length) / ds
+    i = int(f)
+    w = f - i
+    m = table.shape[0]
+    return table[i % m] * (1.0 - w) + table[(i + 1) % m] * w
+
+
+@njit(cache=True)
+def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
+    """The follower's control law (see :class:`RacelineFollower`) for state ``x`` (6,):
+    normalised ``(throttle, steering)``. ``g`` from :meth:`RacelineFollower.gains`."""
+    s, n, mu, vx, vy = x[0], x[1], x[2], x[3], x[4]
+    preview = max(g[0], g[1] * vx)
+    beta = math.atan2(vy, max(vx, 0.1))
+    kappa_cmd = (_table_at(kappa_ref, s + 0.5 * preview, ds, length)
+                 + 2.0 / preview * (_table_at(mu_ref, s, ds, length) - (mu + beta))
+                 + 1.0 / preview ** 2 * (_table_at(n_ref, s, ds, length) - n))
+    delta = math.atan(g[4] * kappa_cmd) + g[5] * vx * vx * kappa_cmd
+    v_target = _table_at(v_ref, s + g[2] * vx, ds, length)
+    d = (g[8] + g[9] * vx * vx) / max(g[6] - g[7] * vx, 1e-6) + g[3] * (v_target - vx)
+    d = min(max(d, g[10]), g[11])
+    d_norm = (2.0 * d - (g[11] + g[10])) / (g[11] - g[10])
+    return d_norm, min(max(delta / g[12], -1.0), 1.0)
+

@@ -1,0 +1,144 @@
+"""The same MPC as :class:`agents.mpc.MPC`, solved to convergence by IPOPT.
+
+The baseline of ``benchmarks/mpc_speed.py`` and the "fully converged" reference for the RTI's
+closed-loop quality: multiple shooting over the same RK4 stage model, the same cost (tracking
+with ``Q = q I`` on stages 1..K, input-rate cost with ``R = I``), the same input, steering-rate
+and (soft, quadratically penalised slack) track and separation constraints, warm-started
+from the previous solution. It takes the same arguments and returns the same action.
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+
+import numpy as np
+
+from racing_env.track import Track
+from racing_env.vehicle import VehicleParams
+
+from .mpc import MPC, MPCConfig, stage_function
+
+
+class IpoptMPC:
+    """IPOPT solve of the MPC; ``solve(x0, s_ref, n_ref, q, opponents, u_prev)`` like :class:`MPC`."""
+
+    def __init__(self, track: Track, vehicle: VehicleParams | None = None,
+                 config: MPCConfig | None = None, max_opponents: int = 2, tol: float = 1e-8):
+        import casadi as ca
+        self.track = track
+        self.vehicle = v = vehicle or VehicleParams()
+        self.cfg = cfg = config or MPCConfig()
+        K, m = cfg.horizon, cfg.substeps
+        stage = stage_function(v, cfg)
+        X = ca.MX.sym("X", 6, K + 1)
+        U = ca.MX.sym("U", 2, K)
+        S_track = ca.MX.sym("St", K)
+        S_sep = ca.MX.sym("Ss", max_opponents * K)
+        P_x0 = ca.MX.sym("x0", 6)
+        P_ref = ca.MX.sym("ref", 2, K)
+        P_kap = ca.MX.sym("kap", m, K)
+        P_q = ca.MX.sym("q")
+        P_uprev = ca.MX.sym("uprev", 2)
+        P_nlo = ca.MX.sym("nlo", K)
+        P_nhi = ca.MX.sym("nhi", K)
+        # separation rows: coefficient on s, on n, and the bound: cs*s + cn*n >= b
+        P_sep = ca.MX.sym("sep", 3, max_opponents * K)
+        g, lbg, ubg = [X[:, 0] - P_x0], [np.zeros(6)], [np.zeros(6)]
+        for k in range(K):
+            xn = stage(X[:, k], U[:, k], P_kap[:, k])[0]
+            g.append(X[:, k + 1] - xn)
+            lbg.append(np.zeros(6))
+            ubg.append(np.zeros(6))
+        rate = v.delta_rate_max * cfg.dt / v.delta_max
+        dsteer = ca.horzcat(U[1, 0] - P_uprev[1], U[1, 1:] - U[1, :-1])
+        g.append(dsteer.T)
+        lbg.append(-rate * np.ones(K))
+        ubg.append(rate * np.ones(K))
+        n_pred = X[1, 1:].T
+        g.append(n_pred - P_nlo + S_track)
+        lbg.append(np.zeros(K))
+        ubg.append(np.full(K, np.inf))
+        g.append(P_nhi - n_pred + S_track)
+        lbg.append(np.zeros(K))
+        ubg.append(np.full(K, np.inf))
+        s_pred = X[0, 1:]
+        for r in range(max_opponents):
+            for k in range(K):
+                col = r * K + k
+                g.append(P_sep[0, col] * s_pred[k] + P_sep[1, col] * n_pred[k] - P_sep[2, col]
+                         + S_sep[col])
+                lbg.append(np.zeros(1))
+                ubg.append(np.full(1, np.inf))
+        err = X[:2, 1:] - P_ref
+        du = U[:, 1:] - U[:, :-1]
+        w_soft = 1.0 / cfg.soft_rho
+        cost = (P_q * ca.sumsqr(err) + ca.sumsqr(du)
+                + w_soft * (ca.sumsqr(S_track) + ca.sumsqr(S_sep)))
+        w = ca.vertcat(ca.vec(X), ca.vec(U), S_track, S_sep)
+        p = ca.vertcat(P_x0, ca.vec(P_ref), ca.vec(P_kap), P_q, P_uprev, P_nlo, P_nhi, ca.vec(P_sep))
+        nlp = {"x": w, "p": p, "f": cost, "g": ca.vertcat(*g)}
+        opts = {"expand": True, "ipopt.print_level": 0, "print_time": False, "ipopt.tol": tol,
+                "ipopt.sb": "yes",
+                "ipopt.warm_start_init_point": "yes", "ipopt.max_iter": 500}
+        self._solver = ca.nlpsol("mpc_ipopt", "ipopt", nlp, opts)
+        self._lbg = np.concatenate([np.atleast_1d(a) for a in lbg])
+        self._ubg = np.concatenate([np.atleast_1d(a) for a in ubg])
+        nx, nu = 6 * (K + 1), 2 * K
+        self._lbw = np.concatenate([np.full(nx, -np.inf), np.full(nu, -1.0), np.zeros(K + max_opponents * K)])
+        self._ubw = np.concatenate([np.full(nx, np.inf), np.full(nu, 1.0), np.full(K + max_opponents * K, np.inf)])
+        self._nx, self._nu, self._m = nx, nu, max_opponents
+        self._helper = MPC(track, v, cfg)            # reference kappa lookup and bounds
+        self.stats = {"solves": 0, "fallbacks": 0, "solve_ms": deque(maxlen=100_000)}
+        self.reset()
+
+    def reset(self) -> None:
+        self._w0 = None
+        self._helper.reset()
+
+    def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None) -> np.ndarray:
+        t0 = time.perf_counter()
+        cfg, K = self.cfg, self.cfg.horizon
+        x0 = np.asarray(x0, dtype=float)
+        u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
+        if self._w0 is None:
+            U0 = np.zeros((2, K))
+            X0 = np.tile(x0[:, None], (1, K + 1))
+            X0[0] = x0[0] + max(x0[3], 0.5) * cfg.dt * np.arange(K + 1)
+        else:
+            Xp = self._w0[:self._nx].reshape(K + 1, 6).T
+            Up = self._w0[self._nx:self._nx + self._nu].reshape(K, 2).T
+            X0 = np.concatenate([Xp[:, 1:], Xp[:, -1:]], axis=1)
+            X0[:, 0] = x0
+            U0 = np.concatenate([Up[:, 1:], Up[:, -1:]], axis=1)
+        self._helper._s_nom = X0[0]
+        kap = self._helper._kappa_at_substeps(x0, U0)
+        nlo, nhi = self._helper._bounds_n(X0[0, 1:])
+        sep = np.zeros((3, self._m * K))
+        sep[2] = -1e3                                       # inactive rows
+        if opponents is not None:
+            kk = np.arange(1, K + 1) * cfg.dt
+            for r, (s_j, n_j, v_j) in enumerate(np.asarray(opponents, dtype=float)[:self._m]):
+                s_jk = s_j + v_j * kk
+                ds, dn = X0[0, 1:] - s_jk, X0[1, 1:] - n_j
+                near = np.abs(ds) < cfg.sep_window
+                lat = np.abs(dn) / cfg.sep_n >= np.abs(ds) / cfg.sep_s
+                sgn_n, sgn_s = np.where(dn >= 0, 1.0, -1.0), np.where(ds >= 0, 1.0, -1.0)
+                cols = slice(r * K, (r + 1) * K)
+                sep[0, cols] = np.where(near & ~lat, sgn_s, 0.0)
+                sep[1, cols] = np.where(near & lat, sgn_n, 0.0)
+                sep[2, cols] = np.where(near, np.where(lat, cfg.sep_n + sgn_n * n_j,
+                                                       cfg.sep_s + sgn_s * s_jk), -1e3)
+        p = np.concatenate([x0, np.column_stack([s_ref, n_ref]).ravel(), kap.T.ravel(), [q], u_prev,
+                            nlo, nhi, sep.T.ravel()])
+        w0 = np.concatenate([X0.T.ravel(), U0.T.ravel(), np.zeros(K + self._m * K)])
+        sol = self._solver(x0=w0, p=p, lbx=self._lbw, ubx=self._ubw, lbg=self._lbg, ubg=self._ubg)
+        ok = self._solver.stats()["success"]
+        w = np.asarray(sol["x"]).ravel()
+        self.stats["solves"] += 1
+        self.stats["solve_ms"].append(1e3 * (time.perf_counter() - t0))
+        if not ok or not np.isfinite(w).all():
+            self.stats["fallbacks"] += 1
+            self._w0 = None
+            return np.array([0.0, u_prev[1]])
+        self._w0 = w
+        return w[self._nx:self._nx + 2].copy()

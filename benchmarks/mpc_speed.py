@@ -1,0 +1,103 @@
+"""MPC speed and quality: the RTI-SQP MPC (agents.mpc.MPC) against IPOPT on the same problem.
+
+    python benchmarks/mpc_speed.py            # about a minute
+    python benchmarks/mpc_speed.py --quick    # a smoke check
+
+Both solve the same MPC (K = 15, 3 RK4 sub-steps per stage, same cost and soft constraints) in
+closed loop on the default track, warm-started from their previous solution:
+
+1. solo: one car, a flying start, 250 steps: solve times, lap times (the RTI's second lap
+   against IPOPT's, which is solved to convergence, tol 1e-8) and track-limit violations;
+2. race: three cars from the paper's start regions, the timed car with two opponents
+   (separation constraints active), 150 steps: solve times.
+
+Also prints the env step time beside the MPC time. One core (numba threads = 1).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+
+import numba
+import numpy as np
+
+from agents.mpc import MPC
+from agents.mpc_agent import joint_state_from_observation, progress_rate
+from agents.mpc_ipopt import IpoptMPC
+from agents.reference import Theta, reference_trajectory
+from racing_env import RacingParallelEnv, StartConfig
+from racing_env.raceline import get_raceline
+
+THETA = Theta(q=20.0, zeta=0.9, s1=0.1, s2=4.0, s3=1.0)
+
+
+def closed_loop(solvers, n_cars, steps, start):
+    """Drive ``n_cars`` cars, car i with solvers[i]; returns (env, env step seconds list)."""
+    env = RacingParallelEnv(n_cars=n_cars, max_cycles=steps, start=start)
+    obs, _ = env.reset(seed=0)
+    track = env.track
+    rl = get_raceline(track)
+    u_prev = [np.zeros(2) for _ in range(n_cars)]
+    env_s = []
+    while env.agents:
+        actions = {}
+        for i, agent in enumerate(env.possible_agents):
+            ego, others = joint_state_from_observation(obs[agent], n_cars, track.length)
+            ref = reference_trajectory(THETA, ego, others if len(others) else None, rl, track)
+            opp = None
+            nb = [j for j in (ref.ahead, ref.behind) if j >= 0]
+            if nb:
+                o = others[nb]
+                opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, track)])
+            u_prev[i] = solvers[i].solve(ego, ref.s_ref, ref.n_ref, THETA.q, opp, u_prev[i])
+            actions[agent] = u_prev[i].astype(np.float32)
+        t0 = time.perf_counter()
+        obs, _, _, _, info = env.step(actions)
+        env_s.append(time.perf_counter() - t0)
+    return env, env_s, info
+
+
+def summary(ms):
+    ms = np.asarray(ms)
+    return np.median(ms), np.percentile(ms, 99)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+    numba.set_num_threads(1)
+    solo_steps, race_steps = (120, 60) if args.quick else (250, 150)
+    probe = RacingParallelEnv(n_cars=1)
+    track = probe.track
+    print(f"MPC: K = 15, dt = 0.1 s, default track; solo {solo_steps} steps, race {race_steps} steps")
+    print(f"{'solver':<8} {'scenario':<8} {'median ms':>9} {'p99 ms':>7} {'laps s':<18} {'off-track':>9} {'fallbacks':>9}")
+    med = {}
+    laps = {}
+    for name, make in (("RTI", lambda: MPC(track)), ("IPOPT", lambda: IpoptMPC(track))):
+        solver = make()
+        env, env_s, info = closed_loop([solver], 1, solo_steps, StartConfig(mode="grid", speed=2.0))
+        m, p = summary(list(solver.stats["solve_ms"])[3:])
+        lt = np.diff([0.0] + env.core.lap_times[0][0])
+        laps[name] = lt
+        print(f"{name:<8} {'solo':<8} {m:>9.3f} {p:>7.3f} {str(np.round(lt, 3)):<18} "
+              f"{info['car_0']['off_tracks']:>9} {solver.stats['fallbacks']:>9}")
+        solvers = [make(), MPC(track), MPC(track)]
+        env, env_s, info = closed_loop(solvers, 3, race_steps, StartConfig(mode="regions"))
+        m, p = summary(list(solvers[0].stats["solve_ms"])[3:])
+        med[name] = m
+        print(f"{name:<8} {'race':<8} {m:>9.3f} {p:>7.3f} {'-':<18} "
+              f"{info['car_0']['off_tracks']:>9} {solvers[0].stats['fallbacks']:>9}")
+        if name == "RTI":
+            print(f"{'':<8} env step with 3 MPC cars: {1e3 * np.median(env_s):.3f} ms median")
+    print(f"\nRTI is {med['IPOPT'] / med['RTI']:.0f}x faster than IPOPT (median, race scenario)")
+    if len(laps["RTI"]) > 1 and len(laps["IPOPT"]) > 1:
+        gap = laps["RTI"][1] / laps["IPOPT"][1] - 1.0
+        print(f"flying lap: RTI {laps['RTI'][1]:.3f} s vs converged IPOPT {laps['IPOPT'][1]:.3f} s "
+              f"({100 * gap:+.2f} %)")
+
+
+if __name__ == "__main__":
+    main()
