@@ -5,7 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
-DEFAULT_AGENTS = ["raceline:mu=0.85", "raceline:mu=0.8", "raceline:mu=0.75"]
+DEFAULT_AGENTS = ["mpc", "mpc:zeta=0.85", "mpc:zeta=0.8"]
 
 
 def _cmd_race(args) -> int:
