@@ -269,7 +269,8 @@ class MPC:
             if k:
                 S[k, 2 * k - 1] = -1.0
         self._S = S
-        self.stats = {"solves": 0, "fallbacks": 0, "qp_iterations": 0, "solve_ms": deque(maxlen=100_000)}
+        self.stats = {"solves": 0, "fallbacks": 0, "restarts": 0, "qp_iterations": 0,
+                      "solve_ms": deque(maxlen=100_000)}
         self.reset()
 
     def reset(self) -> None:
@@ -300,16 +301,14 @@ class MPC:
     def _follower_warm_start(self, x0):
         """Inputs (2, K) from rolling out the raceline follower's law in the simulator model:
         an on-track initial guess when the shifted previous plan has left the track."""
-        from racing_env.simulator import TrackTables
         if self._follower is None:
             from racing_env.controllers import RacelineFollower
             self._follower = RacelineFollower(self.vehicle)
             self._follower.reset(self.track)
-            self._tables = TrackTables.from_track(self.track, 0.15)
-        tb, v = self._tables, self.vehicle
+        t, v = self.track, self.vehicle
         U = np.empty((2, self.cfg.horizon))
-        _rollout(np.array(x0, dtype=float), *self._follower.tables(), tb.kappa, tb.ds, tb.length,
-                 self._follower.gains(), self.vehicle.pack(),
+        _rollout(np.array(x0, dtype=float), *self._follower.tables(), t.kappa, t.ds, t.length,
+                 self._follower.gains(), v.pack(),
                  np.array([0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min), v.delta_max]),
                  self.cfg.dt, U)
         return U
@@ -335,23 +334,23 @@ class MPC:
             U = U.copy()
             U[0] = np.maximum(U[0], 0.2)
         status = "ok"
-        iterations, it = cfg.sqp_iterations, 0
+        qp_left = cfg.sqp_iterations
         restarted = False
-        while it < iterations:
-            it += 1
+        while qp_left > 0:
             kap = self._kappa_at_substeps(x0, U)
             X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
             lo_n, hi_n = self._bounds_n(X[0])
             off = np.maximum(X[1] - hi_n, lo_n - X[1]).max() if np.isfinite(X).all() else np.inf
             if off > cfg.restart_offtrack and not restarted:
                 # the warm start leaves the track: linearise around a follower rollout instead
+                # (and take one more SQP iteration from there)
                 U = self._follower_warm_start(x0)
                 self._s_nom = None
                 restarted = True
-                self.stats["restarts"] = self.stats.get("restarts", 0) + 1
-                iterations += 1
-                it -= 1
+                self.stats["restarts"] += 1
+                qp_left += 1
                 continue
+            qp_left -= 1
             if not (np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all()):
                 status = "nonfinite prediction"
                 break
