@@ -134,7 +134,9 @@ def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig):
     gen = ca.CodeGenerator("mpc_traj.c", {"with_header": False})
     gen.add(traj)
     code = gen.dump()
-    lib = _cache_root() / f"mpc_traj_{hashlib.sha1(code.encode()).hexdigest()[:16]}.so"
+    flags = ["-O3", "-fPIC", "-shared"]
+    key = hashlib.sha1((code + " ".join(flags)).encode()).hexdigest()[:16]
+    lib = _cache_root() / f"mpc_traj_{key}.so"
     if not lib.exists():
         cc = shutil.which("gcc") or shutil.which("cc")
         if cc is None:
@@ -145,7 +147,7 @@ def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig):
             src = Path(tmp) / "mpc_traj.c"
             src.write_text(code)
             out = Path(tmp) / lib.name
-            subprocess.run([cc, "-O2", "-fPIC", "-shared", str(src), "-o", str(out)], check=True,
+            subprocess.run([cc, *flags, str(src), "-o", str(out)], check=True,
                            capture_output=True)
             os.replace(out, lib)            # atomic: a killed compile leaves no broken library
     return _CompiledTrajectory(lib, cfg.horizon, cfg.substeps)
@@ -224,6 +226,20 @@ def condense(A, B, n_steps):
 
 
 @njit(cache=True)
+def _grid_interp(table, s, ds, length):
+    """Periodic linear interpolation of a track-grid table at (unwrapped) s, any shape."""
+    out = np.empty_like(s)
+    flat_s, flat_o = s.ravel(), out.ravel()
+    m = table.shape[0]
+    for i in range(flat_s.size):
+        f = (flat_s[i] % length) / ds
+        j = int(f)
+        w = f - j
+        flat_o[i] = table[j % m] * (1.0 - w) + table[(j + 1) % m] * w
+    return out
+
+
+@njit(cache=True)
 def _rollout(x, n_ref, mu_ref, kappa_ref, v_ref, kappa_tab, ds, length, gains, p, act_map, dt, U):
     """Roll the follower law forward from state ``x`` in the simulator's model; inputs into U."""
     for k in range(U.shape[1]):
@@ -269,6 +285,9 @@ class MPC:
             if k:
                 S[k, 2 * k - 1] = -1.0
         self._S = S
+        half = 0.5 * self.vehicle.width + self.cfg.track_margin
+        self._n_lo_tab = np.ascontiguousarray(-track.w_right + half)
+        self._n_hi_tab = np.ascontiguousarray(track.w_left - half)
         self.stats = {"solves": 0, "fallbacks": 0, "restarts": 0, "qp_iterations": 0,
                       "solve_ms": deque(maxlen=100_000)}
         self.reset()
@@ -291,12 +310,8 @@ class MPC:
             s_nodes = s_nodes - s_nodes[0] + x0[0]
         frac = np.arange(m) / m
         s_sub = s_nodes[:-1, None] + frac[None, :] * np.diff(s_nodes)[:, None]   # (K, m)
-        tb = self.track
-        f = np.mod(s_sub, tb.length) / tb.ds
-        i = np.floor(f).astype(np.int64)
-        w = f - i
-        kap = tb.kappa[i % len(tb.kappa)] * (1 - w) + tb.kappa[(i + 1) % len(tb.kappa)] * w
-        return np.ascontiguousarray(kap.T)                                          # (m, K)
+        t = self.track
+        return _grid_interp(t.kappa, np.ascontiguousarray(s_sub.T), t.ds, t.length)   # (m, K)
 
     def _follower_warm_start(self, x0):
         """Inputs (2, K) from rolling out the raceline follower's law in the simulator model:
@@ -314,9 +329,10 @@ class MPC:
         return U
 
     def _bounds_n(self, s):
-        wl, wr = self.track.widths(s)
-        half = 0.5 * self.vehicle.width + self.cfg.track_margin
-        return -wr + half, wl - half
+        t = self.track
+        s = np.ascontiguousarray(s, dtype=float)
+        return (_grid_interp(self._n_lo_tab, s, t.ds, t.length),
+                _grid_interp(self._n_hi_tab, s, t.ds, t.length))
 
     def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None) -> np.ndarray:
         import daqp
