@@ -9,7 +9,7 @@ closed loop on the default track, warm-started from their previous solution:
 1. solo: one car, a flying start, 250 steps: solve times, lap times (the RTI's second lap
    against IPOPT's, which is solved to convergence, tol 1e-8) and track-limit violations;
 2. race: three cars from the paper's start regions, all driven by the solver under test, each
-   with two opponents (separation constraints active), 200 steps: solve times of all cars.
+   with two opponents (separation constraints active), 300 steps: solve times of all cars.
 
 Also prints the env step time beside the MPC time. One core (numba threads = 1).
 """
@@ -69,7 +69,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     numba.set_num_threads(1)
-    solo_steps, race_steps = (120, 60) if args.quick else (250, 200)
+    solo_steps, race_steps = (120, 60) if args.quick else (250, 300)
     probe = RacingParallelEnv(n_cars=1)
     track = probe.track
     print(f"MPC: K = 15, dt = 0.1 s, default track; solo {solo_steps} steps, race {race_steps} steps")
