@@ -250,6 +250,24 @@ def _rollout(x, n_ref, mu_ref, kappa_ref, v_ref, kappa_tab, ds, length, gains, p
                       p, dt, _n_substeps(x[3], p, dt, 1.0, 100))
 
 
+def separation_choice(s_pred, n_pred, opponent, cfg: MPCConfig):
+    """Which separation to impose against one opponent at each predicted stage k = 1..K.
+
+    ``opponent = (s_j, n_j, s_dot_j)`` moves at constant progress rate and lateral position.
+    Returns ``(near, lateral, sign, s_jk)`` (K,) each: constrain only ``near`` stages
+    (``|s - s_j^k| < sep_window``); there impose ``sign * (n - n_j) >= sep_n`` where
+    ``lateral`` else ``sign * (s - s_j^k) >= sep_s``: the separation the nominal prediction
+    satisfies with the larger margin, on the side where the nominal is.
+    """
+    s_j, n_j, v_j = opponent
+    s_jk = s_j + v_j * cfg.dt * np.arange(1, len(s_pred) + 1)
+    ds, dn = s_pred - s_jk, n_pred - n_j
+    near = np.abs(ds) < cfg.sep_window
+    lateral = np.abs(dn) / cfg.sep_n >= np.abs(ds) / cfg.sep_s
+    sign = np.where(np.where(lateral, dn, ds) >= 0.0, 1.0, -1.0)
+    return near, lateral, sign, s_jk
+
+
 # ---------------------------------------------------------------------------- the solver
 class MPC:
     """RTI-SQP MPC of one car on a track (see the module docstring).
@@ -396,24 +414,19 @@ class MPC:
             # separation from opponents (soft), one row per stage and opponent nearby
             if opponents is not None and len(opponents):
                 Gs = G[0::2]
-                kk = np.arange(1, K + 1) * cfg.dt
-                for s_j, n_j, v_j in np.asarray(opponents, dtype=float):
-                    s_jk = s_j + v_j * kk
-                    ds = s_pred - s_jk
-                    dn = n_pred - n_j
-                    near = np.flatnonzero(np.abs(ds) < cfg.sep_window)
-                    if not near.size:
+                for opp in np.asarray(opponents, dtype=float):
+                    near, lat, sign, s_jk = separation_choice(s_pred, n_pred, opp, cfg)
+                    k = np.flatnonzero(near)
+                    if not k.size:
                         continue
-                    ds, dn = ds[near], dn[near]
-                    lat = (np.abs(dn) / cfg.sep_n >= np.abs(ds) / cfg.sep_s)[:, None]
-                    gap = np.where(lat[:, 0], dn, ds)
-                    sign = np.where(gap >= 0, 1.0, -1.0)
-                    need = np.where(lat[:, 0], cfg.sep_n, cfg.sep_s)
+                    lat, sign = lat[k], sign[k]
+                    gap = np.where(lat, n_pred[k] - opp[1], s_pred[k] - s_jk[k])
+                    need = np.where(lat, cfg.sep_n, cfg.sep_s)
                     # sign * (gap + row du) >= need, row from n (lateral) or s (longitudinal)
-                    rows.append(sign[:, None] * np.where(lat, Gn[near], Gs[near]))
+                    rows.append(sign[:, None] * np.where(lat[:, None], Gn[k], Gs[k]))
                     lo.append(need - sign * gap)
-                    hi.append(np.full(near.size, 1e30))
-                    soft.append(np.ones(near.size, dtype=bool))
+                    hi.append(np.full(k.size, 1e30))
+                    soft.append(np.ones(k.size, dtype=bool))
             Acon = np.vstack(rows)
             blo = np.concatenate([self._lo_u - u_vec] + lo)
             bhi = np.concatenate([self._hi_u - u_vec] + hi)

@@ -16,7 +16,7 @@ import numpy as np
 from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
 
-from .mpc import MPC, MPCConfig, stage_function
+from .mpc import MPC, MPCConfig, separation_choice, stage_function
 
 
 class IpoptMPC:
@@ -116,18 +116,13 @@ class IpoptMPC:
         sep = np.zeros((3, self._m * K))
         sep[2] = -1e3                                       # inactive rows
         if opponents is not None:
-            kk = np.arange(1, K + 1) * cfg.dt
-            for r, (s_j, n_j, v_j) in enumerate(np.asarray(opponents, dtype=float)[:self._m]):
-                s_jk = s_j + v_j * kk
-                ds, dn = X0[0, 1:] - s_jk, X0[1, 1:] - n_j
-                near = np.abs(ds) < cfg.sep_window
-                lat = np.abs(dn) / cfg.sep_n >= np.abs(ds) / cfg.sep_s
-                sgn_n, sgn_s = np.where(dn >= 0, 1.0, -1.0), np.where(ds >= 0, 1.0, -1.0)
+            for r, opp in enumerate(np.asarray(opponents, dtype=float)[:self._m]):
+                near, lat, sign, s_jk = separation_choice(X0[0, 1:], X0[1, 1:], opp, cfg)
                 cols = slice(r * K, (r + 1) * K)
-                sep[0, cols] = np.where(near & ~lat, sgn_s, 0.0)
-                sep[1, cols] = np.where(near & lat, sgn_n, 0.0)
-                sep[2, cols] = np.where(near, np.where(lat, cfg.sep_n + sgn_n * n_j,
-                                                       cfg.sep_s + sgn_s * s_jk), -1e3)
+                sep[0, cols] = np.where(near & ~lat, sign, 0.0)
+                sep[1, cols] = np.where(near & lat, sign, 0.0)
+                sep[2, cols] = np.where(near, np.where(lat, cfg.sep_n + sign * opp[1],
+                                                       cfg.sep_s + sign * s_jk), -1e3)
         p = np.concatenate([x0, np.column_stack([s_ref, n_ref]).ravel(), kap.T.ravel(), [q], u_prev,
                             nlo, nhi, sep.T.ravel()])
         w0 = np.concatenate([X0.T.ravel(), U0.T.ravel(), np.zeros(K + self._m * K)])

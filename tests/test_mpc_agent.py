@@ -77,3 +77,22 @@ def test_three_mpc_cars_race_from_the_start_regions():
     for a in agents:
         assert a.stats["fallbacks"] <= 3                     # no fallback storms
         assert a.stats["solves"] == 150
+
+
+@pytest.mark.slow
+def test_rti_lap_time_within_two_percent_of_converged_ipopt():
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from mpc_speed import closed_loop
+
+    from agents.mpc import MPC
+    from agents.mpc_ipopt import IpoptMPC
+    track = RacingParallelEnv(n_cars=1).track
+    laps = {}
+    for name, solver in (("rti", MPC(track)), ("ipopt", IpoptMPC(track))):
+        env, _, info = closed_loop([solver], 1, 240, StartConfig(mode="grid", speed=2.0))
+        assert info["car_0"]["off_tracks"] == 0 and solver.stats["fallbacks"] == 0
+        laps[name] = np.diff([0.0] + env.core.lap_times[0][0])
+    assert len(laps["rti"]) >= 2 and len(laps["ipopt"]) >= 2
+    assert abs(laps["rti"][1] / laps["ipopt"][1] - 1.0) < 0.02
