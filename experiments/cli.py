@@ -1,7 +1,8 @@
-"""The ``alpha-racer`` command line: ``race``, ``tracks``, ``raceline``, ``fuzz``."""
+"""The ``alpha-racer`` command line: ``race``, ``tracks``, ``raceline``, ``fuzz``, ``collect``."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -57,6 +58,16 @@ def _cmd_fuzz(args) -> int:
     return 0 if report.ok else 1
 
 
+def _cmd_collect(args) -> int:
+    from .collect import CollectConfig, collect
+    cfg = CollectConfig(races=args.races, n_cars=args.cars, steps=args.steps, track=args.track,
+                        seed=args.seed, races_per_shard=args.shard_size)
+    summary = collect(cfg, args.out, workers=args.workers)
+    print(f"{summary['simulated']} races simulated ({summary['resumed']} already there) in "
+          f"{summary['seconds']:.1f} s, {summary['races_per_s']:.3f} races/s -> {summary['out']}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="alpha-racer", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -93,6 +104,16 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--track", default="default")
     f.add_argument("--seed", type=int, default=0)
     f.set_defaults(fn=_cmd_fuzz)
+    c = sub.add_parser("collect", help="simulate races of MPC cars with random theta (resumable shards)")
+    c.add_argument("--races", type=int, default=4000)
+    c.add_argument("--cars", type=int, default=3)
+    c.add_argument("--steps", type=int, default=500)
+    c.add_argument("--track", default="default")
+    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--shard-size", type=int, default=25, help="races per shard file")
+    c.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    c.add_argument("--out", default="data/races")
+    c.set_defaults(fn=_cmd_collect)
     return p
 
 

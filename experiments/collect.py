@@ -1,0 +1,196 @@
+"""Race data for the alpha-potential (paper section 4): races of MPC cars with random theta.
+
+``alpha-racer collect --races 4000 --out data/races`` simulates races of ``n_cars`` MPC agents,
+each with theta drawn uniformly within the documented bounds, from the paper's start regions
+in a random order with small random offsets, and stores per step the joint state, every car's
+theta and the per-car rewards (rewards, not returns, so any discount can be used later).
+
+Storage: shards of ``races_per_shard`` races, ``shard_00000.npz`` ..., each written atomically
+(temporary file, then rename), plus ``manifest.json`` (schema version, config). A killed run
+resumes where it stopped: finished shards are kept and skipped, so no finished race is lost
+or recomputed. Race ``i`` draws everything from ``SeedSequence(seed).spawn`` child ``i``, so the
+same seed gives the same data whatever the worker count or backend.
+
+Shard arrays (R races, T steps, N cars): ``states`` (R, T + 1, N, 6) float32 joint Frenet
+states (unwrapped s); ``thetas`` (R, N, 5) float32; ``rewards`` (R, T, N) float32;
+``race_index`` (R,) int64; ``start_order`` (R, N) int64 (start region of each car);
+``fallbacks`` (R, N) int32 (MPC fallbacks, to spot bad races).
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+import warnings
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True)
+class CollectConfig:
+    """What to simulate. Defaults: the paper's races (3 cars, 500 steps of 0.1 s)."""
+
+    races: int = 4000
+    n_cars: int = 3
+    steps: int = 500
+    track: str = "default"
+    seed: int = 0
+    races_per_shard: int = 25
+    start_jitter: float = 0.8      # lateral jitter of the start positions (fraction of the room)
+
+    def __post_init__(self):
+        for name in ("races", "n_cars", "steps", "races_per_shard"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, np.integer)) and v >= 1):
+                raise ValueError(f"CollectConfig.{name} must be a positive integer, got {v!r}")
+        if not 2 <= self.n_cars <= 8:
+            raise ValueError(f"CollectConfig.n_cars must be in 2..8, got {self.n_cars}")
+
+    @property
+    def n_shards(self) -> int:
+        return -(-self.races // self.races_per_shard)
+
+    def shard_races(self, shard: int) -> range:
+        lo = shard * self.races_per_shard
+        return range(lo, min(lo + self.races_per_shard, self.races))
+
+
+def simulate_race(config: CollectConfig, race_index: int) -> dict:
+    """Simulate race ``race_index`` of the config; everything random comes from its own seed."""
+    from agents.reference import Theta
+    from racing_env import RacingParallelEnv, StartConfig
+
+    rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(race_index + 1)[race_index])
+    env = RacingParallelEnv(track=config.track, n_cars=config.n_cars, max_cycles=config.steps,
+                            start=StartConfig(mode="regions", lateral_jitter=config.start_jitter))
+    order = rng.permutation(config.n_cars)
+    obs, _ = env.reset(seed=int(rng.integers(2 ** 31)), options={"order": order.tolist()})
+    thetas = np.array([Theta.sample(rng).as_array() for _ in range(config.n_cars)])
+    agents = _agents(config.n_cars)
+    for agent, agent_id, theta in zip(agents, env.possible_agents, thetas):
+        agent.theta = Theta.from_array(theta)
+        agent.reset(env.track, agent_id, int(rng.integers(2 ** 31)))
+    fallbacks0 = [a.stats["fallbacks"] for a in agents]
+    states = np.empty((config.steps + 1, config.n_cars, 6), dtype=np.float32)
+    rewards = np.zeros((config.steps, config.n_cars), dtype=np.float32)
+    states[0] = env.core.state[0]
+    t = 0
+    while env.agents:
+        actions = {a: agents[i].act(obs[a]) for i, a in enumerate(env.possible_agents)}
+        obs, rew, _, _, _ = env.step(actions)
+        rewards[t] = [rew[a] for a in env.possible_agents]
+        t += 1
+        states[t] = env.core.state[0]
+    if not (np.isfinite(states).all() and np.isfinite(rewards).all()):
+        raise FloatingPointError(f"race {race_index} produced non-finite data")
+    return {"states": states, "thetas": thetas.astype(np.float32), "rewards": rewards,
+            "race_index": race_index, "start_order": order,
+            "fallbacks": np.array([a.stats["fallbacks"] - f0 for a, f0 in zip(agents, fallbacks0)],
+                                  dtype=np.int32)}
+
+
+_AGENTS: list = []
+
+
+def _agents(n: int) -> list:
+    """MPC agents reused across races in this process (building one compiles and loads code)."""
+    from agents.mpc_agent import MPCAgent
+    while len(_AGENTS) < n:
+        _AGENTS.append(MPCAgent())
+    return _AGENTS[:n]
+
+
+def simulate_shard(config: CollectConfig, shard: int, out_dir: str) -> str:
+    """Simulate one shard and write it atomically; returns the shard's path."""
+    warnings.simplefilter("ignore")
+    races = [simulate_race(config, i) for i in config.shard_races(shard)]
+    arrays = {k: np.stack([r[k] for r in races]) for k in races[0]}
+    path = Path(out_dir) / f"shard_{shard:05d}.npz"
+    fd, tmp = tempfile.mkstemp(dir=out_dir, suffix=".npz.tmp")
+    os.close(fd)
+    try:
+        with open(tmp, "wb") as f:       # a file object: savez would append ".npz" to a name
+            np.savez(f, schema_version=SCHEMA_VERSION, **arrays)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return str(path)
+
+
+def shard_is_complete(path: Path, config: CollectConfig, shard: int) -> bool:
+    try:
+        with np.load(path) as z:
+            return (int(z["schema_version"]) == SCHEMA_VERSION
+                    and z["race_index"].tolist() == list(config.shard_races(shard)))
+    except Exception:  # truncated, corrupt or foreign file: redo it
+        return False
+
+
+def _write_manifest(out: Path, config: CollectConfig) -> None:
+    manifest = out / "manifest.json"
+    meta = {"schema_version": SCHEMA_VERSION, "config": asdict(config)}
+    if manifest.exists():
+        old = json.loads(manifest.read_text())
+        if old != meta:
+            raise ValueError(f"{out} holds data of another configuration ({old['config']}); "
+                             f"use another --out or the same settings to resume")
+        return
+    tmp = manifest.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(meta, indent=2))
+    tmp.replace(manifest)
+
+
+def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool = True) -> dict:
+    """Simulate every missing shard with a local process pool; returns a summary.
+
+    ``workers = 1`` runs in this process. Resumable: complete shards are skipped.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_manifest(out, config)
+    todo = [k for k in range(config.n_shards)
+            if not shard_is_complete(out / f"shard_{k:05d}.npz", config, k)]
+    done_races = config.races - sum(len(config.shard_races(k)) for k in todo)
+    t0 = time.perf_counter()
+    bar = tqdm(total=config.races, initial=done_races, unit="race", desc="collect",
+               disable=not progress_bar, smoothing=0.1)
+    if workers <= 1:
+        for k in todo:
+            simulate_shard(config, k, str(out))
+            bar.update(len(config.shard_races(k)))
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = {pool.submit(simulate_shard, config, k, str(out)): k for k in todo}
+            for f in as_completed(futures):
+                f.result()
+                bar.update(len(config.shard_races(futures[f])))
+    bar.close()
+    seconds = time.perf_counter() - t0
+    new = config.races - done_races
+    return {"races": config.races, "simulated": new, "resumed": done_races, "seconds": seconds,
+            "races_per_s": new / seconds if seconds > 0 else float("nan"), "out": str(out)}
+
+
+def load_races(out_dir) -> dict:
+    """All shards of a collection concatenated in race order (checks the schema)."""
+    out = Path(out_dir)
+    meta = json.loads((out / "manifest.json").read_text())
+    if meta["schema_version"] != SCHEMA_VERSION:
+        raise ValueError(f"{out}: schema {meta['schema_version']}, this code reads {SCHEMA_VERSION}")
+    parts = []
+    for path in sorted(out.glob("shard_*.npz")):
+        with np.load(path) as z:
+            parts.append({k: z[k] for k in z.files if k != "schema_version"})
+    if not parts:
+        raise ValueError(f"{out}: no shards")
+    data = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    data["config"] = meta["config"]
+    return data
