@@ -50,7 +50,7 @@ import numpy as np
 from numba import njit
 
 from racing_env.controllers import follower_action
-from racing_env.simulator import _n_substeps, integrate_car
+from racing_env.simulator import _lookup, _n_substeps, integrate_car
 from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
 
@@ -227,16 +227,45 @@ def condense(A, B, n_steps):
 
 @njit(cache=True)
 def _grid_interp(table, s, ds, length):
-    """Periodic linear interpolation of a track-grid table at (unwrapped) s, any shape."""
+    """The simulator's periodic grid interpolation (``_lookup``) at every element of ``s``."""
     out = np.empty_like(s)
     flat_s, flat_o = s.ravel(), out.ravel()
-    m = table.shape[0]
     for i in range(flat_s.size):
-        f = (flat_s[i] % length) / ds
-        j = int(f)
-        w = f - j
-        flat_o[i] = table[j % m] * (1.0 - w) + table[(j + 1) % m] * w
+        flat_o[i] = _lookup(table, flat_s[i], ds, length)
     return out
+
+
+def stage_nodes(s_nominal, x0, K: int, dt: float) -> np.ndarray:
+    """Progress (K + 1,) at the stage boundaries to look curvature up at: the previous nominal
+    (K + 1,) shifted by one stage and re-anchored at ``x0``, or, without one, constant speed."""
+    if s_nominal is None:
+        return x0[0] + max(float(x0[3]), 0.5) * dt * np.arange(K + 1)
+    nodes = np.concatenate([s_nominal[1:], [2 * s_nominal[-1] - s_nominal[-2]]])
+    return nodes - nodes[0] + x0[0]
+
+
+def kappa_at_substeps(track: Track, s_nodes, substeps: int) -> np.ndarray:
+    """Track curvature (substeps, K) at the start of every RK4 sub-step between the stage
+    boundaries ``s_nodes`` (K + 1,) (progress interpolated linearly within a stage)."""
+    frac = np.arange(substeps) / substeps
+    s_sub = s_nodes[:-1, None] + frac[None, :] * np.diff(s_nodes)[:, None]     # (K, m)
+    return _grid_interp(track.kappa, np.ascontiguousarray(s_sub.T), track.ds, track.length)
+
+
+class EdgeBounds:
+    """Bounds on the car centre's lateral offset: the track edges minus half the car width and
+    the MPC's ``track_margin``; ``(lo, hi) = bounds(s)`` for any array of (unwrapped) s."""
+
+    def __init__(self, track: Track, vehicle: VehicleParams, cfg: MPCConfig):
+        half = 0.5 * vehicle.width + cfg.track_margin
+        self.track = track
+        self._lo = np.ascontiguousarray(-track.w_right + half)
+        self._hi = np.ascontiguousarray(track.w_left - half)
+
+    def __call__(self, s):
+        t = self.track
+        s = np.ascontiguousarray(s, dtype=float)
+        return _grid_interp(self._lo, s, t.ds, t.length), _grid_interp(self._hi, s, t.ds, t.length)
 
 
 @njit(cache=True)
@@ -303,9 +332,7 @@ class MPC:
             if k:
                 S[k, 2 * k - 1] = -1.0
         self._S = S
-        half = 0.5 * self.vehicle.width + self.cfg.track_margin
-        self._n_lo_tab = np.ascontiguousarray(-track.w_right + half)
-        self._n_hi_tab = np.ascontiguousarray(track.w_left - half)
+        self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
         self.stats = {"solves": 0, "fallbacks": 0, "restarts": 0, "qp_iterations": 0,
                       "solve_ms": deque(maxlen=100_000)}
         self.reset()
@@ -317,19 +344,9 @@ class MPC:
         self._follower = getattr(self, "_follower", None)
 
     # -------------------------------------------------------------- internals
-    def _kappa_at_substeps(self, x0, U):
-        K, m = self.cfg.horizon, self.cfg.substeps
-        if self._s_nom is None:
-            v = max(float(x0[3]), 0.5)
-            s_nodes = x0[0] + v * self.cfg.dt * np.arange(K + 1)
-        else:
-            # the previous nominal progress, shifted by one stage and re-anchored at x0
-            s_nodes = np.concatenate([self._s_nom[1:], [2 * self._s_nom[-1] - self._s_nom[-2]]])
-            s_nodes = s_nodes - s_nodes[0] + x0[0]
-        frac = np.arange(m) / m
-        s_sub = s_nodes[:-1, None] + frac[None, :] * np.diff(s_nodes)[:, None]   # (K, m)
-        t = self.track
-        return _grid_interp(t.kappa, np.ascontiguousarray(s_sub.T), t.ds, t.length)   # (m, K)
+    def _kappa_at_substeps(self, x0):
+        nodes = stage_nodes(self._s_nom, x0, self.cfg.horizon, self.cfg.dt)
+        return kappa_at_substeps(self.track, nodes, self.cfg.substeps)
 
     def _follower_warm_start(self, x0):
         """Inputs (2, K) from rolling out the raceline follower's law in the simulator model:
@@ -346,12 +363,6 @@ class MPC:
                  self.cfg.dt, U)
         return U
 
-    def _bounds_n(self, s):
-        t = self.track
-        s = np.ascontiguousarray(s, dtype=float)
-        return (_grid_interp(self._n_lo_tab, s, t.ds, t.length),
-                _grid_interp(self._n_hi_tab, s, t.ds, t.length))
-
     def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None) -> np.ndarray:
         import daqp
         t0 = time.perf_counter()
@@ -359,7 +370,7 @@ class MPC:
         x0 = np.asarray(x0, dtype=float)
         u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
         if self._U is None:
-            self._U = np.tile(np.array([[0.0], [0.0]]), (1, K))
+            self._U = np.zeros((2, K))
             self._U[1, :] = u_prev[1]
         U = self._U
         if x0[3] < 2.0 * cfg.v_low:
@@ -371,7 +382,7 @@ class MPC:
         qp_left = cfg.sqp_iterations
         restarted = False
         while qp_left > 0:
-            kap = self._kappa_at_substeps(x0, U)
+            kap = self._kappa_at_substeps(x0)
             X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
             lo_n, hi_n = self._bounds_n(X[0])
             off = np.maximum(X[1] - hi_n, lo_n - X[1]).max() if np.isfinite(X).all() else np.inf

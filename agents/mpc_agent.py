@@ -12,7 +12,7 @@ from .mpc import MPC, MPCConfig
 from .reference import Theta, reference_trajectory
 
 
-def joint_state_from_observation(obs: np.ndarray, n_cars: int, length: float):
+def joint_state_from_observation(obs: np.ndarray, n_cars: int):
     """(ego (6,), others (N-1, 6)) Frenet states from an env observation.
 
     The ego's ``s`` is its wrapped arc length; the others' are ego ``s`` plus their unwrapped
@@ -80,7 +80,7 @@ class MPCAgent:
         if rest or n_cars < 1:
             raise ValueError(f"observation of length {len(obs)} does not fit 6 N + n_preview "
                              f"with n_preview = {self.n_preview}")
-        ego, others = joint_state_from_observation(obs, n_cars, self.track.length)
+        ego, others = joint_state_from_observation(obs, n_cars)
         ref = reference_trajectory(self.theta, ego, others if len(others) else None,
                                    self.raceline, self.track, K=self.config.horizon,
                                    dt=self.config.dt)

@@ -16,7 +16,7 @@ import numpy as np
 from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
 
-from .mpc import MPC, MPCConfig, separation_choice, stage_function
+from .mpc import EdgeBounds, MPCConfig, kappa_at_substeps, separation_choice, stage_function, stage_nodes
 
 
 class IpoptMPC:
@@ -87,13 +87,12 @@ class IpoptMPC:
         self._lbw = np.concatenate([np.full(nx, -np.inf), np.full(nu, -1.0), np.zeros(K + max_opponents * K)])
         self._ubw = np.concatenate([np.full(nx, np.inf), np.full(nu, 1.0), np.full(K + max_opponents * K, np.inf)])
         self._nx, self._nu, self._m = nx, nu, max_opponents
-        self._helper = MPC(track, v, cfg)            # reference kappa lookup and bounds
+        self._bounds_n = EdgeBounds(track, v, cfg)
         self.stats = {"solves": 0, "fallbacks": 0, "solve_ms": deque(maxlen=100_000)}
         self.reset()
 
     def reset(self) -> None:
         self._w0 = None
-        self._helper.reset()
 
     def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None) -> np.ndarray:
         t0 = time.perf_counter()
@@ -110,9 +109,8 @@ class IpoptMPC:
             X0 = np.concatenate([Xp[:, 1:], Xp[:, -1:]], axis=1)
             X0[:, 0] = x0
             U0 = np.concatenate([Up[:, 1:], Up[:, -1:]], axis=1)
-        self._helper._s_nom = X0[0]
-        kap = self._helper._kappa_at_substeps(x0, U0)
-        nlo, nhi = self._helper._bounds_n(X0[0, 1:])
+        kap = kappa_at_substeps(self.track, stage_nodes(X0[0], x0, K, cfg.dt), cfg.substeps)
+        nlo, nhi = self._bounds_n(X0[0, 1:])
         sep = np.zeros((3, self._m * K))
         sep[2] = -1e3                                       # inactive rows
         if opponents is not None:

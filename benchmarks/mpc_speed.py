@@ -43,7 +43,7 @@ def closed_loop(solvers, n_cars, steps, start):
     while env.agents:
         actions = {}
         for i, agent in enumerate(env.possible_agents):
-            ego, others = joint_state_from_observation(obs[agent], n_cars, track.length)
+            ego, others = joint_state_from_observation(obs[agent], n_cars)
             ref = reference_trajectory(THETA, ego, others if len(others) else None, rl, track)
             opp = None
             nb = [j for j in (ref.ahead, ref.behind) if j >= 0]

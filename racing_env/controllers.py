@@ -11,6 +11,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .simulator import _lookup
 from .track import Track
 from .tracks import make_track
 from .vehicle import VehicleParams
@@ -102,26 +103,17 @@ class RacelineFollower:
 
 
 @njit(cache=True)
-def _table_at(table, s, ds, length):
-    f = (s % length) / ds
-    i = int(f)
-    w = f - i
-    m = table.shape[0]
-    return table[i % m] * (1.0 - w) + table[(i + 1) % m] * w
-
-
-@njit(cache=True)
 def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
     """The follower's control law (see :class:`RacelineFollower`) for state ``x`` (6,):
     normalised ``(throttle, steering)``. ``g`` from :meth:`RacelineFollower.gains`."""
     s, n, mu, vx, vy = x[0], x[1], x[2], x[3], x[4]
     preview = max(g[0], g[1] * vx)
     beta = math.atan2(vy, max(vx, 0.1))
-    kappa_cmd = (_table_at(kappa_ref, s + 0.5 * preview, ds, length)
-                 + 2.0 / preview * (_table_at(mu_ref, s, ds, length) - (mu + beta))
-                 + 1.0 / preview ** 2 * (_table_at(n_ref, s, ds, length) - n))
+    kappa_cmd = (_lookup(kappa_ref, s + 0.5 * preview, ds, length)
+                 + 2.0 / preview * (_lookup(mu_ref, s, ds, length) - (mu + beta))
+                 + 1.0 / preview ** 2 * (_lookup(n_ref, s, ds, length) - n))
     delta = math.atan(g[4] * kappa_cmd) + g[5] * vx * vx * kappa_cmd
-    v_target = _table_at(v_ref, s + g[2] * vx, ds, length)
+    v_target = _lookup(v_ref, s + g[2] * vx, ds, length)
     d = (g[8] + g[9] * vx * vx) / max(g[6] - g[7] * vx, 1e-6) + g[3] * (v_target - vx)
     d = min(max(d, g[10]), g[11])
     d_norm = (2.0 * d - (g[11] + g[10])) / (g[11] - g[10])

@@ -21,7 +21,7 @@ def test_condensed_sensitivities_match_finite_differences(mpc):
     K = mpc.cfg.horizon
     x0 = np.array([3.0, 0.05, 0.02, 2.0, 0.0, 0.3])
     U = np.tile([[0.5], [0.1]], (1, K))
-    kap = mpc._kappa_at_substeps(x0, U)
+    kap = mpc._kappa_at_substeps(x0)
     X, A, B = (np.asarray(o) for o in mpc._traj(x0, U, kap))
     G = condense(np.ascontiguousarray(A), np.ascontiguousarray(B), K)
     u = U.T.reshape(-1)

@@ -36,7 +36,7 @@ def test_joint_state_reconstruction_keeps_unwrapped_differences():
     obs[:6] = [1.0, 0.1, 0.0, 2.0, 0.0, 0.0]
     obs[6:12] = [-0.5, 0.1, 0.0, 0.5, 0.0, 0.0]
     obs[12:18] = [40.0, -0.2, 0.0, -1.0, 0.0, 0.0]
-    ego, others = joint_state_from_observation(obs, 3, 38.86)
+    ego, others = joint_state_from_observation(obs, 3)
     np.testing.assert_allclose(others[:, 0], [0.5, 41.0])
     np.testing.assert_allclose(others[:, 1], [0.2, -0.1])
     np.testing.assert_allclose(others[:, 3], [2.5, 1.0])
