@@ -16,7 +16,7 @@ import numpy as np
 from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
 
-from .mpc import EdgeBounds, MPCConfig, kappa_at_substeps, separation_choice, stage_function, stage_nodes
+from .mpc import EdgeBounds, MPCConfig, kappa_at_substeps, separation_choice, stage_function
 
 
 class IpoptMPC:
@@ -109,7 +109,7 @@ class IpoptMPC:
             X0 = np.concatenate([Xp[:, 1:], Xp[:, -1:]], axis=1)
             X0[:, 0] = x0
             U0 = np.concatenate([Up[:, 1:], Up[:, -1:]], axis=1)
-        kap = kappa_at_substeps(self.track, stage_nodes(X0[0], x0, K, cfg.dt), cfg.substeps)
+        kap = kappa_at_substeps(self.track, X0[0], cfg.substeps)   # X0 is already shifted to now
         nlo, nhi = self._bounds_n(X0[0, 1:])
         sep = np.zeros((3, self._m * K))
         sep[2] = -1e3                                       # inactive rows
