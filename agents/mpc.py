@@ -1,11 +1,5 @@
 """The paper's MPC (equation 2) as a real-time iteration (RTI) SQP.
 
-Status (issue 3, in progress): the prediction, its condensed sensitivities and the QP are in
-place and tested (sensitivities against finite differences; steady tracking on a straight);
-not yet an agent. In closed loop from a standing start it is not yet tuned: the position
-reference runs away while the car is slow, and at low speed the prediction model (larger
-``v_low``) and the simulator differ, so plans turn bang-bang. See the closing note of issue 2.
-
 At every call: simulate the horizon with the shifted previous inputs (single shooting,
 ``K`` stages of ``substeps`` RK4 steps of the *same* model code as the simulator, evaluated
 symbolically by CasADi and compiled to C), take the stage sensitivities ``A_k, B_k``, condense
@@ -29,9 +23,11 @@ Opponents move at constant progress rate and lateral position (paper). Soft cons
 use DAQP's exact-penalty soft rows, so the QP is always feasible. A failed QP or a
 non-finite prediction falls back to the shifted previous plan (counted in ``stats``).
 
-The prediction model uses a larger low-speed slip regularisation (``v_low``, default 1 m/s)
-than the simulator so that two RK4 sub-steps per 0.1 s stage stay stable at a standing
-start; above about 2 m/s the two models agree to a few percent.
+The prediction model uses a larger low-speed slip regularisation (``v_low``, default 0.5 m/s)
+than the simulator so that the RK4 sub-steps of a 0.1 s stage stay stable at a standing
+start; above about 2 m/s the two models agree to a few percent. The QP's matrices are built
+in one compiled pass (:func:`qp_arrays`); DAQP's iterations are capped (``qp_iter_limit``),
+since a rare cycling QP otherwise spends 10k iterations before giving up.
 """
 from __future__ import annotations
 
@@ -70,6 +66,8 @@ class MPCConfig:
     sqp_iterations: int = 1       # 1 = real-time iteration
     restart_offtrack: float = 0.06  # warm start from a follower rollout when the shifted plan
                                     # leaves the track by more than this [m]
+    qp_iter_limit: int = 300        # DAQP active-set iterations; a QP that needs more (rare
+                                    # cycling) falls back instead of spinning for 10 ms
 
     def __post_init__(self):
         if not (isinstance(self.horizon, int) and 2 <= self.horizon <= 100):
@@ -80,6 +78,9 @@ class MPCConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"MPCConfig.{name} must be positive, got {v!r}")
+        if not (isinstance(self.qp_iter_limit, int) and self.qp_iter_limit >= 1):
+            raise ValueError(f"MPCConfig.qp_iter_limit must be a positive integer, got "
+                             f"{self.qp_iter_limit!r}")
         if self.track_margin < 0 or self.sqp_iterations < 1:
             raise ValueError(f"MPCConfig needs track_margin >= 0 and sqp_iterations >= 1, got "
                              f"{self.track_margin}, {self.sqp_iterations}")
@@ -247,9 +248,19 @@ def stage_nodes(s_nominal, x0, K: int, dt: float) -> np.ndarray:
 def kappa_at_substeps(track: Track, s_nodes, substeps: int) -> np.ndarray:
     """Track curvature (substeps, K) at the start of every RK4 sub-step between the stage
     boundaries ``s_nodes`` (K + 1,) (progress interpolated linearly within a stage)."""
-    frac = np.arange(substeps) / substeps
-    s_sub = s_nodes[:-1, None] + frac[None, :] * np.diff(s_nodes)[:, None]     # (K, m)
-    return _grid_interp(track.kappa, np.ascontiguousarray(s_sub.T), track.ds, track.length)
+    return _kappa_sub(track.kappa, np.asarray(s_nodes, dtype=float), substeps, track.ds,
+                      track.length)
+
+
+@njit(cache=True)
+def _kappa_sub(table, s_nodes, m, ds, length):
+    K = s_nodes.shape[0] - 1
+    out = np.empty((m, K))
+    for k in range(K):
+        step = s_nodes[k + 1] - s_nodes[k]
+        for i in range(m):
+            out[i, k] = _lookup(table, s_nodes[k] + step * i / m, ds, length)
+    return out
 
 
 class EdgeBounds:
@@ -297,6 +308,77 @@ def separation_choice(s_pred, n_pred, opponent, cfg: MPCConfig):
     return near, lateral, sign, s_jk
 
 
+@njit(cache=True)
+def qp_arrays(G, s_pred, n_pred, s_ref, n_ref, q, DtD, u_vec, delta_applied, rate, nlo, nhi,
+              opponents, dt, sep_s, sep_n, sep_window):
+    """The condensed QP in the input corrections ``du`` (2K,) for DAQP, built in one pass.
+
+    Cost ``0.5 du' H du + f' du`` of ``q ||(s, n) - ref||^2 + ||D u||^2``; constraint rows
+    ``blo <= Acon du <= bhi`` after the 2K simple input bounds (which lead ``blo``/``bhi``):
+    K steering-rate rows (hard), K track-edge rows on n (soft), and one separation row per
+    opponent and nearby stage (soft), chosen exactly as :func:`separation_choice` does.
+    ``opponents`` (M, 3) rows ``(s, n, s_dot)``; ``sense`` is DAQP's (0 hard, 8 soft).
+    """
+    K = s_pred.shape[0]
+    nv = 2 * K
+    sn_err = np.empty(nv)
+    for k in range(K):
+        sn_err[2 * k] = s_pred[k] - s_ref[k]
+        sn_err[2 * k + 1] = n_pred[k] - n_ref[k]
+    H = 2.0 * (q * (G.T @ G) + DtD)
+    for i in range(nv):
+        H[i, i] += 1e-8
+    f = 2.0 * (q * (G.T @ sn_err) + DtD @ u_vec)
+    M = opponents.shape[0]
+    rows = np.zeros((2 * K + M * K, nv))
+    lo = np.empty(2 * K + M * K)
+    hi = np.empty(2 * K + M * K)
+    soft = np.zeros(2 * K + M * K, dtype=np.int32)
+    # steering rate: delta^k - delta^{k-1} within +-rate (normalised), delta^{-1} applied
+    for k in range(K):
+        rows[k, 2 * k + 1] = 1.0
+        d_now = u_vec[2 * k + 1] - (u_vec[2 * k - 1] if k else delta_applied)
+        if k:
+            rows[k, 2 * k - 1] = -1.0
+        lo[k] = -rate - d_now
+        hi[k] = rate - d_now
+    # track edges on n (soft)
+    for k in range(K):
+        rows[K + k, :] = G[2 * k + 1, :]
+        lo[K + k] = nlo[k] - n_pred[k]
+        hi[K + k] = nhi[k] - n_pred[k]
+        soft[K + k] = 8
+    r = 2 * K
+    for m in range(M):
+        s_j, n_j, v_j = opponents[m, 0], opponents[m, 1], opponents[m, 2]
+        for k in range(K):
+            s_jk = s_j + v_j * dt * (k + 1)
+            ds = s_pred[k] - s_jk
+            dn = n_pred[k] - n_j
+            if not abs(ds) < sep_window:
+                continue
+            lateral = abs(dn) / sep_n >= abs(ds) / sep_s
+            gap = dn if lateral else ds
+            sign = 1.0 if gap >= 0.0 else -1.0
+            row = 2 * k + 1 if lateral else 2 * k
+            for c in range(nv):
+                rows[r, c] = sign * G[row, c]
+            lo[r] = (sep_n if lateral else sep_s) - sign * gap
+            hi[r] = 1e30
+            soft[r] = 8
+            r += 1
+    blo = np.empty(nv + r)
+    bhi = np.empty(nv + r)
+    sense = np.zeros(nv + r, dtype=np.int32)
+    for i in range(nv):
+        blo[i] = -1.0 - u_vec[i]
+        bhi[i] = 1.0 - u_vec[i]
+    blo[nv:] = lo[:r]
+    bhi[nv:] = hi[:r]
+    sense[nv:] = soft[:r]
+    return H, f, rows[:r].copy(), blo, bhi, sense
+
+
 # ---------------------------------------------------------------------------- the solver
 class MPC:
     """RTI-SQP MPC of one car on a track (see the module docstring).
@@ -325,13 +407,7 @@ class MPC:
             D[2 * (k - 1):2 * k, 2 * k:2 * k + 2] = np.eye(2)
             D[2 * (k - 1):2 * k, 2 * (k - 1):2 * k] = -np.eye(2)
         self._DtD = D.T @ D
-        # steering-rate rows: delta^k - delta^{k-1}, k = 0..K-1
-        S = np.zeros((K, 2 * K))
-        for k in range(K):
-            S[k, 2 * k + 1] = 1.0
-            if k:
-                S[k, 2 * k - 1] = -1.0
-        self._S = S
+        self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max  # normalised
         self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
         self.stats = {"solves": 0, "fallbacks": 0, "restarts": 0, "qp_iterations": 0,
                       "solve_ms": deque(maxlen=100_000)}
@@ -369,6 +445,8 @@ class MPC:
         cfg, K = self.cfg, self.cfg.horizon
         x0 = np.asarray(x0, dtype=float)
         u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
+        opp = (np.zeros((0, 3)) if opponents is None
+               else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3))
         if self._U is None:
             self._U = np.zeros((2, K))
             self._U[1, :] = u_prev[1]
@@ -400,50 +478,14 @@ class MPC:
                 status = "nonfinite prediction"
                 break
             G = condense(np.ascontiguousarray(A), np.ascontiguousarray(B), K)
-            sn = X[:2, :].T.reshape(-1)                                   # [s1, n1, s2, n2, ...]
-            ref = np.column_stack([s_ref, n_ref]).reshape(-1)
-            u_vec = U.T.reshape(-1)                                       # [d0, delta0, d1, ...]
-            H = 2.0 * (q * G.T @ G + self._DtD) + 1e-8 * np.eye(2 * K)
-            f = 2.0 * (q * G.T @ (sn - ref) + self._DtD @ u_vec)
-            rows, lo, hi, soft = [], [], [], []
-            # steering rate
-            rate = self.vehicle.delta_rate_max * cfg.dt / self.vehicle.delta_max   # normalised
-            d_now = self._S @ u_vec
-            d_now[0] -= u_prev[1]
-            rows.append(self._S)
-            lo.append(-rate - d_now)
-            hi.append(rate - d_now)
-            soft.append(np.zeros(K, dtype=bool))
-            # track edges (soft)
             s_pred, n_pred = X[0], X[1]
             nlo, nhi = self._bounds_n(s_pred)
-            Gn = G[1::2]
-            rows.append(Gn)
-            lo.append(nlo - n_pred)
-            hi.append(nhi - n_pred)
-            soft.append(np.ones(K, dtype=bool))
-            # separation from opponents (soft), one row per stage and opponent nearby
-            if opponents is not None and len(opponents):
-                Gs = G[0::2]
-                for opp in np.asarray(opponents, dtype=float):
-                    near, lat, sign, s_jk = separation_choice(s_pred, n_pred, opp, cfg)
-                    k = np.flatnonzero(near)
-                    if not k.size:
-                        continue
-                    lat, sign = lat[k], sign[k]
-                    gap = np.where(lat, n_pred[k] - opp[1], s_pred[k] - s_jk[k])
-                    need = np.where(lat, cfg.sep_n, cfg.sep_s)
-                    # sign * (gap + row du) >= need, row from n (lateral) or s (longitudinal)
-                    rows.append(sign[:, None] * np.where(lat[:, None], Gn[k], Gs[k]))
-                    lo.append(need - sign * gap)
-                    hi.append(np.full(k.size, 1e30))
-                    soft.append(np.ones(k.size, dtype=bool))
-            Acon = np.vstack(rows)
-            blo = np.concatenate([self._lo_u - u_vec] + lo)
-            bhi = np.concatenate([self._hi_u - u_vec] + hi)
-            sense = np.concatenate([np.zeros(2 * K, dtype=np.int32),
-                                    np.where(np.concatenate(soft), 8, 0).astype(np.int32)])
-            du, _, exitflag, info = daqp.solve(H, f, Acon, bhi, blo, sense, rho_soft=cfg.soft_rho)
+            u_vec = U.T.reshape(-1)                                       # [d0, delta0, d1, ...]
+            H, f, Acon, blo, bhi, sense = qp_arrays(
+                G, s_pred, n_pred, s_ref, n_ref, float(q), self._DtD, u_vec, float(u_prev[1]),
+                self._rate, nlo, nhi, opp, cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window)
+            du, _, exitflag, info = daqp.solve(H, f, Acon, bhi, blo, sense, rho_soft=cfg.soft_rho,
+                                               iter_limit=cfg.qp_iter_limit)
             self.stats["qp_iterations"] += int(info.get("iterations", 0))
             if exitflag < 0 or not np.all(np.isfinite(du)):
                 status = f"qp exitflag {exitflag}"

@@ -27,8 +27,10 @@ def joint_state_from_observation(obs: np.ndarray, n_cars: int):
 
 def progress_rate(state: np.ndarray, track: Track) -> np.ndarray:
     """Frenet progress rate ``s_dot`` [m/s] of states (..., 6)."""
+    from .mpc import _grid_interp
+    state = np.asarray(state, dtype=float)
     s, n, mu, vx, vy = (state[..., i] for i in range(5))
-    kappa = track.curvature(s)
+    kappa = _grid_interp(track.kappa, np.ascontiguousarray(s), track.ds, track.length)
     return (vx * np.cos(mu) - vy * np.sin(mu)) / (1.0 - n * kappa)
 
 

@@ -1,4 +1,4 @@
-"""The MPC's building blocks (issue 3, in progress): prediction, condensing, one QP."""
+"""The MPC's building blocks: prediction, condensing, the QP."""
 import warnings
 
 import numpy as np
@@ -56,3 +56,40 @@ def test_config_validation():
         MPCConfig(horizon=1)
     with pytest.raises(ValueError, match="sep_s"):
         MPCConfig(sep_s=0.0)
+
+
+def test_qp_rows_follow_the_separation_rule_and_the_cost():
+    """The compiled QP builder imposes, per opponent and nearby stage, the separation that
+    :func:`separation_choice` picks (sign, side and need), and its cost is q||G du + e||^2 +
+    ||D(u + du)||^2 up to a constant."""
+    from agents.mpc import qp_arrays, separation_choice
+    rng = np.random.default_rng(3)
+    cfg = MPCConfig()
+    K = cfg.horizon
+    G = np.tril(rng.normal(size=(2 * K, 2 * K)))
+    s_pred = 5.0 + 0.2 * np.arange(1, K + 1)
+    n_pred = 0.05 * np.sin(np.arange(K))
+    s_ref, n_ref = s_pred + 0.1, n_pred - 0.02
+    u = rng.uniform(-1, 1, 2 * K)
+    D = np.diff(np.eye(2 * K).reshape(K, 2, 2 * K), axis=0).reshape(-1, 2 * K)
+    opps = np.array([[5.9, 0.02, 1.5], [4.8, -0.1, 2.5], [40.0, 0.0, 1.0]])   # last: far away
+    H, f, A, blo, bhi, sense = qp_arrays(G, s_pred, n_pred, s_ref, n_ref, 7.0, D.T @ D, u, 0.1,
+                                         0.2, np.full(K, -0.2), np.full(K, 0.2), opps,
+                                         cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window)
+    rows = [A[2 * K:]]
+    r = 0
+    for opp in opps:
+        near, lat, sign, s_jk = separation_choice(s_pred, n_pred, opp, cfg)
+        for k in np.flatnonzero(near):
+            gap = n_pred[k] - opp[1] if lat[k] else s_pred[k] - s_jk[k]
+            row = G[2 * k + 1] if lat[k] else G[2 * k]
+            np.testing.assert_allclose(rows[0][r], sign[k] * row)
+            assert blo[2 * K + 2 * K + r] == pytest.approx((cfg.sep_n if lat[k] else cfg.sep_s)
+                                                           - sign[k] * gap)
+            r += 1
+    assert r == len(rows[0]) > 0 and np.all(sense[4 * K:] == 8) and np.all(sense[2 * K:3 * K] == 0)
+    du = rng.normal(size=2 * K)
+    e = np.column_stack([s_pred - s_ref, n_pred - n_ref]).reshape(-1)
+    cost = lambda d: 7.0 * np.sum((G @ d + e) ** 2) + np.sum((D @ (u + d)) ** 2)
+    quad = lambda d: 0.5 * d @ H @ d + f @ d
+    assert quad(du) - quad(0 * du) == pytest.approx(cost(du) - cost(0 * du), rel=1e-6)
