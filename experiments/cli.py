@@ -1,4 +1,4 @@
-"""The ``alpha-racer`` command line: ``race``, ``tracks``, ``raceline``, ``fuzz``, ``collect``."""
+"""The ``alpha-racer`` command line: ``race``, ``tracks``, ``raceline``, ``fuzz``, ``collect``, ``train``."""
 from __future__ import annotations
 
 import argparse
@@ -62,9 +62,24 @@ def _cmd_collect(args) -> int:
     from .collect import CollectConfig, collect
     cfg = CollectConfig(races=args.races, n_cars=args.cars, steps=args.steps, track=args.track,
                         seed=args.seed, races_per_shard=args.shard_size)
-    summary = collect(cfg, args.out, workers=args.workers)
+    summary = collect(cfg, args.out, workers=args.workers, backend=args.backend,
+                      address=args.address)
     print(f"{summary['simulated']} races simulated ({summary['resumed']} already there) in "
           f"{summary['seconds']:.1f} s, {summary['races_per_s']:.3f} races/s -> {summary['out']}")
+    return 0
+
+
+def _cmd_train(args) -> int:
+    from .train import TrainConfig, train
+    kw = {k: getattr(args, k) for k in ("gamma", "value_epochs", "potential_steps", "objective",
+                                        "val_fraction", "rollout_pairs", "rollout_steps", "seed",
+                                        "threads") if getattr(args, k) is not None}
+    if args.value_hidden:
+        kw["value_hidden"] = tuple(args.value_hidden)
+    if args.potential_hidden:
+        kw["potential_hidden"] = tuple(args.potential_hidden)
+    train(args.data, args.out, TrainConfig(**kw))
+    print(f"model: {Path(args.out) / 'model.npz'}")
     return 0
 
 
@@ -113,7 +128,30 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--shard-size", type=int, default=25, help="races per shard file")
     c.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     c.add_argument("--out", default="data/races")
+    c.add_argument("--backend", choices=["local", "ray"], default="local",
+                   help="local process pool (default) or a Ray cluster (pip install alpha-racer[ray])")
+    c.add_argument("--address", default=None,
+                   help="Ray cluster address (e.g. auto or ray://host:10001); default: start a local Ray")
     c.set_defaults(fn=_cmd_collect)
+
+    tr = sub.add_parser("train", help="fit the value and alpha-potential networks on collected races")
+    tr.add_argument("--data", default="data/races", help="a directory written by `alpha-racer collect`")
+    tr.add_argument("--out", default="models/alpha", help="output directory (resumes if it exists)")
+    tr.add_argument("--gamma", type=float, default=None, help="discount factor (default 0.99)")
+    tr.add_argument("--value-epochs", type=int, default=None)
+    tr.add_argument("--potential-steps", type=int, default=None)
+    tr.add_argument("--value-hidden", type=int, nargs="+", default=None, help="default 128 128 64")
+    tr.add_argument("--potential-hidden", type=int, nargs="+", default=None, help="default 384 384 192")
+    tr.add_argument("--objective", choices=["mse", "smoothmax", "tail"], default=None,
+                    help="potential loss: mse, or the paper's min-max as a smooth maximum or a "
+                         "tail average (default tail)")
+    tr.add_argument("--val-fraction", type=float, default=None, help="races held out (default 0.1)")
+    tr.add_argument("--rollout-pairs", type=int, default=None,
+                    help="paired-rollout checks on held-out states (default 40; 0 skips)")
+    tr.add_argument("--rollout-steps", type=int, default=None)
+    tr.add_argument("--seed", type=int, default=None)
+    tr.add_argument("--threads", type=int, default=None, help="torch threads and rollout workers")
+    tr.set_defaults(fn=_cmd_train)
     return p
 
 

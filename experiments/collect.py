@@ -62,6 +62,17 @@ class CollectConfig:
         return range(lo, min(lo + self.races_per_shard, self.races))
 
 
+def _mpc_agents(track, thetas, rng=None, agent_ids=None) -> list:
+    """This process's MPC agents set to ``thetas`` (N, 5) and reset on ``track``."""
+    from agents.reference import Theta
+    agents = _agents(len(thetas))
+    for k, (agent, theta) in enumerate(zip(agents, thetas)):
+        agent.theta = Theta.from_array(theta)
+        agent.reset(track, agent_ids[k] if agent_ids else f"car_{k}",
+                    None if rng is None else int(rng.integers(2 ** 31)))
+    return agents
+
+
 def simulate_race(config: CollectConfig, race_index: int) -> dict:
     """Simulate race ``race_index`` of the config; everything random comes from its own seed."""
     from agents.reference import Theta
@@ -73,10 +84,7 @@ def simulate_race(config: CollectConfig, race_index: int) -> dict:
     order = rng.permutation(config.n_cars)
     obs, _ = env.reset(seed=int(rng.integers(2 ** 31)), options={"order": order.tolist()})
     thetas = np.array([Theta.sample(rng).as_array() for _ in range(config.n_cars)])
-    agents = _agents(config.n_cars)
-    for agent, agent_id, theta in zip(agents, env.possible_agents, thetas):
-        agent.theta = Theta.from_array(theta)
-        agent.reset(env.track, agent_id, int(rng.integers(2 ** 31)))
+    agents = _mpc_agents(env.track, thetas, rng, env.possible_agents)
     fallbacks0 = [a.stats["fallbacks"] for a in agents]
     states = np.empty((config.steps + 1, config.n_cars, 6), dtype=np.float32)
     rewards = np.zeros((config.steps, config.n_cars), dtype=np.float32)
@@ -96,6 +104,38 @@ def simulate_race(config: CollectConfig, race_index: int) -> dict:
                                   dtype=np.int32)}
 
 
+def rollout_from_state(track, state, thetas, steps: int):
+    """Race MPC cars with ``thetas`` (N, 5) from the joint state ``state`` (N, 6) (s unwrapped)
+    for ``steps`` steps; returns (states (steps + 1, N, 6), rewards (steps, N)).
+
+    The MPCs start cold (no warm start), as after a reset. Used for the simulated values of
+    paired rollouts (deviations of one car's theta from the same state).
+    """
+    from racing_env import BatchedRaces
+    from racing_env.config import RaceConfig
+    from racing_env.tracks import make_track
+
+    state = np.asarray(state, dtype=float)
+    N = state.shape[0]
+    core = BatchedRaces(make_track(track), RaceConfig(n_cars=N, max_cycles=steps), n_races=1)
+    core.reset(seed=0)
+    core.state[0] = state
+    core.start[0] = state
+    core.s_line[0] = state[:, 0].max()
+    agents = _mpc_agents(core.track, np.asarray(thetas, dtype=float))
+    obs = core.observe()[0]
+    states = np.empty((steps + 1, N, 6))
+    rewards = np.empty((steps, N))
+    states[0] = state
+    for t in range(steps):
+        actions = np.stack([agents[k].act(obs[k]) for k in range(N)])[None]
+        obs, rew, _, _ = core.step(actions)
+        obs = obs[0]
+        rewards[t] = rew[0]
+        states[t + 1] = core.state[0]
+    return states, rewards
+
+
 _AGENTS: list = []
 
 
@@ -107,11 +147,19 @@ def _agents(n: int) -> list:
     return _AGENTS[:n]
 
 
-def simulate_shard(config: CollectConfig, shard: int, out_dir: str) -> str:
-    """Simulate one shard and write it atomically; returns the shard's path."""
+def simulate_shard(config: CollectConfig, shard: int) -> dict:
+    """The task function of every backend: simulate one shard's races, return its arrays.
+
+    Pure (no file access), so a remote worker without the driver's disk can run it; the
+    driver writes the result with :func:`write_shard`.
+    """
     warnings.simplefilter("ignore")
     races = [simulate_race(config, i) for i in config.shard_races(shard)]
-    arrays = {k: np.stack([r[k] for r in races]) for k in races[0]}
+    return {k: np.stack([r[k] for r in races]) for k in races[0]}
+
+
+def write_shard(arrays: dict, shard: int, out_dir) -> str:
+    """Write a shard atomically (temporary file, then rename); returns its path."""
     path = Path(out_dir) / f"shard_{shard:05d}.npz"
     fd, tmp = tempfile.mkstemp(dir=out_dir, suffix=".npz.tmp")
     os.close(fd)
@@ -148,11 +196,19 @@ def _write_manifest(out: Path, config: CollectConfig) -> None:
     tmp.replace(manifest)
 
 
-def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool = True) -> dict:
-    """Simulate every missing shard with a local process pool; returns a summary.
+def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool = True,
+            backend: str = "local", address: str | None = None) -> dict:
+    """Simulate every missing shard; returns a summary.
 
-    ``workers = 1`` runs in this process. Resumable: complete shards are skipped.
+    ``backend="local"``: a process pool of ``workers`` (``workers = 1`` runs in this process).
+    ``backend="ray"``: Ray tasks on the cluster at ``address`` (``None`` starts a local Ray
+    with ``workers`` CPUs). Both run :func:`simulate_shard` and this process writes the
+    shards, so the data are identical. Resumable: complete shards are skipped.
     """
+    if backend not in ("local", "ray"):
+        raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
+    if not (isinstance(workers, int) and workers >= 1):
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     _write_manifest(out, config)
@@ -162,21 +218,49 @@ def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool
     t0 = time.perf_counter()
     bar = tqdm(total=config.races, initial=done_races, unit="race", desc="collect",
                disable=not progress_bar, smoothing=0.1)
-    if workers <= 1:
+
+    def finished(k, arrays):
+        write_shard(arrays, k, out)
+        bar.update(len(config.shard_races(k)))
+
+    if backend == "ray":
+        _collect_ray(config, todo, workers, address, finished)
+    elif workers <= 1:
         for k in todo:
-            simulate_shard(config, k, str(out))
-            bar.update(len(config.shard_races(k)))
+            finished(k, simulate_shard(config, k))
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = {pool.submit(simulate_shard, config, k, str(out)): k for k in todo}
+            futures = {pool.submit(simulate_shard, config, k): k for k in todo}
             for f in as_completed(futures):
-                f.result()
-                bar.update(len(config.shard_races(futures[f])))
+                finished(futures[f], f.result())
     bar.close()
     seconds = time.perf_counter() - t0
     new = config.races - done_races
     return {"races": config.races, "simulated": new, "resumed": done_races, "seconds": seconds,
             "races_per_s": new / seconds if seconds > 0 else float("nan"), "out": str(out)}
+
+
+def _collect_ray(config, todo, workers, address, finished) -> None:
+    try:
+        import ray
+    except ImportError:
+        raise ImportError("the ray backend needs Ray: pip install 'alpha-racer[ray]'") from None
+    started = not ray.is_initialized()
+    if started:
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    try:
+        task = ray.remote(num_cpus=1)(simulate_shard)
+        pending = {task.remote(config, k): k for k in todo}
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                finished(pending.pop(ref), ray.get(ref))
+    finally:
+        if started:
+            ray.shutdown()
 
 
 def load_races(out_dir) -> dict:

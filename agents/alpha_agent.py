@@ -1,0 +1,95 @@
+"""The alpha-potential agent (paper section 3, online phase).
+
+At every step the agent rebuilds the joint state from its observation, maximises the learned
+potential Phi(x_t, .) over the joint theta of all cars within the bounds (projected gradient
+ascent warm-started from the last step's maximiser, plus random restarts; see
+:meth:`agents.potential.PotentialModel.maximise`), and drives its MPC with its own part
+theta*_ego. ``stats`` reports the maximisation and MPC times, the potential value and the
+theta chosen.
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from collections import deque
+
+import numpy as np
+
+from .base import register_agent
+from .mpc_agent import MPCAgent, joint_state_from_observation
+from .potential import PotentialModel, load_model
+from .reference import THETA_HIGH, THETA_LOW, Theta
+
+_MODELS: dict = {}
+
+
+def _cached_model(name) -> PotentialModel:
+    key = str(name)
+    if key not in _MODELS:
+        _MODELS[key] = load_model(name)
+    return _MODELS[key]
+
+
+@register_agent("alpha")
+class AlphaAgent(MPCAgent):
+    """MPC whose theta is chosen by maximising the alpha-potential at every step.
+
+    Parameters: ``model`` (a shipped model name, see :func:`agents.potential.load_model`, or a
+    path to a ``model.npz``; default ``"default"``), ``restarts`` (starts of the gradient
+    ascent, the first being the warm start; 4), ``iterations`` (gradient steps per start; 8),
+    and the :class:`MPCAgent` keywords (``config``, ``vehicle``, ``n_preview``). The model must
+    have been trained for the race's number of cars.
+    """
+
+    def __init__(self, model="default", restarts: int = 4, iterations: int = 8, **mpc_kwargs):
+        super().__init__(**mpc_kwargs)
+        if not (isinstance(restarts, int) and restarts >= 1):
+            raise ValueError(f"restarts must be an integer >= 1, got {restarts!r}")
+        if not (isinstance(iterations, int) and iterations >= 0):
+            raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
+        self.model_name = model
+        self.model = model if isinstance(model, PotentialModel) else _cached_model(model)
+        self.restarts, self.iterations = restarts, iterations
+        self._theta_joint = None
+        self._max_ms: deque = deque(maxlen=100_000)
+
+    def reset(self, track, agent_id: str = "car_0", seed: int | None = None) -> None:
+        super().reset(track, agent_id, seed)
+        trained_on = self.model.meta.get("track")
+        if trained_on and trained_on != self.track.name:
+            warnings.warn(f"alpha-potential model trained on track {trained_on!r}, racing on "
+                          f"{self.track.name!r}", stacklevel=2)
+        self._rng = np.random.default_rng(seed)
+        self._theta_joint = None
+        self.last_potential = float("nan")
+
+    @property
+    def stats(self) -> dict:
+        st = super().stats
+        ms = np.asarray(self._max_ms, dtype=float)
+        st.update({"maximise_ms_median": float(np.median(ms)) if ms.size else float("nan"),
+                   "maximise_ms_p99": float(np.percentile(ms, 99)) if ms.size else float("nan"),
+                   "potential": self.last_potential,
+                   "theta": dict(zip(("q", "zeta", "s1", "s2", "s3"),
+                                     map(float, self.theta.as_array())))})
+        return st
+
+    def act(self, observation) -> np.ndarray:
+        if self.mpc is None:
+            raise RuntimeError("AlphaAgent.act() before reset(track, ...)")
+        t0 = time.perf_counter()
+        obs = np.asarray(observation, dtype=float)
+        n_cars = (len(obs) - self.n_preview) // 6
+        if n_cars != self.model.n_cars:
+            raise ValueError(f"alpha-potential model trained for {self.model.n_cars} cars, the "
+                             f"race has {n_cars}")
+        ego, others = joint_state_from_observation(obs, n_cars)
+        joint = np.vstack([ego[None], others])                  # ego first, then the others
+        theta, phi = self.model.maximise(joint, self.track, self._theta_joint,
+                                         restarts=self.restarts, iterations=self.iterations,
+                                         rng=self._rng)
+        self._theta_joint = theta
+        self.theta = Theta.from_array(np.clip(theta[0], THETA_LOW, THETA_HIGH))
+        self.last_potential = phi
+        self._max_ms.append(1e3 * (time.perf_counter() - t0))
+        return super().act(observation)

@@ -1,0 +1,117 @@
+"""The one feature function of the alpha-potential: joint state and thetas -> network inputs.
+
+Training (``experiments/train.py``) and racing (``agents/alpha_agent.py``) both call these
+functions, so the inputs a network sees online are built by the same code as those it was
+trained on (the authors' code used different lookaheads in training and at test time).
+Bump :data:`FEATURE_VERSION` whenever the output changes; checkpoints record it and loading a
+checkpoint of another version is an error.
+
+Inputs: ``states`` (..., N, 6) joint Frenet states ``(s, n, mu, vx, vy, omega)`` with s
+unwrapped [m], ``thetas`` (..., N, 5) policy parameters ``(q, zeta, s1, s2, s3)``.
+
+* :func:`value_features` (ego-centric, for V_i): the ego's own state without s, the track's
+  curvature ahead of it, its theta; then every other car, sorted by progress relative to the
+  ego (the nearest ahead first), as progress difference ``s_j - s_i`` [m] (unwrapped), its
+  state and its theta. Swapping the other cars' indices does not change the features.
+* :func:`potential_features` (joint, for Phi): the cars sorted by progress (leader first),
+  each as progress relative to the pack's mean, its state, the curvature ahead and its theta.
+  Any reordering of the cars gives the same features, so Phi is symmetric by construction.
+
+Thetas enter scaled to [-1, 1] by their bounds (:func:`scale_theta`), so the gradient of a
+network with respect to its theta slots is the gradient with respect to the scaled theta.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .reference import THETA_HIGH, THETA_LOW
+
+FEATURE_VERSION = 1
+PREVIEW = np.array([0.0, 0.5, 1.0, 2.0])    # curvature look-ahead distances [m]
+N_STATE = 5                                 # n, mu, vx, vy, omega
+N_THETA = 5
+
+
+def scale_theta(theta):
+    """Theta (..., 5) -> [-1, 1] (..., 5) by the documented bounds."""
+    return 2.0 * (np.asarray(theta, dtype=float) - THETA_LOW) / (THETA_HIGH - THETA_LOW) - 1.0
+
+
+def unscale_theta(z):
+    """Inverse of :func:`scale_theta`."""
+    return THETA_LOW + 0.5 * (np.asarray(z, dtype=float) + 1.0) * (THETA_HIGH - THETA_LOW)
+
+
+def curvature_preview(track, s) -> np.ndarray:
+    """Track curvature [1/m] at ``s + PREVIEW``: shape ``s.shape + (len(PREVIEW),)``."""
+    s = np.asarray(s, dtype=float)[..., None] + PREVIEW
+    return track._interp(track.kappa, s)
+
+
+def _check(states, thetas):
+    states = np.asarray(states, dtype=float)
+    thetas = np.asarray(thetas, dtype=float)
+    if states.ndim < 2 or states.shape[-1] != 6:
+        raise ValueError(f"states must have shape (..., N, 6), got {states.shape}")
+    if thetas.shape != states.shape[:-1] + (5,):
+        raise ValueError(f"thetas must have shape {states.shape[:-1] + (5,)} to match states "
+                         f"{states.shape}, got {thetas.shape}")
+    if states.shape[-2] < 2:
+        raise ValueError(f"the alpha-potential needs at least 2 cars, got {states.shape[-2]}")
+    return states, thetas
+
+
+def value_dim(n_cars: int) -> int:
+    return N_STATE + len(PREVIEW) + N_THETA + (n_cars - 1) * (1 + N_STATE + N_THETA)
+
+
+def potential_dim(n_cars: int) -> int:
+    return n_cars * (1 + N_STATE + len(PREVIEW) + N_THETA)
+
+
+def potential_theta_slots(n_cars: int) -> np.ndarray:
+    """Column indices of the scaled thetas in :func:`potential_features`, (N, 5) in the
+    features' (progress-sorted) car order."""
+    per = 1 + N_STATE + len(PREVIEW) + N_THETA
+    return np.arange(n_cars)[:, None] * per + (per - N_THETA) + np.arange(N_THETA)
+
+
+def value_features(states, thetas, track, ego) -> np.ndarray:
+    """Features of car ``ego`` (int or int array broadcast over the batch): (..., value_dim)."""
+    states, thetas = _check(states, thetas)
+    N = states.shape[-2]
+    batch = states.shape[:-2]
+    ego = np.broadcast_to(np.asarray(ego, dtype=np.int64), batch)
+    e_state = np.take_along_axis(states, ego[..., None, None], axis=-2)[..., 0, :]
+    e_theta = np.take_along_axis(thetas, ego[..., None, None], axis=-2)[..., 0, :]
+    rel = states[..., 0] - e_state[..., None, 0]                       # (..., N) s_j - s_i
+    # others sorted by relative progress, nearest ahead first: ahead (rel > 0) ascending, then
+    # behind descending; the ego itself last and dropped
+    is_ego = np.arange(N) == ego[..., None]
+    key = np.where(rel > 0, rel, 1e6 - rel)
+    key = np.where(is_ego, np.inf, key)
+    order = np.argsort(key, axis=-1, kind="stable")[..., :N - 1]
+    o_rel = np.take_along_axis(rel, order, axis=-1)[..., None]
+    o_state = np.take_along_axis(states, order[..., None], axis=-2)[..., 1:]
+    o_theta = scale_theta(np.take_along_axis(thetas, order[..., None], axis=-2))
+    others = np.concatenate([o_rel, o_state, o_theta], axis=-1).reshape(batch + (-1,))
+    return np.concatenate([e_state[..., 1:], curvature_preview(track, e_state[..., 0]),
+                           scale_theta(e_theta), others], axis=-1)
+
+
+def progress_order(states) -> np.ndarray:
+    """Car indices sorted by progress, leader first (..., N)."""
+    return np.argsort(-np.asarray(states)[..., 0], axis=-1, kind="stable")
+
+
+def potential_features(states, thetas, track, order=None) -> np.ndarray:
+    """Joint features (..., potential_dim) with cars in ``order`` (default progress order)."""
+    states, thetas = _check(states, thetas)
+    batch = states.shape[:-2]
+    order = progress_order(states) if order is None else order
+    st = np.take_along_axis(states, order[..., None], axis=-2)
+    th = np.take_along_axis(thetas, order[..., None], axis=-2)
+    rel = st[..., 0] - st[..., 0].mean(axis=-1, keepdims=True)
+    per_car = np.concatenate([rel[..., None], st[..., 1:], curvature_preview(track, st[..., 0]),
+                              scale_theta(th)], axis=-1)
+    return per_car.reshape(batch + (-1,))

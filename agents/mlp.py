@@ -1,0 +1,84 @@
+"""Multi-layer perceptrons evaluated in numpy (no torch needed to race).
+
+Weights come from the torch models of ``experiments/train.py``; the layout is a list of
+``(W (in, out), b (out,))`` with SiLU between layers and a linear output, after an input
+normalisation ``(x - mean) / std`` and followed by an output scale ``y * y_scale + y_shift``.
+:meth:`MLP.value_and_input_grad` gives the output and its gradient with respect to the input,
+which the alpha agent's gradient ascent over theta needs.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+# float32 throughout: for the small batches of online maximisation, numpy's float64 products
+# with these layer sizes measured 3-4x slower (and transposed ones 15x) than float32 ones on
+# contiguous weights
+_F = np.float32
+
+
+def _silu(z):
+    return z / (1.0 + np.exp(-z))
+
+
+class MLP:
+    """``y = MLP(x)`` for x (..., in) -> y (...,)."""
+
+    def __init__(self, layers, mean, std, y_scale: float = 1.0, y_shift: float = 0.0):
+        self.layers = [(np.ascontiguousarray(W, dtype=_F), np.ascontiguousarray(b, dtype=_F))
+                       for W, b in layers]
+        self._WT = [np.ascontiguousarray(W.T) for W, _ in self.layers]
+        self.mean = np.asarray(mean, dtype=_F)
+        self.inv_std = (1.0 / np.asarray(std, dtype=np.float64)).astype(_F)
+        self.y_scale = float(y_scale)
+        self.y_shift = float(y_shift)
+        if self.layers[-1][0].shape[1] != 1:
+            raise ValueError(f"the last layer must have one output, got {self.layers[-1][0].shape}")
+
+    @property
+    def in_dim(self) -> int:
+        return self.layers[0][0].shape[0]
+
+    def _check(self, x):
+        x = np.asarray(x, dtype=_F)
+        if x.shape[-1] != self.in_dim:
+            raise ValueError(f"input has {x.shape[-1]} features, this network takes {self.in_dim}")
+        return x
+
+    def __call__(self, x) -> np.ndarray:
+        h = (self._check(x) - self.mean) * self.inv_std
+        for W, b in self.layers[:-1]:
+            h = _silu(h @ W + b)
+        W, b = self.layers[-1]
+        return (h @ W + b)[..., 0].astype(np.float64) * self.y_scale + self.y_shift
+
+    def value_and_input_grad(self, x):
+        """(y (B,), dy/dx (B, in)) for x (B, in)."""
+        h = (self._check(x) - self.mean) * self.inv_std
+        pre = []
+        for W, b in self.layers[:-1]:
+            z = h @ W + b
+            pre.append(z)
+            h = _silu(z)
+        W, b = self.layers[-1]
+        y = (h @ W + b)[..., 0].astype(np.float64) * self.y_scale + self.y_shift
+        g = np.broadcast_to(W[:, 0] * _F(self.y_scale), h.shape)
+        for WT, z in zip(reversed(self._WT[:-1]), reversed(pre)):
+            sig = 1.0 / (1.0 + np.exp(-z))
+            g = (g * sig * (1.0 + z * (1.0 - sig))) @ WT
+        return y, (g * self.inv_std).astype(np.float64)
+
+    def to_arrays(self, prefix: str) -> dict:
+        out = {f"{prefix}mean": self.mean, f"{prefix}std": 1.0 / self.inv_std.astype(np.float64),
+               f"{prefix}y": np.array([self.y_scale, self.y_shift]),
+               f"{prefix}n_layers": np.array(len(self.layers))}
+        for i, (W, b) in enumerate(self.layers):
+            out[f"{prefix}W{i}"] = W.astype(np.float32)
+            out[f"{prefix}b{i}"] = b.astype(np.float32)
+        return out
+
+    @classmethod
+    def from_arrays(cls, z, prefix: str) -> "MLP":
+        n = int(z[f"{prefix}n_layers"])
+        layers = [(z[f"{prefix}W{i}"], z[f"{prefix}b{i}"]) for i in range(n)]
+        ys = z[f"{prefix}y"]
+        return cls(layers, z[f"{prefix}mean"], z[f"{prefix}std"], float(ys[0]), float(ys[1]))

@@ -1,0 +1,137 @@
+"""A trained alpha-potential model: value network V and potential network Phi, and the
+maximisation of Phi over the joint theta that the alpha agent runs at every step.
+
+``load_model("default")`` loads the model shipped in ``agents/models`` (see its model card,
+``agents/models/MODEL_CARD.md``); any path to a ``model.npz`` written by ``alpha-racer train``
+works too. A model of another feature version is refused.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .features import (FEATURE_VERSION, potential_features, potential_theta_slots, progress_order,
+                       scale_theta, unscale_theta, value_features)
+from .mlp import MLP
+
+MODEL_DIR = Path(__file__).parent / "models"
+SHIPPED = {"default": "alpha_default.npz", "gamma0.98": "alpha_gamma098.npz",
+           "gamma0.995": "alpha_gamma0995.npz", "races400": "alpha_races400.npz"}
+
+
+class PotentialModel:
+    """V (ego-centric value, one network shared by all cars) and Phi (joint potential).
+
+    ``meta`` holds the training config, the data it saw, gamma, the feature version and the
+    validation metrics.
+    """
+
+    def __init__(self, value: MLP, potential: MLP, meta: dict):
+        if meta.get("feature_version") != FEATURE_VERSION:
+            raise ValueError(f"model built with feature version {meta.get('feature_version')}, "
+                             f"this code computes version {FEATURE_VERSION}; retrain it")
+        self.value_net = value
+        self.potential_net = potential
+        self.meta = meta
+        self.n_cars = int(meta["n_cars"])
+
+    # ------------------------------------------------------------------ io
+    def save(self, path) -> Path:
+        path = Path(path)
+        arrays = {**self.value_net.to_arrays("v_"), **self.potential_net.to_arrays("p_")}
+        arrays["meta"] = np.array(json.dumps(self.meta))
+        tmp = path.with_suffix(".tmp.npz")
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **arrays)
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path) -> "PotentialModel":
+        with np.load(path) as z:
+            meta = json.loads(str(z["meta"]))
+            return cls(MLP.from_arrays(z, "v_"), MLP.from_arrays(z, "p_"), meta)
+
+    # ------------------------------------------------------------------ evaluation
+    def _check_cars(self, states):
+        n = np.shape(states)[-2]
+        if n != self.n_cars:
+            raise ValueError(f"this model was trained for {self.n_cars} cars, got states of {n}")
+
+    def value(self, states, thetas, track, ego) -> np.ndarray:
+        """V_ego(x, theta) [m of discounted relative progress], shape of the batch."""
+        self._check_cars(states)
+        return self.value_net(value_features(states, thetas, track, ego))
+
+    def potential(self, states, thetas, track) -> np.ndarray:
+        """Phi(x, theta), shape of the batch."""
+        self._check_cars(states)
+        return self.potential_net(potential_features(states, thetas, track))
+
+    def maximise(self, state, track, theta0=None, restarts: int = 4, iterations: int = 8,
+                 rng: np.random.Generator | None = None, step: float = 0.4, decay: float = 0.7):
+        """Projected gradient ascent of Phi(x, .) over the joint theta within its bounds.
+
+        ``state`` (N, 6) joint state; ``theta0`` (N, 5) warm start (e.g. the last step's
+        maximiser); the other ``restarts - 1`` starts are uniform random draws from ``rng``
+        (plus the box centre when there is no warm start). Steps are taken on theta scaled
+        to [-1, 1], normalised by the gradient's RMS, starting at ``step`` and shrinking by
+        ``decay`` per iteration; every iterate is projected onto the box and the best one
+        seen is returned as ``(theta* (N, 5), Phi*)``.
+        """
+        self._check_cars(state[None])
+        if restarts < 1 or iterations < 0:
+            raise ValueError(f"maximise needs restarts >= 1 and iterations >= 0, got "
+                             f"{restarts}, {iterations}")
+        state = np.asarray(state, dtype=float)
+        N = self.n_cars
+        rng = rng or np.random.default_rng(0)
+        starts = []
+        if theta0 is not None:
+            starts.append(scale_theta(theta0))
+        else:
+            starts.append(np.zeros((N, 5)))
+        while len(starts) < restarts:
+            starts.append(rng.uniform(-1.0, 1.0, (N, 5)))
+        Z = np.stack(starts)                                            # (B, N, 5) scaled
+        order = progress_order(state)
+        rank = np.argsort(order)                                        # car c sits at rank[c]
+        slots = potential_theta_slots(N)[rank]                          # (N, 5) columns of car c
+        base = potential_features(state, np.zeros((N, 5)), track, order)
+        X = np.repeat(base[None], len(Z), axis=0)
+        best_val, best_z = -np.inf, Z[0]
+        lr = step
+        for it in range(iterations + 1):
+            X[:, slots] = Z
+            if it < iterations:
+                val, grad = self.potential_net.value_and_input_grad(X)
+            else:
+                val = self.potential_net(X)
+            k = int(np.argmax(val))
+            if val[k] > best_val:
+                best_val, best_z = float(val[k]), Z[k].copy()
+            if it == iterations:
+                break
+            g = grad[:, slots]                                          # (B, N, 5)
+            rms = np.sqrt(np.mean(g ** 2, axis=(1, 2), keepdims=True)) + 1e-12
+            Z = np.clip(Z + lr * g / rms, -1.0, 1.0)
+            lr *= decay
+        return unscale_theta(best_z), best_val
+
+
+def load_model(name_or_path="default") -> PotentialModel:
+    """A shipped model by name (``default``, ``gamma0.98``, ``gamma0.995``, ``races400``) or a
+    path to a ``model.npz``."""
+    if str(name_or_path) in SHIPPED:
+        path = MODEL_DIR / SHIPPED[str(name_or_path)]
+        if not path.exists():
+            raise FileNotFoundError(f"shipped alpha-potential model {name_or_path!r} is missing "
+                                    f"({path}); train one with `alpha-racer train`")
+    else:
+        path = Path(name_or_path)
+        if not path.exists():
+            raise FileNotFoundError(f"no alpha-potential model at {path} (shipped names: "
+                                    f"{sorted(SHIPPED)})")
+    return PotentialModel.load(path)

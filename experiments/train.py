@@ -1,0 +1,489 @@
+"""Learning the alpha-potential (paper section 3): value network, potential network, validation.
+
+``alpha-racer train --data data/races --out models/alpha`` runs three resumable stages on a
+collection written by ``alpha-racer collect``:
+
+1. **Value** ``V(f_i(x), theta)``: one network shared by every car, on the ego-centric features
+   of :func:`agents.features.value_features` (so ``V_i(x, theta) = V(f_i(x, theta))``). Targets
+   are gamma-discounted returns of the per-step rewards. A race ends after T steps while the
+   discounted sum does not, so the return from step t is the observed part plus
+   ``gamma^(T - t) V(x_T)`` from the current network (recomputed every epoch), the standard
+   correction for time-limit truncation.
+2. **Potential** ``Phi(x, theta)`` on unilateral deviations: at states x of the training races,
+   a joint theta (the race's own, or uniform) and a deviation theta'_i of one car i (uniform);
+   the target is ``V_i(x, theta') - V_i(x, theta)`` and Phi is fitted so that
+   ``Phi(x, theta') - Phi(x, theta)`` matches it. Objectives: ``mse``; the paper's min-max
+   (semi-infinite program ``min alpha s.t. |dPhi - dV_i| <= alpha``) as ``smoothmax``
+   (``tau log mean exp(|gap| / tau)``) or ``tail`` (mean of the largest ``tail_fraction`` of
+   the batch's gaps). The min-max objectives start from an MSE warm-up.
+3. **Validation** on held-out races (never seen by either network): the approximation gap
+   ``|dPhi - dV_i|`` relative to the range of V over the held-out states, its median, 95th
+   percentile and maximum (the empirical alpha), against a constant potential (``dPhi = 0``);
+   and against simulated values: paired rollouts from held-out states that differ only in
+   car i's theta (``rollout_pairs`` of them).
+
+Each stage checkpoints (``value_ckpt.pt``, ``potential_ckpt.pt``, every epoch / ``save_every``
+steps); a killed run resumes from its last checkpoint. The output ``model.npz``
+(:class:`agents.potential.PotentialModel`) carries the config, the feature version, the data
+it came from and the metrics; ``metrics.json`` and ``model_card.md`` sit beside it.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from agents.features import FEATURE_VERSION, potential_dim, potential_features, value_dim, value_features
+from agents.mlp import MLP
+from agents.potential import PotentialModel
+from agents.reference import THETA_HIGH, THETA_LOW
+
+OBJECTIVES = ("mse", "smoothmax", "tail")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that shapes a model. Defaults: the paper's sizes, gamma 0.99."""
+
+    gamma: float = 0.99
+    val_fraction: float = 0.1          # share of races held out (whole races)
+    seed: int = 0
+    # value network
+    value_hidden: tuple = (128, 128, 64)
+    value_epochs: int = 8
+    value_batch: int = 4096
+    value_lr: float = 2e-3
+    value_stride: int = 2              # use every k-th step of a race (neighbours are near-copies)
+    # potential network
+    potential_hidden: tuple = (384, 384, 192)
+    potential_steps: int = 4000
+    potential_batch: int = 1024
+    potential_lr: float = 1e-3
+    objective: str = "tail"
+    tail_fraction: float = 0.2
+    smoothmax_tau: float = 0.05        # in units of the normalised gap
+    warmup_fraction: float = 0.3       # MSE warm-up share of the steps for min-max objectives
+    own_theta_fraction: float = 0.5    # pairs whose base theta is the race's own
+    save_every: int = 500
+    # validation
+    val_pairs: int = 20000
+    rollout_pairs: int = 40
+    rollout_steps: int = 300
+    threads: int = 2
+
+    def __post_init__(self):
+        if not 0.0 < self.gamma < 1.0:
+            raise ValueError(f"gamma must be in (0, 1), got {self.gamma!r}")
+        if not 0.0 < self.val_fraction < 1.0:
+            raise ValueError(f"val_fraction must be in (0, 1), got {self.val_fraction!r}")
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"objective must be one of {OBJECTIVES}, got {self.objective!r}")
+        for name in ("value_epochs", "value_batch", "value_stride", "potential_steps",
+                     "potential_batch", "save_every", "val_pairs", "rollout_steps", "threads"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, np.integer)) and v >= 1):
+                raise ValueError(f"TrainConfig.{name} must be a positive integer, got {v!r}")
+        if not (isinstance(self.rollout_pairs, int) and self.rollout_pairs >= 0):
+            raise ValueError(f"TrainConfig.rollout_pairs must be an integer >= 0, got "
+                             f"{self.rollout_pairs!r}")
+        if not 0.0 < self.tail_fraction <= 1.0:
+            raise ValueError(f"tail_fraction must be in (0, 1], got {self.tail_fraction!r}")
+        for name in ("value_hidden", "potential_hidden"):
+            h = getattr(self, name)
+            if not (len(h) >= 1 and all(isinstance(k, (int, np.integer)) and k >= 1 for k in h)):
+                raise ValueError(f"TrainConfig.{name} must be a tuple of positive layer widths, "
+                                 f"got {h!r}")
+            object.__setattr__(self, name, tuple(int(k) for k in h))
+
+
+# ---------------------------------------------------------------------------- data
+def discounted_partial_returns(rewards: np.ndarray, gamma: float):
+    """``P[:, t] = sum_{k < T - t} gamma^k r[:, t + k]`` and ``gamma^(T - t)``, for rewards
+    (R, T, N): returns (P (R, T, N), tail (T,))."""
+    R, T, N = rewards.shape
+    P = np.empty((R, T, N), dtype=np.float64)
+    acc = np.zeros((R, N))
+    for t in range(T - 1, -1, -1):
+        acc = rewards[:, t].astype(np.float64) + gamma * acc
+        P[:, t] = acc
+    return P, gamma ** (T - np.arange(T, dtype=np.float64))
+
+
+def split_races(n_races: int, val_fraction: float, seed: int):
+    """(train, val) race indices: a seeded permutation, whole races on either side."""
+    perm = np.random.default_rng(seed).permutation(n_races)
+    n_val = max(1, int(round(val_fraction * n_races)))
+    if n_val >= n_races:
+        raise ValueError(f"{n_races} races cannot be split into training and validation "
+                         f"(val_fraction {val_fraction}); collect more races")
+    return np.sort(perm[n_val:]), np.sort(perm[:n_val])
+
+
+def _torch_mlp(in_dim: int, hidden, torch):
+    layers, d = [], in_dim
+    for h in hidden:
+        layers += [torch.nn.Linear(d, h), torch.nn.SiLU()]
+        d = h
+    layers.append(torch.nn.Linear(d, 1))
+    return torch.nn.Sequential(*layers)
+
+
+def _to_numpy_mlp(net, mean, std, y_scale, y_shift) -> MLP:
+    lin = [m for m in net if hasattr(m, "weight")]
+    return MLP([(m.weight.detach().numpy().T, m.bias.detach().numpy()) for m in lin], mean, std,
+               y_scale, y_shift)
+
+
+def _save_atomic_torch(obj, path: Path, torch):
+    tmp = path.with_suffix(".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+class _Normalised:
+    """A torch MLP with fixed input normalisation and output scale (what MLP evaluates)."""
+
+    def __init__(self, net, mean, std, y_scale, y_shift, torch):
+        self.net, self.torch = net, torch
+        self.mean = torch.as_tensor(mean, dtype=torch.float32)
+        self.std = torch.as_tensor(std, dtype=torch.float32)
+        self.y_scale, self.y_shift = float(y_scale), float(y_shift)
+
+    def raw(self, x):
+        return self.net((x - self.mean) / self.std)[..., 0]
+
+    def __call__(self, x):
+        return self.raw(x) * self.y_scale + self.y_shift
+
+
+# ---------------------------------------------------------------------------- training
+def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bool = True,
+          log=print) -> dict:
+    """Run (or resume) the three stages; returns the metrics dict (also in ``metrics.json``)."""
+    import torch
+    from experiments.collect import load_races
+    from racing_env.tracks import make_track
+
+    cfg = config or TrainConfig()
+    torch.set_num_threads(cfg.threads)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_or_check_config(out, cfg, data_dir)
+    t_start = time.perf_counter()
+    data = load_races(data_dir)
+    track = make_track(data["config"]["track"])
+    states, thetas, rewards = data["states"], data["thetas"], data["rewards"]
+    R, T, N = rewards.shape
+    train_idx, val_idx = split_races(R, cfg.val_fraction, cfg.seed)
+    log(f"data: {R} races x {T} steps x {N} cars from {data_dir} "
+        f"({len(train_idx)} training, {len(val_idx)} held out)")
+
+    value = _train_value(states, thetas, rewards, train_idx, val_idx, track, cfg, out, torch,
+                         progress_bar, log)
+    potential = _train_potential(states, thetas, train_idx, track, cfg, value, out, torch,
+                                 progress_bar, log)
+    t_train = time.perf_counter() - t_start
+    meta = {"feature_version": FEATURE_VERSION, "n_cars": N, "track": data["config"]["track"],
+            "gamma": cfg.gamma, "config": asdict(cfg),
+            "data": {"dir": str(data_dir), "races": R, "steps": T, "collect": data["config"]},
+            "train_seconds": t_train}
+    model = PotentialModel(_to_numpy_mlp(value.net, value.mean.numpy(), value.std.numpy(),
+                                         value.y_scale, value.y_shift),
+                           _to_numpy_mlp(potential.net, potential.mean.numpy(),
+                                         potential.std.numpy(), potential.y_scale,
+                                         potential.y_shift), meta)
+    log("validation on held-out races ...")
+    metrics = {"train_seconds": t_train, **value.metrics,
+               **validate_gaps(model, states, thetas, val_idx, track, cfg)}
+    if cfg.rollout_pairs:
+        metrics.update(validate_rollouts(model, data_dir, states, thetas, val_idx, track, cfg,
+                                         progress_bar))
+    metrics["total_seconds"] = time.perf_counter() - t_start
+    model.meta["metrics"] = metrics
+    model.save(out / "model.npz")
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    log(summary_text(metrics))
+    return metrics
+
+
+def _write_or_check_config(out: Path, cfg: TrainConfig, data_dir) -> None:
+    meta = {"feature_version": FEATURE_VERSION, "config": json.loads(json.dumps(asdict(cfg))),
+            "data": str(Path(data_dir).resolve())}
+    p = out / "train_config.json"
+    if p.exists():
+        old = json.loads(p.read_text())
+        if old != meta:
+            raise ValueError(f"{out} holds a training run of another configuration or data "
+                             f"({p}); use another --out or the same settings to resume")
+        return
+    p.write_text(json.dumps(meta, indent=2))
+
+
+def _value_samples(states, thetas, races, stride, T, N):
+    """(race, t, car) triples of the value dataset: every ``stride``-th step, every car."""
+    t = np.arange(0, T, stride)
+    r, tt, c = np.meshgrid(races, t, np.arange(N), indexing="ij")
+    return r.ravel(), tt.ravel(), c.ravel()
+
+
+def _features_in_chunks(states, thetas, r, t, c, track, chunk=200_000):
+    out = np.empty((len(r), value_dim(states.shape[2])), dtype=np.float32)
+    for lo in range(0, len(r), chunk):
+        sl = slice(lo, lo + chunk)
+        out[sl] = value_features(states[r[sl], t[sl]], thetas[r[sl]], track, c[sl])
+    return out
+
+
+def _train_value(states, thetas, rewards, train_idx, val_idx, track, cfg, out, torch,
+                 progress_bar, log):
+    R, T, N = rewards.shape
+    P, tail = discounted_partial_returns(rewards, cfg.gamma)
+    rng = np.random.default_rng(cfg.seed)
+    tr = _value_samples(states, thetas, train_idx, cfg.value_stride, T, N)
+    va = _value_samples(states, thetas, val_idx, max(cfg.value_stride, 5), T, N)
+    X_tr = _features_in_chunks(states, thetas, *tr, track)
+    X_va = _features_in_chunks(states, thetas, *va, track)
+    # features of every race's final state, for the truncation bootstrap
+    rr, cc = np.meshgrid(np.arange(R), np.arange(N), indexing="ij")
+    X_end = value_features(states[rr.ravel(), T], thetas[rr.ravel()], track, cc.ravel()
+                           ).astype(np.float32)
+    mean, std = X_tr.mean(axis=0), X_tr.std(axis=0) + 1e-6
+    y0 = P[tr[0], tr[1], tr[2]]
+    y_shift, y_scale = float(y0.mean()), float(y0.std() + 1e-9)
+    net = _torch_mlp(X_tr.shape[1], cfg.value_hidden, torch)
+    model = _Normalised(net, mean, std, y_scale, y_shift, torch)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.value_lr)
+    steps_per_epoch = -(-len(X_tr) // cfg.value_batch)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.value_lr, pct_start=0.1,
+                                                total_steps=cfg.value_epochs * steps_per_epoch)
+    ckpt = out / "value_ckpt.pt"
+    epoch0, history = 0, []
+    if ckpt.exists():
+        st = torch.load(ckpt, weights_only=False)
+        net.load_state_dict(st["net"]), opt.load_state_dict(st["opt"])
+        sched.load_state_dict(st["sched"])
+        epoch0, history = st["epoch"], st["history"]
+        log(f"value: resuming after epoch {epoch0}")
+    Xt, Xv, Xe = (torch.from_numpy(a) for a in (X_tr, X_va, X_end))
+    end_index = lambda r, c: r * N + c
+
+    def targets(samples):
+        r, t, c = samples
+        with torch.no_grad():
+            v_end = model(Xe).numpy().astype(np.float64)
+        return P[r, t, c] + tail[t] * v_end[end_index(r, c)]
+
+    t0 = time.perf_counter()
+    for epoch in range(epoch0, cfg.value_epochs):
+        y = torch.from_numpy(((targets(tr) - y_shift) / y_scale).astype(np.float32))
+        perm = torch.from_numpy(rng.permutation(len(X_tr)))
+        net.train()
+        total = 0.0
+        bar = tqdm(range(steps_per_epoch), desc=f"value epoch {epoch + 1}/{cfg.value_epochs}",
+                   disable=not progress_bar, leave=False)
+        for b in bar:
+            idx = perm[b * cfg.value_batch:(b + 1) * cfg.value_batch]
+            loss = torch.nn.functional.mse_loss(model.raw(Xt[idx]), y[idx])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+            total += loss.item() * len(idx)
+        yv = targets(va)
+        with torch.no_grad():
+            pv = model(Xv).numpy()
+        r2 = 1.0 - np.mean((pv - yv) ** 2) / np.var(yv)
+        history.append({"epoch": epoch + 1, "train_mse_normalised": total / len(X_tr),
+                        "val_r2": float(r2)})
+        log(f"value epoch {epoch + 1}: train mse {total / len(X_tr):.4f} (normalised), "
+            f"held-out R^2 {r2:.4f}")
+        _save_atomic_torch({"net": net.state_dict(), "opt": opt.state_dict(),
+                            "sched": sched.state_dict(), "epoch": epoch + 1,
+                            "history": history}, ckpt, torch)
+    yv = targets(va)
+    with torch.no_grad():
+        pv = model(Xv).numpy()
+    model.metrics = {"value_val_r2": float(1.0 - np.mean((pv - yv) ** 2) / np.var(yv)),
+                     "value_val_rmse": float(np.sqrt(np.mean((pv - yv) ** 2))),
+                     "value_target_std": float(np.std(yv)), "value_history": history,
+                     "value_seconds_this_run": time.perf_counter() - t0}
+    net.eval()
+    return model
+
+
+def sample_deviations(states, thetas, races, n: int, rng, own_theta_fraction: float = 0.5):
+    """``n`` unilateral deviations at states of ``races``: (x (n, N, 6), theta (n, N, 5),
+    theta' (n, N, 5), car i (n,)); theta' differs from theta only in car i's row (uniform)."""
+    R, T1, N, _ = states.shape
+    r = rng.choice(races, n)
+    t = rng.integers(0, T1 - 1, n)
+    x = states[r, t].astype(np.float64)
+    th = rng.uniform(THETA_LOW, THETA_HIGH, (n, N, 5))
+    own = rng.random(n) < own_theta_fraction
+    th[own] = thetas[r[own]]
+    i = rng.integers(0, N, n)
+    th2 = th.copy()
+    th2[np.arange(n), i] = rng.uniform(THETA_LOW, THETA_HIGH, (n, 5))
+    return x, th, th2, i
+
+
+def _train_potential(states, thetas, train_idx, track, cfg, value, out, torch, progress_bar, log):
+    N = states.shape[2]
+    rng = np.random.default_rng(cfg.seed + 1)
+    # input normalisation from a sample of training states with uniform thetas
+    x, th, _, _ = sample_deviations(states, thetas, train_idx, 20000, rng, cfg.own_theta_fraction)
+    F = potential_features(x, th, track)
+    mean, std = F.mean(axis=0), F.std(axis=0) + 1e-6
+    xi, th1, th2, i = sample_deviations(states, thetas, train_idx, 20000, rng, cfg.own_theta_fraction)
+    with torch.no_grad():
+        dv = (value(torch.from_numpy(value_features(xi, th2, track, i).astype(np.float32)))
+              - value(torch.from_numpy(value_features(xi, th1, track, i).astype(np.float32))))
+    y_scale = float(dv.std() + 1e-9)             # gaps are learned in units of std(dV)
+    net = _torch_mlp(potential_dim(N), cfg.potential_hidden, torch)
+    phi = _Normalised(net, mean, std, y_scale, 0.0, torch)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.potential_lr)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.potential_lr, pct_start=0.1,
+                                                total_steps=cfg.potential_steps)
+    ckpt = out / "potential_ckpt.pt"
+    step0, history = 0, []
+    if ckpt.exists():
+        st = torch.load(ckpt, weights_only=False)
+        net.load_state_dict(st["net"]), opt.load_state_dict(st["opt"])
+        sched.load_state_dict(st["sched"])
+        step0, history = st["step"], st["history"]
+        rng = np.random.default_rng([cfg.seed + 1, step0])
+        log(f"potential: resuming after step {step0}")
+    warm = int(cfg.warmup_fraction * cfg.potential_steps) if cfg.objective != "mse" else cfg.potential_steps
+    t0 = time.perf_counter()
+    bar = tqdm(range(step0, cfg.potential_steps), desc="potential", disable=not progress_bar,
+               initial=step0, total=cfg.potential_steps)
+    window = []
+    for step in bar:
+        x, th1, th2, i = sample_deviations(states, thetas, train_idx, cfg.potential_batch, rng,
+                                           cfg.own_theta_fraction)
+        fv1 = torch.from_numpy(value_features(x, th1, track, i).astype(np.float32))
+        fv2 = torch.from_numpy(value_features(x, th2, track, i).astype(np.float32))
+        fp1 = torch.from_numpy(potential_features(x, th1, track).astype(np.float32))
+        fp2 = torch.from_numpy(potential_features(x, th2, track).astype(np.float32))
+        with torch.no_grad():
+            dv = (value(fv2) - value(fv1)) / y_scale
+        gap = (phi.raw(fp2) - phi.raw(fp1)) - dv
+        if step < warm or cfg.objective == "mse":
+            loss = (gap ** 2).mean()
+        elif cfg.objective == "tail":
+            k = max(1, int(cfg.tail_fraction * len(gap)))
+            loss = torch.topk(gap.abs(), k).values.pow(2).mean()
+        else:
+            tau = cfg.smoothmax_tau
+            loss = tau * (torch.logsumexp(gap.abs() / tau, 0) - np.log(len(gap)))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        window.append(float(gap.abs().median()))
+        if (step + 1) % 100 == 0:
+            bar.set_postfix(median_gap=f"{np.mean(window):.3f}")
+            history.append({"step": step + 1, "median_abs_gap_std_units": float(np.mean(window))})
+            window = []
+        if (step + 1) % cfg.save_every == 0 or step + 1 == cfg.potential_steps:
+            _save_atomic_torch({"net": net.state_dict(), "opt": opt.state_dict(),
+                                "sched": sched.state_dict(), "step": step + 1,
+                                "history": history}, ckpt, torch)
+    bar.close()
+    net.eval()
+    value.metrics["potential_history"] = history
+    value.metrics["potential_seconds_this_run"] = time.perf_counter() - t0
+    return phi
+
+
+# ---------------------------------------------------------------------------- validation
+def approximation_gaps(model: PotentialModel, x, th1, th2, i, track):
+    """(dPhi, dV) of deviations (arrays (n,))."""
+    dv = model.value(x, th2, track, i) - model.value(x, th1, track, i)
+    dphi = model.potential(x, th2, track) - model.potential(x, th1, track)
+    return dphi, dv
+
+
+def value_range(model: PotentialModel, states, thetas, races, track, rng, n=20000) -> float:
+    """Range (max - min) of V_i over held-out states, cars and uniform thetas (the paper's
+    normalisation of the approximation gap)."""
+    x, th, _, i = sample_deviations(states, thetas, races, n, rng)
+    v = model.value(x, th, track, i)
+    return float(v.max() - v.min())
+
+
+def validate_gaps(model, states, thetas, val_idx, track, cfg) -> dict:
+    rng = np.random.default_rng(cfg.seed + 2)
+    vr = value_range(model, states, thetas, val_idx, track, rng)
+    x, th1, th2, i = sample_deviations(states, thetas, val_idx, cfg.val_pairs, rng,
+                                       cfg.own_theta_fraction)
+    dphi, dv = approximation_gaps(model, x, th1, th2, i, track)
+    rel = np.abs(dphi - dv) / vr
+    base = np.abs(dv) / vr                         # a constant potential: dPhi = 0
+    q = lambda a, p: float(np.percentile(a, p))
+    return {"value_range": vr, "val_pairs": int(cfg.val_pairs),
+            "gap_rel_median": q(rel, 50), "gap_rel_p95": q(rel, 95), "gap_rel_max": float(rel.max()),
+            "alpha": float(np.abs(dphi - dv).max()),
+            "gap_rel_within_10pct": float(np.mean(rel <= 0.10)),
+            "const_rel_median": q(base, 50), "const_rel_p95": q(base, 95),
+            "gap_rel_histogram": np.histogram(rel, bins=20, range=(0, 0.2))[0].tolist(),
+            "sign_agreement": float(np.mean(np.sign(dphi) == np.sign(dv)))}
+
+
+def _rollout_job(args):
+    """Discounted return of car i over ``steps`` from joint state x with thetas (own process)."""
+    from experiments.collect import rollout_from_state
+    data_track, x, th, i, steps, gamma = args
+    states, rewards = rollout_from_state(data_track, x, th, steps)
+    disc = gamma ** np.arange(len(rewards))
+    return float(disc @ rewards[:, i]), states[-1]
+
+
+def validate_rollouts(model, data_dir, states, thetas, val_idx, track, cfg, progress_bar) -> dict:
+    """Paired rollouts from held-out states: dG_i (simulated, bootstrapped by V after
+    ``rollout_steps``) against dPhi and dV."""
+    rng = np.random.default_rng(cfg.seed + 3)
+    n = cfg.rollout_pairs
+    x, th1, th2, i = sample_deviations(states, thetas, val_idx, n, rng, own_theta_fraction=1.0)
+    jobs = [(model.meta["track"], x[k], th, int(i[k]), cfg.rollout_steps, cfg.gamma)
+            for k in range(n) for th in (th1[k], th2[k])]
+    with ProcessPoolExecutor(max_workers=cfg.threads) as pool:
+        res = list(tqdm(pool.map(_rollout_job, jobs), total=len(jobs), desc="paired rollouts",
+                        disable=not progress_bar))
+    G = np.array([r[0] for r in res]).reshape(n, 2)
+    x_end = np.array([r[1] for r in res]).reshape(n, 2, *x.shape[1:])
+    boot = cfg.gamma ** cfg.rollout_steps
+    v_end = np.stack([model.value(x_end[:, k], (th1, th2)[k], track, i) for k in range(2)], axis=1)
+    dG = (G[:, 1] + boot * v_end[:, 1]) - (G[:, 0] + boot * v_end[:, 0])
+    dphi, dv = approximation_gaps(model, x, th1, th2, i, track)
+    vr = model.meta.get("metrics", {}).get("value_range") or value_range(
+        model, states, thetas, val_idx, track, np.random.default_rng(cfg.seed + 2))
+    return {"rollout_pairs": n, "rollout_steps": cfg.rollout_steps,
+            "rollout_phi_rel_median": float(np.median(np.abs(dphi - dG)) / vr),
+            "rollout_phi_rel_p95": float(np.percentile(np.abs(dphi - dG), 95) / vr),
+            "rollout_value_rel_median": float(np.median(np.abs(dv - dG)) / vr),
+            "rollout_const_rel_median": float(np.median(np.abs(dG)) / vr),
+            "rollout_sign_agreement_phi": float(np.mean(np.sign(dphi) == np.sign(dG)))}
+
+
+def summary_text(m: dict) -> str:
+    lines = [f"value network: held-out R^2 {m['value_val_r2']:.3f}",
+             f"approximation gap |dPhi - dV_i| / range(V) on {m['val_pairs']} held-out deviations: "
+             f"median {100 * m['gap_rel_median']:.2f}%, 95th pct {100 * m['gap_rel_p95']:.2f}%, "
+             f"max {100 * m['gap_rel_max']:.1f}% (alpha = {m['alpha']:.4f}); "
+             f"{100 * m['gap_rel_within_10pct']:.1f}% within 10%",
+             f"constant potential: median {100 * m['const_rel_median']:.2f}%, "
+             f"95th pct {100 * m['const_rel_p95']:.2f}%"]
+    if "rollout_pairs" in m:
+        lines.append(f"paired rollouts ({m['rollout_pairs']}): |dPhi - dG_sim| / range median "
+                     f"{100 * m['rollout_phi_rel_median']:.2f}% (|dV - dG_sim| "
+                     f"{100 * m['rollout_value_rel_median']:.2f}%, constant "
+                     f"{100 * m['rollout_const_rel_median']:.2f}%)")
+    lines.append(f"training {m['train_seconds']:.0f} s, total {m['total_seconds']:.0f} s")
+    return "\n".join(lines)
