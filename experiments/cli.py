@@ -78,7 +78,8 @@ def _cmd_train(args) -> int:
         kw["value_hidden"] = tuple(args.value_hidden)
     if args.potential_hidden:
         kw["potential_hidden"] = tuple(args.potential_hidden)
-    train(args.data, args.out, TrainConfig(**kw))
+    train(args.data, args.out, TrainConfig(**kw),
+          command="alpha-racer " + " ".join(args.argv))
     print(f"model: {Path(args.out) / 'model.npz'}")
     return 0
 
@@ -156,7 +157,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
+    args.argv = argv
     try:
         return args.fn(args)
     except ValueError as exc:

@@ -164,7 +164,7 @@ class _Normalised:
 
 # ---------------------------------------------------------------------------- training
 def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bool = True,
-          log=print) -> dict:
+          log=print, command: str | None = None) -> dict:
     """Run (or resume) the three stages; returns the metrics dict (also in ``metrics.json``)."""
     import torch
     from experiments.collect import load_races
@@ -206,8 +206,10 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
                                          progress_bar))
     metrics["total_seconds"] = time.perf_counter() - t_start
     model.meta["metrics"] = metrics
+    model.meta["command"] = command or f"alpha-racer train --data {data_dir} --out {out_dir}"
     model.save(out / "model.npz")
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    (out / "model_card.md").write_text(model_card_text(model.meta))
     log(summary_text(metrics))
     return metrics
 
@@ -470,6 +472,40 @@ def validate_rollouts(model, data_dir, states, thetas, val_idx, track, cfg, prog
             "rollout_value_rel_median": float(np.median(np.abs(dv - dG)) / vr),
             "rollout_const_rel_median": float(np.median(np.abs(dG)) / vr),
             "rollout_sign_agreement_phi": float(np.mean(np.sign(dphi) == np.sign(dG)))}
+
+
+def model_card_text(meta: dict) -> str:
+    """A short Markdown model card from a model's metadata."""
+    m, c, d = meta["metrics"], meta["config"], meta["data"]
+    col = d.get("collect", {})
+    return "\n".join([
+        f"# alpha-potential model (feature version {meta['feature_version']})", "",
+        f"* **Data:** {d['races']} races x {d['steps']} steps x {meta['n_cars']} cars on "
+        f"`{meta['track']}` (`alpha-racer collect --races {col.get('races', d['races'])} "
+        f"--seed {col.get('seed', 0)}`; every car an MPC with theta uniform in its bounds); "
+        f"{100 * c['val_fraction']:.0f}% of the races held out.",
+        f"* **Discount:** gamma = {meta['gamma']}.",
+        f"* **Networks:** value {list(c['value_hidden'])} ({c['value_epochs']} epochs), potential "
+        f"{list(c['potential_hidden'])} ({c['potential_steps']} steps of {c['potential_batch']} "
+        f"deviations, objective `{c['objective']}`), SiLU.",
+        f"* **Command:** `{meta.get('command', '')}`",
+        f"* **Training time:** {m['train_seconds'] / 60:.1f} min on 2 CPU cores "
+        f"({m['total_seconds'] / 60:.1f} min with validation).", "",
+        "## Held-out validation", "",
+        f"* Value network R^2 on held-out discounted returns: {m['value_val_r2']:.3f}.",
+        f"* Approximation gap |dPhi - dV_i| / range(V) over {m['val_pairs']} held-out unilateral "
+        f"deviations: median {100 * m['gap_rel_median']:.2f}%, 95th percentile "
+        f"{100 * m['gap_rel_p95']:.2f}%, max {100 * m['gap_rel_max']:.1f}%; "
+        f"{100 * m['gap_rel_within_10pct']:.1f}% within 10%; alpha = {m['alpha']:.4f} "
+        f"(range of V {m['value_range']:.3f} m).",
+        f"* A constant potential (dPhi = 0) would have median {100 * m['const_rel_median']:.2f}% "
+        f"and 95th percentile {100 * m['const_rel_p95']:.2f}%.",
+        *([f"* Paired rollouts ({m['rollout_pairs']} held-out states, {m['rollout_steps']} steps "
+           f"then V): |dPhi - dG_sim| / range median {100 * m['rollout_phi_rel_median']:.2f}%, "
+           f"95th percentile {100 * m['rollout_phi_rel_p95']:.2f}%; |dV - dG_sim| median "
+           f"{100 * m['rollout_value_rel_median']:.2f}%; constant {100 * m['rollout_const_rel_median']:.2f}%."]
+          if "rollout_pairs" in m else []),
+        ""])
 
 
 def summary_text(m: dict) -> str:
