@@ -41,7 +41,7 @@ class AlphaAgent(MPCAgent):
     have been trained for the race's number of cars.
     """
 
-    def __init__(self, model="default", restarts: int = 4, iterations: int = 8, **mpc_kwargs):
+    def __init__(self, model="default", restarts: int = 4, iterations: int = 6, **mpc_kwargs):
         super().__init__(**mpc_kwargs)
         if not (isinstance(restarts, int) and restarts >= 1):
             raise ValueError(f"restarts must be an integer >= 1, got {restarts!r}")

@@ -215,8 +215,10 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
 
 
 def _write_or_check_config(out: Path, cfg: TrainConfig, data_dir) -> None:
-    meta = {"feature_version": FEATURE_VERSION, "config": json.loads(json.dumps(asdict(cfg))),
-            "data": str(Path(data_dir).resolve())}
+    config = json.loads(json.dumps(asdict(cfg)))
+    config.pop("threads")                      # how fast, not what: may change on a resume
+    manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
+    meta = {"feature_version": FEATURE_VERSION, "config": config, "data": manifest}
     p = out / "train_config.json"
     if p.exists():
         old = json.loads(p.read_text())
