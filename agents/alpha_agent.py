@@ -36,7 +36,7 @@ class AlphaAgent(MPCAgent):
 
     Parameters: ``model`` (a shipped model name, see :func:`agents.potential.load_model`, or a
     path to a ``model.npz``; default ``"default"``), ``restarts`` (starts of the gradient
-    ascent, the first being the warm start; 4), ``iterations`` (gradient steps per start; 8),
+    ascent, the first being the warm start; 4), ``iterations`` (gradient steps per start; 6),
     and the :class:`MPCAgent` keywords (``config``, ``vehicle``, ``n_preview``). The model must
     have been trained for the race's number of cars.
     """

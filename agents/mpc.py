@@ -301,11 +301,80 @@ def separation_choice(s_pred, n_pred, opponent, cfg: MPCConfig):
     """
     s_j, n_j, v_j = opponent
     s_jk = s_j + v_j * cfg.dt * np.arange(1, len(s_pred) + 1)
-    ds, dn = s_pred - s_jk, n_pred - n_j
+    near, lateral, sign = separation_sides(s_pred, n_pred, s_jk, n_j, cfg)
+    return near, lateral, sign, s_jk
+
+
+def separation_sides(s_pred, n_pred, s_other, n_other, cfg):
+    """:func:`separation_choice` against another car's predicted trajectory ``s_other``,
+    ``n_other`` [m] ((K,) or scalars, progress on the same unwrapped scale as ``s_pred``).
+
+    Returns ``(near, lateral, sign)`` (K,) each: only ``near`` stages (``|ds| < sep_window``)
+    are constrained, laterally (``sign * dn >= sep_n``) where ``lateral``, else
+    longitudinally (``sign * ds >= sep_s``); ``cfg`` needs ``sep_s, sep_n, sep_window``.
+    Lateral and longitudinal gaps are never mixed: ``ds`` is progress, ``dn`` offset.
+    """
+    ds, dn = s_pred - s_other, n_pred - n_other
     near = np.abs(ds) < cfg.sep_window
     lateral = np.abs(dn) / cfg.sep_n >= np.abs(ds) / cfg.sep_s
     sign = np.where(np.where(lateral, dn, ds) >= 0.0, 1.0, -1.0)
-    return near, lateral, sign, s_jk
+    return near, lateral, sign
+
+
+def separation_rows(Gs, Gn, s_pred, n_pred, s_other, n_other, cfg):
+    """Linearised soft separation rows against another car's trajectory, or ``None`` when no
+    stage is near: ``(rows (m, 2K), lo (m,), hi (m,))`` with ``lo <= rows @ du <= hi`` for the
+    input correction ``du``. ``Gs, Gn`` (K, 2K) are the condensed sensitivities of the
+    predicted ``s_pred, n_pred`` (K,) [m]; ``s_other, n_other`` as in :func:`separation_sides`.
+    """
+    near, lat, sign = separation_sides(s_pred, n_pred, s_other, n_other, cfg)
+    k = np.flatnonzero(near)
+    if not k.size:
+        return None
+    lat, sign = lat[k], sign[k]
+    gap = np.where(lat, np.broadcast_to(n_pred - n_other, near.shape)[k],
+                   np.broadcast_to(s_pred - s_other, near.shape)[k])
+    need = np.where(lat, cfg.sep_n, cfg.sep_s)
+    # sign * (gap + row du) >= need, row from n (lateral) or s (longitudinal)
+    rows = sign[:, None] * np.where(lat[:, None], Gn[k], Gs[k])
+    return rows, need - sign * gap, np.full(k.size, 1e30)
+
+
+def input_rate_matrices(K: int):
+    """``(DtD (2K, 2K), S (K, 2K))`` on the stacked inputs ``[d0, delta0, d1, ...]``:
+    ``u^T DtD u = sum_{k=1..K-1} ||u^k - u^{k-1}||^2`` and ``(S u)_k = delta^k - delta^{k-1}``
+    (row 0 is ``delta^0`` alone: subtract the applied steering from its bounds)."""
+    D = np.zeros((2 * (K - 1), 2 * K))
+    for k in range(1, K):
+        D[2 * (k - 1):2 * k, 2 * k:2 * k + 2] = np.eye(2)
+        D[2 * (k - 1):2 * k, 2 * (k - 1):2 * k] = -np.eye(2)
+    S = np.zeros((K, 2 * K))
+    for k in range(K):
+        S[k, 2 * k + 1] = 1.0
+        if k:
+            S[k, 2 * k - 1] = -1.0
+    return D.T @ D, S
+
+
+def follower_rollout(track: Track, vehicle: VehicleParams, follower, x0, K: int, dt: float):
+    """Normalised inputs (2, K) from rolling the raceline follower's law forward from ``x0``
+    (6,) in the simulator's model for ``K`` stages of ``dt`` s: an on-track initial guess.
+    ``follower`` is a :class:`racing_env.controllers.RacelineFollower` reset on ``track``."""
+    U = np.empty((2, K))
+    v = vehicle
+    _rollout(np.array(x0, dtype=float), *follower.tables(), track.kappa, track.ds, track.length,
+             follower.gains(), v.pack(),
+             np.array([0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min), v.delta_max]),
+             dt, U)
+    return U
+
+
+def make_follower(track: Track, vehicle: VehicleParams):
+    """A raceline follower reset on ``track`` (for :func:`follower_rollout`)."""
+    from racing_env.controllers import RacelineFollower
+    follower = RacelineFollower(vehicle)
+    follower.reset(track)
+    return follower
 
 
 @njit(cache=True)
@@ -402,11 +471,7 @@ class MPC:
         self._lo_u = np.full(2 * K, -1.0)
         self._hi_u = np.full(2 * K, 1.0)
         # input-rate cost sum_{k=1..K-1} ||u^k - u^{k-1}||^2 as D^T D
-        D = np.zeros((2 * (K - 1), 2 * K))
-        for k in range(1, K):
-            D[2 * (k - 1):2 * k, 2 * k:2 * k + 2] = np.eye(2)
-            D[2 * (k - 1):2 * k, 2 * (k - 1):2 * k] = -np.eye(2)
-        self._DtD = D.T @ D
+        self._DtD, _ = input_rate_matrices(K)
         self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max  # normalised
         self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
         self.stats = {"solves": 0, "fallbacks": 0, "restarts": 0, "qp_iterations": 0,
@@ -428,16 +493,9 @@ class MPC:
         """Inputs (2, K) from rolling out the raceline follower's law in the simulator model:
         an on-track initial guess when the shifted previous plan has left the track."""
         if self._follower is None:
-            from racing_env.controllers import RacelineFollower
-            self._follower = RacelineFollower(self.vehicle)
-            self._follower.reset(self.track)
-        t, v = self.track, self.vehicle
-        U = np.empty((2, self.cfg.horizon))
-        _rollout(np.array(x0, dtype=float), *self._follower.tables(), t.kappa, t.ds, t.length,
-                 self._follower.gains(), v.pack(),
-                 np.array([0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min), v.delta_max]),
-                 self.cfg.dt, U)
-        return U
+            self._follower = make_follower(self.track, self.vehicle)
+        return follower_rollout(self.track, self.vehicle, self._follower, x0, self.cfg.horizon,
+                                self.cfg.dt)
 
     def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None) -> np.ndarray:
         import daqp
