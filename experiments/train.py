@@ -491,8 +491,9 @@ def model_card_text(meta: dict) -> str:
         f"{list(c['potential_hidden'])} ({c['potential_steps']} steps of {c['potential_batch']} "
         f"deviations, objective `{c['objective']}`), SiLU.",
         f"* **Command:** `{meta.get('command', '')}`",
-        f"* **Training time:** {m['train_seconds'] / 60:.1f} min on 2 CPU cores "
-        f"({m['total_seconds'] / 60:.1f} min with validation).", "",
+        f"* **Training time:** {m['train_seconds'] / 60:.1f} min on this 2-core machine "
+        f"({m['total_seconds'] / 60:.1f} min with validation)."
+        + (f" {meta['note']}" if meta.get("note") else ""), "",
         "## Held-out validation", "",
         f"* Value network R^2 on held-out discounted returns: {m['value_val_r2']:.3f}.",
         f"* Approximation gap |dPhi - dV_i| / range(V) over {m['val_pairs']} held-out unilateral "

@@ -206,3 +206,21 @@ def test_alpha_agent_refuses_a_model_for_another_number_of_cars():
     obs[3] = 1.0
     with pytest.raises(ValueError, match="trained for 2 cars, the race has 3"):
         agent.act(obs)
+
+
+def test_shipped_models_load_and_race():
+    from agents.potential import MODEL_DIR, SHIPPED, PotentialModel, load_model
+    from experiments.race import run_race
+    shipped = [n for n, f in SHIPPED.items() if (MODEL_DIR / f).exists()]
+    assert "races400" in shipped
+    for name in shipped:
+        m = load_model(name)
+        assert m.n_cars == 3 and m.meta["metrics"]["gap_rel_p95"] < 0.10
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result, _ = run_race(["alpha:model=races400", "mpc", "mpc:zeta=0.8"], max_cycles=15,
+                             render=False)
+    assert result.agent_stats[0]["solves"] == 15 and np.isfinite(result.progress).all()
+    meta = {**m.meta, "feature_version": -1}
+    with pytest.raises(ValueError, match="feature version -1"):
+        PotentialModel(m.value_net, m.potential_net, meta)
