@@ -6,7 +6,7 @@ import os
 import sys
 from pathlib import Path
 
-DEFAULT_AGENTS = ["mpc", "mpc:zeta=0.85", "mpc:zeta=0.8"]
+DEFAULT_AGENTS = ["alpha", "mpc:zeta=0.85", "mpc:zeta=0.8"]
 
 
 def _cmd_race(args) -> int:

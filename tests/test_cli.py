@@ -77,7 +77,7 @@ def test_readme_main_job(tmp_path):
     proc = subprocess.run(["alpha-racer", "race", "--out", str(tmp_path / "race")],
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
-    assert "pos  car" in proc.stdout
+    assert "pos  car" in proc.stdout and " alpha " in proc.stdout
     assert (tmp_path / "race" / "race.gif").exists()
     summary = json.loads((tmp_path / "race" / "result.json").read_text())
     assert summary["steps"] == 500
