@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -45,6 +46,8 @@ from agents.potential import PotentialModel
 from agents.reference import THETA_HIGH, THETA_LOW
 
 OBJECTIVES = ("mse", "smoothmax", "tail")
+# progress bars redraw twice a second on a terminal, once a minute into a log file
+_BAR_INTERVAL = 0.5 if sys.stderr.isatty() else 60.0
 
 
 @dataclass(frozen=True)
@@ -290,7 +293,7 @@ def _train_value(states, thetas, rewards, train_idx, val_idx, track, cfg, out, t
         net.train()
         total = 0.0
         bar = tqdm(range(steps_per_epoch), desc=f"value epoch {epoch + 1}/{cfg.value_epochs}",
-                   disable=not progress_bar, leave=False)
+                   disable=not progress_bar, leave=False, mininterval=_BAR_INTERVAL)
         for b in bar:
             idx = perm[b * cfg.value_batch:(b + 1) * cfg.value_batch]
             loss = torch.nn.functional.mse_loss(model.raw(Xt[idx]), y[idx])
@@ -366,7 +369,7 @@ def _train_potential(states, thetas, train_idx, track, cfg, value, out, torch, p
     warm = int(cfg.warmup_fraction * cfg.potential_steps) if cfg.objective != "mse" else cfg.potential_steps
     t0 = time.perf_counter()
     bar = tqdm(range(step0, cfg.potential_steps), desc="potential", disable=not progress_bar,
-               initial=step0, total=cfg.potential_steps)
+               initial=step0, total=cfg.potential_steps, mininterval=_BAR_INTERVAL)
     window = []
     for step in bar:
         x, th1, th2, i = sample_deviations(states, thetas, train_idx, cfg.potential_batch, rng,
