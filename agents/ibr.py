@@ -1,0 +1,516 @@
+"""Iterated best response (IBR) for N cars: the paper's game-theoretic baseline (Case IV).
+
+At every decision the IBR car predicts every car's trajectory over a short horizon (default
+2 s: ``K = 20`` stages of 0.1 s) and, for a fixed number of rounds (default 6), lets each car
+in turn compute its best response to the others' current predictions. Car i's best response
+maximises its relative progress, the env's utility summed over the horizon,
+
+    sum_k r_i^k = (s_i^K - max_{j != i} s_j^K) - (s_i^0 - max_{j != i} s_j^0),
+
+which, with the other cars' predicted trajectories fixed, is its own terminal progress
+``s_i^K``, minus small input-rate costs, subject to the same dynamics as the MPC (the RK4
+stage model of :mod:`agents.mpc`), input and steering-rate bounds, soft track edges and soft
+separation from *every* other car's predicted trajectory at every stage: per stage and car
+either ``|s_i - s_j| >= sep_s`` (progress, unwrapped) or ``|n_i - n_j| >= sep_n`` (lateral
+offset), whichever the nominal plan satisfies with the larger margin, on its side (the same
+rule as the MPC's; arc length and lateral offset are never mixed). The IBR car applies the
+first input of its own final plan.
+
+Each best response is one SQP iteration of the RTI machinery of :class:`agents.mpc.MPC`:
+the car's plan (normalised inputs ``U`` (2, K)) is simulated by the compiled stage function,
+its condensed sensitivities ``G`` give the linearised progress and positions, and one dense
+QP in the input correction ``du`` is solved with DAQP:
+
+    min  -w_p G_s^K du + w_r ||D (u + du)||^2 + w_step ||du||^2
+    s.t. input box, steering rate (hard), track edges and separation (soft rows)
+
+The step cost ``w_step`` is the "mild regulariser": it keeps the QP strictly convex and
+bounded and acts as a trust region for the linearisation. Rounds re-linearise, so R rounds
+are R SQP iterations for every car, and the plans of one decision (shifted by one stage) warm
+start the next. A round stops the iteration early once no car's predicted positions moved by
+more than ``tol`` m (a fixed point: further rounds would repeat the same QPs). Rivals'
+previous steering is unknown, so their first-stage steering rate is left free.
+
+Never raises on a failed QP: a car whose QP fails keeps its current plan (for the IBR car, at
+worst the shifted previous plan: a counted fallback). ``stats`` report per decision the
+rounds until the plans stopped changing, the solve times and fallbacks.
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from racing_env.track import Track
+from racing_env.tracks import make_track
+from racing_env.vehicle import VehicleParams
+
+from .base import register_agent
+from .mpc import (EdgeBounds, MPCConfig, _trajectory_function, condense, follower_rollout,
+                  input_rate_matrices, kappa_at_substeps, make_follower, stage_nodes)
+from .mpc_agent import joint_state_from_observation
+
+
+@dataclass(frozen=True)
+class IBRConfig:
+    """IBR settings. Lengths in m, times in s, weights per m of progress / per unit of the
+    normalised inputs (throttle and steering in [-1, 1])."""
+
+    horizon: int = 20             # K stages (2 s at dt = 0.1 s, the paper's IBR)
+    rounds: int = 6               # best-response rounds per decision (the paper's N = 6)
+    dt: float = 0.1
+    substeps: int = 3             # RK4 steps per stage (as the MPC)
+    v_low: float = 0.5            # slip regularisation of the prediction model [m/s]
+    tol: float = 2e-3             # plans have stopped changing when no predicted (s, n) moves more [m]
+    progress_weight: float = 10.0   # w_p: per m of terminal progress
+    rate_weight: float = 0.1      # w_r: input-rate cost sum_k ||u^k - u^{k-1}||^2
+    step_weight: float = 2.0      # w_step: regulariser ||du||^2 of one best response
+    trust_weight: float = 3.0     # w_tr: trust region sum_k ||d(s^k, n^k)||^2 on the change of
+                                  # the predicted positions in one best response
+    lateral_weight: float = 1.0   # w_n: scale of the second-order progress loss of lateral
+                                  # motion, w_p sum_k (n^k - n^{k-1})^2 / (2 v dt)
+    track_margin: float = 0.03    # keep the car centre this far inside the edges
+    sep_s: float = 0.15           # longitudinal separation [m]
+    sep_n: float = 0.08           # lateral separation [m]
+    sep_window: float = 2.0       # only stages closer than this in progress constrain [m]
+    soft_rho: float = 1e-4        # DAQP rho_soft: reciprocal weight of soft violations
+    restart_offtrack: float = 0.25  # warm start from a follower rollout when the shifted plan
+                                    # leaves the track by more than this [m]
+    early_stop: bool = True       # stop the rounds once the plans have stopped changing
+    skip_independent: bool = True  # solve only cars whose plans reach the IBR car's through
+                                   # plans within sep_window (the others cannot move its plan)
+
+    def __post_init__(self):
+        if not (isinstance(self.horizon, (int, np.integer)) and 2 <= self.horizon <= 100):
+            raise ValueError(f"IBR horizon must be an integer number of stages in 2..100, "
+                             f"got {self.horizon!r}")
+        if not (isinstance(self.rounds, (int, np.integer)) and 1 <= self.rounds <= 100):
+            raise ValueError(f"IBR rounds must be an integer in 1..100, got {self.rounds!r}")
+        if not (isinstance(self.substeps, (int, np.integer)) and 1 <= self.substeps <= 10):
+            raise ValueError(f"IBR substeps must be an integer in 1..10, got {self.substeps!r}")
+        for name in ("dt", "v_low", "tol", "progress_weight", "rate_weight", "step_weight",
+                     "trust_weight", "lateral_weight", "sep_s", "sep_n", "sep_window", "soft_rho", "restart_offtrack"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ValueError(f"IBRConfig.{name} must be a positive number, got {v!r}")
+        if not (isinstance(self.track_margin, (int, float)) and self.track_margin >= 0):
+            raise ValueError(f"IBRConfig.track_margin must be >= 0, got {self.track_margin!r}")
+
+    def mpc_config(self) -> MPCConfig:
+        """The :class:`MPCConfig` of the shared stage model, edges and separation rule."""
+        return MPCConfig(horizon=int(self.horizon), dt=self.dt, substeps=int(self.substeps),
+                         v_low=self.v_low, track_margin=self.track_margin, sep_s=self.sep_s,
+                         sep_n=self.sep_n, sep_window=self.sep_window, soft_rho=self.soft_rho,
+                         restart_offtrack=self.restart_offtrack)
+
+
+class _Plan:
+    """One car's plan: inputs ``U`` (2, K), its prediction ``X`` (6, K) from ``x0`` (6,) with
+    curvature ``kap`` (substeps, K), the stage Jacobians ``A`` (36, K), ``B`` (12, K), and the
+    edge bounds ``lo, hi`` (K,) [m] on ``n`` at its predicted progress."""
+
+    __slots__ = ("x0", "U", "kap", "X", "A", "B", "lo", "hi", "ok")
+
+
+@njit(cache=True)
+def _separation_pairs(s, n, S, N, sep_s, sep_n, window):
+    """Near (stage, other car) pairs of a plan ``s, n`` (K,) against the other plans ``S, N``
+    (m, K) [m]: ``(stage (p,), lateral (p,), sign (p,), margin (p,))``. Per pair the lateral
+    separation ``sign * (n - n_j) >= sep_n`` where ``lateral``, else the longitudinal one
+    ``sign * (s - s_j) >= sep_s`` (the rule of :func:`agents.mpc.separation_sides`);
+    ``margin = sign * gap - need`` is negative where the plan violates it."""
+    m, K = S.shape
+    stage = np.empty(m * K, np.int64)
+    lateral = np.empty(m * K, np.bool_)
+    sign = np.empty(m * K)
+    margin = np.empty(m * K)
+    p = 0
+    for j in range(m):
+        for k in range(K):
+            ds = s[k] - S[j, k]
+            if abs(ds) >= window:
+                continue
+            dn = n[k] - N[j, k]
+            lat = abs(dn) / sep_n >= abs(ds) / sep_s
+            gap = dn if lat else ds
+            sg = 1.0 if gap >= 0.0 else -1.0
+            stage[p] = k
+            lateral[p] = lat
+            sign[p] = sg
+            margin[p] = sg * gap - (sep_n if lat else sep_s)
+            p += 1
+    return stage[:p], lateral[:p], sign[:p], margin[:p]
+
+
+@njit(cache=True)
+def _merit(s, n, n0, s0, u, DtD, lo, hi, margin, w_p, w_r, w_lat, w_soft):
+    """Best-response cost of a plan (see :meth:`IBR._best_response`): ``-w_p s^K`` plus the
+    input-rate cost ``w_r u' DtD u``, the lateral-motion cost ``sum_k w_lat_k dn_k^2`` and
+    ``w_soft`` times the squared edge and separation violations (``margin < 0``)."""
+    K = s.shape[0]
+    cost = -w_p * s[K - 1] + w_r * (u @ (DtD @ u))
+    prev = n0
+    pen = 0.0
+    for k in range(K):
+        dn = n[k] - prev
+        prev = n[k]
+        cost += w_lat[k] * dn * dn
+        v = max(n[k] - hi[k], lo[k] - n[k], 0.0)
+        pen += v * v
+    for i in range(margin.shape[0]):
+        if margin[i] < 0.0:
+            pen += margin[i] * margin[i]
+    return cost + w_soft * pen
+
+
+class IBR:
+    """Iterated best response over N cars (see the module docstring).
+
+    ``solve(states, u_prev)``: ``states`` (N, 6) every car's Frenet state, row 0 the deciding
+    car, progress ``s`` on one unwrapped scale; ``u_prev`` (2,) the normalised input it applied
+    last (for its steering-rate bound; None leaves the first steering step free). Returns the
+    normalised input ``[throttle, steering]`` (2,) to apply now. Warm starts are kept per row,
+    so keep the car order fixed within a race and call :meth:`reset` between races.
+    ``stats`` accumulates over decisions; ``last`` describes the last decision.
+    """
+
+    def __init__(self, track: Track, vehicle: VehicleParams | None = None,
+                 config: IBRConfig | None = None):
+        import daqp  # noqa: F401  (fail early with an ImportError naming the package)
+        self.track = track
+        self.vehicle = vehicle or VehicleParams()
+        self.cfg = config or IBRConfig()
+        self._mcfg = self.cfg.mpc_config()
+        K = self.cfg.horizon
+        self._traj = _trajectory_function(self.vehicle, self._mcfg)
+        self._DtD, self._S = input_rate_matrices(K)
+        self._H0 = 2.0 * (self.cfg.rate_weight * self._DtD + self.cfg.step_weight * np.eye(2 * K))
+        self._Dn = np.eye(K) - np.eye(K, k=-1)             # (n^k - n^{k-1}), k = 1..K
+        self._bounds_n = EdgeBounds(track, self.vehicle, self._mcfg)
+        self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max
+        self._follower = None
+        self.stats = {"decisions": 0, "fallbacks": 0, "restarts": 0, "br_solves": 0,
+                      "br_failures": 0, "br_rejected": 0, "unconverged": 0,
+                      "decision_ms": deque(maxlen=100_000), "br_ms": deque(maxlen=100_000),
+                      "rounds": deque(maxlen=100_000)}
+        self.last = {}
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the warm starts (call at the start of every race)."""
+        self._prev = None            # per car: (U (2, K), stage progress (K + 1,) or None)
+
+    # ------------------------------------------------------------------ plans
+    def _evaluate(self, plan: _Plan) -> None:
+        X, A, B = self._traj(plan.x0, plan.U, plan.kap)
+        plan.X, plan.A, plan.B = X, A, B
+        plan.ok = bool(np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all())
+        if plan.ok:
+            plan.lo, plan.hi = self._bounds_n(X[0])
+
+    def _offtrack(self, plan: _Plan) -> float:
+        """How far [m] the plan leaves the track edges (minus margins) in stages 1..K-1 (the
+        appended last stage of a shifted plan was never optimised); inf if not finite."""
+        if not plan.ok:
+            return np.inf
+        n = plan.X[1, :-1]
+        return float(np.maximum(n - plan.hi[:-1], plan.lo[:-1] - n).max())
+
+    def _restart(self, plan: _Plan) -> None:
+        """Replace the plan by a raceline-follower rollout from its initial state."""
+        if self._follower is None:
+            self._follower = make_follower(self.track, self.vehicle)
+        cfg = self.cfg
+        plan.U = follower_rollout(self.track, self.vehicle, self._follower, plan.x0,
+                                  cfg.horizon, cfg.dt)
+        plan.kap = kappa_at_substeps(self.track, stage_nodes(None, plan.x0, cfg.horizon, cfg.dt),
+                                     cfg.substeps)
+        self._evaluate(plan)
+        self.stats["restarts"] += 1
+
+    def _warm_start(self, c: int, x0: np.ndarray) -> _Plan:
+        """Car ``c``'s previous plan shifted by one stage (last input repeated) and simulated
+        from ``x0``; a follower rollout when there is none or it leaves the track."""
+        cfg, K = self.cfg, self.cfg.horizon
+        plan = _Plan()
+        plan.x0 = x0
+        prev = self._prev[c] if self._prev is not None else None
+        if prev is None:
+            self._restart(plan)
+            self.stats["restarts"] -= 1            # a first plan is not a restart
+            return plan
+        U, nodes = prev
+        plan.U = np.concatenate([U[:, 1:], U[:, -1:]], axis=1)
+        if x0[3] < 2.0 * cfg.v_low:
+            # a stopped car's brake has no effect and so no gradient: linearise at drive
+            plan.U[0] = np.maximum(plan.U[0], 0.2)
+        plan.kap = kappa_at_substeps(self.track, stage_nodes(nodes, x0, K, cfg.dt), cfg.substeps)
+        self._evaluate(plan)
+        if self._offtrack(plan) > cfg.restart_offtrack:
+            self._restart(plan)
+        return plan
+
+    # ------------------------------------------------------------------ one best response
+    def _lateral_weights(self, plan: _Plan) -> np.ndarray:
+        """Weights (K,) of the lateral-motion term: ``w_n w_p / (2 v dt)`` per stage, with the
+        stage's progress ``v dt`` [m] from the plan's prediction (at least 5 cm)."""
+        cfg = self.cfg
+        step = np.maximum(np.diff(plan.X[0], prepend=plan.x0[0]), 0.05)
+        return cfg.lateral_weight * cfg.progress_weight / (2.0 * step)
+
+    def _plan_merit(self, plan: _Plan, margin, w_lat) -> float:
+        cfg = self.cfg
+        return _merit(plan.X[0], plan.X[1], plan.x0[1], plan.x0[0], plan.U.T.reshape(-1),
+                      self._DtD, plan.lo, plan.hi, margin, cfg.progress_weight,
+                      cfg.rate_weight, w_lat, 0.5 / cfg.soft_rho)
+
+    def _best_response(self, c: int, plans: list, u_prev, trust: float):
+        """One SQP iteration of car ``c``'s best response to the other plans, with
+        trust-region weight ``trust``.
+
+        The QP in the input correction ``du`` (2K,), with ``G`` the condensed sensitivities
+        of the predicted ``(s^k, n^k)``::
+
+            min  -w_p G_s^K du + w_r ||D (u + du)||^2 + w_step ||du||^2 + trust ||G du||^2
+                 + sum_k w_lat_k (n^k - n^{k-1} + (G_n du)_k - (G_n du)_{k-1})^2
+            s.t. -1 <= u + du <= 1, steering rate (hard); edges, separation (soft)
+
+        Returns ``(new plan or None, the step's largest change of a predicted position [m])``:
+        None with an infinite change when the QP fails or the prediction is not finite, None
+        with a finite change when the step does not lower the merit (:func:`_merit`, the QP's
+        cost on the nonlinear prediction): the caller then keeps the plan and tightens
+        ``trust``.
+        """
+        import daqp
+        cfg, K = self.cfg, self.cfg.horizon
+        p = plans[c]
+        others = [q.X for j, q in enumerate(plans) if j != c and q.ok]
+        if others:
+            S_o = np.stack([x[0] for x in others])
+            N_o = np.stack([x[1] for x in others])
+        else:
+            S_o = N_o = np.zeros((0, K))
+        G = condense(np.ascontiguousarray(p.A), np.ascontiguousarray(p.B), K)
+        Gs, Gn = G[0::2], G[1::2]
+        u_vec = p.U.T.reshape(-1)
+        s_pred, n_pred = p.X[0], p.X[1]
+        f = -cfg.progress_weight * Gs[K - 1] + 2.0 * cfg.rate_weight * (self._DtD @ u_vec)
+        # second-order progress loss of lateral motion: a stage that moves dn sideways over a
+        # distance v dt loses about dn^2 / (2 v dt) of progress (the linear model misses it)
+        w_lat = self._lateral_weights(p)
+        dn0 = self._Dn @ n_pred
+        dn0[0] -= p.x0[1]
+        DG = self._Dn @ Gn
+        WDG = w_lat[:, None] * DG
+        H = self._H0 + 2.0 * (DG.T @ WDG + trust * (G.T @ G))
+        f += 2.0 * (WDG.T @ dn0)
+        # steering rate (hard): the first stage only when the applied steering is known
+        d_now = self._S @ u_vec
+        rate_lo, rate_hi = -self._rate - d_now, self._rate - d_now
+        if u_prev is None:
+            rate_lo[0], rate_hi[0] = -1e30, 1e30
+        else:
+            rate_lo[0] += u_prev[1]
+            rate_hi[0] += u_prev[1]
+        # soft rows: track edges, then separation from every other car's plan
+        stage, lat, sign, margin = _separation_pairs(s_pred, n_pred, S_o, N_o, cfg.sep_s,
+                                                     cfg.sep_n, cfg.sep_window)
+        sep_rows = sign[:, None] * np.where(lat[:, None], Gn[stage], Gs[stage])
+        m = len(stage)
+        A = np.vstack([self._S, Gn, sep_rows])
+        bu = np.concatenate([1.0 - u_vec, rate_hi, p.hi - n_pred, np.full(m, 1e30)])
+        bl = np.concatenate([-1.0 - u_vec, rate_lo, p.lo - n_pred, -margin])
+        sense = np.zeros(3 * K + K + m, dtype=np.int32)
+        sense[3 * K:] = 8
+        du, _, exitflag, _ = daqp.solve(H, f, A, bu, bl, sense, rho_soft=cfg.soft_rho)
+        if exitflag < 0 or not np.all(np.isfinite(du)):
+            return None, np.inf
+        new = _Plan()
+        new.x0 = p.x0
+        new.U = np.clip((u_vec + du).reshape(K, 2).T, -1.0, 1.0)
+        new.kap = p.kap
+        self._evaluate(new)
+        if not new.ok:
+            return None, np.inf
+        change = float(np.abs(new.X[:2] - p.X[:2]).max())
+        new_margin = _separation_pairs(new.X[0], new.X[1], S_o, N_o, cfg.sep_s, cfg.sep_n,
+                                       cfg.sep_window)[3]
+        if self._plan_merit(new, new_margin, w_lat) > self._plan_merit(p, margin, w_lat):
+            return None, change
+        return new, change
+
+    # ------------------------------------------------------------------ the decision
+    def _interacting(self, plans: list) -> np.ndarray:
+        """Cars (bool (N,)) connected to car 0 through plans that come within ``sep_window``
+        of each other in progress at some stage: the only ones whose plans can move car 0's."""
+        n = len(plans)
+        S = np.stack([p.X[0] if p.ok else np.full(self.cfg.horizon, np.inf) for p in plans])
+        near = (np.abs(S[:, None, :] - S[None, :, :]) < self.cfg.sep_window).any(axis=2)
+        reach = np.zeros(n, dtype=bool)
+        reach[0] = True
+        for _ in range(n):
+            grown = reach | near[reach].any(axis=0)
+            if (grown == reach).all():
+                break
+            reach = grown
+        return reach
+
+    def solve(self, states, u_prev=None) -> np.ndarray:
+        t0 = time.perf_counter()
+        cfg = self.cfg
+        states = np.asarray(states, dtype=float)
+        if states.ndim != 2 or states.shape[1] != 6 or len(states) < 1:
+            raise ValueError(f"states must have shape (N, 6) with N >= 1, got {states.shape}")
+        if not np.isfinite(states).all():
+            raise ValueError("states must be finite")
+        n = len(states)
+        if self._prev is not None and len(self._prev) != n:
+            self._prev = None                               # the number of cars changed
+        u_prev = None if u_prev is None else np.asarray(u_prev, dtype=float)
+        plans = [self._warm_start(c, states[c].copy()) for c in range(n)]
+        start_U = plans[0].U.copy()
+        # rivals from the front to the back, then the deciding car (it answers the latest plans)
+        order = [int(c) for c in np.argsort(-states[1:, 0], kind="stable") + 1] + [0]
+        trust = np.full(n, cfg.trust_weight)
+        ego_ok = False
+        rounds, converged, br_ms, failures, rejected, changes = 0, False, [], 0, 0, []
+        for r in range(cfg.rounds):
+            rounds = r + 1
+            change = 0.0
+            active = self._interacting(plans) if cfg.skip_independent else np.ones(n, bool)
+            for c in order:
+                if not active[c]:
+                    continue
+                if not plans[c].ok:
+                    self._restart(plans[c])
+                    if not plans[c].ok:
+                        failures += 1
+                        continue
+                tb = time.perf_counter()
+                try:
+                    new, step = self._best_response(c, plans, u_prev if c == 0 else None,
+                                                    trust[c])
+                except Exception:                           # never crash on a bad solve
+                    new, step = None, np.inf
+                br_ms.append(1e3 * (time.perf_counter() - tb))
+                if not np.isfinite(step):                   # the QP failed: keep the plan
+                    failures += 1
+                    change = np.inf
+                    continue
+                change = max(change, step)
+                if c == 0:
+                    ego_ok = True                           # the IBR car's own QP worked
+                if new is None:                             # no better: a shorter step next
+                    rejected += 1
+                    trust[c] *= 4.0
+                    continue
+                trust[c] = max(0.5 * trust[c], cfg.trust_weight)
+                plans[c] = new
+            changes.append(change)
+            if change < cfg.tol:
+                converged = True
+                if cfg.early_stop:
+                    break
+        fallback = not ego_ok
+        U0 = plans[0].U if ego_ok else start_U
+        u0 = np.clip(U0[:, 0], -1.0, 1.0)
+        # keep every plan (and its stage progress) to warm start the next decision
+        self._prev = [(p.U, np.concatenate([[p.x0[0]], p.X[0]]) if p.ok else None) for p in plans]
+        ms = 1e3 * (time.perf_counter() - t0)
+        st = self.stats
+        st["decisions"] += 1
+        st["fallbacks"] += int(fallback)
+        st["br_solves"] += len(br_ms)
+        st["br_failures"] += failures
+        st["br_rejected"] += rejected
+        st["unconverged"] += int(not converged)
+        st["decision_ms"].append(ms)
+        st["br_ms"].extend(br_ms)
+        st["rounds"].append(rounds)
+        self.last = {"rounds": rounds, "converged": converged, "changes": changes, "ms": ms,
+                     "br_ms": br_ms, "br_failures": failures, "br_rejected": rejected,
+                     "fallback": fallback, "plans": np.stack([p.X for p in plans]),
+                     "inputs": np.stack([p.U for p in plans])}
+        return u0
+
+
+def _summary(values) -> tuple[float, float]:
+    a = np.asarray(values, dtype=float)
+    if not a.size:
+        return float("nan"), float("nan")
+    return float(np.median(a)), float(np.percentile(a, 99))
+
+
+@register_agent("ibr")
+class IBRAgent:
+    """Iterated-best-response agent (the paper's Case IV baseline, for any number of cars).
+
+    Keywords: any :class:`IBRConfig` field (``rounds=6, horizon=20, tol=...``) or a full
+    ``config``; ``vehicle`` (:class:`VehicleParams`, assumed for every car); ``n_preview``,
+    the env's ``RaceConfig.n_preview`` (to read the observation layout). ``stats``: decisions,
+    fallbacks (decisions applying the shifted previous plan), restarts from a follower
+    rollout, best-response QPs and their failures, rounds until the plans stopped changing
+    (mean, max) and how many decisions did not converge within ``rounds``, and decision /
+    best-response times in ms (median, p99). ``ibr.last`` holds the last decision's record
+    (rounds, converged, times, every car's final plan).
+    """
+
+    def __init__(self, config: IBRConfig | None = None, vehicle: VehicleParams | None = None,
+                 n_preview: int = 10, **config_fields):
+        if config is not None and config_fields:
+            raise ValueError(f"give either config or IBRConfig fields, not both "
+                             f"(got {sorted(config_fields)})")
+        known = set(IBRConfig.__dataclass_fields__)
+        unknown = set(config_fields) - known
+        if unknown:
+            raise ValueError(f"unknown IBR parameter(s) {sorted(unknown)}; expected IBRConfig "
+                             f"fields: {', '.join(sorted(known))}")
+        if not (isinstance(n_preview, (int, np.integer)) and n_preview >= 0):
+            raise ValueError(f"n_preview must be a non-negative integer, got {n_preview!r}")
+        self.config = config or IBRConfig(**config_fields)
+        self.vehicle = vehicle or VehicleParams()
+        self.n_preview = n_preview
+        self.ibr: IBR | None = None
+        self.track: Track | None = None
+
+    def reset(self, track, agent_id: str = "car_0", seed: int | None = None) -> None:
+        track = make_track(track)
+        if self.ibr is None or self.track is not track:
+            self.ibr = IBR(track, self.vehicle, self.config)
+        self.track = track
+        self.ibr.reset()
+        self.agent_id = agent_id
+        self._u_prev = np.zeros(2)
+
+    @property
+    def stats(self) -> dict:
+        if self.ibr is None:
+            return {}
+        st = self.ibr.stats
+        med, p99 = _summary(st["decision_ms"])
+        br_med, br_p99 = _summary(st["br_ms"])
+        rounds = np.asarray(st["rounds"], dtype=float)
+        return {"solves": st["decisions"], "fallbacks": st["fallbacks"],
+                "restarts": st["restarts"], "br_solves": st["br_solves"],
+                "br_failures": st["br_failures"],
+                "rounds_mean": float(rounds.mean()) if rounds.size else float("nan"),
+                "rounds_max": int(rounds.max()) if rounds.size else 0,
+                "unconverged": st["unconverged"],
+                "decision_ms_median": med, "decision_ms_p99": p99,
+                "br_ms_median": br_med, "br_ms_p99": br_p99}
+
+    def act(self, observation) -> np.ndarray:
+        if self.ibr is None:
+            raise RuntimeError("IBRAgent.act() before reset(track, ...)")
+        obs = np.asarray(observation, dtype=float)
+        n_cars, rest = divmod(len(obs) - self.n_preview, 6)
+        if rest or n_cars < 1:
+            raise ValueError(f"observation of length {len(obs)} does not fit 6 N + n_preview "
+                             f"with n_preview = {self.n_preview}")
+        ego, others = joint_state_from_observation(obs, n_cars)
+        u = self.ibr.solve(np.vstack([ego[None, :], others]), self._u_prev)
+        self._u_prev = u
+        return u.astype(np.float32)
