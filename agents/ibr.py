@@ -49,9 +49,9 @@ from racing_env.tracks import make_track
 from racing_env.vehicle import VehicleParams
 
 from .base import register_agent
-from .mpc import (EdgeBounds, MPCConfig, _trajectory_function, condense, follower_rollout,
+from .mpc import (EdgeBounds, MPCConfig, _trajectory_function, follower_rollout,
                   input_rate_matrices, kappa_at_substeps, make_follower, stage_nodes)
-from .mpc_agent import joint_state_from_observation
+from .mpc_agent import joint_state_from_observation, progress_rate
 
 
 @dataclass(frozen=True)
@@ -70,6 +70,8 @@ class IBRConfig:
     step_weight: float = 2.0      # w_step: regulariser ||du||^2 of one best response
     trust_weight: float = 3.0     # w_tr: trust region sum_k ||d(s^k, n^k)||^2 on the change of
                                   # the predicted positions in one best response
+    slip_weight: float = 1.0      # w_vy: cost sum_k vy_k^2 of body lateral velocity [per (m/s)^2]:
+                                  # keeps plans out of slides the linearisation cannot follow
     lateral_weight: float = 1.0   # w_n: scale of the second-order progress loss of lateral
                                   # motion, w_p sum_k (n^k - n^{k-1})^2 / (2 v dt)
     track_margin: float = 0.03    # keep the car centre this far inside the edges
@@ -80,6 +82,8 @@ class IBRConfig:
     restart_offtrack: float = 0.25  # warm start from a follower rollout when the shifted plan
                                     # leaves the track by more than this [m]
     early_stop: bool = True       # stop the rounds once the plans have stopped changing
+    cautious: bool = True         # also keep clear of every other car going on at its present
+                                  # speed and offset, and cap its plan's progress at that speed
     skip_independent: bool = True  # solve only cars whose plans reach the IBR car's through
                                    # plans within sep_window (the others cannot move its plan)
 
@@ -91,6 +95,8 @@ class IBRConfig:
             raise ValueError(f"IBR rounds must be an integer in 1..100, got {self.rounds!r}")
         if not (isinstance(self.substeps, (int, np.integer)) and 1 <= self.substeps <= 10):
             raise ValueError(f"IBR substeps must be an integer in 1..10, got {self.substeps!r}")
+        if not (isinstance(self.slip_weight, (int, float)) and self.slip_weight >= 0):
+            raise ValueError(f"IBRConfig.slip_weight must be >= 0, got {self.slip_weight!r}")
         for name in ("dt", "v_low", "tol", "progress_weight", "rate_weight", "step_weight",
                      "trust_weight", "lateral_weight", "sep_s", "sep_n", "sep_window", "soft_rho", "restart_offtrack"):
             v = getattr(self, name)
@@ -116,21 +122,52 @@ class _Plan:
 
 
 @njit(cache=True)
-def _separation_pairs(s, n, S, N, sep_s, sep_n, window):
-    """Near (stage, other car) pairs of a plan ``s, n`` (K,) against the other plans ``S, N``
-    (m, K) [m]: ``(stage (p,), lateral (p,), sign (p,), margin (p,))``. Per pair the lateral
+def _condense_states(A, B, K):
+    """Sensitivities (K, 6, 2K) of every predicted state to the inputs:
+    ``G[k, r, 2j + c] = d x_r^{k+1} / d u_c^j`` (zero for j > k), from the column-major stage
+    Jacobians ``A`` (36, K), ``B`` (12, K) (the full-state form of :func:`agents.mpc.condense`)."""
+    G = np.zeros((K, 6, 2 * K))
+    M = np.empty((6, 2))
+    T = np.empty((6, 2))
+    for j in range(K):
+        for r in range(6):
+            for c in range(2):
+                M[r, c] = B[r + 6 * c, j]
+        for k in range(j, K):
+            for r in range(6):
+                for c in range(2):
+                    G[k, r, 2 * j + c] = M[r, c]
+            if k + 1 < K:
+                for r in range(6):
+                    for c in range(2):
+                        acc = 0.0
+                        for q in range(6):
+                            acc += A[r + 6 * q, k + 1] * M[q, c]
+                        T[r, c] = acc
+                M[:, :] = T
+    return G
+
+
+@njit(cache=True)
+def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window):
+    """Near (stage, obstacle) pairs of car ``c``'s plan ``s, n`` (K,) [m] against the
+    trajectories ``S, N`` (rows, K) of other cars (rows with ``owner != c`` and ``ok``), their
+    progress capped at ``cap`` (rows, K): ``(stage (p,), lateral (p,), sign (p,), margin (p,))``.
+    Per pair the lateral
     separation ``sign * (n - n_j) >= sep_n`` where ``lateral``, else the longitudinal one
-    ``sign * (s - s_j) >= sep_s`` (the rule of :func:`agents.mpc.separation_sides`);
-    ``margin = sign * gap - need`` is negative where the plan violates it."""
-    m, K = S.shape
-    stage = np.empty(m * K, np.int64)
-    lateral = np.empty(m * K, np.bool_)
-    sign = np.empty(m * K)
-    margin = np.empty(m * K)
+    ``sign * (s - s_j) >= sep_s`` (the rule of :func:`agents.mpc.separation_sides`: never a
+    mix of progress and offset); ``margin = sign * gap - need`` is negative where violated."""
+    cars, K = S.shape
+    stage = np.empty(cars * K, np.int64)
+    lateral = np.empty(cars * K, np.bool_)
+    sign = np.empty(cars * K)
+    margin = np.empty(cars * K)
     p = 0
-    for j in range(m):
+    for j in range(cars):
+        if owner[j] == c or not ok[j]:
+            continue
         for k in range(K):
-            ds = s[k] - S[j, k]
+            ds = s[k] - min(S[j, k], cap[j, k])
             if abs(ds) >= window:
                 continue
             dn = n[k] - N[j, k]
@@ -146,12 +183,105 @@ def _separation_pairs(s, n, S, N, sep_s, sep_n, window):
 
 
 @njit(cache=True)
-def _merit(s, n, n0, s0, u, DtD, lo, hi, margin, w_p, w_r, w_lat, w_soft):
+def _assemble(X, x0, u, Gx, lo, hi, stage, lateral, sign, margin, H0, DtD, w_p, w_r, w_n, w_vy,
+              trust, rate, steer_prev, has_prev):
+    """The best-response QP of :meth:`IBR._best_response` in DAQP's form:
+    ``(H, f, A, bu, bl, sense, w_lat)``: the first 2K bounds are the input box, then K hard
+    steering-rate rows, K soft edge rows and one soft row per separation pair."""
+    K = X.shape[1]
+    nv = 2 * K
+    m = stage.shape[0]
+    # quadratic terms as one stacked least-squares block ||r + M du||^2
+    w_lat = np.empty(K)
+    M = np.zeros((4 * K, nv))
+    r = np.zeros(4 * K)
+    st = np.sqrt(2.0 * trust)
+    sv = np.sqrt(2.0 * w_vy)
+    s_prev, n_prev = x0[0], x0[1]
+    for k in range(K):
+        w_lat[k] = w_n * w_p / (2.0 * max(X[0, k] - s_prev, 0.05))
+        sl = np.sqrt(2.0 * w_lat[k])
+        for i in range(nv):
+            M[k, i] = st * Gx[k, 0, i]
+            M[K + k, i] = st * Gx[k, 1, i]
+            M[2 * K + k, i] = sv * Gx[k, 4, i]
+            M[3 * K + k, i] = sl * (Gx[k, 1, i] - (Gx[k - 1, 1, i] if k > 0 else 0.0))
+        r[2 * K + k] = sv * X[4, k]
+        r[3 * K + k] = sl * (X[1, k] - n_prev)
+        s_prev, n_prev = X[0, k], X[1, k]
+    H = H0 + M.T @ M
+    f = M.T @ r + 2.0 * w_r * (DtD @ u)
+    for i in range(nv):
+        f[i] -= w_p * Gx[K - 1, 0, i]
+    # constraints
+    A = np.zeros((2 * K + m, nv))
+    bu = np.empty(nv + 2 * K + m)
+    bl = np.empty(nv + 2 * K + m)
+    sense = np.zeros(nv + 2 * K + m, np.int32)
+    for i in range(nv):
+        bu[i] = 1.0 - u[i]
+        bl[i] = -1.0 - u[i]
+    for k in range(K):                                  # steering rate (hard)
+        A[k, 2 * k + 1] = 1.0
+        if k > 0:
+            A[k, 2 * k - 1] = -1.0
+            d = u[2 * k + 1] - u[2 * k - 1]
+        elif has_prev:
+            d = u[1] - steer_prev
+        else:
+            d = 0.0
+        free = k == 0 and not has_prev
+        bu[nv + k] = 1e30 if free else rate - d
+        bl[nv + k] = -1e30 if free else -rate - d
+    for k in range(K):                                  # track edges (soft)
+        for i in range(nv):
+            A[K + k, i] = Gx[k, 1, i]
+        bu[nv + K + k] = hi[k] - X[1, k]
+        bl[nv + K + k] = lo[k] - X[1, k]
+        sense[nv + K + k] = 8
+    for q in range(m):                                  # separation (soft)
+        k = stage[q]
+        row = 1 if lateral[q] else 0
+        for i in range(nv):
+            A[2 * K + q, i] = sign[q] * Gx[k, row, i]
+        bu[nv + 2 * K + q] = 1e30
+        bl[nv + 2 * K + q] = -margin[q]
+        sense[nv + 2 * K + q] = 8
+    return H, f, A, bu, bl, sense, w_lat
+
+
+@njit(cache=True)
+def _reach(S, ok, window):
+    """Cars (bool (N,)) connected to car 0 through plans ``S`` (N, K) that come within
+    ``window`` of each other in progress at a common stage."""
+    n, K = S.shape
+    reach = np.zeros(n, np.bool_)
+    reach[0] = True
+    grown = True
+    while grown:
+        grown = False
+        for a in range(n):
+            if not reach[a]:
+                continue
+            for b in range(n):
+                if reach[b] or not ok[b]:
+                    continue
+                for k in range(K):
+                    if abs(S[a, k] - S[b, k]) < window:
+                        reach[b] = True
+                        grown = True
+                        break
+    return reach
+
+
+@njit(cache=True)
+def _merit(s, n, vy, n0, u, DtD, lo, hi, margin, w_p, w_r, w_lat, w_vy, w_soft):
     """Best-response cost of a plan (see :meth:`IBR._best_response`): ``-w_p s^K`` plus the
-    input-rate cost ``w_r u' DtD u``, the lateral-motion cost ``sum_k w_lat_k dn_k^2`` and
-    ``w_soft`` times the squared edge and separation violations (``margin < 0``)."""
+    input-rate cost ``w_r u' DtD u``, the lateral-motion cost ``sum_k w_lat_k dn_k^2``, the
+    slip cost ``w_vy sum_k vy_k^2`` and ``w_soft`` times the squared edge and separation
+    violations (``margin < 0``)."""
     K = s.shape[0]
-    cost = -w_p * s[K - 1] + w_r * (u @ (DtD @ u))
+    cost = -w_p * s[K - 1] + w_r * (u @ (DtD @ u)) + w_vy * (vy @ vy)
     prev = n0
     pen = 0.0
     for k in range(K):
@@ -207,7 +337,7 @@ class IBR:
     def _evaluate(self, plan: _Plan) -> None:
         X, A, B = self._traj(plan.x0, plan.U, plan.kap)
         plan.X, plan.A, plan.B = X, A, B
-        plan.ok = bool(np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all())
+        plan.ok = bool(np.isfinite(X.sum() + A.sum() + B.sum()))
         if plan.ok:
             plan.lo, plan.hi = self._bounds_n(X[0])
 
@@ -263,9 +393,9 @@ class IBR:
 
     def _plan_merit(self, plan: _Plan, margin, w_lat) -> float:
         cfg = self.cfg
-        return _merit(plan.X[0], plan.X[1], plan.x0[1], plan.x0[0], plan.U.T.reshape(-1),
+        return _merit(plan.X[0], plan.X[1], plan.X[4], plan.x0[1], plan.U.T.reshape(-1),
                       self._DtD, plan.lo, plan.hi, margin, cfg.progress_weight,
-                      cfg.rate_weight, w_lat, 0.5 / cfg.soft_rho)
+                      cfg.rate_weight, w_lat, cfg.slip_weight, 0.5 / cfg.soft_rho)
 
     def _best_response(self, c: int, plans: list, u_prev, trust: float):
         """One SQP iteration of car ``c``'s best response to the other plans, with
@@ -276,6 +406,7 @@ class IBR:
 
             min  -w_p G_s^K du + w_r ||D (u + du)||^2 + w_step ||du||^2 + trust ||G du||^2
                  + sum_k w_lat_k (n^k - n^{k-1} + (G_n du)_k - (G_n du)_{k-1})^2
+                 + w_vy ||vy + G_vy du||^2
             s.t. -1 <= u + du <= 1, steering rate (hard); edges, separation (soft)
 
         Returns ``(new plan or None, the step's largest change of a predicted position [m])``:
@@ -287,76 +418,37 @@ class IBR:
         import daqp
         cfg, K = self.cfg, self.cfg.horizon
         p = plans[c]
-        others = [q.X for j, q in enumerate(plans) if j != c and q.ok]
-        if others:
-            S_o = np.stack([x[0] for x in others])
-            N_o = np.stack([x[1] for x in others])
-        else:
-            S_o = N_o = np.zeros((0, K))
-        G = condense(np.ascontiguousarray(p.A), np.ascontiguousarray(p.B), K)
-        Gs, Gn = G[0::2], G[1::2]
+        S, N, cap, ok, owner = self._S_all, self._N_all, self._s_cap, self._ok, self._owner
+        sep = (cfg.sep_s, cfg.sep_n, cfg.sep_window)
+        stage, lat, sign, margin = _separation_pairs(p.X[0], p.X[1], S, N, cap, ok, owner, c, *sep)
+        Gx = _condense_states(np.ascontiguousarray(p.A), np.ascontiguousarray(p.B), K)
         u_vec = p.U.T.reshape(-1)
-        s_pred, n_pred = p.X[0], p.X[1]
-        f = -cfg.progress_weight * Gs[K - 1] + 2.0 * cfg.rate_weight * (self._DtD @ u_vec)
-        # second-order progress loss of lateral motion: a stage that moves dn sideways over a
-        # distance v dt loses about dn^2 / (2 v dt) of progress (the linear model misses it)
-        w_lat = self._lateral_weights(p)
-        dn0 = self._Dn @ n_pred
-        dn0[0] -= p.x0[1]
-        DG = self._Dn @ Gn
-        WDG = w_lat[:, None] * DG
-        H = self._H0 + 2.0 * (DG.T @ WDG + trust * (G.T @ G))
-        f += 2.0 * (WDG.T @ dn0)
-        # steering rate (hard): the first stage only when the applied steering is known
-        d_now = self._S @ u_vec
-        rate_lo, rate_hi = -self._rate - d_now, self._rate - d_now
-        if u_prev is None:
-            rate_lo[0], rate_hi[0] = -1e30, 1e30
-        else:
-            rate_lo[0] += u_prev[1]
-            rate_hi[0] += u_prev[1]
-        # soft rows: track edges, then separation from every other car's plan
-        stage, lat, sign, margin = _separation_pairs(s_pred, n_pred, S_o, N_o, cfg.sep_s,
-                                                     cfg.sep_n, cfg.sep_window)
-        sep_rows = sign[:, None] * np.where(lat[:, None], Gn[stage], Gs[stage])
-        m = len(stage)
-        A = np.vstack([self._S, Gn, sep_rows])
-        bu = np.concatenate([1.0 - u_vec, rate_hi, p.hi - n_pred, np.full(m, 1e30)])
-        bl = np.concatenate([-1.0 - u_vec, rate_lo, p.lo - n_pred, -margin])
-        sense = np.zeros(3 * K + K + m, dtype=np.int32)
-        sense[3 * K:] = 8
+        H, f, A, bu, bl, sense, w_lat = _assemble(
+            p.X, p.x0, u_vec, Gx, p.lo, p.hi, stage, lat, sign, margin, self._H0, self._DtD,
+            cfg.progress_weight, cfg.rate_weight, cfg.lateral_weight, cfg.slip_weight, trust,
+            self._rate, 0.0 if u_prev is None else float(u_prev[1]), u_prev is not None)
         du, _, exitflag, _ = daqp.solve(H, f, A, bu, bl, sense, rho_soft=cfg.soft_rho)
-        if exitflag < 0 or not np.all(np.isfinite(du)):
+        if exitflag < 0 or not np.isfinite(du.sum()):
             return None, np.inf
         new = _Plan()
         new.x0 = p.x0
-        new.U = np.clip((u_vec + du).reshape(K, 2).T, -1.0, 1.0)
+        new.U = np.clip(u_vec + du, -1.0, 1.0).reshape(K, 2).T
         new.kap = p.kap
         self._evaluate(new)
         if not new.ok:
             return None, np.inf
         change = float(np.abs(new.X[:2] - p.X[:2]).max())
-        new_margin = _separation_pairs(new.X[0], new.X[1], S_o, N_o, cfg.sep_s, cfg.sep_n,
-                                       cfg.sep_window)[3]
+        new_margin = _separation_pairs(new.X[0], new.X[1], S, N, cap, ok, owner, c, *sep)[3]
         if self._plan_merit(new, new_margin, w_lat) > self._plan_merit(p, margin, w_lat):
             return None, change
         return new, change
 
     # ------------------------------------------------------------------ the decision
-    def _interacting(self, plans: list) -> np.ndarray:
-        """Cars (bool (N,)) connected to car 0 through plans that come within ``sep_window``
-        of each other in progress at some stage: the only ones whose plans can move car 0's."""
-        n = len(plans)
-        S = np.stack([p.X[0] if p.ok else np.full(self.cfg.horizon, np.inf) for p in plans])
-        near = (np.abs(S[:, None, :] - S[None, :, :]) < self.cfg.sep_window).any(axis=2)
-        reach = np.zeros(n, dtype=bool)
-        reach[0] = True
-        for _ in range(n):
-            grown = reach | near[reach].any(axis=0)
-            if (grown == reach).all():
-                break
-            reach = grown
-        return reach
+    def _store(self, c: int, plan: _Plan) -> None:
+        self._ok[c] = plan.ok
+        if plan.ok:
+            self._S_all[c] = plan.X[0]
+            self._N_all[c] = plan.X[1]
 
     def solve(self, states, u_prev=None) -> np.ndarray:
         t0 = time.perf_counter()
@@ -371,6 +463,29 @@ class IBR:
             self._prev = None                               # the number of cars changed
         u_prev = None if u_prev is None else np.asarray(u_prev, dtype=float)
         plans = [self._warm_start(c, states[c].copy()) for c in range(n)]
+        # cautious separation: each car's progress at stage k is taken as at most its constant-
+        # progress-rate extrapolation (N, K), so a car behind keeps its distance even when the
+        # car ahead does not speed up as its best response predicts
+        K = cfg.horizon
+        # obstacles for the separation rows: rows 0..N-1 every car's current plan (s, n), kept
+        # up to date; when cautious, rows N..2N-1 every car going on at its present progress
+        # rate and lateral offset, and the plans' progress capped by the same extrapolation
+        # (a rival that is not the predicted best responder neither speeds up nor swerves
+        # into a gap the IBR car leaves it)
+        s_const = states[:, :1] + (np.maximum(progress_rate(states, self.track), 0.0)[:, None]
+                                   * cfg.dt * np.arange(1, K + 1))
+        rows = 2 * n if cfg.cautious else n
+        self._S_all, self._N_all = np.zeros((rows, K)), np.zeros((rows, K))
+        self._ok = np.zeros(rows, dtype=bool)
+        self._owner = np.arange(rows) % n
+        self._s_cap = np.full((rows, K), np.inf)
+        if cfg.cautious:
+            self._s_cap[:n] = s_const
+            self._S_all[n:] = s_const
+            self._N_all[n:] = states[:, 1:2]
+            self._ok[n:] = True
+        for c in range(n):
+            self._store(c, plans[c])
         start_U = plans[0].U.copy()
         # rivals from the front to the back, then the deciding car (it answers the latest plans)
         order = [int(c) for c in np.argsort(-states[1:, 0], kind="stable") + 1] + [0]
@@ -380,12 +495,14 @@ class IBR:
         for r in range(cfg.rounds):
             rounds = r + 1
             change = 0.0
-            active = self._interacting(plans) if cfg.skip_independent else np.ones(n, bool)
+            active = (_reach(self._S_all[:n], self._ok[:n], cfg.sep_window)
+                      if cfg.skip_independent else np.ones(n, bool))
             for c in order:
                 if not active[c]:
                     continue
                 if not plans[c].ok:
                     self._restart(plans[c])
+                    self._store(c, plans[c])
                     if not plans[c].ok:
                         failures += 1
                         continue
@@ -409,6 +526,7 @@ class IBR:
                     continue
                 trust[c] = max(0.5 * trust[c], cfg.trust_weight)
                 plans[c] = new
+                self._store(c, new)
             changes.append(change)
             if change < cfg.tol:
                 converged = True
