@@ -1,39 +1,53 @@
 """Iterated best response (IBR) for N cars: the paper's game-theoretic baseline (Case IV).
 
 At every decision the IBR car predicts every car's trajectory over a short horizon (default
-2 s: ``K = 20`` stages of 0.1 s) and, for a fixed number of rounds (default 6), lets each car
-in turn compute its best response to the others' current predictions. Car i's best response
-maximises its relative progress, the env's utility summed over the horizon,
+2 s: ``K = 20`` stages of 0.1 s) and, for a fixed number of rounds (default 6, the paper's),
+lets each car in turn compute its best response to the others' current predictions. Car i's
+best response maximises its relative progress, the env's utility summed over the horizon,
 
     sum_k r_i^k = (s_i^K - max_{j != i} s_j^K) - (s_i^0 - max_{j != i} s_j^0),
 
 which, with the other cars' predicted trajectories fixed, is its own terminal progress
-``s_i^K``, minus small input-rate costs, subject to the same dynamics as the MPC (the RK4
-stage model of :mod:`agents.mpc`), input and steering-rate bounds, soft track edges and soft
-separation from *every* other car's predicted trajectory at every stage: per stage and car
-either ``|s_i - s_j| >= sep_s`` (progress, unwrapped) or ``|n_i - n_j| >= sep_n`` (lateral
-offset), whichever the nominal plan satisfies with the larger margin, on its side (the same
-rule as the MPC's; arc length and lateral offset are never mixed). The IBR car applies the
-first input of its own final plan.
+``s_i^K``, less small costs (input rates, lateral motion, slip), subject to the MPC's
+dynamics (the RK4 stage model of :mod:`agents.mpc`), input and steering-rate bounds, soft
+track edges and soft separation from *every* other car's predicted trajectory at every stage:
+per stage and car either ``|s_i - s_j| >= sep_s`` (progress, unwrapped) or
+``|n_i - n_j| >= sep_n`` (lateral offset), whichever the plan satisfies with the larger
+margin, on its side (the MPC's rule; arc length and lateral offset are never mixed). Rivals
+are ordered front to back and the IBR car answers last in every round; it applies the first
+input of its own final plan.
 
-Each best response is one SQP iteration of the RTI machinery of :class:`agents.mpc.MPC`:
-the car's plan (normalised inputs ``U`` (2, K)) is simulated by the compiled stage function,
-its condensed sensitivities ``G`` give the linearised progress and positions, and one dense
-QP in the input correction ``du`` is solved with DAQP:
+Each best response is one SQP iteration of the MPC's real-time-iteration machinery: the car's
+plan (normalised inputs ``U`` (2, K)) is simulated by the compiled stage function (K = 20 gets
+its own cached build), its condensed sensitivities give the linearised states, and one dense
+QP in the input correction ``du`` (2K,) is solved with DAQP (see
+:meth:`IBR._best_response`). The linear progress objective alone would make the QP a
+bang-bang step of arbitrary length, so it carries
 
-    min  -w_p G_s^K du + w_r ||D (u + du)||^2 + w_step ||du||^2
-    s.t. input box, steering rate (hard), track edges and separation (soft rows)
+* ``w_step ||du||^2`` and a trust region ``trust ||G du||^2`` on the change of the predicted
+  positions (strictly convex, bounded, and steps the linearisation can follow);
+* the second-order progress loss of lateral motion that the linear model misses (a stage
+  moving ``dn`` sideways over ``v dt`` loses about ``dn^2 / (2 v dt)``) and a cost on the body
+  lateral velocity ``vy`` (keeps plans out of slides whose linearisation is useless);
+* a merit check: a step that does not lower the best-response cost evaluated on the
+  *nonlinear* prediction is rejected, and that car's trust weight quadruples (halving back
+  towards ``trust_weight`` after accepted steps).
 
-The step cost ``w_step`` is the "mild regulariser": it keeps the QP strictly convex and
-bounded and acts as a trust region for the linearisation. Rounds re-linearise, so R rounds
-are R SQP iterations for every car, and the plans of one decision (shifted by one stage) warm
-start the next. A round stops the iteration early once no car's predicted positions moved by
-more than ``tol`` m (a fixed point: further rounds would repeat the same QPs). Rivals'
-previous steering is unknown, so their first-stage steering rate is left free.
+Rounds re-linearise, so R rounds are up to R SQP iterations per car, and the plans of one
+decision, shifted by one stage, warm start the next (a follower rollout starts a car without
+one, or whose shifted plan leaves the track). The rounds stop early once no step moved any
+predicted position by more than ``tol`` (further rounds would repeat the same QPs); cars
+whose plans cannot reach the IBR car's (no chain of plans within ``sep_window``) are not
+solved. Two robustness choices, both switchable: ``cautious`` also keeps every car clear of
+each other car going on at its present speed and lateral offset, and caps the progress of
+its predicted plan at that speed, since real rivals are not the best responders IBR assumes
+(without it IBR cars run into rivals that do not speed away or do not take the predicted
+side); rivals' previous steering is unknown, so their first steering step is free.
 
-Never raises on a failed QP: a car whose QP fails keeps its current plan (for the IBR car, at
-worst the shifted previous plan: a counted fallback). ``stats`` report per decision the
-rounds until the plans stopped changing, the solve times and fallbacks.
+Never raises on a failed QP: a car whose QP fails keeps its current plan; when every QP of
+the IBR car fails in a decision it applies its shifted previous plan (a counted fallback).
+``IBR.stats`` and ``IBR.last`` report per decision the rounds until the plans stopped
+changing, the decision and best-response times, failures and fallbacks.
 """
 from __future__ import annotations
 
@@ -98,7 +112,8 @@ class IBRConfig:
         if not (isinstance(self.slip_weight, (int, float)) and self.slip_weight >= 0):
             raise ValueError(f"IBRConfig.slip_weight must be >= 0, got {self.slip_weight!r}")
         for name in ("dt", "v_low", "tol", "progress_weight", "rate_weight", "step_weight",
-                     "trust_weight", "lateral_weight", "sep_s", "sep_n", "sep_window", "soft_rho", "restart_offtrack"):
+                     "trust_weight", "lateral_weight", "sep_s", "sep_n", "sep_window", "soft_rho",
+                     "restart_offtrack"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"IBRConfig.{name} must be a positive number, got {v!r}")
@@ -304,7 +319,14 @@ class IBR:
     last (for its steering-rate bound; None leaves the first steering step free). Returns the
     normalised input ``[throttle, steering]`` (2,) to apply now. Warm starts are kept per row,
     so keep the car order fixed within a race and call :meth:`reset` between races.
-    ``stats`` accumulates over decisions; ``last`` describes the last decision.
+
+    ``stats`` accumulates over decisions: counts ``decisions, fallbacks, restarts, br_solves,
+    br_failures, br_rejected, unconverged`` and per-decision deques ``decision_ms`` (wall
+    time), ``rounds`` (rounds run: until a round changed no predicted position by more than
+    ``tol``, or ``rounds``) and per-QP ``br_ms``. ``last`` describes the last decision:
+    ``rounds``, ``converged``, ``changes`` (largest position change [m] per round), ``ms``,
+    ``br_ms``, ``br_failures``, ``br_rejected``, ``fallback``, ``plans`` (N, 6, K) every car's
+    final predicted states at stages 1..K and ``inputs`` (N, 2, K) their normalised inputs.
     """
 
     def __init__(self, track: Track, vehicle: VehicleParams | None = None,
@@ -568,12 +590,13 @@ class IBRAgent:
 
     Keywords: any :class:`IBRConfig` field (``rounds=6, horizon=20, tol=...``) or a full
     ``config``; ``vehicle`` (:class:`VehicleParams`, assumed for every car); ``n_preview``,
-    the env's ``RaceConfig.n_preview`` (to read the observation layout). ``stats``: decisions,
-    fallbacks (decisions applying the shifted previous plan), restarts from a follower
-    rollout, best-response QPs and their failures, rounds until the plans stopped changing
-    (mean, max) and how many decisions did not converge within ``rounds``, and decision /
-    best-response times in ms (median, p99). ``ibr.last`` holds the last decision's record
-    (rounds, converged, times, every car's final plan).
+    the env's ``RaceConfig.n_preview`` (to read the observation layout). ``stats``: ``solves``
+    (decisions), ``fallbacks`` (decisions whose QPs all failed, applying the shifted previous
+    plan), ``restarts`` (plans restarted from a follower rollout), ``br_solves``,
+    ``br_failures``, ``br_rejected`` (best-response QPs, failed ones, steps the merit check
+    refused), ``rounds_mean``/``rounds_max`` (rounds until the plans stopped changing),
+    ``unconverged`` (decisions still changing after ``rounds``), ``decision_ms_median``/``_p99``
+    and ``br_ms_median``/``_p99`` (wall times). ``ibr.last`` holds the last decision's record.
     """
 
     def __init__(self, config: IBRConfig | None = None, vehicle: VehicleParams | None = None,
@@ -613,7 +636,7 @@ class IBRAgent:
         rounds = np.asarray(st["rounds"], dtype=float)
         return {"solves": st["decisions"], "fallbacks": st["fallbacks"],
                 "restarts": st["restarts"], "br_solves": st["br_solves"],
-                "br_failures": st["br_failures"],
+                "br_failures": st["br_failures"], "br_rejected": st["br_rejected"],
                 "rounds_mean": float(rounds.mean()) if rounds.size else float("nan"),
                 "rounds_max": int(rounds.max()) if rounds.size else 0,
                 "unconverged": st["unconverged"],
