@@ -209,3 +209,32 @@ def test_invalid_agent_arguments():
         agent.act(np.zeros(27))
     with pytest.raises(ValueError, match="shape \\(N, 6\\)"):
         agent.ibr.solve(np.zeros((2, 5)))
+
+
+# --------------------------------------------------------------------------- the race command
+def test_race_command_runs_ibr_against_mpc(tmp_path, capsys):
+    import json
+
+    from experiments.cli import main
+    out = tmp_path / "race"
+    assert main(["race", "--agents", "ibr", "mpc", "mpc", "--steps", "20", "--no-animation",
+                 "--out", str(out)]) == 0
+    assert "ibr" in capsys.readouterr().out
+    summary = json.loads((out / "result.json").read_text())
+    st = summary["agent_stats"][0]
+    assert st["solves"] == 20 and st["fallbacks"] == 0 and 1 <= st["rounds_mean"] <= 6
+
+
+@pytest.mark.slow
+def test_full_three_car_race_runs_cleanly(tmp_path):
+    """The issue's done-criterion: ``alpha-racer race --agents ibr mpc mpc`` (50 s)."""
+    import json
+
+    from experiments.cli import main
+    out = tmp_path / "race"
+    assert main(["race", "--agents", "ibr", "mpc", "mpc", "--no-animation", "--out", str(out)]) == 0
+    summary = json.loads((out / "result.json").read_text())
+    st = summary["agent_stats"][0]
+    assert st["solves"] == 500 and st["fallbacks"] == 0 and st["br_failures"] == 0
+    assert summary["progress_m"][0] > 2 * 38.0                      # over two laps in 50 s
+    assert summary["off_tracks"][0] <= 5 and sum(summary["contacts"]) <= 6
