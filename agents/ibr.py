@@ -80,7 +80,7 @@ class IBRConfig:
     v_low: float = 0.5            # slip regularisation of the prediction model [m/s]
     tol: float = 2e-3             # plans have stopped changing when no predicted (s, n) moves more [m]
     progress_weight: float = 10.0   # w_p: per m of terminal progress
-    rate_weight: float = 0.1      # w_r: input-rate cost sum_k ||u^k - u^{k-1}||^2
+    rate_weight: float = 1.0      # w_r: input-rate cost sum_k ||u^k - u^{k-1}||^2 (k = 0: the applied)
     step_weight: float = 2.0      # w_step: regulariser ||du||^2 of one best response
     trust_weight: float = 3.0     # w_tr: trust region sum_k ||d(s^k, n^k)||^2 on the change of
                                   # the predicted positions in one best response
@@ -164,11 +164,13 @@ def _condense_states(A, B, K):
 
 
 @njit(cache=True)
-def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window):
+def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window, length):
     """Near (stage, obstacle) pairs of car ``c``'s plan ``s, n`` (K,) [m] against the
     trajectories ``S, N`` (rows, K) of other cars (rows with ``owner != c`` and ``ok``), their
     progress capped at ``cap`` (rows, K): ``(stage (p,), lateral (p,), sign (p,), margin (p,))``.
-    Per pair the lateral
+    Progress differences are unwrapped differences shifted by whole laps ``length`` [m] to the
+    nearest image at the first stage (a lapped car beside this one is near, as in the env's
+    contact rule; nothing jumps at the start/finish line). Per pair the lateral
     separation ``sign * (n - n_j) >= sep_n`` where ``lateral``, else the longitudinal one
     ``sign * (s - s_j) >= sep_s`` (the rule of :func:`agents.mpc.separation_sides`: never a
     mix of progress and offset); ``margin = sign * gap - need`` is negative where violated."""
@@ -181,8 +183,9 @@ def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window):
     for j in range(cars):
         if owner[j] == c or not ok[j]:
             continue
+        lap = length * np.floor((s[0] - min(S[j, 0], cap[j, 0])) / length + 0.5)
         for k in range(K):
-            ds = s[k] - min(S[j, k], cap[j, k])
+            ds = s[k] - min(S[j, k], cap[j, k]) - lap
             if abs(ds) >= window:
                 continue
             dn = n[k] - N[j, k]
@@ -199,7 +202,7 @@ def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window):
 
 @njit(cache=True)
 def _assemble(X, x0, u, Gx, lo, hi, stage, lateral, sign, margin, H0, DtD, w_p, w_r, w_n, w_vy,
-              trust, rate, steer_prev, has_prev):
+              trust, rate, u_prev, has_prev):
     """The best-response QP of :meth:`IBR._best_response` in DAQP's form:
     ``(H, f, A, bu, bl, sense, w_lat)``: the first 2K bounds are the input box, then K hard
     steering-rate rows, K soft edge rows and one soft row per separation pair."""
@@ -228,6 +231,10 @@ def _assemble(X, x0, u, Gx, lo, hi, stage, lateral, sign, margin, H0, DtD, w_p, 
     f = M.T @ r + 2.0 * w_r * (DtD @ u)
     for i in range(nv):
         f[i] -= w_p * Gx[K - 1, 0, i]
+    if has_prev:                                        # the rate cost includes u^0 - u_applied
+        for i in range(2):
+            H[i, i] += 2.0 * w_r
+            f[i] += 2.0 * w_r * (u[i] - u_prev[i])
     # constraints
     A = np.zeros((2 * K + m, nv))
     bu = np.empty(nv + 2 * K + m)
@@ -242,7 +249,7 @@ def _assemble(X, x0, u, Gx, lo, hi, stage, lateral, sign, margin, H0, DtD, w_p, 
             A[k, 2 * k - 1] = -1.0
             d = u[2 * k + 1] - u[2 * k - 1]
         elif has_prev:
-            d = u[1] - steer_prev
+            d = u[1] - u_prev[1]
         else:
             d = 0.0
         free = k == 0 and not has_prev
@@ -266,9 +273,10 @@ def _assemble(X, x0, u, Gx, lo, hi, stage, lateral, sign, margin, H0, DtD, w_p, 
 
 
 @njit(cache=True)
-def _reach(S, ok, window):
+def _reach(S, ok, window, length):
     """Cars (bool (N,)) connected to car 0 through plans ``S`` (N, K) that come within
-    ``window`` of each other in progress at a common stage."""
+    ``window`` of each other in progress (nearest image over laps of ``length``) at a common
+    stage."""
     n, K = S.shape
     reach = np.zeros(n, np.bool_)
     reach[0] = True
@@ -281,8 +289,9 @@ def _reach(S, ok, window):
             for b in range(n):
                 if reach[b] or not ok[b]:
                     continue
+                lap = length * np.floor((S[a, 0] - S[b, 0]) / length + 0.5)
                 for k in range(K):
-                    if abs(S[a, k] - S[b, k]) < window:
+                    if abs(S[a, k] - S[b, k] - lap) < window:
                         reach[b] = True
                         grown = True
                         break
@@ -413,9 +422,10 @@ class IBR:
         step = np.maximum(np.diff(plan.X[0], prepend=plan.x0[0]), 0.05)
         return cfg.lateral_weight * cfg.progress_weight / (2.0 * step)
 
-    def _plan_merit(self, plan: _Plan, margin, w_lat) -> float:
+    def _plan_merit(self, plan: _Plan, margin, w_lat, u_prev) -> float:
         cfg = self.cfg
-        return _merit(plan.X[0], plan.X[1], plan.X[4], plan.x0[1], plan.U.T.reshape(-1),
+        first = 0.0 if u_prev is None else cfg.rate_weight * float(np.sum((plan.U[:, 0] - u_prev) ** 2))
+        return first + _merit(plan.X[0], plan.X[1], plan.X[4], plan.x0[1], plan.U.T.reshape(-1),
                       self._DtD, plan.lo, plan.hi, margin, cfg.progress_weight,
                       cfg.rate_weight, w_lat, cfg.slip_weight, 0.5 / cfg.soft_rho)
 
@@ -441,14 +451,14 @@ class IBR:
         cfg, K = self.cfg, self.cfg.horizon
         p = plans[c]
         S, N, cap, ok, owner = self._S_all, self._N_all, self._s_cap, self._ok, self._owner
-        sep = (cfg.sep_s, cfg.sep_n, cfg.sep_window)
+        sep = (cfg.sep_s, cfg.sep_n, cfg.sep_window, float(self.track.length))
         stage, lat, sign, margin = _separation_pairs(p.X[0], p.X[1], S, N, cap, ok, owner, c, *sep)
         Gx = _condense_states(np.ascontiguousarray(p.A), np.ascontiguousarray(p.B), K)
         u_vec = p.U.T.reshape(-1)
         H, f, A, bu, bl, sense, w_lat = _assemble(
             p.X, p.x0, u_vec, Gx, p.lo, p.hi, stage, lat, sign, margin, self._H0, self._DtD,
             cfg.progress_weight, cfg.rate_weight, cfg.lateral_weight, cfg.slip_weight, trust,
-            self._rate, 0.0 if u_prev is None else float(u_prev[1]), u_prev is not None)
+            self._rate, np.zeros(2) if u_prev is None else u_prev, u_prev is not None)
         du, _, exitflag, _ = daqp.solve(H, f, A, bu, bl, sense, rho_soft=cfg.soft_rho)
         if exitflag < 0 or not np.isfinite(du.sum()):
             return None, np.inf
@@ -461,7 +471,8 @@ class IBR:
             return None, np.inf
         change = float(np.abs(new.X[:2] - p.X[:2]).max())
         new_margin = _separation_pairs(new.X[0], new.X[1], S, N, cap, ok, owner, c, *sep)[3]
-        if self._plan_merit(new, new_margin, w_lat) > self._plan_merit(p, margin, w_lat):
+        if (self._plan_merit(new, new_margin, w_lat, u_prev)
+                > self._plan_merit(p, margin, w_lat, u_prev)):
             return None, change
         return new, change
 
@@ -517,7 +528,8 @@ class IBR:
         for r in range(cfg.rounds):
             rounds = r + 1
             change = 0.0
-            active = (_reach(self._S_all[:n], self._ok[:n], cfg.sep_window)
+            active = (_reach(self._S_all[:n], self._ok[:n], cfg.sep_window,
+                             float(self.track.length))
                       if cfg.skip_independent else np.ones(n, bool))
             for c in order:
                 if not active[c]:
@@ -544,7 +556,7 @@ class IBR:
                     ego_ok = True                           # the IBR car's own QP worked
                 if new is None:                             # no better: a shorter step next
                     rejected += 1
-                    trust[c] *= 4.0
+                    trust[c] = min(4.0 * trust[c], 1e6)
                     continue
                 trust[c] = max(0.5 * trust[c], cfg.trust_weight)
                 plans[c] = new

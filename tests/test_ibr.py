@@ -119,12 +119,19 @@ def test_every_car_separates_from_every_other_cars_plan():
     cap = np.full_like(S, np.inf)
     ok = np.ones(4, dtype=bool)
     owner = np.arange(4)
-    stage, lat, sign, margin = _separation_pairs(s, n, S, N, cap, ok, owner, 0, 0.15, 0.08, 2.0)
+    stage, lat, sign, margin = _separation_pairs(s, n, S, N, cap, ok, owner, 0, 0.15, 0.08, 2.0,
+                                                 40.0)
     assert len(stage) == 2 * K                              # cars 1 and 2, every stage
     np.testing.assert_allclose(margin[:K], 0.1 - 0.08)      # car 1: lateral, 2 cm to spare
     assert lat[:K].all() and (sign[:K] == -1).all()         # ... stay to its right
     np.testing.assert_allclose(margin[K:], 1.0 - 0.15)      # car 2: longitudinal, in front
     assert not lat[K:].any() and (sign[K:] == 1).all()
+    # a car a lap behind on unwrapped progress, physically 0.1 m ahead: near, and ahead
+    S[2] = 5.1 - 40.0
+    stage, lat, sign, margin = _separation_pairs(s, n, S, N, cap, ok, owner, 0, 0.15, 0.08, 2.0,
+                                                 40.0)
+    np.testing.assert_allclose(margin[K:], 0.1 - 0.15)      # 0.1 m apart, 0.15 m needed
+    assert not lat[K:].any() and (sign[K:] == -1).all()     # ... stay behind it
 
 
 def test_warm_start_is_the_shifted_previous_plan():
