@@ -1,0 +1,492 @@
+"""PPO self-play (the paper's RL baseline, appendix "Self-play RL training").
+
+``alpha-racer selfplay --out runs/selfplay`` trains one stable-baselines3 ``PPO`` agent per car
+by iterated self-play: the cars take turns learning, car ``turn mod n_cars`` for
+``steps_per_turn`` env steps, while every other car is frozen at its latest policy. The
+learning env is the registered Gymnasium env ``alpha_racer/HeadToHead-v0`` (one learner,
+opponents embedded) vectorised over ``n_envs`` races; ``vec_env="batched"`` (default) runs the
+same env as :class:`racing_env.vec_env.HeadToHeadVecEnv` (all races in one compiled step,
+frozen opponents as batched numpy policies, race for race identical to ``HeadToHeadEnv``),
+``"dummy"`` / ``"subproc"`` wrap ``gymnasium.make`` in SB3's ``DummyVecEnv`` /
+``SubprocVecEnv``. Observations are normalised by SB3's ``VecNormalize`` (saved with every
+checkpoint and used by the ``ppo`` agent); the reward is the env's relative progress
+(change of ``s_i - max_{j != i} s_j``), normalised for the learner by ``VecNormalize``.
+
+Defaults are the paper's: 3 cars, 33 cycles, 100k steps per turn, batch 1024, 5 epochs,
+learning rate 5e-4, gamma 0.99, 8 parallel envs; the rest is SB3's standard PPO (rollouts of
+``n_steps = 2048`` per env, GAE 0.95, clip 0.2, a 64-64 tanh MLP). A turn trains whole
+rollouts, so it takes ``ceil(steps_per_turn / (n_steps n_envs))`` of them.
+
+Curriculum (``warmup_opponent``): a car that has not had a turn yet has no policy worth
+racing; with ``"raceline"`` (default) it is driven by a raceline follower until its first
+turn (so car 0's first turn is against raceline followers, car 1's against car 0 and a
+follower, ...); with ``"initial"`` it is its randomly initialised policy, as in plain self-play.
+
+Output folder::
+
+    config.json           schema version and the SelfPlayConfig (a resume must match it)
+    state.json            progress: turn, steps, latest checkpoint of each car, evaluations
+    checkpoints/          turn_TTT_car_K.zip at every turn end; in-turn checkpoints
+                          (every ``checkpoint_every`` rollouts) until their turn is done
+    logs/car_K/           TensorBoard event files and CSVs of SB3's logger, per car
+    logs/eval/            TensorBoard scalars of the evaluations (x = total env steps)
+    evals.csv             per turn: the trained car alone on the track for ``max_cycles``
+                          steps from ``eval_races`` fixed starts: distance [m], off-track
+                          fraction; its training episode return against the frozen cars
+    learning_curve.png    those figures over training (with the MPC reference, if measured)
+    final/car_K.zip       every car's last policy; best.zip the one that drives furthest
+                          alone with under 5% off-track steps (else furthest)
+    summary.json          the closing figures: steps, time, throughput, final evaluations
+
+Every checkpoint is one zip (see :mod:`agents.ppo_agent`) holding the PPO model, the
+VecNormalize statistics and this config. A killed run resumes from its latest checkpoint
+(``alpha-racer selfplay --out DIR`` again, same settings): finished turns are kept and an
+unfinished turn continues from its last in-turn checkpoint.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import shutil
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+SCHEMA_VERSION = 1
+VEC_ENVS = ("batched", "dummy", "subproc")
+WARMUP_OPPONENTS = ("raceline", "initial")
+RACELINE_MU = (0.75, 0.8, 0.85, 0.7, 0.9, 0.65, 0.95)
+"""Friction of the raceline followers standing in for untrained cars, by opponent slot."""
+OFFTRACK_BAR = 0.05
+
+
+@dataclass(frozen=True)
+class SelfPlayConfig:
+    """What to train. Defaults: the paper's schedule and PPO settings."""
+
+    n_cars: int = 3
+    cycles: int = 33
+    steps_per_turn: int = 100_000
+    n_envs: int = 8
+    batch_size: int = 1024
+    n_epochs: int = 5
+    learning_rate: float = 5e-4
+    gamma: float = 0.99
+    n_steps: int = 2048
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    ent_coef: float = 0.0
+    net_arch: tuple = (64, 64)
+    track: str = "default"
+    max_cycles: int = 500
+    start: str = "regions"
+    seed: int = 0
+    vec_env: str = "batched"
+    warmup_opponent: str = "raceline"
+    norm_reward: bool = True
+    checkpoint_every: int = 1
+    eval_races: int = 3
+    mpc_reference: bool = True
+
+    def __post_init__(self):
+        object.__setattr__(self, "net_arch", tuple(self.net_arch))
+        for name in ("cycles", "steps_per_turn", "n_envs", "batch_size", "n_epochs", "n_steps",
+                     "max_cycles", "checkpoint_every", "eval_races"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1):
+                raise ValueError(f"SelfPlayConfig.{name} must be a positive integer, got {v!r}")
+        if not (isinstance(self.n_cars, (int, np.integer)) and 2 <= self.n_cars <= 8):
+            raise ValueError(f"SelfPlayConfig.n_cars must be an integer in 2..8, got {self.n_cars!r}")
+        for name, lo, hi in (("learning_rate", 0.0, 1.0), ("gamma", 0.0, 1.0),
+                             ("gae_lambda", 0.0, 1.0), ("clip_range", 0.0, 10.0)):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and lo < v <= hi):
+                raise ValueError(f"SelfPlayConfig.{name} must be in ({lo}, {hi}], got {v!r}")
+        if not (isinstance(self.ent_coef, (int, float)) and self.ent_coef >= 0):
+            raise ValueError(f"SelfPlayConfig.ent_coef must be >= 0, got {self.ent_coef!r}")
+        if self.batch_size > self.n_steps * self.n_envs:
+            raise ValueError(f"SelfPlayConfig.batch_size {self.batch_size} exceeds a rollout of "
+                             f"n_steps * n_envs = {self.n_steps * self.n_envs} steps")
+        if not self.net_arch or not all(isinstance(h, (int, np.integer)) and h >= 1 for h in self.net_arch):
+            raise ValueError(f"SelfPlayConfig.net_arch must be positive layer widths, got {self.net_arch!r}")
+        if self.vec_env not in VEC_ENVS:
+            raise ValueError(f"SelfPlayConfig.vec_env must be one of {VEC_ENVS}, got {self.vec_env!r}")
+        if self.warmup_opponent not in WARMUP_OPPONENTS:
+            raise ValueError(f"SelfPlayConfig.warmup_opponent must be one of {WARMUP_OPPONENTS}, "
+                             f"got {self.warmup_opponent!r}")
+        from racing_env.config import START_MODES
+        if self.start not in START_MODES:
+            raise ValueError(f"SelfPlayConfig.start must be one of {START_MODES}, got {self.start!r}")
+
+    @property
+    def turns(self) -> int:
+        return self.cycles * self.n_cars
+
+    @property
+    def rollout(self) -> int:
+        return self.n_steps * self.n_envs
+
+    @property
+    def steps_per_turn_actual(self) -> int:
+        """Env steps of one turn: whole rollouts."""
+        return math.ceil(self.steps_per_turn / self.rollout) * self.rollout
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["net_arch"] = list(self.net_arch)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SelfPlayConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unknown SelfPlayConfig fields {sorted(unknown)}")
+        return cls(**d)
+
+
+# ---------------------------------------------------------------------- small file helpers
+def _write_json(path: Path, obj) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2))
+    os.replace(tmp, path)
+
+
+def _write_manifest(out: Path, cfg: SelfPlayConfig) -> None:
+    manifest = out / "config.json"
+    meta = {"schema_version": SCHEMA_VERSION, "config": cfg.to_dict()}
+    if manifest.exists():
+        old = json.loads(manifest.read_text())
+        if old != meta:
+            raise ValueError(f"{out} holds a run of another configuration ({old.get('config')}); "
+                             f"use another --out or the same settings to resume")
+        return
+    _write_json(manifest, meta)
+
+
+def _new_state(cfg: SelfPlayConfig) -> dict:
+    return {"turn": 0, "turn_steps": 0, "current": None, "total_steps": 0,
+            "train_seconds": 0.0, "cars": [None] * cfg.n_cars, "trained_turns": [0] * cfg.n_cars,
+            "evals": [], "train_curve": [], "mpc_reference": None, "done": False}
+
+
+# ---------------------------------------------------------------------- envs and opponents
+def race_config(cfg: SelfPlayConfig):
+    from racing_env import RaceConfig, StartConfig
+    return RaceConfig(n_cars=cfg.n_cars, max_cycles=cfg.max_cycles, start=StartConfig(mode=cfg.start))
+
+
+def make_learning_env(cfg: SelfPlayConfig, opponents: list, seed: int):
+    """The learner's vectorised env (before VecMonitor / VecNormalize), seeded."""
+    import copy
+    if cfg.vec_env == "batched":
+        from racing_env.vec_env import HeadToHeadVecEnv
+        venv = HeadToHeadVecEnv(cfg.n_envs, opponents=opponents, track=cfg.track,
+                                config=race_config(cfg))
+    else:
+        import gymnasium as gym
+        from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+        import racing_env  # noqa: F401  registers the env
+        from racing_env.registration import ENV_ID
+
+        def make(i):
+            opps = [copy.deepcopy(o) for o in opponents]
+            return lambda: gym.make(ENV_ID, opponents=opps, track=cfg.track, config=race_config(cfg))
+        fns = [make(i) for i in range(cfg.n_envs)]
+        venv = DummyVecEnv(fns) if cfg.vec_env == "dummy" else SubprocVecEnv(fns, start_method="fork")
+    venv.seed(seed)
+    return venv
+
+
+def frozen_policy(path):
+    """The policy of a checkpoint as a batched agent (:class:`agents.ppo_agent.FrozenPolicy`)."""
+    from agents.ppo_agent import FrozenPolicy, PPOAgent
+    agent = PPOAgent(checkpoint=path)
+    if agent.layers is not None:
+        agent.policy = None           # numpy actor only: light to copy into worker processes
+    return agent
+
+
+def _opponents(cfg: SelfPlayConfig, out: Path, state: dict, car: int) -> tuple[list, list[str]]:
+    from racing_env.controllers import RacelineFollower
+    opps, names = [], []
+    for slot, k in enumerate(j for j in range(cfg.n_cars) if j != car):
+        if state["trained_turns"][k] == 0 and cfg.warmup_opponent == "raceline":
+            mu = RACELINE_MU[slot % len(RACELINE_MU)]
+            opps.append(RacelineFollower(mu=mu))
+            names.append(f"raceline:mu={mu}")
+        else:
+            opps.append(frozen_policy(out / state["cars"][k]))
+            names.append(f"car_{k}@{state['trained_turns'][k]}turns")
+    return opps, names
+
+
+# ---------------------------------------------------------------------- evaluation
+def evaluate_solo(agent, cfg: SelfPlayConfig, races: int | None = None) -> dict:
+    """The agent alone on the track for ``max_cycles`` steps from ``races`` fixed starts
+    (seeds 0..races-1): mean distance [m] and fraction of steps off track."""
+    from racing_env import RacingParallelEnv
+    races = races or cfg.eval_races
+    env = RacingParallelEnv(track=cfg.track, n_cars=1, max_cycles=cfg.max_cycles, start=cfg.start)
+    dist, off = [], []
+    for seed in range(races):
+        obs, _ = env.reset(seed=seed)
+        agent.reset(env.track, "car_0", seed)
+        while env.agents:
+            obs, *_ = env.step({"car_0": agent.act(obs["car_0"])})
+        dist.append(float(env.core.progress()[0, 0]))
+        off.append(float(env.core.offtracks[0, 0]) / cfg.max_cycles)
+    return {"distance_m": float(np.mean(dist)), "off_track_frac": float(np.mean(off)),
+            "distance_per_race": dist}
+
+
+def mpc_reference(cfg: SelfPlayConfig) -> dict:
+    """The fixed-parameter MPC agent (``mpc``) alone, as :func:`evaluate_solo` measures."""
+    from agents.mpc_agent import MPCAgent
+    return evaluate_solo(MPCAgent(), cfg)
+
+
+# ---------------------------------------------------------------------- SB3 callbacks
+def _callbacks(cfg, out: Path, state: dict, turn: int, car: int, bar, turn_start_steps: int):
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class SelfPlayCheckpoint(BaseCallback):
+        """Every ``checkpoint_every`` rollouts (after the policy update): checkpoint the
+        learner with its VecNormalize and config, then record it in ``state.json``."""
+
+        def _on_rollout_start(self) -> None:
+            steps = self.model.num_timesteps - turn_start_steps
+            if steps - state["turn_steps"] < cfg.checkpoint_every * cfg.rollout:
+                return
+            path = out / "checkpoints" / "partial" / f"turn_{turn:03d}_car_{car}_{steps:09d}.zip"
+            _save(self.model, cfg, state, path, car, turn, steps)
+            old = state["current"]
+            _advance_state(state, steps)
+            state["current"] = str(path.relative_to(out))
+            _write_json(out / "state.json", state)
+            if old and old != state["current"]:
+                (out / old).unlink(missing_ok=True)     # superseded in-turn checkpoint
+
+        def _on_rollout_end(self) -> None:
+            buf = self.model.ep_info_buffer
+            if buf:
+                state["train_curve"].append({
+                    "turn": turn, "car": car, "total_steps": state["total_steps"]
+                    + self.model.num_timesteps - turn_start_steps - state["turn_steps"],
+                    "ep_rew_mean": float(np.mean([e["r"] for e in buf]))})
+
+        def _on_step(self) -> bool:
+            bar.update(self.training_env.num_envs)
+            return True
+
+    return SelfPlayCheckpoint()
+
+
+def _advance_state(state: dict, turn_steps: int) -> None:
+    """Count steps done in the current turn (``turn_steps`` in total so far)."""
+    state["total_steps"] += turn_steps - state["turn_steps"]
+    state["turn_steps"] = turn_steps
+
+
+def _save(model, cfg, state, path: Path, car: int, turn: int, turn_steps: int, evaluation=None):
+    from agents.ppo_agent import save_checkpoint
+    meta = {"n_cars": cfg.n_cars, "n_preview": race_config(cfg).n_preview, "track": cfg.track,
+            "car": car, "turn": turn, "cycle": turn // cfg.n_cars, "turn_steps": turn_steps,
+            "car_timesteps": int(model.num_timesteps), "trained_turns": state["trained_turns"][car],
+            "selfplay_config": cfg.to_dict(), "race_config": race_config(cfg).to_dict(),
+            "evaluation": evaluation, "saved": time.strftime("%Y-%m-%d %H:%M:%S")}
+    return save_checkpoint(model, model.get_vec_normalize_env(), path, meta)
+
+
+# ---------------------------------------------------------------------- outputs
+def write_evals_csv(out: Path, state: dict) -> None:
+    path = out / "evals.csv"
+    tmp = path.with_suffix(".csv.tmp")
+    keys = ["turn", "cycle", "car", "total_steps", "train_seconds", "distance_m", "off_track_frac",
+            "train_ep_return_m", "distance_vs_mpc"]
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, keys, extrasaction="ignore")
+        w.writeheader()
+        for e in state["evals"]:
+            w.writerow(e)
+    os.replace(tmp, path)
+
+
+def plot_learning_curve(out: Path, state: dict, cfg: SelfPlayConfig) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
+    ref = state.get("mpc_reference")
+    for car in range(cfg.n_cars):
+        ev = [e for e in state["evals"] if e["car"] == car]
+        tc = [e for e in state["train_curve"] if e["car"] == car]
+        if ev:
+            x = [e["total_steps"] for e in ev]
+            axes[0].plot(x, [e["distance_m"] for e in ev], "o-", label=f"car {car}")
+            axes[1].plot(x, [100 * e["off_track_frac"] for e in ev], "o-", label=f"car {car}")
+        if tc:
+            axes[2].plot([e["total_steps"] for e in tc], [e["ep_rew_mean"] for e in tc], ".-",
+                         lw=0.8, label=f"car {car} (learning)")
+    if ref:
+        axes[0].axhline(ref["distance_m"], color="k", ls="--", lw=1, label="MPC alone")
+        axes[0].axhline(0.8 * ref["distance_m"], color="k", ls=":", lw=1, label="80% of MPC")
+    axes[1].axhline(100 * OFFTRACK_BAR, color="k", ls=":", lw=1, label="5%")
+    axes[0].set_ylabel(f"distance alone in {cfg.max_cycles / 10:.0f} s [m]")
+    axes[1].set_ylabel("off-track steps alone [%]")
+    axes[2].set_ylabel("training episode return [m]\n(relative progress vs frozen cars)")
+    axes[2].set_xlabel("total env steps (all cars)")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="best")
+    axes[0].set_title(f"PPO self-play: {cfg.n_cars} cars, {cfg.cycles} cycles x "
+                      f"{cfg.steps_per_turn_actual} steps per turn")
+    fig.tight_layout()
+    path = out / "learning_curve.png"
+    tmp = out / "learning_curve.tmp.png"
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+# ---------------------------------------------------------------------- the pipeline
+def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns: int | None = None) -> dict:
+    """Train (or resume) the self-play run in ``out_dir``; returns the summary.
+
+    ``max_turns`` stops after that many turns in this call (the run stays resumable).
+    """
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import CSVOutputFormat, Logger, make_output_format
+    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+
+    from agents.ppo_agent import load_vecnormalize
+
+    torch.set_num_threads(1)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for sub in ("checkpoints/partial", "logs", "final"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    _write_manifest(out, cfg)
+    state_path = out / "state.json"
+    state = json.loads(state_path.read_text()) if state_path.exists() else _new_state(cfg)
+    if cfg.mpc_reference and state["mpc_reference"] is None:
+        state["mpc_reference"] = mpc_reference(cfg)
+        _write_json(state_path, state)
+    eval_logger = Logger(str(out / "logs" / "eval"), [make_output_format("tensorboard", str(out / "logs" / "eval"))])
+
+    total = cfg.turns * cfg.steps_per_turn_actual
+    bar = tqdm(total=total, initial=state["total_steps"], unit="step", desc="selfplay",
+               disable=not progress_bar, smoothing=0.05, dynamic_ncols=True)
+    turns_run = 0
+    while state["turn"] < cfg.turns and (max_turns is None or turns_run < max_turns):
+        turn = state["turn"]
+        car = turn % cfg.n_cars
+        opponents, names = _opponents(cfg, out, state, car)
+        seed = int(np.random.SeedSequence([cfg.seed, turn, state["turn_steps"]]).generate_state(1)[0] % 2 ** 31)
+        venv = VecMonitor(make_learning_env(cfg, opponents, seed))
+        resume_from = state["current"] or state["cars"][car]
+        if resume_from:
+            model = PPO.load(out / resume_from, env=None, device="cpu")
+            vecnorm = load_vecnormalize(out / resume_from)
+            vecnorm.set_venv(venv)
+            vecnorm.training = True
+            model.set_env(vecnorm)
+        else:
+            vecnorm = VecNormalize(venv, gamma=cfg.gamma, norm_reward=cfg.norm_reward)
+            model = PPO("MlpPolicy", vecnorm, learning_rate=cfg.learning_rate, n_steps=cfg.n_steps,
+                        batch_size=cfg.batch_size, n_epochs=cfg.n_epochs, gamma=cfg.gamma,
+                        gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, ent_coef=cfg.ent_coef,
+                        policy_kwargs={"net_arch": list(cfg.net_arch)}, seed=cfg.seed + car,
+                        device="cpu", verbose=0)
+        model.set_random_seed(seed)
+        venv.seed(seed)
+        model.ep_info_buffer = None                      # episode stats of this turn only
+        log_dir = out / "logs" / f"car_{car}"
+        log_dir.mkdir(parents=True, exist_ok=True)
+        model.set_logger(Logger(str(log_dir), [
+            make_output_format("tensorboard", str(log_dir)),
+            CSVOutputFormat(str(log_dir / f"progress_turn{turn:03d}_{state['turn_steps']:09d}.csv"))]))
+        turn_start = model.num_timesteps - state["turn_steps"]
+        bar.set_postfix_str(f"turn {turn + 1}/{cfg.turns} car {car} vs {', '.join(names)}")
+        callback = _callbacks(cfg, out, state, turn, car, bar, turn_start)
+        remaining = cfg.steps_per_turn_actual - state["turn_steps"]
+        t0 = time.perf_counter()
+        if remaining > 0:
+            model.learn(total_timesteps=remaining, reset_num_timesteps=False, callback=callback)
+        seconds = time.perf_counter() - t0
+        venv.close()
+        # turn end: checkpoint, evaluation, state, outputs
+        _advance_state(state, model.num_timesteps - turn_start)
+        state["train_seconds"] += seconds
+        state["trained_turns"][car] += 1
+        path = out / "checkpoints" / f"turn_{turn:03d}_car_{car}.zip"
+        _save(model, cfg, state, path, car, turn, state["turn_steps"])
+        evaluation = evaluate_solo(frozen_policy(path), cfg)
+        _save(model, cfg, state, path, car, turn, state["turn_steps"], evaluation)
+        ep = [e["ep_rew_mean"] for e in state["train_curve"] if e["turn"] == turn]
+        ref = state["mpc_reference"]
+        row = {"turn": turn, "cycle": turn // cfg.n_cars, "car": car, "total_steps": state["total_steps"],
+               "train_seconds": round(state["train_seconds"], 1),
+               "distance_m": round(evaluation["distance_m"], 3),
+               "off_track_frac": round(evaluation["off_track_frac"], 4),
+               "train_ep_return_m": round(ep[-1], 3) if ep else None,
+               "distance_vs_mpc": round(evaluation["distance_m"] / ref["distance_m"], 4) if ref else None}
+        state["evals"].append(row)
+        old_current = state["current"]
+        state["cars"][car] = str(path.relative_to(out))
+        state["current"] = None
+        state["turn"] += 1
+        state["turn_steps"] = 0
+        _write_json(state_path, state)
+        if old_current and (out / old_current).exists() and old_current != state["cars"][car]:
+            (out / old_current).unlink()
+        for key in ("distance_m", "off_track_frac", "distance_vs_mpc", "train_ep_return_m"):
+            if row[key] is not None:
+                eval_logger.record(f"eval_car_{car}/{key}", row[key])
+        eval_logger.dump(step=state["total_steps"])
+        write_evals_csv(out, state)
+        plot_learning_curve(out, state, cfg)
+        bar.write(f"turn {turn + 1}/{cfg.turns} car {car}: {state['total_steps']} steps, "
+                  f"alone {row['distance_m']:.1f} m"
+                  + (f" ({100 * row['distance_vs_mpc']:.0f}% of MPC)" if ref else "")
+                  + f", off track {100 * row['off_track_frac']:.1f}%"
+                  + (f", training return {row['train_ep_return_m']:.2f} m" if ep else ""))
+        turns_run += 1
+    bar.close()
+    eval_logger.close()
+    return finish(cfg, out, state)
+
+
+def finish(cfg: SelfPlayConfig, out: Path, state: dict) -> dict:
+    """Copy the final policies, pick ``best.zip``, write ``summary.json`` (also for a partial run)."""
+    last = {}
+    for e in state["evals"]:
+        last[e["car"]] = e
+    for car, path in enumerate(state["cars"]):
+        if path:
+            shutil.copyfile(out / path, out / "final" / f"car_{car}.zip")
+    best = None
+    if last:
+        ok = [e for e in last.values() if e["off_track_frac"] < OFFTRACK_BAR] or list(last.values())
+        best = max(ok, key=lambda e: e["distance_m"])
+        shutil.copyfile(out / state["cars"][best["car"]], out / "best.zip")
+    state["done"] = state["turn"] >= cfg.turns
+    summary = {"done": state["done"], "turns": state["turn"], "total_steps": state["total_steps"],
+               "train_seconds": round(state["train_seconds"], 1),
+               "steps_per_s": round(state["total_steps"] / state["train_seconds"], 1) if state["train_seconds"] else None,
+               "mpc_reference": state["mpc_reference"], "final": last,
+               "best": None if best is None else {"car": best["car"], "path": "best.zip", **best},
+               "out": str(out)}
+    _write_json(out / "state.json", state)
+    _write_json(out / "summary.json", summary)
+    return summary
