@@ -160,8 +160,9 @@ class FrozenPolicy:
         self.norm = None
         if vec_normalize is not None and getattr(vec_normalize, "norm_obs", False):
             rms = vec_normalize.obs_rms
-            self.norm = (rms.mean.astype(np.float64), np.sqrt(rms.var + vec_normalize.epsilon),
-                         float(vec_normalize.clip_obs))
+            self.norm = (rms.mean.astype(np.float32),
+                         (1.0 / np.sqrt(rms.var + vec_normalize.epsilon)).astype(np.float32),
+                         np.float32(vec_normalize.clip_obs))
         self.layers = _numpy_actor(policy)
         self.track_length = None
 
@@ -171,26 +172,33 @@ class FrozenPolicy:
         self.agent_id = agent_id
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
-        if self.norm is None:
-            return np.asarray(obs, dtype=np.float32)
-        mean, std, clip = self.norm
-        return np.clip((obs - mean) / std, -clip, clip).astype(np.float32)
+        """VecNormalize's observation normalisation (clipped standard score), float32."""
+        x = np.array(obs, dtype=np.float32)
+        if self.norm is not None:
+            mean, inv_std, clip = self.norm
+            x -= mean
+            x *= inv_std
+            np.minimum(x, clip, out=x)
+            np.maximum(x, -clip, out=x)
+        return x
 
     def act_batch(self, observations: np.ndarray) -> np.ndarray:
         """Actions (B, 2) float32 for observations (B, D) in this policy's layout."""
-        x = self.normalize(np.asarray(observations, dtype=np.float32))
+        h = self.normalize(observations)
         if self.layers is None:
-            a, _ = self.policy.predict(x, deterministic=True)
+            a, _ = self.policy.predict(h, deterministic=True)
             return np.clip(a, -1.0, 1.0).astype(np.float32)
-        h = x.astype(np.float32)
         for kind, w, b in self.layers:
             if kind == "linear":
-                h = h @ w + b
+                h = h @ w
+                h += b
             elif kind == "tanh":
-                h = np.tanh(h)
+                np.tanh(h, out=h)
             else:  # relu
-                h = np.maximum(h, 0.0)
-        return np.clip(h, -1.0, 1.0).astype(np.float32)
+                np.maximum(h, 0.0, out=h)
+        np.minimum(h, 1.0, out=h)
+        np.maximum(h, -1.0, out=h)
+        return h
 
     def act(self, observation) -> np.ndarray:
         if self.track_length is None:

@@ -77,7 +77,8 @@ def _cmd_selfplay(args) -> int:
                          track=args.track, max_cycles=args.race_steps, seed=args.seed,
                          vec_env=args.vec_env, warmup_opponent=args.warmup_opponent,
                          checkpoint_every=args.checkpoint_every, eval_races=args.eval_races,
-                         mpc_reference=not args.no_mpc_reference)
+                         mpc_reference=not args.no_mpc_reference, init=args.init,
+                         bc_steps=args.bc_steps)
     s = selfplay(cfg, args.out, max_turns=args.max_turns)
     print(f"{s['turns']}/{cfg.turns} turns, {s['total_steps']} env steps in {s['train_seconds']:.0f} s "
           f"of training ({s['steps_per_s']} steps/s) -> {s['out']}")
@@ -154,6 +155,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--vec-env", choices=["batched", "dummy", "subproc"], default="batched")
     sp.add_argument("--warmup-opponent", choices=["raceline", "initial"], default="raceline",
                     help="who drives a car before its first turn")
+    sp.add_argument("--init", choices=["random", "bc"], default="random",
+                    help="a car's policy before its first turn: random (plain self-play) or "
+                         "behaviour-cloned from the raceline follower")
+    sp.add_argument("--bc-steps", type=int, default=50_000, help="expert samples for --init bc")
     sp.add_argument("--checkpoint-every", type=int, default=1, help="rollouts between in-turn checkpoints")
     sp.add_argument("--eval-races", type=int, default=3, help="solo evaluation races after each turn")
     sp.add_argument("--no-mpc-reference", action="store_true", help="skip measuring the MPC alone")

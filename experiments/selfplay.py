@@ -60,6 +60,7 @@ from tqdm import tqdm
 SCHEMA_VERSION = 1
 VEC_ENVS = ("batched", "dummy", "subproc")
 WARMUP_OPPONENTS = ("raceline", "initial")
+INITS = ("random", "bc")
 RACELINE_MU = (0.75, 0.8, 0.85, 0.7, 0.9, 0.65, 0.95)
 """Friction of the raceline followers standing in for untrained cars, by opponent slot."""
 OFFTRACK_BAR = 0.05
@@ -92,11 +93,18 @@ class SelfPlayConfig:
     checkpoint_every: int = 1
     eval_races: int = 3
     mpc_reference: bool = True
+    init: str = "random"
+    bc_steps: int = 50_000
+    bc_rounds: int = 3
+    bc_epochs: int = 10
+    bc_noise: float = 0.3
+    bc_log_std: float = -1.0
 
     def __post_init__(self):
         object.__setattr__(self, "net_arch", tuple(self.net_arch))
         for name in ("cycles", "steps_per_turn", "n_envs", "batch_size", "n_epochs", "n_steps",
-                     "max_cycles", "checkpoint_every", "eval_races"):
+                     "max_cycles", "checkpoint_every", "eval_races", "bc_steps", "bc_rounds",
+                     "bc_epochs"):
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1):
                 raise ValueError(f"SelfPlayConfig.{name} must be a positive integer, got {v!r}")
@@ -119,6 +127,12 @@ class SelfPlayConfig:
         if self.warmup_opponent not in WARMUP_OPPONENTS:
             raise ValueError(f"SelfPlayConfig.warmup_opponent must be one of {WARMUP_OPPONENTS}, "
                              f"got {self.warmup_opponent!r}")
+        if self.init not in INITS:
+            raise ValueError(f"SelfPlayConfig.init must be one of {INITS}, got {self.init!r}")
+        if not (isinstance(self.bc_noise, (int, float)) and 0 <= self.bc_noise <= 2):
+            raise ValueError(f"SelfPlayConfig.bc_noise must be in [0, 2], got {self.bc_noise!r}")
+        if not (isinstance(self.bc_log_std, (int, float)) and -5 <= self.bc_log_std <= 1):
+            raise ValueError(f"SelfPlayConfig.bc_log_std must be in [-5, 1], got {self.bc_log_std!r}")
         from racing_env.config import START_MODES
         if self.start not in START_MODES:
             raise ValueError(f"SelfPlayConfig.start must be one of {START_MODES}, got {self.start!r}")
@@ -172,7 +186,7 @@ def _write_manifest(out: Path, cfg: SelfPlayConfig) -> None:
 def _new_state(cfg: SelfPlayConfig) -> dict:
     return {"turn": 0, "turn_steps": 0, "current": None, "total_steps": 0,
             "train_seconds": 0.0, "cars": [None] * cfg.n_cars, "trained_turns": [0] * cfg.n_cars,
-            "evals": [], "train_curve": [], "mpc_reference": None, "done": False}
+            "evals": [], "train_curve": [], "mpc_reference": None, "bc_init": None, "done": False}
 
 
 # ---------------------------------------------------------------------- envs and opponents
@@ -252,6 +266,73 @@ def mpc_reference(cfg: SelfPlayConfig) -> dict:
     return evaluate_solo(MPCAgent(), cfg)
 
 
+# ---------------------------------------------------------------------- behaviour cloning
+def behaviour_cloning(model, cfg: SelfPlayConfig, seed: int) -> dict:
+    """``init="bc"``: pretrain the PPO actor to imitate the raceline follower (DAgger).
+
+    Round 0 collects ``bc_steps`` learner steps in the learning env (raceline-follower
+    opponents) with the learner driven by a raceline follower (friction 0.85) whose actions
+    are perturbed by Gaussian noise of std ``bc_noise``; rounds 1 .. ``bc_rounds - 1`` let the
+    cloned policy drive (same noise) so the data holds the states it gets itself into. Every
+    step is labelled with the follower's action for that state. After each round the model's
+    ``VecNormalize`` observation statistics are updated and the actor (policy MLP + action
+    head) is fitted to all data so far by mean squared error for ``bc_epochs`` epochs (Adam,
+    lr 1e-3, batch ``batch_size``). The critic stays as initialised; the action log-std is set
+    to ``bc_log_std``. Returns the number of samples and the final fit error.
+    """
+    import torch
+    from agents.ppo_agent import FrozenPolicy
+    from racing_env.controllers import RacelineFollower
+    from racing_env.vec_env import HeadToHeadVecEnv
+
+    rng = np.random.default_rng(seed)
+    opps = [RacelineFollower(mu=RACELINE_MU[k % len(RACELINE_MU)]) for k in range(cfg.n_cars - 1)]
+    env = HeadToHeadVecEnv(cfg.n_envs, opponents=opps, track=cfg.track, config=race_config(cfg))
+    env.seed(int(rng.integers(2 ** 31)))
+    expert = RacelineFollower(mu=0.85)
+    expert.reset(env.track, "car_0")
+    vecnorm = model.get_vec_normalize_env()
+    policy = model.policy
+    params = list(policy.mlp_extractor.policy_net.parameters()) + list(policy.action_net.parameters())
+    opt = torch.optim.Adam(params, lr=1e-3)
+    gen = torch.Generator().manual_seed(seed)
+
+    def actor(xb):
+        return policy.action_net(policy.mlp_extractor.forward_actor(
+            policy.extract_features(xb, policy.pi_features_extractor)))
+
+    xs, ys = [], []
+    obs = env.reset()
+    for rnd in range(cfg.bc_rounds):
+        driver = None if rnd == 0 else FrozenPolicy(policy, vecnorm, n_cars=cfg.n_cars,
+                                                    n_preview=race_config(cfg).n_preview)
+        for _ in range(math.ceil(cfg.bc_steps / cfg.n_envs)):
+            target = np.array([expert.act(o) for o in obs], dtype=np.float32)
+            xs.append(obs)
+            ys.append(target)
+            act = target if driver is None else driver.act_batch(obs)
+            act = np.clip(act + rng.normal(0.0, cfg.bc_noise, act.shape), -1.0, 1.0)
+            obs, _, _, _ = env.step(act.astype(np.float32))
+        x, y = np.concatenate(xs), np.concatenate(ys)
+        vecnorm.obs_rms.update(np.concatenate(xs[-math.ceil(cfg.bc_steps / cfg.n_envs):]))
+        xn = torch.as_tensor(vecnorm.normalize_obs(x), dtype=torch.float32)
+        yt = torch.as_tensor(y)
+        policy.set_training_mode(True)
+        for _ in range(cfg.bc_epochs):
+            perm = torch.randperm(len(xn), generator=gen)
+            for i in range(0, len(xn), cfg.batch_size):
+                idx = perm[i:i + cfg.batch_size]
+                loss = torch.mean((actor(xn[idx]) - yt[idx]) ** 2)
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+        policy.set_training_mode(False)
+    with torch.no_grad():
+        final = float(torch.mean((torch.clamp(actor(xn), -1, 1) - yt) ** 2))
+        policy.log_std.fill_(cfg.bc_log_std)
+    return {"samples": int(len(xn)), "rounds": cfg.bc_rounds, "mse": final}
+
+
 # ---------------------------------------------------------------------- SB3 callbacks
 def _callbacks(cfg, out: Path, state: dict, turn: int, car: int, bar, turn_start_steps: int):
     from stable_baselines3.common.callbacks import BaseCallback
@@ -297,8 +378,9 @@ def _advance_state(state: dict, turn_steps: int) -> None:
 def _save(model, cfg, state, path: Path, car: int, turn: int, turn_steps: int, evaluation=None):
     from agents.ppo_agent import save_checkpoint
     meta = {"n_cars": cfg.n_cars, "n_preview": race_config(cfg).n_preview, "track": cfg.track,
-            "car": car, "turn": turn, "cycle": turn // cfg.n_cars, "turn_steps": turn_steps,
-            "car_timesteps": int(model.num_timesteps), "trained_turns": state["trained_turns"][car],
+            "car": car, "turn": turn, "cycle": turn // cfg.n_cars if turn >= 0 else -1,
+            "turn_steps": turn_steps, "car_timesteps": int(model.num_timesteps),
+            "trained_turns": state["trained_turns"][car] if car >= 0 else 0,
             "selfplay_config": cfg.to_dict(), "race_config": race_config(cfg).to_dict(),
             "evaluation": evaluation, "saved": time.strftime("%Y-%m-%d %H:%M:%S")}
     return save_checkpoint(model, model.get_vec_normalize_env(), path, meta)
@@ -308,7 +390,7 @@ def _save(model, cfg, state, path: Path, car: int, turn: int, turn_steps: int, e
 def write_evals_csv(out: Path, state: dict) -> None:
     path = out / "evals.csv"
     tmp = path.with_suffix(".csv.tmp")
-    keys = ["turn", "cycle", "car", "total_steps", "train_seconds", "distance_m", "off_track_frac",
+    keys = ["phase", "turn", "cycle", "car", "total_steps", "train_seconds", "distance_m", "off_track_frac",
             "train_ep_return_m", "distance_vs_mpc"]
     with open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, keys, extrasaction="ignore")
@@ -326,7 +408,7 @@ def plot_learning_curve(out: Path, state: dict, cfg: SelfPlayConfig) -> Path:
     fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
     ref = state.get("mpc_reference")
     for car in range(cfg.n_cars):
-        ev = [e for e in state["evals"] if e["car"] == car]
+        ev = [e for e in state["evals"] if e["car"] == car and e["phase"] == "ppo"]
         tc = [e for e in state["train_curve"] if e["car"] == car]
         if ev:
             x = [e["total_steps"] for e in ev]
@@ -335,6 +417,10 @@ def plot_learning_curve(out: Path, state: dict, cfg: SelfPlayConfig) -> Path:
         if tc:
             axes[2].plot([e["total_steps"] for e in tc], [e["ep_rew_mean"] for e in tc], ".-",
                          lw=0.8, label=f"car {car} (learning)")
+    bc = [e for e in state["evals"] if e["phase"] == "bc"]
+    if bc:
+        axes[0].plot([0], [bc[-1]["distance_m"]], "k*", ms=10, label="behaviour-cloned start")
+        axes[1].plot([0], [100 * bc[-1]["off_track_frac"]], "k*", ms=10, label="behaviour-cloned start")
     if ref:
         axes[0].axhline(ref["distance_m"], color="k", ls="--", lw=1, label="MPC alone")
         axes[0].axhline(0.8 * ref["distance_m"], color="k", ls=":", lw=1, label="80% of MPC")
@@ -359,6 +445,47 @@ def plot_learning_curve(out: Path, state: dict, cfg: SelfPlayConfig) -> Path:
 
 
 # ---------------------------------------------------------------------- the pipeline
+def _new_model(cfg: SelfPlayConfig, env, seed: int):
+    from stable_baselines3 import PPO
+    return PPO("MlpPolicy", env, learning_rate=cfg.learning_rate, n_steps=cfg.n_steps,
+               batch_size=cfg.batch_size, n_epochs=cfg.n_epochs, gamma=cfg.gamma,
+               gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, ent_coef=cfg.ent_coef,
+               policy_kwargs={"net_arch": list(cfg.net_arch)}, seed=seed, device="cpu", verbose=0)
+
+
+def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: dict, bar) -> str:
+    """``init="bc"``: one behaviour-cloned PPO model (:func:`behaviour_cloning`), the
+    starting point of every car; saved as ``checkpoints/bc_init.zip`` and evaluated alone."""
+    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+
+    from racing_env.vec_env import HeadToHeadVecEnv
+    venv = VecNormalize(VecMonitor(HeadToHeadVecEnv(cfg.n_envs, n_cars=cfg.n_cars, track=cfg.track,
+                                                    config=race_config(cfg),
+                                                    opponents=[_Idle()] * (cfg.n_cars - 1))),
+                        gamma=cfg.gamma, norm_reward=cfg.norm_reward)
+    model = _new_model(cfg, venv, cfg.seed)
+    fit = behaviour_cloning(model, cfg, cfg.seed)
+    path = out / "checkpoints" / "bc_init.zip"
+    _save(model, cfg, state, path, -1, -1, 0)
+    ev = evaluate_solo(frozen_policy(path), cfg)
+    _save(model, cfg, state, path, -1, -1, 0, {**ev, "bc": fit})
+    state["evals"] = [e for e in state["evals"] if e["phase"] != "bc"]
+    state["evals"].append(_eval_row(cfg, state, -1, -1, ev, None, phase="bc"))
+    bar.write(f"behaviour cloning (every car's start): {fit['samples']} samples, mse {fit['mse']:.4f}, "
+              f"alone {ev['distance_m']:.1f} m, off track {100 * ev['off_track_frac']:.1f}%")
+    return str(path.relative_to(out))
+
+
+class _Idle:
+    """Placeholder opponent (the env built for the BC model only supplies its spaces)."""
+
+    def reset(self, track, agent_id, seed=None):
+        pass
+
+    def act(self, observation):
+        return np.zeros(2, np.float32)
+
+
 def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns: int | None = None) -> dict:
     """Train (or resume) the self-play run in ``out_dir``; returns the summary.
 
@@ -395,6 +522,11 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
         seed = int(np.random.SeedSequence([cfg.seed, turn, state["turn_steps"]]).generate_state(1)[0] % 2 ** 31)
         venv = VecMonitor(make_learning_env(cfg, opponents, seed))
         resume_from = state["current"] or state["cars"][car]
+        if not resume_from and cfg.init == "bc":
+            if not state.get("bc_init"):
+                state["bc_init"] = _behaviour_cloned_init(cfg, out, state, bar)
+                _write_json(state_path, state)
+            resume_from = state["bc_init"]
         if resume_from:
             model = PPO.load(out / resume_from, env=None, device="cpu")
             vecnorm = load_vecnormalize(out / resume_from)
@@ -403,11 +535,7 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
             model.set_env(vecnorm)
         else:
             vecnorm = VecNormalize(venv, gamma=cfg.gamma, norm_reward=cfg.norm_reward)
-            model = PPO("MlpPolicy", vecnorm, learning_rate=cfg.learning_rate, n_steps=cfg.n_steps,
-                        batch_size=cfg.batch_size, n_epochs=cfg.n_epochs, gamma=cfg.gamma,
-                        gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, ent_coef=cfg.ent_coef,
-                        policy_kwargs={"net_arch": list(cfg.net_arch)}, seed=cfg.seed + car,
-                        device="cpu", verbose=0)
+            model = _new_model(cfg, vecnorm, cfg.seed + car)
         model.set_random_seed(seed)
         venv.seed(seed)
         model.ep_info_buffer = None                      # episode stats of this turn only
@@ -435,12 +563,7 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
         _save(model, cfg, state, path, car, turn, state["turn_steps"], evaluation)
         ep = [e["ep_rew_mean"] for e in state["train_curve"] if e["turn"] == turn]
         ref = state["mpc_reference"]
-        row = {"turn": turn, "cycle": turn // cfg.n_cars, "car": car, "total_steps": state["total_steps"],
-               "train_seconds": round(state["train_seconds"], 1),
-               "distance_m": round(evaluation["distance_m"], 3),
-               "off_track_frac": round(evaluation["off_track_frac"], 4),
-               "train_ep_return_m": round(ep[-1], 3) if ep else None,
-               "distance_vs_mpc": round(evaluation["distance_m"] / ref["distance_m"], 4) if ref else None}
+        row = _eval_row(cfg, state, turn, car, evaluation, ep[-1] if ep else None)
         state["evals"].append(row)
         old_current = state["current"]
         state["cars"][car] = str(path.relative_to(out))
@@ -467,11 +590,22 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
     return finish(cfg, out, state)
 
 
+def _eval_row(cfg, state, turn, car, evaluation, ep_return, phase="ppo") -> dict:
+    ref = state["mpc_reference"]
+    return {"phase": phase, "turn": turn, "cycle": turn // cfg.n_cars if turn >= 0 else -1, "car": car,
+            "total_steps": state["total_steps"], "train_seconds": round(state["train_seconds"], 1),
+            "distance_m": round(evaluation["distance_m"], 3),
+            "off_track_frac": round(evaluation["off_track_frac"], 4),
+            "train_ep_return_m": None if ep_return is None else round(ep_return, 3),
+            "distance_vs_mpc": round(evaluation["distance_m"] / ref["distance_m"], 4) if ref else None}
+
+
 def finish(cfg: SelfPlayConfig, out: Path, state: dict) -> dict:
     """Copy the final policies, pick ``best.zip``, write ``summary.json`` (also for a partial run)."""
     last = {}
     for e in state["evals"]:
-        last[e["car"]] = e
+        if e["phase"] == "ppo":
+            last[e["car"]] = e
     for car, path in enumerate(state["cars"]):
         if path:
             shutil.copyfile(out / path, out / "final" / f"car_{car}.zip")

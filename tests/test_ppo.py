@@ -114,10 +114,10 @@ def test_adapt_observation_pads_phantoms_and_keeps_nearest():
 # ---------------------------------------------------------------------- the pipeline
 def test_selfplay_tiny_end_to_end(tmp_path, capsys):
     out = tmp_path / "run"
-    assert main(["selfplay", "--out", str(out)] + TINY_ARGS) == 0
+    assert main(["selfplay", "--out", str(out), "--init", "bc", "--bc-steps", "96"] + TINY_ARGS) == 0
     assert "2/2 turns" in capsys.readouterr().out
     for name in ("config.json", "state.json", "summary.json", "evals.csv", "learning_curve.png",
-                 "best.zip", "final/car_0.zip", "final/car_1.zip",
+                 "best.zip", "final/car_0.zip", "final/car_1.zip", "checkpoints/bc_init.zip",
                  "checkpoints/turn_000_car_0.zip", "checkpoints/turn_001_car_1.zip"):
         assert (out / name).is_file(), name
     assert (out / "learning_curve.png").stat().st_size > 10_000
@@ -126,12 +126,12 @@ def test_selfplay_tiny_end_to_end(tmp_path, capsys):
     progress = list((out / "logs" / "car_1").glob("progress_*.csv"))
     assert progress and "rollout/ep_rew_mean" in progress[0].read_text().splitlines()[0]
     rows = list(csv.DictReader(open(out / "evals.csv")))
-    assert [int(r["car"]) for r in rows] == [0, 1]
+    assert [(r["phase"], int(r["car"])) for r in rows] == [("bc", -1), ("ppo", 0), ("ppo", 1)]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["done"] and summary["total_steps"] == 2 * 128 and summary["steps_per_s"] > 0
     # every checkpoint carries its config and the VecNormalize statistics
     meta = read_checkpoint_meta(out / "final" / "car_1.zip")
-    assert meta["selfplay_config"] == SelfPlayConfig(**TINY).to_dict()
+    assert meta["selfplay_config"] == SelfPlayConfig(**TINY, init="bc", bc_steps=96).to_dict()
     assert meta["n_cars"] == 2 and meta["car"] == 1 and meta["evaluation"]["distance_m"] >= 0
     assert "vecnormalize.pkl" in zipfile.ZipFile(out / "best.zip").namelist()
     # the checkpoint drives as the ppo agent
@@ -175,7 +175,8 @@ def test_selfplay_resumes_from_the_last_checkpoint(tmp_path, monkeypatch):
 @pytest.mark.parametrize("field, value", [
     ("cycles", 0), ("steps_per_turn", -5), ("n_envs", 1.5), ("n_cars", 1), ("n_cars", 9),
     ("learning_rate", 0.0), ("gamma", 1.5), ("vec_env", "ray"), ("warmup_opponent", "mpc"),
-    ("net_arch", (64, 0)), ("start", "pole"), ("ent_coef", -0.1)])
+    ("net_arch", (64, 0)), ("start", "pole"), ("ent_coef", -0.1), ("init", "pretrained"),
+    ("bc_rounds", 0), ("bc_noise", -1.0)])
 def test_bad_config_values_raise_naming_the_value(field, value):
     with pytest.raises(ValueError, match=f"{field}.*{value!r}".replace("(", r"\(").replace(")", r"\)")):
         SelfPlayConfig(**{field: value})
