@@ -59,6 +59,7 @@ def save_checkpoint(model, vec_normalize, path, meta: dict) -> Path:
             z.writestr(META_NAME, json.dumps(meta, indent=2, default=_jsonable))
             if vec_normalize is not None:
                 z.writestr(VECNORM_NAME, pickle.dumps(vec_normalize))
+        os.chmod(tmp, 0o644)                 # mkstemp makes it private; a checkpoint is data
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

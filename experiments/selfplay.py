@@ -37,6 +37,7 @@ Output folder::
     final/car_K.zip       every car's last policy; best.zip the one that drives furthest
                           alone with under 5% off-track steps (else furthest)
     summary.json          the closing figures: steps, time, throughput, final evaluations
+    MODEL_CARD.md         how best.zip was made and how it drives (the shipped checkpoint's card)
 
 Every checkpoint is one zip (see :mod:`agents.ppo_agent`) holding the PPO model, the
 VecNormalize statistics and this config. A killed run resumes from its latest checkpoint
@@ -464,7 +465,9 @@ def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: dict, bar) -> 
                                                     opponents=[_Idle()] * (cfg.n_cars - 1))),
                         gamma=cfg.gamma, norm_reward=cfg.norm_reward)
     model = _new_model(cfg, venv, cfg.seed)
+    c0 = time.process_time()
     fit = behaviour_cloning(model, cfg, cfg.seed)
+    state["bc_cpu_seconds"] = round(time.process_time() - c0, 1)
     path = out / "checkpoints" / "bc_init.zip"
     _save(model, cfg, state, path, -1, -1, 0)
     ev = evaluate_solo(frozen_policy(path), cfg)
@@ -548,10 +551,11 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
         bar.set_postfix_str(f"turn {turn + 1}/{cfg.turns} car {car} vs {', '.join(names)}")
         callback = _callbacks(cfg, out, state, turn, car, bar, turn_start)
         remaining = cfg.steps_per_turn_actual - state["turn_steps"]
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         if remaining > 0:
             model.learn(total_timesteps=remaining, reset_num_timesteps=False, callback=callback)
         seconds = time.perf_counter() - t0
+        state["train_cpu_seconds"] = state.get("train_cpu_seconds", 0.0) + time.process_time() - c0
         venv.close()
         # turn end: checkpoint, evaluation, state, outputs
         _advance_state(state, model.num_timesteps - turn_start)
@@ -600,6 +604,70 @@ def _eval_row(cfg, state, turn, car, evaluation, ep_return, phase="ppo") -> dict
             "distance_vs_mpc": round(evaluation["distance_m"] / ref["distance_m"], 4) if ref else None}
 
 
+CLI_FLAGS = {"n_cars": "--cars", "cycles": "--cycles", "steps_per_turn": "--steps-per-turn",
+             "n_envs": "--envs", "batch_size": "--batch-size", "n_epochs": "--epochs",
+             "learning_rate": "--lr", "gamma": "--gamma", "n_steps": "--n-steps", "track": "--track",
+             "max_cycles": "--race-steps", "seed": "--seed", "vec_env": "--vec-env",
+             "warmup_opponent": "--warmup-opponent", "checkpoint_every": "--checkpoint-every",
+             "eval_races": "--eval-races", "init": "--init", "bc_steps": "--bc-steps"}
+
+
+def command_line(cfg: SelfPlayConfig, out: str) -> str:
+    """The ``alpha-racer selfplay`` command that trains ``cfg`` (fields off their default)."""
+    default = SelfPlayConfig()
+    parts = ["alpha-racer", "selfplay", "--out", str(out)]
+    for f in fields(cfg):
+        v = getattr(cfg, f.name)
+        if v == getattr(default, f.name):
+            continue
+        if f.name == "mpc_reference":
+            parts.append("--no-mpc-reference")
+        elif f.name in CLI_FLAGS:
+            parts += [CLI_FLAGS[f.name], str(v)]
+        else:
+            parts.append(f"(SelfPlayConfig.{f.name}={v!r})")
+    return " ".join(parts)
+
+
+def model_card(cfg: SelfPlayConfig, summary: dict, state: dict) -> str:
+    """Markdown description of the run's ``best.zip``: command, schedule, time, figures."""
+    b, ref = summary["best"], summary["mpc_reference"]
+    lines = [f"# PPO self-play checkpoint (car {b['car']} of a {cfg.n_cars}-car run)", "",
+             "Trained by", "", "```bash", command_line(cfg, "runs/ppo_default"), "```", "",
+             f"* schedule: {cfg.n_cars} cars x {cfg.cycles} cycles x {cfg.steps_per_turn_actual} "
+             f"env steps per turn ({cfg.steps_per_turn} rounded up to whole rollouts of "
+             f"{cfg.n_steps} x {cfg.n_envs}); the paper's is 33 cycles x 100k"
+             + (" (this is a reduced schedule)" if cfg.cycles < 33 else ""),
+             f"* PPO: batch {cfg.batch_size}, {cfg.n_epochs} epochs, lr {cfg.learning_rate}, "
+             f"gamma {cfg.gamma}, {cfg.n_envs} parallel races, net {list(cfg.net_arch)}; "
+             f"start: {cfg.init}" + (" (behaviour cloning of the raceline follower, "
+                                     f"{cfg.bc_rounds} DAgger rounds of {cfg.bc_steps} steps)"
+                                     if cfg.init == "bc" else ""),
+             f"* {summary['turns']}/{cfg.turns} turns, {summary['total_steps']} PPO env steps, "
+             f"{summary['train_seconds']:.0f} s of training wall time ({summary['steps_per_s']} "
+             f"steps/s), {summary['train_cpu_seconds']:.0f} CPU s"
+             + (f"; behaviour cloning {summary['bc_cpu_seconds']:.0f} CPU s" if summary.get("bc_cpu_seconds") else ""),
+             "", 
+             f"Alone on `{cfg.track}` for {cfg.max_cycles / 10:.0f} s ({cfg.eval_races} fixed starts):",
+             ""]
+    if ref:
+        lines.append(f"* fixed-parameter MPC (`mpc`): {ref['distance_m']:.1f} m, "
+                     f"off track {100 * ref['off_track_frac']:.1f}% of steps")
+    lines += [f"* this checkpoint: {b['distance_m']:.1f} m"
+              + (f" ({100 * b['distance_vs_mpc']:.0f}% of the MPC)" if b.get("distance_vs_mpc") else "")
+              + f", off track {100 * b['off_track_frac']:.1f}% of steps", "",
+              "Over training (each car after each of its turns; `bc` = the shared start):", "",
+              "| phase | turn | car | total steps | distance m | vs MPC | off track % | training return m |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for e in state["evals"]:
+        vs = f"{100 * e['distance_vs_mpc']:.0f}%" if e.get("distance_vs_mpc") else "-"
+        tr = "-" if e.get("train_ep_return_m") is None else f"{e['train_ep_return_m']:.1f}"
+        lines.append(f"| {e['phase']} | {e['turn'] + 1 if e['turn'] >= 0 else '-'} | "
+                     f"{e['car'] if e['car'] >= 0 else 'all'} | {e['total_steps']} | "
+                     f"{e['distance_m']:.1f} | {vs} | {100 * e['off_track_frac']:.1f} | {tr} |")
+    return "\n".join(lines) + "\n"
+
+
 def finish(cfg: SelfPlayConfig, out: Path, state: dict) -> dict:
     """Copy the final policies, pick ``best.zip``, write ``summary.json`` (also for a partial run)."""
     last = {}
@@ -618,9 +686,13 @@ def finish(cfg: SelfPlayConfig, out: Path, state: dict) -> dict:
     summary = {"done": state["done"], "turns": state["turn"], "total_steps": state["total_steps"],
                "train_seconds": round(state["train_seconds"], 1),
                "steps_per_s": round(state["total_steps"] / state["train_seconds"], 1) if state["train_seconds"] else None,
+               "train_cpu_seconds": round(state.get("train_cpu_seconds", 0.0), 1),
+               "bc_cpu_seconds": state.get("bc_cpu_seconds"),
                "mpc_reference": state["mpc_reference"], "final": last,
                "best": None if best is None else {"car": best["car"], "path": "best.zip", **best},
                "out": str(out)}
     _write_json(out / "state.json", state)
     _write_json(out / "summary.json", summary)
+    if best is not None:
+        (out / "MODEL_CARD.md").write_text(model_card(cfg, summary, state))
     return summary

@@ -116,7 +116,7 @@ def test_selfplay_tiny_end_to_end(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["selfplay", "--out", str(out), "--init", "bc", "--bc-steps", "96"] + TINY_ARGS) == 0
     assert "2/2 turns" in capsys.readouterr().out
-    for name in ("config.json", "state.json", "summary.json", "evals.csv", "learning_curve.png",
+    for name in ("config.json", "state.json", "summary.json", "evals.csv", "learning_curve.png", "MODEL_CARD.md",
                  "best.zip", "final/car_0.zip", "final/car_1.zip", "checkpoints/bc_init.zip",
                  "checkpoints/turn_000_car_0.zip", "checkpoints/turn_001_car_1.zip"):
         assert (out / name).is_file(), name
