@@ -335,7 +335,21 @@ def behaviour_cloning(model, cfg: SelfPlayConfig, seed: int) -> dict:
 
 
 # ---------------------------------------------------------------------- SB3 callbacks
-def _callbacks(cfg, out: Path, state: dict, turn: int, car: int, bar, turn_start_steps: int):
+class _Clock:
+    """Adds wall and CPU time since the last call to ``state`` (train_seconds, train_cpu_seconds)."""
+
+    def __init__(self, state: dict):
+        self.state = state
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+
+    def book(self) -> None:
+        wall, cpu = time.perf_counter(), time.process_time()
+        self.state["train_seconds"] = self.state.get("train_seconds", 0.0) + wall - self.wall
+        self.state["train_cpu_seconds"] = self.state.get("train_cpu_seconds", 0.0) + cpu - self.cpu
+        self.wall, self.cpu = wall, cpu
+
+
+def _callbacks(cfg, out: Path, state: dict, turn: int, car: int, bar, turn_start_steps: int, clock):
     from stable_baselines3.common.callbacks import BaseCallback
 
     class SelfPlayCheckpoint(BaseCallback):
@@ -350,6 +364,7 @@ def _callbacks(cfg, out: Path, state: dict, turn: int, car: int, bar, turn_start
             _save(self.model, cfg, state, path, car, turn, steps)
             old = state["current"]
             _advance_state(state, steps)
+            clock.book()
             state["current"] = str(path.relative_to(out))
             _write_json(out / "state.json", state)
             if old and old != state["current"]:
@@ -391,8 +406,8 @@ def _save(model, cfg, state, path: Path, car: int, turn: int, turn_steps: int, e
 def write_evals_csv(out: Path, state: dict) -> None:
     path = out / "evals.csv"
     tmp = path.with_suffix(".csv.tmp")
-    keys = ["phase", "turn", "cycle", "car", "total_steps", "train_seconds", "distance_m", "off_track_frac",
-            "train_ep_return_m", "distance_vs_mpc"]
+    keys = ["phase", "turn", "cycle", "car", "total_steps", "train_seconds", "train_cpu_seconds",
+            "distance_m", "off_track_frac", "train_ep_return_m", "distance_vs_mpc"]
     with open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, keys, extrasaction="ignore")
         w.writeheader()
@@ -549,17 +564,15 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
             CSVOutputFormat(str(log_dir / f"progress_turn{turn:03d}_{state['turn_steps']:09d}.csv"))]))
         turn_start = model.num_timesteps - state["turn_steps"]
         bar.set_postfix_str(f"turn {turn + 1}/{cfg.turns} car {car} vs {', '.join(names)}")
-        callback = _callbacks(cfg, out, state, turn, car, bar, turn_start)
+        clock = _Clock(state)
+        callback = _callbacks(cfg, out, state, turn, car, bar, turn_start, clock)
         remaining = cfg.steps_per_turn_actual - state["turn_steps"]
-        t0, c0 = time.perf_counter(), time.process_time()
         if remaining > 0:
             model.learn(total_timesteps=remaining, reset_num_timesteps=False, callback=callback)
-        seconds = time.perf_counter() - t0
-        state["train_cpu_seconds"] = state.get("train_cpu_seconds", 0.0) + time.process_time() - c0
+        clock.book()
         venv.close()
         # turn end: checkpoint, evaluation, state, outputs
         _advance_state(state, model.num_timesteps - turn_start)
-        state["train_seconds"] += seconds
         state["trained_turns"][car] += 1
         path = out / "checkpoints" / f"turn_{turn:03d}_car_{car}.zip"
         _save(model, cfg, state, path, car, turn, state["turn_steps"])
@@ -598,6 +611,7 @@ def _eval_row(cfg, state, turn, car, evaluation, ep_return, phase="ppo") -> dict
     ref = state["mpc_reference"]
     return {"phase": phase, "turn": turn, "cycle": turn // cfg.n_cars if turn >= 0 else -1, "car": car,
             "total_steps": state["total_steps"], "train_seconds": round(state["train_seconds"], 1),
+            "train_cpu_seconds": round(state.get("train_cpu_seconds", 0.0), 1),
             "distance_m": round(evaluation["distance_m"], 3),
             "off_track_frac": round(evaluation["off_track_frac"], 4),
             "train_ep_return_m": None if ep_return is None else round(ep_return, 3),
@@ -645,7 +659,7 @@ def model_card(cfg: SelfPlayConfig, summary: dict, state: dict) -> str:
                                      if cfg.init == "bc" else ""),
              f"* {summary['turns']}/{cfg.turns} turns, {summary['total_steps']} PPO env steps, "
              f"{summary['train_seconds']:.0f} s of training wall time ({summary['steps_per_s']} "
-             f"steps/s), {summary['train_cpu_seconds']:.0f} CPU s"
+             f"steps/s), {summary['train_cpu_seconds']:.0f} CPU s ({summary['steps_per_cpu_s']} steps per CPU s)"
              + (f"; behaviour cloning {summary['bc_cpu_seconds']:.0f} CPU s" if summary.get("bc_cpu_seconds") else ""),
              "", 
              f"Alone on `{cfg.track}` for {cfg.max_cycles / 10:.0f} s ({cfg.eval_races} fixed starts):",
@@ -668,31 +682,41 @@ def model_card(cfg: SelfPlayConfig, summary: dict, state: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def finish(cfg: SelfPlayConfig, out: Path, state: dict) -> dict:
-    """Copy the final policies, pick ``best.zip``, write ``summary.json`` (also for a partial run)."""
+def summarize(cfg: SelfPlayConfig, state: dict, out) -> dict:
+    """The closing figures of a run's state (no files touched); ``best`` is the last policy of
+    the car that drives furthest alone with under 5% off-track steps (else furthest)."""
     last = {}
     for e in state["evals"]:
         if e["phase"] == "ppo":
             last[e["car"]] = e
-    for car, path in enumerate(state["cars"]):
-        if path:
-            shutil.copyfile(out / path, out / "final" / f"car_{car}.zip")
     best = None
     if last:
         ok = [e for e in last.values() if e["off_track_frac"] < OFFTRACK_BAR] or list(last.values())
         best = max(ok, key=lambda e: e["distance_m"])
-        shutil.copyfile(out / state["cars"][best["car"]], out / "best.zip")
-    state["done"] = state["turn"] >= cfg.turns
-    summary = {"done": state["done"], "turns": state["turn"], "total_steps": state["total_steps"],
-               "train_seconds": round(state["train_seconds"], 1),
-               "steps_per_s": round(state["total_steps"] / state["train_seconds"], 1) if state["train_seconds"] else None,
-               "train_cpu_seconds": round(state.get("train_cpu_seconds", 0.0), 1),
-               "bc_cpu_seconds": state.get("bc_cpu_seconds"),
-               "mpc_reference": state["mpc_reference"], "final": last,
-               "best": None if best is None else {"car": best["car"], "path": "best.zip", **best},
-               "out": str(out)}
+    wall, cpu = state["train_seconds"], state.get("train_cpu_seconds", 0.0)
+    return {"done": state["turn"] >= cfg.turns, "turns": state["turn"], "total_steps": state["total_steps"],
+            "train_seconds": round(wall, 1),
+            "steps_per_s": round(state["total_steps"] / wall, 1) if wall else None,
+            "train_cpu_seconds": round(cpu, 1),
+            "steps_per_cpu_s": round(state["total_steps"] / cpu, 1) if cpu else None,
+            "bc_cpu_seconds": state.get("bc_cpu_seconds"),
+            "mpc_reference": state["mpc_reference"], "final": last,
+            "best": None if best is None else {"path": state["cars"][best["car"]], **best},
+            "out": str(out)}
+
+
+def finish(cfg: SelfPlayConfig, out: Path, state: dict) -> dict:
+    """Copy the final policies, write ``best.zip``, ``summary.json`` and ``MODEL_CARD.md``
+    (also for a partial run)."""
+    summary = summarize(cfg, state, out)
+    for car, path in enumerate(state["cars"]):
+        if path:
+            shutil.copyfile(out / path, out / "final" / f"car_{car}.zip")
+    if summary["best"] is not None:
+        shutil.copyfile(out / summary["best"]["path"], out / "best.zip")
+    state["done"] = summary["done"]
     _write_json(out / "state.json", state)
     _write_json(out / "summary.json", summary)
-    if best is not None:
+    if summary["best"] is not None:
         (out / "MODEL_CARD.md").write_text(model_card(cfg, summary, state))
     return summary
