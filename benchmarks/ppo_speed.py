@@ -6,7 +6,9 @@
 Setting: the paper's PPO (8 parallel races, rollouts of 2048 steps per race, batch 1024,
 5 epochs) for a learner racing two frozen PPO opponents (the situation of every self-play
 turn after the first cycle). Two figures per backend: the env alone (learner actions random,
-opponents acting) and whole ``PPO.learn`` (rollouts + policy updates), in env steps/s.
+opponents acting) and whole ``PPO.learn`` (rollouts + policy updates), in env steps per
+second of wall time and, for the single-process backends, per second of this process's CPU
+time (the figure that holds on a shared, busy machine).
 
 Backends:
 
@@ -83,17 +85,19 @@ def make_venv(backend: str, policy, vecnorm):
     return venv
 
 
-def bench_env(venv, steps: int) -> float:
+def bench_env(venv, steps: int) -> tuple[float, float]:
+    """(steps per wall second, steps per CPU second of this process)."""
     venv.reset()
     rng = np.random.default_rng(0)
     acts = rng.uniform(-1, 1, (steps, N_ENVS, 2)).astype(np.float32)
     acts[..., 0] = np.abs(acts[..., 0])
     for a in acts[:20]:
         venv.step(a)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for a in acts:
         venv.step(a)
-    return steps * N_ENVS / (time.perf_counter() - t0)
+    n = steps * N_ENVS
+    return n / (time.perf_counter() - t0), n / (time.process_time() - c0)
 
 
 def bench_learn(venv, rollouts: int) -> float:
@@ -103,9 +107,10 @@ def bench_learn(venv, rollouts: int) -> float:
     model = PPO("MlpPolicy", env, learning_rate=5e-4, n_steps=2048, batch_size=1024, n_epochs=5,
                 gamma=0.99, device="cpu", seed=0)
     model.learn(2048 * N_ENVS)                     # warm-up rollout + update
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     model.learn(rollouts * 2048 * N_ENVS, reset_num_timesteps=False)
-    return rollouts * 2048 * N_ENVS / (time.perf_counter() - t0)
+    n = rollouts * 2048 * N_ENVS
+    return n / (time.perf_counter() - t0), n / (time.process_time() - c0)
 
 
 def main() -> None:
@@ -117,18 +122,22 @@ def main() -> None:
     env_steps, rollouts = (300, 1) if args.quick else (1500, 3)
     policy, vecnorm = make_opponent_policy()
     rows = []
+    print(f"{'backend':<15} {'env steps/s':>12} {'per CPU s':>10}   {'PPO.learn steps/s':>17} {'per CPU s':>10}")
     for backend in args.backends:
         venv = make_venv(backend, policy, vecnorm)
         env_rate = bench_env(venv, env_steps)
         learn_rate = bench_learn(venv, rollouts)
         venv.close()
         rows.append((backend, env_rate, learn_rate))
-        print(f"{backend:<15} env {env_rate:9.0f} steps/s   PPO.learn {learn_rate:7.0f} steps/s", flush=True)
+        cpu_ok = not backend.startswith("subproc")      # workers' CPU time is not this process's
+        fmt = lambda r: f"{r:10.0f}" if cpu_ok else f"{'-':>10}"
+        print(f"{backend:<15} {env_rate[0]:12.0f} {fmt(env_rate[1])}   {learn_rate[0]:17.0f} {fmt(learn_rate[1])}",
+              flush=True)
     base = {r[0]: r for r in rows}.get("dummy+predict")
     if base:
-        print("\nspeed-up over dummy+predict (SB3 DummyVecEnv over the Gymnasium env):")
+        print("\nspeed-up over dummy+predict (SB3 DummyVecEnv over the Gymnasium env), wall time:")
         for name, e, l in rows:
-            print(f"{name:<15} env x{e / base[1]:5.1f}   PPO.learn x{l / base[2]:5.1f}")
+            print(f"{name:<15} env x{e[0] / base[1][0]:5.1f}   PPO.learn x{l[0] / base[2][0]:5.1f}")
 
 
 if __name__ == "__main__":

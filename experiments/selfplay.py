@@ -647,7 +647,13 @@ def model_card(cfg: SelfPlayConfig, summary: dict, state: dict) -> str:
     """Markdown description of the run's ``best.zip``: command, schedule, time, figures."""
     b, ref = summary["best"], summary["mpc_reference"]
     lines = [f"# PPO self-play checkpoint (car {b['car']} of a {cfg.n_cars}-car run)", "",
-             "Trained by", "", "```bash", command_line(cfg, "runs/ppo_default"), "```", "",
+             "Trained by", "", "```bash",
+             command_line(cfg, "runs/ppo_default")
+             + ("" if summary["done"] else f" --max-turns {summary['turns']}"),
+             "```", "",
+             "(then `best.zip` of that folder is this checkpoint; `--max-turns` stops the run after "
+             "that many turns, so the schedule below was cut short there)" if not summary["done"]
+             else "(`best.zip` of that folder is this checkpoint)", "",
              f"* schedule: {cfg.n_cars} cars x {cfg.cycles} cycles x {cfg.steps_per_turn_actual} "
              f"env steps per turn ({cfg.steps_per_turn} rounded up to whole rollouts of "
              f"{cfg.n_steps} x {cfg.n_envs}); the paper's is 33 cycles x 100k"
