@@ -4,6 +4,6 @@
     agent = make_agent("raceline")
 """
 from .base import Agent, agent_names, make_agent, make_agent_spec, register_agent
-from . import alpha_agent, ibr, mpc_agent, simple  # noqa: F401  registers the built-in agents
+from . import alpha_agent, ibr, mpc_agent, ppo_agent, simple  # noqa: F401  registers the built-in agents
 
 __all__ = ["Agent", "agent_names", "make_agent", "make_agent_spec", "register_agent"]

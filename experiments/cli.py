@@ -1,4 +1,5 @@
-"""The ``alpha-racer`` command line: ``race``, ``tracks``, ``raceline``, ``fuzz``, ``collect``, ``train``."""
+"""The ``alpha-racer`` command line: ``race``, ``tracks``, ``raceline``, ``fuzz``, ``collect``,
+``train``, ``selfplay``."""
 from __future__ import annotations
 
 import argparse
@@ -81,6 +82,26 @@ def _cmd_train(args) -> int:
     train(args.data, args.out, TrainConfig(**kw),
           command="alpha-racer " + " ".join(args.argv))
     print(f"model: {Path(args.out) / 'model.npz'}")
+
+def _cmd_selfplay(args) -> int:
+    from .selfplay import SelfPlayConfig, selfplay
+    cfg = SelfPlayConfig(n_cars=args.cars, cycles=args.cycles, steps_per_turn=args.steps_per_turn,
+                         n_envs=args.envs, batch_size=args.batch_size, n_epochs=args.epochs,
+                         learning_rate=args.lr, gamma=args.gamma, n_steps=args.n_steps,
+                         track=args.track, max_cycles=args.race_steps, seed=args.seed,
+                         vec_env=args.vec_env, warmup_opponent=args.warmup_opponent,
+                         checkpoint_every=args.checkpoint_every, eval_races=args.eval_races,
+                         mpc_reference=not args.no_mpc_reference, init=args.init,
+                         bc_steps=args.bc_steps)
+    s = selfplay(cfg, args.out, max_turns=args.max_turns)
+    print(f"{s['turns']}/{cfg.turns} turns, {s['total_steps']} env steps in {s['train_seconds']:.0f} s "
+          f"of training ({s['steps_per_s']} steps/s) -> {s['out']}")
+    if s["best"]:
+        b = s["best"]
+        print(f"best: car {b['car']} alone {b['distance_m']:.1f} m in {cfg.max_cycles / 10:.0f} s"
+              + (f" ({100 * b['distance_vs_mpc']:.0f}% of the MPC's "
+                 f"{s['mpc_reference']['distance_m']:.1f} m)" if b.get("distance_vs_mpc") else "")
+              + f", off track {100 * b['off_track_frac']:.1f}% of steps -> {Path(s['out']) / 'best.zip'}")
     return 0
 
 
@@ -153,6 +174,33 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--seed", type=int, default=None)
     tr.add_argument("--threads", type=int, default=None, help="torch threads and rollout workers")
     tr.set_defaults(fn=_cmd_train)
+
+    sp = sub.add_parser("selfplay", help="train PPO agents by iterated self-play (resumable)")
+    sp.add_argument("--out", default="runs/selfplay", help="output folder; run again to resume")
+    sp.add_argument("--cars", type=int, default=3)
+    sp.add_argument("--cycles", type=int, default=33, help="self-play cycles (each car learns once per cycle)")
+    sp.add_argument("--steps-per-turn", type=int, default=100_000, help="env steps per learning turn")
+    sp.add_argument("--envs", type=int, default=8, help="parallel races")
+    sp.add_argument("--batch-size", type=int, default=1024)
+    sp.add_argument("--epochs", type=int, default=5)
+    sp.add_argument("--lr", type=float, default=5e-4)
+    sp.add_argument("--gamma", type=float, default=0.99)
+    sp.add_argument("--n-steps", type=int, default=2048, help="rollout length per env")
+    sp.add_argument("--track", default="default")
+    sp.add_argument("--race-steps", type=int, default=500, help="steps of 0.1 s per race (episode)")
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--vec-env", choices=["batched", "dummy", "subproc"], default="batched")
+    sp.add_argument("--warmup-opponent", choices=["raceline", "initial"], default="raceline",
+                    help="who drives a car before its first turn")
+    sp.add_argument("--init", choices=["random", "bc"], default="random",
+                    help="a car's policy before its first turn: random (plain self-play) or "
+                         "behaviour-cloned from the raceline follower")
+    sp.add_argument("--bc-steps", type=int, default=50_000, help="expert samples for --init bc")
+    sp.add_argument("--checkpoint-every", type=int, default=1, help="rollouts between in-turn checkpoints")
+    sp.add_argument("--eval-races", type=int, default=3, help="solo evaluation races after each turn")
+    sp.add_argument("--no-mpc-reference", action="store_true", help="skip measuring the MPC alone")
+    sp.add_argument("--max-turns", type=int, default=None, help="stop after this many turns (resumable)")
+    sp.set_defaults(fn=_cmd_selfplay)
     return p
 
 

@@ -1,0 +1,252 @@
+"""The PPO self-play agent (paper appendix, "Self-play RL training"): a stable-baselines3 PPO
+policy trained by ``alpha-racer selfplay`` (:mod:`experiments.selfplay`), driving one car.
+
+Checkpoint format: the zip file of ``PPO.save`` with two more members, which SB3 ignores:
+
+* ``alpha_racer.json``: schema version, the observation layout the policy was trained on
+  (``n_cars``, ``n_preview``), the race and self-play configs, which car / turn / cycle it is,
+  step counts and the evaluation at save time;
+* ``vecnormalize.pkl``: the pickled SB3 ``VecNormalize`` (observation statistics) of the
+  training env, which the agent applies before the policy.
+
+The observation is the env's (own Frenet state, every other car relative to it, curvature
+preview; see :class:`racing_env.RacingParallelEnv`). A policy trained with ``n_cars`` cars
+reads ``n_cars - 1`` other cars. In a race with fewer cars the missing ones are filled in as
+*phantoms*: a car half a lap behind at the same speed, lateral offset and heading (it can
+neither touch nor be the leader); in a race with more cars the policy sees the ``n_cars - 1``
+nearest others (by progress difference), in index order.
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import pickle
+import tempfile
+import zipfile
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .base import register_agent
+
+CHECKPOINT_SCHEMA = 1
+META_NAME = "alpha_racer.json"
+VECNORM_NAME = "vecnormalize.pkl"
+DEFAULT_CHECKPOINT = "ppo_default.zip"
+"""The shipped checkpoint, package data in ``agents/models/``."""
+
+
+def default_checkpoint() -> Path:
+    """Path of the checkpoint shipped with the package (``agents/models/ppo_default.zip``)."""
+    return Path(str(resources.files("agents") / "models" / DEFAULT_CHECKPOINT))
+
+
+# ---------------------------------------------------------------------- checkpoint files
+def save_checkpoint(model, vec_normalize, path, meta: dict) -> Path:
+    """Write ``model`` (SB3 PPO), its ``VecNormalize`` (or None) and ``meta`` to one zip,
+    atomically (temporary file in the same folder, then rename). Returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".zip.tmp")
+    os.close(fd)
+    try:
+        with open(tmp, "wb") as f:          # a file object: SB3 would append ".zip" to a name
+            model.save(f)
+        meta = {"schema_version": CHECKPOINT_SCHEMA, "kind": "alpha_racer.ppo", **meta}
+        with zipfile.ZipFile(tmp, "a") as z:
+            z.writestr(META_NAME, json.dumps(meta, indent=2, default=_jsonable))
+            if vec_normalize is not None:
+                z.writestr(VECNORM_NAME, pickle.dumps(vec_normalize))
+        os.chmod(tmp, 0o644)                 # mkstemp makes it private; a checkpoint is data
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+    return path
+
+
+def _jsonable(o):
+    if isinstance(o, (np.integer, np.floating)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"{type(o).__name__} is not JSON serialisable")
+
+
+def read_checkpoint_meta(path) -> dict:
+    """The ``alpha_racer.json`` of a checkpoint; a clear ``ValueError`` if the file is not an
+    alpha-racer PPO checkpoint or has another schema version."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"PPO checkpoint {str(path)!r} does not exist")
+    try:
+        with zipfile.ZipFile(path) as z:
+            meta = json.loads(z.read(META_NAME))
+    except (zipfile.BadZipFile, KeyError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{str(path)!r} is not an alpha-racer PPO checkpoint ({exc})") from None
+    if meta.get("schema_version") != CHECKPOINT_SCHEMA:
+        raise ValueError(f"PPO checkpoint {str(path)!r} has schema version "
+                         f"{meta.get('schema_version')!r}; this code reads {CHECKPOINT_SCHEMA}")
+    return meta
+
+
+def load_vecnormalize(path):
+    """The checkpoint's pickled SB3 ``VecNormalize`` (without a venv), or None."""
+    with zipfile.ZipFile(path) as z:
+        if VECNORM_NAME not in z.namelist():
+            return None
+        return pickle.loads(z.read(VECNORM_NAME))
+
+
+def load_ppo(path, env=None, **kwargs):
+    """``PPO.load`` of a checkpoint on the CPU (schedules replaced by constants, so a model
+    saved by another SB3 version loads); ``kwargs`` go to ``PPO.load``."""
+    from stable_baselines3 import PPO
+    read_checkpoint_meta(path)
+    custom = {"lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.0}
+    custom.update(kwargs.pop("custom_objects", {}))
+    return PPO.load(path, env=env, device="cpu", custom_objects=custom, **kwargs)
+
+
+# ---------------------------------------------------------------------- observations
+def adapt_observation(obs: np.ndarray, n_cars: int, n_preview: int, track_length: float) -> np.ndarray:
+    """Observations (..., 6 M + n_preview) of races with M cars in the layout of ``n_cars``
+    cars: phantoms for missing cars (half a lap behind, otherwise level), the nearest others
+    when there are too many (see the module docstring)."""
+    obs = np.asarray(obs, dtype=np.float32)
+    m, rest = divmod(obs.shape[-1] - n_preview, 6)
+    if rest or m < 1:
+        raise ValueError(f"observation of length {obs.shape[-1]} does not fit 6 N + n_preview "
+                         f"with n_preview = {n_preview}")
+    if m == n_cars:
+        return obs
+    own, preview = obs[..., :6], obs[..., 6 * m:]
+    others = obs[..., 6:6 * m].reshape(obs.shape[:-1] + (m - 1, 6))
+    if m < n_cars:
+        phantom = np.zeros(obs.shape[:-1] + (n_cars - m, 6), dtype=np.float32)
+        phantom[..., 0] = -0.5 * track_length
+        others = np.concatenate([others, phantom], axis=-2)
+    else:
+        near = np.sort(np.argsort(np.abs(others[..., 0]), axis=-1, kind="stable")[..., :n_cars - 1], axis=-1)
+        others = np.take_along_axis(others, near[..., None], axis=-2)
+    return np.concatenate([own, others.reshape(obs.shape[:-1] + (-1,)), preview], axis=-1)
+
+
+# ---------------------------------------------------------------------- the frozen policy
+class FrozenPolicy:
+    """A fixed SB3 actor-critic policy as an agent: deterministic action (the Gaussian mean,
+    clipped to [-1, 1], as ``policy.predict(obs, deterministic=True)``) of the
+    ``VecNormalize``-normalised observation.
+
+    For the standard MLP policy the actor runs as numpy matrix products (a few microseconds
+    per batch, no torch call); any other policy runs through ``policy.predict``. Implements
+    the agent protocol (``reset``, ``act``) and ``act_batch(observations (B, D)) -> (B, 2)``
+    for :class:`racing_env.vec_env.HeadToHeadVecEnv`.
+    """
+
+    def __init__(self, policy, vec_normalize=None, n_cars: int | None = None,
+                 n_preview: int = 10, name: str = "ppo"):
+        self.policy = policy
+        self.name = name
+        self.n_preview = n_preview
+        dim = int(np.prod(policy.observation_space.shape))
+        self.n_cars = n_cars if n_cars is not None else (dim - n_preview) // 6
+        if 6 * self.n_cars + n_preview != dim:
+            raise ValueError(f"policy observation size {dim} does not fit n_cars = {self.n_cars}, "
+                             f"n_preview = {n_preview}")
+        self.norm = None
+        if vec_normalize is not None and getattr(vec_normalize, "norm_obs", False):
+            rms = vec_normalize.obs_rms
+            self.norm = (rms.mean.astype(np.float32),
+                         (1.0 / np.sqrt(rms.var + vec_normalize.epsilon)).astype(np.float32),
+                         np.float32(vec_normalize.clip_obs))
+        self.layers = _numpy_actor(policy)
+        self.track_length = None
+
+    def reset(self, track, agent_id: str = "car_0", seed: int | None = None) -> None:
+        from racing_env.tracks import make_track
+        self.track_length = make_track(track).length
+        self.agent_id = agent_id
+
+    def normalize(self, obs: np.ndarray) -> np.ndarray:
+        """VecNormalize's observation normalisation (clipped standard score), float32."""
+        x = np.array(obs, dtype=np.float32)
+        if self.norm is not None:
+            mean, inv_std, clip = self.norm
+            x -= mean
+            x *= inv_std
+            np.minimum(x, clip, out=x)
+            np.maximum(x, -clip, out=x)
+        return x
+
+    def act_batch(self, observations: np.ndarray) -> np.ndarray:
+        """Actions (B, 2) float32 for observations (B, D) in this policy's layout."""
+        h = self.normalize(observations)
+        if self.layers is None:
+            a, _ = self.policy.predict(h, deterministic=True)
+            return np.clip(a, -1.0, 1.0).astype(np.float32)
+        for kind, w, b in self.layers:
+            if kind == "linear":
+                h = h @ w
+                h += b
+            elif kind == "tanh":
+                np.tanh(h, out=h)
+            else:  # relu
+                np.maximum(h, 0.0, out=h)
+        np.minimum(h, 1.0, out=h)
+        np.maximum(h, -1.0, out=h)
+        return h
+
+    def act(self, observation) -> np.ndarray:
+        if self.track_length is None:
+            raise RuntimeError(f"{self.name}.act() before reset(track, ...)")
+        obs = adapt_observation(observation, self.n_cars, self.n_preview, self.track_length)
+        return self.act_batch(obs[None])[0]
+
+
+def _numpy_actor(policy):
+    """[(kind, W, b)] of the actor for a flatten-MLP policy with a Gaussian head, else None."""
+    import torch.nn as nn
+    from stable_baselines3.common.distributions import DiagGaussianDistribution
+    from stable_baselines3.common.torch_layers import FlattenExtractor
+
+    fe = getattr(policy, "pi_features_extractor", policy.features_extractor)
+    if not (isinstance(fe, FlattenExtractor) and isinstance(policy.action_dist, DiagGaussianDistribution)
+            and not getattr(policy, "squash_output", False)):
+        return None
+    layers = []
+    for mod in list(policy.mlp_extractor.policy_net) + [policy.action_net]:
+        if isinstance(mod, nn.Linear):
+            layers.append(("linear", mod.weight.detach().cpu().numpy().T.astype(np.float32).copy(),
+                           mod.bias.detach().cpu().numpy().astype(np.float32).copy()))
+        elif isinstance(mod, nn.Tanh):
+            layers.append(("tanh", None, None))
+        elif isinstance(mod, nn.ReLU):
+            layers.append(("relu", None, None))
+        else:
+            return None
+    return layers
+
+
+@register_agent("ppo")
+class PPOAgent(FrozenPolicy):
+    """PPO self-play policy loaded from a checkpoint (default: the one shipped with the
+    package, ``agents/models/ppo_default.zip``; its model card ``ppo_default.md`` says how it
+    was trained). Runs on the CPU; deterministic actions.
+
+    ``checkpoint``: path of a checkpoint written by ``alpha-racer selfplay`` (files
+    ``checkpoints/*.zip``, ``final/car_K.zip``, ``best.zip`` of its output folder).
+    """
+
+    def __init__(self, checkpoint: "str | Path | None" = None):
+        path = Path(checkpoint) if checkpoint else default_checkpoint()
+        self.checkpoint = path
+        self.meta = read_checkpoint_meta(path)
+        model = load_ppo(path)
+        super().__init__(model.policy, load_vecnormalize(path), n_cars=int(self.meta["n_cars"]),
+                         n_preview=int(self.meta["n_preview"]), name="ppo")
+        self.policy.set_training_mode(False)
