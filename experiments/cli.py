@@ -82,6 +82,8 @@ def _cmd_train(args) -> int:
     train(args.data, args.out, TrainConfig(**kw),
           command="alpha-racer " + " ".join(args.argv))
     print(f"model: {Path(args.out) / 'model.npz'}")
+    return 0
+
 
 def _cmd_selfplay(args) -> int:
     from .selfplay import SelfPlayConfig, selfplay
