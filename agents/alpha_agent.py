@@ -16,7 +16,7 @@ from collections import deque
 import numpy as np
 
 from .base import register_agent
-from .mpc_agent import MPCAgent, joint_state_from_observation
+from .mpc_agent import MPCAgent, split_observation
 from .potential import PotentialModel, load_model
 from .reference import THETA_HIGH, THETA_LOW, Theta
 
@@ -78,13 +78,11 @@ class AlphaAgent(MPCAgent):
         if self.mpc is None:
             raise RuntimeError("AlphaAgent.act() before reset(track, ...)")
         t0 = time.perf_counter()
-        obs = np.asarray(observation, dtype=float)
-        n_cars = (len(obs) - self.n_preview) // 6
-        if n_cars != self.model.n_cars:
-            raise ValueError(f"alpha-potential model trained for {self.model.n_cars} cars, the "
-                             f"race has {n_cars}")
-        ego, others = joint_state_from_observation(obs, n_cars)
+        ego, others = split_observation(observation, self.n_preview)
         joint = np.vstack([ego[None], others])                  # ego first, then the others
+        if len(joint) != self.model.n_cars:
+            raise ValueError(f"alpha-potential model trained for {self.model.n_cars} cars, the "
+                             f"race has {len(joint)}")
         theta, phi = self.model.maximise(joint, self.track, self._theta_joint,
                                          restarts=self.restarts, iterations=self.iterations,
                                          rng=self._rng)

@@ -65,7 +65,7 @@ from racing_env.vehicle import VehicleParams
 from .base import register_agent
 from .mpc import (EdgeBounds, MPCConfig, _trajectory_function, follower_rollout,
                   input_rate_matrices, kappa_at_substeps, make_follower, stage_nodes)
-from .mpc_agent import joint_state_from_observation, progress_rate
+from .mpc_agent import progress_rate, split_observation
 
 
 @dataclass(frozen=True)
@@ -658,12 +658,7 @@ class IBRAgent:
     def act(self, observation) -> np.ndarray:
         if self.ibr is None:
             raise RuntimeError("IBRAgent.act() before reset(track, ...)")
-        obs = np.asarray(observation, dtype=float)
-        n_cars, rest = divmod(len(obs) - self.n_preview, 6)
-        if rest or n_cars < 1:
-            raise ValueError(f"observation of length {len(obs)} does not fit 6 N + n_preview "
-                             f"with n_preview = {self.n_preview}")
-        ego, others = joint_state_from_observation(obs, n_cars)
+        ego, others = split_observation(observation, self.n_preview)
         u = self.ibr.solve(np.vstack([ego[None, :], others]), self._u_prev)
         self._u_prev = u
         return u.astype(np.float32)

@@ -537,11 +537,10 @@ class MPC:
                 break
             G = condense(np.ascontiguousarray(A), np.ascontiguousarray(B), K)
             s_pred, n_pred = X[0], X[1]
-            nlo, nhi = self._bounds_n(s_pred)
             u_vec = U.T.reshape(-1)                                       # [d0, delta0, d1, ...]
             H, f, Acon, blo, bhi, sense = qp_arrays(
                 G, s_pred, n_pred, s_ref, n_ref, float(q), self._DtD, u_vec, float(u_prev[1]),
-                self._rate, nlo, nhi, opp, cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window)
+                self._rate, lo_n, hi_n, opp, cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window)
             du, _, exitflag, info = daqp.solve(H, f, Acon, bhi, blo, sense, rho_soft=cfg.soft_rho,
                                                iter_limit=cfg.qp_iter_limit)
             self.stats["qp_iterations"] += int(info.get("iterations", 0))

@@ -25,6 +25,17 @@ def joint_state_from_observation(obs: np.ndarray, n_cars: int):
     return ego, others
 
 
+def split_observation(observation, n_preview: int):
+    """(ego (6,), others (N-1, 6)) from an env observation whose curvature preview has
+    ``n_preview`` entries; ``ValueError`` when the length does not fit ``6 N + n_preview``."""
+    obs = np.asarray(observation, dtype=float)
+    n_cars, rest = divmod(len(obs) - n_preview, 6)
+    if rest or n_cars < 1:
+        raise ValueError(f"observation of length {len(obs)} does not fit 6 N + n_preview "
+                         f"with n_preview = {n_preview}")
+    return joint_state_from_observation(obs, n_cars)
+
+
 def progress_rate(state: np.ndarray, track: Track) -> np.ndarray:
     """Frenet progress rate ``s_dot`` [m/s] of states (..., 6)."""
     from .mpc import _grid_interp
@@ -77,12 +88,7 @@ class MPCAgent:
     def act(self, observation) -> np.ndarray:
         if self.mpc is None:
             raise RuntimeError("MPCAgent.act() before reset(track, ...)")
-        obs = np.asarray(observation, dtype=float)
-        n_cars, rest = divmod(len(obs) - self.n_preview, 6)
-        if rest or n_cars < 1:
-            raise ValueError(f"observation of length {len(obs)} does not fit 6 N + n_preview "
-                             f"with n_preview = {self.n_preview}")
-        ego, others = joint_state_from_observation(obs, n_cars)
+        ego, others = split_observation(observation, self.n_preview)
         ref = reference_trajectory(self.theta, ego, others if len(others) else None,
                                    self.raceline, self.track, K=self.config.horizon,
                                    dt=self.config.dt)

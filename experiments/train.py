@@ -205,8 +205,8 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
     metrics = {"train_seconds": t_train, **value.metrics,
                **validate_gaps(model, states, thetas, val_idx, track, cfg)}
     if cfg.rollout_pairs:
-        metrics.update(validate_rollouts(model, data_dir, states, thetas, val_idx, track, cfg,
-                                         progress_bar))
+        metrics.update(validate_rollouts(model, metrics["value_range"], states, thetas, val_idx,
+                                         track, cfg, progress_bar))
     metrics["total_seconds"] = time.perf_counter() - t_start
     model.meta["metrics"] = metrics
     model.meta["command"] = command or f"alpha-racer train --data {data_dir} --out {out_dir}"
@@ -452,9 +452,9 @@ def _rollout_job(args):
     return float(disc @ rewards[:, i]), states[-1]
 
 
-def validate_rollouts(model, data_dir, states, thetas, val_idx, track, cfg, progress_bar) -> dict:
+def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_bar) -> dict:
     """Paired rollouts from held-out states: dG_i (simulated, bootstrapped by V after
-    ``rollout_steps``) against dPhi and dV."""
+    ``rollout_steps``) against dPhi and dV, relative to the value range ``vr``."""
     rng = np.random.default_rng(cfg.seed + 3)
     n = cfg.rollout_pairs
     x, th1, th2, i = sample_deviations(states, thetas, val_idx, n, rng, own_theta_fraction=1.0)
@@ -469,8 +469,6 @@ def validate_rollouts(model, data_dir, states, thetas, val_idx, track, cfg, prog
     v_end = np.stack([model.value(x_end[:, k], (th1, th2)[k], track, i) for k in range(2)], axis=1)
     dG = (G[:, 1] + boot * v_end[:, 1]) - (G[:, 0] + boot * v_end[:, 0])
     dphi, dv = approximation_gaps(model, x, th1, th2, i, track)
-    vr = model.meta.get("metrics", {}).get("value_range") or value_range(
-        model, states, thetas, val_idx, track, np.random.default_rng(cfg.seed + 2))
     return {"rollout_pairs": n, "rollout_steps": cfg.rollout_steps,
             "rollout_phi_rel_median": float(np.median(np.abs(dphi - dG)) / vr),
             "rollout_phi_rel_p95": float(np.percentile(np.abs(dphi - dG), 95) / vr),
