@@ -71,7 +71,8 @@ class PotentialModel:
         return self.potential_net(potential_features(states, thetas, track))
 
     def maximise(self, state, track, theta0=None, restarts: int = 4, iterations: int = 8,
-                 rng: np.random.Generator | None = None, step: float = 0.4, decay: float = 0.7):
+                 rng: np.random.Generator | None = None, step: float = 0.4, decay: float = 0.7,
+                 per_coordinate: bool = False):
         """Projected gradient ascent of Phi(x, .) over the joint theta within its bounds.
 
         ``state`` (N, 6) joint state; ``theta0`` (N, 5) warm start (e.g. the last step's
@@ -79,7 +80,10 @@ class PotentialModel:
         (plus the box centre when there is no warm start). Steps are taken on theta scaled
         to [-1, 1], normalised by the gradient's RMS, starting at ``step`` and shrinking by
         ``decay`` per iteration; every iterate is projected onto the box and the best one
-        seen is returned as ``(theta* (N, 5), Phi*)``.
+        seen is returned as ``(theta* (N, 5), Phi*)``. With ``per_coordinate`` every coordinate
+        steps by ``step`` in the direction of its own gradient (sign steps), so parameters of
+        small gradient move as far as those of large gradient (slower to settle; used for
+        careful offline maximisation).
         """
         self._check_cars(state[None])
         if restarts < 1 or iterations < 0:
@@ -115,8 +119,11 @@ class PotentialModel:
             if it == iterations:
                 break
             g = grad[:, slots]                                          # (B, N, 5)
-            rms = np.sqrt(np.mean(g ** 2, axis=(1, 2), keepdims=True)) + 1e-12
-            Z = np.clip(Z + lr * g / rms, -1.0, 1.0)
+            if per_coordinate:
+                Z = np.clip(Z + lr * np.sign(g), -1.0, 1.0)
+            else:
+                rms = np.sqrt(np.mean(g ** 2, axis=(1, 2), keepdims=True)) + 1e-12
+                Z = np.clip(Z + lr * g / rms, -1.0, 1.0)
             lr *= decay
         return unscale_theta(best_z), best_val
 

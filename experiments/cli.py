@@ -1,5 +1,5 @@
 """The ``alpha-racer`` command line: ``race``, ``tracks``, ``raceline``, ``fuzz``, ``collect``,
-``train``, ``selfplay``."""
+``train``, ``selfplay``, ``bench``, ``analyze``, ``reproduce``."""
 from __future__ import annotations
 
 import argparse
@@ -107,6 +107,75 @@ def _cmd_selfplay(args) -> int:
     return 0
 
 
+def _cmd_bench(args) -> int:
+    from .bench import BenchConfig, bench, paper_table
+    kw = dict(workers=args.workers, backend=args.backend, address=args.address)
+    if args.paper_table:
+        out = args.out or "results/paper_table"
+        t = paper_table(out, ego=args.ego, races=args.races, steps=args.steps, track=args.track,
+                        seed=args.seed, cases=args.cases, **kw)
+        print((Path(out) / "paper_table.md").read_text())
+        print(f"wrote {Path(out) / 'paper_table.md'} and {Path(out) / 'paper_table.json'} "
+              f"({t['wall_seconds_this_run'] / 60:.1f} min)")
+        return 0
+    cfg = BenchConfig(ego=args.ego, opponents=args.opponents, races=args.races, steps=args.steps,
+                      track=args.track, seed=args.seed)
+    out = Path(args.out or f"results/bench/{_slug(args.ego)}_vs_{_slug(args.opponents)}")
+    bench(cfg, out, **kw)
+    print((out / "summary.md").read_text())
+    print(f"wrote {out / 'summary.md'}, {out / 'summary.json'} and {out / 'races.jsonl'}")
+    return 0
+
+
+def _analyze_config(args):
+    from .analyze import AnalyzeConfig
+    kw = {k: getattr(args, k) for k in ("model", "heldout_races", "gap_pairs", "regret_states",
+                                        "regret_horizon", "cem_iterations", "cem_samples",
+                                        "slice_points") if getattr(args, k, None) is not None}
+    return AnalyzeConfig(**kw)
+
+
+def _cmd_analyze(args) -> int:
+    from .analyze import analyze
+    out = Path(args.out)
+    analyze(_analyze_config(args), out, bench_dirs=args.bench or (), workers=args.workers,
+            backend=args.backend, address=args.address, force=args.force)
+    print((out / "summary.md").read_text())
+    print(f"wrote figures and JSON into {out}")
+    return 0
+
+
+def _cmd_reproduce(args) -> int:
+    """Every table and figure: the paper table, then the analyses (each resumable)."""
+    from .analyze import analyze
+    from .bench import PAPER_CASES, paper_table
+    out = Path(args.out)
+    kw = dict(workers=args.workers, backend=args.backend, address=args.address)
+    paper_table(out / "paper_table", races=args.races, steps=args.steps, **kw)
+    from dataclasses import replace
+    cases = ["IV"] + [c for c in PAPER_CASES if c != "IV"]     # the paper's overtake is vs IBR
+    analyze(replace(_analyze_config(args), steps=args.steps), out / "analysis",
+            bench_dirs=[out / "paper_table" / f"case_{c}" for c in cases], **kw)
+    text = ((out / "paper_table" / "paper_table.md").read_text() + "\n"
+            + (out / "analysis" / "summary.md").read_text())
+    (out / "README.md").write_text(text)
+    print(text)
+    print(f"wrote {out / 'README.md'}, {out / 'paper_table'} and {out / 'analysis'}")
+    return 0
+
+
+def _slug(spec: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in ".-" else "_" for ch in spec)
+
+
+def _add_parallel_args(p) -> None:
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    p.add_argument("--backend", choices=["local", "ray"], default="local",
+                   help="local process pool (default) or a Ray cluster (pip install alpha-racer[ray])")
+    p.add_argument("--address", default=None,
+                   help="Ray cluster address (e.g. auto or ray://host:10001); default: start a local Ray")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="alpha-racer", description=__doc__)
     sub = p.add_subparsers(dest="command", required=True)
@@ -150,12 +219,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--track", default="default")
     c.add_argument("--seed", type=int, default=0)
     c.add_argument("--shard-size", type=int, default=25, help="races per shard file")
-    c.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     c.add_argument("--out", default="data/races")
-    c.add_argument("--backend", choices=["local", "ray"], default="local",
-                   help="local process pool (default) or a Ray cluster (pip install alpha-racer[ray])")
-    c.add_argument("--address", default=None,
-                   help="Ray cluster address (e.g. auto or ray://host:10001); default: start a local Ray")
+    _add_parallel_args(c)
     c.set_defaults(fn=_cmd_collect)
 
     tr = sub.add_parser("train", help="fit the value and alpha-potential networks on collected races")
@@ -203,7 +268,54 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-mpc-reference", action="store_true", help="skip measuring the MPC alone")
     sp.add_argument("--max-turns", type=int, default=None, help="stop after this many turns (resumable)")
     sp.set_defaults(fn=_cmd_selfplay)
+
+    b = sub.add_parser("bench", help="head-to-head benchmark: the ego against two opponents of one "
+                                     "kind from the paper's start regions (resumable)")
+    b.add_argument("--ego", default="alpha", help="the ego's agent spec (default alpha)")
+    b.add_argument("--opponents", default="mpc", help="agent spec of both opponents O1 and O2")
+    b.add_argument("--paper-table", action="store_true",
+                   help="run the paper's five cases (Table 1) and write paper_table.md")
+    b.add_argument("--cases", nargs="+", default=None, help="with --paper-table: a subset of I II III IV V")
+    b.add_argument("--races", type=int, default=99, help="races per benchmark (default 99: 33 per region)")
+    b.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race (default 500 = 50 s)")
+    b.add_argument("--track", default="default")
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--out", default=None,
+                   help="output folder (default results/bench/EGO_vs_OPPONENTS, or "
+                        "results/paper_table with --paper-table); run again to resume")
+    _add_parallel_args(b)
+    b.set_defaults(fn=_cmd_bench)
+
+    a = sub.add_parser("analyze", help="Nash analyses of an alpha-potential model: approximation "
+                                       "gap, Nash regret by simulation, potential slices, figures")
+    a.add_argument("--out", default="results/analysis", help="output folder; run again to resume")
+    a.add_argument("--bench", nargs="*", default=None,
+                   help="benchmark folders to take the overtake animation from")
+    a.add_argument("--force", action="store_true", help="redo parts whose outputs exist")
+    _add_analyze_args(a)
+    _add_parallel_args(a)
+    a.set_defaults(fn=_cmd_analyze)
+
+    rp = sub.add_parser("reproduce", help="every table and figure of the paper into one folder: "
+                                          "bench --paper-table, then analyze (resumable)")
+    rp.add_argument("--out", default="results")
+    rp.add_argument("--races", type=int, default=99, help="races per paper case")
+    rp.add_argument("--steps", type=int, default=500, help="steps per race (and per analysis race)")
+    _add_analyze_args(rp)
+    _add_parallel_args(rp)
+    rp.set_defaults(fn=_cmd_reproduce)
     return p
+
+
+def _add_analyze_args(p) -> None:
+    p.add_argument("--model", default=None, help="alpha-potential model: shipped name or path (default: default)")
+    p.add_argument("--heldout-races", type=int, default=None, help="fresh races for the gap (default 40)")
+    p.add_argument("--gap-pairs", type=int, default=None, help="deviations for the gap (default 20000)")
+    p.add_argument("--regret-states", type=int, default=None, help="race states for the regret (default 20)")
+    p.add_argument("--regret-horizon", type=int, default=None, help="rollout steps before V (default 100)")
+    p.add_argument("--cem-iterations", type=int, default=None, help="default 3")
+    p.add_argument("--cem-samples", type=int, default=None, help="candidates per CEM iteration (default 10)")
+    p.add_argument("--slice-points", type=int, default=None, help="values per parameter in Figure 3 (default 41)")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -23,12 +23,13 @@ import os
 import tempfile
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
+
+from .parallel import check_backend, run_tasks
 
 SCHEMA_VERSION = 1
 
@@ -205,10 +206,7 @@ def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool
     with ``workers`` CPUs). Both run :func:`simulate_shard` and this process writes the
     shards, so the data are identical. Resumable: complete shards are skipped.
     """
-    if backend not in ("local", "ray"):
-        raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
-    if not (isinstance(workers, int) and workers >= 1):
-        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    check_backend(backend, workers)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     _write_manifest(out, config)
@@ -223,44 +221,12 @@ def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool
         write_shard(arrays, k, out)
         bar.update(len(config.shard_races(k)))
 
-    if backend == "ray":
-        _collect_ray(config, todo, workers, address, finished)
-    elif workers <= 1:
-        for k in todo:
-            finished(k, simulate_shard(config, k))
-    else:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futures = {pool.submit(simulate_shard, config, k): k for k in todo}
-            for f in as_completed(futures):
-                finished(futures[f], f.result())
+    run_tasks(simulate_shard, [(k, (config, k)) for k in todo], finished, workers, backend, address)
     bar.close()
     seconds = time.perf_counter() - t0
     new = config.races - done_races
     return {"races": config.races, "simulated": new, "resumed": done_races, "seconds": seconds,
             "races_per_s": new / seconds if seconds > 0 else float("nan"), "out": str(out)}
-
-
-def _collect_ray(config, todo, workers, address, finished) -> None:
-    try:
-        import ray
-    except ImportError:
-        raise ImportError("the ray backend needs Ray: pip install 'alpha-racer[ray]'") from None
-    started = not ray.is_initialized()
-    if started:
-        if address:
-            ray.init(address=address, log_to_driver=False)
-        else:
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-    try:
-        task = ray.remote(num_cpus=1)(simulate_shard)
-        pending = {task.remote(config, k): k for k in todo}
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            for ref in done:
-                finished(pending.pop(ref), ray.get(ref))
-    finally:
-        if started:
-            ray.shutdown()
 
 
 def load_races(out_dir) -> dict:

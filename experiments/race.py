@@ -67,18 +67,20 @@ class RaceResult:
 
 def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_cycles: int = 500,
              start: str = "regions", laps: int | None = None, render: bool = False,
-             progress_bar: bool = True):
+             progress_bar: bool = True, order=None):
     """Race ``agent_names`` (agent specs, one per car: a registry name with optional
     parameters, ``"raceline:mu=0.75"``) and return ``(RaceResult, frames)``.
 
-    ``frames`` is a list of RGB arrays when ``render`` is true, else empty.
+    ``order`` (start ``"regions"``): ``order[i]`` is car i's start region (0 = R1, the
+    front-most); default a random permutation drawn from ``seed``. ``frames`` is a list of
+    RGB arrays when ``render`` is true, else empty.
     """
     if not agent_names:
         raise ValueError("a race needs at least one agent")
     env = RacingParallelEnv(track=track, n_cars=len(agent_names), max_cycles=max_cycles,
                             laps=laps, start=start)
     agents = [make_agent_spec(spec) for spec in agent_names]
-    obs, _ = env.reset(seed=seed)
+    obs, _ = env.reset(seed=seed, options=None if order is None else {"order": list(order)})
     for k, (a, agent_id) in enumerate(zip(agents, env.possible_agents)):
         a.reset(env.track, agent_id, seed + 1000 * (k + 1))
     n = len(agents)

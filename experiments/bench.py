@@ -1,0 +1,375 @@
+"""Head-to-head benchmark (the paper's Table 1): ``alpha-racer bench``.
+
+The paper's protocol: three cars, the ego against two opponents of one kind, ``races`` races
+(99) of ``steps`` control periods (500 x 0.1 s = 50 s). Race k puts the ego in start region
+R1, R2, R3 for k = 0, 1, 2 (mod 3), so 99 races give 33 per region; of the two other regions
+opponent O1 always takes the front one, O2 the back one. Cars: car_0 ego, car_1 O1, car_2 O2.
+A race is won by the largest total progress along the track (unwrapped s).
+
+Output directory:
+
+* ``manifest.json``: schema version and the :class:`BenchConfig`; a directory of another
+  config is refused.
+* ``races.jsonl``: one JSON line per finished race (written by the driver as the race
+  arrives, flushed and fsynced; a killed run resumes with the missing races, and a torn last
+  line is dropped).
+* ``states/race_00000.npz``: every car's Frenet state per step (float32, (T + 1, 3, 6)),
+  for animations of the benchmark's own races.
+* ``summary.json`` and ``summary.md``: :func:`summarise`.
+
+``alpha-racer bench --paper-table`` runs the paper's five cases (:data:`PAPER_CASES`) with one
+pool over all their races and writes ``paper_table.md`` beside the paper's numbers.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+import warnings
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from .parallel import check_backend, run_tasks
+
+SCHEMA_VERSION = 1
+ROLES = ("ego", "O1", "O2")
+REGIONS = ("R1", "R2", "R3")
+
+
+@dataclass(frozen=True)
+class PaperCase:
+    opponents: str
+    title: str
+    paper_wins: tuple[int, int, int]     # the paper's Table 1: ego, O1, O2 wins of 99
+
+
+#: The paper's Table 1, ego = ``alpha`` (gamma 0.99, 4000 races) in every case.
+PAPER_CASES = {
+    "I": PaperCase("alpha:model=gamma0.98", "Opponents with low gamma (alpha, gamma 0.98)", (61, 28, 10)),
+    "II": PaperCase("alpha:model=gamma0.995", "Opponents with high gamma (alpha, gamma 0.995)", (52, 40, 7)),
+    "III": PaperCase("alpha:model=races400", "Opponents trained with less data (alpha, 400 races)", (76, 16, 7)),
+    "IV": PaperCase("ibr", "Opponents using IBR (6 rounds, 2 s horizon)", (73, 22, 4)),
+    "V": PaperCase("ppo", "Opponents trained by self-play RL (PPO)", (91, 7, 1)),
+}
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """One head-to-head benchmark: ``ego`` (an agent spec) against two ``opponents`` (one
+    agent spec, used for both O1 and O2) in ``races`` races of ``steps`` steps on ``track``.
+    Race k's start positions and the agents' seeds come from ``(seed, k)``."""
+
+    ego: str = "alpha"
+    opponents: str = "mpc"
+    races: int = 99
+    steps: int = 500
+    track: str = "default"
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ("races", "steps"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"BenchConfig.{name} must be a positive integer, got {v!r}")
+        for name in ("ego", "opponents"):
+            if not isinstance(getattr(self, name), str) or not getattr(self, name):
+                raise ValueError(f"BenchConfig.{name} must be an agent spec string, got "
+                                 f"{getattr(self, name)!r}")
+
+    @property
+    def agents(self) -> list[str]:
+        return [self.ego, self.opponents, self.opponents]
+
+    def race_seed(self, k: int) -> int:
+        return int(np.random.SeedSequence([self.seed, k]).generate_state(1)[0])
+
+    @staticmethod
+    def start_order(k: int) -> list[int]:
+        """Start regions (0 = R1) of ego, O1, O2 in race k: the ego cycles R1, R2, R3 and O1
+        takes the front one of the other two."""
+        ego = k % 3
+        o1, o2 = [r for r in range(3) if r != ego]
+        return [ego, o1, o2]
+
+
+def check_agent_specs(specs) -> None:
+    """Build each agent spec once, so a typo fails before any race starts."""
+    from agents import make_agent_spec
+    for spec in dict.fromkeys(specs):
+        make_agent_spec(spec)
+
+
+def bench_race(config: BenchConfig, k: int) -> dict:
+    """Race k of the benchmark (pure: no file access); returns its record and states."""
+    from .race import run_race
+    warnings.simplefilter("ignore")
+    t0 = time.perf_counter()
+    result, _ = run_race(config.agents, track=config.track, seed=config.race_seed(k),
+                         max_cycles=config.steps, start="regions", order=config.start_order(k),
+                         progress_bar=False)
+    if not np.isfinite(result.states).all():
+        raise FloatingPointError(f"benchmark race {k} produced non-finite states")
+    p = result.progress
+    winner = int(np.argmax(p))
+    record = {
+        "race": k, "seed": config.race_seed(k),
+        "ego_region": REGIONS[config.start_order(k)[0]],
+        "start_regions": [REGIONS[r] for r in config.start_order(k)],
+        "agents": config.agents, "winner": ROLES[winner],
+        "progress_m": [round(float(v), 4) for v in p],
+        "margin_m": round(float(p[0] - max(p[1], p[2])), 4),
+        "ranks": [int(r) for r in np.argsort(np.argsort(-p, kind="stable"), kind="stable") + 1],
+        "contacts": result.contacts.tolist(), "off_tracks": result.off_tracks.tolist(),
+        "decision_ms": [round(float(v), 4) for v in result.decision_ms],
+        "fallbacks": [int(st.get("fallbacks", 0)) for st in result.agent_stats],
+        "seconds": round(time.perf_counter() - t0, 3),
+    }
+    return {"record": record, "states": result.states.astype(np.float32)}
+
+
+# ---------------------------------------------------------------------------- storage
+class BenchRun:
+    """The output directory of one benchmark (see the module docstring)."""
+
+    def __init__(self, out_dir, config: BenchConfig):
+        self.out = Path(out_dir)
+        self.config = config
+        self.out.mkdir(parents=True, exist_ok=True)
+        (self.out / "states").mkdir(exist_ok=True)
+        manifest = self.out / "manifest.json"
+        mine = {"schema_version": SCHEMA_VERSION, "config": asdict(config)}
+        if manifest.exists():
+            theirs = json.loads(manifest.read_text())
+            if theirs != mine:
+                raise ValueError(f"{self.out} holds a benchmark of another config "
+                                 f"({theirs.get('config')}); this run is {mine['config']}. "
+                                 f"Use another --out or delete it")
+        else:
+            _write_atomic(manifest, json.dumps(mine, indent=2))
+
+    @property
+    def records_path(self) -> Path:
+        return self.out / "races.jsonl"
+
+    def records(self) -> dict[int, dict]:
+        """Finished races by index; a torn (partly written) last line is ignored."""
+        out = {}
+        if self.records_path.exists():
+            for line in self.records_path.read_text().splitlines():
+                try:
+                    rec = json.loads(line)
+                except json.JSONDecodeError:
+                    continue
+                if (self.out / "states" / f"race_{rec['race']:05d}.npz").exists():
+                    out[rec["race"]] = rec
+        return out
+
+    def missing(self) -> list[int]:
+        done = self.records()
+        return [k for k in range(self.config.races) if k not in done]
+
+    def add(self, result: dict) -> None:
+        """Store one race: states first, then its JSON line (a line means a complete race)."""
+        rec = result["record"]
+        path = self.out / "states" / f"race_{rec['race']:05d}.npz"
+        tmp = path.with_suffix(".tmp.npz")
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, states=result["states"])
+        tmp.replace(path)
+        text = self.records_path.read_text() if self.records_path.exists() else ""
+        with open(self.records_path, "a") as f:
+            if text and not text.endswith("\n"):
+                f.write("\n")                   # after a torn line
+            f.write(json.dumps(rec) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+    def states(self, k: int) -> np.ndarray:
+        with np.load(self.out / "states" / f"race_{k:05d}.npz") as z:
+            return z["states"]
+
+    def write_summary(self) -> dict:
+        summary = summarise(list(self.records().values()), self.config)
+        _write_atomic(self.out / "summary.json", json.dumps(summary, indent=2))
+        _write_atomic(self.out / "summary.md", summary_markdown(summary))
+        return summary
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+# ---------------------------------------------------------------------------- statistics
+def wilson_interval(wins: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval (95% by default) of a binomial proportion ``wins / n``."""
+    if n <= 0:
+        raise ValueError(f"wilson_interval needs n >= 1 trials, got {n}")
+    if not 0 <= wins <= n:
+        raise ValueError(f"wins must be in [0, n={n}], got {wins}")
+    p = wins / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    lo = 0.0 if wins == 0 else max(0.0, min(p, centre - half))   # exact ends (no 1 - 1e-16)
+    hi = 1.0 if wins == n else min(1.0, max(p, centre + half))
+    return float(lo), float(hi)
+
+
+def _wins(records, role) -> dict:
+    n = len(records)
+    w = sum(r["winner"] == role for r in records)
+    lo, hi = wilson_interval(w, n)
+    return {"wins": int(w), "races": n, "fraction": w / n, "ci95": [lo, hi]}
+
+
+def summarise(records: list[dict], config: BenchConfig) -> dict:
+    """Win counts per car and per ego start region (Wilson 95% intervals), progress margins
+    (ego minus the best opponent, m), contacts, off-track steps, decision times and fallbacks
+    per car (means per race)."""
+    if not records:
+        raise ValueError("no finished races to summarise")
+    records = sorted(records, key=lambda r: r["race"])
+    n = len(records)
+    arr = lambda key: np.array([r[key] for r in records], dtype=float)      # (n, 3)
+    margin = arr("margin_m")
+    out = {"config": asdict(config), "races": n, "complete": n == config.races,
+           "wins": {role: _wins(records, role) for role in ROLES},
+           "by_region": {}}
+    for reg in REGIONS:
+        sub = [r for r in records if r["ego_region"] == reg]
+        if sub:
+            out["by_region"][reg] = {role: _wins(sub, role) for role in ROLES}
+            out["by_region"][reg]["margin_m_mean"] = float(np.mean([r["margin_m"] for r in sub]))
+    out["margin_m"] = {"mean": float(margin.mean()), "median": float(np.median(margin)),
+                       "std": float(margin.std())}
+    for key in ("progress_m", "contacts", "off_tracks", "decision_ms", "fallbacks"):
+        a = arr(key)
+        out[key] = dict(zip(ROLES, map(float, a.mean(axis=0))))
+    out["decision_ms_max_race_mean"] = dict(zip(ROLES, map(float, arr("decision_ms").max(axis=0))))
+    out["race_seconds_total"] = float(sum(r["seconds"] for r in records))
+    return out
+
+
+def _pct(w: dict) -> str:
+    return f"{w['wins']}/{w['races']} ({100 * w['ci95'][0]:.0f}-{100 * w['ci95'][1]:.0f}%)"
+
+
+def summary_markdown(s: dict) -> str:
+    c = s["config"]
+    lines = [f"# Benchmark: `{c['ego']}` vs two `{c['opponents']}`",
+             "",
+             f"{s['races']} of {c['races']} races, {c['steps']} steps each on `{c['track']}`, "
+             f"seed {c['seed']}. Wins with Wilson 95% intervals.",
+             "",
+             "| | ego | O1 | O2 |", "|---|---|---|---|",
+             "| wins (all) | " + " | ".join(_pct(s["wins"][r]) for r in ROLES) + " |"]
+    for reg, w in s["by_region"].items():
+        lines.append(f"| wins, ego from {reg} | " + " | ".join(_pct(w[r]) for r in ROLES) + " |")
+    for key, label, fmt in (("progress_m", "progress per race [m]", "{:.2f}"),
+                            ("contacts", "contact steps per race", "{:.2f}"),
+                            ("off_tracks", "off-track steps per race", "{:.2f}"),
+                            ("fallbacks", "fallbacks per race", "{:.2f}"),
+                            ("decision_ms", "mean decision time [ms]", "{:.2f}")):
+        lines.append(f"| {label} | " + " | ".join(fmt.format(s[key][r]) for r in ROLES) + " |")
+    m = s["margin_m"]
+    lines += ["", f"Ego margin over the best opponent: mean {m['mean']:.2f} m, median "
+                  f"{m['median']:.2f} m, std {m['std']:.2f} m."]
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------- drivers
+def _run_many(runs: dict, workers: int, backend: str, address, progress_bar: bool) -> None:
+    """Run the missing races of every :class:`BenchRun` in ``runs`` (name -> run) in one pool."""
+    tasks = [((name, k), (run.config, k)) for name, run in runs.items() for k in run.missing()]
+    total = sum(run.config.races for run in runs.values())
+    bar = tqdm(total=total, initial=total - len(tasks), unit="race", desc="bench",
+               disable=not progress_bar, smoothing=0.05)
+
+    def finished(key, result):
+        name, _ = key
+        runs[name].add(result)
+        bar.update(1)
+        bar.set_postfix(last=f"{name}:{result['record']['winner']}")
+
+    try:
+        run_tasks(bench_race, tasks, finished, workers, backend, address)
+    finally:
+        bar.close()
+
+
+def bench(config: BenchConfig, out_dir, workers: int = 2, backend: str = "local",
+          address: str | None = None, progress_bar: bool = True) -> dict:
+    """Run (or resume) one benchmark into ``out_dir``; returns its summary."""
+    check_backend(backend, workers)
+    check_agent_specs(config.agents)
+    run = BenchRun(out_dir, config)
+    _run_many({"bench": run}, workers, backend, address, progress_bar)
+    return run.write_summary()
+
+
+def paper_table(out_dir, ego: str = "alpha", races: int = 99, steps: int = 500,
+                track: str = "default", seed: int = 0, cases=None, workers: int = 2,
+                backend: str = "local", address: str | None = None,
+                progress_bar: bool = True) -> dict:
+    """The paper's five cases (or ``cases``, names of :data:`PAPER_CASES`) in
+    ``out_dir/case_<name>``, all races in one pool; writes ``out_dir/paper_table.md`` and
+    ``paper_table.json`` and returns the latter's content."""
+    check_backend(backend, workers)
+    cases = list(PAPER_CASES) if cases is None else list(cases)
+    unknown = [c for c in cases if c not in PAPER_CASES]
+    if unknown:
+        raise ValueError(f"unknown paper cases {unknown}; choose from {list(PAPER_CASES)}")
+    out = Path(out_dir)
+    configs = {c: BenchConfig(ego=ego, opponents=PAPER_CASES[c].opponents, races=races,
+                              steps=steps, track=track, seed=seed) for c in cases}
+    check_agent_specs([ego] + [cfg.opponents for cfg in configs.values()])
+    runs = {c: BenchRun(out / f"case_{c}", cfg) for c, cfg in configs.items()}
+    t0 = time.perf_counter()
+    _run_many(runs, workers, backend, address, progress_bar)
+    table = {"ego": ego, "races": races, "steps": steps, "track": track, "seed": seed,
+             "workers": workers, "backend": backend,
+             "wall_seconds_this_run": time.perf_counter() - t0,
+             "cases": {c: {"opponents": PAPER_CASES[c].opponents, "title": PAPER_CASES[c].title,
+                           "paper_wins": list(PAPER_CASES[c].paper_wins),
+                           "summary": runs[c].write_summary()} for c in cases}}
+    _write_atomic(out / "paper_table.json", json.dumps(table, indent=2))
+    _write_atomic(out / "paper_table.md", paper_table_markdown(table))
+    return table
+
+
+def paper_table_markdown(table: dict) -> str:
+    lines = [f"# Head-to-head benchmark: the paper's Table 1",
+             "",
+             f"Ego `{table['ego']}` against two opponents of one kind; {table['races']} races per "
+             f"case of {table['steps']} steps ({table['steps'] / 10:.0f} s), the ego starting "
+             f"from R1, R2, R3 in turn (race k from R(k mod 3 + 1)), O1 always ahead of O2; "
+             f"won by the largest "
+             f"total progress. Wins with Wilson 95% intervals; `paper` is the paper's Table 1.",
+             "",
+             "| case | opponents | ego wins | O1 wins | O2 wins | paper (ego/O1/O2) "
+             "| ego wins from R1 / R2 / R3 | ego margin m | contacts ego/opp | off-track ego/opp "
+             "| ms/decision ego/opp |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for c, case in table["cases"].items():
+        s = case["summary"]
+        w = s["wins"]
+        reg = " / ".join(str(s["by_region"][r]["ego"]["wins"]) if r in s["by_region"] else "-"
+                         for r in REGIONS)
+        opp = lambda key: 0.5 * (s[key]["O1"] + s[key]["O2"])
+        lines.append(
+            f"| {c} | `{case['opponents']}` | {_pct(w['ego'])} | {w['O1']['wins']} | "
+            f"{w['O2']['wins']} | {'/'.join(map(str, case['paper_wins']))} | {reg} | "
+            f"{s['margin_m']['mean']:+.2f} | {s['contacts']['ego']:.1f}/{opp('contacts'):.1f} | "
+            f"{s['off_tracks']['ego']:.1f}/{opp('off_tracks'):.1f} | "
+            f"{s['decision_ms']['ego']:.1f}/{opp('decision_ms'):.1f} |")
+        if not s["complete"]:
+            lines[-1] += f" (partial: {s['races']} of {s['config']['races']} races)"
+    lines += ["", f"Wall time of this run: {table['wall_seconds_this_run'] / 60:.1f} min on "
+                  f"{table['workers']} workers ({table['backend']} backend); races already "
+                  f"finished by an earlier, interrupted run are not counted."]
+    return "\n".join(lines) + "\n"

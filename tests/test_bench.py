@@ -1,0 +1,125 @@
+"""Head-to-head benchmark: the paper's protocol, statistics, output invariants, resume."""
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+pytest.importorskip("daqp")
+
+from experiments.bench import (PAPER_CASES, BenchConfig, BenchRun, bench, bench_race,  # noqa: E402
+                               summarise, wilson_interval)
+from experiments.cli import main  # noqa: E402
+
+TINY = BenchConfig(ego="mpc:zeta=0.95", opponents="raceline", races=4, steps=15, seed=3)
+
+
+# ---------------------------------------------------------------------------- statistics
+def test_wilson_interval_hand_derived_cases():
+    # 0 of n: lower 0, upper z^2 / (n + z^2)
+    z2 = 1.959964 ** 2
+    lo, hi = wilson_interval(0, 10)
+    assert lo == 0.0 and hi == pytest.approx(z2 / (10 + z2), rel=1e-9)
+    # n of n mirrors it
+    lo, hi = wilson_interval(10, 10)
+    assert hi == 1.0 and lo == pytest.approx(10 / (10 + z2), rel=1e-9)
+    # 50 of 100: centre 0.5, half width z sqrt(1/400 + z^2/40000) / (1 + z^2/100)
+    lo, hi = wilson_interval(50, 100)
+    half = 1.959964 * np.sqrt(0.25 / 100 + z2 / 40000) / (1 + z2 / 100)
+    assert (lo, hi) == pytest.approx((0.5 - half, 0.5 + half), rel=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(n=st.integers(1, 500), frac=st.floats(0, 1))
+def test_wilson_interval_contains_the_estimate_and_stays_in_0_1(n, frac):
+    w = int(round(frac * n))
+    lo, hi = wilson_interval(w, n)
+    assert 0.0 <= lo <= w / n <= hi <= 1.0
+
+
+def test_wilson_interval_refuses_bad_counts():
+    with pytest.raises(ValueError, match="n >= 1"):
+        wilson_interval(0, 0)
+    with pytest.raises(ValueError, match=r"wins must be in \[0, n=5\], got 6"):
+        wilson_interval(6, 5)
+
+
+# ---------------------------------------------------------------------------- protocol
+def test_start_order_follows_the_paper_protocol():
+    orders = [BenchConfig.start_order(k) for k in range(99)]
+    assert all(sorted(o) == [0, 1, 2] for o in orders)
+    assert [sum(o[0] == r for o in orders) for r in range(3)] == [33, 33, 33]
+    assert all(o[1] < o[2] for o in orders)               # O1 always ahead of O2
+
+
+def test_paper_cases_are_the_papers_table():
+    assert list(PAPER_CASES) == ["I", "II", "III", "IV", "V"]
+    assert [c.paper_wins[0] for c in PAPER_CASES.values()] == [61, 52, 76, 73, 91]
+    assert all(sum(c.paper_wins) == 99 for c in PAPER_CASES.values())
+
+
+def test_bench_race_places_cars_in_their_regions_and_names_the_winner():
+    out = bench_race(TINY, 2)                            # race 2: ego from R3
+    rec, states = out["record"], out["states"]
+    assert rec["start_regions"] == ["R3", "R1", "R2"] and rec["ego_region"] == "R3"
+    s0 = states[0, :, 0]
+    assert s0[1] > s0[2] > s0[0]                          # O1 (R1) ahead of O2 (R2) ahead of ego
+    progress = np.array(rec["progress_m"])
+    assert rec["winner"] == ("ego", "O1", "O2")[int(np.argmax(progress))]
+    assert rec["margin_m"] == pytest.approx(progress[0] - progress[1:].max(), abs=1e-3)
+    assert sorted(rec["ranks"]) == [1, 2, 3]
+    assert states.shape == (16, 3, 6) and np.isfinite(states).all()
+
+
+def test_bad_config_is_refused():
+    with pytest.raises(ValueError, match="races must be a positive integer, got 0"):
+        BenchConfig(races=0)
+    with pytest.raises(ValueError, match="opponents must be an agent spec"):
+        BenchConfig(opponents="")
+
+
+# ---------------------------------------------------------------------------- outputs
+def check_summary_invariants(s: dict, races: int) -> None:
+    assert s["races"] == races
+    assert sum(w["wins"] for w in s["wins"].values()) == races
+    for w in list(s["wins"].values()) + [w for reg in s["by_region"].values()
+                                         for k, w in reg.items() if k != "margin_m_mean"]:
+        lo, hi = w["ci95"]
+        assert 0 <= lo <= w["fraction"] <= hi <= 1
+    assert sum(reg["ego"]["races"] for reg in s["by_region"].values()) == races
+
+
+def test_bench_writes_consistent_outputs_and_resumes_after_a_kill(tmp_path):
+    summary = bench(TINY, tmp_path, workers=1, progress_bar=False)
+    check_summary_invariants(summary, 4)
+    lines = (tmp_path / "races.jsonl").read_text().splitlines()
+    assert sorted(json.loads(line)["race"] for line in lines) == [0, 1, 2, 3]
+    assert "| wins (all) |" in (tmp_path / "summary.md").read_text()
+    # a kill while writing: the last line torn, one race's states lost
+    first = {json.loads(line)["race"]: json.loads(line) for line in lines}
+    (tmp_path / "races.jsonl").write_text("\n".join(lines[:3]) + "\n" + lines[3][:20])
+    lost = json.loads(lines[3])["race"]
+    run = BenchRun(tmp_path, TINY)
+    assert run.missing() == [lost]
+    again = bench(TINY, tmp_path, workers=1, progress_bar=False)
+    check_summary_invariants(again, 4)
+    redone = BenchRun(tmp_path, TINY).records()[lost]
+    assert redone["progress_m"] == first[lost]["progress_m"]       # deterministic per race
+
+
+def test_a_folder_of_another_config_is_refused(tmp_path):
+    BenchRun(tmp_path, TINY)
+    with pytest.raises(ValueError, match="another config"):
+        BenchRun(tmp_path, BenchConfig(ego="mpc", opponents="raceline", races=4, steps=15))
+
+
+def test_summary_by_region_counts_each_ego_start(tmp_path):
+    recs = [bench_race(TINY, k)["record"] for k in range(3)]
+    s = summarise(recs, TINY)
+    assert sorted(s["by_region"]) == ["R1", "R2", "R3"]
+    assert all(reg["ego"]["races"] == 1 for reg in s["by_region"].values())
+
+
+def test_unknown_paper_case_is_refused(tmp_path):
+    assert main(["bench", "--paper-table", "--cases", "VI", "--out", str(tmp_path)]) == 2
