@@ -123,3 +123,15 @@ def test_summary_by_region_counts_each_ego_start(tmp_path):
 
 def test_unknown_paper_case_is_refused(tmp_path):
     assert main(["bench", "--paper-table", "--cases", "VI", "--out", str(tmp_path)]) == 2
+
+
+@pytest.mark.slow
+def test_ray_backend_gives_the_same_races_as_the_local_pool(tmp_path):
+    pytest.importorskip("ray")
+    cfg = BenchConfig(ego="mpc:zeta=0.95", opponents="raceline", races=3, steps=10, seed=5)
+    a = bench(cfg, tmp_path / "local", workers=2, progress_bar=False)
+    b = bench(cfg, tmp_path / "ray", workers=2, backend="ray", progress_bar=False)
+    ra, rb = BenchRun(tmp_path / "local", cfg).records(), BenchRun(tmp_path / "ray", cfg).records()
+    assert sorted(ra) == sorted(rb) == [0, 1, 2]
+    assert all(ra[k]["progress_m"] == rb[k]["progress_m"] for k in ra)
+    assert a["wins"] == b["wins"]
