@@ -38,11 +38,17 @@ decision, shifted by one stage, warm start the next (a follower rollout starts a
 one, or whose shifted plan leaves the track). The rounds stop early once no step moved any
 predicted position by more than ``tol`` (further rounds would repeat the same QPs); cars
 whose plans cannot reach the IBR car's (no chain of plans within ``sep_window``) are not
-solved. Two robustness choices, both switchable: ``cautious`` also keeps every car clear of
-each other car going on at its present speed and lateral offset, and caps the progress of
+solved. Robustness choices (the first two switchable): ``cautious`` also keeps every car clear
+of each other car going on at its present speed and lateral offset, and caps the progress of
 its predicted plan at that speed, since real rivals are not the best responders IBR assumes
 (without it IBR cars run into rivals that do not speed away or do not take the predicted
-side); rivals' previous steering is unknown, so their first steering step is free.
+side); ``keep_sides``: a car closing in from behind (at the present progress rates, within
+the horizon) and the car ahead, when their offsets differ by at least ``sep_n / 2``, each
+keep to their present side of the other (of its plan and of its constant-offset path)
+wherever they are beside each other, instead of the side the plans happen to suggest
+(without it the IBR car ahead edges into the line of a faster car behind that it predicts
+will pass on its other side, while that car holds its line); rivals' previous steering is
+unknown, so their first steering step is free.
 
 Never raises on a failed QP: a car whose QP fails keeps its current plan; when every QP of
 the IBR car fails in a decision it applies its shifted previous plan (a counted fallback).
@@ -98,6 +104,8 @@ class IBRConfig:
     early_stop: bool = True       # stop the rounds once the plans have stopped changing
     cautious: bool = True         # also keep clear of every other car going on at its present
                                   # speed and offset, and cap its plan's progress at that speed
+    keep_sides: bool = True       # a car closing in from behind and the car ahead each keep to
+                                  # their present side of the other while beside each other
     skip_independent: bool = True  # solve only cars whose plans reach the IBR car's through
                                    # plans within sep_window (the others cannot move its plan)
 
@@ -164,7 +172,7 @@ def _condense_states(A, B, K):
 
 
 @njit(cache=True)
-def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window, length):
+def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window, length, side):
     """Near (stage, obstacle) pairs of car ``c``'s plan ``s, n`` (K,) [m] against the
     trajectories ``S, N`` (rows, K) of other cars (rows with ``owner != c`` and ``ok``), their
     progress capped at ``cap`` (rows, K): ``(stage (p,), lateral (p,), sign (p,), margin (p,))``.
@@ -173,7 +181,10 @@ def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window, lengt
     contact rule; nothing jumps at the start/finish line). Per pair the lateral
     separation ``sign * (n - n_j) >= sep_n`` where ``lateral``, else the longitudinal one
     ``sign * (s - s_j) >= sep_s`` (the rule of :func:`agents.mpc.separation_sides`: never a
-    mix of progress and offset); ``margin = sign * gap - need`` is negative where violated."""
+    mix of progress and offset); ``margin = sign * gap - need`` is negative where violated.
+    ``side`` (rows,): where nonzero, car ``c`` keeps to that side of the row (``+1`` left):
+    the pair is lateral, with that sign, whenever ``|s - s_j| < sep_s`` (beside each other)
+    or the plan is on that side and the usual rule picks lateral; otherwise longitudinal."""
     cars, K = S.shape
     stage = np.empty(cars * K, np.int64)
     lateral = np.empty(cars * K, np.bool_)
@@ -189,9 +200,15 @@ def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window, lengt
             if abs(ds) >= window:
                 continue
             dn = n[k] - N[j, k]
-            lat = abs(dn) / sep_n >= abs(ds) / sep_s
-            gap = dn if lat else ds
-            sg = 1.0 if gap >= 0.0 else -1.0
+            if side[j] != 0.0:
+                # a kept side: beside each other (|ds| < sep_s) always laterally, on that side
+                lat = abs(ds) < sep_s or (side[j] * dn >= 0.0 and abs(dn) / sep_n >= abs(ds) / sep_s)
+                gap = dn if lat else ds
+                sg = side[j] if lat else (1.0 if gap >= 0.0 else -1.0)
+            else:
+                lat = abs(dn) / sep_n >= abs(ds) / sep_s
+                gap = dn if lat else ds
+                sg = 1.0 if gap >= 0.0 else -1.0
             stage[p] = k
             lateral[p] = lat
             sign[p] = sg
@@ -451,7 +468,7 @@ class IBR:
         cfg, K = self.cfg, self.cfg.horizon
         p = plans[c]
         S, N, cap, ok, owner = self._S_all, self._N_all, self._s_cap, self._ok, self._owner
-        sep = (cfg.sep_s, cfg.sep_n, cfg.sep_window, float(self.track.length))
+        sep = (cfg.sep_s, cfg.sep_n, cfg.sep_window, float(self.track.length), self._side[c])
         stage, lat, sign, margin = _separation_pairs(p.X[0], p.X[1], S, N, cap, ok, owner, c, *sep)
         Gx = _condense_states(np.ascontiguousarray(p.A), np.ascontiguousarray(p.B), K)
         u_vec = p.U.T.reshape(-1)
@@ -482,6 +499,34 @@ class IBR:
         if plan.ok:
             self._S_all[c] = plan.X[0]
             self._N_all[c] = plan.X[1]
+
+    def _closing_sides(self, states, s_const) -> np.ndarray:
+        """Kept sides (N, N): ``side[a, b] = +1`` (-1) when car ``a`` must stay left (right) of
+        car ``b`` wherever they are beside each other, 0 where free. Set for every car ``b``
+        behind a car ``a`` and closing in on it within the horizon (going on at their present
+        progress rates), when their lateral offsets differ by at least ``sep_n / 2``: each
+        keeps to its present side (the car ahead does not move into the line of the faster car
+        behind, nor does that car cut across the car ahead)."""
+        cfg = self.cfg
+        n = len(states)
+        side = np.zeros((n, n))
+        L = float(self.track.length)
+        for a in range(n):
+            for b in range(n):
+                if a == b:
+                    continue
+                gap = states[a, 0] - states[b, 0]
+                gap -= L * np.floor(gap / L + 0.5)
+                if gap < 0.0:
+                    continue                                    # b is not behind a
+                ahead = gap + (s_const[a] - states[a, 0]) - (s_const[b] - states[b, 0])
+                if ahead.min() >= cfg.sep_s:
+                    continue                                    # b does not reach a
+                dn = states[a, 1] - states[b, 1]
+                if abs(dn) >= 0.5 * cfg.sep_n:
+                    side[a, b] = 1.0 if dn > 0.0 else -1.0
+                    side[b, a] = -side[a, b]
+        return side
 
     def solve(self, states, u_prev=None) -> np.ndarray:
         t0 = time.perf_counter()
@@ -517,6 +562,14 @@ class IBR:
             self._S_all[n:] = s_const
             self._N_all[n:] = states[:, 1:2]
             self._ok[n:] = True
+        # kept sides: a car closing in from behind and the car ahead each keep to their
+        # present side of the other, against its plan and its constant-offset path alike
+        self._side = np.zeros((n, rows))
+        if cfg.keep_sides:
+            sides = self._closing_sides(states, s_const)
+            self._side[:, :n] = sides
+            if cfg.cautious:
+                self._side[:, n:] = sides
         for c in range(n):
             self._store(c, plans[c])
         start_U = plans[0].U.copy()
