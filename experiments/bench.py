@@ -329,11 +329,20 @@ def paper_table(out_dir, ego: str = "alpha", races: int = 99, steps: int = 500,
                               steps=steps, track=track, seed=seed) for c in cases}
     check_agent_specs([ego] + [cfg.opponents for cfg in configs.values()])
     runs = {c: BenchRun(out / f"case_{c}", cfg) for c, cfg in configs.items()}
+    todo = sum(len(run.missing()) for run in runs.values())
     t0 = time.perf_counter()
     _run_many(runs, workers, backend, address, progress_bar)
+    wall = time.perf_counter() - t0
+    history = out / "runs.jsonl"
+    if todo:                       # every invocation that raced: the table's total wall time
+        with open(history, "a") as f:
+            f.write(json.dumps({"cases": cases, "races_simulated": todo, "wall_seconds": wall,
+                                "workers": workers, "backend": backend,
+                                "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}) + "\n")
+    past = [json.loads(line) for line in history.read_text().splitlines()] if history.exists() else []
     table = {"ego": ego, "races": races, "steps": steps, "track": track, "seed": seed,
-             "workers": workers, "backend": backend,
-             "wall_seconds_this_run": time.perf_counter() - t0,
+             "workers": workers, "backend": backend, "wall_seconds_this_run": wall,
+             "runs": past,
              "cases": {c: {"opponents": PAPER_CASES[c].opponents, "title": PAPER_CASES[c].title,
                            "paper_wins": list(PAPER_CASES[c].paper_wins),
                            "summary": runs[c].write_summary()} for c in cases}}
@@ -369,7 +378,11 @@ def paper_table_markdown(table: dict) -> str:
             f"{s['decision_ms']['ego']:.1f}/{opp('decision_ms'):.1f} |")
         if not s["complete"]:
             lines[-1] += f" (partial: {s['races']} of {s['config']['races']} races)"
-    lines += ["", f"Wall time of this run: {table['wall_seconds_this_run'] / 60:.1f} min on "
-                  f"{table['workers']} workers ({table['backend']} backend); races already "
-                  f"finished by an earlier, interrupted run are not counted."]
+    runs = table.get("runs", [])
+    total = sum(r["wall_seconds"] for r in runs)
+    simulated = sum(r["races_simulated"] for r in runs)
+    race_cpu = sum(c["summary"]["race_seconds_total"] for c in table["cases"].values())
+    lines += ["", f"Wall time: {total / 60:.1f} min for the {simulated} races simulated over "
+                  f"{len(runs)} invocation(s) (`runs.jsonl`); the races themselves took "
+                  f"{race_cpu / 60:.1f} worker-minutes."]
     return "\n".join(lines) + "\n"
