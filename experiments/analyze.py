@@ -465,7 +465,7 @@ def overtake_animation(found: dict, path: Path, before: int = 30, after: int = 5
 
     track = make_track(found["config"]["track"])
     rl = get_raceline(track)
-    r = Renderer(track, raceline_xy=(rl.x, rl.y))
+    r = Renderer(track, raceline_xy=(rl.x, rl.y), width=800, height=600, car_scale=2.0)
     st = found["states"]
     t0 = max(0, found["t_overtake"] - before)
     t1 = min(len(st), found["t_overtake"] + after)

@@ -152,12 +152,16 @@ def _cmd_reproduce(args) -> int:
     out = Path(args.out)
     kw = dict(workers=args.workers, backend=args.backend, address=args.address)
     paper_table(out / "paper_table", races=args.races, steps=args.steps, **kw)
+    tables = [out / "paper_table" / "paper_table.md"]
+    if args.control_ego != "none":      # the same races with a fixed ego: what alpha adds
+        control = out / f"paper_table_{_slug(args.control_ego)}_ego"
+        paper_table(control, ego=args.control_ego, races=args.races, steps=args.steps, **kw)
+        tables.append(control / "paper_table.md")
     from dataclasses import replace
     cases = ["IV"] + [c for c in PAPER_CASES if c != "IV"]     # the paper's overtake is vs IBR
     analyze(replace(_analyze_config(args), steps=args.steps), out / "analysis",
             bench_dirs=[out / "paper_table" / f"case_{c}" for c in cases], **kw)
-    text = ((out / "paper_table" / "paper_table.md").read_text() + "\n"
-            + (out / "analysis" / "summary.md").read_text())
+    text = "\n".join(p.read_text() for p in tables + [out / "analysis" / "summary.md"])
     (out / "README.md").write_text(text)
     print(text)
     print(f"wrote {out / 'README.md'}, {out / 'paper_table'} and {out / 'analysis'}")
@@ -301,6 +305,9 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--out", default="results")
     rp.add_argument("--races", type=int, default=99, help="races per paper case")
     rp.add_argument("--steps", type=int, default=500, help="steps per race (and per analysis race)")
+    rp.add_argument("--control-ego", default="mpc",
+                    help="also run the five cases with this ego (default mpc, the fixed-theta MPC) "
+                         "to show what the alpha agent adds; none skips it")
     _add_analyze_args(rp)
     _add_parallel_args(rp)
     rp.set_defaults(fn=_cmd_reproduce)

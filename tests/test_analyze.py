@@ -105,5 +105,7 @@ def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys):
         s = case["summary"]
         assert sum(w["wins"] for w in s["wins"].values()) == 3
     assert (tmp_path / "analysis" / "fig3_potential_slices.png").exists()
+    control = json.loads((tmp_path / "paper_table_mpc_ego" / "paper_table.json").read_text())
+    assert control["ego"] == "mpc" and list(control["cases"]) == list(table["cases"])
     text = (tmp_path / "README.md").read_text()
     assert "Table 1" in text and "Nash regret" in text
