@@ -15,20 +15,10 @@ from collections import deque
 
 import numpy as np
 
-from .base import register_agent
+from .base import median_p99, register_agent
 from .mpc_agent import MPCAgent, split_observation
-from .potential import PotentialModel, load_model
-from .reference import THETA_HIGH, THETA_LOW, Theta
-
-_MODELS: dict = {}
-
-
-def _cached_model(name) -> PotentialModel:
-    key = str(name)
-    if key not in _MODELS:
-        _MODELS[key] = load_model(name)
-    return _MODELS[key]
-
+from .potential import PotentialModel, cached_model
+from .reference import THETA_HIGH, THETA_LOW, THETA_NAMES, Theta
 
 @register_agent("alpha")
 class AlphaAgent(MPCAgent):
@@ -48,7 +38,7 @@ class AlphaAgent(MPCAgent):
         if not (isinstance(iterations, int) and iterations >= 0):
             raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
         self.model_name = model
-        self.model = model if isinstance(model, PotentialModel) else _cached_model(model)
+        self.model = model if isinstance(model, PotentialModel) else cached_model(model)
         self.restarts, self.iterations = restarts, iterations
         self._theta_joint = None
         self._max_ms: deque = deque(maxlen=100_000)
@@ -66,11 +56,10 @@ class AlphaAgent(MPCAgent):
     @property
     def stats(self) -> dict:
         st = super().stats
-        ms = np.asarray(self._max_ms, dtype=float)
-        st.update({"maximise_ms_median": float(np.median(ms)) if ms.size else float("nan"),
-                   "maximise_ms_p99": float(np.percentile(ms, 99)) if ms.size else float("nan"),
+        med, p99 = median_p99(self._max_ms)
+        st.update({"maximise_ms_median": med, "maximise_ms_p99": p99,
                    "potential": self.last_potential,
-                   "theta": dict(zip(("q", "zeta", "s1", "s2", "s3"),
+                   "theta": dict(zip(THETA_NAMES,
                                      map(float, self.theta.as_array())))})
         return st
 

@@ -23,6 +23,15 @@ class Agent(Protocol):
     def act(self, observation: np.ndarray) -> np.ndarray: ...
 
 
+def median_p99(values) -> tuple[float, float]:
+    """(median, 99th percentile) of ``values`` (e.g. decision times for an agent's ``stats``);
+    NaN for no values."""
+    a = np.asarray(values, dtype=float)
+    if not a.size:
+        return float("nan"), float("nan")
+    return float(np.median(a)), float(np.percentile(a, 99))
+
+
 _REGISTRY: dict[str, Callable[..., Agent]] = {}
 
 

@@ -68,9 +68,10 @@ from racing_env.track import Track
 from racing_env.tracks import make_track
 from racing_env.vehicle import VehicleParams
 
-from .base import register_agent
-from .mpc import (EdgeBounds, MPCConfig, _trajectory_function, follower_rollout,
-                  input_rate_matrices, kappa_at_substeps, make_follower, stage_nodes)
+from .base import median_p99, register_agent
+from .mpc import (EdgeBounds, MPCConfig, _trajectory_function, condense_states,
+                  follower_rollout, input_rate_matrix, kappa_at_substeps, make_follower,
+                  stage_nodes)
 from .mpc_agent import progress_rate, split_observation
 
 
@@ -145,33 +146,6 @@ class _Plan:
 
 
 @njit(cache=True)
-def _condense_states(A, B, K):
-    """Sensitivities (K, 6, 2K) of every predicted state to the inputs:
-    ``G[k, r, 2j + c] = d x_r^{k+1} / d u_c^j`` (zero for j > k), from the column-major stage
-    Jacobians ``A`` (36, K), ``B`` (12, K) (the full-state form of :func:`agents.mpc.condense`)."""
-    G = np.zeros((K, 6, 2 * K))
-    M = np.empty((6, 2))
-    T = np.empty((6, 2))
-    for j in range(K):
-        for r in range(6):
-            for c in range(2):
-                M[r, c] = B[r + 6 * c, j]
-        for k in range(j, K):
-            for r in range(6):
-                for c in range(2):
-                    G[k, r, 2 * j + c] = M[r, c]
-            if k + 1 < K:
-                for r in range(6):
-                    for c in range(2):
-                        acc = 0.0
-                        for q in range(6):
-                            acc += A[r + 6 * q, k + 1] * M[q, c]
-                        T[r, c] = acc
-                M[:, :] = T
-    return G
-
-
-@njit(cache=True)
 def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window, length, side):
     """Near (stage, obstacle) pairs of car ``c``'s plan ``s, n`` (K,) [m] against the
     trajectories ``S, N`` (rows, K) of other cars (rows with ``owner != c`` and ``ok``), their
@@ -180,7 +154,7 @@ def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window, lengt
     nearest image at the first stage (a lapped car beside this one is near, as in the env's
     contact rule; nothing jumps at the start/finish line). Per pair the lateral
     separation ``sign * (n - n_j) >= sep_n`` where ``lateral``, else the longitudinal one
-    ``sign * (s - s_j) >= sep_s`` (the rule of :func:`agents.mpc.separation_sides`: never a
+    ``sign * (s - s_j) >= sep_s`` (the rule of :func:`agents.mpc.separation_choice`: never a
     mix of progress and offset); ``margin = sign * gap - need`` is negative where violated.
     ``side`` (rows,): where nonzero, car ``c`` keeps to that side of the row (``+1`` left):
     the pair is lateral, with that sign, whenever ``|s - s_j| < sep_s`` (beside each other)
@@ -364,9 +338,8 @@ class IBR:
         self._mcfg = self.cfg.mpc_config()
         K = self.cfg.horizon
         self._traj = _trajectory_function(self.vehicle, self._mcfg)
-        self._DtD, self._S = input_rate_matrices(K)
+        self._DtD = input_rate_matrix(K)
         self._H0 = 2.0 * (self.cfg.rate_weight * self._DtD + self.cfg.step_weight * np.eye(2 * K))
-        self._Dn = np.eye(K) - np.eye(K, k=-1)             # (n^k - n^{k-1}), k = 1..K
         self._bounds_n = EdgeBounds(track, self.vehicle, self._mcfg)
         self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max
         self._follower = None
@@ -432,13 +405,6 @@ class IBR:
         return plan
 
     # ------------------------------------------------------------------ one best response
-    def _lateral_weights(self, plan: _Plan) -> np.ndarray:
-        """Weights (K,) of the lateral-motion term: ``w_n w_p / (2 v dt)`` per stage, with the
-        stage's progress ``v dt`` [m] from the plan's prediction (at least 5 cm)."""
-        cfg = self.cfg
-        step = np.maximum(np.diff(plan.X[0], prepend=plan.x0[0]), 0.05)
-        return cfg.lateral_weight * cfg.progress_weight / (2.0 * step)
-
     def _plan_merit(self, plan: _Plan, margin, w_lat, u_prev) -> float:
         cfg = self.cfg
         first = 0.0 if u_prev is None else cfg.rate_weight * float(np.sum((plan.U[:, 0] - u_prev) ** 2))
@@ -470,7 +436,7 @@ class IBR:
         S, N, cap, ok, owner = self._S_all, self._N_all, self._s_cap, self._ok, self._owner
         sep = (cfg.sep_s, cfg.sep_n, cfg.sep_window, float(self.track.length), self._side[c])
         stage, lat, sign, margin = _separation_pairs(p.X[0], p.X[1], S, N, cap, ok, owner, c, *sep)
-        Gx = _condense_states(np.ascontiguousarray(p.A), np.ascontiguousarray(p.B), K)
+        Gx = condense_states(np.ascontiguousarray(p.A), np.ascontiguousarray(p.B), K)
         u_vec = p.U.T.reshape(-1)
         H, f, A, bu, bl, sense, w_lat = _assemble(
             p.X, p.x0, u_vec, Gx, p.lo, p.hi, stage, lat, sign, margin, self._H0, self._DtD,
@@ -642,13 +608,6 @@ class IBR:
         return u0
 
 
-def _summary(values) -> tuple[float, float]:
-    a = np.asarray(values, dtype=float)
-    if not a.size:
-        return float("nan"), float("nan")
-    return float(np.median(a)), float(np.percentile(a, 99))
-
-
 @register_agent("ibr")
 class IBRAgent:
     """Iterated-best-response agent (the paper's Case IV baseline, for any number of cars).
@@ -696,8 +655,8 @@ class IBRAgent:
         if self.ibr is None:
             return {}
         st = self.ibr.stats
-        med, p99 = _summary(st["decision_ms"])
-        br_med, br_p99 = _summary(st["br_ms"])
+        med, p99 = median_p99(st["decision_ms"])
+        br_med, br_p99 = median_p99(st["br_ms"])
         rounds = np.asarray(st["rounds"], dtype=float)
         return {"solves": st["decisions"], "fallbacks": st["fallbacks"],
                 "restarts": st["restarts"], "br_solves": st["br_solves"],

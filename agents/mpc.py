@@ -39,7 +39,7 @@ import subprocess
 import tempfile
 import time
 import warnings
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -197,14 +197,11 @@ class _CompiledTrajectory:
 
 
 @njit(cache=True)
-def condense(A, B, n_steps):
-    """Sensitivities of (s, n) at stages 1..K to the inputs: (2K, 2K) rows [s^1, n^1, ...].
-
-    ``A`` (36, K) and ``B`` (12, K) are the column-major stage Jacobians from the CasADi
-    function; ``G[2k + r, 2j + c] = d x_r^{k+1} / d u_c^j`` for j <= k, zero above.
-    """
-    K = n_steps
-    G = np.zeros((2 * K, 2 * K))
+def condense_states(A, B, K):
+    """Sensitivities (K, 6, 2K) of every predicted state to the inputs:
+    ``G[k, r, 2j + c] = d x_r^{k+1} / d u_c^j`` (zero for j > k), from the column-major stage
+    Jacobians ``A`` (36, K), ``B`` (12, K) of the CasADi function."""
+    G = np.zeros((K, 6, 2 * K))
     M = np.empty((6, 2))
     T = np.empty((6, 2))
     for j in range(K):
@@ -212,9 +209,9 @@ def condense(A, B, n_steps):
             for c in range(2):
                 M[r, c] = B[r + 6 * c, j]
         for k in range(j, K):
-            for c in range(2):
-                G[2 * k, 2 * j + c] = M[0, c]
-                G[2 * k + 1, 2 * j + c] = M[1, c]
+            for r in range(6):
+                for c in range(2):
+                    G[k, r, 2 * j + c] = M[r, c]
             if k + 1 < K:
                 for r in range(6):
                     for c in range(2):
@@ -224,6 +221,14 @@ def condense(A, B, n_steps):
                         T[r, c] = acc
                 M[:, :] = T
     return G
+
+
+@njit(cache=True)
+def condense(A, B, n_steps):
+    """Sensitivities of (s, n) at stages 1..K to the inputs: (2K, 2K) rows [s^1, n^1, ...],
+    ``G[2k + r, 2j + c] = d x_r^{k+1} / d u_c^j`` (rows r = 0, 1 of :func:`condense_states`)."""
+    return np.ascontiguousarray(condense_states(A, B, n_steps)[:, :2, :]).reshape(2 * n_steps,
+                                                                                  2 * n_steps)
 
 
 @njit(cache=True)
@@ -301,59 +306,21 @@ def separation_choice(s_pred, n_pred, opponent, cfg: MPCConfig):
     """
     s_j, n_j, v_j = opponent
     s_jk = s_j + v_j * cfg.dt * np.arange(1, len(s_pred) + 1)
-    near, lateral, sign = separation_sides(s_pred, n_pred, s_jk, n_j, cfg)
-    return near, lateral, sign, s_jk
-
-
-def separation_sides(s_pred, n_pred, s_other, n_other, cfg):
-    """:func:`separation_choice` against another car's predicted trajectory ``s_other``,
-    ``n_other`` [m] ((K,) or scalars, progress on the same unwrapped scale as ``s_pred``).
-
-    Returns ``(near, lateral, sign)`` (K,) each: only ``near`` stages (``|ds| < sep_window``)
-    are constrained, laterally (``sign * dn >= sep_n``) where ``lateral``, else
-    longitudinally (``sign * ds >= sep_s``); ``cfg`` needs ``sep_s, sep_n, sep_window``.
-    Lateral and longitudinal gaps are never mixed: ``ds`` is progress, ``dn`` offset.
-    """
-    ds, dn = s_pred - s_other, n_pred - n_other
+    ds, dn = s_pred - s_jk, n_pred - n_j
     near = np.abs(ds) < cfg.sep_window
     lateral = np.abs(dn) / cfg.sep_n >= np.abs(ds) / cfg.sep_s
     sign = np.where(np.where(lateral, dn, ds) >= 0.0, 1.0, -1.0)
-    return near, lateral, sign
+    return near, lateral, sign, s_jk
 
 
-def separation_rows(Gs, Gn, s_pred, n_pred, s_other, n_other, cfg):
-    """Linearised soft separation rows against another car's trajectory, or ``None`` when no
-    stage is near: ``(rows (m, 2K), lo (m,), hi (m,))`` with ``lo <= rows @ du <= hi`` for the
-    input correction ``du``. ``Gs, Gn`` (K, 2K) are the condensed sensitivities of the
-    predicted ``s_pred, n_pred`` (K,) [m]; ``s_other, n_other`` as in :func:`separation_sides`.
-    """
-    near, lat, sign = separation_sides(s_pred, n_pred, s_other, n_other, cfg)
-    k = np.flatnonzero(near)
-    if not k.size:
-        return None
-    lat, sign = lat[k], sign[k]
-    gap = np.where(lat, np.broadcast_to(n_pred - n_other, near.shape)[k],
-                   np.broadcast_to(s_pred - s_other, near.shape)[k])
-    need = np.where(lat, cfg.sep_n, cfg.sep_s)
-    # sign * (gap + row du) >= need, row from n (lateral) or s (longitudinal)
-    rows = sign[:, None] * np.where(lat[:, None], Gn[k], Gs[k])
-    return rows, need - sign * gap, np.full(k.size, 1e30)
-
-
-def input_rate_matrices(K: int):
-    """``(DtD (2K, 2K), S (K, 2K))`` on the stacked inputs ``[d0, delta0, d1, ...]``:
-    ``u^T DtD u = sum_{k=1..K-1} ||u^k - u^{k-1}||^2`` and ``(S u)_k = delta^k - delta^{k-1}``
-    (row 0 is ``delta^0`` alone: subtract the applied steering from its bounds)."""
+def input_rate_matrix(K: int) -> np.ndarray:
+    """``DtD`` (2K, 2K) on the stacked inputs ``[d0, delta0, d1, ...]``:
+    ``u^T DtD u = sum_{k=1..K-1} ||u^k - u^{k-1}||^2``."""
     D = np.zeros((2 * (K - 1), 2 * K))
     for k in range(1, K):
         D[2 * (k - 1):2 * k, 2 * k:2 * k + 2] = np.eye(2)
         D[2 * (k - 1):2 * k, 2 * (k - 1):2 * k] = -np.eye(2)
-    S = np.zeros((K, 2 * K))
-    for k in range(K):
-        S[k, 2 * k + 1] = 1.0
-        if k:
-            S[k, 2 * k - 1] = -1.0
-    return D.T @ D, S
+    return D.T @ D
 
 
 def follower_rollout(track: Track, vehicle: VehicleParams, follower, x0, K: int, dt: float):
@@ -471,7 +438,7 @@ class MPC:
         self._lo_u = np.full(2 * K, -1.0)
         self._hi_u = np.full(2 * K, 1.0)
         # input-rate cost sum_{k=1..K-1} ||u^k - u^{k-1}||^2 as D^T D
-        self._DtD, _ = input_rate_matrices(K)
+        self._DtD = input_rate_matrix(K)
         self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max  # normalised
         self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
         self.stats = {"solves": 0, "fallbacks": 0, "restarts": 0, "qp_iterations": 0,

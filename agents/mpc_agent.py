@@ -7,7 +7,7 @@ from racing_env.track import Track
 from racing_env.tracks import make_track
 from racing_env.vehicle import VehicleParams
 
-from .base import register_agent
+from .base import median_p99, register_agent
 from .mpc import MPC, MPCConfig
 from .reference import Theta, reference_trajectory
 
@@ -79,11 +79,10 @@ class MPCAgent:
     @property
     def stats(self) -> dict:
         st = self.mpc.stats if self.mpc is not None else {}
-        ms = np.asarray(st.get("solve_ms", []), dtype=float)
+        med, p99 = median_p99(st.get("solve_ms", []))
         return {"solves": st.get("solves", 0), "fallbacks": st.get("fallbacks", 0),
                 "restarts": st.get("restarts", 0),
-                "solve_ms_median": float(np.median(ms)) if ms.size else float("nan"),
-                "solve_ms_p99": float(np.percentile(ms, 99)) if ms.size else float("nan")}
+                "solve_ms_median": med, "solve_ms_p99": p99}
 
     def act(self, observation) -> np.ndarray:
         if self.mpc is None:

@@ -128,6 +128,18 @@ class PotentialModel:
         return unscale_theta(best_z), best_val
 
 
+def cached_model(name_or_path="default") -> PotentialModel:
+    """:func:`load_model`, loaded once per process and name (agents and workers share it;
+    treat it as read-only)."""
+    key = str(name_or_path)
+    if key not in _LOADED:
+        _LOADED[key] = load_model(name_or_path)
+    return _LOADED[key]
+
+
+_LOADED: dict = {}
+
+
 def load_model(name_or_path="default") -> PotentialModel:
     """A shipped model by name (``default``, ``gamma0.98``, ``gamma0.995``, ``races400``) or a
     path to a ``model.npz``."""

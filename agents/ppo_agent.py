@@ -18,7 +18,6 @@ nearest others (by progress difference), in index order.
 """
 from __future__ import annotations
 
-import io
 import json
 import os
 import pickle

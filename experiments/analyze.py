@@ -34,9 +34,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from agents.reference import THETA_NAMES as PARAMS
+
+from .artifacts import append_jsonl, claim, read_jsonl, write_json, write_npz, write_text
 from .parallel import check_backend, run_tasks
 
-PARAMS = ("q", "zeta", "s1", "s2", "s3")
+DT = 0.1                            # control period of the races [s]
 
 
 @dataclass(frozen=True)
@@ -71,15 +74,9 @@ class AnalyzeConfig:
                              f"slice_points ({self.slice_points})")
 
 
-def _write_json(path: Path, obj) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2))
-    tmp.replace(path)
-
-
 def _model(name):
-    from agents.potential import load_model
-    return load_model(name)
+    from agents.potential import cached_model
+    return cached_model(name)
 
 
 def _value_range(model) -> float:
@@ -95,7 +92,7 @@ def approximation_gap(model, heldout_dir, pairs: int, seed: int) -> dict:
     """Gaps |dPhi - dV_i| / range(V) of ``pairs`` unilateral deviations at states of the
     held-out races in ``heldout_dir``, and those of a constant potential."""
     from experiments.collect import load_races
-    from experiments.train import approximation_gaps, sample_deviations
+    from experiments.train import relative_gaps, sample_deviations
     from racing_env.tracks import make_track
 
     data = load_races(heldout_dir)
@@ -104,9 +101,7 @@ def approximation_gap(model, heldout_dir, pairs: int, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     x, th1, th2, i = sample_deviations(data["states"], data["thetas"],
                                        np.arange(len(data["states"])), pairs, rng)
-    dphi, dv = approximation_gaps(model, x, th1, th2, i, track)
-    rel = np.abs(dphi - dv) / vr
-    const = np.abs(dv) / vr
+    rel, const, _, _ = relative_gaps(model, x, th1, th2, i, track, vr)
     if not (np.isfinite(rel).all() and np.isfinite(const).all()):
         raise FloatingPointError("non-finite approximation gaps")
     q = lambda a, p: float(np.percentile(a, p))
@@ -147,24 +142,13 @@ def maximiser(model, state, track, seed: int):
 
 def simulated_value(model, track, state, thetas, car: int, horizon: int) -> float:
     """G_car = discounted rollout return over ``horizon`` steps + gamma^H V_car(x_H, thetas)."""
-    from experiments.collect import rollout_from_state
+    from experiments.train import discounted_rollout
     gamma = float(model.meta["gamma"])
-    states, rewards = rollout_from_state(track.name, state, thetas, horizon)
-    disc = gamma ** np.arange(horizon)
-    boot = model.value(states[-1][None], thetas[None], track, np.array([car]))[0]
-    g = float(disc @ rewards[:, car] + gamma ** horizon * boot)
+    g, x_end = discounted_rollout(track.name, state, thetas, car, horizon, gamma)
+    g += gamma ** horizon * float(model.value(x_end[None], thetas[None], track, np.array([car]))[0])
     if not np.isfinite(g):
         raise FloatingPointError(f"non-finite simulated value for car {car}")
     return g
-
-
-_CACHE: dict = {}
-
-
-def _cached(kind, key, build):
-    if (kind, key) not in _CACHE:
-        _CACHE[(kind, key)] = build()
-    return _CACHE[(kind, key)]
 
 
 def regret_task(model_name: str, track_name: str, k: int, state, theta_star, car: int,
@@ -175,8 +159,8 @@ def regret_task(model_name: str, track_name: str, k: int, state, theta_star, car
     from racing_env.tracks import make_track
 
     warnings.simplefilter("ignore")
-    model = _cached("model", model_name, lambda: _model(model_name))
-    track = _cached("track", track_name, lambda: make_track(track_name))
+    model = _model(model_name)
+    track = make_track(track_name)
     rng = np.random.default_rng([cfg.seed, k, car])
     state = np.asarray(state, dtype=float)
     theta_star = np.asarray(theta_star, dtype=float)
@@ -238,28 +222,17 @@ def nash_regret(cfg: AnalyzeConfig, out: Path, workers: int, backend: str, addre
     else:
         X, T, _ = race_states(cfg.model, track_name, cfg.regret_states, cfg.race_seed, cfg.steps)
         theta_star = np.stack([maximiser(model, x, track, cfg.seed + k) for k, x in enumerate(X)])
-        tmp = out / "regret_states.tmp.npz"
-        with open(tmp, "wb") as f:
-            np.savez(f, states=X, t=T, theta_star=theta_star)
-        tmp.replace(states_path)
+        write_npz(states_path, states=X, t=T, theta_star=theta_star)
     lines_path = out / "regret.jsonl"
-    done = {}
-    if lines_path.exists():
-        for line in lines_path.read_text().splitlines():
-            try:
-                r = json.loads(line)
-                done[(r["state"], r["car"])] = r
-            except json.JSONDecodeError:
-                pass
-    tasks = [((k, c), (cfg.model, track_name, k, X[k].tolist(), theta_star[k].tolist(), c, cfg))
+    done = {(r["state"], r["car"]): r for r in read_jsonl(lines_path)}
+    tasks = [((k, c), (cfg.model, track_name, k, X[k], theta_star[k], c, cfg))
              for k in range(len(X)) for c in range(X.shape[1]) if (k, c) not in done]
     bar = tqdm(total=len(X) * X.shape[1], initial=len(done), desc="nash regret", unit="car",
                disable=not progress_bar)
 
     def finished(key, rec):
         done[key] = rec
-        with open(lines_path, "a") as f:
-            f.write(json.dumps(rec) + "\n")
+        append_jsonl(lines_path, rec)
         bar.update(1)
 
     try:
@@ -303,7 +276,7 @@ def plot_regret(reg: dict, path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------- Figure 3
-def slice_state(X: np.ndarray, track) -> tuple[int, int]:
+def slice_state(X: np.ndarray) -> tuple[int, int]:
     """(state index, ego) of the candidate state where some car is closest behind another
     (the interesting case for overtaking and blocking)."""
     best, pick = np.inf, (0, 0)
@@ -390,7 +363,7 @@ def plot_slices(track, state, sl: dict, path: Path) -> None:
         ax2.set_ylim(min(all_y + ty) - pad, max(all_y + ty) + pad)
         ax2.set_aspect("equal")
         ax2.legend(fontsize=6, loc="best")
-        ax2.set_title(f"ego path over 5 s (progress)", fontsize=9)
+        ax2.set_title(f"ego path over {DT * (len(tx) - 1):.0f} s (progress)", fontsize=9)
     fig.suptitle(f"Potential against each of the ego's parameters (car_{ego}, others at theta*); "
                  f"gold: the maximiser")
     _save(fig, path)
@@ -473,11 +446,11 @@ def overtake_animation(found: dict, path: Path, before: int = 30, after: int = 5
     frames = []
     for t in range(t0, t1):
         order = np.argsort(-st[t, :, 0])
-        hud = [f"t = {0.1 * t:5.1f} s"] + [f"P{k + 1} {names[i]}" for k, i in enumerate(order)]
+        hud = [f"t = {DT * t:5.1f} s"] + [f"P{k + 1} {names[i]}" for k, i in enumerate(order)]
         frames.append(r.frame(st[t], labels=["ego", "O1", "O2"], hud=hud))
     save_animation(frames, path, fps=10)
-    return {"dir": found["dir"], "race": found["race"], "t_overtake_s": 0.1 * found["t_overtake"],
-            "window_s": [0.1 * t0, 0.1 * t1], "record": found["record"]}
+    return {"dir": found["dir"], "race": found["race"], "t_overtake_s": DT * found["t_overtake"],
+            "window_s": [DT * t0, DT * t1], "record": found["record"]}
 
 
 # ---------------------------------------------------------------------------- plumbing
@@ -508,13 +481,7 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
     check_backend(backend, workers)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    cfg_path = out / "config.json"
-    if cfg_path.exists() and not force:
-        old = json.loads(cfg_path.read_text())
-        if old != asdict(cfg):
-            raise ValueError(f"{out} holds analyses of another config ({old}); use another "
-                             f"--out or --force")
-    _write_json(cfg_path, asdict(cfg))
+    claim(out / "config.json", asdict(cfg), "analyses", overwrite=force)
     model = _model(cfg.model)
     track = make_track(model.meta["track"])
     summary = {"config": asdict(cfg)}
@@ -533,7 +500,7 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
                 progress_bar=progress_bar)
         gap = approximation_gap(model, out / "heldout", cfg.gap_pairs, cfg.seed)
         gap["seconds"] = time.perf_counter() - t0
-        _write_json(out / "gap.json", gap)
+        write_json(out / "gap.json", gap)
         plot_gap(gap, out / "fig2a_approximation_gap.png")
     gap = json.loads((out / "gap.json").read_text())
 
@@ -545,7 +512,7 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
                 (out / f).unlink(missing_ok=True)
         reg = nash_regret(cfg, out, workers, backend, address, progress_bar)
         reg["seconds_last_run"] = time.perf_counter() - t1    # a resumed run counts its own part
-        _write_json(out / "regret.json", reg)
+        write_json(out / "regret.json", reg)
         plot_regret(reg, out / "fig2b_nash_regret.png")
     reg = json.loads((out / "regret.json").read_text())
 
@@ -553,10 +520,10 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
     if force or not (out / "slices.json").exists():
         with np.load(out / "regret_states.npz") as z:
             X, theta_star = z["states"], z["theta_star"]
-        k, ego = slice_state(X, track)
+        k, ego = slice_state(X)
         sl = potential_slices(model, track, X[k], ego, theta_star[k], cfg)
         sl["state_index"], sl["state"] = int(k), X[k].tolist()
-        _write_json(out / "slices.json", sl)
+        write_json(out / "slices.json", sl)
         plot_slices(track, X[k], sl, out / "fig3_potential_slices.png")
     sl = json.loads((out / "slices.json").read_text())
 
@@ -564,7 +531,7 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
     if bench_dirs and (force or not (out / "overtake.json").exists()):
         found = find_overtake(bench_dirs)
         if found is not None:
-            _write_json(out / "overtake.json", overtake_animation(found, out / "overtake.gif"))
+            write_json(out / "overtake.json", overtake_animation(found, out / "overtake.gif"))
     summary["gap"] = {k: v for k, v in gap.items() if k not in ("rel", "const_rel")}
     summary["regret"] = {k: v for k, v in reg.items()
                          if k not in ("regret_rel", "value_regret_rel", "state_regret_rel")}
@@ -573,8 +540,8 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
                          for name, d in sl["params"].items()}
     if (out / "overtake.json").exists():
         summary["overtake"] = json.loads((out / "overtake.json").read_text())
-    _write_json(out / "summary.json", summary)
-    (out / "summary.md").write_text(summary_markdown(summary))
+    write_json(out / "summary.json", summary)
+    write_text(out / "summary.md", summary_markdown(summary))
     return summary
 
 

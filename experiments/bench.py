@@ -22,8 +22,6 @@ pool over all their races and writes ``paper_table.md`` beside the paper's numbe
 """
 from __future__ import annotations
 
-import json
-import os
 import time
 import warnings
 from dataclasses import asdict, dataclass
@@ -32,6 +30,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from .artifacts import append_jsonl, claim, read_jsonl, write_json, write_npz, write_text
 from .parallel import check_backend, run_tasks
 
 SCHEMA_VERSION = 1
@@ -107,17 +106,16 @@ def bench_race(config: BenchConfig, k: int) -> dict:
     from .race import run_race
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
-    result, _ = run_race(config.agents, track=config.track, seed=config.race_seed(k),
-                         max_cycles=config.steps, start="regions", order=config.start_order(k),
-                         progress_bar=False)
+    seed, order = config.race_seed(k), config.start_order(k)
+    result, _ = run_race(config.agents, track=config.track, seed=seed, max_cycles=config.steps,
+                         start="regions", order=order, progress_bar=False)
     if not np.isfinite(result.states).all():
         raise FloatingPointError(f"benchmark race {k} produced non-finite states")
     p = result.progress
     winner = int(np.argmax(p))
     record = {
-        "race": k, "seed": config.race_seed(k),
-        "ego_region": REGIONS[config.start_order(k)[0]],
-        "start_regions": [REGIONS[r] for r in config.start_order(k)],
+        "race": k, "seed": seed, "ego_region": REGIONS[order[0]],
+        "start_regions": [REGIONS[r] for r in order],
         "agents": config.agents, "winner": ROLES[winner],
         "progress_m": [round(float(v), 4) for v in p],
         "margin_m": round(float(p[0] - max(p[1], p[2])), 4),
@@ -139,16 +137,8 @@ class BenchRun:
         self.config = config
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "states").mkdir(exist_ok=True)
-        manifest = self.out / "manifest.json"
-        mine = {"schema_version": SCHEMA_VERSION, "config": asdict(config)}
-        if manifest.exists():
-            theirs = json.loads(manifest.read_text())
-            if theirs != mine:
-                raise ValueError(f"{self.out} holds a benchmark of another config "
-                                 f"({theirs.get('config')}); this run is {mine['config']}. "
-                                 f"Use another --out or delete it")
-        else:
-            _write_atomic(manifest, json.dumps(mine, indent=2))
+        claim(self.out / "manifest.json",
+              {"schema_version": SCHEMA_VERSION, "config": asdict(config)}, "a benchmark")
 
     @property
     def records_path(self) -> Path:
@@ -156,16 +146,8 @@ class BenchRun:
 
     def records(self) -> dict[int, dict]:
         """Finished races by index; a torn (partly written) last line is ignored."""
-        out = {}
-        if self.records_path.exists():
-            for line in self.records_path.read_text().splitlines():
-                try:
-                    rec = json.loads(line)
-                except json.JSONDecodeError:
-                    continue
-                if (self.out / "states" / f"race_{rec['race']:05d}.npz").exists():
-                    out[rec["race"]] = rec
-        return out
+        return {rec["race"]: rec for rec in read_jsonl(self.records_path)
+                if self._states_path(rec["race"]).exists()}
 
     def missing(self) -> list[int]:
         done = self.records()
@@ -174,34 +156,21 @@ class BenchRun:
     def add(self, result: dict) -> None:
         """Store one race: states first, then its JSON line (a line means a complete race)."""
         rec = result["record"]
-        path = self.out / "states" / f"race_{rec['race']:05d}.npz"
-        tmp = path.with_suffix(".tmp.npz")
-        with open(tmp, "wb") as f:
-            np.savez_compressed(f, states=result["states"])
-        tmp.replace(path)
-        text = self.records_path.read_text() if self.records_path.exists() else ""
-        with open(self.records_path, "a") as f:
-            if text and not text.endswith("\n"):
-                f.write("\n")                   # after a torn line
-            f.write(json.dumps(rec) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+        write_npz(self._states_path(rec["race"]), compressed=True, states=result["states"])
+        append_jsonl(self.records_path, rec)
+
+    def _states_path(self, k: int) -> Path:
+        return self.out / "states" / f"race_{k:05d}.npz"
 
     def states(self, k: int) -> np.ndarray:
-        with np.load(self.out / "states" / f"race_{k:05d}.npz") as z:
+        with np.load(self._states_path(k)) as z:
             return z["states"]
 
     def write_summary(self) -> dict:
         summary = summarise(list(self.records().values()), self.config)
-        _write_atomic(self.out / "summary.json", json.dumps(summary, indent=2))
-        _write_atomic(self.out / "summary.md", summary_markdown(summary))
+        write_json(self.out / "summary.json", summary)
+        write_text(self.out / "summary.md", summary_markdown(summary))
         return summary
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
 
 
 # ---------------------------------------------------------------------------- statistics
@@ -335,19 +304,18 @@ def paper_table(out_dir, ego: str = "alpha", races: int = 99, steps: int = 500,
     wall = time.perf_counter() - t0
     history = out / "runs.jsonl"
     if todo:                       # every invocation that raced: the table's total wall time
-        with open(history, "a") as f:
-            f.write(json.dumps({"cases": cases, "races_simulated": todo, "wall_seconds": wall,
-                                "workers": workers, "backend": backend,
-                                "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}) + "\n")
-    past = [json.loads(line) for line in history.read_text().splitlines()] if history.exists() else []
+        append_jsonl(history, {"cases": cases, "races_simulated": todo, "wall_seconds": wall,
+                               "workers": workers, "backend": backend,
+                               "finished": time.strftime("%Y-%m-%dT%H:%M:%S")})
+    past = read_jsonl(history)
     table = {"ego": ego, "races": races, "steps": steps, "track": track, "seed": seed,
              "workers": workers, "backend": backend, "wall_seconds_this_run": wall,
              "runs": past,
              "cases": {c: {"opponents": PAPER_CASES[c].opponents, "title": PAPER_CASES[c].title,
                            "paper_wins": list(PAPER_CASES[c].paper_wins),
                            "summary": runs[c].write_summary()} for c in cases}}
-    _write_atomic(out / "paper_table.json", json.dumps(table, indent=2))
-    _write_atomic(out / "paper_table.md", paper_table_markdown(table))
+    write_json(out / "paper_table.json", table)
+    write_text(out / "paper_table.md", paper_table_markdown(table))
     return table
 
 

@@ -19,8 +19,6 @@ states (unwrapped s); ``thetas`` (R, N, 5) float32; ``rewards`` (R, T, N) float3
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import time
 import warnings
 from dataclasses import asdict, dataclass
@@ -29,6 +27,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from .artifacts import claim, write_npz
 from .parallel import check_backend, run_tasks
 
 SCHEMA_VERSION = 1
@@ -161,17 +160,8 @@ def simulate_shard(config: CollectConfig, shard: int) -> dict:
 
 def write_shard(arrays: dict, shard: int, out_dir) -> str:
     """Write a shard atomically (temporary file, then rename); returns its path."""
-    path = Path(out_dir) / f"shard_{shard:05d}.npz"
-    fd, tmp = tempfile.mkstemp(dir=out_dir, suffix=".npz.tmp")
-    os.close(fd)
-    try:
-        with open(tmp, "wb") as f:       # a file object: savez would append ".npz" to a name
-            np.savez(f, schema_version=SCHEMA_VERSION, **arrays)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-    return str(path)
+    return str(write_npz(Path(out_dir) / f"shard_{shard:05d}.npz",
+                         schema_version=SCHEMA_VERSION, **arrays))
 
 
 def shard_is_complete(path: Path, config: CollectConfig, shard: int) -> bool:
@@ -181,20 +171,6 @@ def shard_is_complete(path: Path, config: CollectConfig, shard: int) -> bool:
                     and z["race_index"].tolist() == list(config.shard_races(shard)))
     except Exception:  # truncated, corrupt or foreign file: redo it
         return False
-
-
-def _write_manifest(out: Path, config: CollectConfig) -> None:
-    manifest = out / "manifest.json"
-    meta = {"schema_version": SCHEMA_VERSION, "config": asdict(config)}
-    if manifest.exists():
-        old = json.loads(manifest.read_text())
-        if old != meta:
-            raise ValueError(f"{out} holds data of another configuration ({old['config']}); "
-                             f"use another --out or the same settings to resume")
-        return
-    tmp = manifest.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(meta, indent=2))
-    tmp.replace(manifest)
 
 
 def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool = True,
@@ -209,7 +185,8 @@ def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool
     check_backend(backend, workers)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    _write_manifest(out, config)
+    claim(out / "manifest.json", {"schema_version": SCHEMA_VERSION, "config": asdict(config)},
+          "race data")
     todo = [k for k in range(config.n_shards)
             if not shard_is_complete(out / f"shard_{k:05d}.npz", config, k)]
     done_races = config.races - sum(len(config.shard_races(k)) for k in todo)

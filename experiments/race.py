@@ -1,7 +1,6 @@
 """Run one race between agents and summarise it (the ``alpha-racer race`` command)."""
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -11,6 +10,8 @@ from tqdm import tqdm
 
 from agents import make_agent_spec
 from racing_env import RacingParallelEnv
+
+from .artifacts import write_json
 
 
 @dataclass
@@ -124,9 +125,7 @@ def write_outputs(result: RaceResult, frames: list, out: Path, animation: str = 
 
     out.mkdir(parents=True, exist_ok=True)
     paths = {"summary": out / "result.json", "trajectories": out / "trajectories.png"}
-    tmp = paths["summary"].with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(result.summary(), indent=2))
-    tmp.replace(paths["summary"])
+    write_json(paths["summary"], result.summary())
     track = make_track(result.track)
     rl = get_raceline(track)
     plot_trajectories(track, result.states, paths["trajectories"], raceline_xy=(rl.x, rl.y),

@@ -58,6 +58,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from .artifacts import claim, write_json
+
 SCHEMA_VERSION = 1
 VEC_ENVS = ("batched", "dummy", "subproc")
 WARMUP_OPPONENTS = ("raceline", "initial")
@@ -166,24 +168,6 @@ class SelfPlayConfig:
 
 
 # ---------------------------------------------------------------------- small file helpers
-def _write_json(path: Path, obj) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2))
-    os.replace(tmp, path)
-
-
-def _write_manifest(out: Path, cfg: SelfPlayConfig) -> None:
-    manifest = out / "config.json"
-    meta = {"schema_version": SCHEMA_VERSION, "config": cfg.to_dict()}
-    if manifest.exists():
-        old = json.loads(manifest.read_text())
-        if old != meta:
-            raise ValueError(f"{out} holds a run of another configuration ({old.get('config')}); "
-                             f"use another --out or the same settings to resume")
-        return
-    _write_json(manifest, meta)
-
-
 def _new_state(cfg: SelfPlayConfig) -> dict:
     return {"turn": 0, "turn_steps": 0, "current": None, "total_steps": 0,
             "train_seconds": 0.0, "cars": [None] * cfg.n_cars, "trained_turns": [0] * cfg.n_cars,
@@ -366,7 +350,7 @@ def _callbacks(cfg, out: Path, state: dict, turn: int, car: int, bar, turn_start
             _advance_state(state, steps)
             clock.book()
             state["current"] = str(path.relative_to(out))
-            _write_json(out / "state.json", state)
+            write_json(out / "state.json", state)
             if old and old != state["current"]:
                 (out / old).unlink(missing_ok=True)     # superseded in-turn checkpoint
 
@@ -521,12 +505,13 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
     out.mkdir(parents=True, exist_ok=True)
     for sub in ("checkpoints/partial", "logs", "final"):
         (out / sub).mkdir(parents=True, exist_ok=True)
-    _write_manifest(out, cfg)
+    claim(out / "config.json", {"schema_version": SCHEMA_VERSION, "config": cfg.to_dict()},
+          "a self-play run")
     state_path = out / "state.json"
     state = json.loads(state_path.read_text()) if state_path.exists() else _new_state(cfg)
     if cfg.mpc_reference and state["mpc_reference"] is None:
         state["mpc_reference"] = mpc_reference(cfg)
-        _write_json(state_path, state)
+        write_json(state_path, state)
     eval_logger = Logger(str(out / "logs" / "eval"), [make_output_format("tensorboard", str(out / "logs" / "eval"))])
 
     total = cfg.turns * cfg.steps_per_turn_actual
@@ -543,7 +528,7 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
         if not resume_from and cfg.init == "bc":
             if not state.get("bc_init"):
                 state["bc_init"] = _behaviour_cloned_init(cfg, out, state, bar)
-                _write_json(state_path, state)
+                write_json(state_path, state)
             resume_from = state["bc_init"]
         if resume_from:
             model = PPO.load(out / resume_from, env=None, device="cpu")
@@ -587,7 +572,7 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
         state["current"] = None
         state["turn"] += 1
         state["turn_steps"] = 0
-        _write_json(state_path, state)
+        write_json(state_path, state)
         if old_current and (out / old_current).exists() and old_current != state["cars"][car]:
             (out / old_current).unlink()
         for key in ("distance_m", "off_track_frac", "distance_vs_mpc", "train_ep_return_m"):
@@ -721,8 +706,8 @@ def finish(cfg: SelfPlayConfig, out: Path, state: dict) -> dict:
     if summary["best"] is not None:
         shutil.copyfile(out / summary["best"]["path"], out / "best.zip")
     state["done"] = summary["done"]
-    _write_json(out / "state.json", state)
-    _write_json(out / "summary.json", summary)
+    write_json(out / "state.json", state)
+    write_json(out / "summary.json", summary)
     if summary["best"] is not None:
         (out / "MODEL_CARD.md").write_text(model_card(cfg, summary, state))
     return summary

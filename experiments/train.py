@@ -34,7 +34,7 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +44,8 @@ from agents.features import FEATURE_VERSION, potential_dim, potential_features, 
 from agents.mlp import MLP
 from agents.potential import PotentialModel
 from agents.reference import THETA_HIGH, THETA_LOW
+
+from .artifacts import claim, write_json, write_text
 
 OBJECTIVES = ("mse", "smoothmax", "tail")
 # progress bars redraw twice a second on a terminal, once a minute into a log file
@@ -211,8 +213,8 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
     model.meta["metrics"] = metrics
     model.meta["command"] = command or f"alpha-racer train --data {data_dir} --out {out_dir}"
     model.save(out / "model.npz")
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    (out / "model_card.md").write_text(model_card_text(model.meta))
+    write_json(out / "metrics.json", metrics)
+    write_text(out / "model_card.md", model_card_text(model.meta))
     log(summary_text(metrics))
     return metrics
 
@@ -222,14 +224,7 @@ def _write_or_check_config(out: Path, cfg: TrainConfig, data_dir) -> None:
     config.pop("threads")                      # how fast, not what: may change on a resume
     manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
     meta = {"feature_version": FEATURE_VERSION, "config": config, "data": manifest}
-    p = out / "train_config.json"
-    if p.exists():
-        old = json.loads(p.read_text())
-        if old != meta:
-            raise ValueError(f"{out} holds a training run of another configuration or data "
-                             f"({p}); use another --out or the same settings to resume")
-        return
-    p.write_text(json.dumps(meta, indent=2))
+    claim(out / "train_config.json", meta, "a training run (config or data)")
 
 
 def _value_samples(states, thetas, races, stride, T, N):
@@ -417,6 +412,13 @@ def approximation_gaps(model: PotentialModel, x, th1, th2, i, track):
     return dphi, dv
 
 
+def relative_gaps(model: PotentialModel, x, th1, th2, i, track, vr: float):
+    """``(|dPhi - dV| / vr, |dV| / vr, dPhi, dV)`` of deviations, arrays (n,): the gap of the
+    learned potential and of a constant one (dPhi = 0), relative to the value range ``vr``."""
+    dphi, dv = approximation_gaps(model, x, th1, th2, i, track)
+    return np.abs(dphi - dv) / vr, np.abs(dv) / vr, dphi, dv
+
+
 def value_range(model: PotentialModel, states, thetas, races, track, rng, n=20000) -> float:
     """Range (max - min) of V_i over held-out states, cars and uniform thetas (the paper's
     normalisation of the approximation gap)."""
@@ -430,9 +432,7 @@ def validate_gaps(model, states, thetas, val_idx, track, cfg) -> dict:
     vr = value_range(model, states, thetas, val_idx, track, rng)
     x, th1, th2, i = sample_deviations(states, thetas, val_idx, cfg.val_pairs, rng,
                                        cfg.own_theta_fraction)
-    dphi, dv = approximation_gaps(model, x, th1, th2, i, track)
-    rel = np.abs(dphi - dv) / vr
-    base = np.abs(dv) / vr                         # a constant potential: dPhi = 0
+    rel, base, dphi, dv = relative_gaps(model, x, th1, th2, i, track, vr)
     q = lambda a, p: float(np.percentile(a, p))
     return {"value_range": vr, "val_pairs": int(cfg.val_pairs),
             "gap_rel_median": q(rel, 50), "gap_rel_p95": q(rel, 95), "gap_rel_max": float(rel.max()),
@@ -443,13 +443,14 @@ def validate_gaps(model, states, thetas, val_idx, track, cfg) -> dict:
             "sign_agreement": float(np.mean(np.sign(dphi) == np.sign(dv)))}
 
 
-def _rollout_job(args):
-    """Discounted return of car i over ``steps`` from joint state x with thetas (own process)."""
+def discounted_rollout(track: str, x, thetas, car: int, steps: int, gamma: float):
+    """``(G, x_end)``: car ``car``'s gamma-discounted return over ``steps`` of MPC cars with
+    ``thetas`` (N, 5) from the joint state ``x`` (N, 6) on ``track`` (a name), and the joint
+    state after them (N, 6) for a bootstrap with V."""
     from experiments.collect import rollout_from_state
-    data_track, x, th, i, steps, gamma = args
-    states, rewards = rollout_from_state(data_track, x, th, steps)
+    states, rewards = rollout_from_state(track, x, thetas, steps)
     disc = gamma ** np.arange(len(rewards))
-    return float(disc @ rewards[:, i]), states[-1]
+    return float(disc @ rewards[:, car]), states[-1]
 
 
 def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_bar) -> dict:
@@ -461,8 +462,8 @@ def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_b
     jobs = [(model.meta["track"], x[k], th, int(i[k]), cfg.rollout_steps, cfg.gamma)
             for k in range(n) for th in (th1[k], th2[k])]
     with ProcessPoolExecutor(max_workers=cfg.threads) as pool:
-        res = list(tqdm(pool.map(_rollout_job, jobs), total=len(jobs), desc="paired rollouts",
-                        disable=not progress_bar))
+        res = list(tqdm(pool.map(discounted_rollout, *zip(*jobs)), total=len(jobs),
+                        desc="paired rollouts", disable=not progress_bar))
     G = np.array([r[0] for r in res]).reshape(n, 2)
     x_end = np.array([r[1] for r in res]).reshape(n, 2, *x.shape[1:])
     boot = cfg.gamma ** cfg.rollout_steps

@@ -55,7 +55,7 @@ def test_slice_state_picks_the_closest_follower():
     X = np.zeros((2, 3, 6))
     X[0, :, 0] = [5.0, 3.0, 1.0]               # gaps 2 m
     X[1, :, 0] = [5.0, 4.9, 1.0]               # car 1 is 0.1 m behind car 0
-    assert slice_state(X, None) == (1, 1)
+    assert slice_state(X) == (1, 1)
 
 
 def test_bad_config_is_refused():

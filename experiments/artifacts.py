@@ -1,0 +1,82 @@
+"""Files of long jobs: atomic writes and the manifest that ties an output folder to one config.
+
+A job killed mid-write must leave either the old file or the new one, never half of one:
+every write goes to a temporary file that is then renamed over the target. A resumable job
+claims its folder with :func:`claim`: the first run writes the manifest, a later run with
+another config is refused (so results of two configs never mix).
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+
+def write_text(path, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically (temporary file, then rename)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path
+
+
+def write_json(path, obj) -> Path:
+    """Write ``obj`` as indented JSON to ``path`` atomically."""
+    return write_text(path, json.dumps(obj, indent=2))
+
+
+def claim(path, meta: dict, what: str, overwrite: bool = False) -> None:
+    """Tie the folder of manifest ``path`` to ``meta``: write it if missing (or ``overwrite``),
+    else raise a ValueError naming both configs when the stored one differs. ``what`` names
+    the folder's content in the message ("a benchmark", "race data", ...)."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        old = json.loads(path.read_text())
+        if old != meta:
+            raise ValueError(f"{path.parent} holds {what} of another configuration "
+                             f"({old.get('config', old)}); this run: {meta.get('config', meta)}. "
+                             f"Use another --out or the same settings to resume")
+        return
+    write_json(path, meta)
+
+
+def write_npz(path, compressed: bool = False, **arrays) -> Path:
+    """Save ``arrays`` to the ``.npz`` file ``path`` atomically."""
+    import numpy as np
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:        # a file object: savez would append ".npz" to a name
+        (np.savez_compressed if compressed else np.savez)(f, **arrays)
+    os.replace(tmp, path)
+    return path
+
+
+def append_jsonl(path, obj) -> None:
+    """Append ``obj`` as one JSON line to ``path``, flushed to disk (a finished record survives
+    a kill). A torn last line left by an earlier kill is closed first, so it stays one bad
+    line that :func:`read_jsonl` skips."""
+    path = Path(path)
+    torn = False
+    if path.exists() and path.stat().st_size:
+        with open(path, "rb") as f:
+            f.seek(-1, os.SEEK_END)
+            torn = f.read(1) != b"\n"
+    with open(path, "a") as f:
+        f.write(("\n" if torn else "") + json.dumps(obj) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def read_jsonl(path) -> list:
+    """The records of a JSON-lines file (none if it is missing), skipping torn lines."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text().splitlines():
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            continue
+    return out
