@@ -80,8 +80,6 @@ def make_venv(backend: str, policy, vecnorm):
             opps = [PredictOpponent(policy, vecnorm) for _ in range(2)]
         else:
             opps = [FrozenPolicy(policy, vecnorm, n_cars=3) for _ in range(2)]
-            for o in opps:
-                o.policy = None
         fns = [(lambda o=copy.deepcopy(opps): gym.make(ENV_ID, opponents=o)) for _ in range(N_ENVS)]
         if backend.startswith("subproc"):
             venv = SubprocVecEnv(fns, start_method="fork")

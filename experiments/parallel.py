@@ -23,7 +23,9 @@ def check_backend(backend: str, workers) -> None:
 
 
 def _single_threaded() -> None:
-    """Pool initialiser: one BLAS/torch thread per worker (the workers are the parallelism)."""
+    """Pool initialiser: one torch thread per worker (the workers are the parallelism). The
+    variables reach the thread pools a worker starts itself (OpenMP of a torch first imported
+    there); numpy's BLAS, loaded before the fork, keeps the driver's setting."""
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = "1"
     try:

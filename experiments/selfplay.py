@@ -47,6 +47,7 @@ unfinished turn continues from its last in-turn checkpoint.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
@@ -58,7 +59,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from .artifacts import claim, write_json
+from .artifacts import claim, write_json, write_text
 
 SCHEMA_VERSION = 1
 VEC_ENVS = ("batched", "dummy", "subproc")
@@ -194,10 +195,10 @@ def make_learning_env(cfg: SelfPlayConfig, opponents: list, seed: int):
         import racing_env  # noqa: F401  registers the env
         from racing_env.registration import ENV_ID
 
-        def make(i):
+        def make():
             opps = [copy.deepcopy(o) for o in opponents]
             return lambda: gym.make(ENV_ID, opponents=opps, track=cfg.track, config=race_config(cfg))
-        fns = [make(i) for i in range(cfg.n_envs)]
+        fns = [make() for _ in range(cfg.n_envs)]
         venv = DummyVecEnv(fns) if cfg.vec_env == "dummy" else SubprocVecEnv(fns, start_method="fork")
     venv.seed(seed)
     return venv
@@ -205,11 +206,16 @@ def make_learning_env(cfg: SelfPlayConfig, opponents: list, seed: int):
 
 def frozen_policy(path):
     """The policy of a checkpoint as a batched agent (:class:`agents.ppo_agent.FrozenPolicy`)."""
-    from agents.ppo_agent import FrozenPolicy, PPOAgent
-    agent = PPOAgent(checkpoint=path)
-    if agent.layers is not None:
-        agent.policy = None           # numpy actor only: light to copy into worker processes
-    return agent
+    from agents.ppo_agent import PPOAgent
+    return PPOAgent(checkpoint=path)
+
+
+def live_policy(model, cfg: SelfPlayConfig):
+    """The policy being trained, as a :class:`agents.ppo_agent.FrozenPolicy` with its current
+    weights and observation statistics (what a checkpoint saved now would race)."""
+    from agents.ppo_agent import FrozenPolicy
+    return FrozenPolicy(model.policy, model.get_vec_normalize_env(), n_cars=cfg.n_cars,
+                        n_preview=race_config(cfg).n_preview)
 
 
 def _opponents(cfg: SelfPlayConfig, out: Path, state: dict, car: int) -> tuple[list, list[str]]:
@@ -388,16 +394,13 @@ def _save(model, cfg, state, path: Path, car: int, turn: int, turn_steps: int, e
 
 # ---------------------------------------------------------------------- outputs
 def write_evals_csv(out: Path, state: dict) -> None:
-    path = out / "evals.csv"
-    tmp = path.with_suffix(".csv.tmp")
     keys = ["phase", "turn", "cycle", "car", "total_steps", "train_seconds", "train_cpu_seconds",
             "distance_m", "off_track_frac", "train_ep_return_m", "distance_vs_mpc"]
-    with open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, keys, extrasaction="ignore")
-        w.writeheader()
-        for e in state["evals"]:
-            w.writerow(e)
-    os.replace(tmp, path)
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, keys, extrasaction="ignore")
+    w.writeheader()
+    w.writerows(state["evals"])
+    write_text(out / "evals.csv", buf.getvalue())
 
 
 def plot_learning_curve(out: Path, state: dict, cfg: SelfPlayConfig) -> Path:
@@ -468,8 +471,7 @@ def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: dict, bar) -> 
     fit = behaviour_cloning(model, cfg, cfg.seed)
     state["bc_cpu_seconds"] = round(time.process_time() - c0, 1)
     path = out / "checkpoints" / "bc_init.zip"
-    _save(model, cfg, state, path, -1, -1, 0)
-    ev = evaluate_solo(frozen_policy(path), cfg)
+    ev = evaluate_solo(live_policy(model, cfg), cfg)
     _save(model, cfg, state, path, -1, -1, 0, {**ev, "bc": fit})
     state["evals"] = [e for e in state["evals"] if e["phase"] != "bc"]
     state["evals"].append(_eval_row(cfg, state, -1, -1, ev, None, phase="bc"))
@@ -539,8 +541,7 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
         else:
             vecnorm = VecNormalize(venv, gamma=cfg.gamma, norm_reward=cfg.norm_reward)
             model = _new_model(cfg, vecnorm, cfg.seed + car)
-        model.set_random_seed(seed)
-        venv.seed(seed)
+        model.set_random_seed(seed)                      # seeds the venv too
         model.ep_info_buffer = None                      # episode stats of this turn only
         log_dir = out / "logs" / f"car_{car}"
         log_dir.mkdir(parents=True, exist_ok=True)
@@ -560,8 +561,7 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
         _advance_state(state, model.num_timesteps - turn_start)
         state["trained_turns"][car] += 1
         path = out / "checkpoints" / f"turn_{turn:03d}_car_{car}.zip"
-        _save(model, cfg, state, path, car, turn, state["turn_steps"])
-        evaluation = evaluate_solo(frozen_policy(path), cfg)
+        evaluation = evaluate_solo(live_policy(model, cfg), cfg)
         _save(model, cfg, state, path, car, turn, state["turn_steps"], evaluation)
         ep = [e["ep_rew_mean"] for e in state["train_curve"] if e["turn"] == turn]
         ref = state["mpc_reference"]
@@ -709,5 +709,5 @@ def finish(cfg: SelfPlayConfig, out: Path, state: dict) -> dict:
     write_json(out / "state.json", state)
     write_json(out / "summary.json", summary)
     if summary["best"] is not None:
-        (out / "MODEL_CARD.md").write_text(model_card(cfg, summary, state))
+        write_text(out / "MODEL_CARD.md", model_card(cfg, summary, state))
     return summary

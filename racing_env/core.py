@@ -18,6 +18,9 @@ from .tracks import make_track
 S_CLIP = 1.0e4
 """Bound [m] of the relative progress entries of an observation."""
 
+#: Keys of the envs' per-car info dicts, as :meth:`BatchedRaces.infos` fills them.
+INFO_KEYS = ("contact", "off_track", "laps", "progress", "substeps", "contacts", "off_tracks")
+
 
 def start_states(track: Track, n_cars: int, start: StartConfig, width: float,
                  rng: np.random.Generator, order=None) -> np.ndarray:
@@ -209,6 +212,16 @@ class BatchedRaces:
     def progress(self) -> np.ndarray:
         """Distance driven since the start [m], (B, N)."""
         return self.state[:, :, 0] - self.start[:, :, 0]
+
+    def infos(self, races, cars) -> list[dict]:
+        """The envs' info dicts (keys :data:`INFO_KEYS`) of the cars ``cars`` in races
+        ``races`` (integers or index arrays, broadcast together), in that order."""
+        r, c = np.broadcast_arrays(np.asarray(races), np.asarray(cars))
+        cols = (self.contact[r, c].astype(bool).tolist(), self.offtrack[r, c].astype(bool).tolist(),
+                self.laps[r, c].tolist(), (self.state[r, c, 0] - self.start[r, c, 0]).tolist(),
+                self.substeps[r, c].tolist(), self.contacts[r, c].tolist(),
+                self.offtracks[r, c].tolist())
+        return [dict(zip(INFO_KEYS, col)) for col in zip(*cols)]
 
     def state_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) of one car's state (6,): the documented physical envelope.

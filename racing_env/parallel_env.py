@@ -11,7 +11,6 @@ from .track import Track
 from .vehicle import VehicleParams
 
 
-_INFO_KEYS = ("contact", "off_track", "laps", "progress", "substeps", "contacts", "off_tracks")
 
 
 class RacingParallelEnv(ParallelEnv):
@@ -172,11 +171,7 @@ class RacingParallelEnv(ParallelEnv):
 
     def _infos(self) -> list[dict]:
         """Per-car info dicts (see the class docstring), in car order."""
-        c = self.core
-        cols = zip(c.contact[0].astype(bool).tolist(), c.offtrack[0].astype(bool).tolist(),
-                   c.laps[0].tolist(), (c.state[0, :, 0] - c.start[0, :, 0]).tolist(),
-                   c.substeps[0].tolist(), c.contacts[0].tolist(), c.offtracks[0].tolist())
-        return [dict(zip(_INFO_KEYS, col)) for col in cols]
+        return self.core.infos(0, np.arange(self.core.n_cars))
 
     def state(self) -> np.ndarray:
         return self.core.state[0].reshape(-1).astype(np.float32)

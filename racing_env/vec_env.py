@@ -25,7 +25,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from .config import RaceConfig
 from .core import BatchedRaces
-from .parallel_env import _INFO_KEYS, _start_config
+from .parallel_env import _start_config
 from .track import Track
 
 
@@ -52,10 +52,6 @@ class HeadToHeadVecEnv(VecEnv):
             from .controllers import RacelineFollower
             opponents = [RacelineFollower(mu=0.75), RacelineFollower(mu=0.8)]
         opponents = list(opponents)
-        for k, opp in enumerate(opponents):
-            if not (callable(getattr(opp, "act", None)) and callable(getattr(opp, "reset", None))):
-                raise ValueError(f"opponent {k} ({opp!r}) must have reset(track, agent_id, seed) "
-                                 f"and act(observation) methods")
         cfg = config or RaceConfig()
         changes = {}
         n_cars = kwargs.pop("n_cars", 1 + len(opponents))
@@ -74,13 +70,10 @@ class HeadToHeadVecEnv(VecEnv):
         cfg = cfg.with_(**changes)
         self.core = BatchedRaces(track, cfg, n_races=int(n_envs))
         self.track = self.core.track
-        # batched opponents act for all races at once; the others get one copy per race
-        self._batched = [callable(getattr(o, "act_batch", None)) for o in opponents]
-        self.opponents = [o if b else [copy.deepcopy(o) for _ in range(n_envs)]
-                          for o, b in zip(opponents, self._batched)]
         lo, hi = self.core.observation_bounds()
         super().__init__(int(n_envs), spaces.Box(lo, hi, dtype=np.float32),
                          spaces.Box(-1.0, 1.0, (2,), dtype=np.float32))
+        self._install(opponents)
         self._rngs = [None] * self.num_envs          # per-race generators, as HeadToHeadEnv.np_random
         self._obs = None
         self._actions = np.zeros((self.num_envs, n_cars, 2))
@@ -100,8 +93,7 @@ class HeadToHeadVecEnv(VecEnv):
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; known: start, order")
         start = _start_config(options["start"], self.config.start) if "start" in options else None
-        self.core.rng = np.random.default_rng(race_seed)     # as BatchedRaces.reset(seed=race_seed)
-        self.core.reset(races=[b], order=options.get("order"), start=start)
+        self.core.reset(seed=race_seed, races=[b], order=options.get("order"), start=start)
         for k, opp in enumerate(self.opponents):
             agent_id = self.agent_ids[k + 1]
             if self._batched[k]:
@@ -150,15 +142,7 @@ class HeadToHeadVecEnv(VecEnv):
 
     def _infos(self, races) -> list[dict]:
         """The learner's info dicts of races ``races`` (keys as the parallel env's)."""
-        c = self.core
-        out = []
-        for b in races:
-            out.append(dict(zip(_INFO_KEYS, (bool(c.contact[b, 0]), bool(c.offtrack[b, 0]),
-                                             int(c.laps[b, 0]),
-                                             float(c.state[b, 0, 0] - c.start[b, 0, 0]),
-                                             int(c.substeps[b, 0]), int(c.contacts[b, 0]),
-                                             int(c.offtracks[b, 0])))))
-        return out
+        return self.core.infos(np.fromiter(races, dtype=np.int64), 0)
 
     # ------------------------------------------------------------------ VecEnv plumbing
     def set_opponents(self, opponents: Sequence) -> None:
@@ -167,6 +151,15 @@ class HeadToHeadVecEnv(VecEnv):
         opponents = list(opponents)
         if len(opponents) != len(self.opponents):
             raise ValueError(f"{len(opponents)} opponents given, the env has {len(self.opponents)}")
+        self._install(opponents)
+
+    def _install(self, opponents: list) -> None:
+        """Check the opponents; batched ones (``act_batch``) act for all races at once, the
+        others get one copy per race."""
+        for k, opp in enumerate(opponents):
+            if not (callable(getattr(opp, "act", None)) and callable(getattr(opp, "reset", None))):
+                raise ValueError(f"opponent {k} ({opp!r}) must have reset(track, agent_id, seed) "
+                                 f"and act(observation) methods")
         self._batched = [callable(getattr(o, "act_batch", None)) for o in opponents]
         self.opponents = [o if bt else [copy.deepcopy(o) for _ in range(self.num_envs)]
                           for o, bt in zip(opponents, self._batched)]

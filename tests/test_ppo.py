@@ -145,17 +145,17 @@ def test_selfplay_tiny_end_to_end(tmp_path, capsys):
 
 def test_selfplay_resumes_from_the_last_checkpoint(tmp_path, monkeypatch):
     cfg = SelfPlayConfig(**{**TINY, "steps_per_turn": 256})          # 2 rollouts per turn
-    real_write = sp._write_json
+    real_write = sp.write_json
 
     def interrupt_after_in_turn_checkpoint(path, obj):
         real_write(path, obj)
         if path.name == "state.json" and obj.get("turn") == 1 and obj.get("current"):
             raise KeyboardInterrupt                      # killed in the middle of turn 2
 
-    monkeypatch.setattr(sp, "_write_json", interrupt_after_in_turn_checkpoint)
+    monkeypatch.setattr(sp, "write_json", interrupt_after_in_turn_checkpoint)
     with pytest.raises(KeyboardInterrupt):
         selfplay(cfg, tmp_path, progress_bar=False)
-    monkeypatch.setattr(sp, "_write_json", real_write)
+    monkeypatch.setattr(sp, "write_json", real_write)
     state = json.loads((tmp_path / "state.json").read_text())
     assert state["turn"] == 1 and state["turn_steps"] == 128 and state["total_steps"] == 384
     first_turn = (tmp_path / "checkpoints" / "turn_000_car_0.zip").stat().st_mtime_ns
