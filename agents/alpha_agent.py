@@ -5,7 +5,9 @@ potential Phi(x_t, .) over the joint theta of all cars within the bounds (projec
 ascent warm-started from the last step's maximiser, plus random restarts; see
 :meth:`agents.potential.PotentialModel.maximise`), and drives its MPC with its own part
 theta*_ego. ``stats`` reports the maximisation and MPC times, the potential value and the
-theta chosen.
+theta chosen. A decision runs numpy's BLAS on one thread
+(:func:`agents.threads.single_blas_thread`, ~10 us): the same race gives the same states
+bit for bit whatever the process's thread count.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from .base import median_p99, register_agent
 from .mpc_agent import MPCAgent, split_observation
 from .potential import PotentialModel, cached_model
 from .reference import THETA_HIGH, THETA_LOW, THETA_NAMES, Theta
+from .threads import single_blas_thread
 
 @register_agent("alpha")
 class AlphaAgent(MPCAgent):
@@ -26,20 +29,25 @@ class AlphaAgent(MPCAgent):
 
     Parameters: ``model`` (a shipped model name, see :func:`agents.potential.load_model`, or a
     path to a ``model.npz``; default ``"default"``), ``restarts`` (starts of the gradient
-    ascent, the first being the warm start; 4), ``iterations`` (gradient steps per start; 6),
-    and the :class:`MPCAgent` keywords (``config``, ``vehicle``, ``n_preview``). The model must
-    have been trained for the race's number of cars.
+    ascent, the first being the warm start; 4), ``iterations`` (gradient steps per start; 4),
+    ``cold_restarts`` and ``cold_iterations`` (the same for the first decision of a race, which
+    has no warm start; 32 and 12), and the :class:`MPCAgent` keywords (``config``,
+    ``vehicle``, ``n_preview``). The model must have been trained for the race's number of cars.
     """
 
-    def __init__(self, model="default", restarts: int = 4, iterations: int = 6, **mpc_kwargs):
+    def __init__(self, model="default", restarts: int = 4, iterations: int = 4,
+                 cold_restarts: int = 32, cold_iterations: int = 12, **mpc_kwargs):
         super().__init__(**mpc_kwargs)
-        if not (isinstance(restarts, int) and restarts >= 1):
-            raise ValueError(f"restarts must be an integer >= 1, got {restarts!r}")
-        if not (isinstance(iterations, int) and iterations >= 0):
-            raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
+        for name, v in (("restarts", restarts), ("cold_restarts", cold_restarts)):
+            if not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+        for name, v in (("iterations", iterations), ("cold_iterations", cold_iterations)):
+            if not (isinstance(v, int) and v >= 0):
+                raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
         self.model_name = model
         self.model = model if isinstance(model, PotentialModel) else cached_model(model)
         self.restarts, self.iterations = restarts, iterations
+        self.cold_restarts, self.cold_iterations = cold_restarts, cold_iterations
         self._theta_joint = None
         self._max_ms: deque = deque(maxlen=100_000)
 
@@ -66,15 +74,21 @@ class AlphaAgent(MPCAgent):
     def act(self, observation) -> np.ndarray:
         if self.mpc is None:
             raise RuntimeError("AlphaAgent.act() before reset(track, ...)")
+        with single_blas_thread():
+            return self._act(observation)
+
+    def _act(self, observation) -> np.ndarray:
         t0 = time.perf_counter()
         ego, others = split_observation(observation, self.n_preview)
         joint = np.vstack([ego[None], others])                  # ego first, then the others
         if len(joint) != self.model.n_cars:
             raise ValueError(f"alpha-potential model trained for {self.model.n_cars} cars, the "
                              f"race has {len(joint)}")
-        theta, phi = self.model.maximise(joint, self.track, self._theta_joint,
-                                         restarts=self.restarts, iterations=self.iterations,
-                                         rng=self._rng)
+        cold = self._theta_joint is None
+        theta, phi = self.model.maximise(
+            joint, self.track, self._theta_joint, rng=self._rng,
+            restarts=self.cold_restarts if cold else self.restarts,
+            iterations=self.cold_iterations if cold else self.iterations)
         self._theta_joint = theta
         self.theta = Theta.from_array(np.clip(theta[0], THETA_LOW, THETA_HIGH))
         self.last_potential = phi

@@ -31,6 +31,7 @@ class MLP:
         self.inv_std = (1.0 / np.asarray(std, dtype=np.float64)).astype(_F)
         self.y_scale = float(y_scale)
         self.y_shift = float(y_shift)
+        self._normalise = True
         if self.layers[-1][0].shape[1] != 1:
             raise ValueError(f"the last layer must have one output, got {self.layers[-1][0].shape}")
 
@@ -42,10 +43,10 @@ class MLP:
         x = np.asarray(x, dtype=_F)
         if x.shape[-1] != self.in_dim:
             raise ValueError(f"input has {x.shape[-1]} features, this network takes {self.in_dim}")
-        return x
+        return (x - self.mean) * self.inv_std if self._normalise else x
 
     def __call__(self, x) -> np.ndarray:
-        h = (self._check(x) - self.mean) * self.inv_std
+        h = self._check(x)
         for W, b in self.layers[:-1]:
             h = _silu(h @ W + b)
         W, b = self.layers[-1]
@@ -53,19 +54,44 @@ class MLP:
 
     def value_and_input_grad(self, x):
         """(y (B,), dy/dx (B, in)) for x (B, in)."""
-        h = (self._check(x) - self.mean) * self.inv_std
-        pre = []
+        h = self._check(x)
+        dsilu = []
         for W, b in self.layers[:-1]:
             z = h @ W + b
-            pre.append(z)
-            h = _silu(z)
+            sig = 1.0 / (1.0 + np.exp(-z))
+            h = z * sig
+            dsilu.append(sig * (1.0 + z * (1.0 - sig)))
         W, b = self.layers[-1]
         y = (h @ W + b)[..., 0].astype(np.float64) * self.y_scale + self.y_shift
-        g = np.broadcast_to(W[:, 0] * _F(self.y_scale), h.shape)
-        for WT, z in zip(reversed(self._WT[:-1]), reversed(pre)):
-            sig = 1.0 / (1.0 + np.exp(-z))
-            g = (g * sig * (1.0 + z * (1.0 - sig))) @ WT
-        return y, (g * self.inv_std).astype(np.float64)
+        g = W[:, 0] * _F(self.y_scale)
+        for WT, d in zip(reversed(self._WT[:-1]), reversed(dsilu)):
+            g = (g * d) @ WT
+        if self._normalise:
+            g = g * self.inv_std
+        return y, np.broadcast_to(g, h.shape[:-1] + (self.in_dim,)).astype(np.float64)
+
+    def restricted(self, x, free) -> "MLP":
+        """This network as a function of the inputs ``free`` (column indices, F) alone, the
+        others fixed at ``x`` (in,): an MLP of F inputs (unnormalised) sharing the deeper
+        layers' weights. The fixed inputs' share of the first layer is computed here once, so
+        each later evaluation multiplies F columns instead of ``in``: the alpha agent's ascent
+        over theta at a fixed state. For evaluation only (it is not saved)."""
+        x = np.asarray(x, dtype=_F)
+        free = np.asarray(free, dtype=np.int64)
+        if x.shape != (self.in_dim,):
+            raise ValueError(f"x must have shape ({self.in_dim},), got {x.shape}")
+        W0, b0 = self.layers[0]
+        xn = (x - self.mean) * self.inv_std
+        xn[free] = 0.0
+        W0f = self.inv_std[free, None] * W0[free]                     # (F, out0)
+        b0f = xn @ W0 + b0 - (self.mean[free] * self.inv_std[free]) @ W0[free]
+        out = MLP.__new__(MLP)
+        out.layers = [(W0f, b0f.astype(_F))] + self.layers[1:]
+        out._WT = [np.ascontiguousarray(W0f.T)] + self._WT[1:]
+        out.mean, out.inv_std = None, None
+        out.y_scale, out.y_shift = self.y_scale, self.y_shift
+        out._normalise = False
+        return out
 
     def to_arrays(self, prefix: str) -> dict:
         out = {f"{prefix}mean": self.mean, f"{prefix}std": 1.0 / self.inv_std.astype(np.float64),

@@ -15,6 +15,7 @@ import numpy as np
 from .features import (FEATURE_VERSION, potential_features, potential_theta_slots, progress_order,
                        scale_theta, unscale_theta, value_features)
 from .mlp import MLP
+from .threads import single_blas_thread
 
 MODEL_DIR = Path(__file__).parent / "models"
 SHIPPED = {"default": "alpha_default.npz", "gamma0.98": "alpha_gamma098.npz",
@@ -70,10 +71,78 @@ class PotentialModel:
         self._check_cars(states)
         return self.potential_net(potential_features(states, thetas, track))
 
-    def maximise(self, state, track, theta0=None, restarts: int = 4, iterations: int = 8,
+    def maximise(self, state, track, theta0=None, restarts: int = 4, iterations: int = 4,
+                 rng: np.random.Generator | None = None, step: float = 0.5,
+                 warm_step: float = 0.15, decay: float = 0.8):
+        """Projected gradient ascent (Adam steps) of Phi(x, .) over the joint theta within its
+        bounds; returns ``(theta* (N, 5), Phi*)``, the best iterate seen.
+
+        ``state`` (N, 6) joint state; ``theta0`` (N, 5) warm start (e.g. the last step's
+        maximiser), else the box centre; the other ``restarts - 1`` starts are uniform random
+        draws from ``rng``. All starts ascend together (one matrix product per layer and
+        step) on theta scaled to [-1, 1]: ``iterations`` Adam steps (moment decays 0.2 and 0.9:
+        little momentum, which measured best for these short runs), each
+        projected onto the box, of length ``warm_step`` for the warm start (it is usually
+        close to the maximum: short steps refine it) and ``step`` for the others (explore),
+        both shrinking by ``decay`` per step. The network's first layer is multiplied with the
+        state's features once per call (:meth:`agents.mlp.MLP.restricted`); only the 5 N
+        theta columns change during the ascent.
+
+        Without a warm start (the first decision of a race) the ascent needs many more starts
+        and steps to be good (:class:`agents.alpha_agent.AlphaAgent` uses 32 and 12 then).
+        Matrix products run on one BLAS thread (:func:`agents.threads.single_blas_thread`):
+        the result does not depend on the process's thread count. Versus
+        :meth:`maximise_reference` on 300 states of an alpha race (warm starts from the race):
+        about half the cost and a smaller shortfall from a dense search; see
+        ``benchmarks/alpha_speed.py``.
+        """
+        self._check_cars(state[None])
+        if restarts < 1 or iterations < 0:
+            raise ValueError(f"maximise needs restarts >= 1 and iterations >= 0, got "
+                             f"{restarts}, {iterations}")
+        state = np.asarray(state, dtype=float)
+        N = self.n_cars
+        rng = rng or np.random.default_rng(0)
+        Z = np.empty((restarts, N * 5))
+        Z[0] = 0.0 if theta0 is None else scale_theta(theta0).ravel()
+        for k in range(1, restarts):                  # the draws of maximise_reference
+            Z[k] = rng.uniform(-1.0, 1.0, (N, 5)).ravel()
+        lr = np.full((restarts, 1), step)
+        if theta0 is not None:
+            lr[0] = warm_step
+        order = progress_order(state)
+        slots = potential_theta_slots(N)[np.argsort(order)].ravel()      # car-major columns
+        base = potential_features(state, np.zeros((N, 5)), track, order)
+        with single_blas_thread():
+            phi = self.potential_net.restricted(base, slots)
+            best_val, best_z = -np.inf, Z[0]
+            m = np.zeros_like(Z)
+            v = np.zeros_like(Z)
+            for it in range(iterations + 1):
+                if it < iterations:
+                    val, g = phi.value_and_input_grad(Z)
+                else:
+                    val = phi(Z)
+                k = int(np.argmax(val))
+                if val[k] > best_val:
+                    best_val, best_z = float(val[k]), Z[k].copy()
+                if it == iterations:
+                    break
+                m = 0.2 * m + 0.8 * g
+                v = 0.9 * v + 0.1 * g * g
+                m_hat = m / (1.0 - 0.2 ** (it + 1))
+                v_hat = v / (1.0 - 0.9 ** (it + 1))
+                Z = np.clip(Z + lr * m_hat / (np.sqrt(v_hat) + 1e-12), -1.0, 1.0)
+                lr *= decay
+        return unscale_theta(best_z.reshape(N, 5)), best_val
+
+    def maximise_reference(self, state, track, theta0=None, restarts: int = 4, iterations: int = 8,
                  rng: np.random.Generator | None = None, step: float = 0.4, decay: float = 0.7,
                  per_coordinate: bool = False):
-        """Projected gradient ascent of Phi(x, .) over the joint theta within its bounds.
+        """The maximisation of the first release (6 RMS-normalised steps from 4 starts), kept as
+        the baseline that ``benchmarks/alpha_speed.py`` compares :meth:`maximise` with.
+
+        Projected gradient ascent of Phi(x, .) over the joint theta within its bounds.
 
         ``state`` (N, 6) joint state; ``theta0`` (N, 5) warm start (e.g. the last step's
         maximiser); the other ``restarts - 1`` starts are uniform random draws from ``rng``
