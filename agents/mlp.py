@@ -68,7 +68,9 @@ class MLP:
             g = (g * d) @ WT
         if self._normalise:
             g = g * self.inv_std
-        return y, np.broadcast_to(g, h.shape[:-1] + (self.in_dim,)).astype(np.float64)
+        if g.shape != h.shape[:-1] + (self.in_dim,):          # no hidden layer: g is constant
+            g = np.broadcast_to(g, h.shape[:-1] + (self.in_dim,))
+        return y, g.astype(np.float64)
 
     def restricted(self, x, free) -> "MLP":
         """This network as a function of the inputs ``free`` (column indices, F) alone, the

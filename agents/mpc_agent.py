@@ -10,6 +10,7 @@ from racing_env.vehicle import VehicleParams
 from .base import median_p99, register_agent
 from .mpc import MPC, MPCConfig
 from .reference import Theta, reference_trajectory
+from .threads import single_blas_thread
 
 
 def joint_state_from_observation(obs: np.ndarray, n_cars: int):
@@ -52,7 +53,10 @@ class MPCAgent:
     ``theta`` keywords ``q, zeta, s1, s2, s3`` (defaults: a mid-range, safe setting), an
     :class:`MPCConfig`, :class:`VehicleParams`, and the env's ``n_preview`` (to read the
     observation layout). ``stats`` reports solves, fallbacks,
-    restarts from the follower rollout, and solve times.
+    restarts from the follower rollout, and solve times. A decision runs numpy's BLAS on one
+    thread (:func:`agents.threads.single_blas_thread`), so its results cannot depend on the
+    process's thread count (OpenBLAS measured different last bits with two threads for a
+    100 x 100 float64 product with a transposed operand, the MPC's sizes).
     """
 
     def __init__(self, q: float = 20.0, zeta: float = 0.9, s1: float = 0.1, s2: float = 4.0,
@@ -87,15 +91,16 @@ class MPCAgent:
     def act(self, observation) -> np.ndarray:
         if self.mpc is None:
             raise RuntimeError("MPCAgent.act() before reset(track, ...)")
-        ego, others = split_observation(observation, self.n_preview)
-        ref = reference_trajectory(self.theta, ego, others if len(others) else None,
-                                   self.raceline, self.track, K=self.config.horizon,
-                                   dt=self.config.dt)
-        neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
-        opp = None
-        if neighbours:
-            o = others[neighbours]
-            opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, self.track)])
-        u = self.mpc.solve(ego, ref.s_ref, ref.n_ref, self.theta.q, opp, self._u_prev)
-        self._u_prev = u
-        return u.astype(np.float32)
+        with single_blas_thread():       # results independent of the BLAS thread count
+            ego, others = split_observation(observation, self.n_preview)
+            ref = reference_trajectory(self.theta, ego, others if len(others) else None,
+                                       self.raceline, self.track, K=self.config.horizon,
+                                       dt=self.config.dt)
+            neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
+            opp = None
+            if neighbours:
+                o = others[neighbours]
+                opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, self.track)])
+            u = self.mpc.solve(ego, ref.s_ref, ref.n_ref, self.theta.q, opp, self._u_prev)
+            self._u_prev = u
+            return u.astype(np.float32)

@@ -4,10 +4,15 @@ Tasks are ``fn(*args)`` for each ``args`` of a list; ``fn`` must be a picklable 
 function without file access (a remote Ray worker need not share the driver's disk). Each
 result goes to ``finished(key, result)`` in the driver as soon as it arrives, so a driver that
 writes results there loses no finished work when it is killed.
+
+Every task runs with one native thread per library (BLAS, OpenMP, torch, numba; see
+:mod:`agents.threads`): pinned for good in pool and Ray workers (the workers are the
+parallelism; two BLAS threads in each of two workers on two cores made decisions ten times
+slower), for the task's duration when ``workers = 1`` runs it in the driver. So a task gives
+the same result bit for bit whatever the worker count, backend or thread variables.
 """
 from __future__ import annotations
 
-import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Callable, Hashable, Sequence
 
@@ -22,17 +27,22 @@ def check_backend(backend: str, workers) -> None:
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
 
 
-def _single_threaded() -> None:
-    """Pool initialiser: one torch thread per worker (the workers are the parallelism). The
-    variables reach the thread pools a worker starts itself (OpenMP of a torch first imported
-    there); numpy's BLAS, loaded before the fork, keeps the driver's setting."""
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ[var] = "1"
-    try:
-        import torch
-        torch.set_num_threads(1)
-    except ImportError:
-        pass
+def pin_worker() -> None:
+    """Pool initialiser: one native thread per library in this worker, for good."""
+    from agents.threads import pin_threads
+    pin_threads(1)
+
+
+_pinned = False
+
+
+def _pinned_call(fn, *args):
+    """``fn(*args)`` in a Ray worker, pinned to one thread per library at its first task."""
+    global _pinned
+    if not _pinned:
+        pin_worker()
+        _pinned = True
+    return fn(*args)
 
 
 def run_tasks(fn: Callable, tasks: Sequence[tuple[Hashable, tuple]],
@@ -51,10 +61,13 @@ def run_tasks(fn: Callable, tasks: Sequence[tuple[Hashable, tuple]],
     if backend == "ray":
         _run_ray(fn, tasks, finished, workers, address)
     elif workers <= 1:
+        from agents.threads import limited_threads
         for key, args in tasks:
-            finished(key, fn(*args))
+            with limited_threads(1):
+                result = fn(*args)
+            finished(key, result)
     else:
-        with ProcessPoolExecutor(max_workers=workers, initializer=_single_threaded) as pool:
+        with ProcessPoolExecutor(max_workers=workers, initializer=pin_worker) as pool:
             futures = {pool.submit(fn, *args): key for key, args in tasks}
             for f in as_completed(futures):
                 finished(futures[f], f.result())
@@ -72,8 +85,8 @@ def _run_ray(fn, tasks, finished, workers, address) -> None:
         else:
             ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
     try:
-        task = ray.remote(num_cpus=1)(fn)
-        pending = {task.remote(*args): key for key, args in tasks}
+        task = ray.remote(num_cpus=1)(_pinned_call)
+        pending = {task.remote(fn, *args): key for key, args in tasks}
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:

@@ -46,6 +46,7 @@ from agents.potential import PotentialModel
 from agents.reference import THETA_HIGH, THETA_LOW
 
 from .artifacts import claim, write_json, write_text
+from .parallel import pin_worker
 
 OBJECTIVES = ("mse", "smoothmax", "tail")
 # progress bars redraw twice a second on a terminal, once a minute into a log file
@@ -461,7 +462,7 @@ def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_b
     x, th1, th2, i = sample_deviations(states, thetas, val_idx, n, rng, own_theta_fraction=1.0)
     jobs = [(model.meta["track"], x[k], th, int(i[k]), cfg.rollout_steps, cfg.gamma)
             for k in range(n) for th in (th1[k], th2[k])]
-    with ProcessPoolExecutor(max_workers=cfg.threads) as pool:
+    with ProcessPoolExecutor(max_workers=cfg.threads, initializer=pin_worker) as pool:
         res = list(tqdm(pool.map(discounted_rollout, *zip(*jobs)), total=len(jobs),
                         desc="paired rollouts", disable=not progress_bar))
     G = np.array([r[0] for r in res]).reshape(n, 2)

@@ -224,3 +224,77 @@ def test_shipped_models_load_and_race():
     meta = {**m.meta, "feature_version": -1}
     with pytest.raises(ValueError, match="feature version -1"):
         PotentialModel(m.value_net, m.potential_net, meta)
+
+
+def test_restricted_network_matches_the_full_one_for_any_layer_sizes():
+    """MLP.restricted (the ascent's evaluator over the theta columns) gives the full
+    network's value and input gradient on those columns, for any depth and widths."""
+    rng = np.random.default_rng(3)
+    for hidden in ((), (7,), (16, 9), (12, 5, 8)):
+        dims = (11,) + hidden + (1,)
+        layers = [(rng.normal(size=(a, b)) / np.sqrt(a), rng.normal(size=b) * 0.1)
+                  for a, b in zip(dims[:-1], dims[1:])]
+        net = MLP(layers, rng.normal(size=11), rng.uniform(0.5, 2, 11), 2.5, -0.3)
+        x = rng.normal(size=11)
+        free = np.array([9, 2, 5])
+        Z = rng.uniform(-1, 1, (4, 3))
+        X = np.repeat(x[None], 4, 0)
+        X[:, free] = Z
+        y, g = net.value_and_input_grad(X)
+        sub = net.restricted(x, free)
+        y2, g2 = sub.value_and_input_grad(Z)
+        np.testing.assert_allclose(y2, y, rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(g2, g[:, free], rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(sub(Z), y, rtol=1e-5, atol=1e-5)
+        assert g2.shape == (4, 3) and y2.shape == (4,)
+
+
+def test_maximise_beats_the_reference_from_a_cold_start_and_keeps_a_warm_start():
+    """The shipped model: the agent's cold start (32 x 12) finds a higher Phi than the first
+    release's 4 x 6 on every sampled state, and a warm-started ascent never ends below its
+    warm start."""
+    from agents.potential import cached_model
+    model = cached_model("default")
+    rng = np.random.default_rng(5)
+    for k in range(6):
+        x, _ = _joint(rng, 3)
+        th, phi = model.maximise(x, TRACK, restarts=32, iterations=12, rng=np.random.default_rng(k))
+        _, phi_ref = model.maximise_reference(x, TRACK, restarts=4, iterations=6,
+                                              rng=np.random.default_rng(k))
+        assert phi > phi_ref
+        assert phi == pytest.approx(model.potential(x[None], th[None], TRACK)[0], abs=1e-4)
+        warm = rng.uniform(THETA_LOW, THETA_HIGH, (3, 5))
+        _, phi_warm = model.maximise(x, TRACK, warm, rng=np.random.default_rng(k))
+        assert phi_warm >= model.potential(x[None], warm[None], TRACK)[0] - 1e-4
+
+
+_RACE_SCRIPT = """
+import sys, warnings
+import numpy as np
+warnings.simplefilter("ignore")
+from experiments.race import run_race
+result, _ = run_race(["alpha", "mpc:zeta=0.85", "mpc:zeta=0.8"], seed=0, max_cycles=60,
+                     progress_bar=False)
+np.save(sys.argv[1], result.states)
+"""
+
+
+def test_a_race_with_the_alpha_agent_is_identical_with_1_and_2_threads(tmp_path):
+    """The same race in fresh processes with 1 and 2 BLAS/OpenMP/numba threads: the same
+    states bit for bit (the agent's decisions do not depend on the thread count)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    states = []
+    for n in (1, 2):
+        env = {**os.environ, "OPENBLAS_NUM_THREADS": str(n), "OMP_NUM_THREADS": str(n),
+               "MKL_NUM_THREADS": str(n), "NUMBA_NUM_THREADS": str(n),
+               "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+        out = tmp_path / f"states_{n}.npy"
+        subprocess.run([sys.executable, "-c", _RACE_SCRIPT, str(out)], env=env, cwd=root,
+                       check=True, timeout=300)
+        states.append(np.load(out))
+    assert states[0].shape == (61, 3, 6)
+    assert states[0].tobytes() == states[1].tobytes()

@@ -135,3 +135,39 @@ def test_ray_backend_gives_the_same_races_as_the_local_pool(tmp_path):
     assert sorted(ra) == sorted(rb) == [0, 1, 2]
     assert all(ra[k]["progress_m"] == rb[k]["progress_m"] for k in ra)
     assert a["wins"] == b["wins"]
+
+
+# ---------------------------------------------------------------------------- threads
+def _native_threads(_):
+    """A task reporting its BLAS thread count and the thread variables (module level: pickled)."""
+    import os
+    from threadpoolctl import threadpool_info
+    blas = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+    return blas, os.environ.get("OPENBLAS_NUM_THREADS")
+
+
+def test_tasks_run_on_one_native_thread_in_workers_and_in_the_driver():
+    from threadpoolctl import threadpool_info
+
+    from experiments.parallel import run_tasks
+    before = {p["filepath"]: p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"}
+    for workers in (1, 2):
+        out = {}
+        run_tasks(_native_threads, [(k, (k,)) for k in range(2)], out.__setitem__, workers)
+        assert all(blas and set(blas) == {1} for blas, _ in out.values()), out
+        if workers == 2:
+            assert all(var == "1" for _, var in out.values())
+    after = {p["filepath"]: p["num_threads"] for p in threadpool_info()}
+    assert {f: after[f] for f in before} == before                # the driver's own, restored
+
+
+def test_alpha_races_are_the_same_with_1_and_2_workers(tmp_path):
+    cfg = BenchConfig(ego="alpha", opponents="mpc", races=2, steps=15, seed=1)
+    bench(cfg, tmp_path / "one", workers=1, progress_bar=False)
+    bench(cfg, tmp_path / "two", workers=2, progress_bar=False)
+    one, two = BenchRun(tmp_path / "one", cfg), BenchRun(tmp_path / "two", cfg)
+    r1, r2 = one.records(), two.records()
+    assert sorted(r1) == sorted(r2) == [0, 1]
+    for k in r1:
+        assert r1[k]["progress_m"] == r2[k]["progress_m"] and r1[k]["winner"] == r2[k]["winner"]
+        assert one.states(k).tobytes() == two.states(k).tobytes()
