@@ -29,13 +29,13 @@ class AlphaAgent(MPCAgent):
 
     Parameters: ``model`` (a shipped model name, see :func:`agents.potential.load_model`, or a
     path to a ``model.npz``; default ``"default"``), ``restarts`` (starts of the gradient
-    ascent, the first being the warm start; 4), ``iterations`` (gradient steps per start; 4),
+    ascent, the first being the warm start; 4), ``iterations`` (gradient steps per start; 3),
     ``cold_restarts`` and ``cold_iterations`` (the same for the first decision of a race, which
     has no warm start; 32 and 12), and the :class:`MPCAgent` keywords (``config``,
     ``vehicle``, ``n_preview``). The model must have been trained for the race's number of cars.
     """
 
-    def __init__(self, model="default", restarts: int = 4, iterations: int = 4,
+    def __init__(self, model="default", restarts: int = 4, iterations: int = 3,
                  cold_restarts: int = 32, cold_iterations: int = 12, **mpc_kwargs):
         super().__init__(**mpc_kwargs)
         for name, v in (("restarts", restarts), ("cold_restarts", cold_restarts)):

@@ -71,7 +71,7 @@ class PotentialModel:
         self._check_cars(states)
         return self.potential_net(potential_features(states, thetas, track))
 
-    def maximise(self, state, track, theta0=None, restarts: int = 4, iterations: int = 4,
+    def maximise(self, state, track, theta0=None, restarts: int = 4, iterations: int = 3,
                  rng: np.random.Generator | None = None, step: float = 0.5,
                  warm_step: float = 0.15, decay: float = 0.8):
         """Projected gradient ascent (Adam steps) of Phi(x, .) over the joint theta within its
@@ -81,10 +81,10 @@ class PotentialModel:
         maximiser), else the box centre; the other ``restarts - 1`` starts are uniform random
         draws from ``rng``. All starts ascend together (one matrix product per layer and
         step) on theta scaled to [-1, 1]: ``iterations`` Adam steps (moment decays 0.2 and 0.9:
-        little momentum, which measured best for these short runs), each
-        projected onto the box, of length ``warm_step`` for the warm start (it is usually
-        close to the maximum: short steps refine it) and ``step`` for the others (explore),
-        both shrinking by ``decay`` per step. The network's first layer is multiplied with the
+        little momentum measured best for these short runs), each projected onto the box, of
+        length ``warm_step`` for the warm start (usually close to the maximum: short steps
+        refine it) and ``step`` for the others (they explore), both shrinking by ``decay`` per
+        step. The network's first layer is multiplied with the
         state's features once per call (:meth:`agents.mlp.MLP.restricted`); only the 5 N
         theta columns change during the ascent.
 
@@ -92,9 +92,10 @@ class PotentialModel:
         and steps to be good (:class:`agents.alpha_agent.AlphaAgent` uses 32 and 12 then).
         Matrix products run on one BLAS thread (:func:`agents.threads.single_blas_thread`):
         the result does not depend on the process's thread count. Versus
-        :meth:`maximise_reference` on 300 states of an alpha race (warm starts from the race):
-        about half the cost and a smaller shortfall from a dense search; see
-        ``benchmarks/alpha_speed.py``.
+        :meth:`maximise_reference` (6 steps) on 200 states of an alpha race with the same warm
+        starts: 3 + 1 network passes instead of 6 + 1 and a smaller shortfall from a dense
+        search (median, 95th percentile and maximum); ``benchmarks/alpha_speed.py`` measures
+        both.
         """
         self._check_cars(state[None])
         if restarts < 1 or iterations < 0:
