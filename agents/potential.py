@@ -84,9 +84,9 @@ class PotentialModel:
         little momentum measured best for these short runs), each projected onto the box, of
         length ``warm_step`` for the warm start (usually close to the maximum: short steps
         refine it) and ``step`` for the others (they explore), both shrinking by ``decay`` per
-        step. The network's first layer is multiplied with the
-        state's features once per call (:meth:`agents.mlp.MLP.restricted`); only the 5 N
-        theta columns change during the ascent.
+        step. The network's first layer is multiplied with the state's features once per call
+        (:meth:`agents.mlp.MLP.restricted`); only the 5 N theta columns change during the
+        ascent.
 
         Without a warm start (the first decision of a race) the ascent needs many more starts
         and steps to be good (:class:`agents.alpha_agent.AlphaAgent` uses 32 and 12 then).

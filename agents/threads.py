@@ -2,9 +2,10 @@
 numba): one thread where results must not depend on the machine's thread count.
 
 Two reasons. Parallel workers are already the parallelism: a BLAS pool of two threads in each of
-two workers on two cores spins and swaps, and a decision of the alpha agent measured ten times
-slower. And a multi-threaded matrix product may split its sums differently with another thread
-count; a race whose outcome hangs on a last bit must not change with ``OPENBLAS_NUM_THREADS``.
+two workers on two cores spins and swaps (a decision of the alpha agent in ``bench --workers 2``
+measured 48 ms instead of 5). And a multi-threaded matrix product may split its sums
+differently with another thread count (OpenBLAS does for some shapes); a race whose outcome
+hangs on a last bit must not change with ``OPENBLAS_NUM_THREADS``.
 
 * :func:`pin_threads`: for the whole process (a worker process, once at its start).
 * :func:`limited_threads`: for a block, restoring the previous limits (a task run in the
@@ -82,7 +83,9 @@ def single_blas_thread():
 
     Small matrix products of the agents run as fast on one thread, and their results then do
     not depend on the process's BLAS thread count. Uses one threadpoolctl controller per
-    process, made at the first call (BLAS is loaded with numpy, before any agent runs)."""
+    process, made at the first call (BLAS is loaded with numpy, before any agent runs). The
+    limit is process-wide while the block runs: meant for agents acting from one Python
+    thread, as the envs' loops do."""
     global _controller, _depth
     if _depth:
         _depth += 1

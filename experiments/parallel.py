@@ -8,8 +8,9 @@ writes results there loses no finished work when it is killed.
 Every task runs with one native thread per library (BLAS, OpenMP, torch, numba; see
 :mod:`agents.threads`): pinned for good in pool and Ray workers (the workers are the
 parallelism; two BLAS threads in each of two workers on two cores made decisions ten times
-slower), for the task's duration when ``workers = 1`` runs it in the driver. So a task gives
-the same result bit for bit whatever the worker count, backend or thread variables.
+slower), for the task's duration when ``workers = 1`` runs it in the driver. So a task's
+result does not hang on the worker count, backend or thread variables (the tests compare
+bench and collect runs with 1 and 2 workers bit for bit).
 """
 from __future__ import annotations
 
