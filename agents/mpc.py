@@ -48,7 +48,7 @@ from numba import njit
 from racing_env.controllers import follower_action
 from racing_env.simulator import _lookup, _n_substeps, integrate_car
 from racing_env.track import Track
-from racing_env.vehicle import VehicleParams
+from racing_env.vehicle import P_VLOW, VehicleParams
 
 @dataclass(frozen=True)
 class MPCConfig:
@@ -57,13 +57,17 @@ class MPCConfig:
     horizon: int = 15             # K
     dt: float = 0.1
     substeps: int = 3             # RK4 steps per stage
-    v_low: float = 0.5            # slip regularisation of the prediction model [m/s]
+    v_low: float = 0.5            # slip regularisation of the prediction model at rest [m/s]
+    v_blend: float = 1.0          # ... fading to the simulator's v_low above this speed [m/s]
     track_margin: float = 0.03    # keep the car centre this far inside the edges
     sep_s: float = 0.15           # longitudinal separation p_x^min
     sep_n: float = 0.08           # lateral separation p_y^min
     sep_window: float = 2.0       # only opponents within this progress distance constrain
     soft_rho: float = 1e-4        # DAQP rho_soft: reciprocal weight of soft violations
-    sqp_iterations: int = 1       # 1 = real-time iteration
+    sqp_iterations: int = 2       # most SQP iterations; a second one only when the first
+                                  # step's linearised n differs from its rollout by > model_tol
+    model_tol: float = 0.02       # [m]
+    step_sizes: tuple = (1.0, 0.5, 0.25)  # merit-checked step lengths of each QP step
     restart_offtrack: float = 0.06  # warm start from a follower rollout when the shifted plan
                                     # leaves the track by more than this [m]
     qp_iter_limit: int = 300        # DAQP active-set iterations; a QP that needs more (rare
@@ -74,7 +78,7 @@ class MPCConfig:
             raise ValueError(f"MPC horizon must be an integer in 2..100, got {self.horizon!r}")
         if not (isinstance(self.substeps, int) and 1 <= self.substeps <= 10):
             raise ValueError(f"MPC substeps must be an integer in 1..10, got {self.substeps!r}")
-        for name in ("dt", "v_low", "sep_s", "sep_n", "sep_window", "soft_rho"):
+        for name in ("dt", "v_low", "v_blend", "sep_s", "sep_n", "sep_window", "soft_rho"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"MPCConfig.{name} must be positive, got {v!r}")
@@ -91,6 +95,15 @@ def _cache_root() -> Path:
     return Path(os.environ.get("ALPHA_RACER_CACHE", Path.home() / ".cache" / "alpha_racer")) / "mpc"
 
 
+def prediction_v_low(vx, v_low_sim: float, cfg: MPCConfig, exp=np.exp):
+    """Slip regularisation [m/s] of the prediction model at speed ``vx`` [m/s]:
+    ``v_low_sim + (cfg.v_low - v_low_sim) exp(-(vx / cfg.v_blend)^2)``. Near rest the larger
+    ``cfg.v_low`` keeps the RK4 sub-steps stable; at racing speed (within 1e-3 above
+    ``2.7 v_blend``) it is the simulator's own, so the prediction holds the tyre forces the car
+    really has (a constant 0.5 m/s cost 4% of lateral force at 2.5 m/s)."""
+    return v_low_sim + (cfg.v_low - v_low_sim) * exp(-(vx / cfg.v_blend) ** 2)
+
+
 def stage_function(vehicle: VehicleParams, cfg: MPCConfig):
     """CasADi ``stage(x[6], u[2], kap[substeps]) -> (x_next, vec(dx_next/dx), vec(dx_next/du))``:
     one 0.1 s stage of ``substeps`` RK4 steps of the simulator's model (``frenet_ode``) with
@@ -99,7 +112,7 @@ def stage_function(vehicle: VehicleParams, cfg: MPCConfig):
     from racing_env.vehicle import frenet_ode_casadi
 
     ode = frenet_ode_casadi()
-    p = [float(v) for v in replace(vehicle, v_low=cfg.v_low).pack()]
+    p = [float(v) for v in vehicle.pack()]
     x = ca.SX.sym("x", 6)
     u = ca.SX.sym("u", 2)
     kap = ca.SX.sym("kap", cfg.substeps)
@@ -109,7 +122,9 @@ def stage_function(vehicle: VehicleParams, cfg: MPCConfig):
     delta_phys = vehicle.delta_max * u[1]
 
     def f(xx, kk):
-        return ca.vertcat(*ode(xx[1], xx[2], xx[3], xx[4], xx[5], d_phys, delta_phys, kk, p))
+        pp = list(p)
+        pp[P_VLOW] = prediction_v_low(xx[3], vehicle.v_low, cfg, ca.exp)
+        return ca.vertcat(*ode(xx[1], xx[2], xx[3], xx[4], xx[5], d_phys, delta_phys, kk, pp))
 
     h = cfg.dt / cfg.substeps
     xn = x
@@ -415,6 +430,35 @@ def qp_arrays(G, s_pred, n_pred, s_ref, n_ref, q, DtD, u_vec, delta_applied, rat
     return H, f, rows[:r].copy(), blo, bhi, sense
 
 
+@njit(cache=True)
+def plan_cost(s_pred, n_pred, s_ref, n_ref, q, u_vec, nlo, nhi, opponents, dt, sep_s, sep_n,
+              sep_window, w_soft):
+    """The MPC's objective at a plan's rollout (:func:`qp_arrays`' cost before linearisation):
+    ``q ||(s, n) - ref||^2 + ||D u||^2 + w_soft * (sum of squared violations of the track
+    edges and of the separations, chosen per stage as in qp_arrays)``."""
+    K = s_pred.shape[0]
+    J = 0.0
+    for k in range(K):
+        J += q * ((s_pred[k] - s_ref[k]) ** 2 + (n_pred[k] - n_ref[k]) ** 2)
+        v = max(n_pred[k] - nhi[k], nlo[k] - n_pred[k], 0.0)
+        J += w_soft * v * v
+    for k in range(1, K):
+        J += (u_vec[2 * k] - u_vec[2 * k - 2]) ** 2 + (u_vec[2 * k + 1] - u_vec[2 * k - 1]) ** 2
+    for m in range(opponents.shape[0]):
+        s_j, n_j, v_j = opponents[m, 0], opponents[m, 1], opponents[m, 2]
+        for k in range(K):
+            ds = s_pred[k] - (s_j + v_j * dt * (k + 1))
+            dn = n_pred[k] - n_j
+            if not abs(ds) < sep_window:
+                continue
+            if abs(dn) / sep_n >= abs(ds) / sep_s:
+                v = max(sep_n - abs(dn), 0.0)
+            else:
+                v = max(sep_s - abs(ds), 0.0)
+            J += w_soft * v * v
+    return J
+
+
 # ---------------------------------------------------------------------------- the solver
 class MPC:
     """RTI-SQP MPC of one car on a track (see the module docstring).
@@ -442,6 +486,7 @@ class MPC:
         self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max  # normalised
         self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
         self.stats = {"solves": 0, "fallbacks": 0, "restarts": 0, "qp_iterations": 0,
+                      "rejected_steps": 0, "extra_iterations": 0,
                       "solve_ms": deque(maxlen=100_000)}
         self.reset()
 
@@ -464,11 +509,34 @@ class MPC:
         return follower_rollout(self.track, self.vehicle, self._follower, x0, self.cfg.horizon,
                                 self.cfg.dt)
 
+    def _plan(self, x0, U, s_prev=None):
+        """Nonlinear rollout of inputs ``U`` (2, K) from ``x0``: ``(X (6, K), A, B, kap)`` with
+        the curvature looked up along ``s_prev`` (K + 1,) or the previous nominal."""
+        K, dt = self.cfg.horizon, self.cfg.dt
+        nodes = (stage_nodes(self._s_nom, x0, K, dt) if s_prev is None
+                 else np.asarray(s_prev, dtype=float))
+        kap = kappa_at_substeps(self.track, nodes, self.cfg.substeps)
+        X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
+        return X, A, B
+
+    def _merit(self, X, U, s_ref, n_ref, q, opp, u_prev):
+        """The MPC's cost of a plan on its *nonlinear* rollout ``X``: tracking, input rates and
+        the soft rows' quadratic penalty ``(1 / soft_rho) * violation^2`` (track edges and the
+        separations chosen along ``X``); ``inf`` for a non-finite rollout."""
+        if not np.isfinite(X).all():
+            return np.inf
+        lo_n, hi_n = self._bounds_n(X[0])
+        return plan_cost(X[0], X[1], s_ref, n_ref, float(q), U.T.reshape(-1), lo_n, hi_n, opp,
+                         self.cfg.dt, self.cfg.sep_s, self.cfg.sep_n, self.cfg.sep_window,
+                         1.0 / self.cfg.soft_rho)
+
     def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None) -> np.ndarray:
         import daqp
         t0 = time.perf_counter()
         cfg, K = self.cfg, self.cfg.horizon
         x0 = np.asarray(x0, dtype=float)
+        s_ref = np.asarray(s_ref, dtype=float)
+        n_ref = np.asarray(n_ref, dtype=float)
         u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
         opp = (np.zeros((0, 3)) if opponents is None
                else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3))
@@ -481,29 +549,28 @@ class MPC:
             # braking warm start the QP would see no way to move; linearise at drive instead
             U = U.copy()
             U[0] = np.maximum(U[0], 0.2)
-        status = "ok"
-        qp_left = cfg.sqp_iterations
-        restarted = False
-        while qp_left > 0:
-            kap = self._kappa_at_substeps(x0)
-            X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
-            lo_n, hi_n = self._bounds_n(X[0])
-            off = np.maximum(X[1] - hi_n, lo_n - X[1]).max() if np.isfinite(X).all() else np.inf
-            if off > cfg.restart_offtrack and not restarted:
-                # the warm start leaves the track: linearise around a follower rollout instead
-                # (and take one more SQP iteration from there)
-                U = self._follower_warm_start(x0)
-                self._s_nom = None
-                restarted = True
+        merit = lambda X_, U_: self._merit(X_, U_, s_ref, n_ref, q, opp, u_prev)
+        X, A, B = self._plan(x0, U)
+        J = merit(X, U)
+        lo_n, hi_n = self._bounds_n(X[0]) if np.isfinite(X).all() else (None, None)
+        off = (np.maximum(X[1] - hi_n, lo_n - X[1]).max() if lo_n is not None else np.inf)
+        if off > cfg.restart_offtrack:
+            # the shifted plan leaves the track: also try a follower rollout, keep the better
+            Uf = self._follower_warm_start(x0)
+            Xf, Af, Bf = self._plan(x0, Uf)
+            Jf = merit(Xf, Uf)
+            if Jf < J:
+                U, X, A, B, J = Uf, Xf, Af, Bf, Jf
                 self.stats["restarts"] += 1
-                qp_left += 1
-                continue
-            qp_left -= 1
+        status = "ok"
+        model_error = 0.0
+        for it in range(cfg.sqp_iterations):
             if not (np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all()):
                 status = "nonfinite prediction"
                 break
             G = condense(np.ascontiguousarray(A), np.ascontiguousarray(B), K)
             s_pred, n_pred = X[0], X[1]
+            lo_n, hi_n = self._bounds_n(s_pred)
             u_vec = U.T.reshape(-1)                                       # [d0, delta0, d1, ...]
             H, f, Acon, blo, bhi, sense = qp_arrays(
                 G, s_pred, n_pred, s_ref, n_ref, float(q), self._DtD, u_vec, float(u_prev[1]),
@@ -512,11 +579,32 @@ class MPC:
                                                iter_limit=cfg.qp_iter_limit)
             self.stats["qp_iterations"] += int(info.get("iterations", 0))
             if exitflag < 0 or not np.all(np.isfinite(du)):
-                status = f"qp exitflag {exitflag}"
+                status = f"qp exitflag {exitflag}" if it == 0 else status
                 break
-            U = np.clip((u_vec + du).reshape(K, 2).T, self._lo_u[:2, None], self._hi_u[:2, None])
-            self._s_nom = np.concatenate([[x0[0]], s_pred])
+            # merit check on the nonlinear rollout: the full step, else shorter ones
+            nodes = np.concatenate([[x0[0]], s_pred])
+            best = None
+            for alpha in cfg.step_sizes:
+                Ua = np.clip((u_vec + alpha * du).reshape(K, 2).T, -1.0, 1.0)
+                Xa, Aa, Ba = self._plan(x0, Ua, s_prev=nodes)
+                Ja = merit(Xa, Ua)
+                if best is None or Ja < best[0]:
+                    best = (Ja, alpha, Ua, Xa, Aa, Ba)
+                if Ja <= J:
+                    break
+            Ja, alpha, Ua, Xa, Aa, Ba = best
+            if Ja > J:                         # no step improves the plan: keep it
+                self.stats["rejected_steps"] += 1
+                break
+            n_lin = n_pred + alpha * (G[1::2] @ du)
+            model_error = float(np.max(np.abs(n_lin - Xa[1])))
+            U, X, A, B, J = Ua, Xa, Aa, Ba, Ja
+            self._s_nom = np.concatenate([[x0[0]], X[0]])
+            if model_error <= cfg.model_tol:
+                break
+            self.stats["extra_iterations"] += it + 1 < cfg.sqp_iterations
         self.stats["solves"] += 1
+        self.last_model_error = model_error
         if status != "ok":
             self.stats["fallbacks"] += 1
             U = np.concatenate([self._U[:, 1:], self._U[:, -1:]], axis=1)
