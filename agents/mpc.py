@@ -20,8 +20,20 @@ separation as constraints; both at once would forbid ever being beside or behind
 so per stage and opponent we impose the one that the nominal prediction satisfies with the
 larger margin, on the side where it is (the usual convexification of "not overlapping").
 Opponents move at constant progress rate and lateral position (paper). Soft constraints
-use DAQP's exact-penalty soft rows, so the QP is always feasible. A failed QP or a
-non-finite prediction falls back to the shifted previous plan (counted in ``stats``).
+use DAQP's soft rows, a *quadratic* penalty: a violation ``v`` of a soft row costs
+``v^2 / (2 soft_rho)`` (in the units of the cost above), so the QP is always feasible but a
+large enough tracking gain can still trade a small violation for tracking.
+
+Each QP step is checked on the nonlinear model (a merit test): the rollout of the new inputs
+must lower the cost (tracking, input rates and the same quadratic penalty of the soft rows,
+:func:`plan_cost`) below the current plan's, trying the full step and then shorter ones
+(``step_sizes``); a step that lowers nothing is rejected and the current plan kept. When the
+accepted step's linearised lateral prediction misses its rollout by more than ``model_tol``,
+a second SQP iteration linearises at the new plan (``sqp_iterations``). The first solve after
+a reset, and any solve whose shifted plan leaves the track or whose car is nearly stopped,
+also rolls out the raceline follower's law and starts from whichever plan costs less (a
+*restart*, counted in ``stats``). A failed QP or a non-finite prediction falls back to the
+shifted previous plan with the throttle lifted (counted in ``stats``).
 
 The prediction model uses a larger low-speed slip regularisation (``v_low``, default 0.5 m/s)
 than the simulator so that the RK4 sub-steps of a 0.1 s stage stay stable at a standing
@@ -63,7 +75,7 @@ class MPCConfig:
     sep_s: float = 0.15           # longitudinal separation p_x^min
     sep_n: float = 0.08           # lateral separation p_y^min
     sep_window: float = 2.0       # only opponents within this progress distance constrain
-    soft_rho: float = 1e-4        # DAQP rho_soft: reciprocal weight of soft violations
+    soft_rho: float = 1e-4        # DAQP rho_soft: a soft violation v costs v^2 / (2 soft_rho)
     sqp_iterations: int = 2       # most SQP iterations; a second one only when the first
                                   # step's linearised n differs from its rollout by > model_tol
     model_tol: float = 0.02       # [m]
@@ -533,14 +545,14 @@ class MPC:
 
     def _merit(self, X, U, s_ref, n_ref, q, opp, u_prev):
         """The MPC's cost of a plan on its *nonlinear* rollout ``X``: tracking, input rates and
-        the soft rows' quadratic penalty ``(1 / soft_rho) * violation^2`` (track edges and the
-        separations chosen along ``X``); ``inf`` for a non-finite rollout."""
+        the soft rows' quadratic penalty ``violation^2 / (2 soft_rho)`` (DAQP's, for the track
+        edges and the separations chosen along ``X``); ``inf`` for a non-finite rollout."""
         if not np.isfinite(X).all():
             return np.inf
         lo_n, hi_n = self._bounds_n(X[0])
         return plan_cost(X[0], X[1], s_ref, n_ref, float(q), U.T.reshape(-1), lo_n, hi_n, opp,
                          self.cfg.dt, self.cfg.sep_s, self.cfg.sep_n, self.cfg.sep_window,
-                         1.0 / self.cfg.soft_rho)
+                         0.5 / self.cfg.soft_rho)
 
     def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None) -> np.ndarray:
         import daqp
@@ -625,5 +637,6 @@ class MPC:
         self._U = np.concatenate([U[:, 1:], U[:, -1:]], axis=1)          # shifted warm start
         self.last_status = status
         self.last_prediction = X if status == "ok" else None
+        self.last_plan = (U, J if status == "ok" else np.inf)   # inputs (2, K) and their cost
         self.stats["solve_ms"].append(1e3 * (time.perf_counter() - t0))
         return u0
