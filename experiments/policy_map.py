@@ -26,6 +26,7 @@ Output directory:
 """
 from __future__ import annotations
 
+import json
 import time
 import warnings
 from dataclasses import asdict, dataclass
@@ -186,10 +187,11 @@ class PolicyMapRun:
         self.thetas = sample_thetas(config.thetas, config.seed, low, high)
         self.out.mkdir(parents=True, exist_ok=True)
         from agents.reference import THETA_NAMES
-        claim(self.out / "manifest.json",
-              {"schema_version": SCHEMA_VERSION, "config": asdict(config),
-               "theta_names": list(THETA_NAMES), "theta_low": low.tolist(),
-               "theta_high": high.tolist()}, "a policy map")
+        meta = {"schema_version": SCHEMA_VERSION, "config": asdict(config),
+                "theta_names": list(THETA_NAMES), "theta_low": low.tolist(),
+                "theta_high": high.tolist()}
+        # compared as stored: JSON turns the config's tuples into lists
+        claim(self.out / "manifest.json", json.loads(json.dumps(meta)), "a policy map")
 
     @property
     def rows_path(self) -> Path:
