@@ -160,3 +160,13 @@ def test_same_seed_same_rows_and_a_torn_row_is_redone(tiny_map, tmp_path):
     s = pm.policy_map(cfg, out, workers=1, progress_bar=False)
     assert s["new_rows"] == 1
     assert _untimed(read_jsonl(out / "rows.jsonl")) == _untimed(first)
+
+
+def test_every_option_says_its_default():
+    from experiments.cli import build_parser
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    opts = [a for a in sub.choices["policy-map"]._actions if a.dest not in ("help",)]
+    assert {a.dest for a in opts} >= {"thetas", "tracks", "modes", "steps", "seed", "workers",
+                                      "backend", "out"}
+    assert all(a.help and "default" in a.help for a in opts), [a.dest for a in opts
+                                                                if "default" not in (a.help or "")]
