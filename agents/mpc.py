@@ -104,10 +104,11 @@ def prediction_v_low(vx, v_low_sim: float, cfg: MPCConfig, exp=np.exp):
     return v_low_sim + (cfg.v_low - v_low_sim) * exp(-(vx / cfg.v_blend) ** 2)
 
 
-def stage_function(vehicle: VehicleParams, cfg: MPCConfig):
+def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True):
     """CasADi ``stage(x[6], u[2], kap[substeps]) -> (x_next, vec(dx_next/dx), vec(dx_next/du))``:
     one 0.1 s stage of ``substeps`` RK4 steps of the simulator's model (``frenet_ode``) with
-    the prediction's ``v_low``; ``u`` are the env's normalised inputs."""
+    the prediction's ``v_low``; ``u`` are the env's normalised inputs. Without ``jacobians``
+    it returns ``x_next`` only."""
     import casadi as ca
     from racing_env.vehicle import frenet_ode_casadi
 
@@ -134,25 +135,29 @@ def stage_function(vehicle: VehicleParams, cfg: MPCConfig):
         k3 = f(xn + h / 2 * k2, kap[j])
         k4 = f(xn + h * k3, kap[j])
         xn = xn + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    if not jacobians:
+        return ca.Function("stage_x", [x, u, kap], [xn])
     return ca.Function("stage", [x, u, kap],
                        [xn, ca.densify(ca.vec(ca.jacobian(xn, x))),
                         ca.densify(ca.vec(ca.jacobian(xn, u)))])
 
 
-def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig):
+def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True):
     """The horizon ``(x0[6], U[2xK], KAP[substeps x K]) -> (X[6xK], A[36xK], B[12xK])``: the
     stage function folded K times (mapaccum), compiled to C and cached on disk (interpreted,
-    with a warning, when no C compiler is available)."""
+    with a warning, when no C compiler is available). Without ``jacobians``: ``(X,)`` only,
+    a rollout several times cheaper."""
     import casadi as ca
 
-    stage = stage_function(vehicle, cfg)
-    traj = stage.mapaccum("mpc_traj", cfg.horizon)
-    gen = ca.CodeGenerator("mpc_traj.c", {"with_header": False})
+    stage = stage_function(vehicle, cfg, jacobians)
+    name = "mpc_traj" if jacobians else "mpc_roll"
+    traj = stage.mapaccum(name, cfg.horizon)
+    gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
     gen.add(traj)
     code = gen.dump()
     flags = ["-O3", "-fPIC", "-shared"]
     key = hashlib.sha1((code + " ".join(flags)).encode()).hexdigest()[:16]
-    lib = _cache_root() / f"mpc_traj_{key}.so"
+    lib = _cache_root() / f"{name}_{key}.so"
     if not lib.exists():
         cc = shutil.which("gcc") or shutil.which("cc")
         if cc is None:
@@ -160,26 +165,26 @@ def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig):
             return traj
         lib.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
-            src = Path(tmp) / "mpc_traj.c"
+            src = Path(tmp) / f"{name}.c"
             src.write_text(code)
             out = Path(tmp) / lib.name
             subprocess.run([cc, *flags, str(src), "-o", str(out)], check=True,
                            capture_output=True)
             os.replace(out, lib)            # atomic: a killed compile leaves no broken library
-    return _CompiledTrajectory(lib, cfg.horizon, cfg.substeps)
+    return _CompiledTrajectory(lib, cfg.horizon, cfg.substeps, name)
 
 
 class _CompiledTrajectory:
     """Calls the generated C function through ctypes on preallocated numpy buffers (the
     CasADi Python call with DM conversions costs more than the maths itself here)."""
 
-    def __init__(self, lib: Path, horizon: int, substeps: int):
+    def __init__(self, lib: Path, horizon: int, substeps: int, name: str = "mpc_traj"):
         import ctypes
         self._lib = ctypes.CDLL(str(lib))
-        fn = self._lib.mpc_traj
+        fn = getattr(self._lib, name)
         i64 = ctypes.c_longlong
         sizes = [i64() for _ in range(4)]
-        self._lib.mpc_traj_work(*[ctypes.byref(v) for v in sizes])
+        getattr(self._lib, f"{name}_work")(*[ctypes.byref(v) for v in sizes])
         n_arg, n_res, n_iw, n_w = (v.value for v in sizes)
         K = horizon
         self.x0 = np.zeros(6)
@@ -193,6 +198,7 @@ class _CompiledTrajectory:
         dp = ctypes.POINTER(ctypes.c_double)
         ptr = lambda a: a.ctypes.data_as(dp)
         self._arg = (dp * max(n_arg, 3))(ptr(self.x0), ptr(self.U), ptr(self.kap))
+        self.states_only = n_res == 1
         self._res = (dp * max(n_res, 3))(ptr(self.X), ptr(self.A), ptr(self.B))
         self._args = (self._arg, self._res, self._iw.ctypes.data_as(ctypes.POINTER(i64)), ptr(self._w), 0)
         fn.restype = ctypes.c_int
@@ -207,6 +213,8 @@ class _CompiledTrajectory:
         if self._fn(*self._args):
             raise RuntimeError("compiled MPC prediction failed")
         K = self.K
+        if self.states_only:
+            return (self.X.reshape(K, 6).T.copy(),)
         return (self.X.reshape(K, 6).T.copy(), self.A.reshape(K, 36).T.copy(),
                 self.B.reshape(K, 12).T.copy())
 
@@ -477,6 +485,7 @@ class MPC:
         self.vehicle = vehicle or VehicleParams()
         self.cfg = config or MPCConfig()
         self._traj = _trajectory_function(self.vehicle, self.cfg)
+        self._roll = _trajectory_function(self.vehicle, self.cfg, jacobians=False)
         K = self.cfg.horizon
         v = self.vehicle
         self._lo_u = np.full(2 * K, -1.0)
@@ -509,13 +518,16 @@ class MPC:
         return follower_rollout(self.track, self.vehicle, self._follower, x0, self.cfg.horizon,
                                 self.cfg.dt)
 
-    def _plan(self, x0, U, s_prev=None):
-        """Nonlinear rollout of inputs ``U`` (2, K) from ``x0``: ``(X (6, K), A, B, kap)`` with
-        the curvature looked up along ``s_prev`` (K + 1,) or the previous nominal."""
+    def _plan(self, x0, U, s_prev=None, jacobians=True):
+        """Nonlinear rollout of inputs ``U`` (2, K) from ``x0``: ``(X (6, K), A, B)`` (A, B
+        ``None`` without ``jacobians``) with the curvature looked up along ``s_prev`` (K + 1,)
+        or the previous nominal."""
         K, dt = self.cfg.horizon, self.cfg.dt
         nodes = (stage_nodes(self._s_nom, x0, K, dt) if s_prev is None
                  else np.asarray(s_prev, dtype=float))
         kap = kappa_at_substeps(self.track, nodes, self.cfg.substeps)
+        if not jacobians:
+            return np.asarray(self._roll(x0, U, kap)[0], dtype=float), None, None
         X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
         return X, A, B
 
@@ -540,28 +552,26 @@ class MPC:
         u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
         opp = (np.zeros((0, 3)) if opponents is None
                else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3))
-        if self._U is None:
-            self._U = np.zeros((2, K))
-            self._U[1, :] = u_prev[1]
-        U = self._U
-        if x0[3] < 2.0 * cfg.v_low:
-            # a (nearly) stopped car's brake has no effect and so no gradient: linearised at a
-            # braking warm start the QP would see no way to move; linearise at drive instead
-            U = U.copy()
-            U[0] = np.maximum(U[0], 0.2)
         merit = lambda X_, U_: self._merit(X_, U_, s_ref, n_ref, q, opp, u_prev)
+        fresh = self._U is None
+        if fresh:                                   # first solve: start from the follower
+            U = self._follower_warm_start(x0)
+        else:
+            U = self._U
         X, A, B = self._plan(x0, U)
         J = merit(X, U)
-        lo_n, hi_n = self._bounds_n(X[0]) if np.isfinite(X).all() else (None, None)
-        off = (np.maximum(X[1] - hi_n, lo_n - X[1]).max() if lo_n is not None else np.inf)
-        if off > cfg.restart_offtrack:
-            # the shifted plan leaves the track: also try a follower rollout, keep the better
-            Uf = self._follower_warm_start(x0)
-            Xf, Af, Bf = self._plan(x0, Uf)
-            Jf = merit(Xf, Uf)
-            if Jf < J:
-                U, X, A, B, J = Uf, Xf, Af, Bf, Jf
-                self.stats["restarts"] += 1
+        if not fresh:
+            lo_n, hi_n = self._bounds_n(X[0]) if np.isfinite(X).all() else (None, None)
+            off = (np.maximum(X[1] - hi_n, lo_n - X[1]).max() if lo_n is not None else np.inf)
+            if off > cfg.restart_offtrack or x0[3] < 2.0 * cfg.v_low:
+                # the shifted plan leaves the track, or the car is (nearly) stopped, where the
+                # linearisation sees little of what drive does: also try a follower rollout
+                Uf = self._follower_warm_start(x0)
+                Xf, Af, Bf = self._plan(x0, Uf)
+                Jf = merit(Xf, Uf)
+                if Jf < J:
+                    U, X, A, B, J = Uf, Xf, Af, Bf, Jf
+                    self.stats["restarts"] += 1
         status = "ok"
         model_error = 0.0
         for it in range(cfg.sqp_iterations):
@@ -586,28 +596,29 @@ class MPC:
             best = None
             for alpha in cfg.step_sizes:
                 Ua = np.clip((u_vec + alpha * du).reshape(K, 2).T, -1.0, 1.0)
-                Xa, Aa, Ba = self._plan(x0, Ua, s_prev=nodes)
+                Xa = self._plan(x0, Ua, s_prev=nodes, jacobians=False)[0]
                 Ja = merit(Xa, Ua)
                 if best is None or Ja < best[0]:
-                    best = (Ja, alpha, Ua, Xa, Aa, Ba)
+                    best = (Ja, alpha, Ua, Xa)
                 if Ja <= J:
                     break
-            Ja, alpha, Ua, Xa, Aa, Ba = best
+            Ja, alpha, Ua, Xa = best
             if Ja > J:                         # no step improves the plan: keep it
                 self.stats["rejected_steps"] += 1
                 break
             n_lin = n_pred + alpha * (G[1::2] @ du)
             model_error = float(np.max(np.abs(n_lin - Xa[1])))
-            U, X, A, B, J = Ua, Xa, Aa, Ba, Ja
+            U, X, J = Ua, Xa, Ja
             self._s_nom = np.concatenate([[x0[0]], X[0]])
-            if model_error <= cfg.model_tol:
+            if model_error <= cfg.model_tol or it + 1 == cfg.sqp_iterations:
                 break
-            self.stats["extra_iterations"] += it + 1 < cfg.sqp_iterations
+            self.stats["extra_iterations"] += 1        # linearise again at the new plan
+            X, A, B = self._plan(x0, U, s_prev=nodes)
         self.stats["solves"] += 1
         self.last_model_error = model_error
         if status != "ok":
             self.stats["fallbacks"] += 1
-            U = np.concatenate([self._U[:, 1:], self._U[:, -1:]], axis=1)
+            U = (U if self._U is None else self._U).copy()   # the plan for now (shifted)
             U[0, :] = np.minimum(U[0, :], 0.0)          # fallback: keep the steering plan, lift off
             self._s_nom = None
         u0 = U[:, 0].copy()

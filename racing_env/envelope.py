@@ -50,7 +50,7 @@ __all__ = ["GGV", "ggv", "steady_corner"]
 
 N_SPEEDS = 240
 """Points of the speed grid of :func:`ggv`."""
-N_FRACTIONS = 21
+N_FRACTIONS = 41
 """Points of the lateral-fraction grid ``r`` of :func:`ggv`."""
 
 
