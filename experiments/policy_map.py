@@ -15,8 +15,8 @@ stored in the manifest, so a map of another box is never mixed in). Each theta d
 
 Output directory:
 
-* ``manifest.json``: schema version, the :class:`PolicyMapConfig` and the theta box; a folder
-  of another configuration or box is refused.
+* ``manifest.json``: schema version, the :class:`PolicyMapConfig` and the theta box
+  (``config.theta_box``); a folder of another configuration or box is refused.
 * ``rows.jsonl``: one JSON line per (mode, track, theta index), written by the driver as the
   row arrives (flushed, fsynced); a rerun computes only the missing rows. A row whose race
   raised holds ``error`` (the exception) instead of the measurements and is not retried.
@@ -187,9 +187,10 @@ class PolicyMapRun:
         self.thetas = sample_thetas(config.thetas, config.seed, low, high)
         self.out.mkdir(parents=True, exist_ok=True)
         from agents.reference import THETA_NAMES
-        meta = {"schema_version": SCHEMA_VERSION, "config": asdict(config),
-                "theta_names": list(THETA_NAMES), "theta_low": low.tolist(),
-                "theta_high": high.tolist()}
+        # the box goes into "config", so a refusal after a change of the box names it
+        meta = {"schema_version": SCHEMA_VERSION,
+                "config": {**asdict(config), "theta_box": {
+                    "names": list(THETA_NAMES), "low": low.tolist(), "high": high.tolist()}}}
         # compared as stored: JSON turns the config's tuples into lists
         claim(self.out / "manifest.json", json.loads(json.dumps(meta)), "a policy map")
 

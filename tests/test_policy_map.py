@@ -116,7 +116,8 @@ def test_tiny_map_writes_rows_summary_and_heat_maps(tiny_map):
         assert r["margin_m"] == pytest.approx(r["progress_m"] - max(r["opponents_progress_m"]), abs=1e-3)
         assert (r["rank"] == 1) == (r["margin_m"] >= 0)
     manifest = json.loads((tiny_map / "manifest.json").read_text())
-    assert manifest["theta_low"] == low.tolist() and manifest["theta_high"] == high.tolist()
+    box = manifest["config"]["theta_box"]
+    assert box["low"] == low.tolist() and box["high"] == high.tolist()
     s = json.loads((tiny_map / "summary.json").read_text())
     assert s["complete"] and s["rows"] == 8
     for mode in pm.MODES:
@@ -146,6 +147,14 @@ def test_another_config_is_refused(tiny_map, capsys):
     args = [a if a != "30" else "31" for a in TINY]
     assert main(args + ["--out", str(tiny_map)]) == 2
     assert "policy map of another configuration" in capsys.readouterr().err
+
+
+def test_a_map_of_another_theta_box_is_refused(tiny_map, monkeypatch):
+    from agents import reference
+    monkeypatch.setattr(reference, "THETA_HIGH", np.array(reference.THETA_HIGH) + 0.05)
+    cfg = pm.PolicyMapConfig(thetas=4, tracks=("default",), steps=30, seed=5)
+    with pytest.raises(ValueError, match="another configuration.*theta_box"):
+        pm.policy_map(cfg, tiny_map, workers=1, progress_bar=False)
 
 
 def test_same_seed_same_rows_and_a_torn_row_is_redone(tiny_map, tmp_path):
