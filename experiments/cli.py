@@ -1,5 +1,5 @@
 """The ``alpha-racer`` command line: ``race``, ``tracks``, ``raceline``, ``fuzz``, ``collect``,
-``train``, ``selfplay``, ``bench``, ``analyze``, ``reproduce``."""
+``train``, ``selfplay``, ``bench``, ``analyze``, ``reproduce``, ``policy-map``."""
 from __future__ import annotations
 
 import argparse
@@ -168,6 +168,18 @@ def _cmd_reproduce(args) -> int:
     return 0
 
 
+def _cmd_policy_map(args) -> int:
+    from .policy_map import PolicyMapConfig, policy_map
+    cfg = PolicyMapConfig(thetas=args.thetas, tracks=tuple(args.tracks), modes=tuple(args.modes),
+                          steps=args.steps, seed=args.seed)
+    out = Path(args.out)
+    s = policy_map(cfg, out, workers=args.workers, backend=args.backend, address=args.address)
+    print((out / "summary.md").read_text())
+    print(f"{s['new_rows']} new rows; wrote {out / 'summary.md'}, {out / 'summary.json'}, "
+          f"{out / 'rows.jsonl'} and heat maps into {out}")
+    return 0
+
+
 def _slug(spec: str) -> str:
     return "".join(ch if ch.isalnum() or ch in ".-" else "_" for ch in spec)
 
@@ -311,6 +323,30 @@ def build_parser() -> argparse.ArgumentParser:
     _add_analyze_args(rp)
     _add_parallel_args(rp)
     rp.set_defaults(fn=_cmd_reproduce)
+
+    from .policy_map import DEFAULT_TRACKS, MODES
+    pm = sub.add_parser("policy-map", help="sweep the MPC policy space (q, zeta, s1, s2, s3): "
+                                           "Sobol thetas, solo and 3-car runs, summary and heat "
+                                           "maps (resumable)")
+    pm.add_argument("--thetas", type=int, default=256,
+                    help="Sobol points of the theta box (default 256; a power of two keeps the "
+                         "sequence balanced)")
+    pm.add_argument("--tracks", nargs="+", default=list(DEFAULT_TRACKS),
+                    help=f"track specs (default {' '.join(DEFAULT_TRACKS)})")
+    pm.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES),
+                    help="solo: the theta car alone from the grid; race: against two default "
+                         "mpc cars from the start regions (default: solo race)")
+    pm.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per run (default 500 = 50 s)")
+    pm.add_argument("--seed", type=int, default=0, help="Sobol scrambling and start seed (default 0)")
+    pm.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                    help=f"parallel runs (default: the CPU count, {os.cpu_count() or 1} here)")
+    pm.add_argument("--backend", choices=["local", "ray"], default="local",
+                    help="local process pool (default) or a Ray cluster (pip install alpha-racer[ray])")
+    pm.add_argument("--address", default=None,
+                    help="Ray cluster address (e.g. auto); default: start a local Ray")
+    pm.add_argument("--out", default="results/policy_map",
+                    help="output folder (default results/policy_map); run again to resume")
+    pm.set_defaults(fn=_cmd_policy_map)
     return p
 
 
