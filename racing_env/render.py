@@ -483,6 +483,12 @@ def _check_fps(fps) -> float:
     return float(fps)
 
 
+def ffmpeg_available() -> bool:
+    """Whether :func:`save_animation` can write ``.mp4`` here (an ffmpeg on ``PATH`` or from
+    imageio-ffmpeg); check it before a long run whose animation needs it."""
+    return _find_ffmpeg() is not None
+
+
 def _find_ffmpeg() -> str | None:
     exe = shutil.which("ffmpeg")
     if exe:
