@@ -610,8 +610,11 @@ def plot_trajectories(track: Track, states, path: str | os.PathLike, raceline_xy
     title : str, optional
     dpi : int
 
-    Returns the path. Car ``i`` has the colour :func:`car_color` ``(i)``, as in :class:`Renderer`;
-    a circle marks its first and a cross its last position.
+    Returns
+    -------
+    Path
+        The path written. Car ``i`` has the colour :func:`car_color` ``(i)``, as in
+        :class:`Renderer`; a circle marks its first and a cross its last position.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
