@@ -3,7 +3,9 @@
     from agents import make_agent, agent_names
     agent = make_agent("raceline")
 """
-from .base import Agent, agent_names, make_agent, make_agent_spec, register_agent
+from .base import (ENTRY_POINT_GROUP, Agent, agent_names, agent_parameters, import_agent_modules,
+                   make_agent, make_agent_spec, register_agent)
 from . import alpha_agent, ibr, mpc_agent, ppo_agent, simple  # noqa: F401  registers the built-in agents
 
-__all__ = ["Agent", "agent_names", "make_agent", "make_agent_spec", "register_agent"]
+__all__ = ["ENTRY_POINT_GROUP", "Agent", "agent_names", "agent_parameters", "import_agent_modules",
+           "make_agent", "make_agent_spec", "register_agent"]
