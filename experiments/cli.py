@@ -395,27 +395,20 @@ def build_parser() -> argparse.ArgumentParser:
     rp.set_defaults(fn=_cmd_reproduce)
 
     from .policy_map import DEFAULT_TRACKS, MODES
-    pm = sub.add_parser("policy-map", help="sweep the MPC policy space (q, zeta, s1, s2, s3): "
-                                           "Sobol thetas, solo and 3-car runs, summary and heat "
-                                           "maps (resumable)")
+    pm = command("policy-map", "sweep the MPC policy space (q, zeta, s1, s2, s3): Sobol thetas, "
+                               "solo and 3-car runs, summary and heat maps (resumable)")
     pm.add_argument("--thetas", type=int, default=256,
-                    help="Sobol points of the theta box (default 256; a power of two keeps the "
-                         "sequence balanced)")
-    pm.add_argument("--tracks", nargs="+", default=list(DEFAULT_TRACKS),
-                    help=f"track specs (default {' '.join(DEFAULT_TRACKS)})")
+                    help="Sobol points of the theta box (a power of two keeps the sequence "
+                         "balanced)")
+    pm.add_argument("--tracks", nargs="+", default=list(DEFAULT_TRACKS), help="track specs")
     pm.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES),
                     help="solo: the theta car alone from the grid; race: against two default "
-                         "mpc cars from the start regions (default: solo race)")
-    pm.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per run (default 500 = 50 s)")
-    pm.add_argument("--seed", type=int, default=0, help="Sobol scrambling and start seed (default 0)")
-    pm.add_argument("--workers", type=int, default=os.cpu_count() or 1,
-                    help=f"parallel runs (default: the CPU count, {os.cpu_count() or 1} here)")
-    pm.add_argument("--backend", choices=["local", "ray"], default="local",
-                    help="local process pool (default) or a Ray cluster (pip install alpha-racer[ray])")
-    pm.add_argument("--address", default=None,
-                    help="Ray cluster address (e.g. auto); default: start a local Ray")
+                         "mpc cars from the start regions")
+    pm.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per run")
+    pm.add_argument("--seed", type=int, default=0, help="Sobol scrambling and start seed")
+    _add_parallel_args(pm)
     pm.add_argument("--out", default="results/policy_map",
-                    help="output folder (default results/policy_map); run again to resume")
+                    help="output folder; run again to resume")
     pm.set_defaults(fn=_cmd_policy_map)
     return p
 

@@ -174,7 +174,14 @@ def test_same_seed_same_rows_and_a_torn_row_is_redone(tiny_map, tmp_path):
 def test_every_option_says_its_default():
     from experiments.cli import build_parser
     sub = next(a for a in build_parser()._actions if a.dest == "command")
-    opts = [a for a in sub.choices["policy-map"]._actions if a.dest not in ("help",)]
+    pm = sub.choices["policy-map"]
+    opts = [a for a in pm._actions if a.dest not in ("help",)]
+    assert {a.dest for a in opts} >= {"thetas", "tracks", "modes", "steps", "seed", "workers",
+                                      "backend", "out"}
+    text = " ".join(pm.format_help().split())
+    for shown in ("(default: 256)", "(default: 500)", "(default: results/policy_map)",
+                  "(default: local)"):
+        assert shown in text, shown
     assert {a.dest for a in opts} >= {"thetas", "tracks", "modes", "steps", "seed", "workers",
                                       "backend", "out"}
     assert all(a.help and "default" in a.help for a in opts), [a.dest for a in opts
