@@ -7,6 +7,8 @@ import os
 import sys
 from pathlib import Path
 
+from racing_env.extras import MissingExtraError
+
 DEFAULT_AGENTS = ["alpha", "mpc:zeta=0.85", "mpc:zeta=0.8"]
 
 
@@ -180,8 +182,19 @@ def _add_parallel_args(p) -> None:
                    help="Ray cluster address (e.g. auto or ray://host:10001); default: start a local Ray")
 
 
+def _version() -> str:
+    """The installed distribution's version, else (a source tree) the package's."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("alpha-racer")
+    except PackageNotFoundError:
+        from . import __version__
+        return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="alpha-racer", description=__doc__)
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("race", help="race agents head to head, print the result, write an animation")
@@ -331,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
     args.argv = argv
     try:
         return args.fn(args)
-    except ValueError as exc:
+    except (ValueError, MissingExtraError) as exc:
         print(f"alpha-racer {args.command}: error: {exc}", file=sys.stderr)
         return 2
 
