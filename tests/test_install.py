@@ -1,0 +1,171 @@
+"""Installs anywhere: one movable cache folder, a failing C compiler, racing without the learning
+extra, packaging metadata, and (slow) a wheel racing from a read-only site-packages."""
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import textwrap
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+STEPS = """
+import numpy as np
+import racing_env
+env = racing_env.parallel_env(n_cars=2, max_cycles=5)
+env.reset(seed=0)
+for _ in range(3):
+    env.step({a: np.array([0.5, 0.0]) for a in env.agents})
+from racing_env.cache import cache_root
+print(cache_root())
+"""
+
+
+def _run(code: str, env: dict, cwd=ROOT, timeout=600) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def _clean_env(**extra) -> dict:
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("HOME", "XDG_CACHE_HOME", "NUMBA_CACHE_DIR", "ALPHA_RACER_CACHE", "CC",
+                        "PYTHONPATH", "TMPDIR")}
+    env.update({k: str(v) for k, v in extra.items()})
+    return env
+
+
+def _kernels(folder: Path, source_dir: str) -> list[Path]:
+    """numba index files under ``folder`` of functions defined in ``source_dir`` (a package)."""
+    return [p for p in folder.rglob("*.nbi") if p.parent.name.startswith(source_dir + "_")]
+
+
+# ------------------------------------------------------------------------------ cache folder
+@pytest.mark.parametrize("where", ["ALPHA_RACER_CACHE", "HOME"])
+def test_unwritable_cache_and_home_fall_back_to_a_temp_folder(tmp_path, where):
+    """No writable cache folder, no usable home: import and race anyway, with a warning, and
+    compile into a private temporary folder."""
+    blocker = tmp_path / "a-file"            # nothing can be created under a file, even by root
+    blocker.write_text("")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = _clean_env(TMPDIR=tmp)
+    if where == "ALPHA_RACER_CACHE":
+        env["ALPHA_RACER_CACHE"] = str(blocker / "cache")      # and HOME unset
+    else:
+        env["HOME"] = str(blocker)                              # the default is under HOME
+    r = _run(STEPS, env)
+    assert r.returncode == 0, r.stderr
+    assert "alpha-racer cannot write to" in r.stderr and "temporary folder" in r.stderr, r.stderr
+    used = Path(r.stdout.strip().splitlines()[-1])
+    assert used.parent == tmp and used.name.startswith("alpha-racer-")
+    assert _kernels(used / "numba", "racing_env")
+
+
+def test_compiled_artefacts_land_under_ALPHA_RACER_CACHE(tmp_path):
+    """numba kernels (racing_env's and agents'), the MPC's C library and the racing line all go
+    to $ALPHA_RACER_CACHE; nothing goes to the home folder."""
+    cache, home = tmp_path / "cache", tmp_path / "home"
+    home.mkdir()
+    code = STEPS + """
+import warnings
+from agents import make_agent
+env = racing_env.parallel_env(n_cars=1, max_cycles=5)
+obs, _ = env.reset(seed=0)
+agent = make_agent("mpc")
+with warnings.catch_warnings():
+    warnings.simplefilter("error")                       # compiled, not interpreted
+    agent.reset(env.track, "car_0")
+agent.act(obs["car_0"])
+"""
+    r = _run(code, _clean_env(ALPHA_RACER_CACHE=cache, HOME=home))
+    assert r.returncode == 0, r.stderr
+    assert Path(r.stdout.strip().splitlines()[-1]) == cache
+    assert _kernels(cache / "numba", "racing_env")
+    assert _kernels(cache / "numba", "agents")
+    assert list((cache / "mpc").glob("mpc_traj_*.so"))
+    assert list((cache / "raceline").glob("*.npz"))
+    assert not any(home.iterdir())
+
+
+def test_cache_dir_is_one_function(tmp_path, monkeypatch):
+    from agents import mpc
+    from racing_env import cache, raceline
+    monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "c"))
+    assert cache.cache_dir() == tmp_path / "c"
+    assert raceline.cache_dir() == cache.cache_dir("raceline") == tmp_path / "c" / "raceline"
+    assert mpc._cache_root() == cache.cache_dir("mpc") == tmp_path / "c" / "mpc"
+    assert (tmp_path / "c" / "mpc").is_dir()
+
+
+# -------------------------------------------------------------------------------- C compiler
+def _script(path: Path, body: str) -> Path:
+    path.write_text("#!/bin/sh\n" + body)
+    path.chmod(0o755)
+    return path
+
+
+def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypatch):
+    from agents.mpc import MPCConfig, _trajectory_function
+    from racing_env.vehicle import VehicleParams
+
+    default_cache = os.environ["ALPHA_RACER_CACHE"]
+    cc = _script(tmp_path / "broken-cc", "echo 'broken-cc: fatal error: no licence for -O3' >&2\nexit 3\n")
+    monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", str(cc))
+    with pytest.warns(RuntimeWarning) as record:
+        traj = _trajectory_function(VehicleParams(), MPCConfig())
+    msg = "\n".join(str(w.message) for w in record)
+    assert "no licence for -O3" in msg and "status 3" in msg and "interpreted" in msg
+    assert not list((tmp_path / "cache" / "mpc").glob("*.so"))
+
+    monkeypatch.setenv("ALPHA_RACER_CACHE", default_cache)
+    monkeypatch.delenv("CC")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        compiled = _trajectory_function(VehicleParams(), MPCConfig())
+    K = MPCConfig().horizon
+    x0 = np.array([1.0, 0.05, 0.02, 2.0, 0.1, 0.3])
+    U = np.tile([[0.5], [0.1]], (1, K))
+    kap = np.full((MPCConfig().substeps, K), 0.5)
+    for a, b in zip(traj(x0, U, kap), compiled(x0, U, kap)):
+        assert isinstance(a, np.ndarray)
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+
+
+def test_mpc_agent_races_with_a_failing_compiler(tmp_path, monkeypatch):
+    from agents import make_agent
+    from racing_env import parallel_env
+
+    monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", str(_script(tmp_path / "cc", "exit 1\n")))
+    env = parallel_env(n_cars=1, max_cycles=3)
+    obs, _ = env.reset(seed=0)
+    agent = make_agent("mpc")
+    with pytest.warns(RuntimeWarning, match="interpreted"):
+        agent.reset(env.track, "car_0")
+    for _ in range(2):
+        a = agent.act(obs["car_0"])
+        assert np.all(np.isfinite(a))
+        obs, *_ = env.step({"car_0": a})
+
+
+def test_CC_is_the_compiler(tmp_path, monkeypatch):
+    from agents.mpc import MPCConfig, _trajectory_function
+    from racing_env.vehicle import VehicleParams
+
+    gcc = shutil.which("gcc") or shutil.which("cc")
+    if gcc is None:
+        pytest.skip("no C compiler")
+    log = tmp_path / "cc.log"
+    cc = _script(tmp_path / "my cc", f'echo "$@" >> "{log}"\nexec "{gcc}" "$@"\n')
+    monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", f"'{cc}' -O1")                # a command, quoted like in a shell
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _trajectory_function(VehicleParams(), MPCConfig(horizon=5))
+    assert log.read_text().startswith("-O1 ") and list((tmp_path / "cache" / "mpc").glob("*.so"))
