@@ -113,7 +113,8 @@ def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypat
     from agents.mpc import MPCConfig, _trajectory_function
     from racing_env.vehicle import VehicleParams
 
-    default_cache = os.environ["ALPHA_RACER_CACHE"]
+    from racing_env.cache import cache_root
+    default_cache = str(cache_root())
     cc = _script(tmp_path / "broken-cc", "echo 'broken-cc: fatal error: no licence for -O3' >&2\nexit 3\n")
     monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv("CC", str(cc))
@@ -169,3 +170,76 @@ def test_CC_is_the_compiler(tmp_path, monkeypatch):
         warnings.simplefilter("error")
         _trajectory_function(VehicleParams(), MPCConfig(horizon=5))
     assert log.read_text().startswith("-O1 ") and list((tmp_path / "cache" / "mpc").glob("*.so"))
+
+
+# ------------------------------------------------------------------ racing without [learn]
+BLOCK_LEARN = """
+import sys
+for name in ("torch", "stable_baselines3", "tensorboard"):
+    sys.modules[name] = None                 # import torch -> ImportError, as if not installed
+"""
+
+
+def test_race_without_the_learn_extra(tmp_path):
+    code = BLOCK_LEARN + """
+import racing_env, agents, agents.mpc_agent, agents.alpha_agent, agents.ibr
+from experiments.race import run_race
+result, _ = run_race(["alpha", "mpc", "mpc:zeta=0.8"], max_cycles=2, render=False)
+print("raced", len(result.table().splitlines()))
+from agents import make_agent_spec
+from racing_env.extras import MissingExtraError
+for make in (lambda: make_agent_spec("ppo"), lambda: __import__("racing_env.vec_env")):
+    try:
+        make()
+    except MissingExtraError as exc:
+        print("MISSING:", exc)
+assert not any(sys.modules.get(m) for m in ("torch", "stable_baselines3"))
+"""
+    from racing_env.cache import cache_root
+    r = _run(code, _clean_env(ALPHA_RACER_CACHE=cache_root()))
+    assert r.returncode == 0, r.stderr
+    assert "raced" in r.stdout
+    missing = [line for line in r.stdout.splitlines() if line.startswith("MISSING:")]
+    assert len(missing) == 2 and all('pip install "alpha-racer[learn]"' in m for m in missing)
+    assert "the 'ppo' agent" in missing[0]
+
+
+def test_cli_names_the_extra(capsys, monkeypatch):
+    from experiments.cli import main
+    monkeypatch.setitem(sys.modules, "stable_baselines3", None)
+    assert main(["race", "--agents", "ppo", "mpc", "--steps", "1", "--no-animation",
+                 "--out", os.devnull]) == 2
+    assert 'pip install "alpha-racer[learn]"' in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------- packaging
+def _pyproject() -> dict:
+    tomllib = pytest.importorskip("tomllib")
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())
+
+
+def _names(reqs) -> set[str]:
+    import re
+    return {re.split(r"[<>=!~\[; ]", r, maxsplit=1)[0].lower().replace("_", "-") for r in reqs}
+
+
+def test_learning_packages_are_an_extra_that_dev_includes():
+    project = _pyproject()["project"]
+    learn = _names(project["optional-dependencies"]["learn"])
+    assert learn == {"torch", "stable-baselines3", "tensorboard"}
+    assert not learn & _names(project["dependencies"])
+    assert learn <= _names(project["optional-dependencies"]["dev"])
+    assert not [r for r in project["dependencies"] if "==" in r]          # ranges, not pins
+    assert project["license"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")
+
+
+def test_version(capsys):
+    import agents
+    import experiments
+    import racing_env
+    from experiments.cli import main
+    assert racing_env.__version__ == agents.__version__ == experiments.__version__
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"alpha-racer {racing_env.__version__}"
