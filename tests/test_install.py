@@ -243,3 +243,57 @@ def test_version(capsys):
         main(["--version"])
     assert exit_.value.code == 0
     assert capsys.readouterr().out.strip() == f"alpha-racer {racing_env.__version__}"
+
+
+# ------------------------------------------------------------------ the wheel, read-only
+def _read_only_runner(paths: list[Path]) -> list[str] | None:
+    """A command prefix that runs a program with ``paths`` read-only: a private mount namespace
+    (root), or nothing after ``chmod -R a-w`` (anyone else); None if neither works."""
+    if os.geteuid() != 0:
+        for p in paths:
+            subprocess.run(["chmod", "-R", "a-w", str(p)], check=True)
+        return []
+    if shutil.which("unshare") is None or subprocess.run(["unshare", "-m", "true"]).returncode:
+        return None
+    mounts = " && ".join(f"mount --bind {q} {q} && mount -o remount,ro,bind {q}"
+                         for q in (f"'{p}'" for p in paths))
+    return ["unshare", "-m", "sh", "-c", mounts + ' && exec "$@"', "sh"]
+
+
+@pytest.mark.slow
+def test_wheel_races_from_a_read_only_install_without_home(tmp_path):
+    """The issue's "done when": a wheel of this tree, installed into a venv whose site-packages
+    is then read-only, with HOME unset (and, for root, the home folder read-only too), races
+    alpha, mpc and ibr without torch."""
+    import pwd
+    whl, venv, out, tmp = (tmp_path / d for d in ("whl", "venv", "out", "tmp"))
+    tmp.mkdir()
+    subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation",
+                    "-q", "-w", str(whl)], check=True, cwd=tmp_path)
+    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True)
+    python = venv / "bin" / "python"
+    subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-deps", "--no-index",
+                    *map(str, whl.glob("*.whl"))], check=True)
+    home = Path(pwd.getpwuid(os.getuid()).pw_dir)      # where ~ points with HOME unset
+    runner = _read_only_runner([venv] + ([home] if home.is_dir() and home != Path("/") else []))
+    if runner is None:
+        pytest.skip("cannot make the venv read-only (root without unshare)")
+    code = BLOCK_LEARN + f"""
+import racing_env
+assert racing_env.__file__.startswith({str(venv)!r}), racing_env.__file__
+from experiments.cli import main
+sys.exit(main(["race", "--agents", "alpha", "mpc", "ibr", "--steps", "30", "--no-animation",
+               "--out", {str(out)!r}]))
+"""
+    env = _clean_env(TMPDIR=tmp, MPLCONFIGDIR=tmp / "mpl")
+    r = subprocess.run([*runner, str(python), "-c", code], cwd="/", env=env, capture_output=True,
+                       text=True, timeout=900)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "Race on 'default'" in r.stdout and (out / "result.json").exists()
+    for agent in ("alpha", "mpc", "ibr"):
+        assert agent in r.stdout
+    if runner:                                           # root: the home folder was read-only too
+        assert "alpha-racer cannot write to the default cache folder" in r.stderr
+    installed = [d for pkg in ("racing_env", "agents", "experiments") for d in venv.rglob(pkg)]
+    assert len(installed) == 3
+    assert not [p for d in installed for p in d.rglob("*") if p.suffix in (".nbi", ".nbc", ".so")]
