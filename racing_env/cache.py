@@ -83,6 +83,8 @@ def cache_root() -> Path:
         return _resolved[requested]
     if requested:
         root, what = Path(requested).expanduser(), f"{ENV_VAR}={requested!r}"
+        if not str(root).startswith("~"):          # relative to the working directory
+            root = root.absolute()
     else:
         root, what = default_cache_root(), f"the default cache folder (set {ENV_VAR} to choose one)"
     why = _writable(root)
