@@ -46,6 +46,7 @@ from __future__ import annotations
 import hashlib
 from collections import deque
 import os
+import shlex
 import shutil
 import subprocess
 import tempfile
@@ -104,7 +105,9 @@ class MPCConfig:
 
 # ---------------------------------------------------------------------------- the prediction
 def _cache_root() -> Path:
-    return Path(os.environ.get("ALPHA_RACER_CACHE", Path.home() / ".cache" / "alpha_racer")) / "mpc"
+    """Folder of the compiled predictions: ``mpc/`` of the alpha-racer cache folder."""
+    from racing_env.cache import cache_dir
+    return cache_dir("mpc")
 
 
 def prediction_v_low(vx, v_low_sim: float, cfg: MPCConfig, exp=np.exp):
@@ -155,10 +158,14 @@ def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = Tru
 
 
 def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True):
-    """The horizon ``(x0[6], U[2xK], KAP[substeps x K]) -> (X[6xK], A[36xK], B[12xK])``: the
-    stage function folded K times (mapaccum), compiled to C and cached on disk (interpreted,
-    with a warning, when no C compiler is available). Without ``jacobians``: ``(X,)`` only,
-    a rollout several times cheaper."""
+    """The horizon ``(x0[6], U[2xK], KAP[substeps x K]) -> (X[6xK], A[36xK], B[12xK])`` (numpy
+    arrays): the stage function folded K times (mapaccum), compiled to C and cached on disk
+    (``mpc/`` of the cache folder, see :mod:`racing_env.cache`). Without ``jacobians``:
+    ``(X,)`` only, a rollout several times cheaper.
+
+    The compiler is ``$CC`` if set (a command, e.g. ``"ccache gcc"``), else ``gcc`` or ``cc``.
+    When there is none, or it fails (its error message is shown), or the library does not load,
+    the prediction runs interpreted by CasADi with a warning: same results, slower."""
     import casadi as ca
 
     stage = stage_function(vehicle, cfg, jacobians)
@@ -170,20 +177,61 @@ def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool
     flags = ["-O3", "-fPIC", "-shared"]
     key = hashlib.sha1((code + " ".join(flags)).encode()).hexdigest()[:16]
     lib = _cache_root() / f"{name}_{key}.so"
+    interpreted = "the MPC runs its prediction interpreted by CasADi (same results, slower)"
     if not lib.exists():
-        cc = shutil.which("gcc") or shutil.which("cc")
+        cc = _c_compiler()
         if cc is None:
-            warnings.warn("no C compiler found: the MPC runs its prediction interpreted (slower)")
-            return traj
-        lib.parent.mkdir(parents=True, exist_ok=True)
+            cc_env = os.environ.get("CC", "").strip()
+            why = f"CC={cc_env!r} is not a program on the PATH" if cc_env else "set CC or install gcc"
+            warnings.warn(f"no C compiler found ({why}): {interpreted}", RuntimeWarning, stacklevel=2)
+            return _InterpretedTrajectory(traj)
         with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
             src = Path(tmp) / f"{name}.c"
             src.write_text(code)
             out = Path(tmp) / lib.name
-            subprocess.run([cc, *flags, str(src), "-o", str(out)], check=True,
-                           capture_output=True)
+            cmd = [*cc, *flags, str(src), "-o", str(out)]
+            try:
+                subprocess.run(cmd, check=True, capture_output=True, text=True)
+            except subprocess.CalledProcessError as exc:
+                output = (exc.stderr or exc.stdout or "").strip()[-2000:]
+                failure = f"exited with status {exc.returncode}:\n{output}"
+            except OSError as exc:          # not executable, not a program, ...
+                failure = f"could not run: {exc}"
+            else:
+                failure = None
+            if failure is not None:
+                warnings.warn(f"compiling the MPC prediction failed: {shlex.join(cmd)} {failure}\n"
+                              f"{interpreted}", RuntimeWarning, stacklevel=2)
+                return _InterpretedTrajectory(traj)
             os.replace(out, lib)            # atomic: a killed compile leaves no broken library
-    return _CompiledTrajectory(lib, cfg.horizon, cfg.substeps, name)
+    try:
+        return _CompiledTrajectory(lib, cfg.horizon, cfg.substeps, name)
+    except (OSError, AttributeError) as exc:  # not a loadable library, or not ours
+        warnings.warn(f"cannot load the compiled MPC prediction {str(lib)!r} ({exc}): {interpreted}",
+                      RuntimeWarning, stacklevel=2)
+        return _InterpretedTrajectory(traj)
+
+
+def _c_compiler() -> list[str] | None:
+    """The C compiler command: ``$CC`` split like a shell would (None if its program is not
+    found), else ``gcc`` or ``cc`` on the PATH, else None."""
+    env = os.environ.get("CC", "").strip()
+    if env:
+        cmd = shlex.split(env)
+        exe = shutil.which(cmd[0])
+        return [exe, *cmd[1:]] if exe else None
+    cc = shutil.which("gcc") or shutil.which("cc")
+    return [cc] if cc else None
+
+
+class _InterpretedTrajectory:
+    """The CasADi Function with numpy arrays out, like :class:`_CompiledTrajectory`."""
+
+    def __init__(self, fn):
+        self._fn = fn
+
+    def __call__(self, x0, U, kap):
+        return tuple(np.asarray(o, dtype=float) for o in self._fn(x0, U, kap))
 
 
 class _CompiledTrajectory:

@@ -7,6 +7,8 @@ import os
 import sys
 from pathlib import Path
 
+from racing_env.extras import MissingExtraError
+
 DEFAULT_AGENTS = ["alpha", "mpc:zeta=0.85", "mpc:zeta=0.8"]
 
 
@@ -235,9 +237,20 @@ def _add_import_arg(p) -> None:
                         "read, so that the agents it registers can race; repeatable")
 
 
+def _version() -> str:
+    """The installed distribution's version, else (a source tree) the package's."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("alpha-racer")
+    except PackageNotFoundError:
+        from . import __version__
+        return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="alpha-racer", description=__doc__,
                                 formatter_class=_HelpFormatter)
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
     def command(name, help, description=None):
@@ -433,7 +446,7 @@ def main(argv: list[str] | None = None) -> int:
             from agents import import_agent_modules
             import_agent_modules(args.imports)
         return args.fn(args)
-    except ValueError as exc:
+    except (ValueError, MissingExtraError) as exc:
         print(f"alpha-racer {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

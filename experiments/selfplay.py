@@ -495,6 +495,9 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
 
     ``max_turns`` stops after that many turns in this call (the run stays resumable).
     """
+    from racing_env.extras import require
+    for module in ("torch", "stable_baselines3", "tensorboard"):
+        require(module, "self-play training (alpha-racer selfplay)")
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import CSVOutputFormat, Logger, make_output_format

@@ -729,11 +729,10 @@ def cache_key(track: Track, vehicle: VehicleParams, config: RacelineConfig) -> s
 
 
 def cache_dir() -> Path:
-    """Folder of cached racing lines: ``$ALPHA_RACER_CACHE/raceline`` if the variable is set,
-    else ``~/.cache/alpha_racer/raceline``."""
-    env = os.environ.get("ALPHA_RACER_CACHE")
-    base = Path(env).expanduser() if env else Path.home() / ".cache" / "alpha_racer"
-    return base / "raceline"
+    """Folder of cached racing lines: ``raceline/`` of the alpha-racer cache folder
+    (``$ALPHA_RACER_CACHE``, else the per-user cache; see :mod:`racing_env.cache`)."""
+    from .cache import cache_dir as _cache_dir
+    return _cache_dir("raceline")
 
 
 def cache_path(track: Track, vehicle: VehicleParams | None = None,

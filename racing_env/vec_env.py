@@ -11,7 +11,8 @@ Opponents with an ``act_batch(observations (B, D)) -> actions (B, 2)`` method (f
 frozen neural policy, :class:`agents.ppo_agent.FrozenPolicy`) are called once per step for
 all races; any other agent is copied once per race (``copy.deepcopy``) and called per race.
 
-Imports stable-baselines3 (``VecEnv``); ``import racing_env`` alone does not load this module.
+Imports stable-baselines3 (``VecEnv``, the ``learn`` extra); ``import racing_env`` alone does not
+load this module.
 """
 from __future__ import annotations
 
@@ -21,12 +22,14 @@ from typing import Any, Sequence
 import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from .config import RaceConfig
 from .core import BatchedRaces
+from .extras import require
 from .parallel_env import _start_config
 from .track import Track
+
+VecEnv = require("stable_baselines3.common.vec_env.base_vec_env", "racing_env.vec_env").VecEnv
 
 
 class HeadToHeadVecEnv(VecEnv):
