@@ -231,7 +231,9 @@ class _InterpretedTrajectory:
         self._fn = fn
 
     def __call__(self, x0, U, kap):
-        return tuple(np.asarray(o, dtype=float) for o in self._fn(x0, U, kap))
+        out = self._fn(x0, U, kap)
+        out = out if isinstance(out, (tuple, list)) else (out,)   # one output comes bare
+        return tuple(np.asarray(o, dtype=float) for o in out)
 
 
 class _CompiledTrajectory:
