@@ -1,7 +1,8 @@
 """Gymnasium single-agent env: one learner races opponents that are given as agents."""
 from __future__ import annotations
 
-from typing import Sequence
+import copy
+from typing import Any, Callable, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -12,10 +13,46 @@ from .parallel_env import RacingParallelEnv
 from .track import Track
 
 
+OpponentSpec = Any
+"""An opponent as the envs accept it: an agent spec string (``"mpc:zeta=0.9"``, built by
+:func:`agents.make_agent_spec`), a factory (a callable without ``act`` returning an agent), or
+an agent instance (an object with ``reset(track, agent_id, seed)`` and ``act(observation)``)."""
+
+
+def _is_agent(obj) -> bool:
+    """An agent instance (a class with ``act`` and ``reset`` is a factory, not an agent)."""
+    return not isinstance(obj, type) and callable(getattr(obj, "act", None)) and callable(getattr(obj, "reset", None))
+
+
+def make_opponent(spec: OpponentSpec, k: int = 0):
+    """A fresh opponent agent of its own from ``spec`` (see :data:`OpponentSpec`): a spec string
+    is built through the agents registry, a factory is called, an instance is deep-copied, so
+    that no two envs share an opponent's state. ``k`` (the opponent's index) names it in errors."""
+    if isinstance(spec, str):
+        import agents                 # lazily: racing_env does not depend on agents at import
+        return agents.make_agent_spec(spec)
+    if _is_agent(spec):
+        return copy.deepcopy(spec)
+    if callable(spec):
+        agent = spec()
+        if not _is_agent(agent):
+            raise ValueError(f"opponent {k}: factory {spec!r} returned {agent!r}, which lacks "
+                             f"reset(track, agent_id, seed) and act(observation) methods")
+        return agent
+    raise ValueError(f"opponent {k} ({spec!r}) must be an agent spec string, a factory, or an agent "
+                     f"with reset(track, agent_id, seed) and act(observation) methods")
+
+
+def default_opponents() -> list:
+    """Two :class:`racing_env.controllers.RacelineFollower` s (friction 0.75 and 0.8)."""
+    from .controllers import RacelineFollower
+    return [RacelineFollower(mu=0.75), RacelineFollower(mu=0.8)]
+
+
 class HeadToHeadEnv(gym.Env):
     """The learner drives ``car_0``; every other car is driven by an opponent agent.
 
-    Registered as ``alpha_racer/HeadToHead-v0``.
+    Registered as ``alpha_racer/HeadToHead-v1``.
 
     **Action space**: ``Box(-1, 1, (2,), float32)``, ``[throttle, steering]`` as in
     :class:`racing_env.RacingParallelEnv`.
@@ -44,13 +81,10 @@ class HeadToHeadEnv(gym.Env):
                  render_mode: str | None = None, config: RaceConfig | None = None,
                  start: "str | StartConfig | None" = None, **kwargs):
         if opponents is None:
-            from .controllers import RacelineFollower
-            opponents = [RacelineFollower(mu=0.75), RacelineFollower(mu=0.8)]
-        self.opponents = list(opponents)
-        for k, opp in enumerate(self.opponents):
-            if not (callable(getattr(opp, "act", None)) and callable(getattr(opp, "reset", None))):
-                raise ValueError(f"opponent {k} ({opp!r}) must have reset(track, agent_id, seed) "
-                                 f"and act(observation) methods")
+            opponents = default_opponents()
+        if isinstance(opponents, str) or _is_agent(opponents):
+            raise ValueError(f"opponents must be a sequence (one per opponent car), got {opponents!r}")
+        self.opponents = [make_opponent(o, k) for k, o in enumerate(opponents)]
         n_cars = kwargs.pop("n_cars", 1 + len(self.opponents))
         if n_cars != 1 + len(self.opponents):
             raise ValueError(f"n_cars = {n_cars} but {len(self.opponents)} opponents were given; "

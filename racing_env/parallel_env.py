@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 from gymnasium import spaces
+from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from .config import RaceConfig, RulesConfig, StartConfig
@@ -25,7 +26,8 @@ class RacingParallelEnv(ParallelEnv):
     **Action space** (per agent): ``Box(-1, 1, (2,), float32)``: ``[throttle, steering]``.
     Throttle -1 is full brake and +1 full throttle (mapped affinely onto the vehicle's
     ``[d_min, d_max]``); steering maps onto ``[-delta_max, delta_max]`` rad, positive left.
-    Values outside the box are clipped.
+    Values outside the box (``+-inf`` included) are clipped to it; a NaN, an action of another
+    shape, or an action for an agent that is not live raises ``ValueError`` naming the agent.
 
     **Observation space** (per agent, ``Box`` float32 of size ``6 N + n_preview``):
 
@@ -67,7 +69,7 @@ class RacingParallelEnv(ParallelEnv):
     ``order[i]`` is the start region of car i (0 = R1, the front-most region).
     """
 
-    metadata = {"name": "alpha_racer_v0", "render_modes": ["human", "rgb_array"],
+    metadata = {"name": "alpha_racer_v1", "render_modes": ["human", "rgb_array"],
                 "render_fps": 10, "is_parallelizable": True}
 
     def __init__(self, track: "str | Track" = "default", n_cars: int | None = None,
@@ -98,6 +100,8 @@ class RacingParallelEnv(ParallelEnv):
         self.track = self.core.track
         self._renderer = None
         self._viewer = None
+        self._was_reset = False
+        self.np_random, self.np_random_seed = seeding.np_random()
         self._set_agents()
 
     # ------------------------------------------------------------------ spaces
@@ -137,7 +141,10 @@ class RacingParallelEnv(ParallelEnv):
             self.core.set_n_cars(options["n_cars"])
             self._set_agents()
         start = _start_config(options["start"], self.config.start) if "start" in options else None
+        if seed is not None:
+            self.np_random, self.np_random_seed = seeding.np_random(seed)
         obs = self.core.reset(seed=seed, order=options.get("order"), start=start)
+        self._was_reset = True
         self.agents = list(self.possible_agents)
         if self.render_mode == "human":
             self.render()
@@ -147,12 +154,23 @@ class RacingParallelEnv(ParallelEnv):
 
     def step(self, actions):
         if not self.agents:
+            if not self._was_reset:
+                raise RuntimeError("step() called before reset(); call reset() first")
             raise RuntimeError("step() called on a finished episode; call reset() first")
+        unknown = [a for a in actions if a not in self.agents]
+        if unknown:
+            raise ValueError(f"actions for unknown agents {unknown}; the live agents are {self.agents}")
         acts = self._actions
         for a in self.agents:
             if a not in actions:
                 raise ValueError(f"missing action for {a}; every live agent acts each step")
-            acts[0, self._index[a]] = actions[a]
+            act = np.asarray(actions[a], dtype=np.float64)
+            if act.shape != (2,):
+                raise ValueError(f"action of {a} must have shape (2,) [throttle, steering], "
+                                 f"got shape {act.shape}: {actions[a]!r}")
+            if np.isnan(act).any():
+                raise ValueError(f"action of {a} is NaN: {act.tolist()}")
+            acts[0, self._index[a]] = act
         obs, rew, term, trunc = self.core.step(acts)
         term_b, trunc_b = bool(term[0]), bool(trunc[0]) and not bool(term[0])
         agents = self.agents

@@ -308,13 +308,15 @@ def _advance(state, action, normalised, act_map, kappa_tab, w_left, w_right, wal
     s_i when N == 1), ``contact`` / ``offtrack`` 1 if that rule applied this step,
     ``substeps`` RK4 sub-steps used, ``lap_event`` the race time [s] of a lap completed this
     step or -1. Running totals updated: ``t`` (B,), ``laps``, ``contacts``, ``offtracks``.
-    Returns 0, or 1 if an action is not finite / 2 if a state became non-finite, with the
+    Returns 0, or 1 if an action is bad (NaN; or, for physical inputs, not finite: normalised
+    +-inf is clipped like any out-of-range value) / 2 if a state became non-finite, with the
     race and car in ``where`` (2,); nothing is stepped when an action is bad.
     """
     n_races, n_cars = state.shape[0], state.shape[1]
     for b in range(n_races):
         for i in range(n_cars):
-            if not (math.isfinite(action[b, i, 0]) and math.isfinite(action[b, i, 1])):
+            a0, a1 = action[b, i, 0], action[b, i, 1]
+            if math.isnan(a0) or math.isnan(a1) or not (normalised or (math.isfinite(a0) and math.isfinite(a1))):
                 where[0] = b
                 where[1] = i
                 return 1

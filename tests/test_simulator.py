@@ -247,7 +247,7 @@ def test_bad_actions_raise_clear_errors():
         r.step(np.zeros((1, 3, 2)))
     a = np.zeros((1, 2, 2))
     a[0, 1, 0] = np.nan
-    with pytest.raises(ValueError, match="car 1 in race 0 is not finite"):
+    with pytest.raises(ValueError, match="car 1 in race 0 is NaN"):
         r.step(a)
 
 
