@@ -29,8 +29,11 @@ class RulesConfig:
     """The paper's racing rules (section 2.2), applied after every control period.
 
     * Contact: two cars closer than ``contact_ds`` along the track *and* ``contact_dn``
-      sideways (their bodies overlap, by default) are slowed: the car in front to
-      ``front_factor * vx`` (paper: 1/2), the car behind to ``rear_factor * vx`` (paper: 1/3).
+      sideways (their bodies overlap, by default) at any moment of a control period are
+      slowed there and then: the car in front at that moment to ``front_factor * vx``
+      (paper: 1/2), the car behind to ``rear_factor * vx`` (paper: 1/3). Contact is swept
+      over the RK4 sub-steps, so no car passes through another; a car is slowed at most once
+      per period (by the smallest factor due, off track included).
     * Off track: a car beyond an edge (``n > w_left`` or ``n < -w_right``) is slowed to
       ``offtrack_factor * vx`` (paper: 1/2) and re-aligned with the track
       (``mu = 0``; we also zero ``vy`` and ``omega``).

@@ -52,7 +52,11 @@ def default_opponents() -> list:
 class HeadToHeadEnv(gym.Env):
     """The learner drives ``car_0``; every other car is driven by an opponent agent.
 
-    Registered as ``alpha_racer/HeadToHead-v1``.
+    Registered as ``alpha_racer/HeadToHead-v1`` (``spec.max_episode_steps`` = 500, the
+    default ``max_cycles``: ``gymnasium.make``'s ``TimeLimit`` truncates at the same step as the
+    env; to race longer pass both ``max_episode_steps`` and ``max_cycles``), with a
+    ``vector_entry_point`` (:class:`racing_env.gym_vector.HeadToHeadVectorEnv`) for
+    ``gymnasium.make_vec``.
 
     **Action space**: ``Box(-1, 1, (2,), float32)``, ``[throttle, steering]`` as in
     :class:`racing_env.RacingParallelEnv`.
@@ -62,17 +66,28 @@ class HeadToHeadEnv(gym.Env):
 
     **Reward**: ``car_0``'s relative progress per step, the change of ``s_0 - max_{j>0} s_j`` [m].
 
+    **Starting state**: as :class:`RacingParallelEnv` (``start``: ``"regions"`` by default, or
+    ``"grid"``, ``"random"``, a :class:`racing_env.StartConfig`); ``reset(seed)`` draws the
+    race's seed from the env's ``np_random``, opponent k is reset with that seed + k + 1.
+
     **Episode end**: ``terminated`` when a car completes ``laps`` (if set); ``truncated`` after
     ``max_cycles`` steps (default 500 = 50 s).
 
-    **Arguments**: ``opponents``: a sequence of agents (objects with ``reset(track, agent_id,
-    seed)`` and ``act(observation) -> action``), one per opponent car; default two
-    :class:`racing_env.controllers.RacelineFollower` s on the speed profiles of friction
+    **Arguments**: ``opponents``: a sequence, one per opponent car, of agent spec strings
+    (``"mpc:zeta=0.9"``, built by :func:`agents.make_agent_spec`), factories (callables
+    returning an agent) or agents (objects with ``reset(track, agent_id, seed)`` and
+    ``act(observation) -> action``, deep-copied): every env gets opponents of its own, so the
+    copies made by ``gymnasium.make_vec`` or SB3's ``make_vec_env`` never share state. Default
+    two :class:`racing_env.controllers.RacelineFollower` s on the speed profiles of friction
     0.75 and 0.8. ``n_cars`` defaults to ``1 + len(opponents)``. Other keywords (``track``,
     ``max_cycles``, ``laps``, ``start``, ``vehicle``, ``rules``, ``config``, ``render_mode``)
     go to :class:`RacingParallelEnv`. ``reset(options=...)`` accepts ``start`` and ``order``.
 
     **Info**: the learner's per-step info of the parallel env.
+
+    **Version History**: as :class:`RacingParallelEnv` (v1: contact over the whole control
+    period, applied at the first moment of contact; v0, contact only at the end of each step,
+    is not registered any more).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}

@@ -50,6 +50,15 @@ class RacingParallelEnv(ParallelEnv):
     length (the paper's relative progress; ``s_i`` alone when N = 1). Crossing the start/finish
     line causes no jump and driving backwards always costs reward.
 
+    **Starting state** (``start``, see :class:`StartConfig`; standing start, ``vx = speed`` = 0
+    by default): ``"regions"`` (default, the paper's): car i gets start region ``order[i]`` (a
+    random permutation unless given), R1 the front-most ending at ``s0`` = 3 m, each region
+    0.4 m long and 0.6 m behind the previous one, at a uniform position in it and a random
+    lateral offset of at most ``lateral_jitter`` of the usable half width; ``"grid"``: two
+    columns behind ``s0``, car_0 on pole, rows ``grid_gap`` m apart; ``"random"``: anywhere
+    on the track, neighbours at least ``min_gap`` m apart (equal slots at a random rotation,
+    jittered, cars in a random order). Heading, ``vy`` and ``omega`` start at zero.
+
     **Episode end**: truncation after ``max_cycles`` steps (default 500 = 50 s); with ``laps``
     set, termination of every agent when the first car completes that many laps (the line is
     the start position of the front-most car).
@@ -67,6 +76,19 @@ class RacingParallelEnv(ParallelEnv):
 
     **Reset options**: ``{"n_cars": int, "start": mode or StartConfig, "order": list}`` where
     ``order[i]`` is the start region of car i (0 = R1, the front-most region).
+
+    **Version History** (``metadata["name"]``; the Gymnasium id ``alpha_racer/HeadToHead-vN``
+    carries the same number):
+
+    * v1: contact is checked over the whole control period (the relative motion of each pair
+      is swept between RK4 sub-step points) and applied at the first moment of contact, so a
+      car can no longer drive through another unnoticed; the car behind *at that moment* gets
+      ``rear_factor``. Random starts are evenly spaced slots with jitter (bounded time).
+      Out-of-range actions, ``+-inf`` included, are clipped; misshapen actions, actions for
+      unknown agents and NaN raise ``ValueError``.
+    * v0: initial version. Contact was checked only at the end of each 0.1 s step (a faster
+      car could pass through a slower one within a step, and the car that had been hit could
+      get the rear factor); not kept.
     """
 
     metadata = {"name": "alpha_racer_v1", "render_modes": ["human", "rgb_array"],

@@ -8,9 +8,10 @@ Everything here works on plain arrays so that one call advances ``B`` races of `
 
 One control period ``dt`` is integrated with classical RK4 sub-steps whose number adapts to
 the stiffness of the lateral dynamics (many at a standing start, two at racing speed), so the
-integration is stable at every speed. After the dynamics the paper's rules apply (see
-:class:`racing_env.config.RulesConfig`): contact slow-down and off-track slow-down with
-re-alignment. A car cannot go more than ``wall_margin`` beyond an edge (a wall stops it
+integration is stable at every speed. The paper's rules apply (see
+:class:`racing_env.config.RulesConfig`): contact slow-down, checked over the sub-steps and
+applied at the moment of contact (see :func:`_step_one_race`), and, after the dynamics,
+off-track slow-down with re-alignment. A car cannot go more than ``wall_margin`` beyond an edge (a wall stops it
 sideways) and cannot roll backwards (``vx >= 0``: a brake stops a car, it does not reverse it).
 """
 from __future__ import annotations
