@@ -262,6 +262,7 @@ def _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, n_s
     d_start = np.empty((n_cars, n_cars))    # wrapped s_i - s_j at the start of the period
     hit = np.zeros((n_cars, n_cars), dtype=np.bool_)
     prev = np.empty((n_cars, 2))
+    prev_x = np.empty((n_cars, 6))
     for i in range(n_cars):
         state[b, i] = x0[i]
         substeps[b, i] = n_sub
@@ -272,6 +273,7 @@ def _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, n_s
             for i in range(n_cars):
                 prev[i, 0] = state[b, i, 0] - x0[i, 0]
                 prev[i, 1] = state[b, i, 1]
+                prev_x[i] = state[b, i]
                 _rk4_substep(state[b, i], phys[i, 0], phys[i, 1], kappa_tab, ds, length, p, h)
         for i in range(n_cars):
             for j in range(i + 1, n_cars):
@@ -294,8 +296,17 @@ def _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, n_s
                 # who is behind at the moment of contact (level: who was behind before it)
                 i_front = ds_at > 0.0 or (ds_at == 0.0 and ds_from >= 0.0)
                 front, rear = (i, j) if i_front else (j, i)
-                _cut(state[b, front], applied, front, front_f)
-                _cut(state[b, rear], applied, rear, rear_f)
+                for car, f in ((front, front_f), (rear, rear_f)):
+                    if f >= applied[car]:
+                        continue
+                    x = state[b, car]
+                    if m > 0:   # redo the sub-step: up to the moment of contact, cut, on
+                        x[:] = prev_x[car]
+                        if u > 0.0:
+                            _rk4_substep(x, phys[car, 0], phys[car, 1], kappa_tab, ds, length, p, u * h)
+                    _cut(x, applied, car, f)
+                    if m > 0 and u < 1.0:
+                        _rk4_substep(x, phys[car, 0], phys[car, 1], kappa_tab, ds, length, p, (1.0 - u) * h)
 
 
 def _advance(state, action, normalised, act_map, kappa_tab, w_left, w_right, wall_left, wall_right,
