@@ -3,7 +3,11 @@
     from agents import make_agent, agent_names
     agent = make_agent("raceline")
 """
-from .base import Agent, agent_names, make_agent, make_agent_spec, register_agent
+import racing_env.cache  # noqa: F401  first: the cache folder, before numba compiles anything
+from racing_env import __version__
+from .base import (ENTRY_POINT_GROUP, Agent, agent_names, agent_parameters, import_agent_modules,
+                   make_agent, make_agent_spec, register_agent)
 from . import alpha_agent, ibr, mpc_agent, ppo_agent, simple  # noqa: F401  registers the built-in agents
 
-__all__ = ["Agent", "agent_names", "make_agent", "make_agent_spec", "register_agent"]
+__all__ = ["__version__", "ENTRY_POINT_GROUP", "Agent", "agent_names", "agent_parameters",
+           "import_agent_modules", "make_agent", "make_agent_spec", "register_agent"]

@@ -623,6 +623,8 @@ class IBRAgent:
     and ``br_ms_median``/``_p99`` (wall times). ``ibr.last`` holds the last decision's record.
     """
 
+    spec_keywords_from = IBRConfig     # what ``**config_fields`` takes (agents.base.agent_parameters)
+
     def __init__(self, config: IBRConfig | None = None, vehicle: VehicleParams | None = None,
                  n_preview: int = 10, **config_fields):
         if config is not None and config_fields:

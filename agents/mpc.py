@@ -20,8 +20,20 @@ separation as constraints; both at once would forbid ever being beside or behind
 so per stage and opponent we impose the one that the nominal prediction satisfies with the
 larger margin, on the side where it is (the usual convexification of "not overlapping").
 Opponents move at constant progress rate and lateral position (paper). Soft constraints
-use DAQP's exact-penalty soft rows, so the QP is always feasible. A failed QP or a
-non-finite prediction falls back to the shifted previous plan (counted in ``stats``).
+use DAQP's soft rows, a *quadratic* penalty: a violation ``v`` of a soft row costs
+``v^2 / (2 soft_rho)`` (in the units of the cost above), so the QP is always feasible but a
+large enough tracking gain can still trade a small violation for tracking.
+
+Each QP step is checked on the nonlinear model (a merit test): the rollout of the new inputs
+must lower the cost (tracking, input rates and the same quadratic penalty of the soft rows,
+:func:`plan_cost`) below the current plan's, trying the full step and then shorter ones
+(``step_sizes``); a step that lowers nothing is rejected and the current plan kept. When the
+accepted step's linearised lateral prediction misses its rollout by more than ``model_tol``,
+a second SQP iteration linearises at the new plan (``sqp_iterations``). The first solve after
+a reset, and any solve whose shifted plan leaves the track or whose car is nearly stopped,
+also rolls out the raceline follower's law and starts from whichever plan costs less (a
+*restart*, counted in ``stats``). A failed QP or a non-finite prediction falls back to the
+shifted previous plan with the throttle lifted (counted in ``stats``).
 
 The prediction model uses a larger low-speed slip regularisation (``v_low``, default 0.5 m/s)
 than the simulator so that the RK4 sub-steps of a 0.1 s stage stay stable at a standing
@@ -34,6 +46,7 @@ from __future__ import annotations
 import hashlib
 from collections import deque
 import os
+import shlex
 import shutil
 import subprocess
 import tempfile
@@ -48,7 +61,7 @@ from numba import njit
 from racing_env.controllers import follower_action
 from racing_env.simulator import _lookup, _n_substeps, integrate_car
 from racing_env.track import Track
-from racing_env.vehicle import VehicleParams
+from racing_env.vehicle import P_VLOW, VehicleParams
 
 @dataclass(frozen=True)
 class MPCConfig:
@@ -57,13 +70,17 @@ class MPCConfig:
     horizon: int = 15             # K
     dt: float = 0.1
     substeps: int = 3             # RK4 steps per stage
-    v_low: float = 0.5            # slip regularisation of the prediction model [m/s]
+    v_low: float = 0.5            # slip regularisation of the prediction model at rest [m/s]
+    v_blend: float = 1.0          # ... fading to the simulator's v_low above this speed [m/s]
     track_margin: float = 0.03    # keep the car centre this far inside the edges
     sep_s: float = 0.15           # longitudinal separation p_x^min
     sep_n: float = 0.08           # lateral separation p_y^min
     sep_window: float = 2.0       # only opponents within this progress distance constrain
-    soft_rho: float = 1e-4        # DAQP rho_soft: reciprocal weight of soft violations
-    sqp_iterations: int = 1       # 1 = real-time iteration
+    soft_rho: float = 1e-4        # DAQP rho_soft: a soft violation v costs v^2 / (2 soft_rho)
+    sqp_iterations: int = 2       # most SQP iterations; a second one only when the first
+                                  # step's linearised n differs from its rollout by > model_tol
+    model_tol: float = 0.02       # [m]
+    step_sizes: tuple = (1.0, 0.5, 0.25)  # merit-checked step lengths of each QP step
     restart_offtrack: float = 0.06  # warm start from a follower rollout when the shifted plan
                                     # leaves the track by more than this [m]
     qp_iter_limit: int = 300        # DAQP active-set iterations; a QP that needs more (rare
@@ -74,7 +91,7 @@ class MPCConfig:
             raise ValueError(f"MPC horizon must be an integer in 2..100, got {self.horizon!r}")
         if not (isinstance(self.substeps, int) and 1 <= self.substeps <= 10):
             raise ValueError(f"MPC substeps must be an integer in 1..10, got {self.substeps!r}")
-        for name in ("dt", "v_low", "sep_s", "sep_n", "sep_window", "soft_rho"):
+        for name in ("dt", "v_low", "v_blend", "sep_s", "sep_n", "sep_window", "soft_rho"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"MPCConfig.{name} must be positive, got {v!r}")
@@ -88,18 +105,30 @@ class MPCConfig:
 
 # ---------------------------------------------------------------------------- the prediction
 def _cache_root() -> Path:
-    return Path(os.environ.get("ALPHA_RACER_CACHE", Path.home() / ".cache" / "alpha_racer")) / "mpc"
+    """Folder of the compiled predictions: ``mpc/`` of the alpha-racer cache folder."""
+    from racing_env.cache import cache_dir
+    return cache_dir("mpc")
 
 
-def stage_function(vehicle: VehicleParams, cfg: MPCConfig):
+def prediction_v_low(vx, v_low_sim: float, cfg: MPCConfig, exp=np.exp):
+    """Slip regularisation [m/s] of the prediction model at speed ``vx`` [m/s]:
+    ``v_low_sim + (cfg.v_low - v_low_sim) exp(-(vx / cfg.v_blend)^2)``. Near rest the larger
+    ``cfg.v_low`` keeps the RK4 sub-steps stable; at racing speed (within 1e-3 above
+    ``2.7 v_blend``) it is the simulator's own, so the prediction holds the tyre forces the car
+    really has (a constant 0.5 m/s cost 4% of lateral force at 2.5 m/s)."""
+    return v_low_sim + (cfg.v_low - v_low_sim) * exp(-(vx / cfg.v_blend) ** 2)
+
+
+def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True):
     """CasADi ``stage(x[6], u[2], kap[substeps]) -> (x_next, vec(dx_next/dx), vec(dx_next/du))``:
     one 0.1 s stage of ``substeps`` RK4 steps of the simulator's model (``frenet_ode``) with
-    the prediction's ``v_low``; ``u`` are the env's normalised inputs."""
+    the prediction's ``v_low``; ``u`` are the env's normalised inputs. Without ``jacobians``
+    it returns ``x_next`` only."""
     import casadi as ca
     from racing_env.vehicle import frenet_ode_casadi
 
     ode = frenet_ode_casadi()
-    p = [float(v) for v in replace(vehicle, v_low=cfg.v_low).pack()]
+    p = [float(v) for v in vehicle.pack()]
     x = ca.SX.sym("x", 6)
     u = ca.SX.sym("u", 2)
     kap = ca.SX.sym("kap", cfg.substeps)
@@ -109,7 +138,9 @@ def stage_function(vehicle: VehicleParams, cfg: MPCConfig):
     delta_phys = vehicle.delta_max * u[1]
 
     def f(xx, kk):
-        return ca.vertcat(*ode(xx[1], xx[2], xx[3], xx[4], xx[5], d_phys, delta_phys, kk, p))
+        pp = list(p)
+        pp[P_VLOW] = prediction_v_low(xx[3], vehicle.v_low, cfg, ca.exp)
+        return ca.vertcat(*ode(xx[1], xx[2], xx[3], xx[4], xx[5], d_phys, delta_phys, kk, pp))
 
     h = cfg.dt / cfg.substeps
     xn = x
@@ -119,52 +150,103 @@ def stage_function(vehicle: VehicleParams, cfg: MPCConfig):
         k3 = f(xn + h / 2 * k2, kap[j])
         k4 = f(xn + h * k3, kap[j])
         xn = xn + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    if not jacobians:
+        return ca.Function("stage_x", [x, u, kap], [xn])
     return ca.Function("stage", [x, u, kap],
                        [xn, ca.densify(ca.vec(ca.jacobian(xn, x))),
                         ca.densify(ca.vec(ca.jacobian(xn, u)))])
 
 
-def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig):
-    """The horizon ``(x0[6], U[2xK], KAP[substeps x K]) -> (X[6xK], A[36xK], B[12xK])``: the
-    stage function folded K times (mapaccum), compiled to C and cached on disk (interpreted,
-    with a warning, when no C compiler is available)."""
+def _trajectory_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True):
+    """The horizon ``(x0[6], U[2xK], KAP[substeps x K]) -> (X[6xK], A[36xK], B[12xK])`` (numpy
+    arrays): the stage function folded K times (mapaccum), compiled to C and cached on disk
+    (``mpc/`` of the cache folder, see :mod:`racing_env.cache`). Without ``jacobians``:
+    ``(X,)`` only, a rollout several times cheaper.
+
+    The compiler is ``$CC`` if set (a command, e.g. ``"ccache gcc"``), else ``gcc`` or ``cc``.
+    When there is none, or it fails (its error message is shown), or the library does not load,
+    the prediction runs interpreted by CasADi with a warning: same results, slower."""
     import casadi as ca
 
-    stage = stage_function(vehicle, cfg)
-    traj = stage.mapaccum("mpc_traj", cfg.horizon)
-    gen = ca.CodeGenerator("mpc_traj.c", {"with_header": False})
+    stage = stage_function(vehicle, cfg, jacobians)
+    name = "mpc_traj" if jacobians else "mpc_roll"
+    traj = stage.mapaccum(name, cfg.horizon)
+    gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
     gen.add(traj)
     code = gen.dump()
     flags = ["-O3", "-fPIC", "-shared"]
     key = hashlib.sha1((code + " ".join(flags)).encode()).hexdigest()[:16]
-    lib = _cache_root() / f"mpc_traj_{key}.so"
+    lib = _cache_root() / f"{name}_{key}.so"
+    interpreted = "the MPC runs its prediction interpreted by CasADi (same results, slower)"
     if not lib.exists():
-        cc = shutil.which("gcc") or shutil.which("cc")
+        cc = _c_compiler()
         if cc is None:
-            warnings.warn("no C compiler found: the MPC runs its prediction interpreted (slower)")
-            return traj
-        lib.parent.mkdir(parents=True, exist_ok=True)
+            cc_env = os.environ.get("CC", "").strip()
+            why = f"CC={cc_env!r} is not a program on the PATH" if cc_env else "set CC or install gcc"
+            warnings.warn(f"no C compiler found ({why}): {interpreted}", RuntimeWarning, stacklevel=2)
+            return _InterpretedTrajectory(traj)
         with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
-            src = Path(tmp) / "mpc_traj.c"
+            src = Path(tmp) / f"{name}.c"
             src.write_text(code)
             out = Path(tmp) / lib.name
-            subprocess.run([cc, *flags, str(src), "-o", str(out)], check=True,
-                           capture_output=True)
+            cmd = [*cc, *flags, str(src), "-o", str(out)]
+            try:
+                subprocess.run(cmd, check=True, capture_output=True, text=True)
+            except subprocess.CalledProcessError as exc:
+                output = (exc.stderr or exc.stdout or "").strip()[-2000:]
+                failure = f"exited with status {exc.returncode}:\n{output}"
+            except OSError as exc:          # not executable, not a program, ...
+                failure = f"could not run: {exc}"
+            else:
+                failure = None
+            if failure is not None:
+                warnings.warn(f"compiling the MPC prediction failed: {shlex.join(cmd)} {failure}\n"
+                              f"{interpreted}", RuntimeWarning, stacklevel=2)
+                return _InterpretedTrajectory(traj)
             os.replace(out, lib)            # atomic: a killed compile leaves no broken library
-    return _CompiledTrajectory(lib, cfg.horizon, cfg.substeps)
+    try:
+        return _CompiledTrajectory(lib, cfg.horizon, cfg.substeps, name)
+    except (OSError, AttributeError) as exc:  # not a loadable library, or not ours
+        warnings.warn(f"cannot load the compiled MPC prediction {str(lib)!r} ({exc}): {interpreted}",
+                      RuntimeWarning, stacklevel=2)
+        return _InterpretedTrajectory(traj)
+
+
+def _c_compiler() -> list[str] | None:
+    """The C compiler command: ``$CC`` split like a shell would (None if its program is not
+    found), else ``gcc`` or ``cc`` on the PATH, else None."""
+    env = os.environ.get("CC", "").strip()
+    if env:
+        cmd = shlex.split(env)
+        exe = shutil.which(cmd[0])
+        return [exe, *cmd[1:]] if exe else None
+    cc = shutil.which("gcc") or shutil.which("cc")
+    return [cc] if cc else None
+
+
+class _InterpretedTrajectory:
+    """The CasADi Function with numpy arrays out, like :class:`_CompiledTrajectory`."""
+
+    def __init__(self, fn):
+        self._fn = fn
+
+    def __call__(self, x0, U, kap):
+        out = self._fn(x0, U, kap)
+        out = out if isinstance(out, (tuple, list)) else (out,)   # one output comes bare
+        return tuple(np.asarray(o, dtype=float) for o in out)
 
 
 class _CompiledTrajectory:
     """Calls the generated C function through ctypes on preallocated numpy buffers (the
     CasADi Python call with DM conversions costs more than the maths itself here)."""
 
-    def __init__(self, lib: Path, horizon: int, substeps: int):
+    def __init__(self, lib: Path, horizon: int, substeps: int, name: str = "mpc_traj"):
         import ctypes
         self._lib = ctypes.CDLL(str(lib))
-        fn = self._lib.mpc_traj
+        fn = getattr(self._lib, name)
         i64 = ctypes.c_longlong
         sizes = [i64() for _ in range(4)]
-        self._lib.mpc_traj_work(*[ctypes.byref(v) for v in sizes])
+        getattr(self._lib, f"{name}_work")(*[ctypes.byref(v) for v in sizes])
         n_arg, n_res, n_iw, n_w = (v.value for v in sizes)
         K = horizon
         self.x0 = np.zeros(6)
@@ -178,6 +260,7 @@ class _CompiledTrajectory:
         dp = ctypes.POINTER(ctypes.c_double)
         ptr = lambda a: a.ctypes.data_as(dp)
         self._arg = (dp * max(n_arg, 3))(ptr(self.x0), ptr(self.U), ptr(self.kap))
+        self.states_only = n_res == 1
         self._res = (dp * max(n_res, 3))(ptr(self.X), ptr(self.A), ptr(self.B))
         self._args = (self._arg, self._res, self._iw.ctypes.data_as(ctypes.POINTER(i64)), ptr(self._w), 0)
         fn.restype = ctypes.c_int
@@ -192,6 +275,8 @@ class _CompiledTrajectory:
         if self._fn(*self._args):
             raise RuntimeError("compiled MPC prediction failed")
         K = self.K
+        if self.states_only:
+            return (self.X.reshape(K, 6).T.copy(),)
         return (self.X.reshape(K, 6).T.copy(), self.A.reshape(K, 36).T.copy(),
                 self.B.reshape(K, 12).T.copy())
 
@@ -415,6 +500,35 @@ def qp_arrays(G, s_pred, n_pred, s_ref, n_ref, q, DtD, u_vec, delta_applied, rat
     return H, f, rows[:r].copy(), blo, bhi, sense
 
 
+@njit(cache=True)
+def plan_cost(s_pred, n_pred, s_ref, n_ref, q, u_vec, nlo, nhi, opponents, dt, sep_s, sep_n,
+              sep_window, w_soft):
+    """The MPC's objective at a plan's rollout (:func:`qp_arrays`' cost before linearisation):
+    ``q ||(s, n) - ref||^2 + ||D u||^2 + w_soft * (sum of squared violations of the track
+    edges and of the separations, chosen per stage as in qp_arrays)``."""
+    K = s_pred.shape[0]
+    J = 0.0
+    for k in range(K):
+        J += q * ((s_pred[k] - s_ref[k]) ** 2 + (n_pred[k] - n_ref[k]) ** 2)
+        v = max(n_pred[k] - nhi[k], nlo[k] - n_pred[k], 0.0)
+        J += w_soft * v * v
+    for k in range(1, K):
+        J += (u_vec[2 * k] - u_vec[2 * k - 2]) ** 2 + (u_vec[2 * k + 1] - u_vec[2 * k - 1]) ** 2
+    for m in range(opponents.shape[0]):
+        s_j, n_j, v_j = opponents[m, 0], opponents[m, 1], opponents[m, 2]
+        for k in range(K):
+            ds = s_pred[k] - (s_j + v_j * dt * (k + 1))
+            dn = n_pred[k] - n_j
+            if not abs(ds) < sep_window:
+                continue
+            if abs(dn) / sep_n >= abs(ds) / sep_s:
+                v = max(sep_n - abs(dn), 0.0)
+            else:
+                v = max(sep_s - abs(ds), 0.0)
+            J += w_soft * v * v
+    return J
+
+
 # ---------------------------------------------------------------------------- the solver
 class MPC:
     """RTI-SQP MPC of one car on a track (see the module docstring).
@@ -433,6 +547,7 @@ class MPC:
         self.vehicle = vehicle or VehicleParams()
         self.cfg = config or MPCConfig()
         self._traj = _trajectory_function(self.vehicle, self.cfg)
+        self._roll = _trajectory_function(self.vehicle, self.cfg, jacobians=False)
         K = self.cfg.horizon
         v = self.vehicle
         self._lo_u = np.full(2 * K, -1.0)
@@ -442,6 +557,7 @@ class MPC:
         self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max  # normalised
         self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
         self.stats = {"solves": 0, "fallbacks": 0, "restarts": 0, "qp_iterations": 0,
+                      "rejected_steps": 0, "extra_iterations": 0,
                       "solve_ms": deque(maxlen=100_000)}
         self.reset()
 
@@ -464,46 +580,69 @@ class MPC:
         return follower_rollout(self.track, self.vehicle, self._follower, x0, self.cfg.horizon,
                                 self.cfg.dt)
 
+    def _plan(self, x0, U, s_prev=None, jacobians=True):
+        """Nonlinear rollout of inputs ``U`` (2, K) from ``x0``: ``(X (6, K), A, B)`` (A, B
+        ``None`` without ``jacobians``) with the curvature looked up along ``s_prev`` (K + 1,)
+        or the previous nominal."""
+        K, dt = self.cfg.horizon, self.cfg.dt
+        nodes = (stage_nodes(self._s_nom, x0, K, dt) if s_prev is None
+                 else np.asarray(s_prev, dtype=float))
+        kap = kappa_at_substeps(self.track, nodes, self.cfg.substeps)
+        if not jacobians:
+            return np.asarray(self._roll(x0, U, kap)[0], dtype=float), None, None
+        X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
+        return X, A, B
+
+    def _merit(self, X, U, s_ref, n_ref, q, opp, u_prev):
+        """The MPC's cost of a plan on its *nonlinear* rollout ``X``: tracking, input rates and
+        the soft rows' quadratic penalty ``violation^2 / (2 soft_rho)`` (DAQP's, for the track
+        edges and the separations chosen along ``X``); ``inf`` for a non-finite rollout."""
+        if not np.isfinite(X).all():
+            return np.inf
+        lo_n, hi_n = self._bounds_n(X[0])
+        return plan_cost(X[0], X[1], s_ref, n_ref, float(q), U.T.reshape(-1), lo_n, hi_n, opp,
+                         self.cfg.dt, self.cfg.sep_s, self.cfg.sep_n, self.cfg.sep_window,
+                         0.5 / self.cfg.soft_rho)
+
     def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None) -> np.ndarray:
         import daqp
         t0 = time.perf_counter()
         cfg, K = self.cfg, self.cfg.horizon
         x0 = np.asarray(x0, dtype=float)
+        s_ref = np.asarray(s_ref, dtype=float)
+        n_ref = np.asarray(n_ref, dtype=float)
         u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
         opp = (np.zeros((0, 3)) if opponents is None
                else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3))
-        if self._U is None:
-            self._U = np.zeros((2, K))
-            self._U[1, :] = u_prev[1]
-        U = self._U
-        if x0[3] < 2.0 * cfg.v_low:
-            # a (nearly) stopped car's brake has no effect and so no gradient: linearised at a
-            # braking warm start the QP would see no way to move; linearise at drive instead
-            U = U.copy()
-            U[0] = np.maximum(U[0], 0.2)
+        merit = lambda X_, U_: self._merit(X_, U_, s_ref, n_ref, q, opp, u_prev)
+        fresh = self._U is None
+        if fresh:                                   # first solve: start from the follower
+            U = self._follower_warm_start(x0)
+        else:
+            U = self._U
+        X, A, B = self._plan(x0, U)
+        J = merit(X, U)
+        if not fresh:
+            lo_n, hi_n = self._bounds_n(X[0]) if np.isfinite(X).all() else (None, None)
+            off = (np.maximum(X[1] - hi_n, lo_n - X[1]).max() if lo_n is not None else np.inf)
+            if off > cfg.restart_offtrack or x0[3] < 2.0 * cfg.v_low:
+                # the shifted plan leaves the track, or the car is (nearly) stopped, where the
+                # linearisation sees little of what drive does: also try a follower rollout
+                Uf = self._follower_warm_start(x0)
+                Xf, Af, Bf = self._plan(x0, Uf)
+                Jf = merit(Xf, Uf)
+                if Jf < J:
+                    U, X, A, B, J = Uf, Xf, Af, Bf, Jf
+                    self.stats["restarts"] += 1
         status = "ok"
-        qp_left = cfg.sqp_iterations
-        restarted = False
-        while qp_left > 0:
-            kap = self._kappa_at_substeps(x0)
-            X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
-            lo_n, hi_n = self._bounds_n(X[0])
-            off = np.maximum(X[1] - hi_n, lo_n - X[1]).max() if np.isfinite(X).all() else np.inf
-            if off > cfg.restart_offtrack and not restarted:
-                # the warm start leaves the track: linearise around a follower rollout instead
-                # (and take one more SQP iteration from there)
-                U = self._follower_warm_start(x0)
-                self._s_nom = None
-                restarted = True
-                self.stats["restarts"] += 1
-                qp_left += 1
-                continue
-            qp_left -= 1
+        model_error = 0.0
+        for it in range(cfg.sqp_iterations):
             if not (np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all()):
                 status = "nonfinite prediction"
                 break
             G = condense(np.ascontiguousarray(A), np.ascontiguousarray(B), K)
             s_pred, n_pred = X[0], X[1]
+            lo_n, hi_n = self._bounds_n(s_pred)
             u_vec = U.T.reshape(-1)                                       # [d0, delta0, d1, ...]
             H, f, Acon, blo, bhi, sense = qp_arrays(
                 G, s_pred, n_pred, s_ref, n_ref, float(q), self._DtD, u_vec, float(u_prev[1]),
@@ -512,19 +651,42 @@ class MPC:
                                                iter_limit=cfg.qp_iter_limit)
             self.stats["qp_iterations"] += int(info.get("iterations", 0))
             if exitflag < 0 or not np.all(np.isfinite(du)):
-                status = f"qp exitflag {exitflag}"
+                status = f"qp exitflag {exitflag}" if it == 0 else status
                 break
-            U = np.clip((u_vec + du).reshape(K, 2).T, self._lo_u[:2, None], self._hi_u[:2, None])
-            self._s_nom = np.concatenate([[x0[0]], s_pred])
+            # merit check on the nonlinear rollout: the full step, else shorter ones
+            nodes = np.concatenate([[x0[0]], s_pred])
+            best = None
+            for alpha in cfg.step_sizes:
+                Ua = np.clip((u_vec + alpha * du).reshape(K, 2).T, -1.0, 1.0)
+                Xa = self._plan(x0, Ua, s_prev=nodes, jacobians=False)[0]
+                Ja = merit(Xa, Ua)
+                if best is None or Ja < best[0]:
+                    best = (Ja, alpha, Ua, Xa)
+                if Ja <= J:
+                    break
+            Ja, alpha, Ua, Xa = best
+            if Ja > J:                         # no step improves the plan: keep it
+                self.stats["rejected_steps"] += 1
+                break
+            n_lin = n_pred + alpha * (G[1::2] @ du)
+            model_error = float(np.max(np.abs(n_lin - Xa[1])))
+            U, X, J = Ua, Xa, Ja
+            self._s_nom = np.concatenate([[x0[0]], X[0]])
+            if model_error <= cfg.model_tol or it + 1 == cfg.sqp_iterations:
+                break
+            self.stats["extra_iterations"] += 1        # linearise again at the new plan
+            X, A, B = self._plan(x0, U, s_prev=nodes)
         self.stats["solves"] += 1
+        self.last_model_error = model_error
         if status != "ok":
             self.stats["fallbacks"] += 1
-            U = np.concatenate([self._U[:, 1:], self._U[:, -1:]], axis=1)
+            U = (U if self._U is None else self._U).copy()   # the plan for now (shifted)
             U[0, :] = np.minimum(U[0, :], 0.0)          # fallback: keep the steering plan, lift off
             self._s_nom = None
         u0 = U[:, 0].copy()
         self._U = np.concatenate([U[:, 1:], U[:, -1:]], axis=1)          # shifted warm start
         self.last_status = status
         self.last_prediction = X if status == "ok" else None
+        self.last_plan = (U, J if status == "ok" else np.inf)   # inputs (2, K) and their cost
         self.stats["solve_ms"].append(1e3 * (time.perf_counter() - t0))
         return u0

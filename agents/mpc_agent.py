@@ -9,7 +9,7 @@ from racing_env.vehicle import VehicleParams
 
 from .base import median_p99, register_agent
 from .mpc import MPC, MPCConfig
-from .reference import Theta, reference_trajectory
+from .reference import THETA_HIGH, THETA_LOW, THETA_NAMES, Theta, reference_trajectory
 from .threads import single_blas_thread
 
 
@@ -58,6 +58,9 @@ class MPCAgent:
     process's thread count (OpenBLAS measured different last bits with two threads for a
     100 x 100 float64 product with a transposed operand, the MPC's sizes).
     """
+
+    #: theta's bounds (:data:`agents.reference.THETA_LOW` / ``THETA_HIGH``), for ``alpha-racer agents``
+    param_bounds = {k: (float(lo), float(hi)) for k, lo, hi in zip(THETA_NAMES, THETA_LOW, THETA_HIGH)}
 
     def __init__(self, q: float = 20.0, zeta: float = 0.9, s1: float = 0.1, s2: float = 4.0,
                  s3: float = 1.0, config: MPCConfig | None = None,

@@ -71,7 +71,7 @@ class IpoptMPC:
                 ubg.append(np.full(1, np.inf))
         err = X[:2, 1:] - P_ref
         du = U[:, 1:] - U[:, :-1]
-        w_soft = 1.0 / cfg.soft_rho
+        w_soft = 0.5 / cfg.soft_rho            # DAQP's quadratic penalty of soft rows
         cost = (P_q * ca.sumsqr(err) + ca.sumsqr(du)
                 + w_soft * (ca.sumsqr(S_track) + ca.sumsqr(S_sep)))
         w = ca.vertcat(ca.vec(X), ca.vec(U), S_track, S_sep)
@@ -94,12 +94,17 @@ class IpoptMPC:
     def reset(self) -> None:
         self._w0 = None
 
-    def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None) -> np.ndarray:
+    def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None,
+              init=None) -> np.ndarray:
+        """Like :meth:`MPC.solve`; ``init = (X (6, K + 1), U (2, K))`` replaces the warm start
+        by an explicit initial guess (states from ``x0`` on). ``last_U`` (2, K) holds the plan."""
         t0 = time.perf_counter()
         cfg, K = self.cfg, self.cfg.horizon
         x0 = np.asarray(x0, dtype=float)
         u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
-        if self._w0 is None:
+        if init is not None:
+            X0, U0 = (np.array(a, dtype=float) for a in init)
+        elif self._w0 is None:
             U0 = np.zeros((2, K))
             X0 = np.tile(x0[:, None], (1, K + 1))
             X0[0] = x0[0] + max(x0[3], 0.5) * cfg.dt * np.arange(K + 1)
@@ -134,4 +139,5 @@ class IpoptMPC:
             self._w0 = None
             return np.array([0.0, u_prev[1]])
         self._w0 = w
+        self.last_U = w[self._nx:self._nx + self._nu].reshape(K, 2).T.copy()
         return w[self._nx:self._nx + 2].copy()

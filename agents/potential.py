@@ -221,6 +221,7 @@ def load_model(name_or_path="default") -> PotentialModel:
     else:
         path = Path(name_or_path)
         if not path.exists():
-            raise FileNotFoundError(f"no alpha-potential model at {path} (shipped names: "
-                                    f"{sorted(SHIPPED)})")
+            raise FileNotFoundError(f"model {str(name_or_path)!r} is neither a shipped "
+                                    f"alpha-potential model ({', '.join(sorted(SHIPPED))}) nor "
+                                    f"the path of a model.npz")
     return PotentialModel.load(path)

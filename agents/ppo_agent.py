@@ -104,7 +104,8 @@ def load_vecnormalize(path):
 def load_ppo(path, env=None, **kwargs):
     """``PPO.load`` of a checkpoint on the CPU (schedules replaced by constants, so a model
     saved by another SB3 version loads); ``kwargs`` go to ``PPO.load``."""
-    from stable_baselines3 import PPO
+    from racing_env.extras import require
+    PPO = require("stable_baselines3", "the 'ppo' agent").PPO
     read_checkpoint_meta(path)
     custom = {"lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.0}
     custom.update(kwargs.pop("custom_objects", {}))

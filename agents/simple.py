@@ -28,6 +28,8 @@ class RandomAgent:
 class ConstantAgent:
     """The same action every step (default: half throttle, straight)."""
 
+    param_bounds = {"throttle": (-1.0, 1.0), "steering": (-1.0, 1.0)}
+
     def __init__(self, throttle: float = 0.5, steering: float = 0.0):
         if not (-1 <= throttle <= 1 and -1 <= steering <= 1):
             raise ValueError(f"throttle and steering must be in [-1, 1], got {throttle}, {steering}")

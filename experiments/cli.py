@@ -1,5 +1,5 @@
-"""The ``alpha-racer`` command line: ``race``, ``tracks``, ``raceline``, ``fuzz``, ``collect``,
-``train``, ``selfplay``, ``bench``, ``analyze``, ``reproduce``."""
+"""The ``alpha-racer`` command line: ``race``, ``agents``, ``tracks``, ``raceline``, ``fuzz``,
+``collect``, ``train``, ``selfplay``, ``bench``, ``analyze``, ``reproduce``, ``policy-map``."""
 from __future__ import annotations
 
 import argparse
@@ -7,11 +7,15 @@ import os
 import sys
 from pathlib import Path
 
+from racing_env.extras import MissingExtraError
+
 DEFAULT_AGENTS = ["alpha", "mpc:zeta=0.85", "mpc:zeta=0.8"]
 
 
 def _cmd_race(args) -> int:
-    from .race import run_race, write_outputs
+    from .race import check_animation_format, run_race, write_outputs
+    if not args.no_animation:
+        check_animation_format(args.format)       # before the race, not after it
     result, frames = run_race(args.agents, track=args.track, seed=args.seed,
                               max_cycles=args.steps, start=args.start, laps=args.laps,
                               render=not args.no_animation)
@@ -19,6 +23,30 @@ def _cmd_race(args) -> int:
     paths = write_outputs(result, frames, Path(args.out), animation=args.format)
     for kind, p in paths.items():
         print(f"{kind}: {p}")
+    return 0
+
+
+def _cmd_agents(args) -> int:
+    from agents import agent_names, agent_parameters
+    from agents.base import REQUIRED, get_factory
+    for name in agent_names():
+        try:
+            params, open_kwargs = agent_parameters(name)
+            doc = " ".join((getattr(get_factory(name), "__doc__", None) or "").strip()
+                           .split("\n\n")[0].split())
+            doc = doc.split(". ")[0].rstrip(".")
+        except ValueError as exc:              # a broken plugin: say so, list the others
+            print(f"{name}: {exc}")
+            continue
+        print(f"{name}: {doc}" if doc else name)
+        for p in params:
+            default = "(required)" if p.default is REQUIRED else f"= {p.default!r}"
+            bounds = f"  in [{p.bounds[0]:g}, {p.bounds[1]:g}]" if p.bounds else ""
+            print(f"    {p.name} {default}{bounds}")
+        if open_kwargs:
+            print("    ... and further keywords")
+        if not params and not open_kwargs:
+            print("    (no parameters)")
     return 0
 
 
@@ -168,99 +196,162 @@ def _cmd_reproduce(args) -> int:
     return 0
 
 
+def _cmd_policy_map(args) -> int:
+    from .policy_map import PolicyMapConfig, policy_map
+    cfg = PolicyMapConfig(thetas=args.thetas, tracks=tuple(args.tracks), modes=tuple(args.modes),
+                          steps=args.steps, seed=args.seed)
+    out = Path(args.out)
+    s = policy_map(cfg, out, workers=args.workers, backend=args.backend, address=args.address)
+    print((out / "summary.md").read_text())
+    print(f"{s['new_rows']} new rows; wrote {out / 'summary.md'}, {out / 'summary.json'}, "
+          f"{out / 'rows.jsonl'} and heat maps into {out}")
+    return 0
+
+
 def _slug(spec: str) -> str:
     return "".join(ch if ch.isalnum() or ch in ".-" else "_" for ch in spec)
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Every option's help ends with its default, except where the default is None or empty
+    (the help then says what applies)."""
+
+    def _get_help_string(self, action):
+        if action.default is None or action.default == []:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def _add_parallel_args(p) -> None:
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="worker processes (Ray CPUs with --backend ray); 1 runs in this process")
     p.add_argument("--backend", choices=["local", "ray"], default="local",
-                   help="local process pool (default) or a Ray cluster (pip install alpha-racer[ray])")
+                   help="local process pool or a Ray cluster (pip install alpha-racer[ray])")
     p.add_argument("--address", default=None,
                    help="Ray cluster address (e.g. auto or ray://host:10001); default: start a local Ray")
 
 
+def _add_import_arg(p) -> None:
+    p.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
+                   help="import MODULE (a module name, or a .py file) before the agent specs are "
+                        "read, so that the agents it registers can race; repeatable")
+
+
+def _version() -> str:
+    """The installed distribution's version, else (a source tree) the package's."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("alpha-racer")
+    except PackageNotFoundError:
+        from . import __version__
+        return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="alpha-racer", description=__doc__)
+    p = argparse.ArgumentParser(prog="alpha-racer", description=__doc__,
+                                formatter_class=_HelpFormatter)
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
-    r = sub.add_parser("race", help="race agents head to head, print the result, write an animation")
+    def command(name, help, description=None):
+        return sub.add_parser(name, help=help, description=description or help,
+                              formatter_class=_HelpFormatter)
+
+    r = command("race", "race agents head to head, print the result, write an animation")
     r.add_argument("--agents", nargs="+", default=DEFAULT_AGENTS,
-                   help="one agent spec per car: a registry name (see agents.agent_names()) with "
-                        "optional parameters, e.g. raceline:mu=0.75")
-    r.add_argument("--track", default="default")
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--steps", type=int, default=500, help="control periods of 0.1 s (default 500)")
-    r.add_argument("--laps", type=int, default=None, help="end when the first car completes this many laps")
-    r.add_argument("--start", choices=["regions", "grid", "random"], default="regions")
-    r.add_argument("--out", default="results/race")
-    r.add_argument("--format", choices=["gif", "mp4"], default="gif")
-    r.add_argument("--no-animation", action="store_true")
+                   help="one agent spec per car: an agent name (alpha-racer agents lists them) "
+                        "with optional parameters, e.g. raceline:mu=0.75")
+    r.add_argument("--track", default="default",
+                   help="default, oval, random:SEED, tumftm:NAME or a TUMFTM .csv path")
+    r.add_argument("--seed", type=int, default=0, help="seed of the start positions and the agents")
+    r.add_argument("--steps", type=int, default=500, help="control periods of 0.1 s")
+    r.add_argument("--laps", type=int, default=None,
+                   help="end when the first car completes this many laps (default: run all steps)")
+    r.add_argument("--start", choices=["regions", "grid", "random"], default="regions",
+                   help="start positions: the paper's start regions, a grid, or random")
+    r.add_argument("--out", default="results/race", help="output folder")
+    r.add_argument("--format", choices=["gif", "mp4"], default="gif",
+                   help="animation format (mp4 needs ffmpeg)")
+    r.add_argument("--no-animation", action="store_true", help="write no animation (faster)")
+    _add_import_arg(r)
     r.set_defaults(fn=_cmd_race)
 
-    t = sub.add_parser("tracks", help="list the available tracks")
+    ag = command("agents", "list every agent with its parameters, defaults and bounds")
+    _add_import_arg(ag)
+    ag.set_defaults(fn=_cmd_agents)
+
+    t = command("tracks", "list the available tracks")
     t.add_argument("--details", action="store_true", help="build each track and print its size")
     t.set_defaults(fn=_cmd_tracks)
 
-    rl = sub.add_parser("raceline", help="compute a track's minimum-curvature racing line")
+    rl = command("raceline", "compute a track's minimum-curvature racing line")
     rl.add_argument("--track", default="default",
                     help="default, oval, random:SEED, tumftm:NAME or a TUMFTM .csv path")
-    rl.add_argument("--scale", type=float, default=None, help="length scale for TUMFTM data (default 1/43)")
-    rl.add_argument("--out", default="results/raceline")
+    rl.add_argument("--scale", type=float, default=None,
+                    help="length scale for TUMFTM data (default 1/43)")
+    rl.add_argument("--out", default="results/raceline", help="output folder for the CSV and PNG")
     rl.set_defaults(fn=_cmd_raceline)
 
-    f = sub.add_parser("fuzz", help="random-action fuzz of the simulator: no NaN, no exception, states in bounds")
+    f = command("fuzz", "random-action fuzz of the simulator: no NaN, no exception, states in bounds")
     f.add_argument("--steps", type=int, default=1_000_000, help="total car-steps")
-    f.add_argument("--races", type=int, default=256)
-    f.add_argument("--cars", type=int, default=3)
-    f.add_argument("--track", default="default")
-    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--races", type=int, default=256, help="races stepped at once")
+    f.add_argument("--cars", type=int, default=3, help="cars per race")
+    f.add_argument("--track", default="default", help="track spec (as for race)")
+    f.add_argument("--seed", type=int, default=0, help="seed of the random actions and starts")
     f.set_defaults(fn=_cmd_fuzz)
-    c = sub.add_parser("collect", help="simulate races of MPC cars with random theta (resumable shards)")
-    c.add_argument("--races", type=int, default=4000)
-    c.add_argument("--cars", type=int, default=3)
-    c.add_argument("--steps", type=int, default=500)
-    c.add_argument("--track", default="default")
-    c.add_argument("--seed", type=int, default=0)
+
+    c = command("collect", "simulate races of MPC cars with random theta (resumable shards)")
+    c.add_argument("--races", type=int, default=4000, help="races to simulate")
+    c.add_argument("--cars", type=int, default=3, help="cars per race")
+    c.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race")
+    c.add_argument("--track", default="default", help="track spec (as for race)")
+    c.add_argument("--seed", type=int, default=0, help="seed of the thetas and start positions")
     c.add_argument("--shard-size", type=int, default=25, help="races per shard file")
-    c.add_argument("--out", default="data/races")
+    c.add_argument("--out", default="data/races", help="output folder; run again to resume")
     _add_parallel_args(c)
     c.set_defaults(fn=_cmd_collect)
 
-    tr = sub.add_parser("train", help="fit the value and alpha-potential networks on collected races")
+    tr = command("train", "fit the value and alpha-potential networks on collected races")
     tr.add_argument("--data", default="data/races", help="a directory written by `alpha-racer collect`")
     tr.add_argument("--out", default="models/alpha", help="output directory (resumes if it exists)")
     tr.add_argument("--gamma", type=float, default=None, help="discount factor (default 0.99)")
-    tr.add_argument("--value-epochs", type=int, default=None)
-    tr.add_argument("--potential-steps", type=int, default=None)
-    tr.add_argument("--value-hidden", type=int, nargs="+", default=None, help="default 128 128 64")
-    tr.add_argument("--potential-hidden", type=int, nargs="+", default=None, help="default 384 384 192")
+    tr.add_argument("--value-epochs", type=int, default=None,
+                    help="epochs of value-network training (default 8)")
+    tr.add_argument("--potential-steps", type=int, default=None,
+                    help="optimiser steps of the potential network (default 4000)")
+    tr.add_argument("--value-hidden", type=int, nargs="+", default=None,
+                    help="hidden layer widths of the value networks (default 128 128 64)")
+    tr.add_argument("--potential-hidden", type=int, nargs="+", default=None,
+                    help="hidden layer widths of the potential network (default 384 384 192)")
     tr.add_argument("--objective", choices=["mse", "smoothmax", "tail"], default=None,
                     help="potential loss: mse, or the paper's min-max as a smooth maximum or a "
                          "tail average (default tail)")
     tr.add_argument("--val-fraction", type=float, default=None, help="races held out (default 0.1)")
     tr.add_argument("--rollout-pairs", type=int, default=None,
                     help="paired-rollout checks on held-out states (default 40; 0 skips)")
-    tr.add_argument("--rollout-steps", type=int, default=None)
-    tr.add_argument("--seed", type=int, default=None)
-    tr.add_argument("--threads", type=int, default=None, help="torch threads and rollout workers")
+    tr.add_argument("--rollout-steps", type=int, default=None,
+                    help="steps of each paired rollout (default 300)")
+    tr.add_argument("--seed", type=int, default=None, help="seed of the split and the training (default 0)")
+    tr.add_argument("--threads", type=int, default=None,
+                    help="torch threads and rollout workers (default 2)")
     tr.set_defaults(fn=_cmd_train)
 
-    sp = sub.add_parser("selfplay", help="train PPO agents by iterated self-play (resumable)")
+    sp = command("selfplay", "train PPO agents by iterated self-play (resumable)")
     sp.add_argument("--out", default="runs/selfplay", help="output folder; run again to resume")
-    sp.add_argument("--cars", type=int, default=3)
+    sp.add_argument("--cars", type=int, default=3, help="cars per race")
     sp.add_argument("--cycles", type=int, default=33, help="self-play cycles (each car learns once per cycle)")
     sp.add_argument("--steps-per-turn", type=int, default=100_000, help="env steps per learning turn")
     sp.add_argument("--envs", type=int, default=8, help="parallel races")
-    sp.add_argument("--batch-size", type=int, default=1024)
-    sp.add_argument("--epochs", type=int, default=5)
-    sp.add_argument("--lr", type=float, default=5e-4)
-    sp.add_argument("--gamma", type=float, default=0.99)
+    sp.add_argument("--batch-size", type=int, default=1024, help="PPO minibatch size")
+    sp.add_argument("--epochs", type=int, default=5, help="PPO epochs per rollout")
+    sp.add_argument("--lr", type=float, default=5e-4, help="PPO learning rate")
+    sp.add_argument("--gamma", type=float, default=0.99, help="discount factor")
     sp.add_argument("--n-steps", type=int, default=2048, help="rollout length per env")
-    sp.add_argument("--track", default="default")
+    sp.add_argument("--track", default="default", help="track spec (as for race)")
     sp.add_argument("--race-steps", type=int, default=500, help="steps of 0.1 s per race (episode)")
-    sp.add_argument("--seed", type=int, default=0)
-    sp.add_argument("--vec-env", choices=["batched", "dummy", "subproc"], default="batched")
+    sp.add_argument("--seed", type=int, default=0, help="seed of the envs and the policies")
+    sp.add_argument("--vec-env", choices=["batched", "dummy", "subproc"], default="batched",
+                    help="vectorised env: our batched one, or SB3's DummyVecEnv/SubprocVecEnv")
     sp.add_argument("--warmup-opponent", choices=["raceline", "initial"], default="raceline",
                     help="who drives a car before its first turn")
     sp.add_argument("--init", choices=["random", "bc"], default="random",
@@ -270,47 +361,68 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--checkpoint-every", type=int, default=1, help="rollouts between in-turn checkpoints")
     sp.add_argument("--eval-races", type=int, default=3, help="solo evaluation races after each turn")
     sp.add_argument("--no-mpc-reference", action="store_true", help="skip measuring the MPC alone")
-    sp.add_argument("--max-turns", type=int, default=None, help="stop after this many turns (resumable)")
+    sp.add_argument("--max-turns", type=int, default=None,
+                    help="stop after this many turns (resumable; default: all)")
     sp.set_defaults(fn=_cmd_selfplay)
 
-    b = sub.add_parser("bench", help="head-to-head benchmark: the ego against two opponents of one "
-                                     "kind from the paper's start regions (resumable)")
-    b.add_argument("--ego", default="alpha", help="the ego's agent spec (default alpha)")
+    b = command("bench", "head-to-head benchmark: the ego against two opponents of one kind from "
+                         "the paper's start regions (resumable)")
+    b.add_argument("--ego", default="alpha", help="the ego's agent spec")
     b.add_argument("--opponents", default="mpc", help="agent spec of both opponents O1 and O2")
     b.add_argument("--paper-table", action="store_true",
                    help="run the paper's five cases (Table 1) and write paper_table.md")
-    b.add_argument("--cases", nargs="+", default=None, help="with --paper-table: a subset of I II III IV V")
-    b.add_argument("--races", type=int, default=99, help="races per benchmark (default 99: 33 per region)")
-    b.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race (default 500 = 50 s)")
-    b.add_argument("--track", default="default")
-    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--cases", nargs="+", default=None,
+                   help="with --paper-table: a subset of I II III IV V (default: all)")
+    b.add_argument("--races", type=int, default=99, help="races per benchmark (99: 33 per region)")
+    b.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race (500 = 50 s)")
+    b.add_argument("--track", default="default", help="track spec (as for race)")
+    b.add_argument("--seed", type=int, default=0, help="seed of the races' start orders and agents")
     b.add_argument("--out", default=None,
                    help="output folder (default results/bench/EGO_vs_OPPONENTS, or "
                         "results/paper_table with --paper-table); run again to resume")
+    _add_import_arg(b)
     _add_parallel_args(b)
     b.set_defaults(fn=_cmd_bench)
 
-    a = sub.add_parser("analyze", help="Nash analyses of an alpha-potential model: approximation "
-                                       "gap, Nash regret by simulation, potential slices, figures")
+    a = command("analyze", "Nash analyses of an alpha-potential model: approximation gap, Nash "
+                           "regret by simulation, potential slices, figures")
     a.add_argument("--out", default="results/analysis", help="output folder; run again to resume")
     a.add_argument("--bench", nargs="*", default=None,
-                   help="benchmark folders to take the overtake animation from")
+                   help="benchmark folders to take the overtake animation from (default: none)")
     a.add_argument("--force", action="store_true", help="redo parts whose outputs exist")
     _add_analyze_args(a)
     _add_parallel_args(a)
     a.set_defaults(fn=_cmd_analyze)
 
-    rp = sub.add_parser("reproduce", help="every table and figure of the paper into one folder: "
-                                          "bench --paper-table, then analyze (resumable)")
-    rp.add_argument("--out", default="results")
+    rp = command("reproduce", "every table and figure of the paper into one folder: "
+                              "bench --paper-table, then analyze (resumable)")
+    rp.add_argument("--out", default="results", help="output folder; run again to resume")
     rp.add_argument("--races", type=int, default=99, help="races per paper case")
     rp.add_argument("--steps", type=int, default=500, help="steps per race (and per analysis race)")
     rp.add_argument("--control-ego", default="mpc",
-                    help="also run the five cases with this ego (default mpc, the fixed-theta MPC) "
+                    help="also run the five cases with this ego (mpc: the fixed-theta MPC) "
                          "to show what the alpha agent adds; none skips it")
+    _add_import_arg(rp)
     _add_analyze_args(rp)
     _add_parallel_args(rp)
     rp.set_defaults(fn=_cmd_reproduce)
+
+    from .policy_map import DEFAULT_TRACKS, MODES
+    pm = command("policy-map", "sweep the MPC policy space (q, zeta, s1, s2, s3): Sobol thetas, "
+                               "solo and 3-car runs, summary and heat maps (resumable)")
+    pm.add_argument("--thetas", type=int, default=256,
+                    help="Sobol points of the theta box (a power of two keeps the sequence "
+                         "balanced)")
+    pm.add_argument("--tracks", nargs="+", default=list(DEFAULT_TRACKS), help="track specs")
+    pm.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES),
+                    help="solo: the theta car alone from the grid; race: against two default "
+                         "mpc cars from the start regions")
+    pm.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per run")
+    pm.add_argument("--seed", type=int, default=0, help="Sobol scrambling and start seed")
+    _add_parallel_args(pm)
+    pm.add_argument("--out", default="results/policy_map",
+                    help="output folder; run again to resume")
+    pm.set_defaults(fn=_cmd_policy_map)
     return p
 
 
@@ -320,7 +432,7 @@ def _add_analyze_args(p) -> None:
     p.add_argument("--gap-pairs", type=int, default=None, help="deviations for the gap (default 20000)")
     p.add_argument("--regret-states", type=int, default=None, help="race states for the regret (default 20)")
     p.add_argument("--regret-horizon", type=int, default=None, help="rollout steps before V (default 100)")
-    p.add_argument("--cem-iterations", type=int, default=None, help="default 3")
+    p.add_argument("--cem-iterations", type=int, default=None, help="CEM iterations of the regret search (default 3)")
     p.add_argument("--cem-samples", type=int, default=None, help="candidates per CEM iteration (default 10)")
     p.add_argument("--slice-points", type=int, default=None, help="values per parameter in Figure 3 (default 41)")
 
@@ -330,8 +442,11 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     args.argv = argv
     try:
+        if getattr(args, "imports", None):
+            from agents import import_agent_modules
+            import_agent_modules(args.imports)
         return args.fn(args)
-    except ValueError as exc:
+    except (ValueError, MissingExtraError) as exc:
         print(f"alpha-racer {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

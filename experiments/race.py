@@ -134,3 +134,14 @@ def write_outputs(result: RaceResult, frames: list, out: Path, animation: str = 
         paths["animation"] = out / f"race.{animation}"
         save_animation(frames, paths["animation"], fps=int(round(1.0 / result.dt)))
     return paths
+
+
+def check_animation_format(animation: str) -> None:
+    """Raise a ``ValueError`` before a race if its animation could not be written: an unknown
+    format, or ``mp4`` without ffmpeg."""
+    from racing_env.render import ffmpeg_available
+    if animation not in ("gif", "mp4"):
+        raise ValueError(f"unknown animation format {animation!r}; expected gif or mp4")
+    if animation == "mp4" and not ffmpeg_available():
+        raise ValueError("--format mp4 needs ffmpeg, which is missing (not on PATH, and "
+                         "imageio-ffmpeg is not installed); install ffmpeg or use --format gif")

@@ -3,7 +3,7 @@
 ``alpha-racer selfplay --out runs/selfplay`` trains one stable-baselines3 ``PPO`` agent per car
 by iterated self-play: the cars take turns learning, car ``turn mod n_cars`` for
 ``steps_per_turn`` env steps, while every other car is frozen at its latest policy. The
-learning env is the registered Gymnasium env ``alpha_racer/HeadToHead-v0`` (one learner,
+learning env is the registered Gymnasium env ``alpha_racer/HeadToHead-v1`` (one learner,
 opponents embedded) vectorised over ``n_envs`` races; ``vec_env="batched"`` (default) runs the
 same env as :class:`racing_env.vec_env.HeadToHeadVecEnv` (all races in one compiled step,
 frozen opponents as batched numpy policies, race for race identical to ``HeadToHeadEnv``),
@@ -197,7 +197,8 @@ def make_learning_env(cfg: SelfPlayConfig, opponents: list, seed: int):
 
         def make():
             opps = [copy.deepcopy(o) for o in opponents]
-            return lambda: gym.make(ENV_ID, opponents=opps, track=cfg.track, config=race_config(cfg))
+            return lambda: gym.make(ENV_ID, max_episode_steps=cfg.max_cycles, opponents=opps,
+                                    track=cfg.track, config=race_config(cfg))
         fns = [make() for _ in range(cfg.n_envs)]
         venv = DummyVecEnv(fns) if cfg.vec_env == "dummy" else SubprocVecEnv(fns, start_method="fork")
     venv.seed(seed)
@@ -495,6 +496,9 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
 
     ``max_turns`` stops after that many turns in this call (the run stays resumable).
     """
+    from racing_env.extras import require
+    for module in ("torch", "stable_baselines3", "tensorboard"):
+        require(module, "self-play training (alpha-racer selfplay)")
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.logger import CSVOutputFormat, Logger, make_output_format

@@ -172,7 +172,8 @@ class _Normalised:
 def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bool = True,
           log=print, command: str | None = None) -> dict:
     """Run (or resume) the three stages; returns the metrics dict (also in ``metrics.json``)."""
-    import torch
+    from racing_env.extras import require
+    torch = require("torch", "training the value and alpha-potential networks (alpha-racer train)")
     from experiments.collect import load_races
     from racing_env.tracks import make_track
 

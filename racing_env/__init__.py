@@ -5,8 +5,9 @@ Quick use::
     import racing_env
     env = racing_env.parallel_env(n_cars=3)          # PettingZoo ParallelEnv
     aec = racing_env.env(n_cars=3)                   # PettingZoo AEC env
-    import gymnasium; gymnasium.make("alpha_racer/HeadToHead-v0")   # single learner
+    import gymnasium; gymnasium.make("alpha_racer/HeadToHead-v1")   # single learner
 """
+from . import cache as _cache  # noqa: F401  first: the cache folder, before numba compiles anything
 from .config import RaceConfig, RulesConfig, StartConfig
 from .core import BatchedRaces
 from .parallel_env import RacingParallelEnv, env, parallel_env, raw_env

@@ -12,10 +12,15 @@ START_MODES = ("grid", "regions", "random")
 MAX_CARS = 8
 
 
+def _is_int(v) -> bool:
+    """An integer, but not a bool (``True`` is an ``int`` to Python, not a count to us)."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
 def _positive(obj, *names):
     for name in names:
         v = getattr(obj, name)
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
             raise ValueError(f"{type(obj).__name__}.{name} must be a positive number, got {v!r}")
 
 
@@ -24,8 +29,11 @@ class RulesConfig:
     """The paper's racing rules (section 2.2), applied after every control period.
 
     * Contact: two cars closer than ``contact_ds`` along the track *and* ``contact_dn``
-      sideways (their bodies overlap, by default) are slowed: the car in front to
-      ``front_factor * vx`` (paper: 1/2), the car behind to ``rear_factor * vx`` (paper: 1/3).
+      sideways (their bodies overlap, by default) at any moment of a control period are
+      slowed there and then: the car in front at that moment to ``front_factor * vx``
+      (paper: 1/2), the car behind to ``rear_factor * vx`` (paper: 1/3). Contact is swept
+      over the RK4 sub-steps, so no car passes through another; a car is slowed at most once
+      per period (by the smallest factor due, off track included).
     * Off track: a car beyond an edge (``n > w_left`` or ``n < -w_right``) is slowed to
       ``offtrack_factor * vx`` (paper: 1/2) and re-aligned with the track
       (``mu = 0``; we also zero ``vy`` and ``omega``).
@@ -66,7 +74,11 @@ class StartConfig:
       each ``region_length`` m long and ``region_gap`` m apart; each car gets one region (a
       random order unless ``order`` is given to reset) and a uniform random position in it,
       with a random lateral offset of at most ``lateral_jitter`` of the usable half width.
-    * ``random``: anywhere on the track, at least ``min_gap`` m apart along it.
+    * ``random``: anywhere on the track, at least ``min_gap`` m apart along it: the track is
+      cut into ``n_cars`` equal slots at a random rotation, each car (in a random order) takes
+      one slot at a random position within ``(slot - min_gap) / 2`` of its centre, with a
+      random lateral offset as in ``regions``. ``n_cars * min_gap`` over the track length is
+      an error.
     """
 
     mode: str = "regions"
@@ -108,13 +120,13 @@ class RaceConfig:
     preview_ds: float = 0.25
 
     def __post_init__(self):
-        if not (isinstance(self.n_cars, (int, np.integer)) and 1 <= self.n_cars <= MAX_CARS):
+        if not (_is_int(self.n_cars) and 1 <= self.n_cars <= MAX_CARS):
             raise ValueError(f"n_cars must be an integer in 1..{MAX_CARS}, got {self.n_cars!r}")
-        if not (isinstance(self.max_cycles, (int, np.integer)) and self.max_cycles >= 1):
+        if not (_is_int(self.max_cycles) and self.max_cycles >= 1):
             raise ValueError(f"max_cycles must be a positive integer, got {self.max_cycles!r}")
-        if self.laps is not None and not (isinstance(self.laps, (int, np.integer)) and self.laps >= 1):
+        if self.laps is not None and not (_is_int(self.laps) and self.laps >= 1):
             raise ValueError(f"laps must be None or a positive integer, got {self.laps!r}")
-        if not (isinstance(self.n_preview, (int, np.integer)) and self.n_preview >= 0):
+        if not (_is_int(self.n_preview) and self.n_preview >= 0):
             raise ValueError(f"n_preview must be a non-negative integer, got {self.n_preview!r}")
         _positive(self, "dt", "preview_ds")
 

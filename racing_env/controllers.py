@@ -41,7 +41,7 @@ class RacelineFollower:
     profile speed ``speed_preview`` s ahead (so it brakes before corners). Ignores other cars.
     """
 
-    def __init__(self, vehicle: VehicleParams | None = None, mu: float = 0.85,
+    def __init__(self, vehicle: VehicleParams | None = None, mu: float = 1.0,
                  speed_scale: float = 1.0, line_fraction: float = 0.9, preview_min: float = 0.5,
                  preview_time: float = 0.2, speed_preview: float = 0.3, k_speed: float = 2.0):
         if not (0.0 < speed_scale <= 1.5):

@@ -53,12 +53,11 @@ def start_states(track: Track, n_cars: int, start: StartConfig, width: float,
         if n_cars * start.min_gap > track.length:
             raise ValueError(f"{n_cars} cars at least {start.min_gap} m apart do not fit on "
                              f"a {track.length:.2f} m track")
-        s = []
-        while len(s) < n_cars:
-            c = rng.uniform(0.0, track.length)
-            if all(abs((c - o + track.length / 2) % track.length - track.length / 2) >= start.min_gap for o in s):
-                s.append(c)
-        x[:, 0] = s
+        # equal slots at a random rotation, jittered so that neighbours stay min_gap apart
+        slot = track.length / n_cars
+        jitter = 0.5 * max(slot - start.min_gap, 0.0)
+        s = rng.uniform(0.0, track.length) + slot * np.arange(n_cars) + rng.uniform(-jitter, jitter, n_cars)
+        x[:, 0] = (s % track.length)[rng.permutation(n_cars)]
         wl, wr = track.widths(x[:, 0])
         lim = np.maximum(np.minimum(wl, wr) - width / 2.0, 0.0)
         x[:, 1] = rng.uniform(-1.0, 1.0, n_cars) * start.lateral_jitter * lim
@@ -74,7 +73,8 @@ class BatchedRaces:
     * ``state`` (B, N, 6): per car ``(s, n, mu, vx, vy, omega)``, s unwrapped [m].
     * :meth:`step` takes normalised actions (B, N, 2) in [-1, 1]: throttle (-1 full brake,
       +1 full throttle, mapped affinely onto [d_min, d_max]) and steering (mapped onto
-      [-delta_max, delta_max], +1 steers left). Values outside [-1, 1] are clipped; NaN raises.
+      [-delta_max, delta_max], +1 steers left). Values outside [-1, 1], +-inf included, are
+      clipped; NaN raises ``ValueError``.
     * Observations (B, N, D) float32, layout in :func:`racing_env.simulator.observe`.
 
     Each race keeps its own step counter, lap counts and lap times; the start/finish line of
@@ -170,7 +170,8 @@ class BatchedRaces:
         if code:
             b, i = self._where
             if code == 1:
-                raise ValueError(f"action of car {i} in race {b} is not finite: {a[b, i].tolist()}")
+                what = "NaN" if normalised else "not finite"
+                raise ValueError(f"action of car {i} in race {b} is {what}: {a[b, i].tolist()}")
             raise FloatingPointError(f"simulation produced a non-finite state for car {i} in race {b} "
                                      f"at step {self.t[b]}: {self.state[b, i].tolist()} "
                                      f"(action {a[b, i].tolist()})")
@@ -185,7 +186,7 @@ class BatchedRaces:
     def step(self, actions):
         """One control period for every race with normalised actions (B, N, 2).
 
-        Actions are clipped to [-1, 1]; a NaN raises ``ValueError`` naming the race and car
+        Actions are clipped to [-1, 1] (+-inf too); a NaN raises ``ValueError`` naming the race and car
         (and nothing is stepped). Returns ``(obs, reward, terminated, truncated)``: obs (B, N, D)
         float32, reward (B, N) (change of s_i - max_{j != i} s_j [m]), terminated (B,) (a car
         finished ``laps``), truncated (B,) (``max_cycles`` reached). Per-car flags of this step

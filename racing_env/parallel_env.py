@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 from gymnasium import spaces
+from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from .config import RaceConfig, RulesConfig, StartConfig
@@ -25,7 +26,8 @@ class RacingParallelEnv(ParallelEnv):
     **Action space** (per agent): ``Box(-1, 1, (2,), float32)``: ``[throttle, steering]``.
     Throttle -1 is full brake and +1 full throttle (mapped affinely onto the vehicle's
     ``[d_min, d_max]``); steering maps onto ``[-delta_max, delta_max]`` rad, positive left.
-    Values outside the box are clipped.
+    Values outside the box (``+-inf`` included) are clipped to it; a NaN, an action of another
+    shape, or an action for an agent that is not live raises ``ValueError`` naming the agent.
 
     **Observation space** (per agent, ``Box`` float32 of size ``6 N + n_preview``):
 
@@ -48,6 +50,15 @@ class RacingParallelEnv(ParallelEnv):
     length (the paper's relative progress; ``s_i`` alone when N = 1). Crossing the start/finish
     line causes no jump and driving backwards always costs reward.
 
+    **Starting state** (``start``, see :class:`StartConfig`; standing start, ``vx = speed`` = 0
+    by default): ``"regions"`` (default, the paper's): car i gets start region ``order[i]`` (a
+    random permutation unless given), R1 the front-most ending at ``s0`` = 3 m, each region
+    0.4 m long and 0.6 m behind the previous one, at a uniform position in it and a random
+    lateral offset of at most ``lateral_jitter`` of the usable half width; ``"grid"``: two
+    columns behind ``s0``, car_0 on pole, rows ``grid_gap`` m apart; ``"random"``: anywhere
+    on the track, neighbours at least ``min_gap`` m apart (equal slots at a random rotation,
+    jittered, cars in a random order). Heading, ``vy`` and ``omega`` start at zero.
+
     **Episode end**: truncation after ``max_cycles`` steps (default 500 = 50 s); with ``laps``
     set, termination of every agent when the first car completes that many laps (the line is
     the start position of the front-most car).
@@ -65,9 +76,24 @@ class RacingParallelEnv(ParallelEnv):
 
     **Reset options**: ``{"n_cars": int, "start": mode or StartConfig, "order": list}`` where
     ``order[i]`` is the start region of car i (0 = R1, the front-most region).
+
+    **Version History** (``metadata["name"]``; the Gymnasium id ``alpha_racer/HeadToHead-vN``
+    carries the same number):
+
+    * v1: contact is checked over the whole control period (the relative motion of each pair
+      is swept between RK4 sub-step points) and applied at the first moment of contact, so a
+      car can no longer drive through another unnoticed; the car behind *at that moment* gets
+      ``rear_factor``. Random starts are evenly spaced slots with jitter (bounded time).
+      Out-of-range actions, ``+-inf`` included, are clipped; misshapen actions, actions for
+      unknown agents and NaN raise ``ValueError``. The built-in raceline follower (the
+      Gymnasium env's default opponents) drives the racing line's new speed profile: the car's
+      own g-g-v envelope (:mod:`racing_env.envelope`) instead of a point mass at 0.85 g.
+    * v0: initial version. Contact was checked only at the end of each 0.1 s step (a faster
+      car could pass through a slower one within a step, and the car that had been hit could
+      get the rear factor); not kept.
     """
 
-    metadata = {"name": "alpha_racer_v0", "render_modes": ["human", "rgb_array"],
+    metadata = {"name": "alpha_racer_v1", "render_modes": ["human", "rgb_array"],
                 "render_fps": 10, "is_parallelizable": True}
 
     def __init__(self, track: "str | Track" = "default", n_cars: int | None = None,
@@ -98,6 +124,8 @@ class RacingParallelEnv(ParallelEnv):
         self.track = self.core.track
         self._renderer = None
         self._viewer = None
+        self._was_reset = False
+        self.np_random, self.np_random_seed = seeding.np_random()
         self._set_agents()
 
     # ------------------------------------------------------------------ spaces
@@ -137,7 +165,10 @@ class RacingParallelEnv(ParallelEnv):
             self.core.set_n_cars(options["n_cars"])
             self._set_agents()
         start = _start_config(options["start"], self.config.start) if "start" in options else None
+        if seed is not None:
+            self.np_random, self.np_random_seed = seeding.np_random(seed)
         obs = self.core.reset(seed=seed, order=options.get("order"), start=start)
+        self._was_reset = True
         self.agents = list(self.possible_agents)
         if self.render_mode == "human":
             self.render()
@@ -147,12 +178,23 @@ class RacingParallelEnv(ParallelEnv):
 
     def step(self, actions):
         if not self.agents:
+            if not self._was_reset:
+                raise RuntimeError("step() called before reset(); call reset() first")
             raise RuntimeError("step() called on a finished episode; call reset() first")
+        unknown = [a for a in actions if a not in self.agents]
+        if unknown:
+            raise ValueError(f"actions for unknown agents {unknown}; the live agents are {self.agents}")
         acts = self._actions
         for a in self.agents:
             if a not in actions:
                 raise ValueError(f"missing action for {a}; every live agent acts each step")
-            acts[0, self._index[a]] = actions[a]
+            act = np.asarray(actions[a], dtype=np.float64)
+            if act.shape != (2,):
+                raise ValueError(f"action of {a} must have shape (2,) [throttle, steering], "
+                                 f"got shape {act.shape}: {actions[a]!r}")
+            if np.isnan(act).any():
+                raise ValueError(f"action of {a} is NaN: {act.tolist()}")
+            acts[0, self._index[a]] = act
         obs, rew, term, trunc = self.core.step(acts)
         term_b, trunc_b = bool(term[0]), bool(trunc[0]) and not bool(term[0])
         agents = self.agents

@@ -56,13 +56,16 @@ import numpy as np
 from scipy import sparse
 from scipy.interpolate import CubicSpline
 
+from numba import njit
+
+from .envelope import ggv
 from .track import Track
 from .vehicle import VehicleParams
 
 G = 9.81
 """Gravitational acceleration [m/s^2]."""
 
-CACHE_VERSION = 2  # 2: offsets no longer clipped at the target bounds (no curvature kinks)
+CACHE_VERSION = 3  # 3: speed profile from the g-g-v envelope (mu scales it)
 """Bumped whenever the algorithm or the file layout changes (invalidates old cache files)."""
 
 CSV_COLUMNS = ("s_m", "x_m", "y_m", "psi_rad", "kappa_radpm", "vx_mps", "ax_mps2", "n_m",
@@ -120,7 +123,7 @@ class RacelineConfig:
     mu_min: float = 0.5
     mu_max: float = 1.0
     n_mu: int = 11
-    mu_nominal: float = 0.85
+    mu_nominal: float = 1.0
     point_spacing: float = 0.05
     tol: float = 1e-4
     max_iter: int = 100
@@ -340,40 +343,38 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
 
 # ====================================================================== speed profile
 def accel_limits(v, kappa, mu: float, vehicle: VehicleParams | None = None):
-    """Largest acceleration and deceleration [m/s^2] (both >= 0) at speed ``v`` [m/s] on a path
-    of curvature ``kappa`` [1/m] with friction ``mu`` [-]; arrays broadcast.
+    """Largest acceleration and deceleration [m/s^2] (deceleration >= 0) at speed ``v`` [m/s]
+    on a path of curvature ``kappa`` [1/m] for the car's g-g-v envelope scaled by ``mu``
+    (:mod:`racing_env.envelope`); arrays broadcast.
 
-    ``a_acc = min(((C1 - C2 v) d_max - C3 - C4 v^2) / m, a_fric)``,
-    ``a_brk = min(-((C1 - C2 v) d_min - C3 - C4 v^2) / m, a_fric)`` with the friction-circle
-    remainder ``a_fric = mu g sqrt(1 - (v^2 |kappa| / (mu g))^2)`` (0 at the grip limit).
+    ``a_acc = mu ax_max(v, v^2 |kappa|)`` is the drive acceleration on top of that corner: it is
+    *negative* where the motor cannot hold the speed in the corner (the car slows through it).
+    ``a_brk = -mu ax_min(v, v^2 |kappa|)``. A lateral demand beyond the envelope counts as at it.
     """
-    p = vehicle or VehicleParams()
+    env = ggv(vehicle or VehicleParams())
     v = np.asarray(v, dtype=float)
-    mug = mu * G
-    r = np.minimum(v * v * np.abs(kappa) / mug, 1.0)
-    fric = mug * np.sqrt(1.0 - r * r)
-    drive = ((p.C1 - p.C2 * v) * p.d_max - p.C3 - p.C4 * v * v) / p.m
-    brake = -((p.C1 - p.C2 * v) * p.d_min - p.C3 - p.C4 * v * v) / p.m
-    return np.maximum(np.minimum(drive, fric), 0.0), np.maximum(np.minimum(brake, fric), 0.0)
+    hi, lo = env.longitudinal_limits(v, v * v * np.abs(np.asarray(kappa, dtype=float)), mu)
+    return hi, np.maximum(-lo, 0.0)
 
 
 def speed_limit(kappa, mu: float, vehicle: VehicleParams | None = None):
-    """Steady-state speed cap [m/s]: ``min(sqrt(mu g / |kappa|), vehicle.top_speed)``."""
-    p = vehicle or VehicleParams()
-    k = np.abs(np.asarray(kappa, dtype=float))
-    with np.errstate(divide="ignore"):
-        v_corner = np.where(k > 0, np.sqrt(mu * G / np.maximum(k, 1e-300)), np.inf)
-    return np.minimum(v_corner, p.top_speed)
+    """Quasi-steady speed cap [m/s] of curvature ``kappa`` [1/m] (any shape): the highest speed
+    at which the envelope scaled by ``mu`` holds ``v^2 |kappa|`` (the steering bound at low
+    speed, the tyres above), and never above the top speed (:meth:`GGV.corner_speed`)."""
+    return ggv(vehicle or VehicleParams()).corner_speed(kappa, mu)
 
 
 def speed_profile(kappa, ds, mu: float, vehicle: VehicleParams | None = None, max_sweeps: int = 50):
     """Periodic speed profile ``(vx, ax)`` [m/s], [m/s^2] on a closed path, shapes (M,).
 
     ``kappa`` [1/m] at the M points, ``ds[k]`` [m] the distance from point k to point k+1
-    (the last one closes the lap). Starts from :func:`speed_limit` and repeats a forward
-    (acceleration) and a backward (braking) pass around the lap until no speed changes; the
-    result satisfies ``v[k+1]^2 - v[k]^2 <= 2 ds[k] a_acc(v[k], kappa[k])`` and
-    ``v[k]^2 - v[k+1]^2 <= 2 ds[k] a_brk(v[k+1], kappa[k+1])`` (indices mod M) exactly.
+    (the last one closes the lap); ``mu`` scales the car's g-g-v envelope
+    (:func:`racing_env.envelope.ggv`; 1 = the car's own limit). Starts from
+    :func:`speed_limit` and repeats a forward (drive) and a backward (braking) pass around the
+    lap until no speed changes; the result satisfies
+    ``v[k+1]^2 - v[k]^2 <= 2 ds[k] a_acc(v[k], kappa[k])`` and
+    ``v[k]^2 - v[k+1]^2 <= 2 ds[k] a_brk(v[k+1], kappa[k+1])`` (indices mod M, see
+    :func:`accel_limits`; ``a_acc`` may be negative in fast corners, where the car slows).
     ``ax[k] = (v[k+1]^2 - v[k]^2) / (2 ds[k])`` is the acceleration on segment k.
     """
     p = vehicle or VehicleParams()
@@ -383,50 +384,65 @@ def speed_profile(kappa, ds, mu: float, vehicle: VehicleParams | None = None, ma
         raise ValueError(f"speed_profile needs kappa and ds of equal 1-D shape, got {kappa.shape}, {ds.shape}")
     if not (np.all(np.isfinite(kappa)) and np.all(np.isfinite(ds)) and np.all(ds > 0)):
         raise ValueError("speed_profile needs finite kappa and finite positive ds")
-    if not (math.isfinite(mu) and mu > 0):
-        raise ValueError(f"friction mu must be positive and finite, got {mu!r}")
-    m = len(kappa)
-    v2 = (speed_limit(kappa, mu, p) ** 2).tolist()
-    kab = np.abs(kappa).tolist()
-    dsl = ds.tolist()
-    mug = mu * G
-    c1, c2, c3, c4, mass, dmax, dmin = p.C1, p.C2, p.C3, p.C4, p.m, p.d_max, p.d_min
-    sqrt = math.sqrt
-    start = int(np.argmin(v2))
+    if not (math.isfinite(mu) and 0 < mu <= 1.5):
+        raise ValueError(f"envelope scale mu must be in (0, 1.5], got {mu!r}")
+    env = ggv(p)
+    v2 = speed_limit(kappa, mu, p) ** 2
+    v_tab, ay_tab, r_tab, axp_tab, axm_tab = env.tables(mu)
+    ok = _profile_sweeps(v2, np.abs(kappa), ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab,
+                         int(np.argmin(v2)), int(max_sweeps))
+    if not ok:
+        raise RuntimeError(f"speed profile did not settle in {max_sweeps} sweeps")
+    vx = np.sqrt(v2)
+    ax = (np.roll(v2, -1) - v2) / (2.0 * ds)
+    return vx, ax
+
+
+@njit(cache=True)
+def _envelope_at(v, ay, v_tab, ay_tab, r_tab, tab):
+    """Bilinear look-up of an (I, J) envelope table at speed v and lateral acceleration ay."""
+    nv, nr = v_tab.shape[0], r_tab.shape[0]
+    x = min(max(v, v_tab[0]), v_tab[nv - 1])
+    i = min(int((x - v_tab[0]) / (v_tab[1] - v_tab[0])), nv - 2)
+    tx = (x - v_tab[i]) / (v_tab[i + 1] - v_tab[i])
+    lim = ay_tab[i] * (1.0 - tx) + ay_tab[i + 1] * tx
+    y = min(ay / lim, 1.0) if lim > 1e-9 else 1.0
+    j = min(int(y * (nr - 1)), nr - 2)
+    ty = (y - r_tab[j]) / (r_tab[j + 1] - r_tab[j])
+    return ((1 - tx) * (1 - ty) * tab[i, j] + tx * (1 - ty) * tab[i + 1, j]
+            + (1 - tx) * ty * tab[i, j + 1] + tx * ty * tab[i + 1, j + 1])
+
+
+@njit(cache=True)
+def _profile_sweeps(v2, kab, ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab, start, max_sweeps):
+    """Forward/backward passes of :func:`speed_profile` on ``v2`` (squared speeds, in place);
+    False if they did not settle in ``max_sweeps``."""
+    m = v2.shape[0]
     for _ in range(max_sweeps):
         changed = False
-        for j in range(m):                                   # forward: acceleration
+        for j in range(m):                                   # forward: drive
             k = (start + j) % m
             k1 = k + 1 if k + 1 < m else 0
             vk2 = v2[k]
-            if v2[k1] > vk2:                              # only a rise can break the limit
-                vk = sqrt(vk2)
-                r = min(vk2 * kab[k] / mug, 1.0)
-                a = min(((c1 - c2 * vk) * dmax - c3 - c4 * vk2) / mass, mug * sqrt(1.0 - r * r))
-                cand = vk2 + 2.0 * dsl[k] * max(a, 0.0)
-                if cand < v2[k1]:
-                    v2[k1] = cand
-                    changed = True
+            vk = math.sqrt(vk2)
+            a = _envelope_at(vk, vk2 * kab[k], v_tab, ay_tab, r_tab, axp_tab)
+            cand = max(vk2 + 2.0 * ds[k] * a, 0.0)
+            if cand < v2[k1] * (1.0 - 1e-12):
+                v2[k1] = cand
+                changed = True
         for j in range(m):                                   # backward: braking
             k1 = (start - j) % m
             k = k1 - 1 if k1 > 0 else m - 1
             vk2 = v2[k1]
-            if v2[k] > vk2:
-                vk = sqrt(vk2)
-                r = min(vk2 * kab[k1] / mug, 1.0)
-                a = min(-((c1 - c2 * vk) * dmin - c3 - c4 * vk2) / mass, mug * sqrt(1.0 - r * r))
-                cand = vk2 + 2.0 * dsl[k] * max(a, 0.0)
-                if cand < v2[k]:
-                    v2[k] = cand
-                    changed = True
+            vk = math.sqrt(vk2)
+            a = -_envelope_at(vk, vk2 * kab[k1], v_tab, ay_tab, r_tab, axm_tab)
+            cand = vk2 + 2.0 * ds[k] * max(a, 0.0)
+            if cand < v2[k] * (1.0 - 1e-12):
+                v2[k] = cand
+                changed = True
         if not changed:
-            break
-    else:
-        raise RuntimeError(f"speed profile did not settle in {max_sweeps} sweeps")
-    v2 = np.asarray(v2)
-    vx = np.sqrt(v2)
-    ax = (np.roll(v2, -1) - v2) / (2.0 * ds)
-    return vx, ax
+            return True
+    return False
 
 
 def lap_time_of(vx, ds) -> float:
@@ -713,11 +729,10 @@ def cache_key(track: Track, vehicle: VehicleParams, config: RacelineConfig) -> s
 
 
 def cache_dir() -> Path:
-    """Folder of cached racing lines: ``$ALPHA_RACER_CACHE/raceline`` if the variable is set,
-    else ``~/.cache/alpha_racer/raceline``."""
-    env = os.environ.get("ALPHA_RACER_CACHE")
-    base = Path(env).expanduser() if env else Path.home() / ".cache" / "alpha_racer"
-    return base / "raceline"
+    """Folder of cached racing lines: ``raceline/`` of the alpha-racer cache folder
+    (``$ALPHA_RACER_CACHE``, else the per-user cache; see :mod:`racing_env.cache`)."""
+    from .cache import cache_dir as _cache_dir
+    return _cache_dir("raceline")
 
 
 def cache_path(track: Track, vehicle: VehicleParams | None = None,

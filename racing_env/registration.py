@@ -1,8 +1,21 @@
-"""Registers the Gymnasium env ``alpha_racer/HeadToHead-v0`` (idempotent)."""
+"""Registers the Gymnasium env ``alpha_racer/HeadToHead-v1`` (idempotent).
+
+``gymnasium.make`` builds :class:`racing_env.gym_env.HeadToHeadEnv` wrapped in ``TimeLimit(500)``,
+which truncates at the same step as the env itself (``max_cycles`` = 500 by default), so the
+wrapper changes nothing; pass ``max_episode_steps`` to ``make`` with ``max_cycles`` to race
+longer. ``gymnasium.make_vec`` builds :class:`racing_env.gym_vector.HeadToHeadVectorEnv` (one
+batched core for all envs) unless ``vectorization_mode="sync"`` / ``"async"`` is asked for.
+
+``HeadToHead-v0`` (contact checked only at the end of each 0.1 s step) is no longer
+registered: its behaviour is not kept; see Version History in ``HeadToHeadEnv``.
+"""
 import gymnasium
 
-ENV_ID = "alpha_racer/HeadToHead-v0"
+ENV_ID = "alpha_racer/HeadToHead-v1"
+MAX_EPISODE_STEPS = 500
+"""The registered ``spec.max_episode_steps``: :class:`racing_env.RaceConfig`'s ``max_cycles``."""
 
 if ENV_ID not in gymnasium.registry:
     gymnasium.register(id=ENV_ID, entry_point="racing_env.gym_env:HeadToHeadEnv",
-                       max_episode_steps=None)
+                       vector_entry_point="racing_env.gym_vector:HeadToHeadVectorEnv",
+                       max_episode_steps=MAX_EPISODE_STEPS)

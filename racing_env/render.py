@@ -483,6 +483,12 @@ def _check_fps(fps) -> float:
     return float(fps)
 
 
+def ffmpeg_available() -> bool:
+    """Whether :func:`save_animation` can write ``.mp4`` here (an ffmpeg on ``PATH`` or from
+    imageio-ffmpeg); check it before a long run whose animation needs it."""
+    return _find_ffmpeg() is not None
+
+
 def _find_ffmpeg() -> str | None:
     exe = shutil.which("ffmpeg")
     if exe:
@@ -604,8 +610,11 @@ def plot_trajectories(track: Track, states, path: str | os.PathLike, raceline_xy
     title : str, optional
     dpi : int
 
-    Returns the path. Car ``i`` has the colour :func:`car_color` ``(i)``, as in :class:`Renderer`;
-    a circle marks its first and a cross its last position.
+    Returns
+    -------
+    Path
+        The path written. Car ``i`` has the colour :func:`car_color` ``(i)``, as in
+        :class:`Renderer`; a circle marks its first and a cross its last position.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure

@@ -8,9 +8,10 @@ Everything here works on plain arrays so that one call advances ``B`` races of `
 
 One control period ``dt`` is integrated with classical RK4 sub-steps whose number adapts to
 the stiffness of the lateral dynamics (many at a standing start, two at racing speed), so the
-integration is stable at every speed. After the dynamics the paper's rules apply (see
-:class:`racing_env.config.RulesConfig`): contact slow-down and off-track slow-down with
-re-alignment. A car cannot go more than ``wall_margin`` beyond an edge (a wall stops it
+integration is stable at every speed. The paper's rules apply (see
+:class:`racing_env.config.RulesConfig`): contact slow-down, checked over the sub-steps and
+applied at the moment of contact (see :func:`_step_one_race`), and, after the dynamics,
+off-track slow-down with re-alignment. A car cannot go more than ``wall_margin`` beyond an edge (a wall stops it
 sideways) and cannot roll backwards (``vx >= 0``: a brake stops a car, it does not reverse it).
 """
 from __future__ import annotations
@@ -100,46 +101,126 @@ def _n_substeps(vx, p, dt, gain, max_sub):
     return min(max(k, 2), max_sub)
 
 
+@njit(cache=True, inline="always")
+def _rk4_substep(x, d, delta, kappa_tab, ds, length, p, h):
+    """One classical RK4 step of length ``h`` of one car's state ``x`` (6,), in place."""
+    s, n, mu, vx, vy, om = x[0], x[1], x[2], x[3], x[4], x[5]
+    k1 = _ode(n, mu, vx, vy, om, d, delta, _lookup(kappa_tab, s, ds, length), p)
+    s2 = s + 0.5 * h * k1[0]
+    k2 = _ode(n + 0.5 * h * k1[1], mu + 0.5 * h * k1[2], vx + 0.5 * h * k1[3],
+              vy + 0.5 * h * k1[4], om + 0.5 * h * k1[5], d, delta,
+              _lookup(kappa_tab, s2, ds, length), p)
+    s3 = s + 0.5 * h * k2[0]
+    k3 = _ode(n + 0.5 * h * k2[1], mu + 0.5 * h * k2[2], vx + 0.5 * h * k2[3],
+              vy + 0.5 * h * k2[4], om + 0.5 * h * k2[5], d, delta,
+              _lookup(kappa_tab, s3, ds, length), p)
+    s4 = s + h * k3[0]
+    k4 = _ode(n + h * k3[1], mu + h * k3[2], vx + h * k3[3], vy + h * k3[4], om + h * k3[5],
+              d, delta, _lookup(kappa_tab, s4, ds, length), p)
+    for j in range(6):
+        x[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+    if x[3] < 0.0:
+        x[3] = 0.0
+    if x[2] > math.pi or x[2] < -math.pi:
+        x[2] = (x[2] + math.pi) % (2.0 * math.pi) - math.pi
+
+
 @njit(cache=True)
 def integrate_car(x, d, delta, kappa_tab, ds, length, p, dt, n_sub):
     """Advance one car's state ``x`` (6,) in place over ``dt`` with ``n_sub`` RK4 steps."""
     h = dt / n_sub
     for _ in range(n_sub):
-        s, n, mu, vx, vy, om = x[0], x[1], x[2], x[3], x[4], x[5]
-        k1 = _ode(n, mu, vx, vy, om, d, delta, _lookup(kappa_tab, s, ds, length), p)
-        s2 = s + 0.5 * h * k1[0]
-        k2 = _ode(n + 0.5 * h * k1[1], mu + 0.5 * h * k1[2], vx + 0.5 * h * k1[3],
-                  vy + 0.5 * h * k1[4], om + 0.5 * h * k1[5], d, delta,
-                  _lookup(kappa_tab, s2, ds, length), p)
-        s3 = s + 0.5 * h * k2[0]
-        k3 = _ode(n + 0.5 * h * k2[1], mu + 0.5 * h * k2[2], vx + 0.5 * h * k2[3],
-                  vy + 0.5 * h * k2[4], om + 0.5 * h * k2[5], d, delta,
-                  _lookup(kappa_tab, s3, ds, length), p)
-        s4 = s + h * k3[0]
-        k4 = _ode(n + h * k3[1], mu + h * k3[2], vx + h * k3[3], vy + h * k3[4], om + h * k3[5],
-                  d, delta, _lookup(kappa_tab, s4, ds, length), p)
-        for j in range(6):
-            x[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
-        if x[3] < 0.0:
-            x[3] = 0.0
-        if x[2] > math.pi or x[2] < -math.pi:
-            x[2] = (x[2] + math.pi) % (2.0 * math.pi) - math.pi
+        _rk4_substep(x, d, delta, kappa_tab, ds, length, p, h)
+
+
+@njit(cache=True, inline="always")
+def _box_entry(ds0, dn0, ds1, dn1, half_s, half_n):
+    """First fraction ``u`` in [0, 1] at which the segment ``(ds0, dn0) -> (ds1, dn1)`` is
+    inside the open box ``|ds| < half_s, |dn| < half_n``, or -1 if it never is (slab test)."""
+    lo, hi = 0.0, 1.0
+    for a0, a1, half in ((ds0, ds1, half_s), (dn0, dn1, half_n)):
+        da = a1 - a0
+        if da == 0.0:
+            if not abs(a0) < half:
+                return -1.0
+        else:
+            t1 = (-half - a0) / da
+            t2 = (half - a0) / da
+            if t1 > t2:
+                t1, t2 = t2, t1
+            lo = max(lo, t1)
+            hi = min(hi, t2)
+    return lo if lo < hi else -1.0
+
+
+@njit(cache=True, inline="always")
+def _cut(x, applied, i, f):
+    """Slow car ``i`` so that its total cut in this period is ``min(applied[i], f)``."""
+    if f < applied[i]:
+        x[3] = x[3] * f / applied[i] if applied[i] > 0.0 else 0.0
+        applied[i] = f
 
 
 def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_right, ds, length,
                    p, dt, rules, reward, contact, offtrack, substeps):
-    """Physics, rules and reward of race ``b`` for one control period (inputs ``phys`` (N, 2))."""
+    """Physics, rules and reward of race ``b`` for one control period (inputs ``phys`` (N, 2)).
+
+    Contact is checked over the whole period, not only at its end, so that no car can drive
+    through another. First every car is integrated on its own (its own number of sub-steps),
+    recording the range of its progress and lateral offset over the sub-step points. If no two
+    cars' ranges come within the contact box, no contact was possible and the period is done.
+    Otherwise the race is integrated again from the start of the period with all cars in
+    lockstep (the largest number of sub-steps of any car), sweeping each pair's relative
+    ``(ds, dn)`` linearly between sub-step points; at a pair's first moment of contact the car
+    in front then gets ``front_factor`` and the car behind ``rear_factor`` (applied to ``vx``
+    there and then; a car is slowed at most once per period, by the smallest factor due).
+    """
     n_cars = state.shape[1]
     half = 0.5 * length
-    factor = np.ones(n_cars)
     before = np.empty(n_cars)
+    x0 = np.empty((n_cars, 6))
+    lo_s = np.zeros(n_cars)
+    hi_s = np.zeros(n_cars)
+    lo_n = np.empty(n_cars)
+    hi_n = np.empty(n_cars)
+    k_max = 2
+    max_sub = int(rules[R_MAX_SUB])
     for i in range(n_cars):
         before[i] = state[b, i, 0]
         x = state[b, i]
-        k = _n_substeps(x[3], p, dt, rules[R_SUB_GAIN], int(rules[R_MAX_SUB]))
+        x0[i] = x
+        k = _n_substeps(x[3], p, dt, rules[R_SUB_GAIN], max_sub)
+        k_max = max(k_max, k)
         substeps[b, i] = k
-        integrate_car(x, phys[i, 0], phys[i, 1], kappa_tab, ds, length, p, dt, k)
+        lo_n[i] = x[1]
+        hi_n[i] = x[1]
+        h = dt / k
+        for _ in range(k):
+            _rk4_substep(x, phys[i, 0], phys[i, 1], kappa_tab, ds, length, p, h)
+            lo_s[i] = min(lo_s[i], x[0] - x0[i, 0])
+            hi_s[i] = max(hi_s[i], x[0] - x0[i, 0])
+            lo_n[i] = min(lo_n[i], x[1])
+            hi_n[i] = max(hi_n[i], x[1])
+        contact[b, i] = 0
+        offtrack[b, i] = 0
+    applied = np.ones(n_cars)
+    if rules[R_CONTACT_ON] > 0.0 and n_cars > 1:
+        c_ds, c_dn = rules[R_CONTACT_DS], rules[R_CONTACT_DN]
+        margin = 0.01  # [m] covers the difference between the two integrations
+        possible = False
+        for i in range(n_cars):
+            for j in range(i + 1, n_cars):
+                d0 = (x0[i, 0] - x0[j, 0] + half) % length - half
+                if d0 + lo_s[i] - hi_s[j] < c_ds + margin and d0 + hi_s[i] - lo_s[j] > -c_ds - margin \
+                        and lo_n[i] - hi_n[j] < c_dn + margin and hi_n[i] - lo_n[j] > -c_dn - margin:
+                    possible = True
+        if possible:
+            _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, k_max,
+                                   c_ds, c_dn, rules[R_FRONT], rules[R_REAR], applied, contact,
+                                   substeps)
+    for i in range(n_cars):
         # wall: a car cannot go further than the wall; it stops sideways there
+        x = state[b, i]
         wl = _lookup(wall_left, x[0], ds, length)
         wr = _lookup(wall_right, x[0], ds, length)
         if x[1] > wl or x[1] < -wr:
@@ -147,29 +228,15 @@ def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_r
             x[2] = 0.0
             x[4] = 0.0
             x[5] = 0.0
-        contact[b, i] = 0
-        offtrack[b, i] = 0
-    if rules[R_CONTACT_ON] > 0.0:
-        for i in range(n_cars):
-            for j in range(i + 1, n_cars):
-                dsij = (state[b, i, 0] - state[b, j, 0] + half) % length - half   # wrapped
-                if abs(dsij) < rules[R_CONTACT_DS] and \
-                        abs(state[b, i, 1] - state[b, j, 1]) < rules[R_CONTACT_DN]:
-                    front, rear = (i, j) if dsij >= 0.0 else (j, i)
-                    factor[front] = min(factor[front], rules[R_FRONT])
-                    factor[rear] = min(factor[rear], rules[R_REAR])
-                    contact[b, i] = 1
-                    contact[b, j] = 1
     for i in range(n_cars):
         x = state[b, i]
         if x[1] > _lookup(w_left, x[0], ds, length) or x[1] < -_lookup(w_right, x[0], ds, length):
             offtrack[b, i] = 1
             if rules[R_OFF_ON] > 0.0:
-                factor[i] = min(factor[i], rules[R_OFF_FACTOR])
+                _cut(x, applied, i, rules[R_OFF_FACTOR])
                 x[2] = 0.0
                 x[4] = 0.0
                 x[5] = 0.0
-        x[3] *= factor[i]
     # reward: change of (s_i - max_{j != i} s_j), on unwrapped s
     for i in range(n_cars):
         if n_cars == 1:
@@ -185,6 +252,63 @@ def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_r
     return before
 
 
+def _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, n_sub, c_ds, c_dn,
+                           front_f, rear_f, applied, contact, substeps):
+    """Integrate race ``b`` again from ``x0`` (N, 6) with every car in lockstep (``n_sub`` RK4
+    sub-steps), applying the contact rule at each pair's first moment of contact."""
+    n_cars = x0.shape[0]
+    half = 0.5 * length
+    h = dt / n_sub
+    d_start = np.empty((n_cars, n_cars))    # wrapped s_i - s_j at the start of the period
+    hit = np.zeros((n_cars, n_cars), dtype=np.bool_)
+    prev = np.empty((n_cars, 2))
+    prev_x = np.empty((n_cars, 6))
+    for i in range(n_cars):
+        state[b, i] = x0[i]
+        substeps[b, i] = n_sub
+        for j in range(n_cars):
+            d_start[i, j] = (x0[i, 0] - x0[j, 0] + half) % length - half
+    for m in range(n_sub + 1):
+        if m > 0:
+            for i in range(n_cars):
+                prev[i, 0] = state[b, i, 0] - x0[i, 0]
+                prev[i, 1] = state[b, i, 1]
+                prev_x[i] = state[b, i]
+                _rk4_substep(state[b, i], phys[i, 0], phys[i, 1], kappa_tab, ds, length, p, h)
+        for i in range(n_cars):
+            for j in range(i + 1, n_cars):
+                if hit[i, j]:
+                    continue
+                ds1 = d_start[i, j] + (state[b, i, 0] - x0[i, 0]) - (state[b, j, 0] - x0[j, 0])
+                dn1 = state[b, i, 1] - state[b, j, 1]
+                if m == 0:   # already touching at the start of the period
+                    u = 0.0 if abs(ds1) < c_ds and abs(dn1) < c_dn else -1.0
+                    ds_at, ds_from = ds1, ds1
+                else:
+                    ds_from = d_start[i, j] + prev[i, 0] - prev[j, 0]
+                    u = _box_entry(ds_from, prev[i, 1] - prev[j, 1], ds1, dn1, c_ds, c_dn)
+                    ds_at = ds_from + u * (ds1 - ds_from)
+                if u < 0.0:
+                    continue
+                hit[i, j] = True
+                contact[b, i] = 1
+                contact[b, j] = 1
+                # who is behind at the moment of contact (level: who was behind before it)
+                i_front = ds_at > 0.0 or (ds_at == 0.0 and ds_from >= 0.0)
+                front, rear = (i, j) if i_front else (j, i)
+                for car, f in ((front, front_f), (rear, rear_f)):
+                    if f >= applied[car]:
+                        continue
+                    x = state[b, car]
+                    if m > 0:   # redo the sub-step: up to the moment of contact, cut, on
+                        x[:] = prev_x[car]
+                        if u > 0.0:
+                            _rk4_substep(x, phys[car, 0], phys[car, 1], kappa_tab, ds, length, p, u * h)
+                    _cut(x, applied, car, f)
+                    if m > 0 and u < 1.0:
+                        _rk4_substep(x, phys[car, 0], phys[car, 1], kappa_tab, ds, length, p, (1.0 - u) * h)
+
+
 def _advance(state, action, normalised, act_map, kappa_tab, w_left, w_right, wall_left, wall_right,
              ds, length, p, dt, rules, t, s_line, laps, contacts, offtracks, lap_event,
              reward, contact, offtrack, substeps, where):
@@ -196,13 +320,15 @@ def _advance(state, action, normalised, act_map, kappa_tab, w_left, w_right, wal
     s_i when N == 1), ``contact`` / ``offtrack`` 1 if that rule applied this step,
     ``substeps`` RK4 sub-steps used, ``lap_event`` the race time [s] of a lap completed this
     step or -1. Running totals updated: ``t`` (B,), ``laps``, ``contacts``, ``offtracks``.
-    Returns 0, or 1 if an action is not finite / 2 if a state became non-finite, with the
+    Returns 0, or 1 if an action is bad (NaN; or, for physical inputs, not finite: normalised
+    +-inf is clipped like any out-of-range value) / 2 if a state became non-finite, with the
     race and car in ``where`` (2,); nothing is stepped when an action is bad.
     """
     n_races, n_cars = state.shape[0], state.shape[1]
     for b in range(n_races):
         for i in range(n_cars):
-            if not (math.isfinite(action[b, i, 0]) and math.isfinite(action[b, i, 1])):
+            a0, a1 = action[b, i, 0], action[b, i, 1]
+            if math.isnan(a0) or math.isnan(a1) or not (normalised or (math.isfinite(a0) and math.isfinite(a1))):
                 where[0] = b
                 where[1] = i
                 return 1
@@ -282,6 +408,7 @@ def _variant(fn, suffix):
     return g
 
 
+_lockstep_with_contact = njit(cache=True)(_lockstep_with_contact)
 _step_one_race = njit(cache=True)(_step_one_race)
 advance = njit(cache=True)(_variant(_advance, "_serial"))
 advance_parallel = njit(cache=True, parallel=True)(_variant(_advance, "_parallel"))

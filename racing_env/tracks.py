@@ -124,6 +124,8 @@ def random_track(seed: int, length: float = 30.0, half_width: float = DEFAULT_HA
     clear of every centre of curvature (tightest radius > 1.5 * half_width). Same seed, same
     track.
     """
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"random track seed must be a non-negative integer, got {seed!r}")
     if length <= 0 or half_width <= 0:
         raise ValueError(f"random_track needs positive length and half_width, got {length}, {half_width}")
     rng = np.random.default_rng(seed)
@@ -233,7 +235,10 @@ def make_track(spec: "str | Track", scale: float | None = None) -> Track:
         try:
             seed = int(spec.split(":", 1)[1])
         except ValueError:
-            raise ValueError(f"random track needs an integer seed, e.g. 'random:3', got {spec!r}") from None
+            seed = -1
+        if seed < 0:
+            raise ValueError(f"random track seed must be a non-negative integer, e.g. 'random:3', "
+                             f"got {spec!r}")
         track = random_track(seed)
     elif spec.startswith("tumftm:"):
         d = tumftm_dir()

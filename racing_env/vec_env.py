@@ -9,24 +9,28 @@ and infos; a test checks this step for step), so it is a drop-in, faster replace
 
 Opponents with an ``act_batch(observations (B, D)) -> actions (B, 2)`` method (for example a
 frozen neural policy, :class:`agents.ppo_agent.FrozenPolicy`) are called once per step for
-all races; any other agent is copied once per race (``copy.deepcopy``) and called per race.
+all races; every other opponent (an agent, deep-copied; a spec string; or a factory) becomes one
+agent per race, called per race.
 
-Imports stable-baselines3 (``VecEnv``); ``import racing_env`` alone does not load this module.
+Imports stable-baselines3 (``VecEnv``, the ``learn`` extra); ``import racing_env`` alone does not
+load this module.
 """
 from __future__ import annotations
 
-import copy
 from typing import Any, Sequence
 
 import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
-from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from .config import RaceConfig
 from .core import BatchedRaces
+from .extras import require
+from .gym_env import _is_agent, default_opponents, make_opponent
 from .parallel_env import _start_config
 from .track import Track
+
+VecEnv = require("stable_baselines3.common.vec_env.base_vec_env", "racing_env.vec_env").VecEnv
 
 
 class HeadToHeadVecEnv(VecEnv):
@@ -49,8 +53,7 @@ class HeadToHeadVecEnv(VecEnv):
         if not (isinstance(n_envs, (int, np.integer)) and n_envs >= 1):
             raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
         if opponents is None:
-            from .controllers import RacelineFollower
-            opponents = [RacelineFollower(mu=0.75), RacelineFollower(mu=0.8)]
+            opponents = default_opponents()
         opponents = list(opponents)
         cfg = config or RaceConfig()
         changes = {}
@@ -154,15 +157,19 @@ class HeadToHeadVecEnv(VecEnv):
         self._install(opponents)
 
     def _install(self, opponents: list) -> None:
-        """Check the opponents; batched ones (``act_batch``) act for all races at once, the
-        others get one copy per race."""
+        """Build the opponents (specs, factories or agents; see
+        :data:`racing_env.gym_env.OpponentSpec`): a batched agent instance (``act_batch``) acts
+        for all races at once as it is; every other opponent gets one agent of its own per race."""
+        built, batched = [], []
         for k, opp in enumerate(opponents):
-            if not (callable(getattr(opp, "act", None)) and callable(getattr(opp, "reset", None))):
-                raise ValueError(f"opponent {k} ({opp!r}) must have reset(track, agent_id, seed) "
-                                 f"and act(observation) methods")
-        self._batched = [callable(getattr(o, "act_batch", None)) for o in opponents]
-        self.opponents = [o if bt else [copy.deepcopy(o) for _ in range(self.num_envs)]
-                          for o, bt in zip(opponents, self._batched)]
+            if _is_agent(opp) and callable(getattr(opp, "act_batch", None)):
+                built.append(opp)
+                batched.append(True)
+            else:
+                built.append([make_opponent(opp, k) for _ in range(self.num_envs)])
+                batched.append(False)
+        self._batched = batched
+        self.opponents = built
 
     def close(self) -> None:
         pass

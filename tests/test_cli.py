@@ -43,7 +43,7 @@ def test_bad_agent_specs_give_clear_errors(capsys):
     assert "unknown agent 'nobody'" in capsys.readouterr().err
     with pytest.raises(ValueError, match="expected key=value"):
         make_agent_spec("raceline:mu")
-    with pytest.raises(ValueError, match="unexpected keyword"):
+    with pytest.raises(ValueError, match="unknown parameter.*wings.*line_fraction"):
         make_agent_spec("raceline:wings=2")
 
 

@@ -186,8 +186,8 @@ def test_zeta_one_euler_is_the_literal_reading():
 
 
 @HYP
-@given(s0=st.floats(0, 1).map(lambda u: u * L), z1=st.floats(0.7, 1.05),
-       z2=st.floats(0.7, 1.05))
+@given(s0=st.floats(0, 1).map(lambda u: u * L), z1=st.floats(float(THETA_LOW[1]), float(THETA_HIGH[1])),
+       z2=st.floats(float(THETA_LOW[1]), float(THETA_HIGH[1])))
 def test_higher_zeta_is_further_ahead(s0, z1, z2):
     lo, hi = sorted((z1, z2))
     if hi - lo < 1e-6:

@@ -120,7 +120,7 @@ def test_random_tracks_are_seeded_and_valid():
     np.testing.assert_array_equal(a.x, b.x)
     assert not np.array_equal(a.x, c.x)
     assert make_track("random:3").fingerprint() == a.fingerprint()
-    with pytest.raises(ValueError, match="integer seed"):
+    with pytest.raises(ValueError, match="non-negative integer"):
         make_track("random:x")
 
 

@@ -1,0 +1,123 @@
+"""The one folder for everything alpha-racer compiles or computes once: :func:`cache_dir`.
+
+Location, in this order:
+
+1. ``$ALPHA_RACER_CACHE`` if the variable is set;
+2. else the per-user cache folder, ``platformdirs.user_cache_dir("alpha-racer")``:
+   ``~/.cache/alpha-racer`` on Linux (or ``$XDG_CACHE_HOME/alpha-racer``),
+   ``~/Library/Caches/alpha-racer`` on macOS, ``%LOCALAPPDATA%\\alpha-racer\\Cache`` on Windows;
+3. when that folder cannot be created or written (a read-only or missing home in a container
+   or on a cluster node), a private temporary folder, ``$TMPDIR/alpha-racer-<uid>``, with a
+   warning. Everything still works; compiled code is just rebuilt once per temporary folder.
+
+Sub-folders: ``numba/`` (the compiled kernels of ``racing_env`` and ``agents``), ``mpc/`` (the
+MPC's generated C prediction), ``raceline/`` (racing lines). Nothing is written into the
+installed package, so a read-only site-packages works and ``pip uninstall alpha-racer`` leaves
+nothing behind there. Delete the folder to clear the cache.
+
+Importing this module (each top package, ``racing_env``, ``agents`` and ``experiments``, does
+so first) resolves the location once, exports it as ``ALPHA_RACER_CACHE`` (so worker processes
+use the same folder and do not warn again) and points numba's cache at ``cache_dir("numba")``
+unless ``NUMBA_CACHE_DIR`` is set. It sets ``numba.config.CACHE_DIR`` rather than the
+``NUMBA_CACHE_DIR`` variable, which would leak into every numba program this process starts and
+would turn off the simulator's source-hashed kernel folder (see ``racing_env/simulator.py``).
+"""
+from __future__ import annotations
+
+import getpass
+import os
+import stat
+import tempfile
+import uuid
+import warnings
+from pathlib import Path
+
+ENV_VAR = "ALPHA_RACER_CACHE"
+APP_NAME = "alpha-racer"
+
+_resolved: dict[str, Path] = {}     # requested location -> folder in use (warn once per request)
+
+
+def default_cache_root() -> Path:
+    """The per-user cache folder, ``platformdirs.user_cache_dir("alpha-racer")``."""
+    from platformdirs import user_cache_dir
+    return Path(user_cache_dir(APP_NAME, appauthor=False))
+
+
+def _writable(folder: Path) -> str | None:
+    """None if ``folder`` exists (or can be made) and a file can be written in it, else why not."""
+    if not folder.is_absolute():      # e.g. "~/.cache" when no home directory can be found
+        return f"{str(folder)!r} is not an absolute path (no home directory?)"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".write-test-{uuid.uuid4().hex}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        return f"{exc.strerror or exc} ({str(folder)!r})"
+    return None
+
+
+def _private_temp_root() -> Path:
+    """``$TMPDIR/alpha-racer-<uid>``, readable and writable by this user only (a fresh
+    ``mkdtemp`` folder if that name is taken by someone else or open to others: compiled
+    libraries from the cache get loaded, so nobody else may be able to plant one)."""
+    tmp = Path(tempfile.gettempdir())
+    uid = os.getuid() if hasattr(os, "getuid") else None
+    folder = tmp / f"{APP_NAME}-{uid if uid is not None else getpass.getuser()}"
+    try:
+        folder.mkdir(mode=0o700, exist_ok=True)
+        st = folder.lstat()
+        safe = stat.S_ISDIR(st.st_mode) and (uid is None or (st.st_uid == uid and not st.st_mode & 0o077))
+    except OSError:
+        safe = False
+    return folder if safe else Path(tempfile.mkdtemp(prefix=f"{APP_NAME}-"))
+
+
+def cache_root() -> Path:
+    """The cache folder in use (see the module docstring): ``$ALPHA_RACER_CACHE``, else the
+    per-user cache folder, else (with a warning) a private temporary folder. Resolved once per
+    value of ``ALPHA_RACER_CACHE``; raises OSError only if no temporary folder is writable."""
+    requested = os.environ.get(ENV_VAR, "")
+    if requested in _resolved:
+        return _resolved[requested]
+    if requested:
+        root, what = Path(requested).expanduser(), f"{ENV_VAR}={requested!r}"
+        if not str(root).startswith("~"):          # relative to the working directory
+            root = root.absolute()
+    else:
+        root, what = default_cache_root(), f"the default cache folder (set {ENV_VAR} to choose one)"
+    why = _writable(root)
+    if why is not None:
+        fallback = _private_temp_root()
+        why_tmp = _writable(fallback)
+        if why_tmp is not None:
+            raise OSError(f"alpha-racer has no writable cache folder: {what}: {why}; temporary "
+                          f"folder: {why_tmp}. Set {ENV_VAR} to a writable folder.")
+        warnings.warn(f"alpha-racer cannot write to {what}: {why}. Compiled code and racing lines "
+                      f"go to the temporary folder {str(fallback)!r} instead; set {ENV_VAR} to a "
+                      f"writable folder to keep them.", RuntimeWarning, stacklevel=3)
+        root = fallback
+    _resolved[requested] = root
+    return root
+
+
+def cache_dir(sub: str | None = None) -> Path:
+    """The cache folder, or its sub-folder ``sub`` (``"numba"``, ``"mpc"``, ``"raceline"``),
+    created if missing."""
+    folder = cache_root() if sub is None else cache_root() / sub
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def _configure() -> None:
+    """Export the resolved folder and point numba's cache into it (see the module docstring)."""
+    root = cache_root()
+    os.environ[ENV_VAR] = str(root)
+    _resolved.setdefault(str(root), root)
+    if not os.environ.get("NUMBA_CACHE_DIR"):
+        import numba
+        numba.config.CACHE_DIR = str(cache_dir("numba"))
+
+
+_configure()

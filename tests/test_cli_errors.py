@@ -1,0 +1,75 @@
+"""Bad input to the command line: one-line errors (exit code 2) before any race, and help
+that describes every option."""
+import argparse
+
+import pytest
+
+import experiments.race
+from experiments.cli import build_parser, main
+
+
+def _no_race(*args, **kwargs):
+    raise AssertionError("the race started before the input was checked")
+
+
+def _one_line_error(capsys, argv) -> str:
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    return err
+
+
+def test_missing_model_names_the_value_and_the_shipped_models(capsys):
+    err = _one_line_error(capsys, ["race", "--agents", "alpha:model=nosuch", "mpc", "--steps", "5",
+                                   "--no-animation"])
+    assert "'nosuch'" in err
+    for name in ("default", "gamma0.98", "gamma0.995", "races400"):
+        assert name in err
+
+
+def test_missing_model_fails_before_the_benchmark(capsys, tmp_path):
+    err = _one_line_error(capsys, ["bench", "--opponents", "alpha:model=nosuch", "--races", "1",
+                                   "--steps", "5", "--workers", "1", "--out", str(tmp_path)])
+    assert "'nosuch'" in err and "default" in err
+
+
+def test_unknown_agent_key_lists_the_valid_keys(capsys):
+    err = _one_line_error(capsys, ["race", "--agents", "mpc:foo=1", "--steps", "5",
+                                   "--no-animation"])
+    assert "foo" in err
+    for key in ("q", "zeta", "s1", "s2", "s3"):
+        assert key in err
+    err = _one_line_error(capsys, ["race", "--agents", "alpha:zetta=1", "--steps", "5",
+                                   "--no-animation"])
+    assert "zetta" in err and "model" in err and "zeta" in err
+
+
+def test_mp4_without_ffmpeg_fails_before_the_race(capsys, monkeypatch, tmp_path):
+    import racing_env.render
+    monkeypatch.setattr(racing_env.render, "_find_ffmpeg", lambda: None)
+    monkeypatch.setattr(experiments.race, "run_race", _no_race)
+    err = _one_line_error(capsys, ["race", "--agents", "raceline", "--steps", "5",
+                                   "--format", "mp4", "--out", str(tmp_path)])
+    assert "mp4" in err and "ffmpeg" in err and "gif" in err
+    assert not any(tmp_path.iterdir())
+
+
+def _subcommands():
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices
+
+
+@pytest.mark.parametrize("name", sorted(_subcommands()))
+def test_every_option_has_help_and_shows_its_default(name):
+    parser = _subcommands()[name]
+    assert parser.description, name
+    for action in parser._actions:
+        if isinstance(action, argparse._HelpAction):
+            continue
+        assert action.help and action.help.strip(), f"{name} {action.option_strings} has no help"
+    text = parser.format_help()
+    for action in parser._actions:
+        if action.default not in (None, [], argparse.SUPPRESS) and action.help:
+            assert f"(default: {action.default})" in " ".join(text.split()), \
+                f"{name} {action.option_strings}: default not shown"

@@ -1,0 +1,299 @@
+"""Installs anywhere: one movable cache folder, a failing C compiler, racing without the learning
+extra, packaging metadata, and (slow) a wheel racing from a read-only site-packages."""
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import textwrap
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+STEPS = """
+import numpy as np
+import racing_env
+env = racing_env.parallel_env(n_cars=2, max_cycles=5)
+env.reset(seed=0)
+for _ in range(3):
+    env.step({a: np.array([0.5, 0.0]) for a in env.agents})
+from racing_env.cache import cache_root
+print(cache_root())
+"""
+
+
+def _run(code: str, env: dict, cwd=ROOT, timeout=600) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def _clean_env(**extra) -> dict:
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("HOME", "XDG_CACHE_HOME", "NUMBA_CACHE_DIR", "ALPHA_RACER_CACHE", "CC",
+                        "PYTHONPATH", "TMPDIR")}
+    env.update({k: str(v) for k, v in extra.items()})
+    return env
+
+
+def _kernels(folder: Path, source_dir: str) -> list[Path]:
+    """numba index files under ``folder`` of functions defined in ``source_dir`` (a package)."""
+    return [p for p in folder.rglob("*.nbi") if p.parent.name.startswith(source_dir + "_")]
+
+
+# ------------------------------------------------------------------------------ cache folder
+@pytest.mark.parametrize("where", ["ALPHA_RACER_CACHE", "HOME"])
+def test_unwritable_cache_and_home_fall_back_to_a_temp_folder(tmp_path, where):
+    """No writable cache folder, no usable home: import and race anyway, with a warning, and
+    compile into a private temporary folder."""
+    blocker = tmp_path / "a-file"            # nothing can be created under a file, even by root
+    blocker.write_text("")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = _clean_env(TMPDIR=tmp)
+    if where == "ALPHA_RACER_CACHE":
+        env["ALPHA_RACER_CACHE"] = str(blocker / "cache")      # and HOME unset
+    else:
+        env["HOME"] = str(blocker)                              # the default is under HOME
+    r = _run(STEPS, env)
+    assert r.returncode == 0, r.stderr
+    assert "alpha-racer cannot write to" in r.stderr and "temporary folder" in r.stderr, r.stderr
+    used = Path(r.stdout.strip().splitlines()[-1])
+    assert used.parent == tmp and used.name.startswith("alpha-racer-")
+    assert _kernels(used / "numba", "racing_env")
+
+
+def test_compiled_artefacts_land_under_ALPHA_RACER_CACHE(tmp_path):
+    """numba kernels (racing_env's and agents'), the MPC's C library and the racing line all go
+    to $ALPHA_RACER_CACHE; nothing goes to the home folder."""
+    cache, home = tmp_path / "cache", tmp_path / "home"
+    home.mkdir()
+    code = STEPS + """
+import warnings
+from agents import make_agent
+env = racing_env.parallel_env(n_cars=1, max_cycles=5)
+obs, _ = env.reset(seed=0)
+agent = make_agent("mpc")
+with warnings.catch_warnings():
+    warnings.simplefilter("error")                       # compiled, not interpreted
+    agent.reset(env.track, "car_0")
+agent.act(obs["car_0"])
+"""
+    r = _run(code, _clean_env(ALPHA_RACER_CACHE=cache, HOME=home))
+    assert r.returncode == 0, r.stderr
+    assert Path(r.stdout.strip().splitlines()[-1]) == cache
+    assert _kernels(cache / "numba", "racing_env")
+    assert _kernels(cache / "numba", "agents")
+    assert list((cache / "mpc").glob("mpc_traj_*.so"))
+    assert list((cache / "raceline").glob("*.npz"))
+    assert not any(home.iterdir())
+
+
+def test_cache_dir_is_one_function(tmp_path, monkeypatch):
+    from agents import mpc
+    from racing_env import cache, raceline
+    monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "c"))
+    assert cache.cache_dir() == tmp_path / "c"
+    assert raceline.cache_dir() == cache.cache_dir("raceline") == tmp_path / "c" / "raceline"
+    assert mpc._cache_root() == cache.cache_dir("mpc") == tmp_path / "c" / "mpc"
+    assert (tmp_path / "c" / "mpc").is_dir()
+
+
+# -------------------------------------------------------------------------------- C compiler
+def _script(path: Path, body: str) -> Path:
+    path.write_text("#!/bin/sh\n" + body)
+    path.chmod(0o755)
+    return path
+
+
+def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypatch):
+    from agents.mpc import MPCConfig, _trajectory_function
+    from racing_env.vehicle import VehicleParams
+
+    from racing_env.cache import cache_root
+    default_cache = str(cache_root())
+    cc = _script(tmp_path / "broken-cc", "echo 'broken-cc: fatal error: no licence for -O3' >&2\nexit 3\n")
+    monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", str(cc))
+    with pytest.warns(RuntimeWarning) as record:
+        traj = _trajectory_function(VehicleParams(), MPCConfig())
+    msg = "\n".join(str(w.message) for w in record)
+    assert "no licence for -O3" in msg and "status 3" in msg and "interpreted" in msg
+    assert not list((tmp_path / "cache" / "mpc").glob("*.so"))
+
+    monkeypatch.setenv("ALPHA_RACER_CACHE", default_cache)
+    monkeypatch.delenv("CC")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        compiled = _trajectory_function(VehicleParams(), MPCConfig())
+    K = MPCConfig().horizon
+    x0 = np.array([1.0, 0.05, 0.02, 2.0, 0.1, 0.3])
+    U = np.tile([[0.5], [0.1]], (1, K))
+    kap = np.full((MPCConfig().substeps, K), 0.5)
+    for a, b in zip(traj(x0, U, kap), compiled(x0, U, kap)):
+        assert isinstance(a, np.ndarray)
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+
+
+def test_mpc_agent_races_with_a_failing_compiler(tmp_path, monkeypatch):
+    from agents import make_agent
+    from racing_env import parallel_env
+
+    monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", str(_script(tmp_path / "cc", "exit 1\n")))
+    env = parallel_env(n_cars=1, max_cycles=3)
+    obs, _ = env.reset(seed=0)
+    agent = make_agent("mpc")
+    with pytest.warns(RuntimeWarning, match="interpreted"):
+        agent.reset(env.track, "car_0")
+    for _ in range(2):
+        a = agent.act(obs["car_0"])
+        assert np.all(np.isfinite(a))
+        obs, *_ = env.step({"car_0": a})
+
+
+def test_CC_is_the_compiler(tmp_path, monkeypatch):
+    from agents.mpc import MPCConfig, _trajectory_function
+    from racing_env.vehicle import VehicleParams
+
+    gcc = shutil.which("gcc") or shutil.which("cc")
+    if gcc is None:
+        pytest.skip("no C compiler")
+    log = tmp_path / "cc.log"
+    cc = _script(tmp_path / "my cc", f'echo "$@" >> "{log}"\nexec "{gcc}" "$@"\n')
+    monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", f"'{cc}' -O1")                # a command, quoted like in a shell
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _trajectory_function(VehicleParams(), MPCConfig(horizon=5))
+    assert log.read_text().startswith("-O1 ") and list((tmp_path / "cache" / "mpc").glob("*.so"))
+
+
+# ------------------------------------------------------------------ racing without [learn]
+BLOCK_LEARN = """
+import sys
+for name in ("torch", "stable_baselines3", "tensorboard"):
+    sys.modules[name] = None                 # import torch -> ImportError, as if not installed
+"""
+
+
+def test_race_without_the_learn_extra(tmp_path):
+    code = BLOCK_LEARN + """
+import racing_env, agents, agents.mpc_agent, agents.alpha_agent, agents.ibr
+from experiments.race import run_race
+result, _ = run_race(["alpha", "mpc", "mpc:zeta=0.8"], max_cycles=2, render=False)
+print("raced", len(result.table().splitlines()))
+from agents import make_agent_spec
+from racing_env.extras import MissingExtraError
+for make in (lambda: make_agent_spec("ppo"), lambda: __import__("racing_env.vec_env")):
+    try:
+        make()
+    except MissingExtraError as exc:
+        print("MISSING:", exc)
+assert not any(sys.modules.get(m) for m in ("torch", "stable_baselines3"))
+"""
+    from racing_env.cache import cache_root
+    r = _run(code, _clean_env(ALPHA_RACER_CACHE=cache_root()))
+    assert r.returncode == 0, r.stderr
+    assert "raced" in r.stdout
+    missing = [line for line in r.stdout.splitlines() if line.startswith("MISSING:")]
+    assert len(missing) == 2 and all('pip install "alpha-racer[learn]"' in m for m in missing)
+    assert "the 'ppo' agent" in missing[0]
+
+
+def test_cli_names_the_extra(capsys, monkeypatch):
+    from experiments.cli import main
+    monkeypatch.setitem(sys.modules, "stable_baselines3", None)
+    assert main(["race", "--agents", "ppo", "mpc", "--steps", "1", "--no-animation",
+                 "--out", os.devnull]) == 2
+    assert 'pip install "alpha-racer[learn]"' in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------- packaging
+def _pyproject() -> dict:
+    tomllib = pytest.importorskip("tomllib")
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())
+
+
+def _names(reqs) -> set[str]:
+    import re
+    return {re.split(r"[<>=!~\[; ]", r, maxsplit=1)[0].lower().replace("_", "-") for r in reqs}
+
+
+def test_learning_packages_are_an_extra_that_dev_includes():
+    project = _pyproject()["project"]
+    learn = _names(project["optional-dependencies"]["learn"])
+    assert learn == {"torch", "stable-baselines3", "tensorboard"}
+    assert not learn & _names(project["dependencies"])
+    assert learn <= _names(project["optional-dependencies"]["dev"])
+    assert not [r for r in project["dependencies"] if "==" in r]          # ranges, not pins
+    assert project["license"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")
+
+
+def test_version(capsys):
+    import agents
+    import experiments
+    import racing_env
+    from experiments.cli import main
+    assert racing_env.__version__ == agents.__version__ == experiments.__version__
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out.strip() == f"alpha-racer {racing_env.__version__}"
+
+
+# ------------------------------------------------------------------ the wheel, read-only
+def _read_only_runner(paths: list[Path]) -> list[str] | None:
+    """A command prefix that runs a program with ``paths`` read-only: a private mount namespace
+    (root), or nothing after ``chmod -R a-w`` (anyone else); None if neither works."""
+    if os.geteuid() != 0:
+        for p in paths:
+            subprocess.run(["chmod", "-R", "a-w", str(p)], check=True)
+        return []
+    if shutil.which("unshare") is None or subprocess.run(["unshare", "-m", "true"]).returncode:
+        return None
+    mounts = " && ".join(f"mount --bind {q} {q} && mount -o remount,ro,bind {q}"
+                         for q in (f"'{p}'" for p in paths))
+    return ["unshare", "-m", "sh", "-c", mounts + ' && exec "$@"', "sh"]
+
+
+@pytest.mark.slow
+def test_wheel_races_from_a_read_only_install_without_home(tmp_path):
+    """The issue's "done when": a wheel of this tree, installed into a venv whose site-packages
+    is then read-only, with HOME unset (and, for root, the home folder read-only too), races
+    alpha, mpc and ibr without torch."""
+    import pwd
+    whl, venv, out, tmp = (tmp_path / d for d in ("whl", "venv", "out", "tmp"))
+    tmp.mkdir()
+    subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation",
+                    "-q", "-w", str(whl)], check=True, cwd=tmp_path)
+    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True)
+    python = venv / "bin" / "python"
+    subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-deps", "--no-index",
+                    *map(str, whl.glob("*.whl"))], check=True)
+    home = Path(pwd.getpwuid(os.getuid()).pw_dir)      # where ~ points with HOME unset
+    runner = _read_only_runner([venv] + ([home] if home.is_dir() and home != Path("/") else []))
+    if runner is None:
+        pytest.skip("cannot make the venv read-only (root without unshare)")
+    code = BLOCK_LEARN + f"""
+import racing_env
+assert racing_env.__file__.startswith({str(venv)!r}), racing_env.__file__
+from experiments.cli import main
+sys.exit(main(["race", "--agents", "alpha", "mpc", "ibr", "--steps", "30", "--no-animation",
+               "--out", {str(out)!r}]))
+"""
+    env = _clean_env(TMPDIR=tmp, MPLCONFIGDIR=tmp / "mpl")
+    r = subprocess.run([*runner, str(python), "-c", code], cwd="/", env=env, capture_output=True,
+                       text=True, timeout=900)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "Race on 'default'" in r.stdout and (out / "result.json").exists()
+    for agent in ("alpha", "mpc", "ibr"):
+        assert agent in r.stdout
+    if runner:                                           # root: the home folder was read-only too
+        assert "alpha-racer cannot write to the default cache folder" in r.stderr
+    installed = [d for pkg in ("racing_env", "agents", "experiments") for d in venv.rglob(pkg)]
+    assert len(installed) == 3
+    assert not [p for d in installed for p in d.rglob("*") if p.suffix in (".nbi", ".nbc", ".so")]
