@@ -71,9 +71,9 @@ class PotentialModel:
         self._check_cars(states)
         return self.potential_net(potential_features(states, thetas, track))
 
-    def maximise(self, state, track, theta0=None, restarts: int = 4, iterations: int = 3,
-                 rng: np.random.Generator | None = None, step: float = 0.5,
-                 warm_step: float = 0.15, decay: float = 0.8):
+    def maximise(self, state, track, theta0=None, restarts: int | None = None,
+                 iterations: int | None = None, rng: np.random.Generator | None = None,
+                 step: float = 0.5, warm_step: float = 0.15, decay: float = 0.8):
         """Projected gradient ascent (Adam steps) of Phi(x, .) over the joint theta within its
         bounds; returns ``(theta* (N, 5), Phi*)``, the best iterate seen.
 
@@ -88,8 +88,9 @@ class PotentialModel:
         (:meth:`agents.mlp.MLP.restricted`); only the 5 N theta columns change during the
         ascent.
 
-        Without a warm start (the first decision of a race) the ascent needs many more starts
-        and steps to be good (:class:`agents.alpha_agent.AlphaAgent` uses 32 and 12 then).
+        ``restarts`` and ``iterations`` default to 4 and 3 with a warm start (the agent's
+        decisions) and to 32 and 12 without one: from the box centre and random starts alone
+        the ascent needs many more starts and steps to come close to the maximum.
         Matrix products run on one BLAS thread (:func:`agents.threads.single_blas_thread`):
         the result does not depend on the process's thread count. Versus
         :meth:`maximise_reference` (6 steps) on 200 states of an alpha race with the same warm
@@ -98,6 +99,10 @@ class PotentialModel:
         both.
         """
         self._check_cars(state[None])
+        if restarts is None:
+            restarts = 32 if theta0 is None else 4
+        if iterations is None:
+            iterations = 12 if theta0 is None else 3
         if restarts < 1 or iterations < 0:
             raise ValueError(f"maximise needs restarts >= 1 and iterations >= 0, got "
                              f"{restarts}, {iterations}")
