@@ -171,3 +171,39 @@ def test_alpha_races_are_the_same_with_1_and_2_workers(tmp_path):
     for k in r1:
         assert r1[k]["progress_m"] == r2[k]["progress_m"] and r1[k]["winner"] == r2[k]["winner"]
         assert one.states(k).tobytes() == two.states(k).tobytes()
+
+
+_BATCHED_SCRIPT = """
+import sys
+import numpy as np
+from racing_env.core import BatchedRaces
+races = BatchedRaces("default", n_races=64, seed=0)        # >= 16 races: the parallel kernels
+races.reset(seed=0)
+rng = np.random.default_rng(1)
+states = []
+for _ in range(40):
+    races.step(rng.uniform(-1, 1, (64, races.config.n_cars, 2)))
+    races.observe()
+    states.append(races.state.copy())
+np.save(sys.argv[1], np.array(states))
+"""
+
+
+def test_batched_races_are_identical_with_1_and_2_numba_threads(tmp_path):
+    """The simulator's kernels parallel over races give every race the same result whatever
+    numba's thread count (each race is one thread's work)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    out = []
+    for n in (1, 2):
+        env = {**os.environ, "NUMBA_NUM_THREADS": str(n),
+               "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+        path = tmp_path / f"states_{n}.npy"
+        subprocess.run([sys.executable, "-c", _BATCHED_SCRIPT, str(path)], env=env, cwd=root,
+                       check=True, timeout=300)
+        out.append(np.load(path))
+    assert out[0].shape == (40, 64, 3, 6) and np.isfinite(out[0]).all()
+    assert out[0].tobytes() == out[1].tobytes()
