@@ -134,10 +134,11 @@ def plot_gap(gap: dict, path: Path) -> None:
 # ---------------------------------------------------------------------------- Figure 2b
 def maximiser(model, state, track, seed: int):
     """theta* (N, 5): a careful maximisation of Phi(x, .): 16 starts x 40 per-coordinate
-    steps (the agent's online ascent relies on its warm start instead; from a cold start it
-    stops short of the maximum)."""
-    return model.maximise(state, track, restarts=16, iterations=40, step=0.3, decay=0.9,
-                          per_coordinate=True, rng=np.random.default_rng(seed))[0]
+    steps of the first release's ascent (the agent's online ascent relies on its warm start
+    instead; from a cold start it stops short of the maximum)."""
+    return model.maximise_reference(state, track, restarts=16, iterations=40, step=0.3,
+                                    decay=0.9, per_coordinate=True,
+                                    rng=np.random.default_rng(seed))[0]
 
 
 def simulated_value(model, track, state, thetas, car: int, horizon: int) -> float:
