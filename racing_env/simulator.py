@@ -39,8 +39,8 @@ def _kernel_cache_dir() -> str | None:
     h = hashlib.sha1()
     for mod in (Path(__file__), Path(__file__).with_name("vehicle.py")):
         h.update(mod.read_bytes())
-    base = Path(os.environ.get("ALPHA_RACER_CACHE", Path.home() / ".cache" / "alpha_racer"))
-    return str(base / "numba" / h.hexdigest()[:16])
+    from .cache import cache_dir
+    return str(cache_dir("numba") / h.hexdigest()[:16])
 
 
 _saved_cache_dir = numba.config.CACHE_DIR
