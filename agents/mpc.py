@@ -593,13 +593,14 @@ class MPC:
         X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
         return X, A, B
 
-    def _merit(self, X, U, s_ref, n_ref, q, opp, u_prev):
+    def _merit(self, X, U, s_ref, n_ref, q, opp, u_prev, edges=None):
         """The MPC's cost of a plan on its *nonlinear* rollout ``X``: tracking, input rates and
         the soft rows' quadratic penalty ``violation^2 / (2 soft_rho)`` (DAQP's, for the track
-        edges and the separations chosen along ``X``); ``inf`` for a non-finite rollout."""
+        edges and the separations chosen along ``X``); ``inf`` for a non-finite rollout.
+        ``edges`` = ``self._bounds_n(X[0])`` when the caller has them already."""
         if not np.isfinite(X).all():
             return np.inf
-        lo_n, hi_n = self._bounds_n(X[0])
+        lo_n, hi_n = self._bounds_n(X[0]) if edges is None else edges
         return plan_cost(X[0], X[1], s_ref, n_ref, float(q), U.T.reshape(-1), lo_n, hi_n, opp,
                          self.cfg.dt, self.cfg.sep_s, self.cfg.sep_n, self.cfg.sep_window,
                          0.5 / self.cfg.soft_rho)
@@ -614,25 +615,30 @@ class MPC:
         u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
         opp = (np.zeros((0, 3)) if opponents is None
                else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3))
-        merit = lambda X_, U_: self._merit(X_, U_, s_ref, n_ref, q, opp, u_prev)
+
+        def score(X_, U_):
+            """(cost, track edges along X_ or None): the edges are looked up once per rollout."""
+            edges = self._bounds_n(X_[0]) if np.isfinite(X_).all() else None
+            return self._merit(X_, U_, s_ref, n_ref, q, opp, u_prev, edges), edges
+
         fresh = self._U is None
         if fresh:                                   # first solve: start from the follower
             U = self._follower_warm_start(x0)
         else:
             U = self._U
         X, A, B = self._plan(x0, U)
-        J = merit(X, U)
+        J, edges = score(X, U)
         if not fresh:
-            lo_n, hi_n = self._bounds_n(X[0]) if np.isfinite(X).all() else (None, None)
-            off = (np.maximum(X[1] - hi_n, lo_n - X[1]).max() if lo_n is not None else np.inf)
+            off = (np.inf if edges is None
+                   else np.maximum(X[1] - edges[1], edges[0] - X[1]).max())
             if off > cfg.restart_offtrack or x0[3] < 2.0 * cfg.v_low:
                 # the shifted plan leaves the track, or the car is (nearly) stopped, where the
                 # linearisation sees little of what drive does: also try a follower rollout
                 Uf = self._follower_warm_start(x0)
                 Xf, Af, Bf = self._plan(x0, Uf)
-                Jf = merit(Xf, Uf)
+                Jf, edges_f = score(Xf, Uf)
                 if Jf < J:
-                    U, X, A, B, J = Uf, Xf, Af, Bf, Jf
+                    U, X, A, B, J, edges = Uf, Xf, Af, Bf, Jf, edges_f
                     self.stats["restarts"] += 1
         status = "ok"
         model_error = 0.0
@@ -642,7 +648,7 @@ class MPC:
                 break
             G = condense(np.ascontiguousarray(A), np.ascontiguousarray(B), K)
             s_pred, n_pred = X[0], X[1]
-            lo_n, hi_n = self._bounds_n(s_pred)
+            lo_n, hi_n = edges
             u_vec = U.T.reshape(-1)                                       # [d0, delta0, d1, ...]
             H, f, Acon, blo, bhi, sense = qp_arrays(
                 G, s_pred, n_pred, s_ref, n_ref, float(q), self._DtD, u_vec, float(u_prev[1]),
@@ -659,23 +665,23 @@ class MPC:
             for alpha in cfg.step_sizes:
                 Ua = np.clip((u_vec + alpha * du).reshape(K, 2).T, -1.0, 1.0)
                 Xa = self._plan(x0, Ua, s_prev=nodes, jacobians=False)[0]
-                Ja = merit(Xa, Ua)
+                Ja, edges_a = score(Xa, Ua)
                 if best is None or Ja < best[0]:
-                    best = (Ja, alpha, Ua, Xa)
+                    best = (Ja, alpha, Ua, Xa, edges_a)
                 if Ja <= J:
                     break
-            Ja, alpha, Ua, Xa = best
+            Ja, alpha, Ua, Xa, edges_a = best
             if Ja > J:                         # no step improves the plan: keep it
                 self.stats["rejected_steps"] += 1
                 break
             n_lin = n_pred + alpha * (G[1::2] @ du)
             model_error = float(np.max(np.abs(n_lin - Xa[1])))
-            U, X, J = Ua, Xa, Ja
+            U, X, J, edges = Ua, Xa, Ja, edges_a
             self._s_nom = np.concatenate([[x0[0]], X[0]])
             if model_error <= cfg.model_tol or it + 1 == cfg.sqp_iterations:
                 break
-            self.stats["extra_iterations"] += 1        # linearise again at the new plan
-            X, A, B = self._plan(x0, U, s_prev=nodes)
+            self.stats["extra_iterations"] += 1        # linearise again at the new plan (the
+            X, A, B = self._plan(x0, U, s_prev=nodes)  # same rollout, so the same edges)
         self.stats["solves"] += 1
         self.last_model_error = model_error
         if status != "ok":

@@ -25,7 +25,7 @@ def understeer_gradient(v: VehicleParams) -> float:
 
 
 class RacelineFollower:
-    """Follows the minimum-curvature racing line at the speed profile of friction ``mu``.
+    """Follows the minimum-curvature racing line at the speed profile of envelope scale ``mu``.
 
     A path follower in the Frenet frame: the commanded path curvature is the racing line's
     curvature ahead plus feedback on the heading and lateral errors to the line, with a

@@ -43,10 +43,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .vehicle import VehicleParams
 
-__all__ = ["GGV", "ggv", "steady_corner"]
+__all__ = ["GGV", "envelope_at", "ggv", "steady_corner"]
 
 N_SPEEDS = 240
 """Points of the speed grid of :func:`ggv`."""
@@ -150,11 +151,12 @@ class GGV:
     def longitudinal_limits(self, v, ay, mu: float = 1.0):
         """``(ax_max, ax_min)`` [m/s^2] at speed ``v`` and lateral acceleration ``ay`` (arrays
         broadcast) of the envelope scaled by ``mu``; ``ay`` beyond the limit counts as at it."""
-        v = np.asarray(v, dtype=float)
-        frac = np.clip(np.abs(ay) / np.maximum(self.lateral_limit(v, mu), 1e-9), 0.0, 1.0)
-        hi = _bilinear(self.ax_max, self.v, self.r, v, frac)
-        lo = _bilinear(self.ax_min, self.v, self.r, v, frac)
-        return mu * hi, mu * lo
+        v, ay = np.broadcast_arrays(np.asarray(v, dtype=float), np.abs(np.asarray(ay, dtype=float)))
+        v_tab, ay_tab, r_tab, hi_tab, lo_tab = self.tables(mu)
+        flat = (np.ascontiguousarray(v).ravel(), np.ascontiguousarray(ay).ravel(), v_tab, ay_tab,
+                r_tab)
+        return (_envelope_many(*flat, hi_tab).reshape(v.shape),
+                _envelope_many(*flat, lo_tab).reshape(v.shape))
 
     def corner_speed(self, kappa, mu: float = 1.0):
         """Highest speed [m/s] at which curvature ``kappa`` [1/m] (any shape) can be held:
@@ -181,14 +183,29 @@ class GGV:
         return self.v, mu * self.ay_max, self.r, mu * self.ax_max, mu * self.ax_min
 
 
-def _bilinear(table, xs, ys, x, y):
-    x = np.clip(x, xs[0], xs[-1])
-    i = np.clip(np.searchsorted(xs, x, side="right") - 1, 0, len(xs) - 2)
-    tx = (x - xs[i]) / (xs[i + 1] - xs[i])
-    j = np.clip(np.searchsorted(ys, y, side="right") - 1, 0, len(ys) - 2)
-    ty = (y - ys[j]) / (ys[j + 1] - ys[j])
-    return ((1 - tx) * (1 - ty) * table[i, j] + tx * (1 - ty) * table[i + 1, j]
-            + (1 - tx) * ty * table[i, j + 1] + tx * ty * table[i + 1, j + 1])
+@njit(cache=True)
+def envelope_at(v, ay, v_tab, ay_tab, r_tab, tab):
+    """Bilinear look-up of an (I, J) table of :meth:`GGV.tables` at speed ``v`` [m/s] and
+    lateral acceleration ``ay`` [m/s^2] (as a fraction of the lateral limit at ``v``, capped
+    at 1); the grids are uniform. Compiled: the speed profile's passes call it per point."""
+    nv, nr = v_tab.shape[0], r_tab.shape[0]
+    x = min(max(v, v_tab[0]), v_tab[nv - 1])
+    i = min(int((x - v_tab[0]) / (v_tab[1] - v_tab[0])), nv - 2)
+    tx = (x - v_tab[i]) / (v_tab[i + 1] - v_tab[i])
+    lim = ay_tab[i] * (1.0 - tx) + ay_tab[i + 1] * tx
+    y = min(ay / lim, 1.0) if lim > 1e-9 else 1.0
+    j = min(int(y * (nr - 1)), nr - 2)
+    ty = (y - r_tab[j]) / (r_tab[j + 1] - r_tab[j])
+    return ((1 - tx) * (1 - ty) * tab[i, j] + tx * (1 - ty) * tab[i + 1, j]
+            + (1 - tx) * ty * tab[i, j + 1] + tx * ty * tab[i + 1, j + 1])
+
+
+@njit(cache=True)
+def _envelope_many(v, ay, v_tab, ay_tab, r_tab, tab):
+    out = np.empty(v.shape[0])
+    for k in range(v.shape[0]):
+        out[k] = envelope_at(v[k], ay[k], v_tab, ay_tab, r_tab, tab)
+    return out
 
 
 @functools.lru_cache(maxsize=16)

@@ -20,14 +20,15 @@ Two stages, both on a closed :class:`~racing_env.track.Track`:
    a tight hairpin) the update is under-relaxed. The offsets are then
    interpolated back (periodic cubic spline, clipped to the bounds) to every track grid point.
 
-2. **Speed profile** ``vx(s)`` along the line for a friction coefficient ``mu`` (the paper's
-   ``mu_eff``; lateral acceleration limit ``mu g``), by forward (acceleration) and backward
+2. **Speed profile** ``vx(s)`` along the line for the car's g-g-v envelope scaled by ``mu``
+   (:mod:`racing_env.envelope`; ``mu = 1`` is the car's own limit: the steering bound, the
+   Pacejka tyres and the speed-dependent motor force), by forward (drive) and backward
    (braking) passes repeated around the closed lap until nothing changes:
 
-   * ``vx <= sqrt(mu g / |kappa|)`` and ``vx <= vehicle.top_speed``;
-   * acceleration ``<= min((C1 - C2 v) d_max - C3 - C4 v^2) / m, a_fric)``;
-   * deceleration ``<= min(-((C1 - C2 v) d_min - C3 - C4 v^2) / m, a_fric)``;
-   * ``a_fric = mu g sqrt(1 - (v^2 |kappa| / (mu g))^2)`` (friction circle, radius ``mu g``).
+   * ``vx <=`` the envelope's quasi-steady corner speed of ``kappa`` (:func:`speed_limit`)
+     and ``vx <= vehicle.top_speed``;
+   * drive ``<= mu ax_max(v, v^2 |kappa|)``, negative in fast corners where the motor cannot
+     hold the speed, and braking ``<= -mu ax_min(v, v^2 |kappa|)`` (:func:`accel_limits`).
 
    The discrete scheme, with ``ds_k = s_{k+1} - s_k`` along the racing line, is exactly
    ``v_{k+1}^2 - v_k^2 <= 2 ds_k a_acc(v_k, kappa_k)`` and
@@ -58,7 +59,7 @@ from scipy.interpolate import CubicSpline
 
 from numba import njit
 
-from .envelope import ggv
+from .envelope import envelope_at, ggv
 from .track import Track
 from .vehicle import VehicleParams
 
@@ -77,18 +78,6 @@ class RacelineConvergenceWarning(RuntimeWarning):
     """The minimum-curvature iteration stopped at ``max_iter`` before meeting ``tol``."""
 
 
-def vehicle_grip_mu(vehicle: VehicleParams | None = None) -> float:
-    """Steady-state lateral grip ``mu`` [-] of a car: largest ``a_y / g`` both axles can hold.
-
-    In a steady corner the front axle carries ``m a_y lr / (lf + lr)`` of lateral force and the
-    rear ``m a_y lf / (lf + lr)``; each is capped by its Pacejka peak ``Df`` / ``Dr``. For the
-    default 1:43 car this is 0.897 (front-limited; ``(Df + Dr) / (m g)`` would say 0.909).
-    """
-    v = vehicle or VehicleParams()
-    wb = v.lf + v.lr
-    return float(min(v.Df * wb / (v.m * v.lr), v.Dr * wb / (v.m * v.lf)) / G)
-
-
 # ====================================================================== configuration
 @dataclass(frozen=True)
 class RacelineConfig:
@@ -97,11 +86,10 @@ class RacelineConfig:
     * ``margin`` [m]: clearance kept from each track edge beyond half the car's width
       (the paper uses 0; a little room absorbs tracking errors of the controllers).
     * ``mu_min``, ``mu_max`` [-], ``n_mu``: the speed library covers ``n_mu`` evenly spaced
-      friction values in ``[mu_min, mu_max]`` (plus ``mu_nominal``).
-    * ``mu_nominal`` [-]: the profile returned when no ``mu`` is given. Default 0.85: the
-      default car's steady-state grip is 0.897 (:func:`vehicle_grip_mu`, front-axle limited);
-      0.85 keeps about 5% in reserve for what the point-mass profile ignores (combined slip,
-      yaw transients, load transfer) so that a controller can actually follow it.
+      scales of the car's g-g-v envelope in ``[mu_min, mu_max]`` (plus ``mu_nominal``).
+    * ``mu_nominal`` [-]: the profile returned when no ``mu`` is given. Default 1: the car's
+      own envelope (alone, the MPC at zeta = 1 laps within about 2% of its estimate with no
+      off-track step; ``benchmarks/solo_laps.py``).
     * ``point_spacing`` [m]: target spacing of the optimisation stations (the result is
       interpolated back to the track grid).
     * ``tol`` [m]: stop re-linearising once no offset moves by more than this.
@@ -114,8 +102,9 @@ class RacelineConfig:
       path, so its fixed point is biased towards the inside of corners: it is *not* the exact
       minimiser of ``sum kappa^2`` (on a plain circle it hugs the inner edge, whose curvature is
       higher than the centre line's), but the bias shortens the lap, and its lap times are as
-      good or better on most tracks we tried (lap at mu 0.85: default 9.98 s vs 10.41 s, Monza
-      34.19 s vs 34.10 s, Norisring 14.82 s vs 15.04 s).
+      good or better on most tracks we tried (point-mass profile at 0.85 g, before the
+      envelope: default 9.98 s vs 10.41 s, Monza 34.19 s vs 34.10 s, Norisring 14.82 s vs
+      15.04 s).
       ``"exact"`` gives the true (local) minimum-curvature line.
     """
 
@@ -399,21 +388,6 @@ def speed_profile(kappa, ds, mu: float, vehicle: VehicleParams | None = None, ma
 
 
 @njit(cache=True)
-def _envelope_at(v, ay, v_tab, ay_tab, r_tab, tab):
-    """Bilinear look-up of an (I, J) envelope table at speed v and lateral acceleration ay."""
-    nv, nr = v_tab.shape[0], r_tab.shape[0]
-    x = min(max(v, v_tab[0]), v_tab[nv - 1])
-    i = min(int((x - v_tab[0]) / (v_tab[1] - v_tab[0])), nv - 2)
-    tx = (x - v_tab[i]) / (v_tab[i + 1] - v_tab[i])
-    lim = ay_tab[i] * (1.0 - tx) + ay_tab[i + 1] * tx
-    y = min(ay / lim, 1.0) if lim > 1e-9 else 1.0
-    j = min(int(y * (nr - 1)), nr - 2)
-    ty = (y - r_tab[j]) / (r_tab[j + 1] - r_tab[j])
-    return ((1 - tx) * (1 - ty) * tab[i, j] + tx * (1 - ty) * tab[i + 1, j]
-            + (1 - tx) * ty * tab[i, j + 1] + tx * ty * tab[i + 1, j + 1])
-
-
-@njit(cache=True)
 def _profile_sweeps(v2, kab, ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab, start, max_sweeps):
     """Forward/backward passes of :func:`speed_profile` on ``v2`` (squared speeds, in place);
     False if they did not settle in ``max_sweeps``."""
@@ -425,7 +399,7 @@ def _profile_sweeps(v2, kab, ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab, start, 
             k1 = k + 1 if k + 1 < m else 0
             vk2 = v2[k]
             vk = math.sqrt(vk2)
-            a = _envelope_at(vk, vk2 * kab[k], v_tab, ay_tab, r_tab, axp_tab)
+            a = envelope_at(vk, vk2 * kab[k], v_tab, ay_tab, r_tab, axp_tab)
             cand = max(vk2 + 2.0 * ds[k] * a, 0.0)
             if cand < v2[k1] * (1.0 - 1e-12):
                 v2[k1] = cand
@@ -435,7 +409,7 @@ def _profile_sweeps(v2, kab, ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab, start, 
             k = k1 - 1 if k1 > 0 else m - 1
             vk2 = v2[k1]
             vk = math.sqrt(vk2)
-            a = -_envelope_at(vk, vk2 * kab[k1], v_tab, ay_tab, r_tab, axm_tab)
+            a = -envelope_at(vk, vk2 * kab[k1], v_tab, ay_tab, r_tab, axm_tab)
             cand = vk2 + 2.0 * ds[k] * max(a, 0.0)
             if cand < v2[k] * (1.0 - 1e-12):
                 v2[k] = cand
@@ -470,7 +444,7 @@ class Raceline:
       (``mu = mu_nominal``); ``ax[k]`` is the constant acceleration from point k to k+1;
     * ``n`` [m] lateral offset from the centre line (left positive), ``s_track`` [m] centre-line
       arc length of each point, ``n_lo, n_hi`` [m] the target bounds of the offsets (edges minus half the car and the margin; the interpolated line may enter the margin by spline overshoot, well under 1 mm);
-    * ``mus`` (K,) friction values of the library, ``vx_lib, ax_lib`` (K, M) their profiles.
+    * ``mus`` (K,) envelope scales of the library, ``vx_lib, ax_lib`` (K, M) their profiles.
 
     Scalars: ``track_length`` [m] (centre line), ``lap_time`` [s] of the nominal profile,
     ``iterations`` / ``converged`` / ``last_change`` [m] of the minimum-curvature iteration,
@@ -559,7 +533,7 @@ class Raceline:
         return min(max(mu_f, lo), hi)
 
     def profile(self, mu=None):
-        """``(vx, ax)`` per point [m/s], [m/s^2] for friction ``mu`` (default ``mu_nominal``),
+        """``(vx, ax)`` per point [m/s], [m/s^2] for envelope scale ``mu`` (default ``mu_nominal``),
         linearly interpolated between the library's neighbouring profiles; shapes (M,)."""
         if mu is None:
             return self.vx, self.ax
@@ -575,7 +549,7 @@ class Raceline:
 
     def speed_at(self, s_track, mu=None):
         """Reference speed ``vx`` [m/s] at centre-line ``s_track`` [m] (any shape, unwrapped
-        allowed) for friction ``mu`` (scalar in ``[mus[0], mus[-1]]``, default ``mu_nominal``).
+        allowed) for envelope scale ``mu`` (scalar in ``[mus[0], mus[-1]]``, default ``mu_nominal``).
         Raises ``ValueError`` for a ``mu`` outside the library range."""
         return self._interp(self.profile(mu)[0], s_track)
 
@@ -858,4 +832,4 @@ def plot_raceline(track: Track, raceline: Raceline, path, mu=None, dpi: int = 15
 __all__ = ["CSV_COLUMNS", "G", "Raceline", "RacelineConfig", "RacelineConvergenceWarning",
            "accel_limits", "cache_dir", "cache_key", "cache_path", "clear_memo", "compute_raceline",
            "get_raceline", "lap_time_of", "minimum_curvature_offsets", "offset_bounds",
-           "plot_raceline", "speed_limit", "speed_profile", "vehicle_grip_mu"]
+           "plot_raceline", "speed_limit", "speed_profile"]
