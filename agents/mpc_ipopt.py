@@ -71,7 +71,8 @@ class IpoptMPC:
                 ubg.append(np.full(1, np.inf))
         err = X[:2, 1:] - P_ref
         du = U[:, 1:] - U[:, :-1]
-        w_soft = 0.5 / cfg.soft_rho            # DAQP's quadratic penalty of soft rows
+        # DAQP's quadratic penalty of soft rows, 1 / (2 rho) with rho = cfg.soft_rho_at(q)
+        w_soft = 0.5 / cfg.soft_rho * ca.fmax(1.0, P_q / cfg.soft_q_ref)
         cost = (P_q * ca.sumsqr(err) + ca.sumsqr(du)
                 + w_soft * (ca.sumsqr(S_track) + ca.sumsqr(S_sep)))
         w = ca.vertcat(ca.vec(X), ca.vec(U), S_track, S_sep)

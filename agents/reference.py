@@ -44,7 +44,7 @@ THETA_UNITS = ("-", "-", "m", "1/m^2", "s/m")
 """Units of the policy parameters, in array order."""
 
 THETA_LOW = np.array([5.0, 0.8, 0.0, 0.5, 0.0])
-THETA_HIGH = np.array([500.0, 1.1, 0.3, 20.0, 5.0])
+THETA_HIGH = np.array([500.0, 1.05, 0.3, 20.0, 5.0])
 THETA_LOW.setflags(write=False)
 THETA_HIGH.setflags(write=False)
 THETA_BOUNDS_DOC = """Bounds of theta (``THETA_LOW``, ``THETA_HIGH``) and why.
@@ -55,13 +55,14 @@ THETA_BOUNDS_DOC = """Bounds of theta (``THETA_LOW``, ``THETA_HIGH``) and why.
   tracking), at ``q = 500`` a full-scale step (tight tracking that starts to oscillate, as the
   paper describes). Outside this range the MPC either ignores the reference or is badly
   conditioned.
-* ``zeta`` in [0.8, 1.1] [-]: scale of the race-line speeds. The race line's nominal profile
+* ``zeta`` in [0.8, 1.05] [-]: scale of the race-line speeds. The race line's nominal profile
   is the car's own g-g-v envelope (:mod:`racing_env.envelope`, ``mu = 1``), so ``zeta = 1``
   asks for the limit; measured alone for 50 s (MPC, q = 20) it drives with no off-track step
   and laps within 3% of the profile's estimate on ``default``, ``oval`` and procedural tracks.
-  1.1 asks for 10% more than the car can hold: the MPC saturates there and still stays on
-  the track (the top of the box is just beyond the limit, not a crash). 0.8 is a cautious
-  20% below it; slower policies only lose.
+  1.05 asks for 5% more than the car can hold: the MPC saturates there and still stays on
+  the track (the top of the box is just beyond the limit, not a crash). Above it the policy
+  map (``alpha-racer policy-map``) found tight trackers leaving the track on ``default``
+  and no faster laps. 0.8 is a cautious 20% below the limit; slower policies only lose.
 * ``s1`` in [0, 0.3] [m]: lateral clearance wanted from a neighbour when overtaking. 0 turns
   overtaking off; 0.3 m is more than half the 0.5 m wide built-in tracks (cars are 0.06 m
   wide), enough to ask for a full change of side.
