@@ -8,6 +8,7 @@ works too. A model of another feature version is refused.
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ import numpy as np
 from .features import (FEATURE_VERSION, potential_features, potential_theta_slots, progress_order,
                        scale_theta, unscale_theta, value_features)
 from .mlp import MLP
+from .reference import THETA_HIGH, THETA_LOW
 from .threads import single_blas_thread
 
 MODEL_DIR = Path(__file__).parent / "models"
@@ -25,14 +27,24 @@ SHIPPED = {"default": "alpha_default.npz", "gamma0.98": "alpha_gamma098.npz",
 class PotentialModel:
     """V (ego-centric value, one network shared by all cars) and Phi (joint potential).
 
-    ``meta`` holds the training config, the data it saw, gamma, the feature version and the
-    validation metrics.
+    ``meta`` holds the training config, the data it saw, gamma, the feature version, the theta
+    box the features were normalised with (``theta_low``, ``theta_high``) and the validation
+    metrics. A model of another feature version or theta box is refused: its inputs would
+    silently mean other thetas.
     """
 
     def __init__(self, value: MLP, potential: MLP, meta: dict):
         if meta.get("feature_version") != FEATURE_VERSION:
             raise ValueError(f"model built with feature version {meta.get('feature_version')}, "
                              f"this code computes version {FEATURE_VERSION}; retrain it")
+        box = (meta.get("theta_low"), meta.get("theta_high"))
+        if box[0] is None or box[1] is None:
+            warnings.warn("model metadata has no theta box (trained before it was recorded); "
+                          f"assuming this package's box {THETA_LOW.tolist()}..{THETA_HIGH.tolist()}",
+                          stacklevel=2)
+        elif not (np.allclose(box[0], THETA_LOW) and np.allclose(box[1], THETA_HIGH)):
+            raise ValueError(f"model trained on the theta box {box[0]}..{box[1]}, this package's "
+                             f"box is {THETA_LOW.tolist()}..{THETA_HIGH.tolist()}; retrain it")
         self.value_net = value
         self.potential_net = potential
         self.meta = meta

@@ -197,6 +197,7 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
                                  progress_bar, log)
     t_train = time.perf_counter() - t_start
     meta = {"feature_version": FEATURE_VERSION, "n_cars": N, "track": data["config"]["track"],
+            "theta_low": THETA_LOW.tolist(), "theta_high": THETA_HIGH.tolist(),
             "gamma": cfg.gamma, "config": asdict(cfg),
             "data": {"dir": str(data_dir), "races": R, "steps": T, "collect": data["config"]},
             "train_seconds": t_train}

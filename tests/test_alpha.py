@@ -138,7 +138,9 @@ def _synthetic_model(n=3):
     net = MLP([(W1, b1), (W2, np.zeros(1))], np.zeros(D), np.ones(D))
     value = MLP([(np.zeros((value_dim(n), 1)), np.zeros(1))], np.zeros(value_dim(n)),
                 np.ones(value_dim(n)))
-    return PotentialModel(value, net, {"feature_version": FEATURE_VERSION, "n_cars": n}), target
+    return PotentialModel(value, net, {"feature_version": FEATURE_VERSION, "n_cars": n,
+                                       "theta_low": THETA_LOW.tolist(),
+                                       "theta_high": THETA_HIGH.tolist()}), target
 
 
 def test_maximisation_finds_the_maximiser_within_bounds():
@@ -224,6 +226,10 @@ def test_shipped_models_load_and_race():
     meta = {**m.meta, "feature_version": -1}
     with pytest.raises(ValueError, match="feature version -1"):
         PotentialModel(m.value_net, m.potential_net, meta)
+    assert m.meta["theta_low"] == THETA_LOW.tolist() and m.meta["theta_high"] == THETA_HIGH.tolist()
+    other_box = {**m.meta, "theta_high": (THETA_HIGH + [0, 0.05, 0, 0, 0]).tolist()}
+    with pytest.raises(ValueError, match="theta box"):
+        PotentialModel(m.value_net, m.potential_net, other_box)
 
 
 def test_restricted_network_matches_the_full_one_for_any_layer_sizes():
