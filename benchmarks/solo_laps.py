@@ -19,7 +19,8 @@ from agents import make_agent_spec
 from racing_env import RacingParallelEnv
 from racing_env.raceline import get_raceline
 
-AGENTS = ["mpc:zeta=1.0", "mpc:zeta=1.05", "mpc:zeta=1.1", "mpc", "ibr", "ppo", "raceline"]
+AGENTS = ["mpc:zeta=1.0", "mpc:zeta=1.02", "mpc:zeta=1.05", "mpc:zeta=1.02,q=60", "mpc", "ibr", "ppo",
+          "raceline"]
 TRACKS = ["default", "oval", "random:3", "random:11"]
 
 

@@ -7,6 +7,7 @@ import pytest
 pytest.importorskip("daqp")
 
 from agents import make_agent_spec  # noqa: E402
+from agents.mpc import MPCConfig  # noqa: E402
 from agents.mpc_agent import MPCAgent, joint_state_from_observation  # noqa: E402
 from racing_env import RacingParallelEnv, RulesConfig, StartConfig  # noqa: E402
 
@@ -49,6 +50,22 @@ def test_standing_start_laps_within_the_track():
     assert states[-1, 0, 0] - states[0, 0, 0] > 35.0            # about a lap in 15 s
     wl, wr = env.track.widths(states[:, 0, 0])
     assert np.all(states[:, 0, 1] <= wl) and np.all(states[:, 0, 1] >= -wr)
+
+
+def test_soft_rows_weigh_more_for_tight_trackers():
+    cfg = MPCConfig()
+    assert cfg.soft_rho_at(5.0) == cfg.soft_rho_at(20.0) == pytest.approx(1e-4)
+    assert cfg.soft_rho_at(500.0) == pytest.approx(1e-4 * 20.0 / 500.0)   # 25x the weight
+    with pytest.raises(ValueError, match="soft_q_ref"):
+        MPCConfig(soft_q_ref=0.0)
+
+
+def test_a_tight_tracker_stays_on_the_track():
+    """A Sobol theta of the policy map (q 456, zeta 0.83) that left ``default`` on 12 of 300
+    steps while the soft rows' weight did not grow with q."""
+    env = RacingParallelEnv(n_cars=1, max_cycles=300, start="grid")
+    _, info = drive(env, [MPCAgent(q=455.7, zeta=0.8333, s1=0.0237, s2=6.0, s3=2.76)], 300)
+    assert info["car_0"]["off_tracks"] <= 3                     # at most 1% of the steps
 
 
 def test_keeps_separation_from_a_parked_car():
