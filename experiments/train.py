@@ -481,6 +481,10 @@ def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_b
             "rollout_sign_agreement_phi": float(np.mean(np.sign(dphi) == np.sign(dG)))}
 
 
+def _box_text(meta: dict) -> str:
+    return ", ".join(f"{lo:g}..{hi:g}" for lo, hi in zip(meta["theta_low"], meta["theta_high"]))
+
+
 def model_card_text(meta: dict) -> str:
     """A short Markdown model card from a model's metadata."""
     m, c, d = meta["metrics"], meta["config"], meta["data"]
@@ -491,6 +495,8 @@ def model_card_text(meta: dict) -> str:
         f"`{meta['track']}` (`alpha-racer collect --races {col.get('races', d['races'])} "
         f"--seed {col.get('seed', 0)}`; every car an MPC with theta uniform in its bounds); "
         f"{100 * c['val_fraction']:.0f}% of the races held out.",
+        *([f"* **Theta box** (q, zeta, s1, s2, s3): {_box_text(meta)}."]
+          if "theta_low" in meta else []),
         f"* **Discount:** gamma = {meta['gamma']}.",
         f"* **Networks:** value {list(c['value_hidden'])} ({c['value_epochs']} epochs), potential "
         f"{list(c['potential_hidden'])} ({c['potential_steps']} steps of {c['potential_batch']} "
