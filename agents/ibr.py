@@ -73,6 +73,7 @@ from .mpc import (EdgeBounds, MPCConfig, _trajectory_function, condense_states,
                   follower_rollout, input_rate_matrix, kappa_at_substeps, make_follower,
                   stage_nodes)
 from .mpc_agent import progress_rate, split_observation
+from .threads import single_blas_thread
 
 
 @dataclass(frozen=True)
@@ -673,6 +674,7 @@ class IBRAgent:
         if self.ibr is None:
             raise RuntimeError("IBRAgent.act() before reset(track, ...)")
         ego, others = split_observation(observation, self.n_preview)
-        u = self.ibr.solve(np.vstack([ego[None, :], others]), self._u_prev)
+        with single_blas_thread():       # results independent of the BLAS thread count
+            u = self.ibr.solve(np.vstack([ego[None, :], others]), self._u_prev)
         self._u_prev = u
         return u.astype(np.float32)

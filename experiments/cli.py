@@ -9,7 +9,7 @@ from pathlib import Path
 
 from racing_env.extras import MissingExtraError
 
-DEFAULT_AGENTS = ["alpha", "mpc:zeta=0.85", "mpc:zeta=0.8"]
+DEFAULT_AGENTS = ["alpha", "ibr", "ibr"]      # the paper's case IV: alpha against two IBR cars
 
 
 def _cmd_race(args) -> int:

@@ -81,6 +81,7 @@ def test_readme_main_job(tmp_path):
     assert (tmp_path / "race" / "race.gif").exists()
     summary = json.loads((tmp_path / "race" / "result.json").read_text())
     assert summary["steps"] == 500
+    assert summary["order"][0] == "car_0"           # alpha wins it, as the README says
 
 
 @pytest.mark.slow
