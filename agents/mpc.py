@@ -560,9 +560,6 @@ class MPC:
         self._traj = _trajectory_function(self.vehicle, self.cfg)
         self._roll = _trajectory_function(self.vehicle, self.cfg, jacobians=False)
         K = self.cfg.horizon
-        v = self.vehicle
-        self._lo_u = np.full(2 * K, -1.0)
-        self._hi_u = np.full(2 * K, 1.0)
         # input-rate cost sum_{k=1..K-1} ||u^k - u^{k-1}||^2 as D^T D
         self._DtD = input_rate_matrix(K)
         self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max  # normalised
@@ -579,8 +576,10 @@ class MPC:
         self._follower = getattr(self, "_follower", None)
 
     # -------------------------------------------------------------- internals
-    def _kappa_at_substeps(self, x0):
-        nodes = stage_nodes(self._s_nom, x0, self.cfg.horizon, self.cfg.dt)
+    def _kappa_at_substeps(self, x0, s_prev=None):
+        """Curvature (substeps, K) along ``s_prev`` (K + 1,) or the previous nominal."""
+        nodes = (stage_nodes(self._s_nom, x0, self.cfg.horizon, self.cfg.dt) if s_prev is None
+                 else np.asarray(s_prev, dtype=float))
         return kappa_at_substeps(self.track, nodes, self.cfg.substeps)
 
     def _follower_warm_start(self, x0):
@@ -595,16 +594,13 @@ class MPC:
         """Nonlinear rollout of inputs ``U`` (2, K) from ``x0``: ``(X (6, K), A, B)`` (A, B
         ``None`` without ``jacobians``) with the curvature looked up along ``s_prev`` (K + 1,)
         or the previous nominal."""
-        K, dt = self.cfg.horizon, self.cfg.dt
-        nodes = (stage_nodes(self._s_nom, x0, K, dt) if s_prev is None
-                 else np.asarray(s_prev, dtype=float))
-        kap = kappa_at_substeps(self.track, nodes, self.cfg.substeps)
+        kap = self._kappa_at_substeps(x0, s_prev)
         if not jacobians:
             return np.asarray(self._roll(x0, U, kap)[0], dtype=float), None, None
         X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
         return X, A, B
 
-    def _merit(self, X, U, s_ref, n_ref, q, opp, u_prev, edges=None):
+    def _merit(self, X, U, s_ref, n_ref, q, opp, edges=None):
         """The MPC's cost of a plan on its *nonlinear* rollout ``X``: tracking, input rates and
         the soft rows' quadratic penalty ``violation^2 / (2 rho)`` (DAQP's, for the track
         edges and the separations chosen along ``X``); ``inf`` for a non-finite rollout.
@@ -630,7 +626,7 @@ class MPC:
         def score(X_, U_):
             """(cost, track edges along X_ or None): the edges are looked up once per rollout."""
             edges = self._bounds_n(X_[0]) if np.isfinite(X_).all() else None
-            return self._merit(X_, U_, s_ref, n_ref, q, opp, u_prev, edges), edges
+            return self._merit(X_, U_, s_ref, n_ref, q, opp, edges), edges
 
         fresh = self._U is None
         if fresh:                                   # first solve: start from the follower
@@ -652,7 +648,6 @@ class MPC:
                     U, X, A, B, J, edges = Uf, Xf, Af, Bf, Jf, edges_f
                     self.stats["restarts"] += 1
         status = "ok"
-        model_error = 0.0
         for it in range(cfg.sqp_iterations):
             if not (np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all()):
                 status = "nonfinite prediction"
@@ -694,7 +689,6 @@ class MPC:
             self.stats["extra_iterations"] += 1        # linearise again at the new plan (the
             X, A, B = self._plan(x0, U, s_prev=nodes)  # same rollout, so the same edges)
         self.stats["solves"] += 1
-        self.last_model_error = model_error
         if status != "ok":
             self.stats["fallbacks"] += 1
             U = (U if self._U is None else self._U).copy()   # the plan for now (shifted)

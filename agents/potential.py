@@ -83,6 +83,20 @@ class PotentialModel:
         self._check_cars(states)
         return self.potential_net(potential_features(states, thetas, track))
 
+    def _ascent_setup(self, state, track, restarts: int, iterations: int, rng):
+        """Shared by the ascents: checks, ``(rng, slots (N, 5), base features (D,))`` where
+        ``slots[c]`` are the potential-feature columns of car c's theta (cars sorted by
+        progress) and ``base`` the features at theta = 0 (their theta columns get overwritten)."""
+        self._check_cars(np.asarray(state)[None])
+        if restarts < 1 or iterations < 0:
+            raise ValueError(f"maximise needs restarts >= 1 and iterations >= 0, got "
+                             f"{restarts}, {iterations}")
+        state = np.asarray(state, dtype=float)
+        order = progress_order(state)
+        slots = potential_theta_slots(self.n_cars)[np.argsort(order)]  # row c: car c's columns
+        base = potential_features(state, np.zeros((self.n_cars, 5)), track, order)
+        return rng or np.random.default_rng(0), slots, base
+
     def maximise(self, state, track, theta0=None, restarts: int | None = None,
                  iterations: int | None = None, rng: np.random.Generator | None = None,
                  step: float = 0.5, warm_step: float = 0.15, decay: float = 0.8):
@@ -110,17 +124,13 @@ class PotentialModel:
         search (median, 95th percentile and maximum); ``benchmarks/alpha_speed.py`` measures
         both.
         """
-        self._check_cars(state[None])
         if restarts is None:
             restarts = 32 if theta0 is None else 4
         if iterations is None:
             iterations = 12 if theta0 is None else 3
-        if restarts < 1 or iterations < 0:
-            raise ValueError(f"maximise needs restarts >= 1 and iterations >= 0, got "
-                             f"{restarts}, {iterations}")
-        state = np.asarray(state, dtype=float)
         N = self.n_cars
-        rng = rng or np.random.default_rng(0)
+        rng, slots, base = self._ascent_setup(state, track, restarts, iterations, rng)
+        slots = slots.ravel()                                            # car-major columns
         Z = np.empty((restarts, N * 5))
         Z[0] = 0.0 if theta0 is None else scale_theta(theta0).ravel()
         for k in range(1, restarts):                  # the draws of maximise_reference
@@ -128,9 +138,6 @@ class PotentialModel:
         lr = np.full((restarts, 1), step)
         if theta0 is not None:
             lr[0] = warm_step
-        order = progress_order(state)
-        slots = potential_theta_slots(N)[np.argsort(order)].ravel()      # car-major columns
-        base = potential_features(state, np.zeros((N, 5)), track, order)
         with single_blas_thread():
             phi = self.potential_net.restricted(base, slots)
             best_val, best_z = -np.inf, Z[0]
@@ -172,13 +179,8 @@ class PotentialModel:
         small gradient move as far as those of large gradient (slower to settle; used for
         careful offline maximisation).
         """
-        self._check_cars(state[None])
-        if restarts < 1 or iterations < 0:
-            raise ValueError(f"maximise needs restarts >= 1 and iterations >= 0, got "
-                             f"{restarts}, {iterations}")
-        state = np.asarray(state, dtype=float)
         N = self.n_cars
-        rng = rng or np.random.default_rng(0)
+        rng, slots, base = self._ascent_setup(state, track, restarts, iterations, rng)
         starts = []
         if theta0 is not None:
             starts.append(scale_theta(theta0))
@@ -187,10 +189,6 @@ class PotentialModel:
         while len(starts) < restarts:
             starts.append(rng.uniform(-1.0, 1.0, (N, 5)))
         Z = np.stack(starts)                                            # (B, N, 5) scaled
-        order = progress_order(state)
-        rank = np.argsort(order)                                        # car c sits at rank[c]
-        slots = potential_theta_slots(N)[rank]                          # (N, 5) columns of car c
-        base = potential_features(state, np.zeros((N, 5)), track, order)
         X = np.repeat(base[None], len(Z), axis=0)
         best_val, best_z = -np.inf, Z[0]
         lr = step

@@ -86,7 +86,7 @@ def plan_quality(track, steps: int, every: int, theta: Theta):
                 if getattr(ipopt, "last_U", None) is not None:
                     Xi = rti._plan(ego, ipopt.last_U, s_prev=nodes, jacobians=False)[0]
                     costs.append(rti._merit(Xi, ipopt.last_U, ref.s_ref, ref.n_ref, theta.q,
-                                            np.zeros((0, 3)), u_prev))
+                                            np.zeros((0, 3))))
             if costs and np.isfinite(J_rti):
                 gaps.append(J_rti / max(min(costs), 1e-12) - 1.0)
         u_prev = u

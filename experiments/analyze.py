@@ -32,12 +32,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from agents.reference import THETA_NAMES as PARAMS
 
 from .artifacts import append_jsonl, claim, read_jsonl, write_json, write_npz, write_text
-from .parallel import check_backend, run_tasks
+from .parallel import check_backend, run_tasks_with_progress
 
 DT = 0.1                            # control period of the races [s]
 
@@ -228,18 +227,14 @@ def nash_regret(cfg: AnalyzeConfig, out: Path, workers: int, backend: str, addre
     done = {(r["state"], r["car"]): r for r in read_jsonl(lines_path)}
     tasks = [((k, c), (cfg.model, track_name, k, X[k], theta_star[k], c, cfg))
              for k in range(len(X)) for c in range(X.shape[1]) if (k, c) not in done]
-    bar = tqdm(total=len(X) * X.shape[1], initial=len(done), desc="nash regret", unit="car",
-               disable=not progress_bar)
 
     def finished(key, rec):
         done[key] = rec
         append_jsonl(lines_path, rec)
-        bar.update(1)
 
-    try:
-        run_tasks(regret_task, tasks, finished, workers, backend, address)
-    finally:
-        bar.close()
+    run_tasks_with_progress(regret_task, tasks, finished, workers, backend, address,
+                            total=len(X) * X.shape[1], done=len(done), desc="nash regret",
+                            unit="car", progress_bar=progress_bar)
     recs = [done[k] for k in sorted(done)]
     reg = np.array([r["regret_rel"] for r in recs])
     vreg = np.array([r["value_regret_rel"] for r in recs])

@@ -12,6 +12,12 @@ import os
 from pathlib import Path
 
 
+def slug(spec: str) -> str:
+    """An agent or track spec as a file-name part: characters other than letters, digits,
+    ``.`` and ``-`` become ``_`` (``mpc:zeta=0.9`` -> ``mpc_zeta_0.9``)."""
+    return "".join(ch if ch.isalnum() or ch in ".-" else "_" for ch in spec)
+
+
 def write_text(path, text: str) -> Path:
     """Write ``text`` to ``path`` atomically (temporary file, then rename)."""
     path = Path(path)

@@ -28,10 +28,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from .artifacts import append_jsonl, claim, read_jsonl, write_json, write_npz, write_text
-from .parallel import check_backend, run_tasks
+from .parallel import check_backend, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
 ROLES = ("ego", "O1", "O2")
@@ -256,19 +255,10 @@ def _run_many(runs: dict, workers: int, backend: str, address, progress_bar: boo
     """Run the missing races of every :class:`BenchRun` in ``runs`` (name -> run) in one pool."""
     tasks = [((name, k), (run.config, k)) for name, run in runs.items() for k in run.missing()]
     total = sum(run.config.races for run in runs.values())
-    bar = tqdm(total=total, initial=total - len(tasks), unit="race", desc="bench",
-               disable=not progress_bar, smoothing=0.05)
-
-    def finished(key, result):
-        name, _ = key
-        runs[name].add(result)
-        bar.update(1)
-        bar.set_postfix(last=f"{name}:{result['record']['winner']}")
-
-    try:
-        run_tasks(bench_race, tasks, finished, workers, backend, address)
-    finally:
-        bar.close()
+    run_tasks_with_progress(bench_race, tasks, lambda key, result: runs[key[0]].add(result),
+                            workers, backend, address, total=total, done=total - len(tasks),
+                            desc="bench", unit="race", progress_bar=progress_bar,
+                            postfix=lambda key, result: f"{key[0]}:{result['record']['winner']}")
 
 
 def bench(config: BenchConfig, out_dir, workers: int = 2, backend: str = "local",

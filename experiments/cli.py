@@ -136,6 +136,7 @@ def _cmd_selfplay(args) -> int:
 
 
 def _cmd_bench(args) -> int:
+    from .artifacts import slug
     from .bench import BenchConfig, bench, paper_table
     kw = dict(workers=args.workers, backend=args.backend, address=args.address)
     if args.paper_table:
@@ -148,7 +149,7 @@ def _cmd_bench(args) -> int:
         return 0
     cfg = BenchConfig(ego=args.ego, opponents=args.opponents, races=args.races, steps=args.steps,
                       track=args.track, seed=args.seed)
-    out = Path(args.out or f"results/bench/{_slug(args.ego)}_vs_{_slug(args.opponents)}")
+    out = Path(args.out or f"results/bench/{slug(args.ego)}_vs_{slug(args.opponents)}")
     bench(cfg, out, **kw)
     print((out / "summary.md").read_text())
     print(f"wrote {out / 'summary.md'}, {out / 'summary.json'} and {out / 'races.jsonl'}")
@@ -176,13 +177,14 @@ def _cmd_analyze(args) -> int:
 def _cmd_reproduce(args) -> int:
     """Every table and figure: the paper table, then the analyses (each resumable)."""
     from .analyze import analyze
+    from .artifacts import slug
     from .bench import PAPER_CASES, paper_table
     out = Path(args.out)
     kw = dict(workers=args.workers, backend=args.backend, address=args.address)
     paper_table(out / "paper_table", races=args.races, steps=args.steps, **kw)
     tables = [out / "paper_table" / "paper_table.md"]
     if args.control_ego != "none":      # the same races with a fixed ego: what alpha adds
-        control = out / f"paper_table_{_slug(args.control_ego)}_ego"
+        control = out / f"paper_table_{slug(args.control_ego)}_ego"
         paper_table(control, ego=args.control_ego, races=args.races, steps=args.steps, **kw)
         tables.append(control / "paper_table.md")
     from dataclasses import replace
@@ -206,10 +208,6 @@ def _cmd_policy_map(args) -> int:
     print(f"{s['new_rows']} new rows; wrote {out / 'summary.md'}, {out / 'summary.json'}, "
           f"{out / 'rows.jsonl'} and heat maps into {out}")
     return 0
-
-
-def _slug(spec: str) -> str:
-    return "".join(ch if ch.isalnum() or ch in ".-" else "_" for ch in spec)
 
 
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):

@@ -25,10 +25,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from .artifacts import claim, write_npz
-from .parallel import check_backend, run_tasks
+from .parallel import check_backend, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
 
@@ -191,15 +190,11 @@ def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool
             if not shard_is_complete(out / f"shard_{k:05d}.npz", config, k)]
     done_races = config.races - sum(len(config.shard_races(k)) for k in todo)
     t0 = time.perf_counter()
-    bar = tqdm(total=config.races, initial=done_races, unit="race", desc="collect",
-               disable=not progress_bar, smoothing=0.1)
-
-    def finished(k, arrays):
-        write_shard(arrays, k, out)
-        bar.update(len(config.shard_races(k)))
-
-    run_tasks(simulate_shard, [(k, (config, k)) for k in todo], finished, workers, backend, address)
-    bar.close()
+    run_tasks_with_progress(simulate_shard, [(k, (config, k)) for k in todo],
+                            lambda k, arrays: write_shard(arrays, k, out), workers, backend,
+                            address, total=config.races, done=done_races, desc="collect",
+                            unit="race", progress_bar=progress_bar,
+                            count=lambda k: len(config.shard_races(k)))
     seconds = time.perf_counter() - t0
     new = config.races - done_races
     return {"races": config.races, "simulated": new, "resumed": done_races, "seconds": seconds,

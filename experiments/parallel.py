@@ -74,6 +74,28 @@ def run_tasks(fn: Callable, tasks: Sequence[tuple[Hashable, tuple]],
                 finished(futures[f], f.result())
 
 
+def run_tasks_with_progress(fn: Callable, tasks: Sequence[tuple[Hashable, tuple]],
+                            finished: Callable[[Hashable, object], None], workers: int = 2,
+                            backend: str = "local", address: str | None = None, *,
+                            total: int, done: int = 0, desc: str, unit: str,
+                            progress_bar: bool = True,
+                            count: Callable[[Hashable], int] | None = None,
+                            postfix: Callable[[Hashable, object], str] | None = None) -> None:
+    """:func:`run_tasks` behind a tqdm bar of ``total`` units (``done`` of them finished
+    before): after ``finished(key, result)`` the bar advances by ``count(key)`` (default 1)
+    and shows ``postfix(key, result)`` as ``last=``. The bar closes even when a task raises."""
+    from tqdm import tqdm
+    with tqdm(total=total, initial=done, unit=unit, desc=desc, disable=not progress_bar,
+              smoothing=0.05) as bar:
+        def on_result(key, result):
+            finished(key, result)
+            bar.update(1 if count is None else count(key))
+            if postfix is not None:
+                bar.set_postfix(last=postfix(key, result))
+
+        run_tasks(fn, tasks, on_result, workers, backend, address)
+
+
 def _run_ray(fn, tasks, finished, workers, address) -> None:
     try:
         import ray

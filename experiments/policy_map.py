@@ -33,11 +33,10 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
-from .artifacts import append_jsonl, claim, read_jsonl, write_json, write_text
+from .artifacts import append_jsonl, claim, read_jsonl, slug, write_json, write_text
 from .bench import REGIONS, BenchConfig, check_agent_specs
-from .parallel import check_backend, run_tasks
+from .parallel import check_backend, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
 MODES = ("solo", "race")
@@ -229,8 +228,7 @@ class PolicyMapRun:
 
 
 def heatmap_name(mode: str, track: str) -> str:
-    slug = "".join(ch if ch.isalnum() or ch in ".-" else "_" for ch in track)
-    return f"heatmap_{mode}_{slug}.png"
+    return f"heatmap_{mode}_{slug(track)}.png"
 
 
 # ---------------------------------------------------------------------------- statistics
@@ -488,18 +486,10 @@ def policy_map(config: PolicyMapConfig, out_dir, workers: int = 2, backend: str 
     keys = run.missing()
     tasks = [(key, (config, *key, run.thetas[key[2]])) for key in keys]
     total = len(run.keys())
-    bar = tqdm(total=total, initial=total - len(tasks), unit="run", desc="policy map",
-               disable=not progress_bar, smoothing=0.05)
-
-    def finished(key, row):
-        run.add(row)
-        bar.update(1)
-        bar.set_postfix(last=f"{key[0]}:{key[1]}:{key[2]}")
-
-    try:
-        run_tasks(map_row, tasks, finished, workers, backend, address)
-    finally:
-        bar.close()
+    run_tasks_with_progress(map_row, tasks, lambda key, row: run.add(row), workers, backend,
+                            address, total=total, done=total - len(tasks), desc="policy map",
+                            unit="run", progress_bar=progress_bar,
+                            postfix=lambda key, row: f"{key[0]}:{key[1]}:{key[2]}")
     summary = run.write_outputs()
     summary["new_rows"] = len(tasks)
     return summary
