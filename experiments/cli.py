@@ -89,10 +89,22 @@ def _cmd_fuzz(args) -> int:
 
 def _cmd_collect(args) -> int:
     from .collect import CollectConfig, collect
-    cfg = CollectConfig(races=args.races, n_cars=args.cars, steps=args.steps, track=args.track,
-                        seed=args.seed, races_per_shard=args.shard_size)
-    summary = collect(cfg, args.out, workers=args.workers, backend=args.backend,
-                      address=args.address)
+    from .family import FamilyConfig, collect_family, parse_cars
+    cars = parse_cars(args.cars)
+    kw = dict(workers=args.workers, backend=args.backend, address=args.address)
+    if args.tracks is None and len(cars) == 1:        # one track, one field size: as always
+        cfg = CollectConfig(races=args.races, n_cars=cars[0], steps=args.steps,
+                            track=args.track or "default", seed=args.seed,
+                            races_per_shard=args.shard_size or 25)
+        summary = collect(cfg, args.out, **kw)
+    else:
+        if args.track is not None and args.tracks is not None:
+            raise ValueError(f"give either --track ({args.track!r}) or --tracks "
+                             f"({' '.join(args.tracks)}), not both")
+        cfg = FamilyConfig(races=args.races, tracks=tuple(args.tracks or [args.track or "default"]),
+                           cars=cars, steps=args.steps, seed=args.seed,
+                           races_per_shard=args.shard_size or 4)
+        summary = collect_family(cfg, args.out, **kw)
     print(f"{summary['simulated']} races simulated ({summary['resumed']} already there) in "
           f"{summary['seconds']:.1f} s, {summary['races_per_s']:.3f} races/s -> {summary['out']}")
     return 0
@@ -298,13 +310,24 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--seed", type=int, default=0, help="seed of the random actions and starts")
     f.set_defaults(fn=_cmd_fuzz)
 
-    c = command("collect", "simulate races of MPC cars with random theta (resumable shards)")
+    c = command("collect", "simulate races of MPC cars with random theta (resumable shards)",
+                "simulate races of MPC cars with random theta (resumable shards); with --tracks "
+                "or several --cars, a family collection over tracks and field sizes (one track "
+                "and one field size per shard) for the general alpha-potential")
     c.add_argument("--races", type=int, default=4000, help="races to simulate")
-    c.add_argument("--cars", type=int, default=3, help="cars per race")
+    c.add_argument("--cars", default="3",
+                   help="cars per race: a number, or field sizes for a family collection as a "
+                        "range 2-6 or a list 2,3,5 (each in 2..8)")
     c.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race")
-    c.add_argument("--track", default="default", help="track spec (as for race)")
+    c.add_argument("--track", default=None, help="track spec (as for race; default: default)")
+    c.add_argument("--tracks", nargs="+", default=None, metavar="TRACK",
+                   help="a family collection over these track specs; random:A-B stands for "
+                        "random:A .. random:B, e.g. --tracks default oval random:0-299 "
+                        "tumftm:Monza")
     c.add_argument("--seed", type=int, default=0, help="seed of the thetas and start positions")
-    c.add_argument("--shard-size", type=int, default=25, help="races per shard file")
+    c.add_argument("--shard-size", type=int, default=None,
+                   help="races per shard file (default 25; 4 for a family collection, so that "
+                        "its shards spread over many tracks)")
     c.add_argument("--out", default="data/races", help="output folder; run again to resume")
     _add_parallel_args(c)
     c.set_defaults(fn=_cmd_collect)
