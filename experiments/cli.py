@@ -159,9 +159,11 @@ def _cmd_bench(args) -> int:
         print(f"wrote {Path(out) / 'paper_table.md'} and {Path(out) / 'paper_table.json'} "
               f"({t['wall_seconds_this_run'] / 60:.1f} min)")
         return 0
-    cfg = BenchConfig(ego=args.ego, opponents=args.opponents, races=args.races, steps=args.steps,
-                      track=args.track, seed=args.seed)
-    out = Path(args.out or f"results/bench/{slug(args.ego)}_vs_{slug(args.opponents)}")
+    races = args.races if args.races is not None else (99 if args.cars == 3 else 33 * args.cars)
+    cfg = BenchConfig(ego=args.ego, opponents=args.opponents, races=races, steps=args.steps,
+                      track=args.track, seed=args.seed, n_cars=args.cars)
+    field = "" if args.cars == 3 else f"_{args.cars}cars"
+    out = Path(args.out or f"results/bench/{slug(args.ego)}_vs_{slug(args.opponents)}{field}")
     bench(cfg, out, **kw)
     print((out / "summary.md").read_text())
     print(f"wrote {out / 'summary.md'}, {out / 'summary.json'} and {out / 'races.jsonl'}")
@@ -207,6 +209,21 @@ def _cmd_reproduce(args) -> int:
     (out / "README.md").write_text(text)
     print(text)
     print(f"wrote {out / 'README.md'}, {out / 'paper_table'} and {out / 'analysis'}")
+    return 0
+
+
+def _cmd_general_report(args) -> int:
+    from .general import GeneralReportConfig, general_report
+    cfg = GeneralReportConfig(model=args.model, tracks=tuple(args.tracks or ()),
+                              gap_cars=args.gap_cars, gap_races=args.gap_races,
+                              gap_pairs=args.gap_pairs, bench_cars=args.bench_cars,
+                              bench_rounds=args.bench_rounds, default_races=args.default_races,
+                              steps=args.steps, seed=args.seed)
+    out = Path(args.out)
+    general_report(cfg, out, workers=args.workers, backend=args.backend, address=args.address,
+                   command="alpha-racer " + " ".join(args.argv))
+    print((out / "summary.md").read_text())
+    print(f"wrote {out / 'summary.md'} and {out / 'summary.json'}")
     return 0
 
 
@@ -427,6 +444,32 @@ def build_parser() -> argparse.ArgumentParser:
     _add_analyze_args(rp)
     _add_parallel_args(rp)
     rp.set_defaults(fn=_cmd_reproduce)
+
+    gr = command("general-report", "the general alpha-potential on held-out tracks: "
+                                   "approximation gap for N cars, races against the fixed-theta "
+                                   "MPC in the N-car protocol, and against the single-track "
+                                   "default model on default (resumable)")
+    gr.add_argument("--model", default="general",
+                    help="a general model: shipped name or path to a model.npz")
+    gr.add_argument("--tracks", nargs="+", default=None, metavar="TRACK",
+                    help="held-out track specs (random:A-B ranges allowed); default "
+                         "random:10000-10019 and the TUMFTM circuits (if the folder exists) "
+                         "that the model was not trained on")
+    gr.add_argument("--gap-cars", default="2,3,5", help="field sizes of the approximation gap")
+    gr.add_argument("--gap-races", type=int, default=40,
+                    help="fresh races per field size for the gap")
+    gr.add_argument("--gap-pairs", type=int, default=20000,
+                    help="unilateral deviations per field size")
+    gr.add_argument("--bench-cars", default="2,3,5", help="field sizes of the N-car races")
+    gr.add_argument("--bench-rounds", type=int, default=1,
+                    help="rounds of N races (the ego from each region once) per track and N")
+    gr.add_argument("--default-races", type=int, default=99,
+                    help="races against the default model on default (0 skips them)")
+    gr.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race")
+    gr.add_argument("--seed", type=int, default=0, help="seed of the races and deviations")
+    gr.add_argument("--out", default="results/general", help="output folder; run again to resume")
+    _add_parallel_args(gr)
+    gr.set_defaults(fn=_cmd_general_report)
 
     from .policy_map import DEFAULT_TRACKS, MODES
     pm = command("policy-map", "sweep the MPC policy space (q, zeta, s1, s2, s3): Sobol thetas, "
