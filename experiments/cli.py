@@ -1,5 +1,6 @@
 """The ``alpha-racer`` command line: ``race``, ``agents``, ``tracks``, ``raceline``, ``fuzz``,
-``collect``, ``train``, ``selfplay``, ``bench``, ``analyze``, ``reproduce``, ``policy-map``."""
+``collect``, ``train``, ``selfplay``, ``bench``, ``analyze``, ``reproduce``,
+``general-report``, ``policy-map``."""
 from __future__ import annotations
 
 import argparse
@@ -152,9 +153,11 @@ def _cmd_bench(args) -> int:
     from .bench import BenchConfig, bench, paper_table
     kw = dict(workers=args.workers, backend=args.backend, address=args.address)
     if args.paper_table:
+        if args.cars != 3:
+            raise ValueError(f"--paper-table is the paper's 3-car protocol; got --cars {args.cars}")
         out = args.out or "results/paper_table"
-        t = paper_table(out, ego=args.ego, races=args.races, steps=args.steps, track=args.track,
-                        seed=args.seed, cases=args.cases, **kw)
+        t = paper_table(out, ego=args.ego, races=99 if args.races is None else args.races,
+                        steps=args.steps, track=args.track, seed=args.seed, cases=args.cases, **kw)
         print((Path(out) / "paper_table.md").read_text())
         print(f"wrote {Path(out) / 'paper_table.md'} and {Path(out) / 'paper_table.json'} "
               f"({t['wall_seconds_this_run'] / 60:.1f} min)")
@@ -404,14 +407,21 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(fn=_cmd_selfplay)
 
     b = command("bench", "head-to-head benchmark: the ego against two opponents of one kind from "
-                         "the paper's start regions (resumable)")
+                         "the paper's start regions (resumable)",
+                "head-to-head benchmark: the ego against two opponents of one kind from the "
+                "paper's start regions, or against N - 1 from N regions with --cars N (resumable)")
     b.add_argument("--ego", default="alpha", help="the ego's agent spec")
-    b.add_argument("--opponents", default="mpc", help="agent spec of both opponents O1 and O2")
+    b.add_argument("--opponents", default="mpc", help="agent spec of every opponent O1, O2, ...")
+    b.add_argument("--cars", type=int, default=3,
+                   help="cars per race (2..8): N start regions, the ego from each equally often, "
+                        "the opponents in the other regions front to back")
     b.add_argument("--paper-table", action="store_true",
                    help="run the paper's five cases (Table 1) and write paper_table.md")
     b.add_argument("--cases", nargs="+", default=None,
                    help="with --paper-table: a subset of I II III IV V (default: all)")
-    b.add_argument("--races", type=int, default=99, help="races per benchmark (99: 33 per region)")
+    b.add_argument("--races", type=int, default=None,
+                   help="races per benchmark, a multiple of --cars (default 99 with 3 cars: 33 "
+                        "per region; 33 N with N cars)")
     b.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race (500 = 50 s)")
     b.add_argument("--track", default="default", help="track spec (as for race)")
     b.add_argument("--seed", type=int, default=0, help="seed of the races' start orders and agents")
