@@ -243,7 +243,8 @@ class RaceGroup:
 def load_family(out_dir) -> tuple[list[RaceGroup], dict]:
     """``(groups, manifest)``: the races of a collection grouped by (track, N), groups in order
     of first appearance, races in collection order within a group. Reads a family collection
-    (schema 2) or a single-track one (schema 1, one group)."""
+    (schema 2; every shard of its manifest must be there, with the track and N listed for
+    it) or a single-track one (schema 1, one group)."""
     out = Path(out_dir)
     path = out / "manifest.json"
     if not path.exists():
@@ -259,12 +260,20 @@ def load_family(out_dir) -> tuple[list[RaceGroup], dict]:
         c = d["config"]
         return [RaceGroup(c["track"], int(c["n_cars"]), d["states"], d["thetas"], d["rewards"],
                           d["race_index"])], meta
+    missing = [e["shard"] for e in meta["shards"] if not _shard_path(out, e["shard"]).exists()]
+    if missing:
+        raise ValueError(f"{out}: {len(missing)} of {len(meta['shards'])} shards missing (first: "
+                         f"{missing[0]}); run the same alpha-racer collect command to finish it")
     parts: dict[tuple[str, int], list[dict]] = {}
-    for p in sorted(out.glob("shard_*.npz")):
+    for entry in meta["shards"]:
+        p = _shard_path(out, entry["shard"])
         with np.load(p) as z:
             if int(z["schema_version"]) != SCHEMA_VERSION:
                 raise ValueError(f"{p}: schema {int(z['schema_version'])}, expected {SCHEMA_VERSION}")
             key = (str(z["track"]), int(z["n_cars"]))
+            if key != (entry["track"], entry["n_cars"]):
+                raise ValueError(f"{p} holds {key[1]} cars on {key[0]!r}, the manifest lists "
+                                 f"{entry['n_cars']} on {entry['track']!r}")
             parts.setdefault(key, []).append({k: z[k] for k in ("states", "thetas", "rewards",
                                                                 "race_index")})
     if not parts:

@@ -223,7 +223,7 @@ def general_report(cfg: GeneralReportConfig, out_dir="results/general", workers:
     gap = gap_by_cars(model, out / "heldout", cfg)
     write_json(out / "gap.json", gap)
     runs = _bench_runs(cfg, tracks, out)
-    _run_many({k: r for k, r in runs.items()}, workers, backend, address, progress_bar)
+    _run_many(runs, workers, backend, address, progress_bar)
     summary = {"config": json.loads(json.dumps(asdict(cfg))), "model": _model_info(model),
                "heldout_tracks": tracks, "gap": gap,
                "field": field_results(runs, cfg, tracks),
