@@ -26,11 +26,11 @@ SHIPPED = {"default": "alpha_default.npz", "gamma0.98": "alpha_gamma098.npz",
            "general": "alpha_general.npz"}
 #: How to make a shipped model that is missing (the general model is trained by the user).
 HOW_TO_TRAIN = {
-    "general": "collect races over a family of tracks and field sizes and train on them: "
-               "`alpha-racer collect --tracks default oval random:0-299 --cars 2-6 --races 6000 "
+    "general": "collect races over a family of tracks and field sizes and train on them, e.g. "
+               "`alpha-racer collect --tracks default oval random:0-299 --cars 2-6 --races 7000 "
                "--out data/family && alpha-racer train --data data/family --out "
                "data/model_general`, then copy data/model_general/model.npz to {path} (the "
-               "README's section on the general model has the full plan)",
+               "README's section on the general model has the full plan and its compute)",
 }
 
 
