@@ -461,6 +461,22 @@ def check_tracks(tracks, cars: int) -> None:
             raise ValueError(msg if repr(spec) in msg else f"track {spec!r}: {msg}") from None
 
 
+def check_field(agents, cars: int, track: str) -> None:
+    """Let each agent take one decision in a field of ``cars`` cars on ``track`` (the others
+    raceline followers), so an agent that cannot race that many cars (an alpha-potential model
+    trained for another number) fails before any race of the league starts."""
+    from .race import run_race
+    for spec in agents:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                run_race([spec] + ["raceline"] * (cars - 1), track=track, max_cycles=1,
+                         start="regions", order=list(range(cars)), progress_bar=False)
+        except Exception as exc:
+            raise ValueError(f"agent {spec!r} cannot race in a field of {cars} cars on "
+                             f"{track!r}: {type(exc).__name__}: {exc}") from None
+
+
 def league(config: LeagueConfig, out_dir, workers: int = 2, backend: str = "local",
            address: str | None = None, imports=(), progress_bar: bool = True) -> dict:
     """Run (or resume) the league ``config`` into ``out_dir``; returns its leaderboard with
@@ -471,6 +487,7 @@ def league(config: LeagueConfig, out_dir, workers: int = 2, backend: str = "loca
     _import_once(imports)
     check_agent_specs(config.agents)
     check_tracks(config.tracks, config.cars)
+    check_field(config.agents, config.cars, config.tracks[0])
     run = LeagueRun(out_dir, config)
     todo = run.missing()
     total = len(run.races)
