@@ -13,7 +13,8 @@ REPO_DIRS = ("racing_env", "agents", "experiments", "examples", "benchmarks", "d
 ROOT_FILES = ("CITATION.cff", "CHANGELOG.md", "pyproject.toml", "mkdocs.yml", "README.md")
 # outputs of the commands the README shows, not files of the repository
 GENERATED = ("results/race", "results/ibr_race", "results/raceline", "results/bench", "results/example",
-             "results/paper_table_mpc_ego", "results/paper_table/runs.jsonl", "results/policy_map")
+             "results/paper_table_mpc_ego", "results/paper_table/runs.jsonl", "results/policy_map",
+             "results/league")
 
 
 def _readme_paths() -> set[str]:
