@@ -1,5 +1,5 @@
 """The ``alpha-racer`` command line: ``race``, ``agents``, ``tracks``, ``raceline``, ``fuzz``,
-``collect``, ``train``, ``selfplay``, ``bench``, ``analyze``, ``reproduce``,
+``collect``, ``train``, ``selfplay``, ``bench``, ``league``, ``analyze``, ``reproduce``,
 ``general-report``, ``policy-map``."""
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from pathlib import Path
 from racing_env.extras import MissingExtraError
 
 DEFAULT_AGENTS = ["alpha", "ibr", "ibr"]      # the paper's case IV: alpha against two IBR cars
+LEAGUE_AGENTS = ("alpha", "mpc", "ibr", "ppo", "raceline")      # every shipped agent
 
 
 def _cmd_race(args) -> int:
@@ -170,6 +171,21 @@ def _cmd_bench(args) -> int:
     bench(cfg, out, **kw)
     print((out / "summary.md").read_text())
     print(f"wrote {out / 'summary.md'}, {out / 'summary.json'} and {out / 'races.jsonl'}")
+    return 0
+
+
+def _cmd_league(args) -> int:
+    from .league import LeagueConfig, league
+    cfg = LeagueConfig(agents=tuple(args.agents), tracks=tuple(args.tracks), cars=args.cars,
+                       rounds=args.rounds, steps=args.steps, seed=args.seed,
+                       max_groups=args.max_groups)
+    out = Path(args.out)
+    board = league(cfg, out, workers=args.workers, backend=args.backend, address=args.address,
+                   imports=args.imports)
+    print((out / "leaderboard.md").read_text())
+    print(f"{board['new_races']} new races; wrote {out / 'leaderboard.md'}, "
+          f"{out / 'leaderboard.json'}, {out / 'races.jsonl'}, {out / 'ratings.png'} and "
+          f"{out / 'pairwise.png'}")
     return 0
 
 
@@ -431,6 +447,29 @@ def build_parser() -> argparse.ArgumentParser:
     _add_import_arg(b)
     _add_parallel_args(b)
     b.set_defaults(fn=_cmd_bench)
+
+    lg = command("league", "round-robin league of any agents: every group of --cars agents on "
+                           "every track from rotated start regions, rated with openskill "
+                           "(Plackett-Luce) into a leaderboard (resumable)")
+    lg.add_argument("--agents", nargs="+", default=list(LEAGUE_AGENTS),
+                    help="distinct agent specs, each one player of the rating (as for race; "
+                         "e.g. alpha:model=gamma0.98, mpc:zeta=1.0)")
+    lg.add_argument("--tracks", nargs="+", default=["default"], help="track specs (as for race)")
+    lg.add_argument("--cars", type=int, default=3,
+                    help="cars per race, 2..8; at most the number of agents")
+    lg.add_argument("--rounds", type=int, default=1,
+                    help="times the whole schedule runs, each with new seeds")
+    lg.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race (500 = 50 s)")
+    lg.add_argument("--seed", type=int, default=0,
+                    help="seed of the group sample, the start positions and the agents")
+    lg.add_argument("--max-groups", type=int, default=60,
+                    help="groups per round: every --cars-subset of the agents when there are at "
+                         "most this many, else a balanced sample of at most this many (whole blocks "
+                         "in which every agent races equally often; at least one)")
+    lg.add_argument("--out", default="results/league", help="output folder; run again to resume")
+    _add_import_arg(lg)
+    _add_parallel_args(lg)
+    lg.set_defaults(fn=_cmd_league)
 
     a = command("analyze", "Nash analyses of an alpha-potential model: approximation gap, Nash "
                            "regret by simulation, potential slices, figures")
