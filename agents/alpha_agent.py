@@ -32,7 +32,10 @@ class AlphaAgent(MPCAgent):
     ascent, the first being the warm start; 4), ``iterations`` (gradient steps per start; 3),
     ``cold_restarts`` and ``cold_iterations`` (the same for the first decision of a race, which
     has no warm start; 32 and 12), and the :class:`MPCAgent` keywords (``config``,
-    ``vehicle``, ``n_preview``). The model must have been trained for the race's number of cars.
+    ``vehicle``, ``n_preview``). A single-track model must have been trained for the race's
+    number of cars (and warns on another track); a general model (``model="general"``, see
+    :mod:`agents.general_features`) races any field of 2..8 cars on any track, and warns when
+    the field size is outside the range it was trained on.
     """
 
     def __init__(self, model="default", restarts: int = 4, iterations: int = 3,
@@ -54,12 +57,29 @@ class AlphaAgent(MPCAgent):
     def reset(self, track, agent_id: str = "car_0", seed: int | None = None) -> None:
         super().reset(track, agent_id, seed)
         trained_on = self.model.meta.get("track")
-        if trained_on and trained_on != self.track.name:
+        if not self.model.general and trained_on and trained_on != self.track.name:
             warnings.warn(f"alpha-potential model trained on track {trained_on!r}, racing on "
                           f"{self.track.name!r}", stacklevel=2)
         self._rng = np.random.default_rng(seed)
         self._theta_joint = None
         self.last_potential = float("nan")
+
+    def _check_field(self, n: int) -> None:
+        """Refuse a field a single-track model was not trained for; warn when a general
+        model races a field size outside its training range."""
+        m = self.model
+        if not m.general:
+            if n != m.n_cars:
+                raise ValueError(f"alpha-potential model trained for {m.n_cars} cars, the "
+                                 f"race has {n}")
+            return
+        lo, hi = m.trained_cars
+        if not 2 <= n <= m.features.max_cars:
+            raise ValueError(f"the general alpha-potential model takes 2..{m.features.max_cars} "
+                             f"cars, the race has {n}")
+        if not lo <= n <= hi:
+            warnings.warn(f"general alpha-potential model trained on fields of {lo}..{hi} cars, "
+                          f"racing {n}", stacklevel=3)
 
     @property
     def stats(self) -> dict:
@@ -81,10 +101,9 @@ class AlphaAgent(MPCAgent):
         t0 = time.perf_counter()
         ego, others = split_observation(observation, self.n_preview)
         joint = np.vstack([ego[None], others])                  # ego first, then the others
-        if len(joint) != self.model.n_cars:
-            raise ValueError(f"alpha-potential model trained for {self.model.n_cars} cars, the "
-                             f"race has {len(joint)}")
         cold = self._theta_joint is None
+        if cold:
+            self._check_field(len(joint))
         theta, phi = self.model.maximise(
             joint, self.track, self._theta_joint, rng=self._rng,
             restarts=self.cold_restarts if cold else self.restarts,

@@ -19,8 +19,16 @@ unwrapped [m], ``thetas`` (..., N, 5) policy parameters ``(q, zeta, s1, s2, s3)`
 
 Thetas enter scaled to [-1, 1] by their bounds (:func:`scale_theta`), so the gradient of a
 network with respect to its theta slots is the gradient with respect to the scaled theta.
+
+These are the ``fixed`` feature set (one track, a fixed number of cars: the paper's models).
+The ``general`` set (:mod:`agents.general_features`: any track, any N up to 8, sorted and
+padded) is a second :class:`FeatureSet`; a model records its set's name and version in its
+metadata and :func:`feature_set` gives the functions it was trained with.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -115,3 +123,44 @@ def potential_features(states, thetas, track, order=None) -> np.ndarray:
     per_car = np.concatenate([rel[..., None], st[..., 1:], curvature_preview(track, st[..., 0]),
                               scale_theta(th)], axis=-1)
     return per_car.reshape(batch + (-1,))
+
+
+@dataclass(frozen=True)
+class FeatureSet:
+    """One feature function pair and its layout, as a model needs it.
+
+    ``value_features(states, thetas, track, ego)`` and ``potential_features(states, thetas,
+    track, order=None)`` as above; ``value_dim(N)``, ``potential_dim(N)``,
+    ``potential_theta_slots(N)`` (N, 5) and ``progress_order(states)`` (..., N).
+    ``general``: the features take any N from 2 to ``max_cars`` and any track; otherwise the
+    model is tied to its training track and number of cars.
+    """
+
+    name: str
+    version: int
+    general: bool
+    max_cars: int | None
+    value_features: Callable
+    potential_features: Callable
+    value_dim: Callable
+    potential_dim: Callable
+    potential_theta_slots: Callable
+    progress_order: Callable
+
+
+FIXED = FeatureSet("fixed", FEATURE_VERSION, False, None, value_features, potential_features,
+                   value_dim, potential_dim, potential_theta_slots, progress_order)
+FEATURE_SETS = ("fixed", "general")
+
+
+def feature_set(name: str = "fixed") -> FeatureSet:
+    """The feature set called ``name`` (``fixed``: this module; ``general``:
+    :mod:`agents.general_features`)."""
+    if name == "fixed":
+        return FIXED
+    if name == "general":
+        from . import general_features as g
+        return FeatureSet("general", g.FEATURE_VERSION, True, g.N_MAX, g.value_features,
+                          g.potential_features, g.value_dim, g.potential_dim,
+                          g.potential_theta_slots, g.progress_order)
+    raise ValueError(f"unknown feature set {name!r}; expected one of {FEATURE_SETS}")

@@ -3,7 +3,9 @@ maximisation of Phi over the joint theta that the alpha agent runs at every step
 
 ``load_model("default")`` loads the model shipped in ``agents/models`` (see its model card,
 ``agents/models/MODEL_CARD.md``); any path to a ``model.npz`` written by ``alpha-racer train``
-works too. A model of another feature version is refused.
+works too. A model records its feature set (``fixed``, the paper's single-track models, or
+``general``, any track and any field size up to 8 cars; see :func:`agents.features.feature_set`)
+and that set's version; a model of another version is refused.
 """
 from __future__ import annotations
 
@@ -13,15 +15,23 @@ from pathlib import Path
 
 import numpy as np
 
-from .features import (FEATURE_VERSION, potential_features, potential_theta_slots, progress_order,
-                       scale_theta, unscale_theta, value_features)
+from .features import feature_set, scale_theta, unscale_theta
 from .mlp import MLP
 from .reference import THETA_HIGH, THETA_LOW
 from .threads import single_blas_thread
 
 MODEL_DIR = Path(__file__).parent / "models"
 SHIPPED = {"default": "alpha_default.npz", "gamma0.98": "alpha_gamma098.npz",
-           "gamma0.995": "alpha_gamma0995.npz", "races400": "alpha_races400.npz"}
+           "gamma0.995": "alpha_gamma0995.npz", "races400": "alpha_races400.npz",
+           "general": "alpha_general.npz"}
+#: How to make a shipped model that is missing (the general model is trained by the user).
+HOW_TO_TRAIN = {
+    "general": "collect races over a family of tracks and field sizes and train on them, e.g. "
+               "`alpha-racer collect --tracks default oval random:0-299 --cars 2-6 --races 7000 "
+               "--out data/family && alpha-racer train --data data/family --out "
+               "data/model_general`, then copy data/model_general/model.npz to {path} (the "
+               "README's section on the general model has the full plan and its compute)",
+}
 
 
 class PotentialModel:
@@ -34,9 +44,11 @@ class PotentialModel:
     """
 
     def __init__(self, value: MLP, potential: MLP, meta: dict):
-        if meta.get("feature_version") != FEATURE_VERSION:
-            raise ValueError(f"model built with feature version {meta.get('feature_version')}, "
-                             f"this code computes version {FEATURE_VERSION}; retrain it")
+        self.features = feature_set(meta.get("feature_set", "fixed"))
+        if meta.get("feature_version") != self.features.version:
+            raise ValueError(f"model built with feature version {meta.get('feature_version')} "
+                             f"of the {self.features.name!r} features, this code computes version "
+                             f"{self.features.version}; retrain it")
         box = (meta.get("theta_low"), meta.get("theta_high"))
         if box[0] is None or box[1] is None:
             warnings.warn("model metadata has no theta box (trained before it was recorded); "
@@ -48,7 +60,19 @@ class PotentialModel:
         self.value_net = value
         self.potential_net = potential
         self.meta = meta
-        self.n_cars = int(meta["n_cars"])
+        if self.features.general:
+            # any field of 2..max_cars; the range it was trained on, for warnings
+            self.n_cars = None
+            lo, hi = meta["n_cars_range"]
+            self.trained_cars = (int(lo), int(hi))
+        else:
+            self.n_cars = int(meta["n_cars"])
+            self.trained_cars = (self.n_cars, self.n_cars)
+
+    @property
+    def general(self) -> bool:
+        """Whether the model takes any track and any field of 2..8 cars."""
+        return self.features.general
 
     # ------------------------------------------------------------------ io
     def save(self, path) -> Path:
@@ -68,33 +92,39 @@ class PotentialModel:
             return cls(MLP.from_arrays(z, "v_"), MLP.from_arrays(z, "p_"), meta)
 
     # ------------------------------------------------------------------ evaluation
-    def _check_cars(self, states):
+    def _check_cars(self, states) -> int:
         n = np.shape(states)[-2]
-        if n != self.n_cars:
+        if self.general:
+            if not 2 <= n <= self.features.max_cars:
+                raise ValueError(f"this general model takes 2..{self.features.max_cars} cars, "
+                                 f"got states of {n}")
+        elif n != self.n_cars:
             raise ValueError(f"this model was trained for {self.n_cars} cars, got states of {n}")
+        return n
 
     def value(self, states, thetas, track, ego) -> np.ndarray:
         """V_ego(x, theta) [m of discounted relative progress], shape of the batch."""
         self._check_cars(states)
-        return self.value_net(value_features(states, thetas, track, ego))
+        return self.value_net(self.features.value_features(states, thetas, track, ego))
 
     def potential(self, states, thetas, track) -> np.ndarray:
         """Phi(x, theta), shape of the batch."""
         self._check_cars(states)
-        return self.potential_net(potential_features(states, thetas, track))
+        return self.potential_net(self.features.potential_features(states, thetas, track))
 
     def _ascent_setup(self, state, track, restarts: int, iterations: int, rng):
         """Shared by the ascents: checks, ``(rng, slots (N, 5), base features (D,))`` where
         ``slots[c]`` are the potential-feature columns of car c's theta (cars sorted by
         progress) and ``base`` the features at theta = 0 (their theta columns get overwritten)."""
-        self._check_cars(np.asarray(state)[None])
+        n = self._check_cars(np.asarray(state)[None])
         if restarts < 1 or iterations < 0:
             raise ValueError(f"maximise needs restarts >= 1 and iterations >= 0, got "
                              f"{restarts}, {iterations}")
         state = np.asarray(state, dtype=float)
-        order = progress_order(state)
-        slots = potential_theta_slots(self.n_cars)[np.argsort(order)]  # row c: car c's columns
-        base = potential_features(state, np.zeros((self.n_cars, 5)), track, order)
+        f = self.features
+        order = f.progress_order(state)
+        slots = f.potential_theta_slots(n)[np.argsort(order)]          # row c: car c's columns
+        base = f.potential_features(state, np.zeros((n, 5)), track, order)
         return rng or np.random.default_rng(0), slots, base
 
     def maximise(self, state, track, theta0=None, restarts: int | None = None,
@@ -128,7 +158,7 @@ class PotentialModel:
             restarts = 32 if theta0 is None else 4
         if iterations is None:
             iterations = 12 if theta0 is None else 3
-        N = self.n_cars
+        N = np.shape(state)[0]
         rng, slots, base = self._ascent_setup(state, track, restarts, iterations, rng)
         slots = slots.ravel()                                            # car-major columns
         Z = np.empty((restarts, N * 5))
@@ -179,7 +209,7 @@ class PotentialModel:
         small gradient move as far as those of large gradient (slower to settle; used for
         careful offline maximisation).
         """
-        N = self.n_cars
+        N = np.shape(state)[0]
         rng, slots, base = self._ascent_setup(state, track, restarts, iterations, rng)
         starts = []
         if theta0 is not None:
@@ -226,13 +256,14 @@ _LOADED: dict = {}
 
 
 def load_model(name_or_path="default") -> PotentialModel:
-    """A shipped model by name (``default``, ``gamma0.98``, ``gamma0.995``, ``races400``) or a
-    path to a ``model.npz``."""
+    """A shipped model by name (``default``, ``gamma0.98``, ``gamma0.995``, ``races400``,
+    ``general``) or a path to a ``model.npz``."""
     if str(name_or_path) in SHIPPED:
         path = MODEL_DIR / SHIPPED[str(name_or_path)]
         if not path.exists():
+            how = HOW_TO_TRAIN.get(str(name_or_path), "train one with `alpha-racer train`")
             raise FileNotFoundError(f"shipped alpha-potential model {name_or_path!r} is missing "
-                                    f"({path}); train one with `alpha-racer train`")
+                                    f"({path}); " + how.format(path=path))
     else:
         path = Path(name_or_path)
         if not path.exists():

@@ -475,10 +475,13 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
     from racing_env.tracks import make_track
 
     check_backend(backend, workers)
+    model = _model(cfg.model)
+    if model.general:
+        raise ValueError(f"analyze studies a single-track model on its own track; {cfg.model!r} "
+                         f"is a general model: use `alpha-racer general-report` for it")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     claim(out / "config.json", asdict(cfg), "analyses", overwrite=force)
-    model = _model(cfg.model)
     track = make_track(model.meta["track"])
     summary = {"config": asdict(cfg)}
     t0 = time.perf_counter()

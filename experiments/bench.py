@@ -6,6 +6,11 @@ R1, R2, R3 for k = 0, 1, 2 (mod 3), so 99 races give 33 per region; of the two o
 opponent O1 always takes the front one, O2 the back one. Cars: car_0 ego, car_1 O1, car_2 O2.
 A race is won by the largest total progress along the track (unwrapped s).
 
+Scaled to N cars (``--cars N``, 2..8): N start regions R1..RN, race k puts the ego in
+R(k mod N + 1) (so ``races`` must be a multiple of N: every region equally often), and the
+opponents O1..O(N-1) take the other regions front to back. N = 3 is the paper's protocol,
+race for race (same seeds, same start orders, same outputs).
+
 Output directory:
 
 * ``manifest.json``: schema version and the :class:`BenchConfig`; a directory of another
@@ -37,6 +42,16 @@ ROLES = ("ego", "O1", "O2")
 REGIONS = ("R1", "R2", "R3")
 
 
+def roles(n_cars: int = 3) -> tuple[str, ...]:
+    """Names of the cars of an N-car benchmark: ``ego``, ``O1`` .. ``O(N-1)``."""
+    return ("ego",) + tuple(f"O{k}" for k in range(1, n_cars))
+
+
+def regions(n_cars: int = 3) -> tuple[str, ...]:
+    """Start regions ``R1`` (front-most) .. ``RN``."""
+    return tuple(f"R{k}" for k in range(1, n_cars + 1))
+
+
 @dataclass(frozen=True)
 class PaperCase:
     opponents: str
@@ -56,9 +71,11 @@ PAPER_CASES = {
 
 @dataclass(frozen=True)
 class BenchConfig:
-    """One head-to-head benchmark: ``ego`` (an agent spec) against two ``opponents`` (one
-    agent spec, used for both O1 and O2) in ``races`` races of ``steps`` steps on ``track``.
-    Race k's start positions and the agents' seeds come from ``(seed, k)``."""
+    """One head-to-head benchmark: ``ego`` (an agent spec) against ``n_cars - 1``
+    ``opponents`` (one agent spec, used for O1, O2, ...) in ``races`` races of ``steps`` steps
+    on ``track``. Race k's start positions and the agents' seeds come from ``(seed, k)``.
+    With N != 3 cars, ``races`` must be a multiple of N (the ego starts from every region
+    equally often); the paper's 3-car benchmark takes any count, as it always has."""
 
     ego: str = "alpha"
     opponents: str = "mpc"
@@ -66,12 +83,19 @@ class BenchConfig:
     steps: int = 500
     track: str = "default"
     seed: int = 0
+    n_cars: int = 3
 
     def __post_init__(self):
         for name in ("races", "steps"):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise ValueError(f"BenchConfig.{name} must be a positive integer, got {v!r}")
+        if isinstance(self.n_cars, bool) or not (isinstance(self.n_cars, int)
+                                                  and 2 <= self.n_cars <= 8):
+            raise ValueError(f"BenchConfig.n_cars must be an integer in 2..8, got {self.n_cars!r}")
+        if self.n_cars != 3 and self.races % self.n_cars:
+            raise ValueError(f"BenchConfig.races must be a multiple of n_cars = {self.n_cars} "
+                             f"(every start region equally often), got {self.races}")
         for name in ("ego", "opponents"):
             if not isinstance(getattr(self, name), str) or not getattr(self, name):
                 raise ValueError(f"BenchConfig.{name} must be an agent spec string, got "
@@ -79,18 +103,33 @@ class BenchConfig:
 
     @property
     def agents(self) -> list[str]:
-        return [self.ego, self.opponents, self.opponents]
+        return [self.ego] + [self.opponents] * (self.n_cars - 1)
+
+    @property
+    def roles(self) -> tuple[str, ...]:
+        return roles(self.n_cars)
+
+    @property
+    def regions(self) -> tuple[str, ...]:
+        return regions(self.n_cars)
+
+    def to_dict(self) -> dict:
+        """The config as stored in manifests and summaries; the 3-car default of ``n_cars``
+        is left out, so the paper's benchmarks keep the manifests they always had."""
+        d = asdict(self)
+        if d["n_cars"] == 3:
+            del d["n_cars"]
+        return d
 
     def race_seed(self, k: int) -> int:
         return int(np.random.SeedSequence([self.seed, k]).generate_state(1)[0])
 
     @staticmethod
-    def start_order(k: int) -> list[int]:
-        """Start regions (0 = R1) of ego, O1, O2 in race k: the ego cycles R1, R2, R3 and O1
-        takes the front one of the other two."""
-        ego = k % 3
-        o1, o2 = [r for r in range(3) if r != ego]
-        return [ego, o1, o2]
+    def start_order(k: int, n_cars: int = 3) -> list[int]:
+        """Start regions (0 = R1) of ego, O1, O2, ... in race k: the ego cycles R1 .. RN and
+        the opponents take the other regions front to back (O1 the front-most)."""
+        ego = k % n_cars
+        return [ego] + [r for r in range(n_cars) if r != ego]
 
 
 def check_agent_specs(specs) -> None:
@@ -105,19 +144,20 @@ def bench_race(config: BenchConfig, k: int) -> dict:
     from .race import run_race
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
-    seed, order = config.race_seed(k), config.start_order(k)
+    seed, order = config.race_seed(k), config.start_order(k, config.n_cars)
     result, _ = run_race(config.agents, track=config.track, seed=seed, max_cycles=config.steps,
                          start="regions", order=order, progress_bar=False)
     if not np.isfinite(result.states).all():
         raise FloatingPointError(f"benchmark race {k} produced non-finite states")
     p = result.progress
     winner = int(np.argmax(p))
+    reg = config.regions
     record = {
-        "race": k, "seed": seed, "ego_region": REGIONS[order[0]],
-        "start_regions": [REGIONS[r] for r in order],
-        "agents": config.agents, "winner": ROLES[winner],
+        "race": k, "seed": seed, "ego_region": reg[order[0]],
+        "start_regions": [reg[r] for r in order],
+        "agents": config.agents, "winner": config.roles[winner],
         "progress_m": [round(float(v), 4) for v in p],
-        "margin_m": round(float(p[0] - max(p[1], p[2])), 4),
+        "margin_m": round(float(p[0] - max(p[1:])), 4),
         "ranks": [int(r) for r in np.argsort(np.argsort(-p, kind="stable"), kind="stable") + 1],
         "contacts": result.contacts.tolist(), "off_tracks": result.off_tracks.tolist(),
         "decision_ms": [round(float(v), 4) for v in result.decision_ms],
@@ -137,7 +177,7 @@ class BenchRun:
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "states").mkdir(exist_ok=True)
         claim(self.out / "manifest.json",
-              {"schema_version": SCHEMA_VERSION, "config": asdict(config)}, "a benchmark")
+              {"schema_version": SCHEMA_VERSION, "config": config.to_dict()}, "a benchmark")
 
     @property
     def records_path(self) -> Path:
@@ -203,22 +243,23 @@ def summarise(records: list[dict], config: BenchConfig) -> dict:
         raise ValueError("no finished races to summarise")
     records = sorted(records, key=lambda r: r["race"])
     n = len(records)
-    arr = lambda key: np.array([r[key] for r in records], dtype=float)      # (n, 3)
+    arr = lambda key: np.array([r[key] for r in records], dtype=float)      # (n, N)
     margin = arr("margin_m")
-    out = {"config": asdict(config), "races": n, "complete": n == config.races,
-           "wins": {role: _wins(records, role) for role in ROLES},
+    names = config.roles
+    out = {"config": config.to_dict(), "races": n, "complete": n == config.races,
+           "wins": {role: _wins(records, role) for role in names},
            "by_region": {}}
-    for reg in REGIONS:
+    for reg in config.regions:
         sub = [r for r in records if r["ego_region"] == reg]
         if sub:
-            out["by_region"][reg] = {role: _wins(sub, role) for role in ROLES}
+            out["by_region"][reg] = {role: _wins(sub, role) for role in names}
             out["by_region"][reg]["margin_m_mean"] = float(np.mean([r["margin_m"] for r in sub]))
     out["margin_m"] = {"mean": float(margin.mean()), "median": float(np.median(margin)),
                        "std": float(margin.std())}
     for key in ("progress_m", "contacts", "off_tracks", "decision_ms", "fallbacks"):
         a = arr(key)
-        out[key] = dict(zip(ROLES, map(float, a.mean(axis=0))))
-    out["decision_ms_max_race_mean"] = dict(zip(ROLES, map(float, arr("decision_ms").max(axis=0))))
+        out[key] = dict(zip(names, map(float, a.mean(axis=0))))
+    out["decision_ms_max_race_mean"] = dict(zip(names, map(float, arr("decision_ms").max(axis=0))))
     out["race_seconds_total"] = float(sum(r["seconds"] for r in records))
     return out
 
@@ -229,21 +270,24 @@ def _pct(w: dict) -> str:
 
 def summary_markdown(s: dict) -> str:
     c = s["config"]
-    lines = [f"# Benchmark: `{c['ego']}` vs two `{c['opponents']}`",
+    N = c.get("n_cars", 3)
+    names = roles(N)
+    many = "two" if N == 3 else str(N - 1)
+    lines = [f"# Benchmark: `{c['ego']}` vs {many} `{c['opponents']}`",
              "",
              f"{s['races']} of {c['races']} races, {c['steps']} steps each on `{c['track']}`, "
              f"seed {c['seed']}. Wins with Wilson 95% intervals.",
              "",
-             "| | ego | O1 | O2 |", "|---|---|---|---|",
-             "| wins (all) | " + " | ".join(_pct(s["wins"][r]) for r in ROLES) + " |"]
+             "| | " + " | ".join(names) + " |", "|---" * (N + 1) + "|",
+             "| wins (all) | " + " | ".join(_pct(s["wins"][r]) for r in names) + " |"]
     for reg, w in s["by_region"].items():
-        lines.append(f"| wins, ego from {reg} | " + " | ".join(_pct(w[r]) for r in ROLES) + " |")
+        lines.append(f"| wins, ego from {reg} | " + " | ".join(_pct(w[r]) for r in names) + " |")
     for key, label, fmt in (("progress_m", "progress per race [m]", "{:.2f}"),
                             ("contacts", "contact steps per race", "{:.2f}"),
                             ("off_tracks", "off-track steps per race", "{:.2f}"),
                             ("fallbacks", "fallbacks per race", "{:.2f}"),
                             ("decision_ms", "mean decision time [ms]", "{:.2f}")):
-        lines.append(f"| {label} | " + " | ".join(fmt.format(s[key][r]) for r in ROLES) + " |")
+        lines.append(f"| {label} | " + " | ".join(fmt.format(s[key][r]) for r in names) + " |")
     m = s["margin_m"]
     lines += ["", f"Ego margin over the best opponent: mean {m['mean']:.2f} m, median "
                   f"{m['median']:.2f} m, std {m['std']:.2f} m."]

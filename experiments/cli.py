@@ -1,6 +1,6 @@
 """The ``alpha-racer`` command line: ``race``, ``agents``, ``tracks``, ``raceline``, ``fuzz``,
 ``collect``, ``train``, ``selfplay``, ``bench``, ``league``, ``analyze``, ``reproduce``,
-``policy-map``."""
+``general-report``, ``policy-map``."""
 from __future__ import annotations
 
 import argparse
@@ -91,10 +91,22 @@ def _cmd_fuzz(args) -> int:
 
 def _cmd_collect(args) -> int:
     from .collect import CollectConfig, collect
-    cfg = CollectConfig(races=args.races, n_cars=args.cars, steps=args.steps, track=args.track,
-                        seed=args.seed, races_per_shard=args.shard_size)
-    summary = collect(cfg, args.out, workers=args.workers, backend=args.backend,
-                      address=args.address)
+    from .family import FamilyConfig, collect_family, parse_cars
+    cars = parse_cars(args.cars)
+    kw = dict(workers=args.workers, backend=args.backend, address=args.address)
+    if args.tracks is None and len(cars) == 1:        # one track, one field size: as always
+        cfg = CollectConfig(races=args.races, n_cars=cars[0], steps=args.steps,
+                            track=args.track or "default", seed=args.seed,
+                            races_per_shard=args.shard_size or 25)
+        summary = collect(cfg, args.out, **kw)
+    else:
+        if args.track is not None and args.tracks is not None:
+            raise ValueError(f"give either --track ({args.track!r}) or --tracks "
+                             f"({' '.join(args.tracks)}), not both")
+        cfg = FamilyConfig(races=args.races, tracks=tuple(args.tracks or [args.track or "default"]),
+                           cars=cars, steps=args.steps, seed=args.seed,
+                           races_per_shard=args.shard_size or 4)
+        summary = collect_family(cfg, args.out, **kw)
     print(f"{summary['simulated']} races simulated ({summary['resumed']} already there) in "
           f"{summary['seconds']:.1f} s, {summary['races_per_s']:.3f} races/s -> {summary['out']}")
     return 0
@@ -142,16 +154,20 @@ def _cmd_bench(args) -> int:
     from .bench import BenchConfig, bench, paper_table
     kw = dict(workers=args.workers, backend=args.backend, address=args.address)
     if args.paper_table:
+        if args.cars != 3:
+            raise ValueError(f"--paper-table is the paper's 3-car protocol; got --cars {args.cars}")
         out = args.out or "results/paper_table"
-        t = paper_table(out, ego=args.ego, races=args.races, steps=args.steps, track=args.track,
-                        seed=args.seed, cases=args.cases, **kw)
+        t = paper_table(out, ego=args.ego, races=99 if args.races is None else args.races,
+                        steps=args.steps, track=args.track, seed=args.seed, cases=args.cases, **kw)
         print((Path(out) / "paper_table.md").read_text())
         print(f"wrote {Path(out) / 'paper_table.md'} and {Path(out) / 'paper_table.json'} "
               f"({t['wall_seconds_this_run'] / 60:.1f} min)")
         return 0
-    cfg = BenchConfig(ego=args.ego, opponents=args.opponents, races=args.races, steps=args.steps,
-                      track=args.track, seed=args.seed)
-    out = Path(args.out or f"results/bench/{slug(args.ego)}_vs_{slug(args.opponents)}")
+    races = args.races if args.races is not None else (99 if args.cars == 3 else 33 * args.cars)
+    cfg = BenchConfig(ego=args.ego, opponents=args.opponents, races=races, steps=args.steps,
+                      track=args.track, seed=args.seed, n_cars=args.cars)
+    field = "" if args.cars == 3 else f"_{args.cars}cars"
+    out = Path(args.out or f"results/bench/{slug(args.ego)}_vs_{slug(args.opponents)}{field}")
     bench(cfg, out, **kw)
     print((out / "summary.md").read_text())
     print(f"wrote {out / 'summary.md'}, {out / 'summary.json'} and {out / 'races.jsonl'}")
@@ -212,6 +228,21 @@ def _cmd_reproduce(args) -> int:
     (out / "README.md").write_text(text)
     print(text)
     print(f"wrote {out / 'README.md'}, {out / 'paper_table'} and {out / 'analysis'}")
+    return 0
+
+
+def _cmd_general_report(args) -> int:
+    from .general import GeneralReportConfig, general_report
+    cfg = GeneralReportConfig(model=args.model, tracks=tuple(args.tracks or ()),
+                              gap_cars=args.gap_cars, gap_races=args.gap_races,
+                              gap_pairs=args.gap_pairs, bench_cars=args.bench_cars,
+                              bench_rounds=args.bench_rounds, default_races=args.default_races,
+                              steps=args.steps, seed=args.seed)
+    out = Path(args.out)
+    general_report(cfg, out, workers=args.workers, backend=args.backend, address=args.address,
+                   command="alpha-racer " + " ".join(args.argv))
+    print((out / "summary.md").read_text())
+    print(f"wrote {out / 'summary.md'} and {out / 'summary.json'}")
     return 0
 
 
@@ -315,13 +346,24 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--seed", type=int, default=0, help="seed of the random actions and starts")
     f.set_defaults(fn=_cmd_fuzz)
 
-    c = command("collect", "simulate races of MPC cars with random theta (resumable shards)")
+    c = command("collect", "simulate races of MPC cars with random theta (resumable shards)",
+                "simulate races of MPC cars with random theta (resumable shards); with --tracks "
+                "or several --cars, a family collection over tracks and field sizes (one track "
+                "and one field size per shard) for the general alpha-potential")
     c.add_argument("--races", type=int, default=4000, help="races to simulate")
-    c.add_argument("--cars", type=int, default=3, help="cars per race")
+    c.add_argument("--cars", default="3",
+                   help="cars per race: a number, or field sizes for a family collection as a "
+                        "range 2-6 or a list 2,3,5 (each in 2..8)")
     c.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race")
-    c.add_argument("--track", default="default", help="track spec (as for race)")
+    c.add_argument("--track", default=None, help="track spec (as for race; default: default)")
+    c.add_argument("--tracks", nargs="+", default=None, metavar="TRACK",
+                   help="a family collection over these track specs; random:A-B stands for "
+                        "random:A .. random:B, e.g. --tracks default oval random:0-299 "
+                        "tumftm:Monza")
     c.add_argument("--seed", type=int, default=0, help="seed of the thetas and start positions")
-    c.add_argument("--shard-size", type=int, default=25, help="races per shard file")
+    c.add_argument("--shard-size", type=int, default=None,
+                   help="races per shard file (default 25; 4 for a family collection, so that "
+                        "its shards spread over many tracks)")
     c.add_argument("--out", default="data/races", help="output folder; run again to resume")
     _add_parallel_args(c)
     c.set_defaults(fn=_cmd_collect)
@@ -381,14 +423,21 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(fn=_cmd_selfplay)
 
     b = command("bench", "head-to-head benchmark: the ego against two opponents of one kind from "
-                         "the paper's start regions (resumable)")
+                         "the paper's start regions (resumable)",
+                "head-to-head benchmark: the ego against two opponents of one kind from the "
+                "paper's start regions, or against N - 1 from N regions with --cars N (resumable)")
     b.add_argument("--ego", default="alpha", help="the ego's agent spec")
-    b.add_argument("--opponents", default="mpc", help="agent spec of both opponents O1 and O2")
+    b.add_argument("--opponents", default="mpc", help="agent spec of every opponent O1, O2, ...")
+    b.add_argument("--cars", type=int, default=3,
+                   help="cars per race (2..8): N start regions, the ego from each equally often, "
+                        "the opponents in the other regions front to back")
     b.add_argument("--paper-table", action="store_true",
                    help="run the paper's five cases (Table 1) and write paper_table.md")
     b.add_argument("--cases", nargs="+", default=None,
                    help="with --paper-table: a subset of I II III IV V (default: all)")
-    b.add_argument("--races", type=int, default=99, help="races per benchmark (99: 33 per region)")
+    b.add_argument("--races", type=int, default=None,
+                   help="races per benchmark, a multiple of --cars (default 99 with 3 cars: 33 "
+                        "per region; 33 N with N cars)")
     b.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race (500 = 50 s)")
     b.add_argument("--track", default="default", help="track spec (as for race)")
     b.add_argument("--seed", type=int, default=0, help="seed of the races' start orders and agents")
@@ -444,6 +493,32 @@ def build_parser() -> argparse.ArgumentParser:
     _add_analyze_args(rp)
     _add_parallel_args(rp)
     rp.set_defaults(fn=_cmd_reproduce)
+
+    gr = command("general-report", "the general alpha-potential on held-out tracks: "
+                                   "approximation gap for N cars, races against the fixed-theta "
+                                   "MPC in the N-car protocol, and against the single-track "
+                                   "default model on default (resumable)")
+    gr.add_argument("--model", default="general",
+                    help="a general model: shipped name or path to a model.npz")
+    gr.add_argument("--tracks", nargs="+", default=None, metavar="TRACK",
+                    help="held-out track specs (random:A-B ranges allowed); default "
+                         "random:10000-10019 and the TUMFTM circuits (if the folder exists) "
+                         "that the model was not trained on")
+    gr.add_argument("--gap-cars", default="2,3,5", help="field sizes of the approximation gap")
+    gr.add_argument("--gap-races", type=int, default=40,
+                    help="fresh races per field size for the gap")
+    gr.add_argument("--gap-pairs", type=int, default=20000,
+                    help="unilateral deviations per field size")
+    gr.add_argument("--bench-cars", default="2,3,5", help="field sizes of the N-car races")
+    gr.add_argument("--bench-rounds", type=int, default=1,
+                    help="rounds of N races (the ego from each region once) per track and N")
+    gr.add_argument("--default-races", type=int, default=99,
+                    help="races against the default model on default (0 skips them)")
+    gr.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race")
+    gr.add_argument("--seed", type=int, default=0, help="seed of the races and deviations")
+    gr.add_argument("--out", default="results/general", help="output folder; run again to resume")
+    _add_parallel_args(gr)
+    gr.set_defaults(fn=_cmd_general_report)
 
     from .policy_map import DEFAULT_TRACKS, MODES
     pm = command("policy-map", "sweep the MPC policy space (q, zeta, s1, s2, s3): Sobol thetas, "

@@ -178,6 +178,9 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
     from racing_env.tracks import make_track
 
     cfg = config or TrainConfig()
+    if _is_family(data_dir):                 # many tracks and field sizes: the general model
+        from .train_general import train_general
+        return train_general(data_dir, out_dir, cfg, progress_bar, log, command)
     torch.set_num_threads(cfg.threads)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -191,10 +194,11 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
     log(f"data: {R} races x {T} steps x {N} cars from {data_dir} "
         f"({len(train_idx)} training, {len(val_idx)} held out)")
 
-    value = _train_value(states, thetas, rewards, train_idx, val_idx, track, cfg, out, torch,
-                         progress_bar, log)
-    potential = _train_potential(states, thetas, train_idx, track, cfg, value, out, torch,
-                                 progress_bar, log)
+    value = _train_value(_value_data(states, thetas, rewards, train_idx, val_idx, track, cfg),
+                         cfg, out, torch, progress_bar, log)
+    potential = _train_potential(_Deviations(states, thetas, train_idx, track,
+                                             cfg.own_theta_fraction),
+                                 cfg, value, out, torch, progress_bar, log)
     t_train = time.perf_counter() - t_start
     meta = {"feature_version": FEATURE_VERSION, "n_cars": N, "track": data["config"]["track"],
             "theta_low": THETA_LOW.tolist(), "theta_high": THETA_HIGH.tolist(),
@@ -222,6 +226,15 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
     return metrics
 
 
+def _is_family(data_dir) -> bool:
+    """Whether ``data_dir`` holds a family collection (many tracks / field sizes)."""
+    path = Path(data_dir) / "manifest.json"
+    if not path.exists():
+        raise ValueError(f"{data_dir}: no manifest.json; expected a folder written by "
+                         f"`alpha-racer collect`")
+    return json.loads(path.read_text()).get("kind") == "family"
+
+
 def _write_or_check_config(out: Path, cfg: TrainConfig, data_dir) -> None:
     config = json.loads(json.dumps(asdict(cfg)))
     config.pop("threads")                      # how fast, not what: may change on a resume
@@ -245,11 +258,43 @@ def _features_in_chunks(states, thetas, r, t, c, track, chunk=200_000):
     return out
 
 
-def _train_value(states, thetas, rewards, train_idx, val_idx, track, cfg, out, torch,
-                 progress_bar, log):
+@dataclass
+class ValueData:
+    """The value network's dataset. ``X_tr`` (n, D), ``X_va`` (m, D) float32 features of
+    (race, step, car) samples and ``X_end`` (E, D) those of every race's final state per car;
+    the discounted-return target of a sample is ``P + tail * V(X_end[end])`` (the observed
+    discounted rewards plus the bootstrap with the current network), with ``P``, ``tail``,
+    ``end`` per sample (``*_tr`` and ``*_va``). ``general``: the features are padded (columns
+    constant in training keep unit scale, see :func:`input_scale`)."""
+
+    X_tr: np.ndarray
+    X_va: np.ndarray
+    X_end: np.ndarray
+    P_tr: np.ndarray
+    tail_tr: np.ndarray
+    end_tr: np.ndarray
+    P_va: np.ndarray
+    tail_va: np.ndarray
+    end_va: np.ndarray
+    general: bool = False
+
+
+def input_scale(X: np.ndarray, general: bool = False):
+    """``(mean, std)`` (D,) of the input normalisation from training features ``X`` (n, D).
+    ``general``: a column that never varies in training (an empty slot of a field size the
+    data lack, a presence flag that is always set) keeps unit scale instead of 1e-6, so a
+    larger field at racing time gives finite inputs."""
+    mean, std = X.mean(axis=0), X.std(axis=0)
+    if general:
+        std = np.where(std < 1e-3, 1.0, std)
+    return mean, std + 1e-6
+
+
+def _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg) -> ValueData:
+    """One track, one field size: every ``value_stride``-th step of the training races (every
+    5th at least of the held-out ones), every car."""
     R, T, N = rewards.shape
     P, tail = discounted_partial_returns(rewards, cfg.gamma)
-    rng = np.random.default_rng(cfg.seed)
     tr = _value_samples(states, thetas, train_idx, cfg.value_stride, T, N)
     va = _value_samples(states, thetas, val_idx, max(cfg.value_stride, 5), T, N)
     X_tr = _features_in_chunks(states, thetas, *tr, track)
@@ -258,8 +303,15 @@ def _train_value(states, thetas, rewards, train_idx, val_idx, track, cfg, out, t
     rr, cc = np.meshgrid(np.arange(R), np.arange(N), indexing="ij")
     X_end = value_features(states[rr.ravel(), T], thetas[rr.ravel()], track, cc.ravel()
                            ).astype(np.float32)
-    mean, std = X_tr.mean(axis=0), X_tr.std(axis=0) + 1e-6
-    y0 = P[tr[0], tr[1], tr[2]]
+    parts = lambda smp: (P[smp[0], smp[1], smp[2]], tail[smp[1]], smp[0] * N + smp[2])
+    return ValueData(X_tr, X_va, X_end, *parts(tr), *parts(va))
+
+
+def _train_value(data: ValueData, cfg, out, torch, progress_bar, log):
+    rng = np.random.default_rng(cfg.seed)
+    X_tr, X_va, X_end = data.X_tr, data.X_va, data.X_end
+    mean, std = input_scale(X_tr, data.general)
+    y0 = data.P_tr
     y_shift, y_scale = float(y0.mean()), float(y0.std() + 1e-9)
     net = _torch_mlp(X_tr.shape[1], cfg.value_hidden, torch)
     model = _Normalised(net, mean, std, y_scale, y_shift, torch)
@@ -276,13 +328,14 @@ def _train_value(states, thetas, rewards, train_idx, val_idx, track, cfg, out, t
         epoch0, history = st["epoch"], st["history"]
         log(f"value: resuming after epoch {epoch0}")
     Xt, Xv, Xe = (torch.from_numpy(a) for a in (X_tr, X_va, X_end))
-    end_index = lambda r, c: r * N + c
+    tr = (data.P_tr, data.tail_tr, data.end_tr)
+    va = (data.P_va, data.tail_va, data.end_va)
 
-    def targets(samples):
-        r, t, c = samples
+    def targets(parts):
+        P, tail, end = parts
         with torch.no_grad():
             v_end = model(Xe).numpy().astype(np.float64)
-        return P[r, t, c] + tail[t] * v_end[end_index(r, c)]
+        return P + tail * v_end[end]
 
     t0 = time.perf_counter()
     for epoch in range(epoch0, cfg.value_epochs):
@@ -338,19 +391,45 @@ def sample_deviations(states, thetas, races, n: int, rng, own_theta_fraction: fl
     return x, th, th2, i
 
 
-def _train_potential(states, thetas, train_idx, track, cfg, value, out, torch, progress_bar, log):
-    N = states.shape[2]
+class _Deviations:
+    """Unilateral deviations at the training states of one track and one field size, and
+    their features (the potential stage's data; :mod:`experiments.train_general` has the one
+    for a family of tracks and field sizes). ``draw(n, rng)`` returns a batch;
+    ``value_features(batch, k)`` and ``potential_features(batch, k)`` give its features
+    (float64) under theta (k = 1) or the deviation theta' (k = 2)."""
+
+    general = False
+
+    def __init__(self, states, thetas, races, track, own_theta_fraction):
+        self.states, self.thetas, self.races, self.track = states, thetas, races, track
+        self.own = own_theta_fraction
+        self.potential_dim = potential_dim(states.shape[2])
+
+    def draw(self, n, rng):
+        return sample_deviations(self.states, self.thetas, self.races, n, rng, self.own)
+
+    def value_features(self, batch, k):
+        x, th1, th2, i = batch
+        return value_features(x, (th1, th2)[k - 1], self.track, i)
+
+    def potential_features(self, batch, k):
+        x, th1, th2, i = batch
+        return potential_features(x, (th1, th2)[k - 1], self.track)
+
+
+def _train_potential(data, cfg, value, out, torch, progress_bar, log):
+    """Fit Phi on deviations drawn from ``data`` (a :class:`_Deviations` or its family
+    counterpart) so that dPhi matches dV_i."""
     rng = np.random.default_rng(cfg.seed + 1)
     # input normalisation from a sample of training states with uniform thetas
-    x, th, _, _ = sample_deviations(states, thetas, train_idx, 20000, rng, cfg.own_theta_fraction)
-    F = potential_features(x, th, track)
-    mean, std = F.mean(axis=0), F.std(axis=0) + 1e-6
-    xi, th1, th2, i = sample_deviations(states, thetas, train_idx, 20000, rng, cfg.own_theta_fraction)
+    F = data.potential_features(data.draw(20000, rng), 1)
+    mean, std = input_scale(F, data.general)
+    batch = data.draw(20000, rng)
+    f32 = lambda a: torch.from_numpy(a.astype(np.float32))
     with torch.no_grad():
-        dv = (value(torch.from_numpy(value_features(xi, th2, track, i).astype(np.float32)))
-              - value(torch.from_numpy(value_features(xi, th1, track, i).astype(np.float32))))
+        dv = value(f32(data.value_features(batch, 2))) - value(f32(data.value_features(batch, 1)))
     y_scale = float(dv.std() + 1e-9)             # gaps are learned in units of std(dV)
-    net = _torch_mlp(potential_dim(N), cfg.potential_hidden, torch)
+    net = _torch_mlp(data.potential_dim, cfg.potential_hidden, torch)
     phi = _Normalised(net, mean, std, y_scale, 0.0, torch)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.potential_lr)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.potential_lr, pct_start=0.1,
@@ -370,12 +449,9 @@ def _train_potential(states, thetas, train_idx, track, cfg, value, out, torch, p
                initial=step0, total=cfg.potential_steps, mininterval=_BAR_INTERVAL)
     window = []
     for step in bar:
-        x, th1, th2, i = sample_deviations(states, thetas, train_idx, cfg.potential_batch, rng,
-                                           cfg.own_theta_fraction)
-        fv1 = torch.from_numpy(value_features(x, th1, track, i).astype(np.float32))
-        fv2 = torch.from_numpy(value_features(x, th2, track, i).astype(np.float32))
-        fp1 = torch.from_numpy(potential_features(x, th1, track).astype(np.float32))
-        fp2 = torch.from_numpy(potential_features(x, th2, track).astype(np.float32))
+        batch = data.draw(cfg.potential_batch, rng)
+        fv1, fv2 = (f32(data.value_features(batch, k)) for k in (1, 2))
+        fp1, fp2 = (f32(data.potential_features(batch, k)) for k in (1, 2))
         with torch.no_grad():
             dv = (value(fv2) - value(fv1)) / y_scale
         gap = (phi.raw(fp2) - phi.raw(fp1)) - dv
@@ -435,10 +511,20 @@ def validate_gaps(model, states, thetas, val_idx, track, cfg) -> dict:
     vr = value_range(model, states, thetas, val_idx, track, rng)
     x, th1, th2, i = sample_deviations(states, thetas, val_idx, cfg.val_pairs, rng,
                                        cfg.own_theta_fraction)
-    rel, base, dphi, dv = relative_gaps(model, x, th1, th2, i, track, vr)
+    _, _, dphi, dv = relative_gaps(model, x, th1, th2, i, track, vr)
+    return {"value_range": vr, "val_pairs": int(cfg.val_pairs), **gap_statistics(dphi, dv, vr)}
+
+
+def gap_statistics(dphi, dv, vr: float) -> dict:
+    """Statistics of the approximation gap of deviations with potential changes ``dphi`` and
+    value changes ``dv`` (arrays (n,)), relative to the value range ``vr`` [m]: median, 95th
+    percentile and maximum of ``|dPhi - dV| / vr``, alpha (the largest absolute gap), the
+    share within 10%, those of a constant potential (``|dV| / vr``), a histogram and the sign
+    agreement of dPhi and dV."""
+    rel, base = np.abs(dphi - dv) / vr, np.abs(dv) / vr
     q = lambda a, p: float(np.percentile(a, p))
-    return {"value_range": vr, "val_pairs": int(cfg.val_pairs),
-            "gap_rel_median": q(rel, 50), "gap_rel_p95": q(rel, 95), "gap_rel_max": float(rel.max()),
+    return {"gap_rel_median": q(rel, 50), "gap_rel_p95": q(rel, 95),
+            "gap_rel_max": float(rel.max()),
             "alpha": float(np.abs(dphi - dv).max()),
             "gap_rel_within_10pct": float(np.mean(rel <= 0.10)),
             "const_rel_median": q(base, 50), "const_rel_p95": q(base, 95),

@@ -53,6 +53,50 @@ def test_start_order_follows_the_paper_protocol():
     assert all(o[1] < o[2] for o in orders)               # O1 always ahead of O2
 
 
+def test_start_order_scaled_to_n_cars():
+    """N start regions: the ego from each equally often, the opponents front to back in the
+    others; N = 3 is the paper's order, race for race."""
+    assert [BenchConfig.start_order(k) for k in range(3)] == [[0, 1, 2], [1, 0, 2], [2, 0, 1]]
+    for n in range(2, 9):
+        orders = [BenchConfig.start_order(k, n) for k in range(4 * n)]
+        assert all(sorted(o) == list(range(n)) for o in orders)
+        assert [sum(o[0] == r for o in orders) for r in range(n)] == [4] * n
+        assert all(o[1:] == sorted(o[1:]) for o in orders)
+        assert [o[0] for o in orders[:n]] == list(range(n))
+    assert [BenchConfig.start_order(k, 3) for k in range(99)] == [BenchConfig.start_order(k)
+                                                                  for k in range(99)]
+
+
+def test_n_car_config_names_bad_values_and_keeps_the_3_car_manifest():
+    with pytest.raises(ValueError, match="races must be a multiple of n_cars = 4 .* got 6"):
+        BenchConfig(n_cars=4, races=6)
+    with pytest.raises(ValueError, match="n_cars must be an integer in 2..8, got 9"):
+        BenchConfig(n_cars=9, races=9)
+    assert "n_cars" not in BenchConfig().to_dict()                  # the paper's manifests
+    assert BenchConfig(n_cars=4, races=8).to_dict()["n_cars"] == 4
+    assert BenchConfig(n_cars=4, races=4).agents == ["alpha", "mpc", "mpc", "mpc"]
+
+
+def test_a_4_car_benchmark_places_every_car_in_its_region_and_summarises(tmp_path):
+    cfg = BenchConfig(ego="mpc:zeta=0.95", opponents="raceline", races=4, steps=10, seed=3,
+                      n_cars=4)
+    out = bench_race(cfg, 1)                              # race 1: ego from R2
+    rec, states = out["record"], out["states"]
+    assert rec["start_regions"] == ["R2", "R1", "R3", "R4"] and rec["ego_region"] == "R2"
+    s0 = states[0, :, 0]
+    assert s0[1] > s0[0] > s0[2] > s0[3]
+    assert rec["winner"] in ("ego", "O1", "O2", "O3") and sorted(rec["ranks"]) == [1, 2, 3, 4]
+    progress = np.array(rec["progress_m"])
+    assert rec["margin_m"] == pytest.approx(progress[0] - progress[1:].max(), abs=1e-3)
+    assert states.shape == (11, 4, 6) and np.isfinite(states).all()
+    s = bench(cfg, tmp_path, workers=1, progress_bar=False)
+    check_summary_invariants(s, 4)
+    assert sorted(s["by_region"]) == ["R1", "R2", "R3", "R4"]
+    assert set(s["wins"]) == {"ego", "O1", "O2", "O3"}
+    assert "| | ego | O1 | O2 | O3 |" in (tmp_path / "summary.md").read_text()
+    assert json.loads((tmp_path / "manifest.json").read_text())["config"]["n_cars"] == 4
+
+
 def test_paper_cases_are_the_papers_table():
     assert list(PAPER_CASES) == ["I", "II", "III", "IV", "V"]
     assert [c.paper_wins[0] for c in PAPER_CASES.values()] == [61, 52, 76, 73, 91]

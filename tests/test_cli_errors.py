@@ -33,6 +33,34 @@ def test_missing_model_fails_before_the_benchmark(capsys, tmp_path):
     assert "'nosuch'" in err and "default" in err
 
 
+def test_bad_family_collection_input_names_the_value_and_what_is_expected(capsys, tmp_path):
+    out = str(tmp_path / "data")
+    err = _one_line_error(capsys, ["collect", "--cars", "1-9", "--races", "2", "--out", out])
+    assert "'1-9'" in err and "2..8" in err and "1, 9" in err
+    err = _one_line_error(capsys, ["collect", "--tracks", "default", "nosuch", "--cars", "2-3",
+                                   "--races", "2", "--out", out])
+    assert "'nosuch'" in err and "random:SEED" in err and "random:A-B" in err
+    err = _one_line_error(capsys, ["collect", "--tracks", "random:7-3", "--races", "2",
+                                   "--out", out])
+    assert "'random:7-3'" in err and "A <= B" in err
+    err = _one_line_error(capsys, ["collect", "--track", "oval", "--tracks", "default",
+                                   "--races", "2", "--out", out])
+    assert "--track" in err and "--tracks" in err
+    assert not (tmp_path / "data").exists()
+
+
+def test_bad_n_car_benchmark_input_is_refused(capsys, tmp_path):
+    err = _one_line_error(capsys, ["bench", "--cars", "4", "--races", "6", "--out", str(tmp_path)])
+    assert "multiple of n_cars = 4" in err and "6" in err
+    err = _one_line_error(capsys, ["bench", "--cars", "4", "--paper-table", "--out", str(tmp_path)])
+    assert "3-car" in err and "4" in err
+
+
+def test_general_report_refuses_a_single_track_model(capsys, tmp_path):
+    err = _one_line_error(capsys, ["general-report", "--model", "races400", "--out", str(tmp_path)])
+    assert "'races400'" in err and "single-track" in err
+
+
 def test_unknown_agent_key_lists_the_valid_keys(capsys):
     err = _one_line_error(capsys, ["race", "--agents", "mpc:foo=1", "--steps", "5",
                                    "--no-animation"])

@@ -1,0 +1,302 @@
+"""The general alpha-potential on held-out tracks: ``alpha-racer general-report``.
+
+Everything is measured on tracks the model never saw (its metadata lists its training tracks;
+a held-out track among them is refused), except the last part, which is about ``default``:
+
+1. **Approximation gap** per field size N (default 2, 3, 5): fresh races on the held-out
+   tracks (a family collection, ``heldout/``), unilateral deviations at their states, the gap
+   ``|dPhi - dV_i|`` relative to the model's value range (from its training validation, as
+   ``alpha-racer analyze`` does; the range measured on these races is reported beside it):
+   median and 95th percentile, against a constant potential. ``gap.json``.
+2. **alpha (general) against the fixed-theta control** in the paper's protocol scaled to N
+   cars (:class:`experiments.bench.BenchConfig` with ``n_cars = N``): on every held-out track
+   and N, ``rounds`` rounds of N races (the ego from each start region once per round)
+   against N - 1 ``mpc`` cars (the MPC at its fixed default theta); the control runs the
+   same races with an ``mpc`` ego. ``bench/<track>_<N>cars/{alpha,control}/``.
+3. **alpha (general) against the single-track default model on default**: the general model
+   against two ``alpha:model=default`` cars in the paper's 3-car protocol; the control runs
+   the same races with the default model as ego. ``default/{general,control}/``.
+
+``summary.md`` and ``summary.json`` collect the three. The folder is claimed by its config
+(``manifest.json``); every part resumes (the collection by shards, the races by race), so a
+killed run loses no finished race.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .artifacts import claim, slug, write_json, write_text
+from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, wilson_interval
+from .family import FamilyConfig, collect_family, expand_tracks, load_family, parse_cars
+from .parallel import check_backend
+
+HELDOUT_RANDOM = "random:10000-10019"
+"""Procedural tracks of the default held-out set: seeds outside any training range we use."""
+
+
+def default_heldout_tracks(training_tracks) -> list[str]:
+    """:data:`HELDOUT_RANDOM` and every TUMFTM circuit of the local folder (if any) that is not
+    among ``training_tracks``."""
+    from racing_env.tracks import tumftm_dir
+    tracks = expand_tracks([HELDOUT_RANDOM])
+    d = tumftm_dir()
+    if d is not None:
+        trained = set(training_tracks)
+        tracks += [f"tumftm:{p.stem}" for p in sorted(d.glob("*.csv"))
+                   if f"tumftm:{p.stem}" not in trained]
+    return [t for t in tracks if t not in set(training_tracks)]
+
+
+@dataclass(frozen=True)
+class GeneralReportConfig:
+    """Sizes of the report (defaults: the full report; the tests use tiny ones).
+
+    ``tracks``: held-out track specs (``random:A-B`` ranges allowed; empty: the defaults of
+    :func:`default_heldout_tracks`). ``gap_races`` fresh races per field size of
+    ``gap_cars``, ``gap_pairs`` deviations per field size. ``bench_cars`` field sizes of the
+    N-car protocol, ``bench_rounds`` rounds of N races per track and N. ``default_races``
+    races of the comparison on ``default`` (0 skips it)."""
+
+    model: str = "general"
+    tracks: tuple = ()
+    gap_cars: tuple = (2, 3, 5)
+    gap_races: int = 40
+    gap_pairs: int = 20000
+    heldout_seed: int = 1
+    bench_cars: tuple = (2, 3, 5)
+    bench_rounds: int = 1
+    default_races: int = 99
+    steps: int = 500
+    seed: int = 0
+
+    def __post_init__(self):
+        for name in ("gap_races", "gap_pairs", "bench_rounds", "steps"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"GeneralReportConfig.{name} must be a positive integer, "
+                                 f"got {v!r}")
+        if isinstance(self.default_races, bool) or not (isinstance(self.default_races, int)
+                                                         and self.default_races >= 0):
+            raise ValueError(f"GeneralReportConfig.default_races must be an integer >= 0, got "
+                             f"{self.default_races!r}")
+        for name in ("gap_cars", "bench_cars"):
+            object.__setattr__(self, name, parse_cars(getattr(self, name)))
+        object.__setattr__(self, "tracks", tuple(expand_tracks(self.tracks)) if self.tracks
+                           else ())
+        if any(ch in str(self.model) for ch in ",="):
+            raise ValueError(f"model {self.model!r}: a name or path without ',' or '=' "
+                             f"(it goes into an agent spec)")
+
+
+def _model(name):
+    from agents.potential import cached_model
+    try:
+        model = cached_model(name)
+    except FileNotFoundError as exc:
+        raise ValueError(str(exc)) from None
+    if not model.general:
+        raise ValueError(f"model {name!r} is a single-track model (trained on "
+                         f"{model.meta.get('track')!r} with {model.n_cars} cars); the report "
+                         f"needs a general one (trained on a family collection)")
+    return model
+
+
+def heldout_tracks(cfg: GeneralReportConfig, model) -> list[str]:
+    """The held-out tracks of the report; a training track among them is a ValueError."""
+    training = model.meta.get("tracks", [])
+    tracks = list(cfg.tracks) or default_heldout_tracks(training)
+    seen = sorted(set(tracks) & set(training))
+    if seen:
+        raise ValueError(f"held-out tracks {seen} were used to train the model; the report "
+                         f"measures on tracks the model never saw")
+    if not tracks:
+        raise ValueError("no held-out tracks: give --tracks")
+    return tracks
+
+
+# ---------------------------------------------------------------------------- 1. the gap
+def gap_by_cars(model, heldout_dir, cfg: GeneralReportConfig) -> dict:
+    """Per field size of the held-out collection: gap statistics relative to the model's
+    value range (:func:`experiments.train_general.family_gaps`)."""
+    from .train_general import FamilyData, family_gaps
+    groups, _ = load_family(heldout_dir)
+    data = FamilyData(groups)
+    vr = model.meta.get("metrics", {}).get("value_range")
+    if not vr or not np.isfinite(vr) or vr <= 0:
+        raise ValueError(f"model has no positive value_range in its metrics ({vr!r}); retrain it")
+    out = {"value_range_model": float(vr), "by_cars": {}}
+    for N in data.cars:
+        races = np.flatnonzero(data.race_n == N)
+        g = family_gaps(model, data, races, cfg.gap_pairs, cfg.seed + N, value_range=vr)
+        out["by_cars"][str(N)] = {
+            "races": int(len(races)), "pairs": g["val_pairs"],
+            "tracks": sorted({data.track_name(int(r)) for r in races}),
+            "value_range_heldout": g["value_range_measured"],
+            **{k: g[k] for k in ("gap_rel_median", "gap_rel_p95", "gap_rel_max",
+                                 "gap_rel_within_10pct", "const_rel_median", "const_rel_p95",
+                                 "sign_agreement")}}
+    return out
+
+
+# ---------------------------------------------------------------------------- 2, 3. races
+def _bench_runs(cfg: GeneralReportConfig, tracks, out: Path) -> dict:
+    """name -> BenchRun of every race set of parts 2 and 3."""
+    ego = f"alpha:model={cfg.model}"
+    runs = {}
+    for track in tracks:
+        for N in cfg.bench_cars:
+            for role, who in (("alpha", ego), ("control", "mpc")):
+                bc = BenchConfig(ego=who, opponents="mpc", races=N * cfg.bench_rounds,
+                                 steps=cfg.steps, track=track, seed=cfg.seed, n_cars=N)
+                runs[("field", track, N, role)] = BenchRun(
+                    out / "bench" / f"{slug(track)}_{N}cars" / role, bc)
+    if cfg.default_races:
+        for role, who in (("general", ego), ("control", "alpha:model=default")):
+            bc = BenchConfig(ego=who, opponents="alpha:model=default", races=cfg.default_races,
+                             steps=cfg.steps, track="default", seed=cfg.seed)
+            runs[("default", role)] = BenchRun(out / "default" / role, bc)
+    return runs
+
+
+def _ego_wins(summaries) -> dict:
+    """Ego wins summed over benchmark summaries, with a Wilson 95% interval, and the mean
+    margin over the best opponent [m]."""
+    wins = sum(s["wins"]["ego"]["wins"] for s in summaries)
+    races = sum(s["races"] for s in summaries)
+    margin = sum(s["margin_m"]["mean"] * s["races"] for s in summaries) / races
+    lo, hi = wilson_interval(wins, races)
+    return {"wins": int(wins), "races": int(races), "fraction": wins / races, "ci95": [lo, hi],
+            "margin_m_mean": float(margin)}
+
+
+def field_results(runs: dict, cfg: GeneralReportConfig, tracks) -> dict:
+    """Part 2: per N, the ego's wins of alpha and of the control over all held-out tracks,
+    and per track."""
+    out = {}
+    for N in cfg.bench_cars:
+        per = {role: {t: runs[("field", t, N, role)].write_summary() for t in tracks}
+               for role in ("alpha", "control")}
+        out[str(N)] = {"chance": 1.0 / N,
+                       **{role: _ego_wins(per[role].values()) for role in per},
+                       "by_track": {t: {role: per[role][t]["wins"]["ego"]["wins"]
+                                        for role in per} | {"races": per["alpha"][t]["races"]}
+                                    for t in tracks}}
+    return out
+
+
+def default_results(runs: dict) -> dict:
+    """Part 3: wins of every car in the general-vs-default races and in the control."""
+    out = {}
+    for role in ("general", "control"):
+        s = runs[("default", role)].write_summary()
+        out[role] = {"wins": s["wins"], "races": s["races"], "margin_m": s["margin_m"],
+                     "ego": s["config"]["ego"], "opponents": s["config"]["opponents"]}
+    return out
+
+
+# ---------------------------------------------------------------------------- driver
+def general_report(cfg: GeneralReportConfig, out_dir="results/general", workers: int = 2,
+                   backend: str = "local", address: str | None = None,
+                   progress_bar: bool = True, command: str | None = None) -> dict:
+    """Run (or resume) the three parts into ``out_dir``; returns ``summary.json``'s content.
+    ``command`` (the command line that made it) goes into the summary."""
+    check_backend(backend, workers)
+    model = _model(cfg.model)
+    tracks = heldout_tracks(cfg, model)
+    check_agent_specs([f"alpha:model={cfg.model}", "mpc", "alpha:model=default"]
+                      if cfg.default_races else [f"alpha:model={cfg.model}", "mpc"])
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    claim(out / "manifest.json", {"config": json.loads(json.dumps(asdict(cfg))),
+                                  "heldout_tracks": tracks}, "a general-model report")
+    t0 = time.perf_counter()
+    fam = FamilyConfig(races=cfg.gap_races * len(cfg.gap_cars), tracks=tuple(tracks),
+                       cars=cfg.gap_cars, steps=cfg.steps, seed=cfg.heldout_seed,
+                       races_per_shard=1)
+    collect_family(fam, out / "heldout", workers=workers, backend=backend, address=address,
+                   progress_bar=progress_bar)
+    gap = gap_by_cars(model, out / "heldout", cfg)
+    write_json(out / "gap.json", gap)
+    runs = _bench_runs(cfg, tracks, out)
+    _run_many(runs, workers, backend, address, progress_bar)
+    summary = {"config": json.loads(json.dumps(asdict(cfg))), "model": _model_info(model),
+               "heldout_tracks": tracks, "gap": gap,
+               "field": field_results(runs, cfg, tracks),
+               "default": default_results(runs) if cfg.default_races else None,
+               "command": command or f"alpha-racer general-report --model {cfg.model} "
+                                     f"--out {out_dir}",
+               "seconds_this_run": time.perf_counter() - t0}
+    write_json(out / "summary.json", summary)
+    write_text(out / "summary.md", summary_markdown(summary))
+    return summary
+
+
+def _model_info(model) -> dict:
+    m = model.meta
+    return {"feature_set": m["feature_set"], "feature_version": m["feature_version"],
+            "tracks": len(m["tracks"]), "track_specs": m.get("track_specs"),
+            "n_cars_range": m["n_cars_range"], "races": m["data"]["races"],
+            "command": m.get("command")}
+
+
+def _pct(w: dict) -> str:
+    return (f"{w['wins']}/{w['races']} ({100 * w['fraction']:.0f}%, "
+            f"{100 * w['ci95'][0]:.0f}-{100 * w['ci95'][1]:.0f}%)")
+
+
+def summary_markdown(s: dict) -> str:
+    c, m, g = s["config"], s["model"], s["gap"]
+    tracks = s["heldout_tracks"]
+    lines = [
+        f"# General alpha-potential on held-out tracks (`{c['model']}`)", "",
+        f"Model: trained on {m['races']} races on {m['tracks']} tracks "
+        f"({' '.join(m['track_specs'] or [])}) with {m['n_cars_range'][0]}.."
+        f"{m['n_cars_range'][1]} cars. Held out (never used in training or tuning): "
+        f"{len(tracks)} tracks: {', '.join(tracks)}.", "",
+        "## Approximation gap", "",
+        f"|dPhi - dV_i| relative to the model's value range ({g['value_range_model']:.3f} m), "
+        f"{c['gap_pairs']} unilateral deviations per field size at states of fresh races "
+        f"({c['steps']} steps, seed {c['heldout_seed']}) on the held-out tracks.", "",
+        "| cars | races | gap median | gap p95 | constant median | constant p95 "
+        "| range of V on these races [m] |", "|---|---|---|---|---|---|---|"]
+    for N, r in g["by_cars"].items():
+        lines.append(f"| {N} | {r['races']} | {100 * r['gap_rel_median']:.2f}% | "
+                     f"{100 * r['gap_rel_p95']:.2f}% | {100 * r['const_rel_median']:.2f}% | "
+                     f"{100 * r['const_rel_p95']:.2f}% | {r['value_range_heldout']:.3f} |")
+    lines += ["", "## alpha (general) against the fixed-theta MPC, N cars", "",
+              f"On every held-out track, {c['bench_rounds']} round(s) of N races of "
+              f"{c['steps']} steps: the ego from each of the N start regions once per round, "
+              f"N - 1 `mpc` opponents (fixed default theta) in the other regions front to back. "
+              f"The control races the same races with an `mpc` ego. Ego wins with Wilson 95% "
+              f"intervals; margin = ego minus the best opponent.", "",
+              "| cars | alpha (general) ego wins | margin m | mpc ego wins (control) | margin m "
+              "| chance |", "|---|---|---|---|---|---|"]
+    for N, r in s["field"].items():
+        lines.append(f"| {N} | {_pct(r['alpha'])} | {r['alpha']['margin_m_mean']:+.2f} | "
+                     f"{_pct(r['control'])} | {r['control']['margin_m_mean']:+.2f} | "
+                     f"{100 * r['chance']:.0f}% |")
+    lines += ["", "Ego wins per track (alpha / control, of the races per track):", "",
+              "| track | " + " | ".join(f"{N} cars" for N in s["field"]) + " |",
+              "|---" * (len(s["field"]) + 1) + "|"]
+    for t in tracks:
+        lines.append(f"| `{t}` | " + " | ".join(
+            f"{r['by_track'][t]['alpha']} / {r['by_track'][t]['control']} of "
+            f"{r['by_track'][t]['races']}" for r in s["field"].values()) + " |")
+    d = s["default"]
+    if d:
+        lines += ["", "## alpha (general) against the single-track default model on `default`",
+                  "", f"The paper's 3-car protocol ({c['default_races']} races of {c['steps']} "
+                      f"steps): the ego against two `alpha:model=default` cars; the control "
+                      f"races the same races with the default model as ego.", "",
+                  "| ego | ego wins | O1 wins | O2 wins | ego margin m |", "|---|---|---|---|---|"]
+        for role in ("general", "control"):
+            r = d[role]
+            lines.append(f"| `{r['ego']}` | {_pct(r['wins']['ego'])} | {r['wins']['O1']['wins']} "
+                         f"| {r['wins']['O2']['wins']} | {r['margin_m']['mean']:+.2f} |")
+    lines += ["", f"Command: `{s['command']}` (this run: {s['seconds_this_run'] / 60:.1f} min)."]
+    return "\n".join(lines) + "\n"

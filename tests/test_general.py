@@ -1,0 +1,413 @@
+"""The track-general, field-size-general alpha-potential: features, family collection,
+training on it, racing any N, the held-out report; and the single-track path unchanged."""
+import importlib.util
+import json
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agents import general_features as gf
+from agents.features import feature_set, scale_theta
+from agents.reference import THETA_HIGH, THETA_LOW
+from experiments.family import (FamilyConfig, collect_family, expand_tracks, load_family,
+                                parse_cars, simulate_family_shard)
+from racing_env import make_track
+
+TRACK = make_track("default")
+needs_mpc = pytest.mark.skipif(importlib.util.find_spec("daqp") is None,
+                               reason="the MPC agents need daqp")
+
+
+# ---------------------------------------------------------------------------- features
+@st.composite
+def fields(draw):
+    """A field of 2..8 cars with many ties (shared s, n, thetas), a permutation and an ego."""
+    n = draw(st.integers(2, gf.N_MAX))
+    tie_or = lambda values, lo, hi: st.one_of(st.sampled_from(values),
+                                              st.floats(lo, hi, allow_nan=False))
+    x = np.zeros((n, 6))
+    th = np.zeros((n, 5))
+    shared = [np.array([50.0, 0.9, 0.1, 5.0, 1.0]), np.array([300.0, 1.0, 0.2, 12.0, 4.0])]
+    for k in range(n):
+        x[k] = [draw(tie_or([10.0, 12.5], 0.0, 80.0)), draw(tie_or([0.0, 0.1], -0.2, 0.2)),
+                draw(tie_or([0.0], -0.3, 0.3)), draw(tie_or([2.0], 0.0, 3.5)),
+                draw(tie_or([0.0], -0.2, 0.2)), draw(tie_or([0.0], -1.0, 1.0))]
+        if draw(st.booleans()):
+            th[k] = shared[draw(st.integers(0, 1))]
+        else:
+            th[k] = [draw(st.floats(lo, hi)) for lo, hi in zip(THETA_LOW, THETA_HIGH)]
+    perm = np.array(draw(st.permutations(range(n))))
+    return x, th, perm, draw(st.integers(0, n - 1))
+
+
+@settings(max_examples=150, deadline=None)
+@given(field=fields())
+def test_general_features_are_exactly_invariant_to_reordering_of_the_cars(field):
+    """Any reordering of the cars (following the ego) gives the same features bit for bit,
+    ties in progress and in the rest of the state included."""
+    x, th, perm, ego = field
+    np.testing.assert_array_equal(gf.potential_features(x[perm], th[perm], TRACK),
+                                  gf.potential_features(x, th, TRACK))
+    np.testing.assert_array_equal(
+        gf.value_features(x[perm], th[perm], TRACK, int(np.argsort(perm)[ego])),
+        gf.value_features(x, th, TRACK, ego))
+    assert gf.value_features(x, th, TRACK, ego).shape == (gf.VALUE_DIM,)
+    assert gf.potential_features(x, th, TRACK).shape == (gf.POTENTIAL_DIM,)
+
+
+def _field(rng, n):
+    x = np.zeros((n, 6))
+    x[:, 0] = rng.uniform(0, 30, n)
+    x[:, 1] = rng.uniform(-0.2, 0.2, n)
+    x[:, 3] = rng.uniform(0.5, 3.0, n)
+    return x, rng.uniform(THETA_LOW, THETA_HIGH, (n, 5))
+
+
+def test_padding_marks_the_field_and_leaves_empty_slots_zero():
+    rng = np.random.default_rng(0)
+    for n in range(2, gf.N_MAX + 1):
+        x, th = _field(rng, n)
+        p = gf.potential_features(x, th, TRACK).reshape(gf.N_MAX, gf.SLOT_DIM)
+        assert p[:, 0].tolist() == [1.0] * n + [0.0] * (gf.N_MAX - n)      # presence
+        assert not p[n:].any()
+        order = np.argsort(-x[:, 0])
+        np.testing.assert_array_equal(p[:n, 1], x[order, 0] - x[order, 0].mean())
+        # the theta slots hold the scaled thetas in progress order (the ascent's columns)
+        flat = p.ravel()
+        np.testing.assert_allclose(flat[gf.potential_theta_slots(n)], scale_theta(th[order]))
+        v = gf.value_features(x, th, TRACK, 0)[gf.EGO_DIM:].reshape(gf.N_MAX - 1, gf.OTHER_DIM)
+        assert v[:, 0].tolist() == [1.0] * (n - 1) + [0.0] * (gf.N_MAX - n)
+        assert not v[n - 1:].any()
+
+
+def test_a_car_added_behind_the_field_changes_only_its_own_slot_and_the_pack_mean():
+    """A 2-car field and the same field with a third car far behind: the ego's block and its
+    first neighbour's slot are the same; the potential's slots differ only in the progress
+    relative to the field's mean and in the new car's slot."""
+    rng = np.random.default_rng(1)
+    x2, th2 = _field(rng, 2)
+    x3 = np.vstack([x2, [x2[:, 0].min() - 5.0, 0.05, 0.0, 1.5, 0.0, 0.0]])
+    th3 = np.vstack([th2, rng.uniform(THETA_LOW, THETA_HIGH, 5)])
+    leader = int(np.argmax(x2[:, 0]))
+    v2, v3 = gf.value_features(x2, th2, TRACK, leader), gf.value_features(x3, th3, TRACK, leader)
+    k = gf.EGO_DIM + gf.OTHER_DIM
+    np.testing.assert_array_equal(v2[:k], v3[:k])
+    assert not v2[k:].any() and v3[k] == 1.0
+    p2 = gf.potential_features(x2, th2, TRACK).reshape(gf.N_MAX, gf.SLOT_DIM)
+    p3 = gf.potential_features(x3, th3, TRACK).reshape(gf.N_MAX, gf.SLOT_DIM)
+    same = np.r_[0, 2:gf.SLOT_DIM]
+    np.testing.assert_array_equal(p2[:2][:, same], p3[:2][:, same])
+    assert not p2[2].any() and p3[2, 0] == 1.0
+
+
+def test_local_track_matches_the_tracks_own_lookups_for_a_mix_of_tracks():
+    names = ["default", "oval", "random:3"]
+    ts = gf.TrackSet(names)
+    rng = np.random.default_rng(2)
+    s = rng.uniform(-60, 120, 200)
+    ids = rng.integers(0, 3, 200)
+    got = gf.local_track(ts, s, ids)
+    for k, name in enumerate(names):
+        t = make_track(name)
+        m = ids == k
+        kappa = t._interp(t.kappa, s[m, None] + gf.PREVIEW)
+        wl, wr = t.widths(s[m])
+        np.testing.assert_array_equal(got[m], np.column_stack([kappa, wl, wr]))
+    # features of a mix of tracks are those of each track on its own
+    x, th = _field(rng, 3)
+    X = np.repeat(x[None], 3, 0)
+    TH = np.repeat(th[None], 3, 0)
+    mixed = gf.potential_features(X, TH, ts, track_id=np.arange(3))
+    for k, name in enumerate(names):
+        np.testing.assert_array_equal(mixed[k], gf.potential_features(x, th, name))
+
+
+def test_bad_general_feature_input_names_the_value():
+    x, th = _field(np.random.default_rng(3), 9)
+    with pytest.raises(ValueError, match="take 2..8 cars, got 9"):
+        gf.potential_features(x, th, TRACK)
+    with pytest.raises(ValueError, match="take 2..8 cars, got 1"):
+        gf.value_features(x[:1], th[:1], TRACK, 0)
+    with pytest.raises(ValueError, match="ego must be in 0..2, got 3..3"):
+        gf.value_features(x[:3], th[:3], TRACK, 3)
+    with pytest.raises(ValueError, match="needs track_id"):
+        gf.potential_features(x[:3], th[:3], gf.TrackSet(["default", "oval"]))
+    with pytest.raises(ValueError, match="track_id must be in 0..1, got 0..2"):
+        gf.potential_features(np.repeat(x[None, :3], 3, 0), np.repeat(th[None, :3], 3, 0),
+                              gf.TrackSet(["default", "oval"]), track_id=[0, 1, 2])
+    with pytest.raises(ValueError, match="unknown feature set 'nope'"):
+        feature_set("nope")
+
+
+# ---------------------------------------------------------------------------- single track
+#: The shipped models at one joint state, computed with the main branch before the general
+#: features existed: V_i for each car, Phi, and the warm-started maximisation's Phi and theta.
+_X = np.array([[12.0, 0.05, 0.02, 2.1, 0.01, 0.1], [12.6, -0.08, -0.03, 2.3, -0.02, -0.2],
+               [11.2, 0.12, 0.0, 1.9, 0.0, 0.05]])
+_TH = np.array([[50.0, 0.95, 0.1, 5.0, 1.0], [200.0, 0.85, 0.25, 12.0, 3.0],
+                [10.0, 1.02, 0.05, 1.0, 0.5]])
+_BEFORE = {
+    "default": ([0.42780724321576225, -3.7268977233190195, 0.9463381771734196], -1.900075499271452,
+                3.514586667666407, [[18.691652, 1.014717, 0.209448, 16.750088, 2.909747],
+                                    [5.0, 1.010892, 0.277325, 11.779284, 3.355544],
+                                    [5.0, 0.998873, 0.14892, 13.259308, 0.974766]]),
+    "gamma0.98": ([0.456460019656126, -2.0247871376107622, 0.08244380102492449],
+                  -0.2995956104217914, 2.223362515088155,
+                  [[51.404755, 1.019507, 0.238452, 14.525553, 2.153228],
+                   [5.0, 1.020341, 0.292656, 14.591084, 4.109288],
+                   [5.0, 1.00749, 0.166576, 11.747051, 2.107917]]),
+    "gamma0.995": ([-0.0107791445414962, -7.089182721086113, 1.6767587252934713],
+                   -4.082419743443779, 10.112651018412464,
+                   [[5.0, 1.001532, 0.248606, 16.957644, 1.922569],
+                    [5.0, 1.016101, 0.206783, 20.0, 2.908266],
+                    [5.0, 1.007767, 0.3, 5.905293, 2.555202]]),
+    "races400": ([-1.104163729425381, -3.70962614999363, 0.8881983840224832], 0.5641833864952162,
+                 6.416752313286906, [[94.774622, 1.030722, 0.236573, 13.192741, 5.0],
+                                     [5.0, 1.05, 0.3, 7.219883, 0.0],
+                                     [5.0, 1.017472, 0.091803, 6.63965, 1.621004]]),
+}
+
+
+@pytest.mark.parametrize("name", sorted(_BEFORE))
+def test_shipped_single_track_models_give_the_values_they_gave_before(name):
+    from agents.potential import load_model
+    m = load_model(name)
+    assert not m.general and m.features.name == "fixed" and m.n_cars == 3
+    v, phi, phi_max, theta = _BEFORE[name]
+    got_v = m.value(np.repeat(_X[None], 3, 0), np.repeat(_TH[None], 3, 0), TRACK, np.arange(3))
+    np.testing.assert_allclose(got_v, v, rtol=1e-5, atol=1e-5)
+    assert m.potential(_X[None], _TH[None], TRACK)[0] == pytest.approx(phi, rel=1e-5, abs=1e-5)
+    th, p = m.maximise(_X, TRACK, theta0=_TH, restarts=4, iterations=3,
+                       rng=np.random.default_rng(0))
+    assert p == pytest.approx(phi_max, rel=1e-5, abs=1e-5)
+    np.testing.assert_allclose(th, theta, rtol=1e-4, atol=1e-4)
+    with pytest.raises(ValueError, match="trained for 3 cars, got states of 4"):
+        m.potential(np.zeros((1, 4, 6)), np.zeros((1, 4, 5)), TRACK)
+
+
+# ---------------------------------------------------------------------------- collection
+def test_track_and_field_specs():
+    assert expand_tracks(["default", "random:3-5"]) == ["default", "random:3", "random:4",
+                                                        "random:5"]
+    assert parse_cars("2-4") == (2, 3, 4) and parse_cars("5,2") == (2, 5) and parse_cars(3) == (3,)
+    with pytest.raises(ValueError, match=r"cars '1-9': every field size must be in 2..8, got 1, 9"):
+        parse_cars("1-9")
+    with pytest.raises(ValueError, match="expected a number, a range A-B or a list"):
+        parse_cars("two")
+    with pytest.raises(ValueError, match="random:A-B with integer seeds"):
+        expand_tracks(["random:9-3"])
+    with pytest.raises(ValueError, match="'random:4' is listed twice"):
+        expand_tracks(["random:3-5", "random:4"])
+
+
+def test_shards_are_dealt_evenly_over_tracks_and_field_sizes_from_the_seed():
+    cfg = FamilyConfig(races=200, tracks=("default", "oval", "random:0-4"), cars=(2, 3, 4, 5, 6),
+                       races_per_shard=2)
+    a = cfg.assignments()
+    assert len(a) == 100 and a == FamilyConfig(**{**cfg.__dict__}).assignments()
+    tracks = [t for t, _ in a]
+    counts = [tracks.count(t) for t in cfg.track_list]
+    assert max(counts) - min(counts) <= 1 and sum(counts) == 100
+    assert [n for _, n in a].count(2) == 20 and {n for _, n in a} == {2, 3, 4, 5, 6}
+    other = FamilyConfig(**{**cfg.__dict__, "seed": 1}).assignments()
+    assert other != a
+    # a shard's assignment depends on its index, not on how many shards follow it
+    assert FamilyConfig(**{**cfg.__dict__, "races": 20}).assignments() == a[:10]
+
+
+TINY_FAMILY = FamilyConfig(races=4, tracks=("default", "random:3"), cars=(2, 3), steps=10,
+                           races_per_shard=1)
+
+
+@needs_mpc
+def test_family_collection_is_the_same_with_1_and_2_workers_and_records_each_shard(tmp_path):
+    collect_family(TINY_FAMILY, tmp_path / "one", workers=1, progress_bar=False)
+    collect_family(TINY_FAMILY, tmp_path / "two", workers=2, progress_bar=False)
+    m1 = json.loads((tmp_path / "one" / "manifest.json").read_text())
+    assert m1 == json.loads((tmp_path / "two" / "manifest.json").read_text())
+    assert m1["schema_version"] == 2 and m1["kind"] == "family" and len(m1["shards"]) == 4
+    for entry in m1["shards"]:
+        k = entry["shard"]
+        with np.load(tmp_path / "one" / f"shard_{k:05d}.npz") as a, \
+                np.load(tmp_path / "two" / f"shard_{k:05d}.npz") as b:
+            assert a.files == b.files
+            for key in a.files:
+                assert a[key].tobytes() == b[key].tobytes(), key
+            assert str(a["track"]) == entry["track"] and int(a["n_cars"]) == entry["n_cars"]
+            assert a["states"].shape == (1, 11, entry["n_cars"], 6)
+    groups, _ = load_family(tmp_path / "one")
+    assert sum(len(g.states) for g in groups) == 4
+    assert sorted(int(i) for g in groups for i in g.race_index) == [0, 1, 2, 3]
+
+
+@needs_mpc
+@pytest.mark.slow
+def test_ray_backend_gives_the_same_family_data_as_the_local_pool(tmp_path):
+    pytest.importorskip("ray")
+    collect_family(TINY_FAMILY, tmp_path / "local", workers=1, progress_bar=False)
+    collect_family(TINY_FAMILY, tmp_path / "ray", workers=2, progress_bar=False, backend="ray")
+    for k in range(TINY_FAMILY.n_shards):
+        with np.load(tmp_path / "local" / f"shard_{k:05d}.npz") as a, \
+                np.load(tmp_path / "ray" / f"shard_{k:05d}.npz") as b:
+            for key in a.files:
+                assert a[key].tobytes() == b[key].tobytes(), key
+
+
+@needs_mpc
+def test_a_family_race_is_the_single_track_race_of_the_same_seed_and_index():
+    from experiments.collect import CollectConfig, simulate_race
+    shard = simulate_family_shard(TINY_FAMILY, 2)
+    track, n = TINY_FAMILY.assignment(2)
+    single = simulate_race(CollectConfig(races=4, n_cars=n, steps=10, track=track, seed=0), 2)
+    assert shard["states"][0].tobytes() == single["states"].tobytes()
+    assert shard["thetas"][0].tobytes() == single["thetas"].tobytes()
+
+
+@needs_mpc
+def test_a_killed_family_collection_resumes_and_a_bad_track_fails_before_any_race(tmp_path):
+    from experiments.artifacts import write_npz
+    out = tmp_path / "run"
+    out.mkdir()
+    write_npz(out / "shard_00000.npz", schema_version=2, **simulate_family_shard(TINY_FAMILY, 0))
+    (out / "shard_00001.npz").write_bytes(b"truncated")
+    s = collect_family(TINY_FAMILY, out, workers=1, progress_bar=False)
+    assert s["resumed"] == 1 and s["simulated"] == 3
+    assert sum(len(g.states) for g in load_family(out)[0]) == 4
+    (out / "shard_00003.npz").unlink()                 # training refuses an unfinished collection
+    with pytest.raises(ValueError, match="1 of 4 shards missing .*run the same alpha-racer collect"):
+        load_family(out)
+    bad = FamilyConfig(races=2, tracks=("default", "nosuch"), cars=(2,), steps=5)
+    with pytest.raises(ValueError, match="track spec 'nosuch'"):
+        collect_family(bad, tmp_path / "bad", workers=1, progress_bar=False)
+    assert not (tmp_path / "bad").exists()
+
+
+@needs_mpc
+def test_a_single_track_collection_keeps_its_schema_and_loads_as_one_group(tmp_path):
+    from experiments.cli import main
+    assert main(["collect", "--races", "2", "--steps", "5", "--cars", "3", "--shard-size", "1",
+                 "--workers", "1", "--out", str(tmp_path)]) == 0
+    meta = json.loads((tmp_path / "manifest.json").read_text())
+    assert set(meta) == {"schema_version", "config"} and meta["schema_version"] == 1
+    assert set(meta["config"]) == {"races", "n_cars", "steps", "track", "seed", "races_per_shard",
+                                   "start_jitter"}
+    with np.load(tmp_path / "shard_00000.npz") as z:
+        assert set(z.files) == {"schema_version", "states", "thetas", "rewards", "race_index",
+                                "start_order", "fallbacks"}
+    groups, _ = load_family(tmp_path)
+    assert [(g.track, g.n_cars, len(g.states)) for g in groups] == [("default", 3, 2)]
+
+
+# ---------------------------------------------------------------------------- training
+TRAIN_ARGS = ["--value-epochs", "2", "--potential-steps", "60", "--value-hidden", "16", "16",
+              "--potential-hidden", "32", "32", "--val-fraction", "0.25", "--threads", "1"]
+
+
+@pytest.fixture(scope="module")
+def general_model(tmp_path_factory):
+    """A tiny general model: 8 races of 40 steps on default and random:3 with 2 and 3 cars."""
+    pytest.importorskip("daqp")
+    pytest.importorskip("torch")
+    from experiments.cli import main
+    root = tmp_path_factory.mktemp("general")
+    assert main(["collect", "--tracks", "default", "random:3", "--cars", "2-3", "--races", "8",
+                 "--steps", "40", "--shard-size", "2", "--workers", "1",
+                 "--out", str(root / "data")]) == 0
+    assert main(["train", "--data", str(root / "data"), "--out", str(root / "model"),
+                 "--rollout-pairs", "1", "--rollout-steps", "5"] + TRAIN_ARGS) == 0
+    return root
+
+
+def test_training_on_a_family_gives_a_general_model_with_per_field_validation(general_model):
+    from agents.potential import load_model
+    model = load_model(general_model / "model" / "model.npz")
+    meta = model.meta
+    assert model.general and meta["feature_set"] == "general" and meta["n_cars_range"] == [2, 3]
+    assert sorted(meta["tracks"]) == ["default", "random:3"] and meta["data"]["races"] == 8
+    m = json.loads((general_model / "model" / "metrics.json").read_text())
+    assert set(m["by_cars"]) == {"2", "3"} and m["value_range"] > 0
+    for s in list(m["by_cars"].values()) + [m]:
+        assert 0 <= s["gap_rel_median"] <= s["gap_rel_p95"] <= s["gap_rel_max"] < np.inf
+    assert np.isfinite(m["rollout_phi_rel_median"])
+    assert "| 2 |" in (general_model / "model" / "model_card.md").read_text()
+    # any field of 2..8 cars: finite values, thetas within the box
+    rng = np.random.default_rng(0)
+    for n in (2, 5, 8):
+        x, th = _field(rng, n)
+        assert np.isfinite(model.value(x[None], th[None], "oval", np.array([0]))).all()
+        theta, phi = model.maximise(x, make_track("oval"), restarts=3, iterations=2)
+        assert theta.shape == (n, 5) and np.isfinite(phi)
+        assert np.all(theta >= THETA_LOW - 1e-9) and np.all(theta <= THETA_HIGH + 1e-9)
+    with pytest.raises(ValueError, match="takes 2..8 cars, got states of 9"):
+        model.potential(np.zeros((1, 9, 6)), np.zeros((1, 9, 5)), TRACK)
+
+
+def test_the_same_family_data_and_config_give_the_same_general_model(general_model, tmp_path):
+    from experiments.cli import main
+    assert main(["train", "--data", str(general_model / "data"), "--out", str(tmp_path),
+                 "--rollout-pairs", "0"] + TRAIN_ARGS) == 0
+    with np.load(general_model / "model" / "model.npz") as a, np.load(tmp_path / "model.npz") as b:
+        for key in a.files:
+            if key != "meta":
+                assert a[key].tobytes() == b[key].tobytes(), key
+
+
+@pytest.mark.parametrize("agents,track", [(2, "random:10000"), (4, "default")])
+def test_a_general_model_races_any_field_size(general_model, agents, track):
+    from experiments.race import run_race
+    spec = f"alpha:model={general_model / 'model' / 'model.npz'}"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result, _ = run_race([spec] + ["mpc"] * (agents - 1), track=track, max_cycles=25,
+                             progress_bar=False)
+    assert np.isfinite(result.states).all() and np.isfinite(result.progress).all()
+    st0 = result.agent_stats[0]
+    assert np.isfinite(st0["potential"]) and st0["solves"] == 25
+    outside = [w for w in caught if "trained on fields of 2..3 cars" in str(w.message)]
+    assert bool(outside) == (agents == 4)
+
+
+@needs_mpc
+def test_model_general_is_refused_with_how_to_train_it_when_missing(monkeypatch, tmp_path):
+    import agents.potential as potential
+    from agents import make_agent_spec
+    monkeypatch.setattr(potential, "MODEL_DIR", tmp_path)
+    monkeypatch.setattr(potential, "_LOADED", {})
+    with pytest.raises(ValueError, match=r"'general' is missing .*alpha-racer collect --tracks"):
+        make_agent_spec("alpha:model=general")
+
+
+# ---------------------------------------------------------------------------- the report
+def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_path):
+    from experiments.general import GeneralReportConfig, default_heldout_tracks, general_report
+    path = str(general_model / "model" / "model.npz")
+    cfg = GeneralReportConfig(model=path, tracks=("random:10000",), gap_cars=(2, 3), gap_races=1,
+                              gap_pairs=300, bench_cars=(2,), default_races=3, steps=15)
+    s = general_report(cfg, tmp_path, workers=1, progress_bar=False)
+    assert set(s["gap"]["by_cars"]) == {"2", "3"}
+    for g in s["gap"]["by_cars"].values():
+        assert g["races"] == 1 and g["tracks"] == ["random:10000"]
+        assert 0 <= g["gap_rel_median"] <= g["gap_rel_p95"] and np.isfinite(g["const_rel_p95"])
+    f = s["field"]["2"]
+    assert f["alpha"]["races"] == f["control"]["races"] == 2 and f["chance"] == 0.5
+    assert f["by_track"]["random:10000"]["races"] == 2
+    d = s["default"]["general"]
+    assert sum(w["wins"] for w in d["wins"].values()) == 3
+    text = (tmp_path / "summary.md").read_text()
+    for part in ("## Approximation gap", "against the fixed-theta MPC",
+                 "against the single-track default model"):
+        assert part in text
+    lines = (tmp_path / "bench" / "random_10000_2cars" / "alpha" / "races.jsonl").read_text()
+    again = general_report(cfg, tmp_path, workers=1, progress_bar=False)   # nothing left to race
+    assert (tmp_path / "bench" / "random_10000_2cars" / "alpha" / "races.jsonl").read_text() == lines
+    assert again["gap"] == s["gap"] and again["field"] == s["field"]
+    with pytest.raises(ValueError, match=r"\['random:3'\] were used to train the model"):
+        general_report(GeneralReportConfig(model=path, tracks=("random:3",)), tmp_path / "x",
+                       workers=1, progress_bar=False)
+    held = default_heldout_tracks(["default", "random:10003", "tumftm:Monza"])
+    assert "random:10000" in held and "random:10003" not in held and "tumftm:Monza" not in held
+    with pytest.raises(ValueError, match="single-track model"):
+        general_report(GeneralReportConfig(model="races400"), tmp_path / "y", workers=1)
