@@ -56,7 +56,9 @@ def curvature_preview(track, s) -> np.ndarray:
     return track._interp(track.kappa, s)
 
 
-def _check(states, thetas):
+def check_joint(states, thetas, max_cars: int | None = None):
+    """``states`` (..., N, 6) and ``thetas`` (..., N, 5) as float arrays, checked: matching
+    shapes and 2 <= N (<= ``max_cars`` when given)."""
     states = np.asarray(states, dtype=float)
     thetas = np.asarray(thetas, dtype=float)
     if states.ndim < 2 or states.shape[-1] != 6:
@@ -64,8 +66,11 @@ def _check(states, thetas):
     if thetas.shape != states.shape[:-1] + (5,):
         raise ValueError(f"thetas must have shape {states.shape[:-1] + (5,)} to match states "
                          f"{states.shape}, got {thetas.shape}")
-    if states.shape[-2] < 2:
-        raise ValueError(f"the alpha-potential needs at least 2 cars, got {states.shape[-2]}")
+    n = states.shape[-2]
+    if max_cars is not None and not 2 <= n <= max_cars:
+        raise ValueError(f"these features take 2..{max_cars} cars, got {n}")
+    if n < 2:
+        raise ValueError(f"the alpha-potential needs at least 2 cars, got {n}")
     return states, thetas
 
 
@@ -86,7 +91,7 @@ def potential_theta_slots(n_cars: int) -> np.ndarray:
 
 def value_features(states, thetas, track, ego) -> np.ndarray:
     """Features of car ``ego`` (int or int array broadcast over the batch): (..., value_dim)."""
-    states, thetas = _check(states, thetas)
+    states, thetas = check_joint(states, thetas)
     N = states.shape[-2]
     batch = states.shape[:-2]
     ego = np.broadcast_to(np.asarray(ego, dtype=np.int64), batch)
@@ -114,7 +119,7 @@ def progress_order(states) -> np.ndarray:
 
 def potential_features(states, thetas, track, order=None) -> np.ndarray:
     """Joint features (..., potential_dim) with cars in ``order`` (default progress order)."""
-    states, thetas = _check(states, thetas)
+    states, thetas = check_joint(states, thetas)
     batch = states.shape[:-2]
     order = progress_order(states) if order is None else order
     st = np.take_along_axis(states, order[..., None], axis=-2)

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .features import N_STATE, N_THETA, scale_theta
+from .features import N_STATE, N_THETA, check_joint, scale_theta
 
 FEATURE_VERSION = 1
 N_MAX = 8                                                  # slots: the env's largest field
@@ -124,20 +124,6 @@ def local_track(tracks: TrackSet, s, track_id) -> np.ndarray:
                            tracks.lookup("w_right", s, ids)[..., None]], axis=-1)
 
 
-def _check(states, thetas):
-    states = np.asarray(states, dtype=float)
-    thetas = np.asarray(thetas, dtype=float)
-    if states.ndim < 2 or states.shape[-1] != 6:
-        raise ValueError(f"states must have shape (..., N, 6), got {states.shape}")
-    if thetas.shape != states.shape[:-1] + (5,):
-        raise ValueError(f"thetas must have shape {states.shape[:-1] + (5,)} to match states "
-                         f"{states.shape}, got {thetas.shape}")
-    n = states.shape[-2]
-    if not 2 <= n <= N_MAX:
-        raise ValueError(f"the general features take 2..{N_MAX} cars, got {n}")
-    return states, thetas
-
-
 def _sort(primary, states, thetas=None) -> np.ndarray:
     """Indices (..., N) sorting cars by ``primary`` (..., N), ties broken by the rest of the
     state (n, mu, vx, vy, omega) and then theta: the same cars in any input order give the
@@ -183,7 +169,7 @@ def value_features(states, thetas, track, ego, track_id=None) -> np.ndarray:
     (or name), or a :class:`TrackSet` with ``track_id`` (broadcast over the batch) naming
     each sample's track.
     """
-    states, thetas = _check(states, thetas)
+    states, thetas = check_joint(states, thetas, N_MAX)
     N = states.shape[-2]
     batch = states.shape[:-2]
     tracks, ids = _tracks(track, track_id, batch)
@@ -212,7 +198,7 @@ def potential_features(states, thetas, track, order=None, track_id=None) -> np.n
     """Joint features (..., POTENTIAL_DIM) with the cars in ``order`` (default
     :func:`progress_order` of states and thetas) in the first N slots; ``track`` and
     ``track_id`` as for :func:`value_features`."""
-    states, thetas = _check(states, thetas)
+    states, thetas = check_joint(states, thetas, N_MAX)
     N = states.shape[-2]
     batch = states.shape[:-2]
     tracks, ids = _tracks(track, track_id, batch)

@@ -228,11 +228,14 @@ def wilson_interval(wins: int, n: int, z: float = 1.959964) -> tuple[float, floa
     return float(lo), float(hi)
 
 
+def win_share(wins: int, races: int) -> dict:
+    """``{"wins", "races", "fraction", "ci95"}``: a win count with its Wilson 95% interval."""
+    lo, hi = wilson_interval(wins, races)
+    return {"wins": int(wins), "races": int(races), "fraction": wins / races, "ci95": [lo, hi]}
+
+
 def _wins(records, role) -> dict:
-    n = len(records)
-    w = sum(r["winner"] == role for r in records)
-    lo, hi = wilson_interval(w, n)
-    return {"wins": int(w), "races": n, "fraction": w / n, "ci95": [lo, hi]}
+    return win_share(sum(r["winner"] == role for r in records), len(records))
 
 
 def summarise(records: list[dict], config: BenchConfig) -> dict:

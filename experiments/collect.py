@@ -32,8 +32,23 @@ from .parallel import check_backend, run_tasks_with_progress
 SCHEMA_VERSION = 1
 
 
+class ShardedRaces:
+    """Races ``0..races-1`` cut into shards of ``races_per_shard`` (the last may be short)."""
+
+    races: int
+    races_per_shard: int
+
+    @property
+    def n_shards(self) -> int:
+        return -(-self.races // self.races_per_shard)
+
+    def shard_races(self, shard: int) -> range:
+        lo = shard * self.races_per_shard
+        return range(lo, min(lo + self.races_per_shard, self.races))
+
+
 @dataclass(frozen=True)
-class CollectConfig:
+class CollectConfig(ShardedRaces):
     """What to simulate. Defaults: the paper's races (3 cars, 500 steps of 0.1 s)."""
 
     races: int = 4000
@@ -51,14 +66,6 @@ class CollectConfig:
                 raise ValueError(f"CollectConfig.{name} must be a positive integer, got {v!r}")
         if not 2 <= self.n_cars <= 8:
             raise ValueError(f"CollectConfig.n_cars must be in 2..8, got {self.n_cars}")
-
-    @property
-    def n_shards(self) -> int:
-        return -(-self.races // self.races_per_shard)
-
-    def shard_races(self, shard: int) -> range:
-        lo = shard * self.races_per_shard
-        return range(lo, min(lo + self.races_per_shard, self.races))
 
 
 def _mpc_agents(track, thetas, rng=None, agent_ids=None) -> list:

@@ -31,7 +31,7 @@ import numpy as np
 
 from .artifacts import claim, write_npz
 from .collect import SCHEMA_VERSION as SINGLE_SCHEMA_VERSION
-from .collect import CollectConfig, simulate_race
+from .collect import CollectConfig, ShardedRaces, simulate_race
 from .parallel import check_backend, run_tasks_with_progress
 
 SCHEMA_VERSION = 2
@@ -111,7 +111,7 @@ def parse_cars(text) -> tuple[int, ...]:
 
 
 @dataclass(frozen=True)
-class FamilyConfig:
+class FamilyConfig(ShardedRaces):
     """A collection over ``tracks`` (specs, ``random:A-B`` ranges allowed) and field sizes
     ``cars``: ``races`` races of ``steps`` steps, ``races_per_shard`` per shard."""
 
@@ -136,14 +136,6 @@ class FamilyConfig:
     def track_list(self) -> list[str]:
         """Every track of the family, ranges expanded, in the given order."""
         return expand_tracks(self.tracks)
-
-    @property
-    def n_shards(self) -> int:
-        return -(-self.races // self.races_per_shard)
-
-    def shard_races(self, shard: int) -> range:
-        lo = shard * self.races_per_shard
-        return range(lo, min(lo + self.races_per_shard, self.races))
 
     def assignment(self, shard: int, _tracks: list | None = None) -> tuple[str, int]:
         """(track, N) of shard ``shard``: tracks are dealt in cycles of ``len(tracks)`` shards,

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .artifacts import claim, slug, write_json, write_text
-from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, wilson_interval
+from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, win_share
 from .family import FamilyConfig, collect_family, expand_tracks, load_family, parse_cars
 from .parallel import check_backend
 
@@ -169,9 +169,7 @@ def _ego_wins(summaries) -> dict:
     wins = sum(s["wins"]["ego"]["wins"] for s in summaries)
     races = sum(s["races"] for s in summaries)
     margin = sum(s["margin_m"]["mean"] * s["races"] for s in summaries) / races
-    lo, hi = wilson_interval(wins, races)
-    return {"wins": int(wins), "races": int(races), "fraction": wins / races, "ci95": [lo, hi],
-            "margin_m_mean": float(margin)}
+    return {**win_share(wins, races), "margin_m_mean": float(margin)}
 
 
 def field_results(runs: dict, cfg: GeneralReportConfig, tracks) -> dict:

@@ -146,6 +146,22 @@ def _to_numpy_mlp(net, mean, std, y_scale, y_shift) -> MLP:
                y_scale, y_shift)
 
 
+def _numpy_model(value, potential, meta: dict) -> PotentialModel:
+    """The numpy :class:`PotentialModel` of the trained (normalised) torch networks."""
+    return PotentialModel(*(_to_numpy_mlp(n.net, n.mean.numpy(), n.std.numpy(), n.y_scale,
+                                          n.y_shift) for n in (value, potential)), meta)
+
+
+def _save_model(model: PotentialModel, metrics: dict, out: Path, card_text, command: str) -> None:
+    """Record ``metrics`` and ``command`` in the model and write ``model.npz``,
+    ``metrics.json`` and ``model_card.md`` (``card_text(meta)``) into ``out``."""
+    model.meta["metrics"] = metrics
+    model.meta["command"] = command
+    model.save(out / "model.npz")
+    write_json(out / "metrics.json", metrics)
+    write_text(out / "model_card.md", card_text(model.meta))
+
+
 def _save_atomic_torch(obj, path: Path, torch):
     tmp = path.with_suffix(".tmp")
     torch.save(obj, tmp)
@@ -205,11 +221,7 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
             "gamma": cfg.gamma, "config": asdict(cfg),
             "data": {"dir": str(data_dir), "races": R, "steps": T, "collect": data["config"]},
             "train_seconds": t_train}
-    model = PotentialModel(_to_numpy_mlp(value.net, value.mean.numpy(), value.std.numpy(),
-                                         value.y_scale, value.y_shift),
-                           _to_numpy_mlp(potential.net, potential.mean.numpy(),
-                                         potential.std.numpy(), potential.y_scale,
-                                         potential.y_shift), meta)
+    model = _numpy_model(value, potential, meta)
     log("validation on held-out races ...")
     metrics = {"train_seconds": t_train, **value.metrics,
                **validate_gaps(model, states, thetas, val_idx, track, cfg)}
@@ -217,11 +229,8 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
         metrics.update(validate_rollouts(model, metrics["value_range"], states, thetas, val_idx,
                                          track, cfg, progress_bar))
     metrics["total_seconds"] = time.perf_counter() - t_start
-    model.meta["metrics"] = metrics
-    model.meta["command"] = command or f"alpha-racer train --data {data_dir} --out {out_dir}"
-    model.save(out / "model.npz")
-    write_json(out / "metrics.json", metrics)
-    write_text(out / "model_card.md", model_card_text(model.meta))
+    _save_model(model, metrics, out, model_card_text,
+                command or f"alpha-racer train --data {data_dir} --out {out_dir}")
     log(summary_text(metrics))
     return metrics
 

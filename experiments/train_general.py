@@ -35,10 +35,10 @@ from agents.general_features import TrackSet
 from agents.potential import PotentialModel
 from agents.reference import THETA_HIGH, THETA_LOW
 
-from .artifacts import claim, write_json, write_text
+from .artifacts import claim
 from .family import RaceGroup, load_family
 from .parallel import pin_worker
-from .train import (TrainConfig, ValueData, _to_numpy_mlp, _train_potential, _train_value,
+from .train import (TrainConfig, ValueData, _numpy_model, _save_model, _train_potential, _train_value,
                     _value_samples, discounted_partial_returns, discounted_rollout,
                     gap_statistics, split_races, summary_text)
 
@@ -284,11 +284,7 @@ def train_general(data_dir, out_dir, config: TrainConfig | None = None, progress
             "data": {"dir": str(data_dir), "races": data.n_races, "steps": data.T,
                      "collect": manifest["config"]},
             "train_seconds": t_train}
-    model = PotentialModel(_to_numpy_mlp(value.net, value.mean.numpy(), value.std.numpy(),
-                                         value.y_scale, value.y_shift),
-                           _to_numpy_mlp(potential.net, potential.mean.numpy(),
-                                         potential.std.numpy(), potential.y_scale,
-                                         potential.y_shift), meta)
+    model = _numpy_model(value, potential, meta)
     log("validation on held-out races ...")
     metrics = {"train_seconds": t_train, **value.metrics,
                **family_gaps(model, data, val_idx, cfg.val_pairs, cfg.seed + 2,
@@ -297,11 +293,8 @@ def train_general(data_dir, out_dir, config: TrainConfig | None = None, progress
         metrics.update(family_rollouts(model, metrics["value_range"], data, val_idx, cfg,
                                        progress_bar))
     metrics["total_seconds"] = time.perf_counter() - t_start
-    model.meta["metrics"] = metrics
-    model.meta["command"] = command or f"alpha-racer train --data {data_dir} --out {out_dir}"
-    model.save(out / "model.npz")
-    write_json(out / "metrics.json", metrics)
-    write_text(out / "model_card.md", general_model_card_text(model.meta))
+    _save_model(model, metrics, out, general_model_card_text,
+                command or f"alpha-racer train --data {data_dir} --out {out_dir}")
     log(summary_text(metrics))
     for N, s in metrics["by_cars"].items():
         log(f"  {N} cars: gap median {100 * s['gap_rel_median']:.2f}%, 95th pct "
