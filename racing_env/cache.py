@@ -10,21 +10,30 @@ Location, in this order:
    or on a cluster node), a private temporary folder, ``$TMPDIR/alpha-racer-<uid>``, with a
    warning. Everything still works; compiled code is just rebuilt once per temporary folder.
 
-Sub-folders: ``numba/`` (the compiled kernels of ``racing_env`` and ``agents``), ``mpc/`` (the
+Sub-folders: ``numba/<hash>/`` (the compiled kernels of ``racing_env`` and ``agents``, in a
+folder named by a hash of both packages' sources, :func:`kernel_sources_hash`), ``mpc/`` (the
 MPC's generated C prediction), ``raceline/`` (racing lines). Nothing is written into the
 installed package, so a read-only site-packages works and ``pip uninstall alpha-racer`` leaves
 nothing behind there. Delete the folder to clear the cache.
 
 Importing this module (each top package, ``racing_env``, ``agents`` and ``experiments``, does
 so first) resolves the location once, exports it as ``ALPHA_RACER_CACHE`` (so worker processes
-use the same folder and do not warn again) and points numba's cache at ``cache_dir("numba")``
-unless ``NUMBA_CACHE_DIR`` is set. It sets ``numba.config.CACHE_DIR`` rather than the
-``NUMBA_CACHE_DIR`` variable, which would leak into every numba program this process starts and
-would turn off the simulator's source-hashed kernel folder (see ``racing_env/simulator.py``).
+use the same folder and do not warn again) and points numba's cache at the source-hashed
+folder unless ``NUMBA_CACHE_DIR`` is set. It sets ``numba.config.CACHE_DIR`` rather than the
+``NUMBA_CACHE_DIR`` variable, which would leak into every numba program this process starts.
+
+Why a hash of the sources: numba checks a cached kernel against its *own* source file only. A
+kernel that calls a kernel of another file (the MPC's follower rollout calls the simulator's
+integrator, the follower calls the track look-up) keeps the callee it was compiled with, so
+after an edit of ``simulator.py`` a stale ``mpc.py`` kernel would silently race the old physics
+(different races from the same seed). Any edit of either package starts a new folder. With
+``NUMBA_CACHE_DIR`` set, that folder is used as it is (clear it after editing the sources).
 """
 from __future__ import annotations
 
 import getpass
+import hashlib
+import importlib.util
 import os
 import stat
 import tempfile
@@ -110,6 +119,28 @@ def cache_dir(sub: str | None = None) -> Path:
     return folder
 
 
+#: packages whose numba kernels share the cache folder (and call each other's kernels)
+KERNEL_PACKAGES = ("racing_env", "agents")
+
+
+def kernel_sources_hash(folders=None) -> str:
+    """Hash [hex, 16 chars] of every ``.py`` file (name and bytes, sorted by name) in
+    ``folders``, by default the installed :data:`KERNEL_PACKAGES` (a package that cannot be
+    found is left out): the name of numba's cache folder, so that an edit of any kernel's
+    callee recompiles every kernel (see the module docstring)."""
+    if folders is None:
+        folders = []
+        for name in KERNEL_PACKAGES:
+            spec = importlib.util.find_spec(name)
+            if spec is not None and spec.submodule_search_locations:
+                folders.extend(spec.submodule_search_locations)
+    h = hashlib.sha1()
+    for folder in folders:
+        for path in sorted(Path(folder).glob("*.py")):
+            h.update(path.name.encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def _configure() -> None:
     """Export the resolved folder and point numba's cache into it (see the module docstring)."""
     root = cache_root()
@@ -117,7 +148,7 @@ def _configure() -> None:
     _resolved.setdefault(str(root), root)
     if not os.environ.get("NUMBA_CACHE_DIR"):
         import numba
-        numba.config.CACHE_DIR = str(cache_dir("numba"))
+        numba.config.CACHE_DIR = str(cache_dir("numba") / kernel_sources_hash())
 
 
 _configure()

@@ -16,35 +16,16 @@ sideways) and cannot roll backwards (``vx >= 0``: a brake stops a car, it does n
 """
 from __future__ import annotations
 
-import hashlib
 import math
-import os
 import types
 from dataclasses import dataclass
 
 import numpy as np
-import numba
 from numba import njit, prange
-from pathlib import Path
 
 from .track import Track
 from .vehicle import P_BF, P_BR, P_CF, P_CR, P_DF, P_DR, P_IZ, P_LF, P_LR, P_M, P_VLOW, bind, frenet_ode
 
-
-def _kernel_cache_dir() -> str | None:
-    """numba caches compiled kernels per source file, blind to changes in the files they call
-    (vehicle.py). Keep our cache in a folder named by a hash of both sources instead."""
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return None
-    h = hashlib.sha1()
-    for mod in (Path(__file__), Path(__file__).with_name("vehicle.py")):
-        h.update(mod.read_bytes())
-    from .cache import cache_dir
-    return str(cache_dir("numba") / h.hexdigest()[:16])
-
-
-_saved_cache_dir = numba.config.CACHE_DIR
-numba.config.CACHE_DIR = _kernel_cache_dir() or _saved_cache_dir
 
 _ode = njit(cache=True)(bind(frenet_ode, math))
 
@@ -415,4 +396,3 @@ advance_parallel = njit(cache=True, parallel=True)(_variant(_advance, "_parallel
 observe = njit(cache=True)(_variant(_observe, "_serial"))
 observe_parallel = njit(cache=True, parallel=True)(_variant(_observe, "_parallel"))
 
-numba.config.CACHE_DIR = _saved_cache_dir

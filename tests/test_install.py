@@ -102,6 +102,34 @@ def test_cache_dir_is_one_function(tmp_path, monkeypatch):
     assert (tmp_path / "c" / "mpc").is_dir()
 
 
+def test_kernel_folder_changes_with_any_source_of_either_package(tmp_path):
+    """numba checks a kernel against its own file only; the folder name covers every file, so an
+    edit of a callee in another file (or another package) cannot leave a stale kernel in use."""
+    from racing_env.cache import kernel_sources_hash
+    env_pkg, agents_pkg = tmp_path / "racing_env", tmp_path / "agents"
+    for pkg in (env_pkg, agents_pkg):
+        pkg.mkdir()
+        (pkg / "a.py").write_text("x = 1\n")
+    (env_pkg / "notes.txt").write_text("not a source")
+    base = kernel_sources_hash([env_pkg, agents_pkg])
+    assert base == kernel_sources_hash([env_pkg, agents_pkg])          # stable
+    (env_pkg / "notes.txt").write_text("edited")
+    assert kernel_sources_hash([env_pkg, agents_pkg]) == base          # only .py files count
+    (env_pkg / "a.py").write_text("x = 2\n")
+    edited = kernel_sources_hash([env_pkg, agents_pkg])
+    assert edited != base
+    (agents_pkg / "b.py").write_text("")
+    assert kernel_sources_hash([env_pkg, agents_pkg]) not in (base, edited)
+
+
+def test_numba_cache_points_at_the_hashed_folder():
+    import numba
+    from racing_env.cache import cache_dir, kernel_sources_hash
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        pytest.skip("NUMBA_CACHE_DIR is set: numba's own folder is used as it is")
+    assert Path(numba.config.CACHE_DIR) == cache_dir("numba") / kernel_sources_hash()
+
+
 # -------------------------------------------------------------------------------- C compiler
 def _script(path: Path, body: str) -> Path:
     path.write_text("#!/bin/sh\n" + body)
