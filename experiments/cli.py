@@ -224,10 +224,17 @@ def _cmd_reproduce(args) -> int:
     cases = ["IV"] + [c for c in PAPER_CASES if c != "IV"]     # the paper's overtake is vs IBR
     analyze(replace(_analyze_config(args), steps=args.steps), out / "analysis",
             bench_dirs=[out / "paper_table" / f"case_{c}" for c in cases], **kw)
-    text = "\n".join(p.read_text() for p in tables + [out / "analysis" / "summary.md"])
+    parts = tables + [out / "analysis" / "summary.md"]
+    if args.policy_thetas:              # the policy space the potential maximises over
+        from .policy_map import PolicyMapConfig, policy_map
+        policy_map(PolicyMapConfig(thetas=args.policy_thetas, steps=args.steps),
+                   out / "policy_map", **kw)
+        parts.append(out / "policy_map" / "summary.md")
+    text = "\n".join(p.read_text() for p in parts)
     (out / "README.md").write_text(text)
     print(text)
-    print(f"wrote {out / 'README.md'}, {out / 'paper_table'} and {out / 'analysis'}")
+    print(f"wrote {out / 'README.md'}, {out / 'paper_table'}, {out / 'analysis'}"
+          + (f" and {out / 'policy_map'}" if args.policy_thetas else ""))
     return 0
 
 
@@ -482,13 +489,17 @@ def build_parser() -> argparse.ArgumentParser:
     a.set_defaults(fn=_cmd_analyze)
 
     rp = command("reproduce", "every table and figure of the paper into one folder: "
-                              "bench --paper-table, then analyze (resumable)")
+                              "bench --paper-table, then analyze, then the policy map "
+                              "(resumable)")
     rp.add_argument("--out", default="results", help="output folder; run again to resume")
     rp.add_argument("--races", type=int, default=99, help="races per paper case")
     rp.add_argument("--steps", type=int, default=500, help="steps per race (and per analysis race)")
     rp.add_argument("--control-ego", default="mpc",
                     help="also run the five cases with this ego (mpc: the fixed-theta MPC) "
                          "to show what the alpha agent adds; none skips it")
+    rp.add_argument("--policy-thetas", type=int, default=256,
+                    help="thetas of the policy map (policy-map's default tracks, both modes, "
+                         "--steps steps); 0 skips it")
     _add_import_arg(rp)
     _add_analyze_args(rp)
     _add_parallel_args(rp)

@@ -96,7 +96,7 @@ def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys):
     assert main(["reproduce", "--out", str(tmp_path), "--races", "3", "--steps", "30",
                  "--heldout-races", "2", "--gap-pairs", "300", "--regret-states", "2",
                  "--regret-horizon", "5", "--cem-iterations", "1", "--cem-samples", "2",
-                 "--slice-points", "5", "--workers", "1"]) == 0
+                 "--slice-points", "5", "--policy-thetas", "2", "--workers", "1"]) == 0
     table = json.loads((tmp_path / "paper_table" / "paper_table.json").read_text())
     assert list(table["cases"]) == ["I", "II", "III", "IV", "V"]
     md = (tmp_path / "paper_table" / "paper_table.md").read_text()
@@ -109,3 +109,7 @@ def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys):
     assert control["ego"] == "mpc" and list(control["cases"]) == list(table["cases"])
     text = (tmp_path / "README.md").read_text()
     assert "Table 1" in text and "Nash regret" in text
+    rows = [json.loads(line) for line in (tmp_path / "policy_map" / "rows.jsonl").open()]
+    assert len(rows) == 2 * 2 * 4                      # thetas x modes x default tracks
+    assert all(r["steps"] == 30 for r in rows if "error" not in r)
+    assert (tmp_path / "policy_map" / "summary.md").read_text() in text
