@@ -16,12 +16,13 @@ import warnings
 import numpy as np
 
 from agents import make_agent_spec
+from experiments.policy_map import DEFAULT_TRACKS
 from racing_env import RacingParallelEnv
 from racing_env.raceline import get_raceline
 
 AGENTS = ["mpc:zeta=1.0", "mpc:zeta=1.02", "mpc:zeta=1.05", "mpc:zeta=1.02,q=60", "mpc", "ibr", "ppo",
           "raceline"]
-TRACKS = ["default", "oval", "random:3", "random:11"]
+TRACKS = list(DEFAULT_TRACKS)      # the policy map's, so its best thetas compare with these drivers
 
 
 def solo(spec: str, track: str, steps: int, seed: int = 0) -> dict:
