@@ -256,7 +256,7 @@ def _cmd_general_report(args) -> int:
 def _cmd_policy_map(args) -> int:
     from .policy_map import PolicyMapConfig, policy_map
     cfg = PolicyMapConfig(thetas=args.thetas, tracks=tuple(args.tracks), modes=tuple(args.modes),
-                          steps=args.steps, seed=args.seed)
+                          steps=args.steps, seed=args.seed, opponents=args.opponents)
     out = Path(args.out)
     s = policy_map(cfg, out, workers=args.workers, backend=args.backend, address=args.address)
     print((out / "summary.md").read_text())
@@ -539,8 +539,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "balanced)")
     pm.add_argument("--tracks", nargs="+", default=list(DEFAULT_TRACKS), help="track specs")
     pm.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES),
-                    help="solo: the theta car alone from the grid; race: against two default "
-                         "mpc cars from the start regions")
+                    help="solo: the theta car alone from the grid; race: against two "
+                         "--opponents cars from the start regions")
+    pm.add_argument("--opponents", default="mpc",
+                    help="agent spec of the two opponents of the race mode")
     pm.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per run")
     pm.add_argument("--seed", type=int, default=0, help="Sobol scrambling and start seed")
     _add_parallel_args(pm)

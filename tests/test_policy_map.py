@@ -182,3 +182,15 @@ def test_every_option_says_its_default():
     for shown in ("(default: 256)", "(default: 500)", "(default: results/policy_map)",
                   "(default: local)"):
         assert shown in text, shown
+
+
+def test_cli_races_the_theta_against_the_opponents_named(tmp_path):
+    out = tmp_path / "pm"
+    assert main(["policy-map", "--thetas", "2", "--tracks", "oval", "--modes", "race",
+                 "--opponents", "raceline", "--steps", "20", "--workers", "1",
+                 "--out", str(out)]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["config"]["opponents"] == "raceline"
+    rows = [json.loads(line) for line in (out / "rows.jsonl").open()]
+    assert len(rows) == 2 and all(len(r["opponents_progress_m"]) == 2 for r in rows)
+    assert "race opponents: two `raceline`" in (out / "summary.md").read_text()
