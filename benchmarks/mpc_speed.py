@@ -2,6 +2,8 @@
 
     python benchmarks/mpc_speed.py            # about a minute
     python benchmarks/mpc_speed.py --quick    # a smoke check
+    python benchmarks/mpc_speed.py --quality-only --config sqp_iterations=4 model_tol=0
+                                              # the plan quality of another MPCConfig
 
 Both solve the same MPC (K = 15, 3 RK4 sub-steps per stage, same cost and soft constraints) in
 closed loop on the default track, warm-started from their previous solution:
@@ -15,7 +17,9 @@ closed loop on the default track, warm-started from their previous solution:
    50 s solo race: the cost of the RTI's plan (its nonlinear rollout, the MPC's own
    objective with the soft rows' penalty) against IPOPT's optimum of the same problem (the
    better of IPOPT started from the RTI's plan and from the follower's rollout), both costed
-   on the same rollout model. The goal: within 5% in 90% of the states.
+   on the same rollout model. The goal: within 5% in 90% of the states. ``--config`` sets
+   fields of the :class:`MPCConfig` of both solvers here (IPOPT ignores the RTI's iteration
+   settings, so they still solve the same problem).
 
 Also prints the env step time beside the MPC time. One core (numba threads = 1).
 """
@@ -28,7 +32,9 @@ import warnings
 import numba
 import numpy as np
 
-from agents.mpc import MPC
+from dataclasses import fields
+
+from agents.mpc import MPC, MPCConfig
 from agents.mpc_agent import joint_state_from_observation, progress_rate
 from agents.mpc_ipopt import IpoptMPC
 from agents.reference import Theta, reference_trajectory
@@ -64,12 +70,13 @@ def closed_loop(solvers, n_cars, steps, start):
     return env, env_s, info
 
 
-def plan_quality(track, steps: int, every: int, theta: Theta):
-    """Cost ratios RTI / IPOPT - 1 (array) at every ``every``-th state of a solo race."""
+def plan_quality(track, steps: int, every: int, theta: Theta, config: MPCConfig | None = None):
+    """Cost ratios RTI / IPOPT - 1 (array) at every ``every``-th state of a solo race; the RTI
+    with ``config`` (default :class:`MPCConfig`)."""
     env = RacingParallelEnv(n_cars=1, max_cycles=steps, start=StartConfig(mode="grid"))
     obs, _ = env.reset(seed=0)
     rl = get_raceline(env.track)
-    rti, ipopt = MPC(env.track), IpoptMPC(env.track)
+    rti, ipopt = MPC(env.track, config=config), IpoptMPC(env.track, config=config)
     u_prev, gaps = np.zeros(2), []
     for k in range(steps):
         ego, _ = joint_state_from_observation(obs["car_0"], 1)
@@ -99,14 +106,35 @@ def summary(ms):
     return np.median(ms), np.percentile(ms, 99)
 
 
+def parse_config(pairs) -> MPCConfig:
+    """An :class:`MPCConfig` from ``KEY=VALUE`` strings (values as the fields' types)."""
+    types_ = {f.name: type(getattr(MPCConfig(), f.name)) for f in fields(MPCConfig)}
+    kw = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or key not in types_ or types_[key] not in (int, float):
+            numeric = sorted(k for k, t in types_.items() if t in (int, float))
+            raise SystemExit(f"--config takes KEY=VALUE with KEY one of {numeric}, "
+                             f"got {pair!r}")
+        kw[key] = types_[key](value)
+    return MPCConfig(**kw)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--quality-only", action="store_true",
+                    help="only part 3, the plan quality against IPOPT")
+    ap.add_argument("--config", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="MPCConfig fields of the RTI in the plan-quality part")
     args = ap.parse_args(argv)
+    config = parse_config(args.config)
     warnings.simplefilter("ignore")
     numba.set_num_threads(1)
-    solo_steps, race_steps = (120, 60) if args.quick else (250, 300)
     probe = RacingParallelEnv(n_cars=1)
+    if args.quality_only:
+        return report_quality(probe.track, args.quick, config)
+    solo_steps, race_steps = (120, 60) if args.quick else (250, 300)
     track = probe.track
     print(f"MPC: K = 15, dt = 0.1 s, default track; solo {solo_steps} steps, race {race_steps} steps")
     print(f"{'solver':<8} {'scenario':<8} {'median ms':>9} {'p99 ms':>7} {'laps s':<18} {'off-track':>9} {'fallbacks':>9}")
@@ -130,16 +158,24 @@ def main(argv=None):
         if name == "RTI":
             print(f"{'':<8} env step with 3 MPC cars: {1e3 * np.median(env_s):.3f} ms median")
     print(f"\nRTI is {med['IPOPT'] / med['RTI']:.0f}x faster than IPOPT (median, race scenario)")
-    gaps = plan_quality(track, 150 if args.quick else 500, 5,
-                        Theta(q=THETA.q, zeta=1.0, s1=THETA.s1, s2=THETA.s2, s3=THETA.s3))
-    if gaps.size:
-        print(f"\nplan cost, RTI against IPOPT on the same problem ({gaps.size} states of a solo "
-              f"race at zeta = 1): within 5% in {100 * np.mean(gaps <= 0.05):.0f}% of them, "
-              f"median {100 * np.median(gaps):+.2f}%, p90 {100 * np.percentile(gaps, 90):+.2f}%")
+    report_quality(track, args.quick, config)
     if len(laps["RTI"]) > 1 and len(laps["IPOPT"]) > 1:
         gap = laps["RTI"][1] / laps["IPOPT"][1] - 1.0
         print(f"flying lap: RTI {laps['RTI'][1]:.3f} s vs converged IPOPT {laps['IPOPT'][1]:.3f} s "
               f"({100 * gap:+.2f} %)")
+
+
+def report_quality(track, quick: bool, config: MPCConfig) -> None:
+    """Print part 3: the RTI's plan cost against IPOPT's at zeta = 1."""
+    gaps = plan_quality(track, 150 if quick else 500, 5,
+                        Theta(q=THETA.q, zeta=1.0, s1=THETA.s1, s2=THETA.s2, s3=THETA.s3), config)
+    if gaps.size:
+        changed = {f.name: getattr(config, f.name) for f in fields(MPCConfig)
+                   if getattr(config, f.name) != getattr(MPCConfig(), f.name)}
+        print(f"\nplan cost, RTI {changed or '(default MPCConfig)'} against IPOPT on the same "
+              f"problem ({gaps.size} states of a solo race at zeta = 1): within 5% in "
+              f"{100 * np.mean(gaps <= 0.05):.0f}% of them, median {100 * np.median(gaps):+.2f}%, "
+              f"p90 {100 * np.percentile(gaps, 90):+.2f}%")
 
 
 if __name__ == "__main__":
