@@ -122,3 +122,19 @@ def test_rti_lap_time_within_two_percent_of_converged_ipopt():
         laps[name] = np.diff([0.0] + env.core.lap_times[0][0])
     assert len(laps["rti"]) >= 2 and len(laps["ipopt"]) >= 2
     assert abs(laps["rti"][1] / laps["ipopt"][1] - 1.0) < 0.02
+
+
+def test_mpc_speed_config_pairs_set_numeric_fields_and_name_bad_ones():
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from mpc_speed import parse_config
+
+    from agents.mpc import MPCConfig
+    cfg = parse_config(["sqp_iterations=4", "model_tol=0", "restart_offtrack=-1"])
+    assert cfg == MPCConfig(sqp_iterations=4, model_tol=0.0, restart_offtrack=-1.0)
+    assert isinstance(cfg.sqp_iterations, int)
+    assert parse_config([]) == MPCConfig()
+    for bad in ("foo=1", "sqp_iterations", "step_sizes=1"):
+        with pytest.raises(SystemExit, match="KEY=VALUE"):
+            parse_config([bad])
