@@ -123,22 +123,28 @@ def cache_dir(sub: str | None = None) -> Path:
 KERNEL_PACKAGES = ("racing_env", "agents")
 
 
+def sources_hash(paths) -> str:
+    """Hash [hex, 16 chars] of the files ``paths`` (each one's name and bytes, in the order
+    given): a cache key part that changes with the code that made the cached result."""
+    h = hashlib.sha1()
+    for path in paths:
+        path = Path(path)
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def kernel_sources_hash(folders=None) -> str:
-    """Hash [hex, 16 chars] of every ``.py`` file (name and bytes, sorted by name) in
-    ``folders``, by default the installed :data:`KERNEL_PACKAGES` (a package that cannot be
-    found is left out): the name of numba's cache folder, so that an edit of any kernel's
-    callee recompiles every kernel (see the module docstring)."""
+    """:func:`sources_hash` of every ``.py`` file (sorted by name) in ``folders``, by default
+    the installed :data:`KERNEL_PACKAGES` (a package that cannot be found is left out): the
+    name of numba's cache folder, so that an edit of any kernel's callee recompiles every
+    kernel (see the module docstring)."""
     if folders is None:
         folders = []
         for name in KERNEL_PACKAGES:
             spec = importlib.util.find_spec(name)
             if spec is not None and spec.submodule_search_locations:
                 folders.extend(spec.submodule_search_locations)
-    h = hashlib.sha1()
-    for folder in folders:
-        for path in sorted(Path(folder).glob("*.py")):
-            h.update(path.name.encode() + b"\0" + path.read_bytes())
-    return h.hexdigest()[:16]
+    return sources_hash([path for folder in folders for path in sorted(Path(folder).glob("*.py"))])
 
 
 def _configure() -> None:

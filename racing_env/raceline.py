@@ -59,6 +59,7 @@ from scipy.interpolate import CubicSpline
 
 from numba import njit
 
+from .cache import sources_hash
 from .envelope import envelope_at, ggv
 from .track import Track
 from .vehicle import VehicleParams
@@ -695,10 +696,19 @@ def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
 _MEMO: dict[str, Raceline] = {}
 
 
+#: the modules whose code computes a racing line (this one, the envelope, the vehicle model and
+#: the track geometry): an edit of any of them is a new cache key, so no stale line is loaded
+SOURCES = tuple(Path(__file__).with_name(m) for m in ("raceline.py", "envelope.py", "vehicle.py",
+                                                      "track.py"))
+_SOURCES_HASH = sources_hash(SOURCES)
+
+
 def cache_key(track: Track, vehicle: VehicleParams, config: RacelineConfig) -> str:
-    """Hash [hex, 24 chars] of the track geometry, the vehicle parameters and the config."""
-    blob = json.dumps({"version": CACHE_VERSION, "track": track.fingerprint(),
-                       "vehicle": vehicle.to_dict(), "config": asdict(config)}, sort_keys=True)
+    """Hash [hex, 24 chars] of the track geometry, the vehicle parameters, the config and the
+    code that computes the line (:data:`SOURCES`)."""
+    blob = json.dumps({"version": CACHE_VERSION, "sources": _SOURCES_HASH,
+                       "track": track.fingerprint(), "vehicle": vehicle.to_dict(),
+                       "config": asdict(config)}, sort_keys=True)
     return hashlib.sha1(blob.encode()).hexdigest()[:24]
 
 

@@ -352,6 +352,19 @@ def test_cache_round_trip(counting_cache, tmp_path):
     assert R.cache_path(track, VehicleParams(width=0.05)) != path
 
 
+def test_an_edit_of_the_racing_line_code_is_a_new_cache_entry(counting_cache, monkeypatch):
+    """A line cached by other code is never loaded: the key covers the sources that compute it."""
+    assert {p.name for p in R.SOURCES} >= {"raceline.py", "envelope.py", "vehicle.py", "track.py"}
+    track = make_track("oval")
+    get_raceline(track)
+    old_path = R.cache_path(track)
+    monkeypatch.setattr(R, "_SOURCES_HASH", "edited-sources")
+    R.clear_memo()
+    assert R.cache_path(track) != old_path
+    rl = get_raceline(track)
+    assert len(counting_cache) == 2 and not rl.from_cache
+
+
 @pytest.mark.parametrize("damage", ["garbage", "truncated", "empty", "foreign", "nan"])
 def test_corrupt_cache_is_recomputed(counting_cache, damage):
     track = make_track("oval")
