@@ -28,11 +28,10 @@ from __future__ import annotations
 import argparse
 import time
 import warnings
+from dataclasses import fields
 
 import numba
 import numpy as np
-
-from dataclasses import fields
 
 from agents.mpc import MPC, MPCConfig
 from agents.mpc_agent import joint_state_from_observation, progress_rate
@@ -107,16 +106,18 @@ def summary(ms):
 
 
 def parse_config(pairs) -> MPCConfig:
-    """An :class:`MPCConfig` from ``KEY=VALUE`` strings (values as the fields' types)."""
-    types_ = {f.name: type(getattr(MPCConfig(), f.name)) for f in fields(MPCConfig)}
+    """An :class:`MPCConfig` from ``KEY=VALUE`` strings, KEY a numeric field (value parsed as
+    the field's type)."""
+    default = MPCConfig()
+    numeric = {f.name: type(getattr(default, f.name)) for f in fields(MPCConfig)
+               if type(getattr(default, f.name)) in (int, float)}
     kw = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
-        if not sep or key not in types_ or types_[key] not in (int, float):
-            numeric = sorted(k for k, t in types_.items() if t in (int, float))
-            raise SystemExit(f"--config takes KEY=VALUE with KEY one of {numeric}, "
+        if not sep or key not in numeric:
+            raise SystemExit(f"--config takes KEY=VALUE with KEY one of {sorted(numeric)}, "
                              f"got {pair!r}")
-        kw[key] = types_[key](value)
+        kw[key] = numeric[key](value)
     return MPCConfig(**kw)
 
 
@@ -126,16 +127,15 @@ def main(argv=None):
     ap.add_argument("--quality-only", action="store_true",
                     help="only part 3, the plan quality against IPOPT")
     ap.add_argument("--config", nargs="*", default=[], metavar="KEY=VALUE",
-                    help="MPCConfig fields of the RTI in the plan-quality part")
+                    help="MPCConfig fields of both solvers in the plan-quality part")
     args = ap.parse_args(argv)
     config = parse_config(args.config)
     warnings.simplefilter("ignore")
     numba.set_num_threads(1)
-    probe = RacingParallelEnv(n_cars=1)
+    track = RacingParallelEnv(n_cars=1).track
     if args.quality_only:
-        return report_quality(probe.track, args.quick, config)
+        return report_quality(track, args.quick, config)
     solo_steps, race_steps = (120, 60) if args.quick else (250, 300)
-    track = probe.track
     print(f"MPC: K = 15, dt = 0.1 s, default track; solo {solo_steps} steps, race {race_steps} steps")
     print(f"{'solver':<8} {'scenario':<8} {'median ms':>9} {'p99 ms':>7} {'laps s':<18} {'off-track':>9} {'fallbacks':>9}")
     closed_loop([MPC(track) for _ in range(3)], 3, 30, StartConfig(mode="regions"))   # warm-up (JIT, caches)

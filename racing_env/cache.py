@@ -13,9 +13,9 @@ Location, in this order:
 Sub-folders: ``numba/<hash>/`` (the compiled kernels of ``racing_env`` and ``agents``, in a
 folder named by a hash of both packages' sources, :func:`kernel_sources_hash`), ``mpc/`` (the
 MPC's generated C prediction, named by a hash of the code), ``raceline/`` (racing lines, keyed
-by the track, the vehicle, the config and the code that computes them). Nothing is written into the
-installed package, so a read-only site-packages works and ``pip uninstall alpha-racer`` leaves
-nothing behind there. Delete the folder to clear the cache.
+by the track, the vehicle, the config and the code that computes them). Nothing is written
+into the installed package, so a read-only site-packages works and ``pip uninstall
+alpha-racer`` leaves nothing behind there. Delete the folder to clear the cache.
 
 Importing this module (each top package, ``racing_env``, ``agents`` and ``experiments``, does
 so first) resolves the location once, exports it as ``ALPHA_RACER_CACHE`` (so worker processes

@@ -67,7 +67,7 @@ from .vehicle import VehicleParams
 G = 9.81
 """Gravitational acceleration [m/s^2]."""
 
-CACHE_VERSION = 3  # 3: speed profile from the g-g-v envelope (mu scales it)
+CACHE_VERSION = 3  # saved-file format; code edits need no bump (the key hashes SOURCES)
 """Bumped whenever the algorithm or the file layout changes (invalidates old cache files)."""
 
 CSV_COLUMNS = ("s_m", "x_m", "y_m", "psi_rad", "kappa_radpm", "vx_mps", "ax_mps2", "n_m",
