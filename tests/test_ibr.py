@@ -219,6 +219,34 @@ def test_a_failing_solver_falls_back_without_crashing(monkeypatch):
     assert ibr.stats["fallbacks"] == 4
 
 
+def test_a_blown_up_linearisation_is_not_handed_to_the_qp(monkeypatch):
+    """Sensitivities of the predicted positions beyond ``max_sensitivity`` (a linearisation
+    that has blown up: ill-conditioned QPs that took DAQP up to 10,000 iterations, 1 s per
+    decision) skip the QP: the best response fails and the decision falls back in bounded
+    time. Below the bound the QP gets the iteration limit."""
+    import daqp
+    env = RacingParallelEnv(n_cars=2, max_cycles=5)
+    obs, _ = env.reset(seed=0)
+    calls = []
+    real = daqp.solve
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(daqp, "solve", spy)
+    ibr = IBRAgent(rounds=2, max_sensitivity=1e-6)         # every real linearisation exceeds it
+    ibr.reset(env.track, "car_0", 0)
+    a = ibr.act(obs["car_0"])
+    assert np.isfinite(a).all() and np.all(np.abs(a) <= 1)
+    assert calls == [] and ibr.stats["fallbacks"] == 1 and ibr.stats["br_failures"] >= 2
+    ibr = IBRAgent(rounds=2, qp_iter_limit=50)
+    ibr.reset(env.track, "car_0", 0)
+    ibr.act(obs["car_0"])
+    assert calls and all(c["iter_limit"] == 50 for c in calls)
+    assert ibr.stats["fallbacks"] == 0
+
+
 # --------------------------------------------------------------------------- interface and input
 def test_registered_and_built_by_spec():
     assert "ibr" in agent_names()
@@ -236,6 +264,8 @@ def test_registered_and_built_by_spec():
     ({"dt": 0.0}, "dt"),
     ({"slip_weight": -1.0}, "slip_weight"),
     ({"track_margin": -0.1}, "track_margin"),
+    ({"max_sensitivity": 0.0}, "max_sensitivity must be a positive number, got 0.0"),
+    ({"qp_iter_limit": 0}, "qp_iter_limit must be a positive integer, got 0"),
 ])
 def test_invalid_config_is_a_clear_error(kwargs, match):
     with pytest.raises(ValueError, match=match):
