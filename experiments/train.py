@@ -476,7 +476,7 @@ def _train_potential(data, cfg, value, out, torch, progress_bar, log):
         loss.backward()
         opt.step()
         sched.step()
-        window.append(float(gap.abs().median()))
+        window.append(float(gap.detach().abs().median()))
         if (step + 1) % 100 == 0:
             bar.set_postfix(median_gap=f"{np.mean(window):.3f}")
             history.append({"step": step + 1, "median_abs_gap_std_units": float(np.mean(window))})
