@@ -47,7 +47,8 @@ POTENTIAL_DIM = N_MAX * SLOT_DIM
 
 
 class TrackSet:
-    """Grid tables (curvature, half widths) of ``tracks``, looked up for any mix of them.
+    """Grid tables (curvature, half widths) of ``tracks`` (specs or :class:`Track` objects),
+    looked up for any mix of them; ``names`` the tracks' names, ``specs`` what rebuilds them.
 
     ``lookup(name, s, track_id)`` with ``name`` in ``kappa``, ``w_left``, ``w_right``, ``s``
     unwrapped arc length [m] of any shape and ``track_id`` an integer array broadcastable to
@@ -61,6 +62,9 @@ class TrackSet:
         if not self.tracks:
             raise ValueError("a TrackSet needs at least one track")
         self.names = [t.name for t in self.tracks]
+        # the specs that rebuild each track: a track's name is not always one ('tumftm:Spa'
+        # is named 'Spa', a CSV path by its stem)
+        self.specs = [t if isinstance(t, str) else t.name for t in tracks]
         sizes = np.array([len(t.kappa) for t in self.tracks], dtype=np.int64)
         self._size = sizes
         self._offset = np.concatenate([[0], np.cumsum(sizes)[:-1]])

@@ -135,7 +135,7 @@ def gap_by_cars(model, heldout_dir, cfg: GeneralReportConfig) -> dict:
         g = family_gaps(model, data, races, cfg.gap_pairs, cfg.seed + N, value_range=vr)
         out["by_cars"][str(N)] = {
             "races": int(len(races)), "pairs": g["val_pairs"],
-            "tracks": sorted({data.track_name(int(r)) for r in races}),
+            "tracks": sorted({data.track_spec(int(r)) for r in races}),
             "value_range_heldout": g["value_range_measured"],
             **{k: g[k] for k in ("gap_rel_median", "gap_rel_p95", "gap_rel_max",
                                  "gap_rel_within_10pct", "const_rel_median", "const_rel_p95",

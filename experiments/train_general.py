@@ -82,9 +82,10 @@ class FamilyData:
     def cars(self) -> list[int]:
         return sorted(self.buckets)
 
-    def track_name(self, race: int) -> str:
+    def track_spec(self, race: int) -> str:
+        """The spec of race ``race``'s track (``tumftm:Spa``, not its name ``Spa``)."""
         b = self.buckets[int(self.race_n[race])]
-        return self.tracks.names[int(b["track_id"][self.race_local[race]])]
+        return self.tracks.specs[int(b["track_id"][self.race_local[race]])]
 
 
 class FamilyDeviations:
@@ -219,7 +220,7 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
     dev = FamilyDeviations(data, val_idx, own_theta_fraction=1.0)
     b = dev.draw(n, rng)
     xs = dev.states(b)
-    names = [data.track_name(int(r)) for r in b["r"]]
+    names = [data.track_spec(int(r)) for r in b["r"]]
     thetas = [(b["theta"][0][k, :len(x)], b["theta"][1][k, :len(x)]) for k, x in enumerate(xs)]
     jobs = [(names[k], xs[k], th, int(b["i"][k]), cfg.rollout_steps, cfg.gamma)
             for k in range(n) for th in thetas[k]]
@@ -277,7 +278,7 @@ def train_general(data_dir, out_dir, config: TrainConfig | None = None, progress
     t_train = time.perf_counter() - t_start
     meta = {"feature_set": "general", "feature_version": gf.FEATURE_VERSION,
             "n_max": gf.N_MAX, "n_cars_range": [min(data.cars), max(data.cars)],
-            "n_cars_trained": data.cars, "tracks": data.tracks.names,
+            "n_cars_trained": data.cars, "tracks": data.tracks.specs,
             "track_specs": manifest["config"]["tracks"],
             "theta_low": THETA_LOW.tolist(), "theta_high": THETA_HIGH.tolist(),
             "gamma": cfg.gamma, "config": asdict(cfg),

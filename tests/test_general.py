@@ -125,6 +125,25 @@ def test_local_track_matches_the_tracks_own_lookups_for_a_mix_of_tracks():
         np.testing.assert_array_equal(mixed[k], gf.potential_features(x, th, name))
 
 
+def test_a_track_named_otherwise_than_its_spec_is_rebuilt_from_its_spec(tmp_path):
+    """A TUMFTM circuit ('tumftm:Spa' is named 'Spa') or a CSV track (named by its stem): the
+    training data, the rollouts and the model's list of training tracks use the spec."""
+    from experiments.family import RaceGroup
+    from experiments.train_general import FamilyData
+    a = np.linspace(0, 2 * np.pi, 120, endpoint=False)
+    csv = tmp_path / "ring.csv"
+    rows = np.column_stack([12 * np.cos(a), 8 * np.sin(a), np.full_like(a, 0.3), np.full_like(a, 0.3)])
+    np.savetxt(csv, rows, delimiter=",", header="x_m,y_m,w_tr_right_m,w_tr_left_m")
+    ts = gf.TrackSet([str(csv), "oval"])
+    assert ts.names == ["ring", "oval"] and ts.specs == [str(csv), "oval"]
+    z = np.zeros
+    groups = [RaceGroup(str(csv), 2, z((1, 3, 2, 6)), z((1, 2, 5)), z((1, 2, 2)), np.arange(1)),
+              RaceGroup("oval", 2, z((1, 3, 2, 6)), z((1, 2, 5)), z((1, 2, 2)), np.arange(1, 2))]
+    data = FamilyData(groups)
+    assert [data.track_spec(r) for r in (0, 1)] == [str(csv), "oval"]
+    assert make_track(data.track_spec(0)).length == pytest.approx(make_track(str(csv)).length)
+
+
 def test_bad_general_feature_input_names_the_value():
     x, th = _field(np.random.default_rng(3), 9)
     with pytest.raises(ValueError, match="take 2..8 cars, got 9"):
