@@ -23,12 +23,28 @@ from .potential import PotentialModel, cached_model
 from .reference import THETA_HIGH, THETA_LOW, THETA_NAMES, Theta
 from .threads import single_blas_thread
 
+AUTO = "auto"
+
+
+def auto_model(track_name: str, n_cars: int) -> str:
+    """The shipped model that ``model="auto"`` races with: the paper's single-track
+    ``default`` model on the track and field size it was trained for (``default``, 3 cars),
+    where specialisation is possible; the track-general ``general`` model everywhere else
+    (``default`` again if ``general`` is not installed, which then refuses or warns)."""
+    from .potential import MODEL_DIR, SHIPPED
+    single = cached_model("default")
+    if track_name == single.meta.get("track") and n_cars == single.n_cars:
+        return "default"
+    return "general" if (MODEL_DIR / SHIPPED["general"]).exists() else "default"
+
+
 @register_agent("alpha")
 class AlphaAgent(MPCAgent):
     """MPC whose theta is chosen by maximising the alpha-potential at every step.
 
-    Parameters: ``model`` (a shipped model name, see :func:`agents.potential.load_model`, or a
-    path to a ``model.npz``; default ``"default"``), ``restarts`` (starts of the gradient
+    Parameters: ``model`` (``"auto"``, the default: see :func:`auto_model`; a shipped model
+    name, see :func:`agents.potential.load_model`; a path to a ``model.npz``; or a
+    :class:`PotentialModel`), ``restarts`` (starts of the gradient
     ascent, the first being the warm start; 4), ``iterations`` (gradient steps per start; 3),
     ``cold_restarts`` and ``cold_iterations`` (the same for the first decision of a race, which
     has no warm start; 32 and 12), and the :class:`MPCAgent` keywords (``config``,
@@ -38,7 +54,7 @@ class AlphaAgent(MPCAgent):
     the field size is outside the range it was trained on.
     """
 
-    def __init__(self, model="default", restarts: int = 4, iterations: int = 3,
+    def __init__(self, model=AUTO, restarts: int = 4, iterations: int = 3,
                  cold_restarts: int = 32, cold_iterations: int = 12, **mpc_kwargs):
         super().__init__(**mpc_kwargs)
         for name, v in (("restarts", restarts), ("cold_restarts", cold_restarts)):
@@ -48,7 +64,11 @@ class AlphaAgent(MPCAgent):
             if not (isinstance(v, int) and v >= 0):
                 raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
         self.model_name = model
-        self.model = model if isinstance(model, PotentialModel) else cached_model(model)
+        self.auto = isinstance(model, str) and model == AUTO
+        if self.auto:
+            self.model = None                    # chosen at a race's first decision
+        else:
+            self.model = model if isinstance(model, PotentialModel) else cached_model(model)
         self.restarts, self.iterations = restarts, iterations
         self.cold_restarts, self.cold_iterations = cold_restarts, cold_iterations
         self._theta_joint = None
@@ -56,13 +76,19 @@ class AlphaAgent(MPCAgent):
 
     def reset(self, track, agent_id: str = "car_0", seed: int | None = None) -> None:
         super().reset(track, agent_id, seed)
-        trained_on = self.model.meta.get("track")
-        if not self.model.general and trained_on and trained_on != self.track.name:
-            warnings.warn(f"alpha-potential model trained on track {trained_on!r}, racing on "
-                          f"{self.track.name!r}", stacklevel=2)
+        if self.auto:
+            self.model = None
+        else:
+            self._check_track()
         self._rng = np.random.default_rng(seed)
         self._theta_joint = None
         self.last_potential = float("nan")
+
+    def _check_track(self) -> None:
+        trained_on = self.model.meta.get("track")
+        if not self.model.general and trained_on and trained_on != self.track.name:
+            warnings.warn(f"alpha-potential model trained on track {trained_on!r}, racing on "
+                          f"{self.track.name!r}", stacklevel=3)
 
     def _check_field(self, n: int) -> None:
         """Refuse a field a single-track model was not trained for; warn when a general
@@ -103,6 +129,9 @@ class AlphaAgent(MPCAgent):
         joint = np.vstack([ego[None], others])                  # ego first, then the others
         cold = self._theta_joint is None
         if cold:
+            if self.model is None:                               # model="auto"
+                self.model = cached_model(auto_model(self.track.name, len(joint)))
+                self._check_track()
             self._check_field(len(joint))
         theta, phi = self.model.maximise(
             joint, self.track, self._theta_joint, rng=self._rng,

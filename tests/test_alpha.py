@@ -210,6 +210,38 @@ def test_alpha_agent_refuses_a_model_for_another_number_of_cars():
         agent.act(obs)
 
 
+def _first_decision(agent, track, n):
+    from racing_env import RacingParallelEnv
+    env = RacingParallelEnv(track=track, n_cars=n, max_cycles=2, start="regions")
+    obs, _ = env.reset(seed=0)
+    agent.reset(env.track, "car_0", 0)
+    a = agent.act(obs["car_0"])
+    assert a.shape == (2,) and np.isfinite(a).all()
+    return agent.model
+
+
+def test_auto_races_the_single_track_model_where_it_was_trained_and_the_general_one_elsewhere(
+        monkeypatch):
+    import agents.potential as potential
+    from agents.alpha_agent import AlphaAgent, auto_model
+    from agents.potential import MODEL_DIR, SHIPPED, cached_model
+    assert auto_model("default", 3) == "default"
+    general = (MODEL_DIR / SHIPPED["general"]).exists()
+    for track, n in (("oval", 3), ("default", 2), ("random:7", 5)):
+        assert auto_model(track, n) == ("general" if general else "default")
+    agent = AlphaAgent()                                     # model="auto", reused across races
+    assert agent.model is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert _first_decision(agent, "default", 3) is cached_model("default")
+        if general:
+            assert _first_decision(agent, "oval", 2) is cached_model("general")
+        assert _first_decision(agent, "default", 3) is cached_model("default")
+    # without the general model installed, auto falls back to the single-track one
+    monkeypatch.setitem(potential.SHIPPED, "general", "not_installed.npz")
+    assert auto_model("oval", 3) == "default" and auto_model("default", 5) == "default"
+
+
 def test_shipped_models_load_and_race():
     from agents.potential import MODEL_DIR, SHIPPED, PotentialModel, load_model
     from experiments.race import run_race

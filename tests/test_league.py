@@ -234,8 +234,8 @@ def test_records_of_another_schedule_are_refused(tiny_league, tmp_path):
      "max_groups must be a positive integer, got 0"),
     (["--agents", "mpc", "raceline", "--cars", "2", "--workers", "0"],
      "workers must be a positive integer, got 0"),
-    (["--agents", "alpha", "mpc", "raceline", "--cars", "2"],
-     "agent 'alpha' cannot race in a field of 2 cars on 'default': ValueError: "
+    (["--agents", "alpha:model=default", "mpc", "raceline", "--cars", "2"],
+     "agent 'alpha:model=default' cannot race in a field of 2 cars on 'default': ValueError: "
      "alpha-potential model trained for 3 cars"),
 ])
 def test_bad_input_fails_before_any_race_with_a_clear_message(args, message, tmp_path, capsys):
