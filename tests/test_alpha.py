@@ -336,3 +336,11 @@ def test_a_race_with_the_alpha_agent_is_identical_with_1_and_2_threads(tmp_path)
         states.append(np.load(out))
     assert states[0].shape == (61, 3, 6)
     assert states[0].tobytes() == states[1].tobytes()
+
+
+def test_the_shipped_model_card_is_laid_out_from_the_shipped_models():
+    """`python -m experiments.model_card` writes MODEL_CARD.md from the models' metadata;
+    the committed card is that output, so it cannot drift from the models."""
+    from agents.potential import MODEL_DIR
+    from experiments.model_card import card
+    assert (MODEL_DIR / "MODEL_CARD.md").read_text() == card()
