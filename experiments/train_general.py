@@ -56,9 +56,9 @@ class FamilyData:
         if len(steps) != 1:
             raise ValueError(f"races of different lengths {sorted(steps)} in one collection")
         self.T = steps.pop()
-        names = list(dict.fromkeys(g.track for g in groups))
-        self.tracks = TrackSet(names)
-        index = {name: k for k, name in enumerate(names)}
+        specs = list(dict.fromkeys(g.track for g in groups))
+        self.tracks = TrackSet(specs)
+        index = {spec: k for k, spec in enumerate(specs)}
         counts = [len(g.states) for g in groups]
         start = np.concatenate([[0], np.cumsum(counts)[:-1]])
         self.n_races = int(sum(counts))
@@ -220,9 +220,9 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
     dev = FamilyDeviations(data, val_idx, own_theta_fraction=1.0)
     b = dev.draw(n, rng)
     xs = dev.states(b)
-    names = [data.track_spec(int(r)) for r in b["r"]]
+    specs = [data.track_spec(int(r)) for r in b["r"]]
     thetas = [(b["theta"][0][k, :len(x)], b["theta"][1][k, :len(x)]) for k, x in enumerate(xs)]
-    jobs = [(names[k], xs[k], th, int(b["i"][k]), cfg.rollout_steps, cfg.gamma)
+    jobs = [(specs[k], xs[k], th, int(b["i"][k]), cfg.rollout_steps, cfg.gamma)
             for k in range(n) for th in thetas[k]]
     with ProcessPoolExecutor(max_workers=cfg.threads, initializer=pin_worker) as pool:
         res = list(tqdm(pool.map(discounted_rollout, *zip(*jobs)), total=len(jobs),
@@ -230,7 +230,7 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
     boot = cfg.gamma ** cfg.rollout_steps
     dG, dphi, dv = np.empty(n), np.empty(n), np.empty(n)
     for k in range(n):
-        x, i, tr = xs[k][None], np.array([b["i"][k]]), names[k]
+        x, i, tr = xs[k][None], np.array([b["i"][k]]), specs[k]
         th1, th2 = (th[None] for th in thetas[k])
         g = [res[2 * k + j][0] + boot * float(model.value(res[2 * k + j][1][None], th, tr, i)[0])
              for j, th in enumerate((th1, th2))]

@@ -67,8 +67,9 @@ from .vehicle import VehicleParams
 G = 9.81
 """Gravitational acceleration [m/s^2]."""
 
-CACHE_VERSION = 3  # saved-file format; code edits need no bump (the key hashes SOURCES)
-"""Bumped whenever the algorithm or the file layout changes (invalidates old cache files)."""
+CACHE_VERSION = 3
+"""Bumped when the saved file's layout changes (invalidates old cache files). An edit of the
+code that computes a line needs no bump: the cache key hashes :data:`SOURCES`."""
 
 CSV_COLUMNS = ("s_m", "x_m", "y_m", "psi_rad", "kappa_radpm", "vx_mps", "ax_mps2", "n_m",
                "s_track_m")
