@@ -176,7 +176,8 @@ class _Tables:
     tables plus one point (``nrl``, ``kap``, ``wl``, ``wr``) for scalar look-ups."""
 
     __slots__ = ("L", "T", "M", "inv_ds", "st", "tt", "st2", "tt2", "sdot2", "ndot2", "wl2",
-                 "wr2", "nrl", "nrl2", "kap", "wl", "wr", "w_const", "refs")
+                 "wr2", "nrl", "nrl2", "kap", "wl", "wr", "w_const", "refs", "run_t", "run_v",
+                 "run_x")
 
     def __init__(self, raceline, track, friction):
         L = float(track.length)
@@ -221,8 +222,31 @@ class _Tables:
         self.nrl, self.kap, self.wl, self.wr = ext(n), ext(kap_c), ext(wl), ext(wr)
         const = np.ptp(wl) == 0 and np.ptp(wr) == 0
         self.w_const = (float(wl[0]), float(wr[0])) if const else None
+        self.run_t, self.run_v, self.run_x = _run_up(friction if friction is not None
+                                                     else float(raceline.mu_nominal))
         # (not set read-only: np.interp copies read-only tables on every call)
         self.refs = (raceline, track)   # keep them alive so their ids stay unique
+
+
+def _run_up(mu: float, dt: float = 0.005, t_max: float = 60.0):
+    """The car's full-throttle run from rest on a straight under the g-g-v envelope scaled by
+    ``mu``: times ``t`` [s], speeds ``v`` [m/s] (strictly increasing) and distances ``x`` [m],
+    each shape (P,). The drive limit depends on speed only, so the run from any speed ``v0``
+    is this one's tail from the time it passes ``v0``."""
+    from racing_env.envelope import ggv
+    env = ggv()
+    v_grid = np.linspace(0.0, env.top_speed, 400)
+    a_grid = np.maximum(env.longitudinal_limits(v_grid, 0.0, mu)[0], 0.0)
+    t, v, x = [0.0], [0.0], [0.0]
+    while t[-1] < t_max:
+        a = float(np.interp(v[-1], v_grid, a_grid))
+        if a < 1e-3:                                       # at the top speed
+            break
+        v_new = v[-1] + a * dt
+        x.append(x[-1] + 0.5 * (v[-1] + v_new) * dt)
+        v.append(v_new)
+        t.append(t[-1] + dt)
+    return np.array(t), np.array(v), np.array(x)
 
 
 _CACHE: dict = {}
@@ -288,7 +312,7 @@ def _bad_state(name: str, arr: np.ndarray) -> None:
 
 def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt: float = 0.1,
                          vehicle_width: float | None = None, friction: float | None = None,
-                         integration: str = "exact") -> Reference:
+                         integration: str = "exact", reachable: bool = True) -> Reference:
     """The MPC reference of the paper for one car.
 
     Parameters
@@ -310,6 +334,9 @@ def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt
         Speed profile of the race line's library (default: nominal).
     integration : ``"exact"`` or ``"euler"``
         How the perturbed race line integrates the race-line velocity (see step 1).
+    reachable : bool
+        Cap the reference's progress at what the car can reach from its current speed
+        (step 1b; default). ``False`` is the paper's reference, literally.
 
     Construction (``k = 1..K``, every longitudinal difference on unwrapped progress):
 
@@ -330,6 +357,18 @@ def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt
        Note that ``zeta`` scales the lateral velocity too, so for ``zeta != 1`` the lateral
        profile is the race line's *in time*, not in space: with ``zeta < 1`` the reference
        swings across the track over a shorter distance than the race line does.
+    1b. *Reachable progress* (``reachable=True``, our addition). The race line's time
+       sampling starts at the race line's speed wherever the car is, so a car that is slow
+       (from rest at the start, after a contact, slowed off the track) is asked to be where
+       a car at racing speed would be: the reference runs away from it, the MPC plans to
+       chase it into the next corner too fast, and a plan that waits is cheaper than one
+       that leaves the track at its tail (a car stopped beside the track could wait for
+       ever). So the progress ``s_pert^k - s_ego`` is capped at ``REACH_SLACK`` (1.1) times
+       the distance a full-throttle run on a straight covers in ``k dt`` from the car's
+       progress rate (the g-g-v envelope's drive limit, :func:`_run_up`). Where the cap binds the reference keeps its
+       path and arrives later: ``n_pert^k`` is the uncapped reference's lateral offset at the
+       capped progress (interpolated in ``s``), and ``v_pert^k`` at most the run's speed. At racing speed the run outpaces the profile and the
+       cap does not bind.
     2. *Opponents* keep their Frenet progress rate ``s_dot_j = (vx cos mu - vy sin mu) /
        (1 - n kappa)`` and lateral position: ``s_j^k = s_j + k dt s_dot_j``, ``n_j^k = n_j``.
        Only ``j^*`` (just ahead) and ``j_*`` (just behind), see :func:`opponent_neighbours`.
@@ -411,6 +450,7 @@ def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt
         s_pert = sk[1:] - sk[0]
         s_pert *= th.zeta
         s_pert += s_e
+        n_pert0 = float(nk[0])
         n_pert = nk[1:] - nk[0]
         n_pert *= th.zeta
         n_pert += nk[0]
@@ -421,11 +461,39 @@ def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt
         s_pert = sd[:K].cumsum()
         s_pert *= zdt
         s_pert += s_e
+        n_pert0 = _interp1(tab.nrl, s_e_w, inv_ds)
         n_pert = nd[:K].cumsum()
         n_pert *= zdt
-        n_pert += _interp1(tab.nrl, s_e_w, inv_ds)
+        n_pert += n_pert0
     v_pert = sd[1:]
     v_pert *= th.zeta                                      # (K,) zeta * s_dot_rl(t_k)
+    if reachable:                                          # ---- 1b. cap at the run-up
+        den_e = 1.0 - n_e * _interp1(tab.kap, s_e_w, inv_ds)
+        if den_e <= 0:
+            raise ValueError(f"ego at n = {n_e!r} lies beyond the centre line's radius of "
+                             f"curvature (1 - n kappa = {den_e:.3g} <= 0)")
+        v0 = max((x[3] * math.cos(x[2]) - x[4] * math.sin(x[2])) / den_e, 0.0)
+        run_t, run_v, run_x = tab.run_t, tab.run_v, tab.run_x
+        if v0 < run_v[-1]:
+            t0 = float(np.interp(v0, run_v, run_t))
+            tr = steps1 + t0
+            reach = np.interp(tr, run_t, run_x)
+            reach -= float(np.interp(t0, run_t, run_x))
+            beyond = tr > run_t[-1]                        # past the run's end: at top speed
+            if beyond.any():
+                reach[beyond] += (tr[beyond] - run_t[-1]) * run_v[-1]
+            v_run = np.interp(tr, run_t, run_v)
+        else:                                              # at (or above) the top speed
+            reach = steps1 * v0
+            v_run = np.full(K, v0)
+        reach *= REACH_SLACK
+        capped = s_pert - s_e > reach
+        if capped.any():
+            # same path, later: n as a function of progress along the uncapped reference
+            n_pert = np.where(capped, np.interp(s_e + reach, np.append(s_e, s_pert),
+                                                np.append(n_pert0, n_pert)), n_pert)
+            s_pert = np.where(capped, s_e + reach, s_pert)
+            v_pert = np.where(capped, np.minimum(v_pert, v_run), v_pert)
 
     n_ref = n_pert.copy()
     n_ot = n_bl = None                                     # stay None while no shift applies
@@ -516,6 +584,12 @@ def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt
 
 
 _DEFAULT_HALF_WIDTH = 0.5 * VehicleParams().width
+
+REACH_SLACK = 1.1
+"""The reachable-progress cap (step 1b of :func:`reference_trajectory`) is this multiple of
+the full-throttle run's distance: it binds only on a car at least 10% behind its reference's
+pace (from rest, after a contact or off the track), not on a car at the limit whose reference
+asks for a few per cent more (zeta up to 1.05), which a hard cap slowed by about 1% a lap."""
 _STEPS: dict = {}
 
 

@@ -162,6 +162,9 @@ def test_circle_cornering_speed_by_hand(linearization):
     np.testing.assert_allclose(rl.lap_time, 2 * np.pi * r_line / v_nom, rtol=1e-2)
     if linearization == "exact":
         assert rl.cost < rl.cost_center
+    # the objective is curvature per metre of path: a circle of radius r costs 2 pi / r
+    np.testing.assert_allclose(rl.cost, 2 * np.pi / r_line, rtol=1e-2)
+    np.testing.assert_allclose(rl.cost_center, 2 * np.pi / radius, rtol=1e-2)
 
 
 def test_exact_linearization_minimises_curvature(default_rl):
@@ -169,6 +172,42 @@ def test_exact_linearization_minimises_curvature(default_rl):
     rl = compute_raceline(track, config=RacelineConfig(linearization="exact"))
     check_line(rl, track)
     assert rl.cost < default_rl.cost             # the true minimiser beats the frozen fixed point
+
+
+def test_exact_line_is_a_stationary_point_of_curvature_per_metre():
+    """No small feasible move of the exact line's offsets lowers the integral of kappa^2 over
+    the path (the objective weighs curvature per metre of path, not per station)."""
+    from racing_env.raceline import minimum_curvature_offsets
+    track = make_track("oval")
+    s, n, info = minimum_curvature_offsets(track, config=RacelineConfig(linearization="exact"))
+    lo, hi = R.offset_bounds(track, s, VEH, RacelineConfig().margin)
+
+    def integral(n):
+        px, py = track.to_cartesian(s, n)
+        p = np.c_[px, py]
+        d1 = (np.roll(p, -1, 0) - np.roll(p, 1, 0)) / 2
+        d2 = np.roll(p, -1, 0) - 2 * p + np.roll(p, 1, 0)
+        ds = np.hypot(*d1.T)
+        return float(np.sum(((d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / ds ** 3) ** 2 * ds))
+
+    f0 = integral(n)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        bump = np.exp(-0.5 * ((s - rng.uniform(0, track.length)) / 0.3) ** 2)  # smooth, 0.3 m
+        for step in (-2e-3, 2e-3):
+            m = np.clip(n + step * bump, lo, hi)
+            assert integral(m) >= f0 * (1 - 1e-4)
+
+
+def test_tolerance_scales_with_the_track():
+    """``tol=None`` is TOL_PER_WIDTH of the mean width: 1e-4 m on the 0.5 m wide built-in
+    tracks, 43 times that on a track 43 times larger."""
+    from racing_env.raceline import TOL_PER_WIDTH
+    cfg = RacelineConfig()
+    small, big = circle_track(1.5, 0.25), circle_track(64.5, 10.75)
+    assert cfg.tol_for(make_track("default")) == pytest.approx(TOL_PER_WIDTH * 0.5)
+    assert cfg.tol_for(big) == pytest.approx(43 * cfg.tol_for(small), rel=1e-2)
+    assert RacelineConfig(tol=3e-4).tol_for(big) == 3e-4
 
 
 def test_convergence_warning():

@@ -32,6 +32,8 @@ def car(s, n, v, mu=0.0, vy=0.0):
 
 
 def ref(theta, ego, opps=None, **kw):
+    """The paper's reference, literally (``reachable=False``), unless a test asks for the cap."""
+    kw.setdefault("reachable", False)
     return reference_trajectory(theta, ego, opps, RL, TRACK, **kw)
 
 
@@ -399,3 +401,55 @@ def test_oval_track_runs():
     rl = get_raceline(tr)
     r = reference_trajectory(th(), car(3.0, 0.0, 3.0), np.array([car(3.3, 0.02, 3.0)]), rl, tr)
     assert np.all(np.isfinite(r.n_ref)) and math.isfinite(r.s_ref[-1])
+
+
+# ====================================================================== reachable progress (1b)
+def run_distance(v0, t):
+    """Distance [m] of a full-throttle run from v0 [m/s] over t [s] on a straight, integrated
+    here independently (explicit Euler, 1 ms) from the envelope's drive limit at zero a_y."""
+    from racing_env.envelope import ggv
+    env, x, v = ggv(), 0.0, v0
+    for _ in range(int(round(t / 1e-3))):
+        a = max(float(env.longitudinal_limits(v, 0.0)[0]), 0.0)
+        x += v * 1e-3 + 0.5 * a * 1e-6
+        v += a * 1e-3
+    return x
+
+
+def test_reachable_cap_from_rest_is_the_run_up_on_the_reference_path():
+    """From rest the paper's reference starts at racing speed (0.4 m in the first 0.1 s here);
+    the capped one asks for REACH_SLACK times what full throttle covers, along the same path."""
+    from agents.reference import REACH_SLACK
+    ego = car(3.0, 0.0, 0.0)
+    paper = ref(th(), ego)
+    capped = ref(th(), ego, reachable=True)
+    d = capped.s_ref - 3.0
+    assert paper.s_ref[0] - 3.0 > 0.3
+    for k in (0, 4, 9, 14):
+        assert d[k] == pytest.approx(REACH_SLACK * run_distance(0.0, DT * (k + 1)), rel=0.02)
+    assert np.all(np.diff(capped.s_ref) > 0)
+    # same path: the capped lateral reference is the paper's n at the capped progress
+    path_n = np.interp(capped.s_ref, np.append(3.0, paper.s_ref), np.append(RL.offset_at(3.0),
+                                                                             paper.n_pert))
+    np.testing.assert_allclose(capped.n_pert, path_n, atol=1e-9)
+
+
+@pytest.mark.parametrize("s0", [1.0, 6.0, 12.0, 20.0])
+def test_reachable_cap_idle_at_racing_speed(s0):
+    """A car on the racing line at the line's speed is never capped: the reference is the
+    paper's."""
+    s0 = s0 % L
+    ego = car(s0, float(RL.offset_at(s0)), v_rl(s0))
+    a, b = ref(th(), ego, reachable=True), ref(th(), ego)
+    np.testing.assert_array_equal(a.s_ref, b.s_ref)
+    np.testing.assert_array_equal(a.n_ref, b.n_ref)
+
+
+@HYP
+@given(s0=st.floats(0.0, 3 * L), v=st.floats(0.0, 6.0), zeta=st.floats(0.8, 1.05))
+def test_reachable_reference_advances_and_never_passes_the_paper(s0, v, zeta):
+    ego = car(s0, float(RL.offset_at(s0 % L)), v)
+    a, b = ref(th(zeta=zeta), ego, reachable=True), ref(th(zeta=zeta), ego)
+    assert np.all(np.diff(np.append(s0, a.s_ref)) > 0)
+    assert np.all(a.s_ref <= b.s_ref + 1e-12)
+    assert np.all(np.isfinite(a.n_ref)) and np.all(a.v_pert <= b.v_pert + 1e-12)
