@@ -199,6 +199,27 @@ def test_exact_line_is_a_stationary_point_of_curvature_per_metre():
             assert integral(m) >= f0 * (1 - 1e-4)
 
 
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 40))
+def test_box_qp_active_set_meets_the_kkt_conditions(seed, n):
+    """The active-set solution is feasible and optimal: the gradient vanishes on free offsets,
+    points into the box at the bounds (checked against the KKT conditions by hand)."""
+    from scipy import sparse
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(n, n))
+    h = sparse.csc_matrix(a.T @ a + 0.1 * np.eye(n))
+    g = rng.normal(size=n) * 3
+    lo, hi = -rng.uniform(0.1, 1, n), rng.uniform(0.1, 1, n)
+    x = R.box_qp_active_set(h, g, lo, hi)
+    assume(x is not None)                           # cycling falls back to OSQP / DAQP
+    grad = h @ x + g
+    tol = 1e-8 * (1 + np.abs(g).max())
+    assert np.all(x >= lo) and np.all(x <= hi)
+    free = (x > lo + 1e-12) & (x < hi - 1e-12)
+    assert np.all(np.abs(grad[free]) < tol)
+    assert np.all(grad[x <= lo + 1e-12] > -tol) and np.all(grad[x >= hi - 1e-12] < tol)
+
+
 def test_tolerance_scales_with_the_track():
     """``tol=None`` is TOL_PER_WIDTH of the mean width: 1e-4 m on the 0.5 m wide built-in
     tracks, 43 times that on a track 43 times larger."""
