@@ -82,10 +82,13 @@ class MPCConfig:
     soft_rho: float = 1e-4        # DAQP rho_soft at q <= soft_q_ref: a soft violation v costs
                                   # v^2 / (2 rho), rho = soft_rho_at(q)
     soft_q_ref: float = 20.0      # above this tracking weight rho shrinks like 1 / q
-    sqp_iterations: int = 2       # most SQP iterations; a second one only when the first
-                                  # step's linearised n differs from its rollout by > model_tol
-    model_tol: float = 0.02       # [m]
-    step_sizes: tuple = (1.0, 0.5, 0.25)  # merit-checked step lengths of each QP step
+    sqp_iterations: int = 12      # most SQP iterations (QPs) per solve: the SQP stops earlier
+                                  # when a QP step predicts a relative decrease of the cost
+                                  # below merit_rtol, or when no step length lowers it
+    merit_rtol: float = 1e-3      # predicted relative cost decrease worth a merit check
+    step_sizes: tuple = (1.0, 0.5, 0.25, 0.125)  # merit-checked step lengths of each QP step
+    curvature_passes: int = 1     # re-rollouts of a plan with the curvature along its own
+                                  # progress (0: along the previous plan's progress only)
     restart_offtrack: float = 0.06  # warm start from a follower rollout when the shifted plan
                                     # leaves the track by more than this [m]
     qp_iter_limit: int = 300        # DAQP active-set iterations; a QP that needs more (rare
@@ -107,6 +110,15 @@ class MPCConfig:
         if self.track_margin < 0 or self.sqp_iterations < 1:
             raise ValueError(f"MPCConfig needs track_margin >= 0 and sqp_iterations >= 1, got "
                              f"{self.track_margin}, {self.sqp_iterations}")
+        if not (isinstance(self.curvature_passes, int) and 0 <= self.curvature_passes <= 5):
+            raise ValueError(f"MPCConfig.curvature_passes must be an integer in 0..5, got "
+                             f"{self.curvature_passes!r}")
+        if not (np.isfinite(self.merit_rtol) and self.merit_rtol >= 0):
+            raise ValueError(f"MPCConfig.merit_rtol must be >= 0, got {self.merit_rtol!r}")
+        steps = tuple(self.step_sizes)
+        if not steps or any(not (0 < a <= 1) for a in steps):
+            raise ValueError(f"MPCConfig.step_sizes must be step lengths in (0, 1], got "
+                             f"{self.step_sizes!r}")
 
     def soft_rho_at(self, q: float) -> float:
         """DAQP's ``rho_soft`` for tracking weight ``q``: ``soft_rho * min(1, soft_q_ref / q)``,
@@ -540,6 +552,23 @@ def plan_cost(s_pred, n_pred, s_ref, n_ref, q, u_vec, nlo, nhi, opponents, dt, s
     return J
 
 
+@njit(cache=True)
+def predicted_decrease(H, f, Acon, blo, bhi, sense, du, w_soft):
+    """Decrease of the QP's model of the cost (:func:`qp_arrays`' quadratic plus the soft rows'
+    penalty ``w_soft v^2``) from ``du = 0`` to the step ``du``: what the linearisation
+    promises, in the units of :func:`plan_cost`."""
+    nv = du.shape[0]
+    gain = -(0.5 * du @ (H @ du) + f @ du)
+    a = Acon @ du
+    for r in range(a.shape[0]):
+        if sense[nv + r] == 8:
+            lo, hi = blo[nv + r], bhi[nv + r]
+            v_old = max(lo, -hi, 0.0)
+            v_new = max(lo - a[r], a[r] - hi, 0.0)
+            gain += w_soft * (v_old * v_old - v_new * v_new)
+    return gain
+
+
 # ---------------------------------------------------------------------------- the solver
 class MPC:
     """RTI-SQP MPC of one car on a track (see the module docstring).
@@ -590,11 +619,22 @@ class MPC:
         return follower_rollout(self.track, self.vehicle, self._follower, x0, self.cfg.horizon,
                                 self.cfg.dt)
 
-    def _plan(self, x0, U, s_prev=None, jacobians=True):
+    def _plan(self, x0, U, s_prev=None, jacobians=True, passes=None):
         """Nonlinear rollout of inputs ``U`` (2, K) from ``x0``: ``(X (6, K), A, B)`` (A, B
-        ``None`` without ``jacobians``) with the curvature looked up along ``s_prev`` (K + 1,)
-        or the previous nominal."""
+        ``None`` without ``jacobians``).
+
+        The curvature is a parameter of the compiled prediction, looked up at guessed stage
+        progress: ``s_prev`` (K + 1,), else the previous nominal. ``passes`` (default
+        ``cfg.curvature_passes``) rollouts then look it up again along the plan's own progress,
+        so that two plans are costed on the stretch of track each one drives: scored along
+        another plan's progress, a step that changes the speed is judged on the wrong corner
+        and the merit test rejects the steps that would fix the plan."""
         kap = self._kappa_at_substeps(x0, s_prev)
+        for _ in range(self.cfg.curvature_passes if passes is None else passes):
+            X = np.asarray(self._roll(x0, U, kap)[0], dtype=float)
+            if not np.isfinite(X).all():
+                break
+            kap = self._kappa_at_substeps(x0, np.concatenate([[x0[0]], X[0]]))
         if not jacobians:
             return np.asarray(self._roll(x0, U, kap)[0], dtype=float), None, None
         X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
@@ -665,12 +705,17 @@ class MPC:
             if exitflag < 0 or not np.all(np.isfinite(du)):
                 status = f"qp exitflag {exitflag}" if it == 0 else status
                 break
-            # merit check on the nonlinear rollout: the full step, else shorter ones
-            nodes = np.concatenate([[x0[0]], s_pred])
+            if predicted_decrease(H, f, Acon, blo, bhi, sense, du, 0.5 / cfg.soft_rho_at(q)) \
+                    <= cfg.merit_rtol * J:
+                break                          # converged: the model sees nothing left to gain
+            # merit check on the nonlinear rollout: the full step, else shorter ones, each
+            # with the curvature along its own linearised progress (no extra rollout)
+            ds_lin = G[0::2] @ du
             best = None
             for alpha in cfg.step_sizes:
                 Ua = np.clip((u_vec + alpha * du).reshape(K, 2).T, -1.0, 1.0)
-                Xa = self._plan(x0, Ua, s_prev=nodes, jacobians=False)[0]
+                nodes = np.concatenate([[x0[0]], s_pred + alpha * ds_lin])
+                Xa = self._plan(x0, Ua, s_prev=nodes, jacobians=False, passes=0)[0]
                 Ja, edges_a = score(Xa, Ua)
                 if best is None or Ja < best[0]:
                     best = (Ja, alpha, Ua, Xa, edges_a)
@@ -680,14 +725,16 @@ class MPC:
             if Ja > J:                         # no step improves the plan: keep it
                 self.stats["rejected_steps"] += 1
                 break
-            n_lin = n_pred + alpha * (G[1::2] @ du)
-            model_error = float(np.max(np.abs(n_lin - Xa[1])))
             U, X, J, edges = Ua, Xa, Ja, edges_a
             self._s_nom = np.concatenate([[x0[0]], X[0]])
-            if model_error <= cfg.model_tol or it + 1 == cfg.sqp_iterations:
+            if it + 1 == cfg.sqp_iterations:
                 break
-            self.stats["extra_iterations"] += 1        # linearise again at the new plan (the
-            X, A, B = self._plan(x0, U, s_prev=nodes)  # same rollout, so the same edges)
+            # linearise again at the new plan, along its own progress
+            self.stats["extra_iterations"] += 1
+            # (the trial was rolled out along its linearised progress; self._s_nom is its own,
+            # so this rollout is already the curvature pass)
+            X, A, B = self._plan(x0, U, s_prev=self._s_nom, passes=0)
+            J, edges = score(X, U)
         self.stats["solves"] += 1
         if status != "ok":
             self.stats["fallbacks"] += 1

@@ -2,7 +2,7 @@
 
     python benchmarks/mpc_speed.py            # about a minute
     python benchmarks/mpc_speed.py --quick    # a smoke check
-    python benchmarks/mpc_speed.py --quality-only --config sqp_iterations=4 model_tol=0
+    python benchmarks/mpc_speed.py --quality-only --config sqp_iterations=2 curvature_passes=0
                                               # the plan quality of another MPCConfig
 
 Both solve the same MPC (K = 15, 3 RK4 sub-steps per stage, same cost and soft constraints) in

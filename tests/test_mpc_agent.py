@@ -131,8 +131,8 @@ def test_mpc_speed_config_pairs_set_numeric_fields_and_name_bad_ones():
     from mpc_speed import parse_config
 
     from agents.mpc import MPCConfig
-    cfg = parse_config(["sqp_iterations=4", "model_tol=0", "restart_offtrack=-1"])
-    assert cfg == MPCConfig(sqp_iterations=4, model_tol=0.0, restart_offtrack=-1.0)
+    cfg = parse_config(["sqp_iterations=4", "merit_rtol=0", "restart_offtrack=-1"])
+    assert cfg == MPCConfig(sqp_iterations=4, merit_rtol=0.0, restart_offtrack=-1.0)
     assert isinstance(cfg.sqp_iterations, int)
     assert parse_config([]) == MPCConfig()
     for bad in ("foo=1", "sqp_iterations", "step_sizes=1"):
