@@ -93,3 +93,52 @@ def test_qp_rows_follow_the_separation_rule_and_the_cost():
     cost = lambda d: 7.0 * np.sum((G @ d + e) ** 2) + np.sum((D @ (u + d)) ** 2)
     quad = lambda d: 0.5 * d @ H @ d + f @ d
     assert quad(du) - quad(0 * du) == pytest.approx(cost(du) - cost(0 * du), rel=1e-6)
+
+
+def test_config_names_bad_sqp_settings():
+    for kw, name in (({"curvature_passes": -1}, "curvature_passes"),
+                     ({"merit_rtol": -0.1}, "merit_rtol"),
+                     ({"step_sizes": (1.0, 0.0)}, "step_sizes"),
+                     ({"step_sizes": ()}, "step_sizes")):
+        with pytest.raises(ValueError, match=name):
+            MPCConfig(**kw)
+
+
+def test_a_plan_is_rolled_out_along_its_own_progress(mpc):
+    """The curvature is a parameter of the compiled rollout, looked up at guessed stage
+    progress. From a guess on another stretch of track, each pass looks the curvature up
+    along the previous pass's progress, and the progress it was looked up at converges to
+    the rollout's own: a plan is costed on the corners it drives through."""
+    K = mpc.cfg.horizon
+    for s0 in (0.0, 9.0):                                # a straight into a corner, a corner
+        x0 = np.array([s0, 0.0, 0.0, 3.0, 0.0, 0.0])
+        U = mpc._follower_warm_start(x0)
+        wrong = x0[0] + 0.5 + 0.1 * np.arange(K + 1)   # 0.5 m ahead, at 1 m/s
+
+        def nodes(X):
+            return np.concatenate([[x0[0]], X[0]])
+
+        rollouts = [mpc._plan(x0, U, s_prev=wrong, jacobians=False, passes=p)[0]
+                    for p in range(4)]
+        used = [wrong] + [nodes(X) for X in rollouts[:-1]]   # pass p looks up along pass p - 1
+        mismatch = [float(np.abs(u - nodes(X)).max()) for u, X in zip(used, rollouts)]
+        assert mismatch[0] > 1.0                             # [m]: the guess is far off
+        for before, after in zip(mismatch[1:], mismatch[2:]):
+            assert after < before / 4                        # every pass contracts it
+        assert mismatch[-1] < 1e-3
+
+
+def test_predicted_decrease_of_a_hand_made_qp():
+    """The QP model's decrease from du = 0 to du: 0.5 du'H du + f'du, plus the soft rows'
+    penalty w v^2 before minus after; hard rows (sense 0) cost nothing."""
+    from agents.mpc import predicted_decrease
+    H = np.diag([2.0, 4.0])
+    f = np.array([-2.0, 0.0])
+    A = np.array([[1.0, 0.0], [0.0, 1.0]])          # row 0 soft, row 1 hard
+    blo = np.array([-1.0, -1.0, 0.5, -1.0])         # 2 simple bounds lead, then the rows
+    bhi = np.array([1.0, 1.0, 2.0, 1.0])
+    sense = np.array([0, 0, 8, 0], dtype=np.int32)
+    du = np.array([1.0, 0.5])
+    # model: 0.5 (2 + 4 * 0.25) - 2 = -0.5, so a gain of 0.5; soft row: v = 0.5 before, 0 after
+    assert predicted_decrease(H, f, A, blo, bhi, sense, du, 10.0) == pytest.approx(0.5 + 10 * 0.25)
+    assert predicted_decrease(H, f, A, blo, bhi, sense, np.zeros(2), 10.0) == 0.0
