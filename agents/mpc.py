@@ -269,6 +269,17 @@ class _InterpretedTrajectory:
         out = out if isinstance(out, (tuple, list)) else (out,)   # one output comes bare
         return tuple(np.asarray(o, dtype=float) for o in out)
 
+    def states(self, x0, u_vec, kap_flat, K: int):
+        """Predicted states (6, K) of flat inputs: ``u_vec`` (2K,) ``[d0, delta0, d1, ...]``,
+        ``kap_flat`` (substeps K,) stage after stage (the layouts of the compiled buffers)."""
+        return np.ascontiguousarray(self.full(x0, u_vec, kap_flat, K)[0])
+
+    def full(self, x0, u_vec, kap_flat, K: int):
+        """``(X, A, B)`` (or ``(X,)``) of flat inputs, like :meth:`states`."""
+        U = np.asarray(u_vec).reshape(K, 2).T
+        kap = np.asarray(kap_flat).reshape(K, -1).T
+        return tuple(np.ascontiguousarray(o) for o in self(x0, U, kap))
+
 
 class _CompiledTrajectory:
     """Calls the generated C function through ctypes on preallocated numpy buffers (the
@@ -309,6 +320,29 @@ class _CompiledTrajectory:
         if self._fn(*self._args):
             raise RuntimeError("compiled MPC prediction failed")
         K = self.K
+        if self.states_only:
+            return (self.X.reshape(K, 6).T.copy(),)
+        return (self.X.reshape(K, 6).T.copy(), self.A.reshape(K, 36).T.copy(),
+                self.B.reshape(K, 12).T.copy())
+
+    def states(self, x0, u_vec, kap_flat, K: int):
+        """Predicted states (6, K) of flat inputs: ``u_vec`` (2K,) ``[d0, delta0, d1, ...]``,
+        ``kap_flat`` (substeps K,) stage after stage: the buffers' own layouts, so the inputs
+        are copied once and not transposed (a trial step's rollout is the MPC's hot path)."""
+        self.x0[:] = x0
+        self.U[:] = u_vec
+        self.kap[:] = kap_flat
+        if self._fn(*self._args):
+            raise RuntimeError("compiled MPC prediction failed")
+        return self.X.reshape(K, 6).T.copy()
+
+    def full(self, x0, u_vec, kap_flat, K: int):
+        """``(X (6, K), A (36, K), B (12, K))`` of flat inputs, like :meth:`states`."""
+        self.x0[:] = x0
+        self.U[:] = u_vec
+        self.kap[:] = kap_flat
+        if self._fn(*self._args):
+            raise RuntimeError("compiled MPC prediction failed")
         if self.states_only:
             return (self.X.reshape(K, 6).T.copy(),)
         return (self.X.reshape(K, 6).T.copy(), self.A.reshape(K, 36).T.copy(),
@@ -374,6 +408,19 @@ def kappa_at_substeps(track: Track, s_nodes, substeps: int) -> np.ndarray:
     boundaries ``s_nodes`` (K + 1,) (progress interpolated linearly within a stage)."""
     return _kappa_sub(track.kappa, np.asarray(s_nodes, dtype=float), substeps, track.ds,
                       track.length)
+
+
+@njit(cache=True)
+def kappa_flat(table, s_nodes, m, ds, length):
+    """:func:`kappa_at_substeps` laid out stage after stage (substeps K,), the layout of the
+    compiled prediction's buffer."""
+    K = s_nodes.shape[0] - 1
+    out = np.empty(m * K)
+    for k in range(K):
+        step = s_nodes[k + 1] - s_nodes[k]
+        for i in range(m):
+            out[k * m + i] = _lookup(table, s_nodes[k] + step * i / m, ds, length)
+    return out
 
 
 @njit(cache=True)
@@ -580,6 +627,75 @@ def predicted_decrease(H, f, Acon, blo, bhi, sense, du, w_soft):
     return gain
 
 
+@njit(cache=True)
+def _all_finite(a):
+    for v in a.ravel():
+        if not np.isfinite(v):
+            return False
+    return True
+
+
+@njit(cache=True)
+def linearised_qp(X, A, B, s_ref, n_ref, q, DtD, u_vec, delta_applied, rate, nlo, nhi,
+                  opponents, dt, sep_s, sep_n, sep_window):
+    """One SQP iteration's QP at the plan ``X`` (6, K) with stage Jacobians ``A`` (36, K),
+    ``B`` (12, K), in one call: ``(ok, G, H, f, Acon, blo, bhi, sense)`` with ``G`` from
+    :func:`condense` and the rest from :func:`qp_arrays`; ``ok`` False (and the arrays empty)
+    when the prediction is not finite."""
+    K = X.shape[1]
+    if not (_all_finite(X) and _all_finite(A) and _all_finite(B)):
+        e = np.empty((0, 0))
+        return False, e, e, np.empty(0), e, np.empty(0), np.empty(0), np.empty(0, np.int32)
+    G = condense(A, B, K)
+    H, f, Acon, blo, bhi, sense = qp_arrays(G, X[0], X[1], s_ref, n_ref, q, DtD, u_vec,
+                                            delta_applied, rate, nlo, nhi, opponents, dt, sep_s,
+                                            sep_n, sep_window)
+    return True, G, H, f, Acon, blo, bhi, sense
+
+
+@njit(cache=True)
+def trial_step(u_vec, du, alpha, s0, s_pred, ds_lin, kappa_tab, ds, length, m):
+    """A trial step's inputs and curvature, in one pass: ``u_vec + alpha du`` clipped to
+    [-1, 1] (2K,), and the curvature (substeps K,) along the step's linearised progress
+    ``[s0, s_pred + alpha ds_lin]``, stage after stage (the compiled prediction's layouts)."""
+    nv = u_vec.shape[0]
+    K = s_pred.shape[0]
+    u_new = np.empty(nv)
+    for i in range(nv):
+        v = u_vec[i] + alpha * du[i]
+        u_new[i] = -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
+    kap = np.empty(m * K)
+    s_a = s0
+    for k in range(K):
+        s_b = s_pred[k] + alpha * ds_lin[k]
+        step = s_b - s_a
+        for i in range(m):
+            kap[k * m + i] = _lookup(kappa_tab, s_a + step * i / m, ds, length)
+        s_a = s_b
+    return u_new, kap
+
+
+@njit(cache=True)
+def score_rollout(X, u_vec, s_ref, n_ref, q, lo_tab, hi_tab, ds, length, opponents, dt, sep_s,
+                  sep_n, sep_window, w_soft):
+    """``(cost, lo, hi)`` of a plan's rollout ``X`` (6, K) in one pass: the bounds (K,) on n
+    along ``X[0]`` (:class:`EdgeBounds`) and :func:`plan_cost` on them; ``inf`` cost (and
+    bounds not filled) for a non-finite rollout."""
+    K = X.shape[1]
+    lo = np.empty(K)
+    hi = np.empty(K)
+    for r in range(X.shape[0]):
+        for k in range(K):
+            if not np.isfinite(X[r, k]):
+                return np.inf, lo, hi
+    for k in range(K):
+        lo[k] = _lookup(lo_tab, X[0, k], ds, length)
+        hi[k] = _lookup(hi_tab, X[0, k], ds, length)
+    J = plan_cost(X[0], X[1], s_ref, n_ref, q, u_vec, lo, hi, opponents, dt, sep_s, sep_n,
+                  sep_window, w_soft)
+    return J, lo, hi
+
+
 # ---------------------------------------------------------------------------- the solver
 class MPC:
     """RTI-SQP MPC of one car on a track (see the module docstring).
@@ -640,15 +756,20 @@ class MPC:
         so that two plans are costed on the stretch of track each one drives: scored along
         another plan's progress, a step that changes the speed is judged on the wrong corner
         and the merit test rejects the steps that would fix the plan."""
-        kap = self._kappa_at_substeps(x0, s_prev)
-        for _ in range(self.cfg.curvature_passes if passes is None else passes):
-            X = np.asarray(self._roll(x0, U, kap)[0], dtype=float)
+        cfg, t = self.cfg, self.track
+        nodes = (stage_nodes(self._s_nom, x0, cfg.horizon, cfg.dt) if s_prev is None
+                 else np.asarray(s_prev, dtype=float))
+        kap = kappa_flat(t.kappa, nodes, cfg.substeps, t.ds, t.length)
+        u_vec = np.ascontiguousarray(np.asarray(U, dtype=float).T).reshape(-1)
+        for _ in range(cfg.curvature_passes if passes is None else passes):
+            X = self._roll.states(x0, u_vec, kap, cfg.horizon)
             if not np.isfinite(X).all():
                 break
-            kap = self._kappa_at_substeps(x0, np.concatenate([[x0[0]], X[0]]))
+            nodes = np.concatenate([[x0[0]], X[0]])
+            kap = kappa_flat(t.kappa, nodes, cfg.substeps, t.ds, t.length)
         if not jacobians:
-            return np.asarray(self._roll(x0, U, kap)[0], dtype=float), None, None
-        X, A, B = (np.asarray(o, dtype=float) for o in self._traj(x0, U, kap))
+            return self._roll.states(x0, u_vec, kap, cfg.horizon), None, None
+        X, A, B = self._traj.full(x0, u_vec, kap, cfg.horizon)
         return X, A, B
 
     def _merit(self, X, U, s_ref, n_ref, q, opp, edges=None):
@@ -674,10 +795,15 @@ class MPC:
         opp = (np.zeros((0, 3)) if opponents is None
                else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3))
 
+        w_soft = 0.5 / cfg.soft_rho_at(q)
+        bounds, track = self._bounds_n, self.track
+
         def score(X_, U_):
-            """(cost, track edges along X_ or None): the edges are looked up once per rollout."""
-            edges = self._bounds_n(X_[0]) if np.isfinite(X_).all() else None
-            return self._merit(X_, U_, s_ref, n_ref, q, opp, edges), edges
+            """(cost, track edges along X_ or None): :meth:`_merit` and the edges in one pass."""
+            J_, lo_, hi_ = score_rollout(X_, U_.T.reshape(-1), s_ref, n_ref, float(q),
+                                         bounds._lo, bounds._hi, track.ds, track.length, opp,
+                                         cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window, w_soft)
+            return J_, (None if J_ == np.inf else (lo_, hi_))
 
         fresh = self._U is None
         if fresh:                                   # first solve: start from the follower
@@ -700,23 +826,25 @@ class MPC:
                     self.stats["restarts"] += 1
         status = "ok"
         for it in range(cfg.sqp_iterations):
-            if not (np.isfinite(X).all() and np.isfinite(A).all() and np.isfinite(B).all()):
+            if edges is None:
                 status = "nonfinite prediction"
                 break
-            G = condense(np.ascontiguousarray(A), np.ascontiguousarray(B), K)
-            s_pred, n_pred = X[0], X[1]
+            s_pred = X[0]
             lo_n, hi_n = edges
-            u_vec = U.T.reshape(-1)                                       # [d0, delta0, d1, ...]
-            H, f, Acon, blo, bhi, sense = qp_arrays(
-                G, s_pred, n_pred, s_ref, n_ref, float(q), self._DtD, u_vec, float(u_prev[1]),
+            u_vec = np.ascontiguousarray(U.T).reshape(-1)                 # [d0, delta0, d1, ...]
+            ok, G, H, f, Acon, blo, bhi, sense = linearised_qp(
+                X, A, B, s_ref, n_ref, float(q), self._DtD, u_vec, float(u_prev[1]),
                 self._rate, lo_n, hi_n, opp, cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window)
+            if not ok:
+                status = "nonfinite prediction"
+                break
             du, _, exitflag, info = daqp.solve(H, f, Acon, bhi, blo, sense, rho_soft=cfg.soft_rho_at(q),
                                                iter_limit=cfg.qp_iter_limit)
             self.stats["qp_iterations"] += int(info.get("iterations", 0))
             if exitflag < 0 or not np.all(np.isfinite(du)):
                 status = f"qp exitflag {exitflag}" if it == 0 else status
                 break
-            if predicted_decrease(H, f, Acon, blo, bhi, sense, du, 0.5 / cfg.soft_rho_at(q)) \
+            if predicted_decrease(H, f, Acon, blo, bhi, sense, du, w_soft) \
                     <= cfg.merit_rtol * J:
                 break                          # converged: the model sees nothing left to gain
             # merit check on the nonlinear rollout: the full step, else shorter ones, each
@@ -724,9 +852,10 @@ class MPC:
             ds_lin = G[0::2] @ du
             best = None
             for alpha in cfg.step_sizes:
-                Ua = np.clip((u_vec + alpha * du).reshape(K, 2).T, -1.0, 1.0)
-                nodes = np.concatenate([[x0[0]], s_pred + alpha * ds_lin])
-                Xa = self._plan(x0, Ua, s_prev=nodes, jacobians=False, passes=0)[0]
+                ua, kap_a = trial_step(u_vec, du, alpha, x0[0], s_pred, ds_lin, track.kappa,
+                                       track.ds, track.length, cfg.substeps)
+                Ua = ua.reshape(K, 2).T
+                Xa = self._roll.states(x0, ua, kap_a, K)
                 Ja, edges_a = score(Xa, Ua)
                 if best is None or Ja < best[0]:
                     best = (Ja, alpha, Ua, Xa, edges_a)
