@@ -283,32 +283,40 @@ class _InterpretedTrajectory:
 
 class _CompiledTrajectory:
     """Calls the generated C function through ctypes on preallocated numpy buffers (the
-    CasADi Python call with DM conversions costs more than the maths itself here)."""
+    CasADi Python call with DM conversions costs more than the maths itself here).
+
+    The buffers are views of one workspace array ``ws``: ``x0`` (6), ``U`` (2K), ``kap``
+    (substeps K), ``X`` (6K), ``A`` (36K), ``B`` (12K), then CasADi's work vector; ``ptrs``
+    holds the argument pointers (``n_arg`` of them) and then the result pointers. The
+    :func:`sqp_step_kernel` calls the function from numba on the same buffers."""
 
     def __init__(self, lib: Path, horizon: int, substeps: int, name: str = "mpc_traj"):
         import ctypes
-        self._lib = ctypes.CDLL(str(lib))
+        self.path = str(lib)
+        self._lib = ctypes.CDLL(self.path)
+        self.name = name
         fn = getattr(self._lib, name)
         i64 = ctypes.c_longlong
         sizes = [i64() for _ in range(4)]
         getattr(self._lib, f"{name}_work")(*[ctypes.byref(v) for v in sizes])
         n_arg, n_res, n_iw, n_w = (v.value for v in sizes)
+        self.n_arg, self.n_res = max(n_arg, 3), max(n_res, 3)
         K = horizon
-        self.x0 = np.zeros(6)
-        self.U = np.zeros(2 * K)
-        self.kap = np.zeros(substeps * K)
-        self.X = np.zeros(6 * K)
-        self.A = np.zeros(36 * K)
-        self.B = np.zeros(12 * K)
-        self._iw = np.zeros(max(n_iw, 1), dtype=np.int64)
-        self._w = np.zeros(max(n_w, 1))
-        dp = ctypes.POINTER(ctypes.c_double)
-        ptr = lambda a: a.ctypes.data_as(dp)
-        self._arg = (dp * max(n_arg, 3))(ptr(self.x0), ptr(self.U), ptr(self.kap))
         self.states_only = n_res == 1
-        self._res = (dp * max(n_res, 3))(ptr(self.X), ptr(self.A), ptr(self.B))
-        self._args = (self._arg, self._res, self._iw.ctypes.data_as(ctypes.POINTER(i64)), ptr(self._w), 0)
+        sizes = (6, 2 * K, substeps * K, 6 * K, 36 * K, 12 * K, max(n_w, 1))
+        self.ws = np.zeros(sum(sizes))
+        offsets = np.concatenate([[0], np.cumsum(sizes)])
+        self.x0, self.U, self.kap, self.X, self.A, self.B, self._w = (
+            self.ws[a:b] for a, b in zip(offsets[:-1], offsets[1:]))
+        self.iw = np.zeros(max(n_iw, 1), dtype=np.int64)
+        self.ptrs = np.zeros(self.n_arg + self.n_res, dtype=np.uint64)
+        self.ptrs[:3] = [a.ctypes.data for a in (self.x0, self.U, self.kap)]
+        self.ptrs[self.n_arg:self.n_arg + 3] = [a.ctypes.data for a in (self.X, self.A, self.B)]
+        vp = ctypes.c_void_p
+        self._args = (vp(self.ptrs.ctypes.data), vp(self.ptrs.ctypes.data + 8 * self.n_arg),
+                      vp(self.iw.ctypes.data), vp(self._w.ctypes.data), 0)
         fn.restype = ctypes.c_int
+        fn.argtypes = [vp, vp, vp, vp, ctypes.c_int]
         self._fn = fn
         self.K = K
 
@@ -696,6 +704,94 @@ def score_rollout(X, u_vec, s_ref, n_ref, q, lo_tab, hi_tab, ds, length, opponen
     return J, lo, hi
 
 
+# ---------------------------------------------------------------------------- the SQP step
+_STEP_KERNELS: dict = {}
+
+
+def sqp_step_kernel(roll: _CompiledTrajectory, traj: _CompiledTrajectory):
+    """The merit-checked step of one SQP iteration as one compiled call, numba calling the two
+    compiled predictions on their workspaces (``roll.ws``, ``traj.ws``), for
+    :meth:`MPC.solve`. Compiled once per process and pair of libraries (a kernel that holds C
+    function pointers is not cached on disk; about a second).
+
+    ``step(x0, u_vec, du, ds_lin, s_pred, J, step_sizes, relinearise, kappa_tab, ds, length,
+    m, s_ref, n_ref, q, lo_tab, hi_tab, opponents, dt, sep_s, sep_n, sep_window, w_soft,
+    roll_ws, roll_ptrs, roll_iw, traj_ws, traj_ptrs, traj_iw)`` tries the step lengths
+    ``alpha`` in order (:func:`trial_step`, the nonlinear rollout, :func:`score_rollout`),
+    stops at the first that does not raise the cost ``J`` and keeps the cheapest; then, if
+    ``relinearise``, rolls the accepted plan out again with its Jacobians and the curvature
+    along its own progress. Returns ``(code, J, u_vec (2K,), X (6, K), A (36, K), B (12, K),
+    lo (K,), hi (K,), s_nominal (K + 1,))``: ``code`` 0 no step lowers the cost (the rest is
+    meaningless), 1 accepted (``A``, ``B`` empty), 2 accepted and linearised again, -1 a
+    prediction failed. The arithmetic is the Python loop's it replaces, kernel for kernel."""
+    key = (roll.path, traj.path)
+    if key in _STEP_KERNELS:
+        return _STEP_KERNELS[key]
+    import ctypes
+    vp = ctypes.c_void_p
+    roll_fn, traj_fn = roll._lib[roll.name], traj._lib[traj.name]   # own pointer objects
+    for fn in (roll_fn, traj_fn):
+        fn.restype = ctypes.c_int
+        fn.argtypes = [vp, vp, vp, vp, ctypes.c_int]
+    K, m = roll.K, roll.kap.size // roll.K
+    o_u, o_kap = 6, 6 + 2 * K
+    o_x = o_kap + m * K
+    o_a, o_b = o_x + 6 * K, o_x + 42 * K
+    o_w = o_x + 54 * K
+    r_res, t_res = 8 * roll.n_arg, 8 * traj.n_arg       # byte offsets of the result pointers
+
+    @njit
+    def step(x0, u_vec, du, ds_lin, s_pred, J, step_sizes, relinearise, kappa_tab, ds, length,
+             m, s_ref, n_ref, q, lo_tab, hi_tab, opponents, dt, sep_s, sep_n, sep_window,
+             w_soft, roll_ws, roll_ptrs, roll_iw, traj_ws, traj_ptrs, traj_iw):
+        empty = np.empty((0, K))
+        found = False
+        best_J = np.inf
+        best_u = u_vec
+        best_X = np.empty((6, K))
+        best_lo = np.empty(K)
+        best_hi = np.empty(K)
+        for a in range(step_sizes.shape[0]):
+            ua, kap_a = trial_step(u_vec, du, step_sizes[a], x0[0], s_pred, ds_lin, kappa_tab,
+                                   ds, length, m)
+            roll_ws[:o_u] = x0
+            roll_ws[o_u:o_kap] = ua
+            roll_ws[o_kap:o_x] = kap_a
+            if roll_fn(roll_ptrs.ctypes.data, roll_ptrs.ctypes.data + r_res,
+                       roll_iw.ctypes.data, roll_ws.ctypes.data + 8 * o_w, 0):
+                return -1, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred
+            Xa = roll_ws[o_x:o_a].reshape(K, 6).T.copy()
+            Ja, lo, hi = score_rollout(Xa, ua, s_ref, n_ref, q, lo_tab, hi_tab, ds, length,
+                                       opponents, dt, sep_s, sep_n, sep_window, w_soft)
+            if not found or Ja < best_J:
+                found = True
+                best_J, best_u, best_X, best_lo, best_hi = Ja, ua, Xa, lo, hi
+            if Ja <= J:
+                break
+        if best_J > J:
+            return 0, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred
+        s_nom = np.empty(K + 1)
+        s_nom[0] = x0[0]
+        s_nom[1:] = best_X[0]
+        if not relinearise:
+            return 1, best_J, best_u, best_X, empty, empty, best_lo, best_hi, s_nom
+        traj_ws[:o_u] = x0
+        traj_ws[o_u:o_kap] = best_u
+        traj_ws[o_kap:o_x] = kappa_flat(kappa_tab, s_nom, m, ds, length)
+        if traj_fn(traj_ptrs.ctypes.data, traj_ptrs.ctypes.data + t_res, traj_iw.ctypes.data,
+                   traj_ws.ctypes.data + 8 * o_w, 0):
+            return -1, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred
+        X = traj_ws[o_x:o_a].reshape(K, 6).T.copy()
+        A = traj_ws[o_a:o_b].reshape(K, 36).T.copy()
+        B = traj_ws[o_b:o_w].reshape(K, 12).T.copy()
+        J2, lo2, hi2 = score_rollout(X, best_u, s_ref, n_ref, q, lo_tab, hi_tab, ds, length,
+                                     opponents, dt, sep_s, sep_n, sep_window, w_soft)
+        return 2, J2, best_u, X, A, B, lo2, hi2, s_nom
+
+    _STEP_KERNELS[key] = step
+    return step
+
+
 # ---------------------------------------------------------------------------- the solver
 class MPC:
     """RTI-SQP MPC of one car on a track (see the module docstring).
@@ -715,6 +811,13 @@ class MPC:
         self.cfg = config or MPCConfig()
         self._traj = _trajectory_function(self.vehicle, self.cfg)
         self._roll = _trajectory_function(self.vehicle, self.cfg, jacobians=False)
+        self._step_sizes = np.array(self.cfg.step_sizes, dtype=float)
+        if isinstance(self._traj, _CompiledTrajectory) and isinstance(self._roll, _CompiledTrajectory):
+            self._step = sqp_step_kernel(self._roll, self._traj)
+            self._step_buffers = (self._roll.ws, self._roll.ptrs, self._roll.iw, self._traj.ws,
+                                  self._traj.ptrs, self._traj.iw)
+        else:                                   # interpreted prediction: the same step in Python
+            self._step, self._step_buffers = self._step_python, ()
         K = self.cfg.horizon
         # input-rate cost sum_{k=1..K-1} ||u^k - u^{k-1}||^2 as D^T D
         self._DtD = input_rate_matrix(K)
@@ -771,6 +874,33 @@ class MPC:
             return self._roll.states(x0, u_vec, kap, cfg.horizon), None, None
         X, A, B = self._traj.full(x0, u_vec, kap, cfg.horizon)
         return X, A, B
+
+    def _step_python(self, x0, u_vec, du, ds_lin, s_pred, J, step_sizes, relinearise,
+                     kappa_tab, ds, length, m, s_ref, n_ref, q, lo_tab, hi_tab, opponents, dt,
+                     sep_s, sep_n, sep_window, w_soft):
+        """:func:`sqp_step_kernel`'s step with an interpreted prediction (no C compiler)."""
+        K = s_pred.shape[0]
+        best = None
+        for alpha in step_sizes:
+            ua, kap_a = trial_step(u_vec, du, alpha, x0[0], s_pred, ds_lin, kappa_tab, ds,
+                                   length, m)
+            Xa = self._roll.states(x0, ua, kap_a, K)
+            Ja, lo, hi = score_rollout(Xa, ua, s_ref, n_ref, q, lo_tab, hi_tab, ds, length,
+                                       opponents, dt, sep_s, sep_n, sep_window, w_soft)
+            if best is None or Ja < best[0]:
+                best = (Ja, ua, Xa, lo, hi)
+            if Ja <= J:
+                break
+        Ja, ua, Xa, lo, hi = best
+        if Ja > J:
+            return 0, J, u_vec, Xa, None, None, lo, hi, s_pred
+        s_nom = np.concatenate([[x0[0]], Xa[0]])
+        if not relinearise:
+            return 1, Ja, ua, Xa, None, None, lo, hi, s_nom
+        X, A, B = self._traj.full(x0, ua, kappa_flat(kappa_tab, s_nom, m, ds, length), K)
+        J2, lo2, hi2 = score_rollout(X, ua, s_ref, n_ref, q, lo_tab, hi_tab, ds, length,
+                                     opponents, dt, sep_s, sep_n, sep_window, w_soft)
+        return 2, J2, ua, X, A, B, lo2, hi2, s_nom
 
     def _merit(self, X, U, s_ref, n_ref, q, opp, edges=None):
         """The MPC's cost of a plan on its *nonlinear* rollout ``X``: tracking, input rates and
@@ -850,31 +980,26 @@ class MPC:
             # merit check on the nonlinear rollout: the full step, else shorter ones, each
             # with the curvature along its own linearised progress (no extra rollout)
             ds_lin = G[0::2] @ du
-            best = None
-            for alpha in cfg.step_sizes:
-                ua, kap_a = trial_step(u_vec, du, alpha, x0[0], s_pred, ds_lin, track.kappa,
-                                       track.ds, track.length, cfg.substeps)
-                Ua = ua.reshape(K, 2).T
-                Xa = self._roll.states(x0, ua, kap_a, K)
-                Ja, edges_a = score(Xa, Ua)
-                if best is None or Ja < best[0]:
-                    best = (Ja, alpha, Ua, Xa, edges_a)
-                if Ja <= J:
-                    break
-            Ja, alpha, Ua, Xa, edges_a = best
-            if Ja > J:                         # no step improves the plan: keep it
+            code, J_new, u_new, X_new, A_new, B_new, lo_new, hi_new, s_nom = self._step(
+                x0, u_vec, du, ds_lin, s_pred, J, self._step_sizes, it + 1 < cfg.sqp_iterations,
+                track.kappa, track.ds, track.length, cfg.substeps, s_ref, n_ref, float(q),
+                bounds._lo, bounds._hi, opp, cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window,
+                w_soft, *self._step_buffers)
+            if code < 0:
+                raise RuntimeError("compiled MPC prediction failed")
+            if code == 0:                      # no step improves the plan: keep it
                 self.stats["rejected_steps"] += 1
                 break
-            U, X, J, edges = Ua, Xa, Ja, edges_a
-            self._s_nom = np.concatenate([[x0[0]], X[0]])
-            if it + 1 == cfg.sqp_iterations:
+            U, X, J = u_new.reshape(K, 2).T, X_new, J_new
+            edges = None if J == np.inf else (lo_new, hi_new)
+            self._s_nom = s_nom
+            if code == 1:                      # the last SQP iteration
                 break
-            # linearise again at the new plan, along its own progress
+            # linearised again at the new plan, along its own progress (the trial was rolled
+            # out along its linearised progress; s_nom is its own, so that rollout is already
+            # the curvature pass)
             self.stats["extra_iterations"] += 1
-            # (the trial was rolled out along its linearised progress; self._s_nom is its own,
-            # so this rollout is already the curvature pass)
-            X, A, B = self._plan(x0, U, s_prev=self._s_nom, passes=0)
-            J, edges = score(X, U)
+            A, B = A_new, B_new
         self.stats["solves"] += 1
         if status != "ok":
             self.stats["fallbacks"] += 1
