@@ -333,41 +333,33 @@ class _CompiledTrajectory:
         return (self.ws, self.ptrs, self.iw, ctypes.cast(self._fn, ctypes.c_void_p).value,
                 8 * self.n_arg)
 
-    def __call__(self, x0, U, kap):
-        """Same inputs and outputs as the CasADi Function (U (2, K), kap (m, K) arrays)."""
+    def _run(self, x0, u_vec, kap_flat) -> None:
+        """Write the inputs into the buffers and run the C function on them."""
         self.x0[:] = x0
-        self.U[:] = np.asarray(U).T.ravel()
-        self.kap[:] = np.asarray(kap).T.ravel()
+        self.U[:] = u_vec
+        self.kap[:] = kap_flat
         if self._fn(*self._args):
             raise RuntimeError("compiled MPC prediction failed")
-        K = self.K
-        if self.states_only:
-            return (self.X.reshape(K, 6).T.copy(),)
-        return (self.X.reshape(K, 6).T.copy(), self.A.reshape(K, 36).T.copy(),
-                self.B.reshape(K, 12).T.copy())
+
+    def __call__(self, x0, U, kap):
+        """Same inputs and outputs as the CasADi Function (U (2, K), kap (m, K) arrays)."""
+        return self.full(x0, np.asarray(U).T.ravel(), np.asarray(kap).T.ravel(), self.K)
 
     def states(self, x0, u_vec, kap_flat, K: int):
         """Predicted states (6, K) of flat inputs: ``u_vec`` (2K,) ``[d0, delta0, d1, ...]``,
         ``kap_flat`` (substeps K,) stage after stage: the buffers' own layouts, so the inputs
-        are copied once and not transposed (a trial step's rollout is the MPC's hot path)."""
-        self.x0[:] = x0
-        self.U[:] = u_vec
-        self.kap[:] = kap_flat
-        if self._fn(*self._args):
-            raise RuntimeError("compiled MPC prediction failed")
+        are copied once and not transposed."""
+        self._run(x0, u_vec, kap_flat)
         return self.X.reshape(K, 6).T.copy()
 
     def full(self, x0, u_vec, kap_flat, K: int):
-        """``(X (6, K), A (36, K), B (12, K))`` of flat inputs, like :meth:`states`."""
-        self.x0[:] = x0
-        self.U[:] = u_vec
-        self.kap[:] = kap_flat
-        if self._fn(*self._args):
-            raise RuntimeError("compiled MPC prediction failed")
+        """``(X (6, K), A (36, K), B (12, K))`` (``(X,)`` for a states-only prediction) of
+        flat inputs, like :meth:`states`."""
+        self._run(x0, u_vec, kap_flat)
+        X = self.X.reshape(K, 6).T.copy()
         if self.states_only:
-            return (self.X.reshape(K, 6).T.copy(),)
-        return (self.X.reshape(K, 6).T.copy(), self.A.reshape(K, 36).T.copy(),
-                self.B.reshape(K, 12).T.copy())
+            return (X,)
+        return X, self.A.reshape(K, 36).T.copy(), self.B.reshape(K, 12).T.copy()
 
 
 @njit(cache=True)
