@@ -198,6 +198,7 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
         from .train_general import train_general
         return train_general(data_dir, out_dir, cfg, progress_bar, log, command)
     torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)              # the networks' initial weights: same data, same model
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     _write_or_check_config(out, cfg, data_dir)

@@ -181,6 +181,17 @@ def test_tiny_pipeline_end_to_end(tmp_path):
     assert np.isfinite(metrics["rollout_phi_rel_median"])
     model = load_model(out / "model.npz")
     assert model.meta["config"]["gamma"] == 0.99 and model.meta["data"]["races"] == 8
+    # the same data and settings in a fresh directory give the same networks, weight for weight
+    again = tmp_path / "model_again"
+    assert main(["train", "--data", str(data), "--out", str(again), "--value-epochs", "3",
+                 "--potential-steps", "150", "--value-hidden", "32", "32",
+                 "--potential-hidden", "64", "64", "--val-fraction", "0.25",
+                 "--rollout-pairs", "2", "--rollout-steps", "10", "--threads", "1"]) == 0
+    with np.load(out / "model.npz") as a, np.load(again / "model.npz") as b:
+        assert a.files == b.files
+        for k in a.files:
+            if k != "meta":
+                np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     # a rerun with the same settings resumes from the checkpoints (nothing left to train);
     # other settings in the same directory are refused
     args = ["train", "--data", str(data), "--out", str(out), "--value-epochs", "3",
