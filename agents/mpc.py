@@ -60,7 +60,7 @@ interpreted prediction the same step runs in Python. Both do the same arithmetic
 plans are the same bit for bit. With the fused helpers (:func:`trial_step`,
 :func:`score_rollout`, :func:`linearised_qp`) a race of MPC cars takes about 20% less time
 than with the separate numpy and ctypes calls before them; the kernel's own share is about
-3% (``benchmarks/sqp_step.py``).
+6% (``benchmarks/sqp_step.py``: 0.90 against 0.96 ms per decision on the collection's races).
 """
 from __future__ import annotations
 
@@ -301,24 +301,22 @@ class _CompiledTrajectory:
 
     def __init__(self, lib: Path, horizon: int, substeps: int, name: str = "mpc_traj"):
         import ctypes
-        self.path = str(lib)
-        self._lib = ctypes.CDLL(self.path)
-        self.name = name
+        self._lib = ctypes.CDLL(str(lib))
         fn = getattr(self._lib, name)
         i64 = ctypes.c_longlong
         sizes = [i64() for _ in range(4)]
         getattr(self._lib, f"{name}_work")(*[ctypes.byref(v) for v in sizes])
         n_arg, n_res, n_iw, n_w = (v.value for v in sizes)
-        self.n_arg, self.n_res = max(n_arg, 3), max(n_res, 3)
+        self.n_arg, n_res_slots = max(n_arg, 3), max(n_res, 3)
         K = horizon
         self.states_only = n_res == 1
-        sizes = (6, 2 * K, substeps * K, 6 * K, 36 * K, 12 * K, max(n_w, 1))
-        self.ws = np.zeros(sum(sizes))
-        offsets = np.concatenate([[0], np.cumsum(sizes)])
-        self.x0, self.U, self.kap, self.X, self.A, self.B, self._w = (
+        offsets = workspace_offsets(K, substeps)
+        self.ws = np.zeros(offsets[-1] + max(n_w, 1))
+        self.x0, self.U, self.kap, self.X, self.A, self.B = (
             self.ws[a:b] for a, b in zip(offsets[:-1], offsets[1:]))
+        self._w = self.ws[offsets[-1]:]
         self.iw = np.zeros(max(n_iw, 1), dtype=np.int64)
-        self.ptrs = np.zeros(self.n_arg + self.n_res, dtype=np.uint64)
+        self.ptrs = np.zeros(self.n_arg + n_res_slots, dtype=np.uint64)
         self.ptrs[:3] = [a.ctypes.data for a in (self.x0, self.U, self.kap)]
         self.ptrs[self.n_arg:self.n_arg + 3] = [a.ctypes.data for a in (self.X, self.A, self.B)]
         vp = ctypes.c_void_p
@@ -363,6 +361,15 @@ class _CompiledTrajectory:
         if self.states_only:
             return (X,)
         return X, self.A.reshape(K, 36).T.copy(), self.B.reshape(K, 12).T.copy()
+
+
+@njit(cache=True)
+def workspace_offsets(K, m):
+    """Where ``x0, U, kap, X, A, B`` start in a compiled prediction's workspace (K stages of
+    m sub-steps), and where CasADi's work vector starts (the last of the 7 offsets)."""
+    o_u, o_kap = 6, 6 + 2 * K
+    o_x = o_kap + m * K
+    return 0, o_u, o_kap, o_x, o_x + 6 * K, o_x + 42 * K, o_x + 54 * K
 
 
 @njit(cache=True)
@@ -422,8 +429,9 @@ def stage_nodes(s_nominal, x0, K: int, dt: float) -> np.ndarray:
 def kappa_at_substeps(track: Track, s_nodes, substeps: int) -> np.ndarray:
     """Track curvature (substeps, K) at the start of every RK4 sub-step between the stage
     boundaries ``s_nodes`` (K + 1,) (progress interpolated linearly within a stage)."""
-    return _kappa_sub(track.kappa, np.asarray(s_nodes, dtype=float), substeps, track.ds,
-                      track.length)
+    s_nodes = np.asarray(s_nodes, dtype=float)
+    flat = kappa_flat(track.kappa, s_nodes, substeps, track.ds, track.length)
+    return np.ascontiguousarray(flat.reshape(s_nodes.shape[0] - 1, substeps).T)
 
 
 @njit(cache=True)
@@ -439,17 +447,6 @@ def kappa_flat(table, s_nodes, m, ds, length):
     return out
 
 
-@njit(cache=True)
-def _kappa_sub(table, s_nodes, m, ds, length):
-    K = s_nodes.shape[0] - 1
-    out = np.empty((m, K))
-    for k in range(K):
-        step = s_nodes[k + 1] - s_nodes[k]
-        for i in range(m):
-            out[i, k] = _lookup(table, s_nodes[k] + step * i / m, ds, length)
-    return out
-
-
 class EdgeBounds:
     """Bounds on the car centre's lateral offset: the track edges minus half the car width and
     the MPC's ``track_margin``; ``(lo, hi) = bounds(s)`` for any array of (unwrapped) s."""
@@ -457,13 +454,14 @@ class EdgeBounds:
     def __init__(self, track: Track, vehicle: VehicleParams, cfg: MPCConfig):
         half = 0.5 * vehicle.width + cfg.track_margin
         self.track = track
-        self._lo = np.ascontiguousarray(-track.w_right + half)
-        self._hi = np.ascontiguousarray(track.w_left - half)
+        self.lo_table = np.ascontiguousarray(-track.w_right + half)    # per track station
+        self.hi_table = np.ascontiguousarray(track.w_left - half)
 
     def __call__(self, s):
         t = self.track
         s = np.ascontiguousarray(s, dtype=float)
-        return _grid_interp(self._lo, s, t.ds, t.length), _grid_interp(self._hi, s, t.ds, t.length)
+        return (_grid_interp(self.lo_table, s, t.ds, t.length),
+                _grid_interp(self.hi_table, s, t.ds, t.length))
 
 
 @njit(cache=True)
@@ -680,15 +678,11 @@ def trial_step(u_vec, du, alpha, s0, s_pred, ds_lin, kappa_tab, ds, length, m):
     for i in range(nv):
         v = u_vec[i] + alpha * du[i]
         u_new[i] = -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
-    kap = np.empty(m * K)
-    s_a = s0
+    nodes = np.empty(K + 1)
+    nodes[0] = s0
     for k in range(K):
-        s_b = s_pred[k] + alpha * ds_lin[k]
-        step = s_b - s_a
-        for i in range(m):
-            kap[k * m + i] = _lookup(kappa_tab, s_a + step * i / m, ds, length)
-        s_a = s_b
-    return u_new, kap
+        nodes[k + 1] = s_pred[k] + alpha * ds_lin[k]
+    return u_new, kappa_flat(kappa_tab, nodes, m, ds, length)
 
 
 @njit(cache=True)
@@ -700,10 +694,8 @@ def score_rollout(X, u_vec, s_ref, n_ref, q, lo_tab, hi_tab, ds, length, opponen
     K = X.shape[1]
     lo = np.empty(K)
     hi = np.empty(K)
-    for r in range(X.shape[0]):
-        for k in range(K):
-            if not np.isfinite(X[r, k]):
-                return np.inf, lo, hi
+    if not _all_finite(X):
+        return np.inf, lo, hi
     for k in range(K):
         lo[k] = _lookup(lo_tab, X[0, k], ds, length)
         hi[k] = _lookup(hi_tab, X[0, k], ds, length)
@@ -736,7 +728,7 @@ def _call_casadi(typingctx, fn, arg, res, iw, w):
 def _run_prediction(fn, res_offset, ws, ptrs, iw, K, m):
     """Run a compiled prediction on its workspace ``ws`` (inputs already written; see
     :class:`_CompiledTrajectory`); returns its status."""
-    o_w = 6 + 2 * K + m * K + 54 * K
+    o_w = workspace_offsets(K, m)[-1]
     return _call_casadi(fn, ptrs.ctypes.data, ptrs.ctypes.data + res_offset, iw.ctypes.data,
                         ws.ctypes.data + 8 * o_w)
 
@@ -760,9 +752,7 @@ def sqp_step(x0, u_vec, du, ds_lin, s_pred, J, step_sizes, relinearise, kappa_ta
     linearised again, -1 a prediction failed. The arithmetic is :meth:`MPC._step_python`'s,
     kernel for kernel, so the plans are the same bit for bit."""
     K = s_pred.shape[0]
-    o_u, o_kap = 6, 6 + 2 * K
-    o_x = o_kap + m * K
-    o_a, o_b, o_w = o_x + 6 * K, o_x + 42 * K, o_x + 54 * K
+    _, o_u, o_kap, o_x, o_a, o_b, o_w = workspace_offsets(K, m)
     empty = np.empty((0, K))
     found = False
     best_J = np.inf
@@ -848,12 +838,6 @@ class MPC:
         self._follower = getattr(self, "_follower", None)
 
     # -------------------------------------------------------------- internals
-    def _kappa_at_substeps(self, x0, s_prev=None):
-        """Curvature (substeps, K) along ``s_prev`` (K + 1,) or the previous nominal."""
-        nodes = (stage_nodes(self._s_nom, x0, self.cfg.horizon, self.cfg.dt) if s_prev is None
-                 else np.asarray(s_prev, dtype=float))
-        return kappa_at_substeps(self.track, nodes, self.cfg.substeps)
-
     def _follower_warm_start(self, x0):
         """Inputs (2, K) from rolling out the raceline follower's law in the simulator model:
         an on-track initial guess when the shifted previous plan has left the track."""
@@ -915,17 +899,21 @@ class MPC:
                                      opponents, dt, sep_s, sep_n, sep_window, w_soft)
         return 2, J2, ua, X, A, B, lo2, hi2, s_nom
 
-    def _merit(self, X, U, s_ref, n_ref, q, opp, edges=None):
-        """The MPC's cost of a plan on its *nonlinear* rollout ``X``: tracking, input rates and
-        the soft rows' quadratic penalty ``violation^2 / (2 rho)`` (DAQP's, for the track
-        edges and the separations chosen along ``X``); ``inf`` for a non-finite rollout.
-        ``edges`` = ``self._bounds_n(X[0])`` when the caller has them already."""
-        if not np.isfinite(X).all():
-            return np.inf
-        lo_n, hi_n = self._bounds_n(X[0]) if edges is None else edges
-        return plan_cost(X[0], X[1], s_ref, n_ref, float(q), U.T.reshape(-1), lo_n, hi_n, opp,
-                         self.cfg.dt, self.cfg.sep_s, self.cfg.sep_n, self.cfg.sep_window,
-                         0.5 / self.cfg.soft_rho_at(q))
+    def _score(self, X, U, s_ref, n_ref, q, opp):
+        """``(cost, edges)`` of a plan on its *nonlinear* rollout ``X`` (6, K) with inputs
+        ``U`` (2, K): tracking, input rates and the soft rows' quadratic penalty
+        ``violation^2 / (2 rho)`` (DAQP's, for the track edges and the separations chosen
+        along ``X``; :func:`score_rollout`), and the bounds ``(lo, hi)`` on n along ``X``;
+        ``(inf, None)`` for a non-finite rollout."""
+        cfg, b, t = self.cfg, self._bounds_n, self.track
+        J, lo, hi = score_rollout(X, np.ascontiguousarray(U.T).reshape(-1), s_ref, n_ref,
+                                  float(q), b.lo_table, b.hi_table, t.ds, t.length, opp, cfg.dt,
+                                  cfg.sep_s, cfg.sep_n, cfg.sep_window, 0.5 / cfg.soft_rho_at(q))
+        return J, (None if J == np.inf else (lo, hi))
+
+    def _merit(self, X, U, s_ref, n_ref, q, opp):
+        """The cost of :meth:`_score` alone."""
+        return self._score(X, U, s_ref, n_ref, q, opp)[0]
 
     def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None) -> np.ndarray:
         import daqp
@@ -942,11 +930,7 @@ class MPC:
         bounds, track = self._bounds_n, self.track
 
         def score(X_, U_):
-            """(cost, track edges along X_ or None): :meth:`_merit` and the edges in one pass."""
-            J_, lo_, hi_ = score_rollout(X_, U_.T.reshape(-1), s_ref, n_ref, float(q),
-                                         bounds._lo, bounds._hi, track.ds, track.length, opp,
-                                         cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window, w_soft)
-            return J_, (None if J_ == np.inf else (lo_, hi_))
+            return self._score(X_, U_, s_ref, n_ref, q, opp)
 
         fresh = self._U is None
         if fresh:                                   # first solve: start from the follower
@@ -996,7 +980,7 @@ class MPC:
             code, J_new, u_new, X_new, A_new, B_new, lo_new, hi_new, s_nom = self._step(
                 x0, u_vec, du, ds_lin, s_pred, J, self._step_sizes, it + 1 < cfg.sqp_iterations,
                 track.kappa, track.ds, track.length, cfg.substeps, s_ref, n_ref, float(q),
-                bounds._lo, bounds._hi, opp, cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window,
+                bounds.lo_table, bounds.hi_table, opp, cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window,
                 w_soft, *self._step_buffers)
             if code < 0:
                 raise RuntimeError("compiled MPC prediction failed")

@@ -87,7 +87,7 @@ def single_blas_thread():
     process, made at the first call (BLAS is loaded with numpy, before any agent runs). The
     limit is process-wide while the block runs: meant for agents acting from one Python
     thread, as the envs' loops do."""
-    global _controller, _depth
+    global _controller, _depth, _blas
     if _depth:
         _depth += 1
         try:
@@ -95,7 +95,6 @@ def single_blas_thread():
         finally:
             _depth -= 1
         return
-    global _blas
     if _controller is None:
         from threadpoolctl import ThreadpoolController
         _controller = ThreadpoolController()

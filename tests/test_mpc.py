@@ -6,7 +6,7 @@ import pytest
 
 pytest.importorskip("daqp")
 
-from agents.mpc import MPC, MPCConfig, condense  # noqa: E402
+from agents.mpc import MPC, MPCConfig, condense, kappa_at_substeps, stage_nodes  # noqa: E402
 from racing_env import make_track  # noqa: E402
 
 
@@ -21,7 +21,7 @@ def test_condensed_sensitivities_match_finite_differences(mpc):
     K = mpc.cfg.horizon
     x0 = np.array([3.0, 0.05, 0.02, 2.0, 0.0, 0.3])
     U = np.tile([[0.5], [0.1]], (1, K))
-    kap = mpc._kappa_at_substeps(x0)
+    kap = kappa_at_substeps(mpc.track, stage_nodes(None, x0, K, mpc.cfg.dt), mpc.cfg.substeps)
     X, A, B = (np.asarray(o) for o in mpc._traj(x0, U, kap))
     G = condense(np.ascontiguousarray(A), np.ascontiguousarray(B), K)
     u = U.T.reshape(-1)
@@ -147,7 +147,8 @@ def test_predicted_decrease_of_a_hand_made_qp():
 def test_the_compiled_sqp_step_is_the_python_step_bit_for_bit():
     """The numba kernel that calls the compiled predictions does the Python loop's arithmetic:
     in a 3-car race at the limit every SQP step (trials, the accepted plan, its Jacobians and
-    cost) is identical to the interpreted step's on the same inputs."""
+    cost) is identical to :meth:`MPC._step_python`'s on the same inputs (the loop that runs
+    with an interpreted prediction, here on the same compiled predictions)."""
     from agents.mpc_agent import MPCAgent
     from racing_env import parallel_env
 
