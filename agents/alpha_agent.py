@@ -48,7 +48,7 @@ class AlphaAgent(MPCAgent):
     ascent, the first being the warm start; 4), ``iterations`` (gradient steps per start; 3),
     ``cold_restarts`` and ``cold_iterations`` (the same for the first decision of a race, which
     has no warm start; 32 and 12), and the :class:`MPCAgent` keywords (``config``,
-    ``vehicle``, ``n_preview``). A single-track model must have been trained for the race's
+    ``vehicle``, ``n_preview``, ``line``). A single-track model must have been trained for the race's
     number of cars (and warns on another track); a general model (``model="general"``, see
     :mod:`agents.general_features`) races any field of 2..8 cars on any track, and warns when
     the field size is outside the range it was trained on.

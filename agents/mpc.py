@@ -516,10 +516,11 @@ def follower_rollout(track: Track, vehicle: VehicleParams, follower, x0, K: int,
     return U
 
 
-def make_follower(track: Track, vehicle: VehicleParams):
-    """A raceline follower reset on ``track`` (for :func:`follower_rollout`)."""
+def make_follower(track: Track, vehicle: VehicleParams, line: str = "curvature"):
+    """A raceline follower of racing line ``line`` reset on ``track`` (for
+    :func:`follower_rollout`)."""
     from racing_env.controllers import RacelineFollower
-    follower = RacelineFollower(vehicle)
+    follower = RacelineFollower(vehicle, line=line)
     follower.reset(track)
     return follower
 
@@ -808,9 +809,10 @@ class MPC:
     """
 
     def __init__(self, track: Track, vehicle: VehicleParams | None = None,
-                 config: MPCConfig | None = None):
+                 config: MPCConfig | None = None, line: str = "curvature"):
         import daqp  # noqa: F401  (fail early with an ImportError naming the package)
         self.track = track
+        self.line = line                        # the racing line of the follower's warm start
         self.vehicle = vehicle or VehicleParams()
         self.cfg = config or MPCConfig()
         self._traj = _trajectory_function(self.vehicle, self.cfg)
@@ -842,7 +844,7 @@ class MPC:
         """Inputs (2, K) from rolling out the raceline follower's law in the simulator model:
         an on-track initial guess when the shifted previous plan has left the track."""
         if self._follower is None:
-            self._follower = make_follower(self.track, self.vehicle)
+            self._follower = make_follower(self.track, self.vehicle, self.line)
         return follower_rollout(self.track, self.vehicle, self._follower, x0, self.cfg.horizon,
                                 self.cfg.dt)
 

@@ -52,7 +52,9 @@ class MPCAgent:
 
     ``theta`` keywords ``q, zeta, s1, s2, s3`` (defaults: a mid-range, safe setting), an
     :class:`MPCConfig`, :class:`VehicleParams`, and the env's ``n_preview`` (to read the
-    observation layout). ``stats`` reports solves, fallbacks,
+    observation layout), and ``line``, the racing line whose path and speed profile the
+    reference shapes (``"curvature"``, the paper's minimum-curvature line, default; or
+    ``"lap_time"``, see :class:`racing_env.raceline.RacelineConfig`). ``stats`` reports solves, fallbacks,
     restarts from the follower rollout, and solve times. A decision runs numpy's BLAS on one
     thread (:func:`agents.threads.single_blas_thread`), so its results cannot depend on the
     process's thread count (OpenBLAS measured different last bits with two threads for a
@@ -64,8 +66,12 @@ class MPCAgent:
 
     def __init__(self, q: float = 20.0, zeta: float = 0.9, s1: float = 0.1, s2: float = 4.0,
                  s3: float = 1.0, config: MPCConfig | None = None,
-                 vehicle: VehicleParams | None = None, n_preview: int = 10):
+                 vehicle: VehicleParams | None = None, n_preview: int = 10,
+                 line: str = "curvature"):
+        from racing_env.raceline import RacelineConfig
         self.theta = Theta(q=q, zeta=zeta, s1=s1, s2=s2, s3=s3)
+        self.raceline_config = RacelineConfig(objective=line)     # names line and choices if bad
+        self.line = line
         self.n_preview = n_preview      # the env's RaceConfig.n_preview (observation layout)
         self.config = config or MPCConfig()
         self.vehicle = vehicle or VehicleParams()
@@ -76,9 +82,9 @@ class MPCAgent:
         from racing_env.raceline import get_raceline
         track = make_track(track)
         if self.mpc is None or self.track is not track:
-            self.mpc = MPC(track, self.vehicle, self.config)
+            self.mpc = MPC(track, self.vehicle, self.config, line=self.line)
         self.track = track
-        self.raceline = get_raceline(track, self.vehicle)
+        self.raceline = get_raceline(track, self.vehicle, self.raceline_config)
         self.mpc.reset()
         self.agent_id = agent_id
         self._u_prev = np.zeros(2)

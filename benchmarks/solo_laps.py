@@ -5,7 +5,8 @@
 
 One car from the grid (seed 0) for ``--steps`` control periods of 0.1 s; the racing line's
 lap estimate (its speed profile at the nominal envelope scale) is printed beside each track,
-so the closed-loop laps can be compared with it.
+so the closed-loop laps can be compared with it, and the lap-time line's too when a driver
+races it (``mpc:line=lap_time``, ``raceline:line=lap_time``).
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import numpy as np
 from agents import make_agent_spec
 from experiments.policy_map import DEFAULT_TRACKS
 from racing_env import RacingParallelEnv
-from racing_env.raceline import get_raceline
+from racing_env.raceline import RacelineConfig, get_raceline
 
 AGENTS = ["mpc:zeta=1.0", "mpc:zeta=1.02", "mpc:zeta=1.05", "mpc:zeta=1.02,q=60", "mpc", "ibr", "ppo",
           "raceline"]
@@ -54,7 +55,11 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     for track in args.tracks:
-        print(f"{track}: racing-line lap estimate {get_raceline(track).lap_time:.2f} s")
+        extra = ""
+        if any("line=lap_time" in spec for spec in args.agents):
+            fast = get_raceline(track, config=RacelineConfig(objective="lap_time"))
+            extra = f", lap-time line {fast.lap_time:.2f} s"
+        print(f"{track}: racing-line lap estimate {get_raceline(track).lap_time:.2f} s{extra}")
         print(f"  {'driver':<18} {'progress m':>10} {'best lap s':>10} {'off-track':>9} "
               f"{'restarts':>8} {'ms/decision':>11}")
         for spec in args.agents:

@@ -65,10 +65,10 @@ def _cmd_tracks(args) -> int:
 
 
 def _cmd_raceline(args) -> int:
-    from racing_env.raceline import get_raceline, plot_raceline
+    from racing_env.raceline import RacelineConfig, get_raceline, plot_raceline
     from racing_env.tracks import make_track
     track = make_track(args.track, scale=args.scale)
-    rl = get_raceline(track)
+    rl = get_raceline(track, config=RacelineConfig(objective=args.objective))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     stem = track.name.replace(":", "_")
@@ -76,7 +76,8 @@ def _cmd_raceline(args) -> int:
     plot_raceline(track, rl, out / f"{stem}_raceline.png")
     print(f"{track!r}\nracing line: {len(rl.s)} points, length {rl.length:.2f} m, "
           f"speed {rl.vx.min():.2f}..{rl.vx.max():.2f} m/s, lap time estimate {rl.lap_time:.2f} s "
-          f"(mu = {rl.mu_nominal}), {rl.iterations} QP iterations, {rl.compute_time:.2f} s")
+          f"(mu = {rl.mu_nominal}), {rl.iterations} QP iterations, {rl.compute_time:.2f} s"
+          + (f", shortest-path weight {rl.length_weight:.3g}" if args.objective == "lap_time" else ""))
     print(f"wrote {out / f'{stem}_raceline.csv'} and {out / f'{stem}_raceline.png'}")
     return 0
 
@@ -337,11 +338,15 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--details", action="store_true", help="build each track and print its size")
     t.set_defaults(fn=_cmd_tracks)
 
-    rl = command("raceline", "compute a track's minimum-curvature racing line")
+    rl = command("raceline", "compute a track's racing line (minimum curvature, or shortest lap)")
     rl.add_argument("--track", default="default",
                     help="default, oval, random:SEED, tumftm:NAME or a TUMFTM .csv path")
     rl.add_argument("--scale", type=float, default=None,
                     help="length scale for TUMFTM data (default 1/43)")
+    rl.add_argument("--objective", choices=("curvature", "lap_time"), default="curvature",
+                    help="curvature: the paper's minimum-curvature line (default); lap_time: "
+                         "curvature plus a shortest-path term, weighed for the shortest lap "
+                         "estimate")
     rl.add_argument("--out", default="results/raceline", help="output folder for the CSV and PNG")
     rl.set_defaults(fn=_cmd_raceline)
 

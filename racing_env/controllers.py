@@ -25,7 +25,10 @@ def understeer_gradient(v: VehicleParams) -> float:
 
 
 class RacelineFollower:
-    """Follows the minimum-curvature racing line at the speed profile of envelope scale ``mu``.
+    """Follows the racing line at the speed profile of envelope scale ``mu``.
+
+    ``line`` picks the line (:data:`racing_env.raceline.OBJECTIVES`): ``"curvature"``
+    (default, the paper's minimum-curvature line) or ``"lap_time"``.
 
     A path follower in the Frenet frame: the commanded path curvature is the racing line's
     curvature ahead plus feedback on the heading and lateral errors to the line, with a
@@ -43,7 +46,11 @@ class RacelineFollower:
 
     def __init__(self, vehicle: VehicleParams | None = None, mu: float = 1.0,
                  speed_scale: float = 1.0, line_fraction: float = 0.9, preview_min: float = 0.5,
-                 preview_time: float = 0.2, speed_preview: float = 0.3, k_speed: float = 2.0):
+                 preview_time: float = 0.2, speed_preview: float = 0.3, k_speed: float = 2.0,
+                 line: str = "curvature"):
+        from .raceline import RacelineConfig
+        self.raceline_config = RacelineConfig(objective=line)     # names line and choices if bad
+        self.line = line
         if not (0.0 < speed_scale <= 1.5):
             raise ValueError(f"speed_scale must be in (0, 1.5], got {speed_scale}")
         if not (0.0 <= line_fraction <= 1.0):
@@ -68,7 +75,7 @@ class RacelineFollower:
     def reset(self, track: "Track | str", agent_id: str = "car_0", seed: int | None = None) -> None:
         from .raceline import get_raceline
         self.track = make_track(track)
-        self.raceline = rl = get_raceline(self.track, self.vehicle)
+        self.raceline = rl = get_raceline(self.track, self.vehicle, self.raceline_config)
         rl.speed_at(0.0, mu=self.mu)            # fail now, with the library's message, if mu is out of range
         f = self.line_fraction
         # reference tables on the track grid: offset, its slope (heading to the centre line), curvature

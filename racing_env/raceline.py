@@ -1,5 +1,9 @@
 """The paper's single-agent racing line (appendix B): minimum-curvature path + speed library.
 
+``RacelineConfig(objective="lap_time")`` goes beyond the paper: the same path problem with a
+shortest-path term added, its weight searched per track for the shortest lap estimate
+(:func:`lap_time_weight_search`).
+
 Two stages, both on a closed :class:`~racing_env.track.Track`:
 
 1. **Minimum-curvature path.** Lateral offsets ``n_k`` [m] (left positive) along the centre-line
@@ -70,7 +74,7 @@ from .vehicle import VehicleParams
 G = 9.81
 """Gravitational acceleration [m/s^2]."""
 
-CACHE_VERSION = 3
+CACHE_VERSION = 4
 """Bumped when the saved file's layout changes (invalidates old cache files). An edit of the
 code that computes a line needs no bump: the cache key hashes :data:`SOURCES`."""
 
@@ -86,6 +90,13 @@ class RacelineConvergenceWarning(RuntimeWarning):
 # ====================================================================== configuration
 TOL_PER_WIDTH = 2e-4
 """Default stopping tolerance of the minimum-curvature iteration, per metre of track width."""
+
+OBJECTIVES = ("curvature", "lap_time")
+"""Racing-line objectives of :class:`RacelineConfig` (``objective``)."""
+
+LENGTH_WEIGHTS = (0.0, 0.003, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0)
+"""Grid of ``length_weight`` values that ``objective="lap_time"`` tries before refining the
+best one (:func:`lap_time_weight_search`)."""
 
 
 @dataclass(frozen=True)
@@ -117,6 +128,20 @@ class RacelineConfig:
       envelope: default 9.98 s vs 10.41 s, Monza 34.19 s vs 34.10 s, Norisring 14.82 s vs
       15.04 s).
       ``"exact"`` gives the true (local) minimum-curvature line.
+    * ``objective``: ``"curvature"`` (default; the paper's minimum-curvature line) or
+      ``"lap_time"``: the line that adds ``length_weight`` times the path length term (below)
+      to the curvature cost, with the weight searched per track for the shortest lap
+      estimate at ``mu_nominal`` (:func:`lap_time_weight_search`). A shorter path pays where
+      the motor, not the tyres, limits the speed: above about 2.2 m/s this car cannot hold its
+      lateral limit, so on tracks of long fast corners the minimum-curvature line is not the
+      fastest. Never slower (in estimate) than the minimum-curvature line, which is the
+      weight 0 of the search.
+    * ``length_weight`` [-]: with ``objective="curvature"``, a fixed weight ``w`` of the
+      shortest-path term ``(w / W^2) sum_k |p_{k+1} - p_k|^2 / h`` (``W`` the track's mean
+      width, ``h`` the station spacing; ``sum |dp|^2 / h`` is the path length for even
+      stations, and ``1 / W^2`` makes ``w`` the same on a 1:43 track and a full-scale one);
+      0 (default) is the pure minimum-curvature line. Ignored by ``"lap_time"``, which
+      searches it.
     """
 
     margin: float = 0.01
@@ -129,13 +154,18 @@ class RacelineConfig:
     max_iter: int = 100
     smoothing: float = 1e-6
     linearization: str = "frozen"
+    objective: str = "curvature"
+    length_weight: float = 0.0
 
     def __post_init__(self):
         if self.linearization not in ("frozen", "exact"):
             raise ValueError(f"RacelineConfig.linearization must be 'frozen' or 'exact', "
                              f"got {self.linearization!r}")
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"RacelineConfig.objective must be one of {OBJECTIVES}, "
+                             f"got {self.objective!r}")
         for f in fields(self):
-            if f.name == "linearization" or (f.name == "tol" and self.tol is None):
+            if f.name in ("linearization", "objective") or (f.name == "tol" and self.tol is None):
                 continue
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
@@ -148,7 +178,7 @@ class RacelineConfig:
         for name in ("mu_min", "mu_max", "mu_nominal", "point_spacing", "tol"):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise ValueError(f"RacelineConfig.{name} must be positive, got {getattr(self, name)!r}")
-        for name in ("margin", "smoothing"):
+        for name in ("margin", "smoothing", "length_weight"):
             if getattr(self, name) < 0:
                 raise ValueError(f"RacelineConfig.{name} must be >= 0, got {getattr(self, name)!r}")
         if not self.mu_min < self.mu_max:
@@ -163,8 +193,7 @@ class RacelineConfig:
         track's mean width when ``tol`` is None."""
         if self.tol is not None:
             return float(self.tol)
-        w_l, w_r = track.widths(np.asarray(track.s_grid, dtype=float))
-        return TOL_PER_WIDTH * float(np.mean(np.asarray(w_l) + np.asarray(w_r)))
+        return TOL_PER_WIDTH * _mean_width(track)
 
     @property
     def mus(self) -> np.ndarray:
@@ -314,8 +343,14 @@ def offset_bounds(track: Track, s_track, vehicle: VehicleParams, margin: float):
 
 
 def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None,
-                              config: RacelineConfig | None = None):
+                              config: RacelineConfig | None = None,
+                              length_weight: float | None = None, n_init=None):
     """Solve the minimum-curvature problem on ``N`` uniform centre-line stations.
+
+    ``length_weight`` (default ``config.length_weight``) adds the shortest-path term
+    ``(w / W^2) sum_k |p_{k+1} - p_k|^2 / h`` (see :class:`RacelineConfig`), which is exactly
+    quadratic in the offsets; ``n_init`` (N,) [m] starts the iteration there instead of on
+    the centre line.
 
     Returns ``(s_sub, n_sub, info)``: stations [m] shape (N,), offsets [m] shape (N,), and a
     dict with ``iterations``, ``converged``, ``last_change`` [m], ``tol`` [m], ``cost`` and
@@ -324,6 +359,9 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
     """
     vehicle = vehicle or VehicleParams()
     config = config or RacelineConfig()
+    w_len = config.length_weight if length_weight is None else float(length_weight)
+    if not (math.isfinite(w_len) and w_len >= 0):
+        raise ValueError(f"length_weight must be a finite number >= 0, got {length_weight!r}")
     m_grid = len(track.s_grid)
     n_pts = int(min(m_grid, max(16, math.ceil(track.length / config.point_spacing))))
     h = track.length / n_pts
@@ -350,11 +388,24 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
         px, py = cx + n * nx, cy + n * ny
         return np.hypot(d1 @ px, d1 @ py)
 
+    h_len = g_len = None
+    if w_len > 0:
+        # shortest path: residuals sqrt(w) / (W h) (p_{k+1} - p_k), linear in n: A n + b. The
+        # curvature residuals above sum to (1 / h) int kappa^2 dl, so this term sums to
+        # (1 / h) (w / W^2) sum |dp|^2 / h: the weight does not depend on the station spacing
+        scale = math.sqrt(w_len) / (h * _mean_width(track))
+        fwd = sparse.diags([-np.ones(n_pts), np.ones(n_pts - 1), np.ones(1)],
+                           [0, 1, -(n_pts - 1)], format="csr")
+        a_len = scale * sparse.vstack([fwd @ sparse.diags(nx), fwd @ sparse.diags(ny)]).tocsr()
+        b_len = scale * np.concatenate([fwd @ cx, fwd @ cy])
+        h_len, g_len = a_len.T @ a_len, a_len.T @ b_len
+
     def cost(n):
-        return float(np.sum(kappa_of(n) ** 2 * path_weight(n)) + n @ (reg @ n))
+        extra = 0.0 if h_len is None else float(np.sum((a_len @ n + b_len) ** 2))
+        return float(np.sum(kappa_of(n) ** 2 * path_weight(n)) + n @ (reg @ n)) + extra
 
     tol = config.tol_for(track)
-    n = np.clip(np.zeros(n_pts), lo, hi)
+    n = np.clip(np.zeros(n_pts) if n_init is None else np.asarray(n_init, dtype=float), lo, hi)
     converged, change, prev_change, alpha, it = False, np.inf, np.inf, 1.0, 0
     for it in range(1, int(config.max_iter) + 1):
         px, py = cx + n * nx, cy + n * ny
@@ -377,7 +428,10 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
         else:       # frozen: the path weight too is fixed at the current iterate
             jr = sparse.diags(rw) @ a
         r = rw * kap
-        n_new = qp.solve(jr.T @ jr + reg, jr.T @ (r - jr @ n), x0=n)
+        if h_len is None:
+            n_new = qp.solve(jr.T @ jr + reg, jr.T @ (r - jr @ n), x0=n)
+        else:
+            n_new = qp.solve(jr.T @ jr + reg + h_len, jr.T @ (r - jr @ n) + g_len, x0=n)
         change = float(np.max(np.abs(n_new - n)))     # fixed-point residual [m]
         if change < tol:
             n = n_new
@@ -408,6 +462,12 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
                 cost=float(np.sum(kappa_of(n) ** 2 * path_weight(n)) * h),
                 cost_center=float(np.sum(kappa_of(zero) ** 2 * path_weight(zero)) * h))
     return s_sub, n, info
+
+
+def _mean_width(track: Track) -> float:
+    """Mean track width [m] (left plus right) over the track grid."""
+    w_l, w_r = track.widths(np.asarray(track.s_grid, dtype=float))
+    return float(np.mean(np.asarray(w_l) + np.asarray(w_r)))
 
 
 # ====================================================================== speed profile
@@ -509,7 +569,7 @@ def lap_time_of(vx, ds) -> float:
 _ARRAYS = ("s", "x", "y", "psi", "kappa", "vx", "ax", "n", "s_track", "n_lo", "n_hi", "mus",
            "vx_lib", "ax_lib")
 _SCALARS = ("length", "track_length", "mu_nominal", "lap_time", "iterations", "converged",
-            "last_change", "cost", "cost_center", "compute_time")
+            "last_change", "cost", "cost_center", "compute_time", "length_weight")
 
 
 @dataclass(eq=False)
@@ -556,6 +616,7 @@ class Raceline:
     cost: float
     cost_center: float
     compute_time: float
+    length_weight: float = 0.0
     track_name: str = ""
     track_fingerprint: str = ""
     key: str = ""
@@ -735,13 +796,11 @@ def _line_geometry(px, py):
     return s, length, psi, kappa
 
 
-def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
-                     config: RacelineConfig | None = None) -> Raceline:
-    """Compute (no cache) the minimum-curvature racing line and its speed library on ``track``."""
-    vehicle = vehicle or VehicleParams()
-    config = config or RacelineConfig()
-    t0 = time.perf_counter()
-    s_sub, n_sub, info = minimum_curvature_offsets(track, vehicle, config)
+def _line_on_grid(track: Track, vehicle: VehicleParams, config: RacelineConfig, s_sub, n_sub,
+                  with_lap: bool = True):
+    """The line through offsets ``n_sub`` [m] at stations ``s_sub`` [m], on the track grid:
+    a dict of ``n``, ``x``, ``y``, ``s``, ``length``, ``psi``, ``kappa``, ``ds`` and (with
+    ``with_lap``) the lap estimate ``lap_time`` [s] of its profile at ``mu_nominal``."""
     s_track = np.asarray(track.s_grid, dtype=float)
     n_lo, n_hi = offset_bounds(track, s_track, vehicle, config.margin)
     spn = CubicSpline(np.append(s_sub, track.length), np.append(n_sub, n_sub[0]), bc_type="periodic")
@@ -752,19 +811,97 @@ def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
     px, py = track.to_cartesian(s_track, n)
     s, length, psi, kappa = _line_geometry(np.asarray(px), np.asarray(py))
     ds = np.diff(np.append(s, length))
+    line = dict(n=n, x=np.asarray(px, float), y=np.asarray(py, float), s=s, length=length,
+                psi=psi, kappa=kappa, ds=ds)
+    if with_lap:
+        line["lap_time"] = lap_time_of(speed_profile(kappa, ds, float(config.mu_nominal), vehicle)[0], ds)
+    return line
+
+
+def lap_time_weight_search(track: Track, vehicle: VehicleParams | None = None,
+                           config: RacelineConfig | None = None, refine: int = 6):
+    """The ``length_weight`` whose line has the shortest lap estimate at ``mu_nominal``.
+
+    Tries :data:`LENGTH_WEIGHTS` in increasing order (each iteration warm-started from the
+    previous weight's offsets), then ``refine`` golden-section steps in ``log w`` between the
+    best grid weight's neighbours (none when the best is 0, the minimum-curvature line).
+    Returns ``(weight, s_sub, n_sub, info, tried)`` with ``tried`` a list of
+    ``(weight, lap estimate [s])`` in the order evaluated.
+    """
+    vehicle = vehicle or VehicleParams()
+    config = config or RacelineConfig()
+    tried, best = [], None
+    n_prev = None
+
+    def evaluate(w):
+        nonlocal best, n_prev
+        s_sub, n_sub, info = minimum_curvature_offsets(track, vehicle, config, length_weight=w,
+                                                       n_init=n_prev)
+        n_prev = n_sub
+        lap = _line_on_grid(track, vehicle, config, s_sub, n_sub)["lap_time"]
+        tried.append((float(w), lap))
+        if best is None or lap < best[0]:
+            best = (lap, float(w), s_sub, n_sub, info)
+        return lap
+
+    with warnings.catch_warnings():      # a weight's non-converged iterate is only a candidate
+        warnings.simplefilter("ignore", RacelineConvergenceWarning)
+        laps = [evaluate(w) for w in LENGTH_WEIGHTS]
+        i = int(np.argmin(laps))
+        if i > 0 and refine > 0:
+            lo = math.log(LENGTH_WEIGHTS[i - 1]) if i > 1 else math.log(LENGTH_WEIGHTS[1]) - 1.0
+            hi = math.log(LENGTH_WEIGHTS[min(i + 1, len(LENGTH_WEIGHTS) - 1)])
+            g = (math.sqrt(5.0) - 1.0) / 2.0
+            a, b = hi - g * (hi - lo), lo + g * (hi - lo)
+            fa, fb = evaluate(math.exp(a)), evaluate(math.exp(b))
+            for _ in range(refine - 2):
+                if fa <= fb:
+                    hi, b, fb = b, a, fa
+                    a = hi - g * (hi - lo)
+                    fa = evaluate(math.exp(a))
+                else:
+                    lo, a, fa = a, b, fb
+                    b = lo + g * (hi - lo)
+                    fb = evaluate(math.exp(b))
+    _, w, s_sub, n_sub, info = best
+    if not info["converged"]:
+        warnings.warn(f"lap-time racing line on track '{track.name}': the best weight's "
+                      f"iteration did not converge (last offset change {info['last_change']:.2e} m "
+                      f"> tol {info['tol']:.2e} m); using its last iterate",
+                      RacelineConvergenceWarning, stacklevel=2)
+    return w, s_sub, n_sub, info, tried
+
+
+def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
+                     config: RacelineConfig | None = None) -> Raceline:
+    """Compute (no cache) the racing line of ``config.objective`` and its speed library on
+    ``track``."""
+    vehicle = vehicle or VehicleParams()
+    config = config or RacelineConfig()
+    t0 = time.perf_counter()
+    if config.objective == "lap_time":
+        w, s_sub, n_sub, info, _ = lap_time_weight_search(track, vehicle, config)
+    else:
+        w = float(config.length_weight)
+        s_sub, n_sub, info = minimum_curvature_offsets(track, vehicle, config)
+    line = _line_on_grid(track, vehicle, config, s_sub, n_sub, with_lap=False)
+    s_track = np.asarray(track.s_grid, dtype=float)
+    n_lo, n_hi = offset_bounds(track, s_track, vehicle, config.margin)
+    kappa, ds = line["kappa"], line["ds"]
     mus = config.mus
     lib = [speed_profile(kappa, ds, float(mu), vehicle) for mu in mus]
     vx_lib = np.array([v for v, _ in lib])
     ax_lib = np.array([a for _, a in lib])
     j = int(np.argmin(np.abs(mus - config.mu_nominal)))
-    rl = Raceline(s=s, x=np.asarray(px, float), y=np.asarray(py, float), psi=psi, kappa=kappa,
-                  vx=vx_lib[j].copy(), ax=ax_lib[j].copy(), n=n, s_track=s_track, n_lo=n_lo,
-                  n_hi=n_hi, mus=mus, vx_lib=vx_lib, ax_lib=ax_lib, length=length,
-                  track_length=float(track.length), mu_nominal=float(config.mu_nominal),
-                  lap_time=lap_time_of(vx_lib[j], ds), iterations=int(info["iterations"]),
-                  converged=bool(info["converged"]), last_change=float(info["last_change"]),
-                  cost=info["cost"], cost_center=info["cost_center"],
-                  compute_time=time.perf_counter() - t0, track_name=track.name,
+    rl = Raceline(s=line["s"], x=line["x"], y=line["y"], psi=line["psi"], kappa=kappa,
+                  vx=vx_lib[j].copy(), ax=ax_lib[j].copy(), n=line["n"], s_track=s_track,
+                  n_lo=n_lo, n_hi=n_hi, mus=mus, vx_lib=vx_lib, ax_lib=ax_lib,
+                  length=line["length"], track_length=float(track.length),
+                  mu_nominal=float(config.mu_nominal), lap_time=lap_time_of(vx_lib[j], ds),
+                  iterations=int(info["iterations"]), converged=bool(info["converged"]),
+                  last_change=float(info["last_change"]), cost=info["cost"],
+                  cost_center=info["cost_center"], compute_time=time.perf_counter() - t0,
+                  length_weight=w, track_name=track.name,
                   track_fingerprint=track.fingerprint(), key=cache_key(track, vehicle, config),
                   track=track)
     rl.validate()

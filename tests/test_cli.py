@@ -58,6 +58,12 @@ def test_tracks_and_raceline_commands(tmp_path, capsys):
     assert header.startswith("# s_m,x_m,y_m,psi_rad,kappa_radpm,vx_mps,ax_mps2,n_m")
     rows = np.loadtxt(csv, delimiter=",", comments="#")
     assert rows.shape[1] == 9 and np.isfinite(rows).all()
+    curvature_lap = float(text.split("lap time estimate ")[1].split(" s")[0])
+    assert main(["raceline", "--track", "oval", "--objective", "lap_time", "--out",
+                 str(tmp_path / "fast")]) == 0
+    text = capsys.readouterr().out
+    assert "shortest-path weight" in text
+    assert float(text.split("lap time estimate ")[1].split(" s")[0]) <= curvature_lap
 
 
 def test_short_fuzz_finds_nothing():

@@ -94,6 +94,8 @@ def check_line(rl: Raceline, track: Track, config=RacelineConfig(), curvature=Tr
     (dict(point_spacing=0), "point_spacing"), (dict(tol=float("nan")), "tol"), (dict(max_iter=0), "max_iter"),
     (dict(smoothing=-1.0), "smoothing"), (dict(margin="x"), "margin"),
     (dict(linearization="newton"), "linearization"), (dict(n_mu=True), "n_mu"),
+    (dict(objective="fastest"), "objective"), (dict(length_weight=-0.1), "length_weight"),
+    (dict(length_weight=float("inf")), "length_weight"),
 ])
 def test_config_rejects_bad_values(kw, word):
     with pytest.raises(ValueError, match=word):
@@ -165,6 +167,59 @@ def test_circle_cornering_speed_by_hand(linearization):
     # the objective is curvature per metre of path: a circle of radius r costs 2 pi / r
     np.testing.assert_allclose(rl.cost, 2 * np.pi / r_line, rtol=1e-2)
     np.testing.assert_allclose(rl.cost_center, 2 * np.pi / radius, rtol=1e-2)
+
+
+@pytest.mark.parametrize("weight", [0.04, 0.06, 0.08])
+def test_shortest_path_term_on_a_circle_by_hand(weight):
+    """On a circle of centre radius R and width W, a concentric line of radius r costs
+    2 pi / r in curvature and (w / W^2) (2 pi r)^2 / (2 pi R) in the shortest-path term
+    (sum |dp|^2 / h with stations a centre-line spacing h apart). The sum is least at
+    r^3 = R W^2 / (2 w): with the exact linearization the line settles there."""
+    radius, half_width = 1.5, 0.25
+    cfg = RacelineConfig(linearization="exact", length_weight=weight)
+    rl = compute_raceline(circle_track(radius, half_width), config=cfg)
+    r_hand = (radius * (2 * half_width) ** 2 / (2 * weight)) ** (1.0 / 3.0)
+    edge = half_width - VEH.width / 2 - cfg.margin
+    r_hand = min(max(r_hand, radius - edge), radius + edge)
+    np.testing.assert_allclose(radius - rl.n, r_hand, rtol=5e-3)
+    np.testing.assert_allclose(rl.length, 2 * np.pi * r_hand, rtol=5e-3)
+    assert rl.length_weight == weight
+
+
+def test_lap_time_line_is_no_slower_than_minimum_curvature_and_shorter_where_it_gains():
+    track = make_track("random:202")
+    curv = compute_raceline(track)
+    fast = compute_raceline(track, config=RacelineConfig(objective="lap_time"))
+    check_line(fast, track, curvature=False)
+    assert curv.length_weight == 0.0 and fast.length_weight >= 0.0
+    assert fast.lap_time <= curv.lap_time
+    if fast.lap_time < curv.lap_time:          # it gained by a shorter path, not a wider one
+        assert fast.length_weight > 0 and fast.length < curv.length
+    assert fast.key != curv.key
+
+
+def test_lap_time_search_tries_the_minimum_curvature_line_and_keeps_the_fastest():
+    track = make_track("oval")
+    w, s_sub, n_sub, info, tried = R.lap_time_weight_search(track, refine=3)
+    weights = [t[0] for t in tried]
+    assert weights[:len(R.LENGTH_WEIGHTS)] == list(R.LENGTH_WEIGHTS)
+    laps = dict(tried)
+    assert laps[w] == min(lap for _, lap in tried)
+    assert np.all(np.isfinite(n_sub)) and n_sub.shape == s_sub.shape
+
+
+def test_the_mpc_and_follower_race_the_line_they_are_given():
+    from agents import make_agent_spec
+    mpc = make_agent_spec("mpc:zeta=1.0,line=lap_time")
+    mpc.reset("random:202", "car_0", 0)
+    want = get_raceline("random:202", config=RacelineConfig(objective="lap_time"))
+    assert mpc.raceline.key == want.key and mpc.mpc.line == "lap_time"
+    follower = make_agent_spec("raceline:line=lap_time")
+    follower.reset("random:202")
+    assert follower.raceline.key == want.key
+    assert make_agent_spec("mpc").line == "curvature"
+    with pytest.raises(ValueError, match="objective must be one of"):
+        make_agent_spec("mpc:line=fastest")
 
 
 def test_exact_linearization_minimises_curvature(default_rl):
