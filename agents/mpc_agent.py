@@ -71,7 +71,6 @@ class MPCAgent:
         from racing_env.raceline import RacelineConfig
         self.theta = Theta(q=q, zeta=zeta, s1=s1, s2=s2, s3=s3)
         self.raceline_config = RacelineConfig(objective=line)     # names line and choices if bad
-        self.line = line
         self.n_preview = n_preview      # the env's RaceConfig.n_preview (observation layout)
         self.config = config or MPCConfig()
         self.vehicle = vehicle or VehicleParams()
@@ -88,6 +87,11 @@ class MPCAgent:
         self.mpc.reset()
         self.agent_id = agent_id
         self._u_prev = np.zeros(2)
+
+    @property
+    def line(self) -> str:
+        """The racing line this agent's reference follows (``RacelineConfig.objective``)."""
+        return self.raceline_config.objective
 
     @property
     def stats(self) -> dict:

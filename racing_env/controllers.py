@@ -50,7 +50,6 @@ class RacelineFollower:
                  line: str = "curvature"):
         from .raceline import RacelineConfig
         self.raceline_config = RacelineConfig(objective=line)     # names line and choices if bad
-        self.line = line
         if not (0.0 < speed_scale <= 1.5):
             raise ValueError(f"speed_scale must be in (0, 1.5], got {speed_scale}")
         if not (0.0 <= line_fraction <= 1.0):
@@ -71,6 +70,11 @@ class RacelineFollower:
         self.track: Track | None = None
         self.raceline = None
         self.agent_id = None
+
+    @property
+    def line(self) -> str:
+        """The racing line followed (``RacelineConfig.objective``)."""
+        return self.raceline_config.objective
 
     def reset(self, track: "Track | str", agent_id: str = "car_0", seed: int | None = None) -> None:
         from .raceline import get_raceline

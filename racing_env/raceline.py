@@ -428,10 +428,10 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
         else:       # frozen: the path weight too is fixed at the current iterate
             jr = sparse.diags(rw) @ a
         r = rw * kap
-        if h_len is None:
-            n_new = qp.solve(jr.T @ jr + reg, jr.T @ (r - jr @ n), x0=n)
-        else:
-            n_new = qp.solve(jr.T @ jr + reg + h_len, jr.T @ (r - jr @ n) + g_len, x0=n)
+        hess, grad = jr.T @ jr + reg, jr.T @ (r - jr @ n)
+        if h_len is not None:
+            hess, grad = hess + h_len, grad + g_len
+        n_new = qp.solve(hess, grad, x0=n)
         change = float(np.max(np.abs(n_new - n)))     # fixed-point residual [m]
         if change < tol:
             n = n_new
@@ -799,8 +799,9 @@ def _line_geometry(px, py):
 def _line_on_grid(track: Track, vehicle: VehicleParams, config: RacelineConfig, s_sub, n_sub,
                   with_lap: bool = True):
     """The line through offsets ``n_sub`` [m] at stations ``s_sub`` [m], on the track grid:
-    a dict of ``n``, ``x``, ``y``, ``s``, ``length``, ``psi``, ``kappa``, ``ds`` and (with
-    ``with_lap``) the lap estimate ``lap_time`` [s] of its profile at ``mu_nominal``."""
+    a dict of ``n``, ``n_lo``, ``n_hi`` (the target bounds), ``x``, ``y``, ``s``, ``length``,
+    ``psi``, ``kappa``, ``ds`` and (with ``with_lap``) the lap estimate ``lap_time`` [s] of its
+    profile at ``mu_nominal``."""
     s_track = np.asarray(track.s_grid, dtype=float)
     n_lo, n_hi = offset_bounds(track, s_track, vehicle, config.margin)
     spn = CubicSpline(np.append(s_sub, track.length), np.append(n_sub, n_sub[0]), bc_type="periodic")
@@ -811,8 +812,8 @@ def _line_on_grid(track: Track, vehicle: VehicleParams, config: RacelineConfig, 
     px, py = track.to_cartesian(s_track, n)
     s, length, psi, kappa = _line_geometry(np.asarray(px), np.asarray(py))
     ds = np.diff(np.append(s, length))
-    line = dict(n=n, x=np.asarray(px, float), y=np.asarray(py, float), s=s, length=length,
-                psi=psi, kappa=kappa, ds=ds)
+    line = dict(n=n, n_lo=n_lo, n_hi=n_hi, x=np.asarray(px, float), y=np.asarray(py, float),
+                s=s, length=length, psi=psi, kappa=kappa, ds=ds)
     if with_lap:
         line["lap_time"] = lap_time_of(speed_profile(kappa, ds, float(config.mu_nominal), vehicle)[0], ds)
     return line
@@ -885,8 +886,6 @@ def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
         w = float(config.length_weight)
         s_sub, n_sub, info = minimum_curvature_offsets(track, vehicle, config)
     line = _line_on_grid(track, vehicle, config, s_sub, n_sub, with_lap=False)
-    s_track = np.asarray(track.s_grid, dtype=float)
-    n_lo, n_hi = offset_bounds(track, s_track, vehicle, config.margin)
     kappa, ds = line["kappa"], line["ds"]
     mus = config.mus
     lib = [speed_profile(kappa, ds, float(mu), vehicle) for mu in mus]
@@ -894,8 +893,9 @@ def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
     ax_lib = np.array([a for _, a in lib])
     j = int(np.argmin(np.abs(mus - config.mu_nominal)))
     rl = Raceline(s=line["s"], x=line["x"], y=line["y"], psi=line["psi"], kappa=kappa,
-                  vx=vx_lib[j].copy(), ax=ax_lib[j].copy(), n=line["n"], s_track=s_track,
-                  n_lo=n_lo, n_hi=n_hi, mus=mus, vx_lib=vx_lib, ax_lib=ax_lib,
+                  vx=vx_lib[j].copy(), ax=ax_lib[j].copy(), n=line["n"],
+                  s_track=np.asarray(track.s_grid, dtype=float), n_lo=line["n_lo"],
+                  n_hi=line["n_hi"], mus=mus, vx_lib=vx_lib, ax_lib=ax_lib,
                   length=line["length"], track_length=float(track.length),
                   mu_nominal=float(config.mu_nominal), lap_time=lap_time_of(vx_lib[j], ds),
                   iterations=int(info["iterations"]), converged=bool(info["converged"]),
