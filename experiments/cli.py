@@ -115,7 +115,8 @@ def _cmd_collect(args) -> int:
 
 def _cmd_train(args) -> int:
     from .train import TrainConfig, train
-    kw = {k: getattr(args, k) for k in ("gamma", "value_epochs", "potential_steps", "objective",
+    kw = {k: getattr(args, k) for k in ("gamma", "value_epochs", "potential_steps",
+                                        "potential_batch", "objective",
                                         "val_fraction", "rollout_pairs", "rollout_steps", "seed",
                                         "threads") if getattr(args, k) is not None}
     if args.value_hidden:
@@ -388,6 +389,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="epochs of value-network training (default 8)")
     tr.add_argument("--potential-steps", type=int, default=None,
                     help="optimiser steps of the potential network (default 4000)")
+    tr.add_argument("--potential-batch", type=int, default=None,
+                    help="unilateral deviations per optimiser step of the potential network "
+                         "(default 1024)")
     tr.add_argument("--value-hidden", type=int, nargs="+", default=None,
                     help="hidden layer widths of the value networks (default 128 128 64)")
     tr.add_argument("--potential-hidden", type=int, nargs="+", default=None,

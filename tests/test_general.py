@@ -321,8 +321,9 @@ def test_a_single_track_collection_keeps_its_schema_and_loads_as_one_group(tmp_p
 
 
 # ---------------------------------------------------------------------------- training
-TRAIN_ARGS = ["--value-epochs", "2", "--potential-steps", "60", "--value-hidden", "16", "16",
-              "--potential-hidden", "32", "32", "--val-fraction", "0.25", "--threads", "1"]
+TRAIN_ARGS = ["--value-epochs", "2", "--potential-steps", "60", "--potential-batch", "256",
+              "--value-hidden", "16", "16", "--potential-hidden", "32", "32",
+              "--val-fraction", "0.25", "--threads", "1"]
 
 
 @pytest.fixture(scope="module")
@@ -346,6 +347,7 @@ def test_training_on_a_family_gives_a_general_model_with_per_field_validation(ge
     meta = model.meta
     assert model.general and meta["feature_set"] == "general" and meta["n_cars_range"] == [2, 3]
     assert sorted(meta["tracks"]) == ["default", "random:3"] and meta["data"]["races"] == 8
+    assert meta["config"]["potential_batch"] == 256 and meta["config"]["potential_steps"] == 60
     m = json.loads((general_model / "model" / "metrics.json").read_text())
     assert set(m["by_cars"]) == {"2", "3"} and m["value_range"] > 0
     for s in list(m["by_cars"].values()) + [m]:
