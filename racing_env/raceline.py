@@ -193,7 +193,7 @@ class RacelineConfig:
         track's mean width when ``tol`` is None."""
         if self.tol is not None:
             return float(self.tol)
-        return TOL_PER_WIDTH * _mean_width(track)
+        return TOL_PER_WIDTH * float(np.mean(track.width))
 
     @property
     def mus(self) -> np.ndarray:
@@ -393,7 +393,7 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
         # shortest path: residuals sqrt(w) / (W h) (p_{k+1} - p_k), linear in n: A n + b. The
         # curvature residuals above sum to (1 / h) int kappa^2 dl, so this term sums to
         # (1 / h) (w / W^2) sum |dp|^2 / h: the weight does not depend on the station spacing
-        scale = math.sqrt(w_len) / (h * _mean_width(track))
+        scale = math.sqrt(w_len) / (h * float(np.mean(track.width)))
         fwd = sparse.diags([-np.ones(n_pts), np.ones(n_pts - 1), np.ones(1)],
                            [0, 1, -(n_pts - 1)], format="csr")
         a_len = scale * sparse.vstack([fwd @ sparse.diags(nx), fwd @ sparse.diags(ny)]).tocsr()
@@ -462,12 +462,6 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
                 cost=float(np.sum(kappa_of(n) ** 2 * path_weight(n)) * h),
                 cost_center=float(np.sum(kappa_of(zero) ** 2 * path_weight(zero)) * h))
     return s_sub, n, info
-
-
-def _mean_width(track: Track) -> float:
-    """Mean track width [m] (left plus right) over the track grid."""
-    w_l, w_r = track.widths(np.asarray(track.s_grid, dtype=float))
-    return float(np.mean(np.asarray(w_l) + np.asarray(w_r)))
 
 
 # ====================================================================== speed profile

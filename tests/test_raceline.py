@@ -180,7 +180,7 @@ def test_shortest_path_term_on_a_circle_by_hand(weight):
     rl = compute_raceline(circle_track(radius, half_width), config=cfg)
     r_hand = (radius * (2 * half_width) ** 2 / (2 * weight)) ** (1.0 / 3.0)
     edge = half_width - VEH.width / 2 - cfg.margin
-    r_hand = min(max(r_hand, radius - edge), radius + edge)
+    assert radius - edge < r_hand < radius + edge          # an interior optimum, not a bound
     np.testing.assert_allclose(radius - rl.n, r_hand, rtol=5e-3)
     np.testing.assert_allclose(rl.length, 2 * np.pi * r_hand, rtol=5e-3)
     assert rl.length_weight == weight
@@ -191,10 +191,9 @@ def test_lap_time_line_is_no_slower_than_minimum_curvature_and_shorter_where_it_
     curv = compute_raceline(track)
     fast = compute_raceline(track, config=RacelineConfig(objective="lap_time"))
     check_line(fast, track, curvature=False)
-    assert curv.length_weight == 0.0 and fast.length_weight >= 0.0
-    assert fast.lap_time <= curv.lap_time
-    if fast.lap_time < curv.lap_time:          # it gained by a shorter path, not a wider one
-        assert fast.length_weight > 0 and fast.length < curv.length
+    assert curv.length_weight == 0.0
+    assert fast.lap_time < curv.lap_time       # random:202 gains (7.66 -> 7.63 s) ...
+    assert fast.length_weight > 0 and fast.length < curv.length    # ... by a shorter path
     assert fast.key != curv.key
 
 
