@@ -185,10 +185,11 @@ def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_r
         contact[b, i] = 0
         offtrack[b, i] = 0
     applied = np.ones(n_cars)
+    possible = False
+    c_ds, c_dn = rules[R_CONTACT_DS], rules[R_CONTACT_DN]
+    ahead = np.empty((0, 0), dtype=np.bool_)
     if rules[R_CONTACT_ON] > 0.0 and n_cars > 1:
-        c_ds, c_dn = rules[R_CONTACT_DS], rules[R_CONTACT_DN]
         margin = 0.01  # [m] covers the difference between the two integrations
-        possible = False
         for i in range(n_cars):
             for j in range(i + 1, n_cars):
                 d0 = (x0[i, 0] - x0[j, 0] + half) % length - half
@@ -196,9 +197,10 @@ def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_r
                         and lo_n[i] - hi_n[j] < c_dn + margin and hi_n[i] - lo_n[j] > -c_dn - margin:
                     possible = True
         if possible:
+            ahead = np.empty((n_cars, n_cars), dtype=np.bool_)
             _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, k_max,
                                    c_ds, c_dn, rules[R_FRONT], rules[R_REAR], applied, contact,
-                                   substeps)
+                                   substeps, ahead)
     for i in range(n_cars):
         # wall: a car cannot go further than the wall; it stops sideways there
         x = state[b, i]
@@ -209,6 +211,8 @@ def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_r
             x[2] = 0.0
             x[4] = 0.0
             x[5] = 0.0
+    if possible:   # a wall may have moved a car sideways into another: keep them apart
+        _separate(b, state, x0, ahead, length, c_ds, c_dn, False)
     for i in range(n_cars):
         x = state[b, i]
         if x[1] > _lookup(w_left, x[0], ds, length) or x[1] < -_lookup(w_right, x[0], ds, length):
@@ -233,10 +237,107 @@ def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_r
     return before
 
 
+@njit(cache=True, inline="always")
+def _wrapped(d, length):
+    """``d`` wrapped into [-length/2, length/2)."""
+    return (d + 0.5 * length) % length - 0.5 * length
+
+
+def _separate(b, state, x_from, ahead, length, c_ds, c_dn, swept):
+    """Keep the bodies of race ``b``'s cars apart: no car ends a sub-step overlapping, or
+    beyond, a car it is not laterally clear of (env v2).
+
+    ``ahead[i, j]`` is true when car i is ahead of car j in the pair's order: the order they
+    had when they were last laterally clear (``|n_i - n_j| >= c_dn``). The rear car of a pair
+    must stay at least ``c_ds`` m behind the front car unless the two are laterally clear. With
+    ``swept``, each pair's relative motion from ``x_from`` (N, 6), the states before the
+    sub-step, to ``state[b]`` is swept linearly, as the contact rule sweeps it; where it enters
+    the forbidden region
+    ``{s_front - s_rear < c_ds, |n_front - n_rear| < c_dn}`` it is corrected:
+
+    * entered from behind (through the rear face of the front car): the rear car is put back
+      along s to exactly ``c_ds`` behind, and its ``vx`` is limited to the front car's (a
+      perfectly inelastic bump along the track; ``mu``, ``vy``, ``omega`` unchanged);
+    * entered from the side (the cars were side by side and one steered into the other): the
+      two are pushed apart sideways, half each, to exactly ``c_dn`` apart on the side they came
+      from (velocities unchanged: they slide along each other).
+
+    Not ``swept`` (after the walls, which move cars only sideways), an overlapping pair is put
+    apart along s. A car corrected may now overlap another, so the corrections are repeated
+    until none is needed (at most ``4 N`` rounds). Finally a pair that is laterally clear takes
+    the order of its current positions: a car passes another only through free space.
+    Corrections change positions, never the step's reward bookkeeping: the reward is the
+    change of ``s_i - max_j s_j`` between the states before and after the period, so it still
+    telescopes.
+    """
+    n_cars = state.shape[1]
+    # a correction puts a pair exactly (ds_to, dn_to) apart; the forbidden region ends 1 nm
+    # short of that, so rounding never finds the pair overlapping again
+    ds_to, dn_to = c_ds, c_dn
+    c_ds, c_dn = c_ds - 1e-9, c_dn - 1e-9
+    for _ in range(4 * n_cars):
+        moved = False
+        for i in range(n_cars):
+            for j in range(i + 1, n_cars):
+                f, r = (i, j) if ahead[i, j] else (j, i)
+                xf, xr = state[b, f], state[b, r]
+                g1 = _wrapped(xf[0] - xr[0], length)
+                dn1 = xf[1] - xr[1]
+                if g1 >= c_ds or g1 < -0.25 * length:   # apart, or far apart (across the wrap)
+                    continue
+                if not swept:
+                    if abs(dn1) < c_dn:
+                        xr[0] -= ds_to - g1
+                        xr[3] = min(xr[3], xf[3])
+                        moved = True
+                    continue
+                g0 = _wrapped(x_from[f, 0] - x_from[r, 0], length)
+                dn0 = x_from[f, 1] - x_from[r, 1]
+                # first fraction of the sub-step in {g < c_ds} (tg) and in {|dn| < c_dn} (tn)
+                if g0 < c_ds:
+                    tg = 0.0
+                else:
+                    tg = (g0 - c_ds) / (g0 - g1)
+                if dn1 == dn0:
+                    if abs(dn0) >= c_dn:
+                        continue
+                    tn, tn_out = 0.0, 1.0
+                else:
+                    t1 = (-c_dn - dn0) / (dn1 - dn0)
+                    t2 = (c_dn - dn0) / (dn1 - dn0)
+                    if t1 > t2:
+                        t1, t2 = t2, t1
+                    tn, tn_out = max(t1, 0.0), min(t2, 1.0)
+                if max(tg, tn) >= tn_out:
+                    continue                 # never both: passed beside, or still clear
+                if tg >= tn:                 # from behind
+                    xr[0] -= ds_to - g1
+                    xr[3] = min(xr[3], xf[3])
+                else:                        # from the side
+                    side = 1.0 if dn0 + tn * (dn1 - dn0) >= 0.0 else -1.0
+                    need = side * dn_to - dn1
+                    if side * dn1 >= c_dn:
+                        continue
+                    xf[1] += 0.5 * need
+                    xr[1] -= 0.5 * need
+                moved = True
+        if not moved:
+            break
+    for i in range(n_cars):
+        for j in range(i + 1, n_cars):
+            if abs(state[b, i, 1] - state[b, j, 1]) >= c_dn:   # laterally clear
+                d = _wrapped(state[b, i, 0] - state[b, j, 0], length)
+                if d != 0.0:
+                    ahead[i, j] = d > 0.0
+                    ahead[j, i] = not ahead[i, j]
+
+
 def _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, n_sub, c_ds, c_dn,
-                           front_f, rear_f, applied, contact, substeps):
+                           front_f, rear_f, applied, contact, substeps, ahead):
     """Integrate race ``b`` again from ``x0`` (N, 6) with every car in lockstep (``n_sub`` RK4
-    sub-steps), applying the contact rule at each pair's first moment of contact."""
+    sub-steps), applying the contact rule at each pair's first moment of contact and keeping
+    the bodies apart after every sub-step (:func:`_separate`; ``ahead`` (N, N) is filled with
+    the pairs' order)."""
     n_cars = x0.shape[0]
     half = 0.5 * length
     h = dt / n_sub
@@ -249,6 +350,7 @@ def _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, n_s
         substeps[b, i] = n_sub
         for j in range(n_cars):
             d_start[i, j] = (x0[i, 0] - x0[j, 0] + half) % length - half
+            ahead[i, j] = d_start[i, j] > 0.0 or (d_start[i, j] == 0.0 and i < j)
     for m in range(n_sub + 1):
         if m > 0:
             for i in range(n_cars):
@@ -288,6 +390,8 @@ def _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, n_s
                     _cut(x, applied, car, f)
                     if m > 0 and u < 1.0:
                         _rk4_substep(x, phys[car, 0], phys[car, 1], kappa_tab, ds, length, p, (1.0 - u) * h)
+        if m > 0:
+            _separate(b, state, prev_x, ahead, length, c_ds, c_dn, True)
 
 
 def _advance(state, action, normalised, act_map, kappa_tab, w_left, w_right, wall_left, wall_right,
@@ -389,6 +493,7 @@ def _variant(fn, suffix):
     return g
 
 
+_separate = njit(cache=True)(_separate)
 _lockstep_with_contact = njit(cache=True)(_lockstep_with_contact)
 _step_one_race = njit(cache=True)(_step_one_race)
 advance = njit(cache=True)(_variant(_advance, "_serial"))
