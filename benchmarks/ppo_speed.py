@@ -13,7 +13,7 @@ time (the figure that holds on a shared, busy machine).
 Backends:
 
 * ``dummy+predict`` (the named baseline): SB3 ``DummyVecEnv`` over the registered Gymnasium
-  env ``alpha_racer/HeadToHead-v1``, opponents calling SB3 ``policy.predict`` per race;
+  env ``alpha_racer/HeadToHead-v2``, opponents calling SB3 ``policy.predict`` per race;
 * ``dummy+numpy``: the same env, opponents as :class:`agents.ppo_agent.FrozenPolicy` (numpy
   actor) per race;
 * ``subproc+numpy``: SB3 ``SubprocVecEnv`` (2 worker processes, one per core) of the same;

@@ -352,7 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
     rl.set_defaults(fn=_cmd_raceline)
 
     f = command("fuzz", "random-action fuzz of the simulator: no NaN, no exception, states in bounds")
-    f.add_argument("--steps", type=int, default=1_000_000, help="total car-steps")
+    f.add_argument("--steps", type=int, default=1_000_000,
+                   help="race steps (each advances every car of one race)")
     f.add_argument("--races", type=int, default=256, help="races stepped at once")
     f.add_argument("--cars", type=int, default=3, help="cars per race")
     f.add_argument("--track", default="default", help="track spec (as for race)")

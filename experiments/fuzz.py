@@ -2,9 +2,12 @@
 
 Drives batches of races with random actions, held for a random number of steps (so full
 throttle at full lock happens as well as jitter), from every start mode, and with random
-restarts. After every step it checks that no state is NaN or infinite and that every state
-stays inside the documented envelope (:meth:`BatchedRaces.state_bounds`). Any exception or
-violation ends the run with a report naming the race, car, step and state.
+restarts. After every step it checks that no state is NaN or infinite, that every state
+stays inside the documented envelope (:meth:`BatchedRaces.state_bounds`), and that no car
+drove through another (env v2): no two bodies overlap (``|ds| < contact_ds`` and
+``|dn| < contact_dn``), and no pair that overlaps laterally at both ends of a step has
+swapped places in it. Any exception or violation ends the run with a report naming the
+race, car, step and state.
 """
 from __future__ import annotations
 
@@ -37,6 +40,29 @@ class FuzzReport:
         return "\n".join(lines)
 
 
+def drive_through(before: np.ndarray, after: np.ndarray, length: float, c_ds: float,
+                  c_dn: float) -> tuple[int, int, int, str] | None:
+    """The first (race, car i, car j, what) of ``after`` (B, N, 6) whose bodies overlap, or
+    that swapped places since ``before`` while laterally overlapping at both ends of the
+    step; None if there is none. Distances along the track are wrapped."""
+    s0, s1 = before[..., 0], after[..., 0]
+    wrap = lambda d: (d + length / 2) % length - length / 2
+    d0 = wrap(s0[:, :, None] - s0[:, None, :])                  # (B, N, N) s_i - s_j
+    d1 = wrap(s1[:, :, None] - s1[:, None, :])
+    dn0 = np.abs(before[..., 1][:, :, None] - before[..., 1][:, None, :])
+    dn1 = np.abs(after[..., 1][:, :, None] - after[..., 1][:, None, :])
+    tol = 1e-7
+    upper = np.triu(np.ones(d0.shape[1:], dtype=bool), 1)[None]
+    overlap = upper & (np.abs(d1) < c_ds - tol) & (dn1 < c_dn - tol)
+    near = (np.abs(d0) < 1.0) & (np.abs(d1) < 1.0)             # [m] (not half a lap apart)
+    swapped = upper & near & (dn0 < c_dn - tol) & (dn1 < c_dn - tol) & (np.sign(d0) * np.sign(d1) < 0)
+    for bad, what in ((overlap, "bodies overlap"), (swapped, "swapped places while overlapping laterally")):
+        if bad.any():
+            b, i, j = np.argwhere(bad)[0]
+            return int(b), int(i), int(j), what
+    return None
+
+
 def run_fuzz(steps: int = 1_000_000, n_races: int = 256, n_cars: int = 3, track: str = "default",
              seed: int = 0, hold_max: int = 20, progress_bar: bool = True) -> FuzzReport:
     """Fuzz ``steps`` race steps in batches of ``n_races``; see the module docstring."""
@@ -45,6 +71,7 @@ def run_fuzz(steps: int = 1_000_000, n_races: int = 256, n_cars: int = 3, track:
     rng = np.random.default_rng(seed)
     races = BatchedRaces(track, RaceConfig(n_cars=n_cars, max_cycles=500), n_races=n_races, seed=seed)
     lo, hi = races.state_bounds()
+    rules = races.config.rules
     modes = ["regions", "grid", "random"]
     for b in range(n_races):
         races.reset(races=[b], start=StartConfig(mode=modes[b % 3], speed=float(rng.uniform(0, 3))))
@@ -66,6 +93,7 @@ def run_fuzz(steps: int = 1_000_000, n_races: int = 256, n_cars: int = 3, track:
                 fresh[saturate] = np.sign(fresh[saturate])
                 action[redraw] = fresh
                 hold[redraw] = rng.integers(1, hold_max, k)
+            before = races.state.copy()
             try:
                 races.step(action)
             except Exception as exc:  # report, do not crash the fuzz
@@ -77,6 +105,14 @@ def run_fuzz(steps: int = 1_000_000, n_races: int = 256, n_cars: int = 3, track:
                 b, i, j = np.argwhere(bad)[0]
                 report.problems.append(f"race {b} car {i} step {races.t[b]}: {names[j]} = {st[b, i, j]} "
                                        f"outside [{lo[j]}, {hi[j]}]; state {st[b, i].tolist()}")
+                break
+            through = drive_through(before, st, races.track.length, rules.contact_ds,
+                                    rules.contact_dn) if rules.contact and n_cars > 1 else None
+            if through is not None:
+                b, i, j, what = through
+                report.problems.append(f"race {b} step {races.t[b]}: cars {i} and {j} {what}; "
+                                       f"before {before[b, [i, j]].tolist()}, "
+                                       f"after {st[b, [i, j]].tolist()}")
                 break
             extreme = np.maximum(extreme, np.abs(st).max(axis=(0, 1)))
             done = races.truncated()

@@ -3,7 +3,7 @@
 ``alpha-racer selfplay --out runs/selfplay`` trains one stable-baselines3 ``PPO`` agent per car
 by iterated self-play: the cars take turns learning, car ``turn mod n_cars`` for
 ``steps_per_turn`` env steps, while every other car is frozen at its latest policy. The
-learning env is the registered Gymnasium env ``alpha_racer/HeadToHead-v1`` (one learner,
+learning env is the registered Gymnasium env ``alpha_racer/HeadToHead-v2`` (one learner,
 opponents embedded) vectorised over ``n_envs`` races; ``vec_env="batched"`` (default) runs the
 same env as :class:`racing_env.vec_env.HeadToHeadVecEnv` (all races in one compiled step,
 frozen opponents as batched numpy policies, race for race identical to ``HeadToHeadEnv``),

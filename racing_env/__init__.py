@@ -5,7 +5,7 @@ Quick use::
     import racing_env
     env = racing_env.parallel_env(n_cars=3)          # PettingZoo ParallelEnv
     aec = racing_env.env(n_cars=3)                   # PettingZoo AEC env
-    import gymnasium; gymnasium.make("alpha_racer/HeadToHead-v1")   # single learner
+    import gymnasium; gymnasium.make("alpha_racer/HeadToHead-v2")   # single learner
 """
 from . import cache as _cache  # noqa: F401  first: the cache folder, before numba compiles anything
 from .config import RaceConfig, RulesConfig, StartConfig

@@ -34,6 +34,11 @@ class RulesConfig:
       (paper: 1/2), the car behind to ``rear_factor * vx`` (paper: 1/3). Contact is swept
       over the RK4 sub-steps, so no car passes through another; a car is slowed at most once
       per period (by the smallest factor due, off track included).
+    * Bodies stay apart (env v2): a car may not end a sub-step overlapping, or beyond, a car
+      it is not laterally clear of (``|n_i - n_j| < contact_dn``). A bump from behind puts the
+      rear car back to ``contact_ds`` behind and limits its ``vx`` to the front car's; a bump
+      from the side pushes the two apart sideways. A car passes another only through free
+      space (see :func:`racing_env.simulator._separate`).
     * Off track: a car beyond an edge (``n > w_left`` or ``n < -w_right``) is slowed to
       ``offtrack_factor * vx`` (paper: 1/2) and re-aligned with the track
       (``mu = 0``; we also zero ``vy`` and ``omega``).

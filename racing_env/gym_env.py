@@ -52,7 +52,7 @@ def default_opponents() -> list:
 class HeadToHeadEnv(gym.Env):
     """The learner drives ``car_0``; every other car is driven by an opponent agent.
 
-    Registered as ``alpha_racer/HeadToHead-v1`` (``spec.max_episode_steps`` = 500, the
+    Registered as ``alpha_racer/HeadToHead-v2`` (``spec.max_episode_steps`` = 500, the
     default ``max_cycles``: ``gymnasium.make``'s ``TimeLimit`` truncates at the same step as the
     env; to race longer pass both ``max_episode_steps`` and ``max_cycles``), with a
     ``vector_entry_point`` (:class:`racing_env.gym_vector.HeadToHeadVectorEnv`) for
@@ -85,9 +85,9 @@ class HeadToHeadEnv(gym.Env):
 
     **Info**: the learner's per-step info of the parallel env.
 
-    **Version History**: as :class:`RacingParallelEnv` (v1: contact over the whole control
-    period, applied at the first moment of contact; v0, contact only at the end of each step,
-    is not registered any more).
+    **Version History**: as :class:`RacingParallelEnv` (v2: contact keeps the bodies apart;
+    v1, contact over the whole control period, applied at the first moment of contact, and v0,
+    contact only at the end of each step, are not registered any more).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}

@@ -1,9 +1,9 @@
 """The registered env's ``vector_entry_point``: ``HeadToHeadEnv`` x B as one Gymnasium ``VectorEnv``.
 
-``gymnasium.make_vec("alpha_racer/HeadToHead-v1", num_envs=B)`` (or with
+``gymnasium.make_vec("alpha_racer/HeadToHead-v2", num_envs=B)`` (or with
 ``vectorization_mode="vector_entry_point"``) builds :class:`HeadToHeadVectorEnv`: the B races
 are stepped by one compiled call (:class:`racing_env.BatchedRaces`) instead of B env steps,
-and env ``b`` behaves exactly like ``gymnasium.make("alpha_racer/HeadToHead-v1")`` seeded as
+and env ``b`` behaves exactly like ``gymnasium.make("alpha_racer/HeadToHead-v2")`` seeded as
 Gymnasium's ``SyncVectorEnv`` seeds it (``seed + b``), autoreset included (``NEXT_STEP``:
 the step after an episode end returns the new episode's first observation, reward 0).
 

@@ -80,6 +80,15 @@ class RacingParallelEnv(ParallelEnv):
     **Version History** (``metadata["name"]``; the Gymnasium id ``alpha_racer/HeadToHead-vN``
     carries the same number):
 
+    * v2: contact keeps the bodies apart (:func:`racing_env.simulator._separate`). After
+      every RK4 sub-step of a period with contact, no car may overlap, or be beyond, a car
+      that it is not laterally clear of (``|n_i - n_j| < contact_dn``): a bump from behind
+      puts the rear car back to ``contact_ds`` behind the front car and limits its ``vx`` to
+      the front car's; a bump from the side pushes the two apart sideways, half each. In v1
+      a car at full throttle could push through a stopped car in a few steps (the speed
+      factors slowed it but never stopped it); in v2 a car passes another only through free
+      space beside it. The speed factors are the paper's, as before, and a race without
+      contact is the same as in v1 bit for bit.
     * v1: contact is checked over the whole control period (the relative motion of each pair
       is swept between RK4 sub-step points) and applied at the first moment of contact, so a
       car can no longer drive through another unnoticed; the car behind *at that moment* gets
@@ -93,7 +102,7 @@ class RacingParallelEnv(ParallelEnv):
       get the rear factor); not kept.
     """
 
-    metadata = {"name": "alpha_racer_v1", "render_modes": ["human", "rgb_array"],
+    metadata = {"name": "alpha_racer_v2", "render_modes": ["human", "rgb_array"],
                 "render_fps": 10, "is_parallelizable": True}
 
     def __init__(self, track: "str | Track" = "default", n_cars: int | None = None,

@@ -1,4 +1,4 @@
-"""Registers the Gymnasium env ``alpha_racer/HeadToHead-v1`` (idempotent).
+"""Registers the Gymnasium env ``alpha_racer/HeadToHead-v2`` (idempotent).
 
 ``gymnasium.make`` builds :class:`racing_env.gym_env.HeadToHeadEnv` wrapped in ``TimeLimit(500)``,
 which truncates at the same step as the env itself (``max_cycles`` = 500 by default), so the
@@ -6,12 +6,13 @@ wrapper changes nothing; pass ``max_episode_steps`` to ``make`` with ``max_cycle
 longer. ``gymnasium.make_vec`` builds :class:`racing_env.gym_vector.HeadToHeadVectorEnv` (one
 batched core for all envs) unless ``vectorization_mode="sync"`` / ``"async"`` is asked for.
 
-``HeadToHead-v0`` (contact checked only at the end of each 0.1 s step) is no longer
-registered: its behaviour is not kept; see Version History in ``HeadToHeadEnv``.
+``HeadToHead-v1`` (contact slowed cars but did not keep them apart) and ``HeadToHead-v0``
+(contact checked only at the end of each 0.1 s step) are no longer registered: their
+behaviour is not kept; see Version History in ``HeadToHeadEnv``.
 """
 import gymnasium
 
-ENV_ID = "alpha_racer/HeadToHead-v1"
+ENV_ID = "alpha_racer/HeadToHead-v2"
 MAX_EPISODE_STEPS = 500
 """The registered ``spec.max_episode_steps``: :class:`racing_env.RaceConfig`'s ``max_cycles``."""
 

@@ -10,7 +10,8 @@ One control period ``dt`` is integrated with classical RK4 sub-steps whose numbe
 the stiffness of the lateral dynamics (many at a standing start, two at racing speed), so the
 integration is stable at every speed. The paper's rules apply (see
 :class:`racing_env.config.RulesConfig`): contact slow-down, checked over the sub-steps and
-applied at the moment of contact (see :func:`_step_one_race`), and, after the dynamics,
+applied at the moment of contact (see :func:`_step_one_race`), with the bodies kept apart
+(:func:`_separate`: no car passes through another), and, after the dynamics,
 off-track slow-down with re-alignment. A car cannot go more than ``wall_margin`` beyond an edge (a wall stops it
 sideways) and cannot roll backwards (``vx >= 0``: a brake stops a car, it does not reverse it).
 """

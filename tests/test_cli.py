@@ -72,6 +72,31 @@ def test_short_fuzz_finds_nothing():
     assert report.steps >= 20_000 and report.maxima["vx"] > 1.0
 
 
+def test_fuzz_catches_a_drive_through_and_nothing_else():
+    from experiments.fuzz import drive_through
+    L = 20.0
+    before = np.array([[[5.0, 0.0, 0, 0, 0, 0], [4.8, 0.02, 0, 0, 0, 0], [4.9, 0.2, 0, 0, 0, 0]]])
+    through = before.copy()
+    through[0, 1, 0] = 5.2                       # car 1 ends 0.2 m ahead, still in line
+    assert drive_through(before, through, L, 0.12, 0.06) == (0, 0, 1, "swapped places while "
+                                                             "overlapping laterally")
+    inside = before.copy()
+    inside[0, 1, 0] = 4.95                       # car 1 inside car 0's body
+    assert drive_through(before, inside, L, 0.12, 0.06)[3] == "bodies overlap"
+    beside = before.copy()
+    beside[0, 2, 0] = 5.3                        # car 2 passes car 0 beside it: free space
+    assert drive_through(before, beside, L, 0.12, 0.06) is None
+    half_lap = np.array([[[0.1, 0.0, 0, 0, 0, 0], [10.05, 0.0, 0, 0, 0, 0]]])
+    moved = half_lap.copy()
+    moved[0, 1, 0] = 10.15                       # half a lap apart: the wrap flips the sign
+    assert drive_through(half_lap, moved, L, 0.12, 0.06) is None
+
+
+def test_short_eight_car_fuzz_finds_no_drive_through():
+    report = run_fuzz(steps=20_000, n_races=64, n_cars=8, seed=2, progress_bar=False)
+    assert report.ok, report.text()
+
+
 def test_custom_agent_example_runs(capsys):
     runpy.run_path(str(ROOT / "examples" / "custom_agent.py"), run_name="__main__")
     assert "wiggle" in capsys.readouterr().out
@@ -95,8 +120,10 @@ def test_readme_main_job(tmp_path):
 
 
 @pytest.mark.slow
-def test_one_million_step_fuzz():
-    report = run_fuzz(steps=1_000_000, n_races=512, n_cars=3, seed=0, progress_bar=False)
+@pytest.mark.parametrize("n_cars, steps", [(3, 1_000_000), (8, 200_000)])
+def test_long_fuzz(n_cars, steps):
+    # (the full 1M race steps with 8 cars take about 7 min on 2 cores: a README command)
+    report = run_fuzz(steps=steps, n_races=512, n_cars=n_cars, seed=0, progress_bar=False)
     assert report.ok, report.text()
 
 

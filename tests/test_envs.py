@@ -120,7 +120,7 @@ def test_bad_arguments_raise_clear_errors():
 def test_gymnasium_env_passes_checkers():
     from gymnasium.utils.env_checker import check_env
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
-    env = gymnasium.make("alpha_racer/HeadToHead-v1")
+    env = gymnasium.make("alpha_racer/HeadToHead-v2")
     check_env(env.unwrapped, skip_render_check=True)
     sb3_check_env(HeadToHeadEnv(max_cycles=50), warn=True)
 
@@ -179,9 +179,9 @@ def _vec_opponents():
 def test_make_vec_matches_single_envs_step_for_step(mode):
     n_envs, steps, cycles = 3, 14, 6       # over two episode ends (autoreset included)
     kwargs = dict(opponents=_vec_opponents(), max_cycles=cycles, start="grid")
-    venv = gymnasium.make_vec("alpha_racer/HeadToHead-v1", num_envs=n_envs,
+    venv = gymnasium.make_vec("alpha_racer/HeadToHead-v2", num_envs=n_envs,
                               vectorization_mode=mode, **kwargs)
-    singles = [gymnasium.make("alpha_racer/HeadToHead-v1", **kwargs) for _ in range(n_envs)]
+    singles = [gymnasium.make("alpha_racer/HeadToHead-v2", **kwargs) for _ in range(n_envs)]
     obs, _ = venv.reset(seed=11)
     single_obs = [env.reset(seed=11 + b)[0] for b, env in enumerate(singles)]
     np.testing.assert_array_equal(obs, np.stack(single_obs))
@@ -221,11 +221,11 @@ def test_vector_envs_each_get_their_own_opponents():
 
 
 def test_registered_env_versions_and_episode_length():
-    assert RacingParallelEnv.metadata["name"] == "alpha_racer_v1"
-    spec = gymnasium.spec("alpha_racer/HeadToHead-v1")
+    assert RacingParallelEnv.metadata["name"] == "alpha_racer_v2"
+    spec = gymnasium.spec("alpha_racer/HeadToHead-v2")
     assert spec.max_episode_steps == 500
     assert spec.vector_entry_point is not None
-    env = gymnasium.make("alpha_racer/HeadToHead-v1", opponents=[Wobbler()])
+    env = gymnasium.make("alpha_racer/HeadToHead-v2", opponents=[Wobbler()])
     raw = HeadToHeadEnv(opponents=[Wobbler()])
     env.reset(seed=3)
     raw.reset(seed=3)
