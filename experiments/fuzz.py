@@ -34,7 +34,8 @@ class FuzzReport:
 
     def text(self) -> str:
         lines = [f"fuzz: {self.steps} race steps ({self.car_steps} car-steps) in {self.seconds:.1f} s: "
-                 + ("OK, no NaN, no exception, all states within bounds" if self.ok else "FAILED")]
+                 + ("OK, no NaN, no exception, all states within bounds, no car drove through another"
+                    if self.ok else "FAILED")]
         lines += [f"  extreme |{k}|: {v:.4g}" for k, v in self.maxima.items()]
         lines += [f"  problem: {p}" for p in self.problems[:20]]
         return "\n".join(lines)
