@@ -18,6 +18,13 @@ def slug(spec: str) -> str:
     return "".join(ch if ch.isalnum() or ch in ".-" else "_" for ch in spec)
 
 
+def env_version() -> str:
+    """The env version races run on (PettingZoo ``metadata["name"]``, e.g. ``alpha_racer_v2``).
+    Race folders store it in their manifest, so races of two env versions never mix."""
+    from racing_env.parallel_env import RacingParallelEnv
+    return RacingParallelEnv.metadata["name"]
+
+
 def write_text(path, text: str) -> Path:
     """Write ``text`` to ``path`` atomically (temporary file, then rename)."""
     path = Path(path)
@@ -39,9 +46,13 @@ def claim(path, meta: dict, what: str, overwrite: bool = False) -> None:
     path = Path(path)
     if path.exists() and not overwrite:
         old = json.loads(path.read_text())
+        if "env" in meta and "env" not in old:     # made before manifests named the env
+            old = {**old, "env": "alpha_racer_v1 or older"}
         if old != meta:
-            raise ValueError(f"{path.parent} holds {what} of another configuration "
-                             f"({old.get('config', old)}); this run: {meta.get('config', meta)}. "
+            diff = "; ".join(f"{k}: stored {old.get(k)!r}, this run {meta.get(k)!r}"
+                             for k in sorted(set(old) | set(meta), key=str)
+                             if old.get(k) != meta.get(k))
+            raise ValueError(f"{path.parent} holds {what} of another configuration ({diff}). "
                              f"Use another --out or the same settings to resume")
         return
     write_json(path, meta)

@@ -34,7 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import append_jsonl, claim, read_jsonl, write_json, write_npz, write_text
+from .artifacts import (append_jsonl, claim, env_version, read_jsonl, write_json, write_npz,
+                        write_text)
 from .parallel import check_backend, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
@@ -177,7 +178,8 @@ class BenchRun:
         self.out.mkdir(parents=True, exist_ok=True)
         (self.out / "states").mkdir(exist_ok=True)
         claim(self.out / "manifest.json",
-              {"schema_version": SCHEMA_VERSION, "config": config.to_dict()}, "a benchmark")
+              {"schema_version": SCHEMA_VERSION, "config": config.to_dict(),
+               "env": env_version()}, "a benchmark")
 
     @property
     def records_path(self) -> Path:

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import append_jsonl, claim, read_jsonl, write_json, write_text
+from .artifacts import append_jsonl, claim, env_version, read_jsonl, write_json, write_text
 from .bench import check_agent_specs, wilson_interval
 from .parallel import check_backend, run_tasks_with_progress
 
@@ -406,7 +406,7 @@ class LeagueRun:
         self.config = config
         self.races = schedule(config)
         self.out.mkdir(parents=True, exist_ok=True)
-        meta = {"schema_version": SCHEMA_VERSION, "config": asdict(config)}
+        meta = {"schema_version": SCHEMA_VERSION, "config": asdict(config), "env": env_version()}
         # compared as stored: JSON turns the config's tuples into lists
         claim(self.out / "manifest.json", json.loads(json.dumps(meta)), "a league")
 

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import append_jsonl, claim, read_jsonl, slug, write_json, write_text
+from .artifacts import append_jsonl, claim, env_version, read_jsonl, slug, write_json, write_text
 from .bench import REGIONS, BenchConfig, check_agent_specs
 from .parallel import check_backend, run_tasks_with_progress
 
@@ -189,7 +189,8 @@ class PolicyMapRun:
         # the box goes into "config", so a refusal after a change of the box names it
         meta = {"schema_version": SCHEMA_VERSION,
                 "config": {**asdict(config), "theta_box": {
-                    "names": list(THETA_NAMES), "low": low.tolist(), "high": high.tolist()}}}
+                    "names": list(THETA_NAMES), "low": low.tolist(), "high": high.tolist()}},
+                "env": env_version()}
         # compared as stored: JSON turns the config's tuples into lists
         claim(self.out / "manifest.json", json.loads(json.dumps(meta)), "a policy map")
 

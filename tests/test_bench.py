@@ -251,3 +251,18 @@ def test_batched_races_are_identical_with_1_and_2_numba_threads(tmp_path):
         out.append(np.load(path))
     assert out[0].shape == (40, 64, 3, 6) and np.isfinite(out[0]).all()
     assert out[0].tobytes() == out[1].tobytes()
+
+
+def test_a_folder_of_another_env_version_is_refused(tmp_path):
+    # races of env v1 (manifests without "env") and v2 never mix in one folder
+    from experiments.artifacts import env_version
+    from experiments.bench import SCHEMA_VERSION, BenchRun
+    cfg = BenchConfig(ego="raceline", opponents="raceline", races=3, steps=5)
+    BenchRun(tmp_path / "new", cfg)
+    stored = json.loads((tmp_path / "new" / "manifest.json").read_text())
+    assert stored["env"] == env_version() == "alpha_racer_v2"
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "manifest.json").write_text(
+        json.dumps({"schema_version": SCHEMA_VERSION, "config": cfg.to_dict()}))
+    with pytest.raises(ValueError, match="alpha_racer_v1 or older"):
+        BenchRun(tmp_path / "old", cfg)
