@@ -135,17 +135,18 @@ def sources_hash(paths) -> str:
 
 
 def kernel_sources_hash(folders=None) -> str:
-    """:func:`sources_hash` of every ``.py`` file (sorted by name) in ``folders``, by default
-    the installed :data:`KERNEL_PACKAGES` (a package that cannot be found is left out): the
-    name of numba's cache folder, so that an edit of any kernel's callee recompiles every
-    kernel (see the module docstring)."""
+    """:func:`sources_hash` of every ``.py`` file (sorted by path) in ``folders`` and their
+    sub-folders (sub-packages such as ``agents/mpc/``), by default the installed
+    :data:`KERNEL_PACKAGES` (a package that cannot be found is left out): the name of numba's
+    cache folder, so that an edit of any kernel's callee recompiles every kernel (see the
+    module docstring)."""
     if folders is None:
         folders = []
         for name in KERNEL_PACKAGES:
             spec = importlib.util.find_spec(name)
             if spec is not None and spec.submodule_search_locations:
                 folders.extend(spec.submodule_search_locations)
-    return sources_hash([path for folder in folders for path in sorted(Path(folder).glob("*.py"))])
+    return sources_hash([path for folder in folders for path in sorted(Path(folder).rglob("*.py"))])
 
 
 def _configure() -> None:

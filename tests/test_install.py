@@ -119,7 +119,11 @@ def test_kernel_folder_changes_with_any_source_of_either_package(tmp_path):
     edited = kernel_sources_hash([env_pkg, agents_pkg])
     assert edited != base
     (agents_pkg / "b.py").write_text("")
-    assert kernel_sources_hash([env_pkg, agents_pkg]) not in (base, edited)
+    added = kernel_sources_hash([env_pkg, agents_pkg])
+    assert added not in (base, edited)
+    (agents_pkg / "sub").mkdir()                                      # a sub-package counts too
+    (agents_pkg / "sub" / "c.py").write_text("")
+    assert kernel_sources_hash([env_pkg, agents_pkg]) not in (base, edited, added)
 
 
 def test_numba_cache_points_at_the_hashed_folder():
