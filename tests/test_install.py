@@ -93,12 +93,12 @@ agent.act(obs["car_0"])
 
 
 def test_cache_dir_is_one_function(tmp_path, monkeypatch):
-    from agents import mpc
+    from agents.mpc import codegen
     from racing_env import cache, raceline
     monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "c"))
     assert cache.cache_dir() == tmp_path / "c"
     assert raceline.cache_dir() == cache.cache_dir("raceline") == tmp_path / "c" / "raceline"
-    assert mpc._cache_root() == cache.cache_dir("mpc") == tmp_path / "c" / "mpc"
+    assert codegen._cache_root() == cache.cache_dir("mpc") == tmp_path / "c" / "mpc"
     assert (tmp_path / "c" / "mpc").is_dir()
 
 
@@ -142,7 +142,7 @@ def _script(path: Path, body: str) -> Path:
 
 
 def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypatch):
-    from agents.mpc import MPCConfig, _trajectory_function
+    from agents.mpc import MPCConfig, trajectory_function
     from racing_env.vehicle import VehicleParams
 
     from racing_env.cache import cache_root
@@ -151,7 +151,7 @@ def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypat
     monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv("CC", str(cc))
     with pytest.warns(RuntimeWarning) as record:
-        traj = _trajectory_function(VehicleParams(), MPCConfig())
+        traj = trajectory_function(VehicleParams(), MPCConfig())
     msg = "\n".join(str(w.message) for w in record)
     assert "no licence for -O3" in msg and "status 3" in msg and "interpreted" in msg
     assert not list((tmp_path / "cache" / "mpc").glob("*.so"))
@@ -160,7 +160,7 @@ def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypat
     monkeypatch.delenv("CC")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        compiled = _trajectory_function(VehicleParams(), MPCConfig())
+        compiled = trajectory_function(VehicleParams(), MPCConfig())
     K = MPCConfig().horizon
     x0 = np.array([1.0, 0.05, 0.02, 2.0, 0.1, 0.3])
     U = np.tile([[0.5], [0.1]], (1, K))
@@ -188,7 +188,7 @@ def test_mpc_agent_races_with_a_failing_compiler(tmp_path, monkeypatch):
 
 
 def test_CC_is_the_compiler(tmp_path, monkeypatch):
-    from agents.mpc import MPCConfig, _trajectory_function
+    from agents.mpc import MPCConfig, trajectory_function
     from racing_env.vehicle import VehicleParams
 
     gcc = shutil.which("gcc") or shutil.which("cc")
@@ -200,7 +200,7 @@ def test_CC_is_the_compiler(tmp_path, monkeypatch):
     monkeypatch.setenv("CC", f"'{cc}' -O1")                # a command, quoted like in a shell
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        _trajectory_function(VehicleParams(), MPCConfig(horizon=5))
+        trajectory_function(VehicleParams(), MPCConfig(horizon=5))
     assert log.read_text().startswith("-O1 ") and list((tmp_path / "cache" / "mpc").glob("*.so"))
 
 

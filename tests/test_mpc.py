@@ -149,6 +149,7 @@ def test_the_compiled_sqp_step_is_the_python_step_bit_for_bit():
     in a 3-car race at the limit every SQP step (trials, the accepted plan, its Jacobians and
     cost) is identical to :meth:`MPC._step_python`'s on the same inputs (the loop that runs
     with an interpreted prediction, here on the same compiled predictions)."""
+    from agents.mpc import StepCode, StepResult
     from agents.mpc_agent import MPCAgent
     from racing_env import parallel_env
 
@@ -164,19 +165,21 @@ def test_the_compiled_sqp_step_is_the_python_step_bit_for_bit():
 
         def step(*args):
             out = kernel(*args)
-            ref = mpc._step_python(*args[:len(args) - len(mpc._step_buffers)])
+            ref = mpc._step_python(*args)
+            assert isinstance(out, StepResult) and isinstance(ref, StepResult)
             for a, b in zip(out, ref):
-                if b is not None and out[0] != 0:
+                if b is not None and out.code != StepCode.REJECTED:
                     np.testing.assert_array_equal(a, b)
-            assert out[0] == ref[0] and out[1] == ref[1]
+            assert out.code == ref.code and out.J == ref.J
             calls["steps"] += 1
-            calls["codes"].add(int(out[0]))
+            calls["codes"].add(StepCode(out.code))
             return out
         return step
 
     for agent in agents:
-        assert agent.mpc._step is not agent.mpc._step_python      # compiled here (gcc in CI)
+        assert agent.mpc._step == agent.mpc._compiled_step      # compiled here (gcc in CI)
         agent.mpc._step = checked(agent.mpc)
     while env.agents:
         obs, *_ = env.step({a: ag.act(obs[a]) for a, ag in zip(env.possible_agents, agents)})
-    assert calls["steps"] > 100 and {0, 2} <= calls["codes"]     # rejected and accepted steps
+    assert calls["steps"] > 100                                      # rejected and accepted steps
+    assert {StepCode.REJECTED, StepCode.RELINEARISED} <= calls["codes"]
