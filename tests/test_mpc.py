@@ -183,3 +183,23 @@ def test_the_compiled_sqp_step_is_the_python_step_bit_for_bit():
         obs, *_ = env.step({a: ag.act(obs[a]) for a, ag in zip(env.possible_agents, agents)})
     assert calls["steps"] > 100                                      # rejected and accepted steps
     assert {StepCode.REJECTED, StepCode.RELINEARISED} <= calls["codes"]
+
+
+def test_the_public_prediction_is_the_mpcs_own(mpc):
+    """``trajectory_function``, the prediction IBR rolls out, gives the MPC's plan, its
+    Jacobians and its rollout bit for bit on the same inputs and curvature."""
+    from agents.mpc import kappa_at_substeps, trajectory_function
+    K, cfg = mpc.cfg.horizon, mpc.cfg
+    x0 = np.array([3.0, 0.05, 0.02, 2.5, 0.1, 0.2])
+    U = mpc._follower_warm_start(x0)
+    nodes = stage_nodes(None, x0, K, cfg.dt)
+    kap = kappa_at_substeps(mpc.track, nodes, cfg.substeps)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        full = trajectory_function(mpc.vehicle, cfg)(x0, U, kap)
+        states = trajectory_function(mpc.vehicle, cfg, jacobians=False)(x0, U, kap)
+    plan = mpc._plan(x0, U, s_prev=nodes, passes=0)
+    for a, b in zip(full, plan):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(states[0], mpc._plan(x0, U, s_prev=nodes, jacobians=False,
+                                                       passes=0)[0])

@@ -511,6 +511,23 @@ def test_corrupt_cache_is_recomputed(counting_cache, damage):
     assert get_raceline(track).from_cache                   # the file was rewritten and is good
 
 
+def test_the_line_is_its_offsets_on_the_grid():
+    """compute_raceline is minimum_curvature_offsets' offsets put on the track grid by
+    path.line_on_grid, and get_raceline without a cache is compute_raceline, bit for bit."""
+    from racing_env.raceline.path import line_on_grid
+    track, cfg = make_track("oval"), RacelineConfig()
+    rl = compute_raceline(track, VEH, cfg)
+    s_sub, n_sub, info = R.minimum_curvature_offsets(track, VEH, cfg)
+    line = line_on_grid(track, VEH, cfg, s_sub, n_sub)
+    for name in ("n", "n_lo", "n_hi", "x", "y", "s", "psi", "kappa"):
+        np.testing.assert_array_equal(line[name], getattr(rl, name))
+    assert line["length"] == rl.length and line["lap_time"] == rl.lap_time
+    assert info["cost"] == rl.cost and info["iterations"] == rl.iterations
+    again = get_raceline(track, VEH, cfg, use_cache=False)
+    for name in ("n", "vx", "vx_lib", "ax_lib"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(rl, name))
+
+
 def test_get_raceline_accepts_names_and_skips_cache(counting_cache, tmp_path):
     rl = get_raceline("oval", use_cache=False)
     assert isinstance(rl, Raceline) and not os.path.exists(tmp_path / "raceline")
