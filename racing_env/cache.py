@@ -26,7 +26,7 @@ folder unless ``NUMBA_CACHE_DIR`` is set. It sets ``numba.config.CACHE_DIR`` rat
 Why a hash of the sources: numba checks a cached kernel against its *own* source file only. A
 kernel that calls a kernel of another file (the MPC's follower rollout calls the simulator's
 integrator, the follower calls the track look-up) keeps the callee it was compiled with, so
-after an edit of ``simulator.py`` a stale ``mpc.py`` kernel would silently race the old physics
+after an edit of ``simulator.py`` a stale ``agents/mpc/`` kernel would silently race the old physics
 (different races from the same seed). Any edit of either package starts a new folder. With
 ``NUMBA_CACHE_DIR`` set, that folder is used as it is (clear it after editing the sources).
 """

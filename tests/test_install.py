@@ -39,9 +39,13 @@ def _clean_env(**extra) -> dict:
     return env
 
 
-def _kernels(folder: Path, source_dir: str) -> list[Path]:
-    """numba index files under ``folder`` of functions defined in ``source_dir`` (a package)."""
-    return [p for p in folder.rglob("*.nbi") if p.parent.name.startswith(source_dir + "_")]
+def _kernels(folder: Path, package: str) -> list[Path]:
+    """numba index files under ``folder`` of functions defined in ``package`` or one of its
+    sub-packages (numba names a kernel's folder after its source file's folder, plus a hash)."""
+    import importlib.util
+    root = Path(importlib.util.find_spec(package).origin).parent
+    names = {d.name for d in (root, *root.rglob("*")) if (d / "__init__.py").is_file()}
+    return [p for p in folder.rglob("*.nbi") if p.parent.name.rsplit("_", 1)[0] in names]
 
 
 # ------------------------------------------------------------------------------ cache folder

@@ -129,7 +129,8 @@ class CompiledTrajectory:
     The buffers are views of one workspace array ``ws``: ``x0`` (6), ``U`` (2K), ``kap``
     (substeps K), ``X`` (6K), ``A`` (36K), ``B`` (12K), then CasADi's work vector; ``ptrs``
     holds the argument pointers (``n_arg`` of them) and then the result pointers. The
-    kernel :func:`~agents.mpc.solver.sqp_step` calls the function from numba on the same buffers."""
+    kernel :func:`~agents.mpc.solver.sqp_step` calls the function from numba on the same
+    buffers."""
 
     def __init__(self, lib: Path, horizon: int, substeps: int, name: str = "mpc_traj"):
         import ctypes

@@ -155,7 +155,7 @@ def _plan_score(X, u_vec, c):
 
 
 class MPC:
-    """RTI-SQP MPC of one car on a track (see the module docstring).
+    """RTI-SQP MPC of one car on a track (see :mod:`agents.mpc`).
 
     ``solve(x0, s_ref, n_ref, q, opponents, u_prev)``: ``x0`` (6,) the car's Frenet state,
     ``s_ref, n_ref`` (K,) references for the predicted states 1..K, ``q`` the tracking
@@ -264,8 +264,8 @@ class MPC:
         """``(cost, edges)`` of a plan on its *nonlinear* rollout ``X`` (6, K) with inputs
         ``U`` (2, K): tracking, input rates and the soft rows' quadratic penalty
         ``violation^2 / (2 rho)`` (DAQP's, for the track edges and the separations chosen
-        along ``X``; :func:`score_rollout`), and the bounds ``(lo, hi)`` on n along ``X``;
-        ``(inf, None)`` for a non-finite rollout."""
+        along ``X``; :func:`~agents.mpc.qp.score_rollout`), and the bounds ``(lo, hi)`` on n
+        along ``X``; ``(inf, None)`` for a non-finite rollout."""
         cfg, b, t = self.cfg, self._bounds_n, self.track
         J, lo, hi = score_rollout(X, np.ascontiguousarray(U.T).reshape(-1), s_ref, n_ref,
                                   float(q), b.lo_table, b.hi_table, t.ds, t.length, opp, cfg.dt,

@@ -30,7 +30,6 @@ def offset_bounds(track: Track, s_track, vehicle: VehicleParams, margin: float):
     return lo, hi
 
 
-
 def line_geometry(px, py):
     """Arc length, lap length, heading and curvature of the closed polyline (px, py), shape (M,)."""
     chord = np.hypot(np.diff(np.append(px, px[0])), np.diff(np.append(py, py[0])))

@@ -224,7 +224,6 @@ class Raceline:
                 f"converged={self.converged})")
 
 
-
 def plot_raceline(track: Track, raceline: Raceline, path, mu=None, dpi: int = 150) -> Path:
     """Write a PNG [path] of the track edges, the centre line and the racing line coloured by
     speed [m/s] (profile for ``mu``, default nominal). Uses matplotlib's Agg canvas directly, so
