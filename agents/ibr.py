@@ -74,7 +74,7 @@ from racing_env.tracks import make_track
 from racing_env.vehicle import VehicleParams
 
 from .base import median_p99, register_agent
-from .mpc import (EdgeBounds, MPCConfig, _trajectory_function, condense_states,
+from .mpc import (EdgeBounds, MPCConfig, condense_states, trajectory_function,
                   follower_rollout, input_rate_matrix, kappa_at_substeps, make_follower,
                   stage_nodes)
 from .mpc_agent import progress_rate, split_observation
@@ -350,7 +350,7 @@ class IBR:
         self.cfg = config or IBRConfig()
         self._mcfg = self.cfg.mpc_config()
         K = self.cfg.horizon
-        self._traj = _trajectory_function(self.vehicle, self._mcfg)
+        self._traj = trajectory_function(self.vehicle, self._mcfg)
         self._DtD = input_rate_matrix(K)
         self._H0 = 2.0 * (self.cfg.rate_weight * self._DtD + self.cfg.step_weight * np.eye(2 * K))
         self._bounds_n = EdgeBounds(track, self.vehicle, self._mcfg)

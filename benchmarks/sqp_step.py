@@ -30,10 +30,7 @@ def race(config: CollectConfig, index: int, python_step: bool) -> tuple[dict, fl
     the Python step or the compiled one."""
     for agent in _agents(config.n_cars):
         mpc = agent.mpc
-        if not hasattr(mpc, "_compiled_step"):
-            mpc._compiled_step = (mpc._step, mpc._step_buffers)
-        mpc._step, mpc._step_buffers = ((mpc._step_python, ()) if python_step
-                                        else mpc._compiled_step)
+        mpc._step = mpc._step_python if python_step else mpc._compiled_step
     t0 = time.perf_counter()
     data = simulate_race(config, index)
     return data, time.perf_counter() - t0

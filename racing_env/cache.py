@@ -26,7 +26,7 @@ folder unless ``NUMBA_CACHE_DIR`` is set. It sets ``numba.config.CACHE_DIR`` rat
 Why a hash of the sources: numba checks a cached kernel against its *own* source file only. A
 kernel that calls a kernel of another file (the MPC's follower rollout calls the simulator's
 integrator, the follower calls the track look-up) keeps the callee it was compiled with, so
-after an edit of ``simulator.py`` a stale ``mpc.py`` kernel would silently race the old physics
+after an edit of ``simulator.py`` a stale ``agents/mpc/`` kernel would silently race the old physics
 (different races from the same seed). Any edit of either package starts a new folder. With
 ``NUMBA_CACHE_DIR`` set, that folder is used as it is (clear it after editing the sources).
 """
@@ -135,17 +135,18 @@ def sources_hash(paths) -> str:
 
 
 def kernel_sources_hash(folders=None) -> str:
-    """:func:`sources_hash` of every ``.py`` file (sorted by name) in ``folders``, by default
-    the installed :data:`KERNEL_PACKAGES` (a package that cannot be found is left out): the
-    name of numba's cache folder, so that an edit of any kernel's callee recompiles every
-    kernel (see the module docstring)."""
+    """:func:`sources_hash` of every ``.py`` file (sorted by path) in ``folders`` and their
+    sub-folders (sub-packages such as ``agents/mpc/``), by default the installed
+    :data:`KERNEL_PACKAGES` (a package that cannot be found is left out): the name of numba's
+    cache folder, so that an edit of any kernel's callee recompiles every kernel (see the
+    module docstring)."""
     if folders is None:
         folders = []
         for name in KERNEL_PACKAGES:
             spec = importlib.util.find_spec(name)
             if spec is not None and spec.submodule_search_locations:
                 folders.extend(spec.submodule_search_locations)
-    return sources_hash([path for folder in folders for path in sorted(Path(folder).glob("*.py"))])
+    return sources_hash([path for folder in folders for path in sorted(Path(folder).rglob("*.py"))])
 
 
 def _configure() -> None:

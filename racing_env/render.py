@@ -31,6 +31,7 @@ from typing import Iterable, Sequence
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from .files import atomic_path
 from .track import Track
 from .vehicle import VehicleParams
 
@@ -572,21 +573,11 @@ def save_animation(frames, path: str | os.PathLike, fps: float = 10) -> Path:
         if ffmpeg is None:
             raise RuntimeError(f"cannot write {str(path)!r}: ffmpeg is missing (not on PATH and "
                                f"imageio-ffmpeg not installed); install ffmpeg or save as .gif")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=f".tmp{suffix}")
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix) as tmp:
         if suffix == ".gif":
-            _write_gif(frames, tmp, fps)
+            _write_gif(frames, str(tmp), fps)
         else:
-            _write_mp4(frames, tmp, fps, ffmpeg)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+            _write_mp4(frames, str(tmp), fps, ffmpeg)
     return path
 
 
@@ -661,16 +652,6 @@ def plot_trajectories(track: Track, states, path: str | os.PathLike, raceline_xy
     ax.set_title(title or f"{track.name}: {n_cars} car(s), {st.shape[0]} steps")
     ax.legend(loc="best", fontsize=8, framealpha=0.8)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp.png")
-    os.close(fd)
-    try:
+    with atomic_path(path, ".png") as tmp:
         fig.savefig(tmp, format="png", dpi=dpi)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
     return path

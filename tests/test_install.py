@@ -39,9 +39,13 @@ def _clean_env(**extra) -> dict:
     return env
 
 
-def _kernels(folder: Path, source_dir: str) -> list[Path]:
-    """numba index files under ``folder`` of functions defined in ``source_dir`` (a package)."""
-    return [p for p in folder.rglob("*.nbi") if p.parent.name.startswith(source_dir + "_")]
+def _kernels(folder: Path, package: str) -> list[Path]:
+    """numba index files under ``folder`` of functions defined in ``package`` or one of its
+    sub-packages (numba names a kernel's folder after its source file's folder, plus a hash)."""
+    import importlib.util
+    root = Path(importlib.util.find_spec(package).origin).parent
+    names = {d.name for d in (root, *root.rglob("*")) if (d / "__init__.py").is_file()}
+    return [p for p in folder.rglob("*.nbi") if p.parent.name.rsplit("_", 1)[0] in names]
 
 
 # ------------------------------------------------------------------------------ cache folder
@@ -93,12 +97,12 @@ agent.act(obs["car_0"])
 
 
 def test_cache_dir_is_one_function(tmp_path, monkeypatch):
-    from agents import mpc
+    from agents.mpc import codegen
     from racing_env import cache, raceline
     monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "c"))
     assert cache.cache_dir() == tmp_path / "c"
     assert raceline.cache_dir() == cache.cache_dir("raceline") == tmp_path / "c" / "raceline"
-    assert mpc._cache_root() == cache.cache_dir("mpc") == tmp_path / "c" / "mpc"
+    assert codegen._cache_root() == cache.cache_dir("mpc") == tmp_path / "c" / "mpc"
     assert (tmp_path / "c" / "mpc").is_dir()
 
 
@@ -119,7 +123,11 @@ def test_kernel_folder_changes_with_any_source_of_either_package(tmp_path):
     edited = kernel_sources_hash([env_pkg, agents_pkg])
     assert edited != base
     (agents_pkg / "b.py").write_text("")
-    assert kernel_sources_hash([env_pkg, agents_pkg]) not in (base, edited)
+    added = kernel_sources_hash([env_pkg, agents_pkg])
+    assert added not in (base, edited)
+    (agents_pkg / "sub").mkdir()                                      # a sub-package counts too
+    (agents_pkg / "sub" / "c.py").write_text("")
+    assert kernel_sources_hash([env_pkg, agents_pkg]) not in (base, edited, added)
 
 
 def test_numba_cache_points_at_the_hashed_folder():
@@ -138,7 +146,7 @@ def _script(path: Path, body: str) -> Path:
 
 
 def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypatch):
-    from agents.mpc import MPCConfig, _trajectory_function
+    from agents.mpc import MPCConfig, trajectory_function
     from racing_env.vehicle import VehicleParams
 
     from racing_env.cache import cache_root
@@ -147,7 +155,7 @@ def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypat
     monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv("CC", str(cc))
     with pytest.warns(RuntimeWarning) as record:
-        traj = _trajectory_function(VehicleParams(), MPCConfig())
+        traj = trajectory_function(VehicleParams(), MPCConfig())
     msg = "\n".join(str(w.message) for w in record)
     assert "no licence for -O3" in msg and "status 3" in msg and "interpreted" in msg
     assert not list((tmp_path / "cache" / "mpc").glob("*.so"))
@@ -156,7 +164,7 @@ def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypat
     monkeypatch.delenv("CC")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        compiled = _trajectory_function(VehicleParams(), MPCConfig())
+        compiled = trajectory_function(VehicleParams(), MPCConfig())
     K = MPCConfig().horizon
     x0 = np.array([1.0, 0.05, 0.02, 2.0, 0.1, 0.3])
     U = np.tile([[0.5], [0.1]], (1, K))
@@ -184,7 +192,7 @@ def test_mpc_agent_races_with_a_failing_compiler(tmp_path, monkeypatch):
 
 
 def test_CC_is_the_compiler(tmp_path, monkeypatch):
-    from agents.mpc import MPCConfig, _trajectory_function
+    from agents.mpc import MPCConfig, trajectory_function
     from racing_env.vehicle import VehicleParams
 
     gcc = shutil.which("gcc") or shutil.which("cc")
@@ -196,7 +204,7 @@ def test_CC_is_the_compiler(tmp_path, monkeypatch):
     monkeypatch.setenv("CC", f"'{cc}' -O1")                # a command, quoted like in a shell
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        _trajectory_function(VehicleParams(), MPCConfig(horizon=5))
+        trajectory_function(VehicleParams(), MPCConfig(horizon=5))
     assert log.read_text().startswith("-O1 ") and list((tmp_path / "cache" / "mpc").glob("*.so"))
 
 

@@ -149,6 +149,7 @@ def test_the_compiled_sqp_step_is_the_python_step_bit_for_bit():
     in a 3-car race at the limit every SQP step (trials, the accepted plan, its Jacobians and
     cost) is identical to :meth:`MPC._step_python`'s on the same inputs (the loop that runs
     with an interpreted prediction, here on the same compiled predictions)."""
+    from agents.mpc import StepCode, StepResult
     from agents.mpc_agent import MPCAgent
     from racing_env import parallel_env
 
@@ -164,19 +165,41 @@ def test_the_compiled_sqp_step_is_the_python_step_bit_for_bit():
 
         def step(*args):
             out = kernel(*args)
-            ref = mpc._step_python(*args[:len(args) - len(mpc._step_buffers)])
+            ref = mpc._step_python(*args)
+            assert isinstance(out, StepResult) and isinstance(ref, StepResult)
             for a, b in zip(out, ref):
-                if b is not None and out[0] != 0:
+                if b is not None and out.code != StepCode.REJECTED:
                     np.testing.assert_array_equal(a, b)
-            assert out[0] == ref[0] and out[1] == ref[1]
+            assert out.code == ref.code and out.J == ref.J
             calls["steps"] += 1
-            calls["codes"].add(int(out[0]))
+            calls["codes"].add(StepCode(out.code))
             return out
         return step
 
     for agent in agents:
-        assert agent.mpc._step is not agent.mpc._step_python      # compiled here (gcc in CI)
+        assert agent.mpc._step == agent.mpc._compiled_step      # compiled here (gcc in CI)
         agent.mpc._step = checked(agent.mpc)
     while env.agents:
         obs, *_ = env.step({a: ag.act(obs[a]) for a, ag in zip(env.possible_agents, agents)})
-    assert calls["steps"] > 100 and {0, 2} <= calls["codes"]     # rejected and accepted steps
+    assert calls["steps"] > 100                                      # rejected and accepted steps
+    assert {StepCode.REJECTED, StepCode.RELINEARISED} <= calls["codes"]
+
+
+def test_the_public_prediction_is_the_mpcs_own(mpc):
+    """``trajectory_function``, the prediction IBR rolls out, gives the MPC's plan, its
+    Jacobians and its rollout bit for bit on the same inputs and curvature."""
+    from agents.mpc import kappa_at_substeps, trajectory_function
+    K, cfg = mpc.cfg.horizon, mpc.cfg
+    x0 = np.array([3.0, 0.05, 0.02, 2.5, 0.1, 0.2])
+    U = mpc._follower_warm_start(x0)
+    nodes = stage_nodes(None, x0, K, cfg.dt)
+    kap = kappa_at_substeps(mpc.track, nodes, cfg.substeps)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        full = trajectory_function(mpc.vehicle, cfg)(x0, U, kap)
+        states = trajectory_function(mpc.vehicle, cfg, jacobians=False)(x0, U, kap)
+    plan = mpc._plan(x0, U, s_prev=nodes, passes=0)
+    for a, b in zip(full, plan):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(states[0], mpc._plan(x0, U, s_prev=nodes, jacobians=False,
+                                                       passes=0)[0])

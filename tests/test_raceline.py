@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -441,7 +442,7 @@ def counting_cache(tmp_path, monkeypatch):
         calls.append(1)
         return real(*a, **k)
 
-    monkeypatch.setattr(R, "compute_raceline", counted)
+    monkeypatch.setattr(R.cache, "compute_raceline", counted)
     yield calls
     R.clear_memo()
 
@@ -468,11 +469,13 @@ def test_cache_round_trip(counting_cache, tmp_path):
 
 def test_an_edit_of_the_racing_line_code_is_a_new_cache_entry(counting_cache, monkeypatch):
     """A line cached by other code is never loaded: the key covers the sources that compute it."""
-    assert {p.name for p in R.SOURCES} >= {"raceline.py", "envelope.py", "vehicle.py", "track.py"}
+    package = set(Path(R.__file__).parent.glob("*.py"))
+    assert package and set(R.SOURCES) >= package
+    assert {p.name for p in R.SOURCES} >= {"envelope.py", "vehicle.py", "track.py"}
     track = make_track("oval")
     get_raceline(track)
     old_path = R.cache_path(track)
-    monkeypatch.setattr(R, "_SOURCES_HASH", "edited-sources")
+    monkeypatch.setattr(R.config, "_SOURCES_HASH", "edited-sources")
     R.clear_memo()
     assert R.cache_path(track) != old_path
     rl = get_raceline(track)
@@ -506,6 +509,23 @@ def test_corrupt_cache_is_recomputed(counting_cache, damage):
     np.testing.assert_allclose(rl2.vx, rl1.vx)
     R.clear_memo()
     assert get_raceline(track).from_cache                   # the file was rewritten and is good
+
+
+def test_the_line_is_its_offsets_on_the_grid():
+    """compute_raceline is minimum_curvature_offsets' offsets put on the track grid by
+    path.line_on_grid, and get_raceline without a cache is compute_raceline, bit for bit."""
+    from racing_env.raceline.path import line_on_grid
+    track, cfg = make_track("oval"), RacelineConfig()
+    rl = compute_raceline(track, VEH, cfg)
+    s_sub, n_sub, info = R.minimum_curvature_offsets(track, VEH, cfg)
+    line = line_on_grid(track, VEH, cfg, s_sub, n_sub)
+    for name in ("n", "n_lo", "n_hi", "x", "y", "s", "psi", "kappa"):
+        np.testing.assert_array_equal(line[name], getattr(rl, name))
+    assert line["length"] == rl.length and line["lap_time"] == rl.lap_time
+    assert info["cost"] == rl.cost and info["iterations"] == rl.iterations
+    again = get_raceline(track, VEH, cfg, use_cache=False)
+    for name in ("n", "vx", "vx_lib", "ax_lib"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(rl, name))
 
 
 def test_get_raceline_accepts_names_and_skips_cache(counting_cache, tmp_path):

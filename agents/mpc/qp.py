@@ -1,0 +1,265 @@
+"""The MPC's problem at a plan: the cost of a rollout (tracking, input rates, the soft rows'
+penalty), the track-edge bounds and separation choices, and the condensed QP in the input
+corrections that one SQP iteration solves with DAQP."""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from racing_env.simulator import _lookup
+from racing_env.track import Track
+from racing_env.vehicle import VehicleParams
+
+from .config import MPCConfig
+
+
+@njit(cache=True)
+def condense_states(A, B, K):
+    """Sensitivities (K, 6, 2K) of every predicted state to the inputs:
+    ``G[k, r, 2j + c] = d x_r^{k+1} / d u_c^j`` (zero for j > k), from the column-major stage
+    Jacobians ``A`` (36, K), ``B`` (12, K) of the CasADi function."""
+    G = np.zeros((K, 6, 2 * K))
+    M = np.empty((6, 2))
+    T = np.empty((6, 2))
+    for j in range(K):
+        for r in range(6):
+            for c in range(2):
+                M[r, c] = B[r + 6 * c, j]
+        for k in range(j, K):
+            for r in range(6):
+                for c in range(2):
+                    G[k, r, 2 * j + c] = M[r, c]
+            if k + 1 < K:
+                for r in range(6):
+                    for c in range(2):
+                        acc = 0.0
+                        for q in range(6):
+                            acc += A[r + 6 * q, k + 1] * M[q, c]
+                        T[r, c] = acc
+                M[:, :] = T
+    return G
+
+
+@njit(cache=True)
+def condense(A, B, n_steps):
+    """Sensitivities of (s, n) at stages 1..K to the inputs: (2K, 2K) rows [s^1, n^1, ...],
+    ``G[2k + r, 2j + c] = d x_r^{k+1} / d u_c^j`` (rows r = 0, 1 of :func:`condense_states`)."""
+    return np.ascontiguousarray(condense_states(A, B, n_steps)[:, :2, :]).reshape(2 * n_steps,
+                                                                                  2 * n_steps)
+
+
+@njit(cache=True)
+def _grid_interp(table, s, ds, length):
+    """The simulator's periodic grid interpolation (``_lookup``) at every element of ``s``."""
+    out = np.empty_like(s)
+    flat_s, flat_o = s.ravel(), out.ravel()
+    for i in range(flat_s.size):
+        flat_o[i] = _lookup(table, flat_s[i], ds, length)
+    return out
+
+
+class EdgeBounds:
+    """Bounds on the car centre's lateral offset: the track edges minus half the car width and
+    the MPC's ``track_margin``; ``(lo, hi) = bounds(s)`` for any array of (unwrapped) s."""
+
+    def __init__(self, track: Track, vehicle: VehicleParams, cfg: MPCConfig):
+        half = 0.5 * vehicle.width + cfg.track_margin
+        self.track = track
+        self.lo_table = np.ascontiguousarray(-track.w_right + half)    # per track station
+        self.hi_table = np.ascontiguousarray(track.w_left - half)
+
+    def __call__(self, s):
+        t = self.track
+        s = np.ascontiguousarray(s, dtype=float)
+        return (_grid_interp(self.lo_table, s, t.ds, t.length),
+                _grid_interp(self.hi_table, s, t.ds, t.length))
+
+
+def separation_choice(s_pred, n_pred, opponent, cfg: MPCConfig):
+    """Which separation to impose against one opponent at each predicted stage k = 1..K.
+
+    ``opponent = (s_j, n_j, s_dot_j)`` moves at constant progress rate and lateral position.
+    Returns ``(near, lateral, sign, s_jk)`` (K,) each: constrain only ``near`` stages
+    (``|s - s_j^k| < sep_window``); there impose ``sign * (n - n_j) >= sep_n`` where
+    ``lateral`` else ``sign * (s - s_j^k) >= sep_s``: the separation the nominal prediction
+    satisfies with the larger margin, on the side where the nominal is.
+    """
+    s_j, n_j, v_j = opponent
+    s_jk = s_j + v_j * cfg.dt * np.arange(1, len(s_pred) + 1)
+    ds, dn = s_pred - s_jk, n_pred - n_j
+    near = np.abs(ds) < cfg.sep_window
+    lateral = np.abs(dn) / cfg.sep_n >= np.abs(ds) / cfg.sep_s
+    sign = np.where(np.where(lateral, dn, ds) >= 0.0, 1.0, -1.0)
+    return near, lateral, sign, s_jk
+
+
+def input_rate_matrix(K: int) -> np.ndarray:
+    """``DtD`` (2K, 2K) on the stacked inputs ``[d0, delta0, d1, ...]``:
+    ``u^T DtD u = sum_{k=1..K-1} ||u^k - u^{k-1}||^2``."""
+    D = np.zeros((2 * (K - 1), 2 * K))
+    for k in range(1, K):
+        D[2 * (k - 1):2 * k, 2 * k:2 * k + 2] = np.eye(2)
+        D[2 * (k - 1):2 * k, 2 * (k - 1):2 * k] = -np.eye(2)
+    return D.T @ D
+
+
+@njit(cache=True)
+def qp_arrays(G, s_pred, n_pred, s_ref, n_ref, q, DtD, u_vec, delta_applied, rate, nlo, nhi,
+              opponents, dt, sep_s, sep_n, sep_window):
+    """The condensed QP in the input corrections ``du`` (2K,) for DAQP, built in one pass.
+
+    Cost ``0.5 du' H du + f' du`` of ``q ||(s, n) - ref||^2 + ||D u||^2``; constraint rows
+    ``blo <= Acon du <= bhi`` after the 2K simple input bounds (which lead ``blo``/``bhi``):
+    K steering-rate rows (hard), K track-edge rows on n (soft), and one separation row per
+    opponent and nearby stage (soft), chosen exactly as :func:`separation_choice` does.
+    ``opponents`` (M, 3) rows ``(s, n, s_dot)``; ``sense`` is DAQP's (0 hard, 8 soft).
+    """
+    K = s_pred.shape[0]
+    nv = 2 * K
+    sn_err = np.empty(nv)
+    for k in range(K):
+        sn_err[2 * k] = s_pred[k] - s_ref[k]
+        sn_err[2 * k + 1] = n_pred[k] - n_ref[k]
+    H = 2.0 * (q * (G.T @ G) + DtD)
+    for i in range(nv):
+        H[i, i] += 1e-8
+    f = 2.0 * (q * (G.T @ sn_err) + DtD @ u_vec)
+    M = opponents.shape[0]
+    rows = np.zeros((2 * K + M * K, nv))
+    lo = np.empty(2 * K + M * K)
+    hi = np.empty(2 * K + M * K)
+    soft = np.zeros(2 * K + M * K, dtype=np.int32)
+    # steering rate: delta^k - delta^{k-1} within +-rate (normalised), delta^{-1} applied
+    for k in range(K):
+        rows[k, 2 * k + 1] = 1.0
+        d_now = u_vec[2 * k + 1] - (u_vec[2 * k - 1] if k else delta_applied)
+        if k:
+            rows[k, 2 * k - 1] = -1.0
+        lo[k] = -rate - d_now
+        hi[k] = rate - d_now
+    # track edges on n (soft)
+    for k in range(K):
+        rows[K + k, :] = G[2 * k + 1, :]
+        lo[K + k] = nlo[k] - n_pred[k]
+        hi[K + k] = nhi[k] - n_pred[k]
+        soft[K + k] = 8
+    r = 2 * K
+    for m in range(M):
+        s_j, n_j, v_j = opponents[m, 0], opponents[m, 1], opponents[m, 2]
+        for k in range(K):
+            s_jk = s_j + v_j * dt * (k + 1)
+            ds = s_pred[k] - s_jk
+            dn = n_pred[k] - n_j
+            if not abs(ds) < sep_window:
+                continue
+            lateral = abs(dn) / sep_n >= abs(ds) / sep_s
+            gap = dn if lateral else ds
+            sign = 1.0 if gap >= 0.0 else -1.0
+            row = 2 * k + 1 if lateral else 2 * k
+            for c in range(nv):
+                rows[r, c] = sign * G[row, c]
+            lo[r] = (sep_n if lateral else sep_s) - sign * gap
+            hi[r] = 1e30
+            soft[r] = 8
+            r += 1
+    blo = np.empty(nv + r)
+    bhi = np.empty(nv + r)
+    sense = np.zeros(nv + r, dtype=np.int32)
+    for i in range(nv):
+        blo[i] = -1.0 - u_vec[i]
+        bhi[i] = 1.0 - u_vec[i]
+    blo[nv:] = lo[:r]
+    bhi[nv:] = hi[:r]
+    sense[nv:] = soft[:r]
+    return H, f, rows[:r].copy(), blo, bhi, sense
+
+
+@njit(cache=True)
+def plan_cost(s_pred, n_pred, s_ref, n_ref, q, u_vec, nlo, nhi, opponents, dt, sep_s, sep_n,
+              sep_window, w_soft):
+    """The MPC's objective at a plan's rollout (:func:`qp_arrays`' cost before linearisation):
+    ``q ||(s, n) - ref||^2 + ||D u||^2 + w_soft * (sum of squared violations of the track
+    edges and of the separations, chosen per stage as in qp_arrays)``."""
+    K = s_pred.shape[0]
+    J = 0.0
+    for k in range(K):
+        J += q * ((s_pred[k] - s_ref[k]) ** 2 + (n_pred[k] - n_ref[k]) ** 2)
+        v = max(n_pred[k] - nhi[k], nlo[k] - n_pred[k], 0.0)
+        J += w_soft * v * v
+    for k in range(1, K):
+        J += (u_vec[2 * k] - u_vec[2 * k - 2]) ** 2 + (u_vec[2 * k + 1] - u_vec[2 * k - 1]) ** 2
+    for m in range(opponents.shape[0]):
+        s_j, n_j, v_j = opponents[m, 0], opponents[m, 1], opponents[m, 2]
+        for k in range(K):
+            ds = s_pred[k] - (s_j + v_j * dt * (k + 1))
+            dn = n_pred[k] - n_j
+            if not abs(ds) < sep_window:
+                continue
+            if abs(dn) / sep_n >= abs(ds) / sep_s:
+                v = max(sep_n - abs(dn), 0.0)
+            else:
+                v = max(sep_s - abs(ds), 0.0)
+            J += w_soft * v * v
+    return J
+
+
+@njit(cache=True)
+def predicted_decrease(H, f, Acon, blo, bhi, sense, du, w_soft):
+    """Decrease of the QP's model of the cost (:func:`qp_arrays`' quadratic plus the soft rows'
+    penalty ``w_soft v^2``) from ``du = 0`` to the step ``du``: what the linearisation
+    promises, in the units of :func:`plan_cost`."""
+    nv = du.shape[0]
+    gain = -(0.5 * du @ (H @ du) + f @ du)
+    a = Acon @ du
+    for r in range(a.shape[0]):
+        if sense[nv + r] == 8:
+            lo, hi = blo[nv + r], bhi[nv + r]
+            v_old = max(lo, -hi, 0.0)
+            v_new = max(lo - a[r], a[r] - hi, 0.0)
+            gain += w_soft * (v_old * v_old - v_new * v_new)
+    return gain
+
+
+@njit(cache=True)
+def _all_finite(a):
+    for v in a.ravel():
+        if not np.isfinite(v):
+            return False
+    return True
+
+
+@njit(cache=True)
+def linearised_qp(X, A, B, s_ref, n_ref, q, DtD, u_vec, delta_applied, rate, nlo, nhi,
+                  opponents, dt, sep_s, sep_n, sep_window):
+    """One SQP iteration's QP at the plan ``X`` (6, K) with stage Jacobians ``A`` (36, K),
+    ``B`` (12, K), in one call: ``(ok, G, H, f, Acon, blo, bhi, sense)`` with ``G`` from
+    :func:`condense` and the rest from :func:`qp_arrays`; ``ok`` False (and the arrays empty)
+    when the prediction is not finite."""
+    K = X.shape[1]
+    if not (_all_finite(X) and _all_finite(A) and _all_finite(B)):
+        e = np.empty((0, 0))
+        return False, e, e, np.empty(0), e, np.empty(0), np.empty(0), np.empty(0, np.int32)
+    G = condense(A, B, K)
+    H, f, Acon, blo, bhi, sense = qp_arrays(G, X[0], X[1], s_ref, n_ref, q, DtD, u_vec,
+                                            delta_applied, rate, nlo, nhi, opponents, dt, sep_s,
+                                            sep_n, sep_window)
+    return True, G, H, f, Acon, blo, bhi, sense
+
+
+@njit(cache=True)
+def score_rollout(X, u_vec, s_ref, n_ref, q, lo_tab, hi_tab, ds, length, opponents, dt, sep_s,
+                  sep_n, sep_window, w_soft):
+    """``(cost, lo, hi)`` of a plan's rollout ``X`` (6, K) in one pass: the bounds (K,) on n
+    along ``X[0]`` (:class:`EdgeBounds`) and :func:`plan_cost` on them; ``inf`` cost (and
+    bounds not filled) for a non-finite rollout."""
+    K = X.shape[1]
+    lo = np.empty(K)
+    hi = np.empty(K)
+    if not _all_finite(X):
+        return np.inf, lo, hi
+    for k in range(K):
+        lo[k] = _lookup(lo_tab, X[0, k], ds, length)
+        hi[k] = _lookup(hi_tab, X[0, k], ds, length)
+    J = plan_cost(X[0], X[1], s_ref, n_ref, q, u_vec, lo, hi, opponents, dt, sep_s, sep_n,
+                  sep_window, w_soft)
+    return J, lo, hi

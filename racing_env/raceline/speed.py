@@ -1,0 +1,109 @@
+"""The speed profile along a closed path for the car's g-g-v envelope scaled by ``mu``
+(:mod:`racing_env.envelope`): forward (drive) and backward (braking) passes around the lap
+until nothing changes, and the lap time of a profile."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..envelope import envelope_at, ggv
+from ..vehicle import VehicleParams
+
+G = 9.81
+"""Gravitational acceleration [m/s^2]."""
+
+
+def accel_limits(v, kappa, mu: float, vehicle: VehicleParams | None = None):
+    """Largest acceleration and deceleration [m/s^2] (deceleration >= 0) at speed ``v`` [m/s]
+    on a path of curvature ``kappa`` [1/m] for the car's g-g-v envelope scaled by ``mu``
+    (:mod:`racing_env.envelope`); arrays broadcast.
+
+    ``a_acc = mu ax_max(v, v^2 |kappa|)`` is the drive acceleration on top of that corner: it is
+    *negative* where the motor cannot hold the speed in the corner (the car slows through it).
+    ``a_brk = -mu ax_min(v, v^2 |kappa|)``. A lateral demand beyond the envelope counts as at it.
+    """
+    env = ggv(vehicle or VehicleParams())
+    v = np.asarray(v, dtype=float)
+    hi, lo = env.longitudinal_limits(v, v * v * np.abs(np.asarray(kappa, dtype=float)), mu)
+    return hi, np.maximum(-lo, 0.0)
+
+
+def speed_limit(kappa, mu: float, vehicle: VehicleParams | None = None):
+    """Quasi-steady speed cap [m/s] of curvature ``kappa`` [1/m] (any shape): the highest speed
+    at which the envelope scaled by ``mu`` holds ``v^2 |kappa|`` (the steering bound at low
+    speed, the tyres above), and never above the top speed (:meth:`GGV.corner_speed`)."""
+    return ggv(vehicle or VehicleParams()).corner_speed(kappa, mu)
+
+
+def speed_profile(kappa, ds, mu: float, vehicle: VehicleParams | None = None, max_sweeps: int = 50):
+    """Periodic speed profile ``(vx, ax)`` [m/s], [m/s^2] on a closed path, shapes (M,).
+
+    ``kappa`` [1/m] at the M points, ``ds[k]`` [m] the distance from point k to point k+1
+    (the last one closes the lap); ``mu`` scales the car's g-g-v envelope
+    (:func:`racing_env.envelope.ggv`; 1 = the car's own limit). Starts from
+    :func:`speed_limit` and repeats a forward (drive) and a backward (braking) pass around the
+    lap until no speed changes; the result satisfies
+    ``v[k+1]^2 - v[k]^2 <= 2 ds[k] a_acc(v[k], kappa[k])`` and
+    ``v[k]^2 - v[k+1]^2 <= 2 ds[k] a_brk(v[k+1], kappa[k+1])`` (indices mod M, see
+    :func:`accel_limits`; ``a_acc`` may be negative in fast corners, where the car slows).
+    ``ax[k] = (v[k+1]^2 - v[k]^2) / (2 ds[k])`` is the acceleration on segment k.
+    """
+    p = vehicle or VehicleParams()
+    kappa = np.asarray(kappa, dtype=float)
+    ds = np.asarray(ds, dtype=float)
+    if kappa.shape != ds.shape or kappa.ndim != 1 or len(kappa) < 2:
+        raise ValueError(f"speed_profile needs kappa and ds of equal 1-D shape, got {kappa.shape}, {ds.shape}")
+    if not (np.all(np.isfinite(kappa)) and np.all(np.isfinite(ds)) and np.all(ds > 0)):
+        raise ValueError("speed_profile needs finite kappa and finite positive ds")
+    if not (math.isfinite(mu) and 0 < mu <= 1.5):
+        raise ValueError(f"envelope scale mu must be in (0, 1.5], got {mu!r}")
+    env = ggv(p)
+    v2 = speed_limit(kappa, mu, p) ** 2
+    v_tab, ay_tab, r_tab, axp_tab, axm_tab = env.tables(mu)
+    ok = _profile_sweeps(v2, np.abs(kappa), ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab,
+                         int(np.argmin(v2)), int(max_sweeps))
+    if not ok:
+        raise RuntimeError(f"speed profile did not settle in {max_sweeps} sweeps")
+    vx = np.sqrt(v2)
+    ax = (np.roll(v2, -1) - v2) / (2.0 * ds)
+    return vx, ax
+
+
+@njit(cache=True)
+def _profile_sweeps(v2, kab, ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab, start, max_sweeps):
+    """Forward/backward passes of :func:`speed_profile` on ``v2`` (squared speeds, in place);
+    False if they did not settle in ``max_sweeps``."""
+    m = v2.shape[0]
+    for _ in range(max_sweeps):
+        changed = False
+        for j in range(m):                                   # forward: drive
+            k = (start + j) % m
+            k1 = k + 1 if k + 1 < m else 0
+            vk2 = v2[k]
+            vk = math.sqrt(vk2)
+            a = envelope_at(vk, vk2 * kab[k], v_tab, ay_tab, r_tab, axp_tab)
+            cand = max(vk2 + 2.0 * ds[k] * a, 0.0)
+            if cand < v2[k1] * (1.0 - 1e-12):
+                v2[k1] = cand
+                changed = True
+        for j in range(m):                                   # backward: braking
+            k1 = (start - j) % m
+            k = k1 - 1 if k1 > 0 else m - 1
+            vk2 = v2[k1]
+            vk = math.sqrt(vk2)
+            a = -envelope_at(vk, vk2 * kab[k1], v_tab, ay_tab, r_tab, axm_tab)
+            cand = vk2 + 2.0 * ds[k] * max(a, 0.0)
+            if cand < v2[k] * (1.0 - 1e-12):
+                v2[k] = cand
+                changed = True
+        if not changed:
+            return True
+    return False
+
+
+def lap_time_of(vx, ds) -> float:
+    """Lap time [s] of a periodic profile: ``sum 2 ds[k] / (v[k] + v[k+1])``."""
+    vx = np.asarray(vx, dtype=float)
+    return float(np.sum(2.0 * np.asarray(ds) / np.maximum(vx + np.roll(vx, -1), 1e-12)))
