@@ -57,9 +57,10 @@ PASS_OPPONENTS = "raceline"
 #: Procedural tracks that no test, collection or model training uses (the general model saw
 #: random:0-299, its held-out report random:10000-10019; see agents/models/MODEL_CARD.md).
 DEFAULT_TRACKS = ("default", "random:20001", "random:20002")
-#: The defend ego's zeta ceiling. Measured alone from the grid (13 s and 30 s): a
-#: ``zeta=1.02`` MPC covers 4.4-5.5% more than the same MPC under a 0.94 ceiling on the three
-#: default tracks (docs: "Strategy benchmark").
+#: The defend ego's zeta ceiling. Measured alone from the grid on the three default tracks: a
+#: ``zeta=1.02`` MPC (and the box's corner ``q=5,zeta=1.05,s1=0.3,s2=0.5,s3=5``) covers
+#: 4.8-5.3% more in 13 s and 4.8-5.6% more in 30 s than the same MPC under a 0.94 ceiling;
+#: 0.95 gave 3.2-4.5%, too close to :data:`PACE_GAP` (docs: "Strategy benchmark").
 ZETA_MAX = 0.94
 #: The least solo pace advantage [fraction] of the defend scenario's opponents.
 PACE_GAP = 0.03
