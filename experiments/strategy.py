@@ -248,10 +248,11 @@ def strategy(config: StrategyConfig, out_dir="results/strategy", workers: int = 
     out.mkdir(parents=True, exist_ok=True)
     todo_cells = cells(config)
     check_agent_specs(dict.fromkeys(a for c in todo_cells for a in c.config.agents))
+    # every folder claimed first: one of another config fails before any race
+    runs = {(c.bench, c.track, c.role): BenchRun(c.folder(out), c.config) for c in todo_cells}
     pace = None
     if "defend" in config.scenarios:
         pace = measure_pace(config, out, workers, backend, address, progress_bar)
-    runs = {(c.bench, c.track, c.role): BenchRun(c.folder(out), c.config) for c in todo_cells}
     new = sum(len(run.missing()) for run in runs.values())
     t0 = time.perf_counter()
     _run_many(runs, workers, backend, address, progress_bar)
