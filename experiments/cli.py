@@ -514,8 +514,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="scenarios to run (table1 is three benches: ibr, ppo, alpha opponents)")
     sg.add_argument("--races", type=int, default=d["races"], help="races per bench")
     sg.add_argument("--steps", type=int, default=d["steps"],
-                    help="steps of 0.1 s per race (the default fits the full suite in about "
-                         "40 min on 2 cores)")
+                    help="steps of 0.1 s per race (the default fits the full suite in 45 min "
+                         "on 2 cores)")
     sg.add_argument("--zeta-max", type=float, default=d["zeta_max"],
                     help="defend: the ego's zeta ceiling (the same for ego and control)")
     sg.add_argument("--seed", type=int, default=d["seed"],

@@ -59,8 +59,8 @@ PASS_OPPONENTS = "raceline"
 DEFAULT_TRACKS = ("default", "random:20001", "random:20002")
 #: The defend ego's zeta ceiling. Measured alone from the grid on the three default tracks: a
 #: ``zeta=1.02`` MPC (and the box's corner ``q=5,zeta=1.05,s1=0.3,s2=0.5,s3=5``) covers
-#: 4.8-5.3% more in 13 s and 4.8-5.6% more in 30 s than the same MPC under a 0.94 ceiling;
-#: 0.95 gave 3.2-4.5%, too close to :data:`PACE_GAP` (docs: "Strategy benchmark").
+#: 4.6-5.2% more in 12 s and 4.8-5.6% more in 30 s than the same MPC under a 0.94 ceiling;
+#: 0.95 gave 3.2-4.5% (12-30 s), too close to :data:`PACE_GAP` (docs: "Strategy benchmark").
 ZETA_MAX = 0.94
 #: The least solo pace advantage [fraction] of the defend scenario's opponents.
 PACE_GAP = 0.03
@@ -83,17 +83,18 @@ class StrategyConfig:
     agents' seeds (race k of every bench has the seed of ``(seed, k)``); ``zeta_max`` is the
     defend ego's speed-scale ceiling.
 
-    ``steps`` defaults to 130 (13 s): the full suite (6 benches x 2 egos x 3 tracks x 99
-    races) then takes about 40 min on 2 cores, from races measured at 0.4 s (``pass``), 1.1 s
-    (``equal``, ``defend``), 2.0 s (``table1_ibr``), 0.5 s (``table1_ppo``) and 1.3 s
-    (``table1_alpha``) per 100 steps on one core (docs: "Strategy benchmark")."""
+    ``steps`` defaults to 120 (12 s): the full suite (6 benches x 2 egos x 3 tracks x 99
+    races = 3564 races) then takes 37-44 min on 2 cores, from races measured at 0.4 s
+    (``pass``), 1.1 s (``equal``, ``defend``), 2.0 s (``table1_ibr``), 0.5 s (``table1_ppo``)
+    and 1.3 s (``table1_alpha``) per 100 steps on one core, and at 1.6 s per 130-step race
+    of a whole 72-race suite, worker start-up included (docs: "Strategy benchmark")."""
 
     ego: str = "alpha"
     control: str = "mpc:theta=best"
     tracks: tuple[str, ...] = DEFAULT_TRACKS
     scenarios: tuple[str, ...] = SCENARIOS
     races: int = 99
-    steps: int = 130
+    steps: int = 120
     seed: int = 0
     zeta_max: float = ZETA_MAX
 
