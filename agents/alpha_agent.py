@@ -51,7 +51,10 @@ class AlphaAgent(MPCAgent):
     ``vehicle``, ``n_preview``, ``line``). A single-track model must have been trained for the race's
     number of cars (and warns on another track); a general model (``model="general"``, see
     :mod:`agents.general_features`) races any field of 2..8 cars on any track, and warns when
-    the field size is outside the range it was trained on.
+    the field size is outside the range it was trained on. With ``zeta_max`` (an
+    :class:`MPCAgent` keyword) the maximisation runs in the box with the agent's own zeta
+    capped there (the others' thetas keep the full box): the best theta the potential finds
+    under the ceiling, not the unconstrained one clipped afterwards.
     """
 
     def __init__(self, model=AUTO, restarts: int = 4, iterations: int = 3,
@@ -133,10 +136,14 @@ class AlphaAgent(MPCAgent):
                 self.model = cached_model(auto_model(self.track.name, len(joint)))
                 self._check_track()
             self._check_field(len(joint))
+        high = None
+        if self.zeta_max is not None:                            # the ego's zeta ceiling
+            high = np.tile(THETA_HIGH, (len(joint), 1))
+            high[0, 1] = self.zeta_max
         theta, phi = self.model.maximise(
             joint, self.track, self._theta_joint, rng=self._rng,
             restarts=self.cold_restarts if cold else self.restarts,
-            iterations=self.cold_iterations if cold else self.iterations)
+            iterations=self.cold_iterations if cold else self.iterations, high=high)
         self._theta_joint = theta
         self.theta = Theta.from_array(np.clip(theta[0], THETA_LOW, THETA_HIGH))
         self.last_potential = phi

@@ -1,6 +1,8 @@
 """The fixed-parameter MPC agent: the paper's policy pi(x; theta) for one fixed theta."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from racing_env.track import Track
@@ -59,6 +61,11 @@ class MPCAgent:
     thread (:func:`agents.threads.single_blas_thread`), so its results cannot depend on the
     process's thread count (OpenBLAS measured different last bits with two threads for a
     100 x 100 float64 product with a transposed operand, the MPC's sizes).
+
+    ``zeta_max`` (default ``None``: no ceiling), a speed-scale ceiling in the theta box's
+    zeta range [0.8, 1.05]: the MPC drives with ``min(zeta, zeta_max)`` whatever its theta
+    says (``alpha-racer strategy``'s defend scenario handicaps the ego with it; the alpha
+    agent maximises its potential within the lowered box instead).
     """
 
     #: theta's bounds (:data:`agents.reference.THETA_LOW` / ``THETA_HIGH``), for ``alpha-racer agents``
@@ -67,9 +74,16 @@ class MPCAgent:
     def __init__(self, q: float = 20.0, zeta: float = 0.9, s1: float = 0.1, s2: float = 4.0,
                  s3: float = 1.0, config: MPCConfig | None = None,
                  vehicle: VehicleParams | None = None, n_preview: int = 10,
-                 line: str = "curvature"):
+                 line: str = "curvature", zeta_max: float | None = None):
         from racing_env.raceline import RacelineConfig
         self.theta = Theta(q=q, zeta=zeta, s1=s1, s2=s2, s3=s3)
+        lo, hi = THETA_LOW[1], THETA_HIGH[1]
+        if zeta_max is not None and (isinstance(zeta_max, bool) or
+                                     not isinstance(zeta_max, (int, float)) or
+                                     not lo <= zeta_max <= hi):
+            raise ValueError(f"zeta_max must be a number in the theta box's zeta range "
+                             f"[{lo:g}, {hi:g}], got {zeta_max!r}")
+        self.zeta_max = None if zeta_max is None else float(zeta_max)
         self.raceline_config = RacelineConfig(objective=line)     # names line and choices if bad
         self.n_preview = n_preview      # the env's RaceConfig.n_preview (observation layout)
         self.config = config or MPCConfig()
@@ -89,6 +103,13 @@ class MPCAgent:
         self._u_prev = np.zeros(2)
 
     @property
+    def driven_theta(self) -> Theta:
+        """The theta the MPC drives with: ``theta`` with its zeta capped at ``zeta_max``."""
+        if self.zeta_max is None or self.theta.zeta <= self.zeta_max:
+            return self.theta
+        return replace(self.theta, zeta=self.zeta_max)
+
+    @property
     def line(self) -> str:
         """The racing line this agent's reference follows (``RacelineConfig.objective``)."""
         return self.raceline_config.objective
@@ -106,7 +127,8 @@ class MPCAgent:
             raise RuntimeError("MPCAgent.act() before reset(track, ...)")
         with single_blas_thread():       # results independent of the BLAS thread count
             ego, others = split_observation(observation, self.n_preview)
-            ref = reference_trajectory(self.theta, ego, others if len(others) else None,
+            theta = self.driven_theta
+            ref = reference_trajectory(theta, ego, others if len(others) else None,
                                        self.raceline, self.track, K=self.config.horizon,
                                        dt=self.config.dt)
             neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
@@ -114,6 +136,6 @@ class MPCAgent:
             if neighbours:
                 o = others[neighbours]
                 opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, self.track)])
-            u = self.mpc.solve(ego, ref.s_ref, ref.n_ref, self.theta.q, opp, self._u_prev)
+            u = self.mpc.solve(ego, ref.s_ref, ref.n_ref, theta.q, opp, self._u_prev)
             self._u_prev = u
             return u.astype(np.float32)

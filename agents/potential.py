@@ -129,9 +129,14 @@ class PotentialModel:
 
     def maximise(self, state, track, theta0=None, restarts: int | None = None,
                  iterations: int | None = None, rng: np.random.Generator | None = None,
-                 step: float = 0.5, warm_step: float = 0.15, decay: float = 0.8):
+                 step: float = 0.5, warm_step: float = 0.15, decay: float = 0.8,
+                 high: np.ndarray | None = None):
         """Projected gradient ascent (Adam steps) of Phi(x, .) over the joint theta within its
         bounds; returns ``(theta* (N, 5), Phi*)``, the best iterate seen.
+
+        ``high`` (N, 5), optional: per-car upper bounds within the box (e.g. a car's zeta
+        ceiling); every start and iterate is projected onto the lowered box. Without it the
+        ascent is the same, bit for bit.
 
         ``state`` (N, 6) joint state; ``theta0`` (N, 5) warm start (e.g. the last step's
         maximiser), else the box centre; the other ``restarts - 1`` starts are uniform random
@@ -161,10 +166,21 @@ class PotentialModel:
         N = np.shape(state)[0]
         rng, slots, base = self._ascent_setup(state, track, restarts, iterations, rng)
         slots = slots.ravel()                                            # car-major columns
+        top = 1.0
+        if high is not None:
+            high = np.asarray(high, dtype=float)
+            if high.shape != (N, 5) or not (np.all(high >= THETA_LOW) and
+                                            np.all(high <= THETA_HIGH)):
+                raise ValueError(f"high must be (N, 5) = ({N}, 5) upper bounds within the theta "
+                                 f"box {THETA_LOW.tolist()}..{THETA_HIGH.tolist()}, got "
+                                 f"{high.tolist() if high.size <= 40 else high.shape}")
+            top = scale_theta(high).ravel()
         Z = np.empty((restarts, N * 5))
         Z[0] = 0.0 if theta0 is None else scale_theta(theta0).ravel()
         for k in range(1, restarts):                  # the draws of maximise_reference
             Z[k] = rng.uniform(-1.0, 1.0, (N, 5)).ravel()
+        if high is not None:
+            Z = np.minimum(Z, top)
         lr = np.full((restarts, 1), step)
         if theta0 is not None:
             lr[0] = warm_step
@@ -187,7 +203,7 @@ class PotentialModel:
                 v = 0.9 * v + 0.1 * g * g
                 m_hat = m / (1.0 - 0.2 ** (it + 1))
                 v_hat = v / (1.0 - 0.9 ** (it + 1))
-                Z = np.clip(Z + lr * m_hat / (np.sqrt(v_hat) + 1e-12), -1.0, 1.0)
+                Z = np.clip(Z + lr * m_hat / (np.sqrt(v_hat) + 1e-12), -1.0, top)
                 lr *= decay
         return unscale_theta(best_z.reshape(N, 5)), best_val
 

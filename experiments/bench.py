@@ -22,6 +22,14 @@ Output directory:
   for animations of the benchmark's own races.
 * ``summary.json`` and ``summary.md``: :func:`summarise`.
 
+Every record carries the race's strategy metrics (:mod:`experiments.metrics`: passes per car,
+passes through contact, whether the winner came from behind, time within 1 m behind),
+computed from the stored float32 states; a folder written before they existed gets them
+recomputed from its ``states/`` when summarised.
+
+``ego_regions`` (``alpha-racer strategy``) fixes the ego's start region per race instead of
+the rotation: race k puts the ego in ``ego_regions[k mod len]``.
+
 ``alpha-racer bench --paper-table`` runs the paper's five cases (:data:`PAPER_CASES`) with one
 pool over all their races and writes ``paper_table.md`` beside the paper's numbers.
 """
@@ -34,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import metrics as race_metrics
 from .artifacts import (append_jsonl, claim, env_version, read_jsonl, write_json, write_npz,
                         write_text)
 from .parallel import check_backend, run_tasks_with_progress
@@ -76,7 +85,9 @@ class BenchConfig:
     ``opponents`` (one agent spec, used for O1, O2, ...) in ``races`` races of ``steps`` steps
     on ``track``. Race k's start positions and the agents' seeds come from ``(seed, k)``.
     With N != 3 cars, ``races`` must be a multiple of N (the ego starts from every region
-    equally often); the paper's 3-car benchmark takes any count, as it always has."""
+    equally often); the paper's 3-car benchmark takes any count, as it always has.
+    ``ego_regions`` (region names, e.g. ``("R2", "R3")``) replaces the ego's rotation through
+    every region by a cycle through these (any race count; :meth:`order`)."""
 
     ego: str = "alpha"
     opponents: str = "mpc"
@@ -85,6 +96,7 @@ class BenchConfig:
     track: str = "default"
     seed: int = 0
     n_cars: int = 3
+    ego_regions: tuple[str, ...] | None = None
 
     def __post_init__(self):
         for name in ("races", "steps"):
@@ -94,7 +106,14 @@ class BenchConfig:
         if isinstance(self.n_cars, bool) or not (isinstance(self.n_cars, int)
                                                   and 2 <= self.n_cars <= 8):
             raise ValueError(f"BenchConfig.n_cars must be an integer in 2..8, got {self.n_cars!r}")
-        if self.n_cars != 3 and self.races % self.n_cars:
+        if self.ego_regions is not None:
+            object.__setattr__(self, "ego_regions", tuple(self.ego_regions))
+            bad = [r for r in self.ego_regions if r not in self.regions]
+            if not self.ego_regions or bad:
+                raise ValueError(f"BenchConfig.ego_regions must be a non-empty sequence of "
+                                 f"start regions of {', '.join(self.regions)}, got "
+                                 f"{list(self.ego_regions)}")
+        elif self.n_cars != 3 and self.races % self.n_cars:
             raise ValueError(f"BenchConfig.races must be a multiple of n_cars = {self.n_cars} "
                              f"(every start region equally often), got {self.races}")
         for name in ("ego", "opponents"):
@@ -120,6 +139,10 @@ class BenchConfig:
         d = asdict(self)
         if d["n_cars"] == 3:
             del d["n_cars"]
+        if d["ego_regions"] is None:
+            del d["ego_regions"]
+        else:
+            d["ego_regions"] = list(d["ego_regions"])
         return d
 
     def race_seed(self, k: int) -> int:
@@ -131,6 +154,15 @@ class BenchConfig:
         the opponents take the other regions front to back (O1 the front-most)."""
         ego = k % n_cars
         return [ego] + [r for r in range(n_cars) if r != ego]
+
+    def order(self, k: int) -> list[int]:
+        """Start regions (0 = R1) of ego, O1, O2, ... in race k of this benchmark:
+        :meth:`start_order`, or with ``ego_regions`` the ego in ``ego_regions[k mod len]``
+        and the opponents in the other regions front to back."""
+        if self.ego_regions is None:
+            return self.start_order(k, self.n_cars)
+        ego = self.regions.index(self.ego_regions[k % len(self.ego_regions)])
+        return [ego] + [r for r in range(self.n_cars) if r != ego]
 
 
 def check_agent_specs(specs) -> None:
@@ -145,13 +177,14 @@ def bench_race(config: BenchConfig, k: int) -> dict:
     from .race import run_race
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
-    seed, order = config.race_seed(k), config.start_order(k, config.n_cars)
+    seed, order = config.race_seed(k), config.order(k)
     result, _ = run_race(config.agents, track=config.track, seed=seed, max_cycles=config.steps,
                          start="regions", order=order, progress_bar=False)
     if not np.isfinite(result.states).all():
         raise FloatingPointError(f"benchmark race {k} produced non-finite states")
     p = result.progress
     winner = int(np.argmax(p))
+    states = result.states.astype(np.float32)
     reg = config.regions
     record = {
         "race": k, "seed": seed, "ego_region": reg[order[0]],
@@ -163,9 +196,11 @@ def bench_race(config: BenchConfig, k: int) -> dict:
         "contacts": result.contacts.tolist(), "off_tracks": result.off_tracks.tolist(),
         "decision_ms": [round(float(v), 4) for v in result.decision_ms],
         "fallbacks": [int(st.get("fallbacks", 0)) for st in result.agent_stats],
+        # from the states as stored, so a summary recomputing them finds the same numbers
+        **race_metrics.record_metrics(states, result.dt, result.contact_dn),
         "seconds": round(time.perf_counter() - t0, 3),
     }
-    return {"record": record, "states": result.states.astype(np.float32)}
+    return {"record": record, "states": states}
 
 
 # ---------------------------------------------------------------------------- storage
@@ -207,8 +242,18 @@ class BenchRun:
         with np.load(self._states_path(k)) as z:
             return z["states"]
 
+    def records_with_metrics(self) -> dict[int, dict]:
+        """:meth:`records`, each with its strategy metrics: those of a record written before
+        they existed are computed from its stored states (with the default race config's
+        ``dt`` and contact box, the only ones a benchmark races with)."""
+        out = self.records()
+        for k, rec in out.items():
+            if any(key not in rec for key in race_metrics.RECORD_KEYS):
+                out[k] = {**rec, **race_metrics.record_metrics(self.states(k), *_race_dt_dn())}
+        return out
+
     def write_summary(self) -> dict:
-        summary = summarise(list(self.records().values()), self.config)
+        summary = summarise(list(self.records_with_metrics().values()), self.config)
         write_json(self.out / "summary.json", summary)
         write_text(self.out / "summary.md", summary_markdown(summary))
         return summary
@@ -234,6 +279,13 @@ def win_share(wins: int, races: int) -> dict:
     """``{"wins", "races", "fraction", "ci95"}``: a win count with its Wilson 95% interval."""
     lo, hi = wilson_interval(wins, races)
     return {"wins": int(wins), "races": int(races), "fraction": wins / races, "ci95": [lo, hi]}
+
+
+def _race_dt_dn() -> tuple[float, float]:
+    """(dt [s], contact_dn [m]) of the default race config."""
+    from racing_env.config import RaceConfig
+    c = RaceConfig()
+    return c.dt, c.rules.contact_dn
 
 
 def _wins(records, role) -> dict:
@@ -266,6 +318,53 @@ def summarise(records: list[dict], config: BenchConfig) -> dict:
         out[key] = dict(zip(names, map(float, a.mean(axis=0))))
     out["decision_ms_max_race_mean"] = dict(zip(names, map(float, arr("decision_ms").max(axis=0))))
     out["race_seconds_total"] = float(sum(r["seconds"] for r in records))
+    out["strategy"] = strategy_summary(records, names, config.regions)
+    return out
+
+
+def strategy_summary(records: list[dict], names, region_names) -> dict:
+    """The strategy metrics of benchmark ``records`` (:mod:`experiments.metrics`), per car
+    (``names``: ego, O1, ...): ``passes``, ``passes_contact`` and ``fell_back`` (totals
+    and means per race), ``wins_from_behind`` (count), ``behind_1m_s`` (mean seconds per race);
+    ``wins_by_start_region`` (races won by the car that started in each region, R2.. being
+    wins from behind); and per ego start region (``by_region``) the ego's and opponents'
+    passes and wins from behind. Over the records that carry the metrics; ``races`` counts
+    them and ``missing`` the others (recorded before the metrics existed, without states):
+    with none, every figure is ``None``, never a zero."""
+    have = [r for r in records if all(k in r for k in race_metrics.RECORD_KEYS)]
+    out = {"definition": race_metrics.definition(*_race_dt_dn()), "races": len(have),
+           "missing": len(records) - len(have)}
+    keys = ("passes", "passes_per_race", "passes_contact", "passes_contact_per_race",
+            "fell_back", "wins_from_behind", "behind_1m_s", "wins_by_start_region", "by_region")
+    if not have:
+        return {**out, **dict.fromkeys(keys)}
+    n = len(have)
+    names = list(names)
+
+    def per_car(key, sub):
+        return np.array([r[key] for r in sub], dtype=float).sum(axis=0)
+
+    def wfb(sub):
+        return {role: int(sum(r["won_from_behind"] and r["winner"] == role for r in sub))
+                for role in names}
+
+    for key in ("passes", "passes_contact", "fell_back"):
+        tot = per_car(key, have)
+        out[key] = dict(zip(names, map(int, tot)))
+        if key != "fell_back":
+            out[key + "_per_race"] = dict(zip(names, map(float, tot / n)))
+    out["wins_from_behind"] = wfb(have)
+    out["behind_1m_s"] = dict(zip(names, map(float, per_car("behind_1m_s", have) / n)))
+    out["wins_by_start_region"] = {
+        reg: int(sum(r["start_regions"][names.index(r["winner"])] == reg for r in have))
+        for reg in region_names}
+    out["by_region"] = {}
+    for reg in region_names:
+        sub = [r for r in have if r["ego_region"] == reg]
+        if sub:
+            out["by_region"][reg] = {"races": len(sub),
+                                     "passes": dict(zip(names, map(int, per_car("passes", sub)))),
+                                     "wins_from_behind": wfb(sub)}
     return out
 
 
@@ -293,10 +392,42 @@ def summary_markdown(s: dict) -> str:
                             ("fallbacks", "fallbacks per race", "{:.2f}"),
                             ("decision_ms", "mean decision time [ms]", "{:.2f}")):
         lines.append(f"| {label} | " + " | ".join(fmt.format(s[key][r]) for r in names) + " |")
+    lines += strategy_rows(s.get("strategy"), names)
     m = s["margin_m"]
     lines += ["", f"Ego margin over the best opponent: mean {m['mean']:.2f} m, median "
                   f"{m['median']:.2f} m, std {m['std']:.2f} m."]
+    lines += strategy_note(s.get("strategy"), s["races"])
     return "\n".join(lines) + "\n"
+
+
+def strategy_rows(st: dict | None, names) -> list[str]:
+    """Rows of the summary table for :func:`strategy_summary` (``-`` where missing)."""
+    have = st is not None and st.get("passes") is not None
+    rows = []
+    for key, label, fmt in (("passes_per_race", "passes per race (held 1 s, clear sideways)",
+                             "{:.2f}"),
+                            ("passes_contact_per_race", "passes through contact per race",
+                             "{:.2f}"),
+                            ("wins_from_behind", "wins from behind", "{}"),
+                            ("behind_1m_s", "time within 1 m behind [s per race]", "{:.1f}")):
+        cells = [fmt.format(st[key][r]) if have else "-" for r in names]
+        rows.append(f"| {label} | " + " | ".join(cells) + " |")
+    return rows
+
+
+def strategy_note(st: dict | None, races: int) -> list[str]:
+    """A line saying over which races the strategy metrics were taken, or that they are
+    missing (old records without states)."""
+    if st is None or not st.get("races"):
+        return ["", f"Strategy metrics missing for all {races} races (recorded before they "
+                    f"existed, and no stored states to compute them from)."]
+    lines = ["", f"Wins by the winner's start region: " + ", ".join(
+        f"{reg} {w}" for reg, w in st["wins_by_start_region"].items())
+        + " (from R2 and behind: wins from behind)."]
+    if st["missing"]:
+        lines.append(f"Strategy metrics over {st['races']} of {races} races; "
+                     f"{st['missing']} lack them (recorded before they existed, no states).")
+    return lines
 
 
 # ---------------------------------------------------------------------------- drivers

@@ -29,7 +29,10 @@ Output directory:
   arrives, flushed and fsynced; a killed run resumes with the missing races, and a torn last
   line is dropped).
 * ``leaderboard.json``, ``leaderboard.md``: :func:`leaderboard` (ratings, wins with Wilson
-  95% intervals, mean finish, progress, off-track steps, decision time; the pairwise matrix).
+  95% intervals, mean finish, progress, off-track steps, decision time, the strategy metrics
+  of :mod:`experiments.metrics` (passes, passes through contact, wins from behind, time
+  within 1 m behind); the pairwise matrix). A league stores no states: records written
+  before the strategy metrics existed lack them, and the leaderboard says so.
 * ``ratings.png`` (:func:`plot_ratings`) and ``pairwise.png`` (:func:`plot_pairwise`).
 """
 from __future__ import annotations
@@ -44,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import metrics as race_metrics
 from .artifacts import append_jsonl, claim, env_version, read_jsonl, write_json, write_text
 from .bench import check_agent_specs, wilson_interval
 from .parallel import check_backend, run_tasks_with_progress
@@ -216,6 +220,7 @@ def league_race(race: ScheduledRace, steps: int, imports=()) -> dict:
         "contacts": result.contacts.tolist(), "off_tracks": result.off_tracks.tolist(),
         "decision_ms": [round(float(v), 4) for v in result.decision_ms],
         "fallbacks": [int(st.get("fallbacks", 0)) for st in result.agent_stats],
+        **race_metrics.record_metrics(result.states, result.dt, result.contact_dn),
         "seconds": round(time.perf_counter() - t0, 3),
     }
 
@@ -259,7 +264,11 @@ def leaderboard(records: list[dict], config: LeagueConfig) -> dict:
     """The league's standings: per agent (sorted by ordinal ``mu - 3 sigma``, best first)
     rank, mu, sigma, ordinal, races, wins, win rate with its Wilson 95% interval, mean
     finishing position, mean progress [m], mean off-track steps per race and decision time
-    per act() [ms] (the median over races of a race's mean); plus :func:`pairwise`."""
+    per act() [ms] (the median over races of a race's mean); the strategy metrics over the
+    races that carry them (``strategy_races`` of them): ``passes`` and ``passes_contact``
+    (totals and ``*_per_race``), ``wins_from_behind`` (count) and ``behind_1m_s`` (mean
+    seconds per race), ``None`` when none of the agent's races carries them; plus
+    :func:`pairwise`."""
     if not records:
         raise ValueError("no finished races to rank")
     records = sorted({r["race"]: r for r in records}.values(), key=lambda r: r["race"])
@@ -279,6 +288,7 @@ def leaderboard(records: list[dict], config: LeagueConfig) -> dict:
                         "off_tracks": mean("off_tracks"),
                         # the median: a worker's first race carries the JIT and solver builds
                         "decision_ms": float(np.median([r["decision_ms"][i] for r, i in cars]))})
+        row.update(_strategy_row(cars))
         rows.append(row)
     rows.sort(key=lambda r: (-r["ordinal"], r["agent"]))
     for i, row in enumerate(rows, 1):
@@ -288,6 +298,24 @@ def leaderboard(records: list[dict], config: LeagueConfig) -> dict:
             "races": len(records), "races_scheduled": expected,
             "complete": len(records) == expected,
             "standings": rows, "pairwise": pairwise(records, [r["agent"] for r in rows])}
+
+
+def _strategy_row(cars) -> dict:
+    """An agent's strategy metrics over its races ``cars`` ((record, car index) pairs) that
+    carry them; ``None`` figures when none does (no silent zeros)."""
+    have = [(r, i) for r, i in cars if all(k in r for k in race_metrics.RECORD_KEYS)]
+    row = {"strategy_races": len(have)}
+    if not have:
+        return {**row, **dict.fromkeys(("passes", "passes_per_race", "passes_contact",
+                                        "passes_contact_per_race", "wins_from_behind",
+                                        "behind_1m_s"))}
+    for key in ("passes", "passes_contact"):
+        tot = int(sum(r[key][i] for r, i in have))
+        row[key], row[key + "_per_race"] = tot, tot / len(have)
+    row["wins_from_behind"] = int(sum(r["won_from_behind"] and r["ranks"][i] == 1
+                                      for r, i in have))
+    row["behind_1m_s"] = float(np.mean([r["behind_1m_s"][i] for r, i in have]))
+    return row
 
 
 def _f(v, fmt: str) -> str:
@@ -311,19 +339,31 @@ def leaderboard_markdown(board: dict) -> str:
              f"{board['ordinal_z']:g} sigma. Wins with Wilson 95% intervals (chance: 1/{n}).",
              "",
              "| rank | agent | ordinal | mu | sigma | races | wins | win rate | mean finish "
-             "| progress m | off-track steps | ms/decision (median) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| progress m | off-track steps | ms/decision (median) | passes/race "
+             "| via contact/race | wins from behind | <= 1 m behind s/race |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in board["standings"]:
         if not r["races"]:
             lines.append(f"| {r['rank']} | `{r['agent']}` | {r['ordinal']:.2f} | {r['mu']:.2f} "
-                         f"| {r['sigma']:.2f} | 0 | - | - | - | - | - | - |")
+                         f"| {r['sigma']:.2f} | 0 | - | - | - | - | - | - | - | - | - | - |")
             continue
         lo, hi = r["win_ci95"]
         lines.append(f"| {r['rank']} | `{r['agent']}` | {r['ordinal']:.2f} | {r['mu']:.2f} "
                      f"| {r['sigma']:.2f} | {r['races']} | {r['wins']} "
                      f"| {100 * r['win_rate']:.0f}% ({100 * lo:.0f}-{100 * hi:.0f}%) "
                      f"| {r['mean_finish']:.2f} | {r['progress_m']:.2f} | {r['off_tracks']:.1f} "
-                     f"| {r['decision_ms']:.2f} |")
+                     f"| {r['decision_ms']:.2f} | {_f(r.get('passes_per_race'), '{:.2f}')} "
+                     f"| {_f(r.get('passes_contact_per_race'), '{:.2f}')} "
+                     f"| {_f(r.get('wins_from_behind'), '{}')} "
+                     f"| {_f(r.get('behind_1m_s'), '{:.1f}')} |")
+    partial = [r for r in board["standings"] if r["races"] and
+               r.get("strategy_races", 0) < r["races"]]
+    if partial:
+        lines += ["", "Strategy metrics (passes held 1 s and clear sideways; wins from behind; "
+                      "time within 1 m behind) missing for some races, recorded before they "
+                      "existed (a league stores no states to recompute them): "
+                  + ", ".join(f"`{r['agent']}` over {r.get('strategy_races', 0)} of "
+                              f"{r['races']} races" for r in partial) + "."]
     pw = board["pairwise"]
     names = [r["agent"] for r in board["standings"]]
     lines += ["", "## Pairwise", "",

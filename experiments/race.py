@@ -10,8 +10,10 @@ from tqdm import tqdm
 
 from agents import make_agent_spec
 from racing_env import RacingParallelEnv
+from racing_env.config import RulesConfig
 
 from .artifacts import write_json
+from .metrics import race_metrics
 
 
 @dataclass
@@ -30,6 +32,13 @@ class RaceResult:
     decision_ms: np.ndarray       # (N,) mean wall time per act() [ms]
     env_step_ms: float            # mean env.step wall time [ms]
     agent_stats: list[dict] = field(default_factory=list)
+    contact_dn: float = RulesConfig().contact_dn   # [m] the race's lateral contact box
+
+    @property
+    def metrics(self) -> dict:
+        """Strategy metrics of the race (:func:`experiments.metrics.race_metrics`): passes
+        per car, passes through contact, wins from behind, time within 1 m behind."""
+        return race_metrics(self.states, self.dt, self.contact_dn)
 
     @property
     def order(self) -> np.ndarray:
@@ -40,11 +49,12 @@ class RaceResult:
         """Human-readable result table."""
         lead = self.progress.max()
         speed = lead / max(len(self.states) - 1, 1) / self.dt
+        m = self.metrics
         rows = [f"Race on '{self.track}' (seed {self.seed}), {len(self.states) - 1} steps "
                 f"= {(len(self.states) - 1) * self.dt:.1f} s",
                 f"{'pos':>3}  {'car':<6} {'agent':<18} {'progress m':>10} {'gap m':>7} {'gap s':>6} "
                 f"{'laps':>4} {'best lap s':>10} {'contacts':>8} {'off-track':>9} {'fallbacks':>9} "
-                f"{'ms/decision':>11}"]
+                f"{'ms/decision':>11} {'passes':>6} {'via contact':>11} {'<1m behind s':>12}"]
         for pos, i in enumerate(self.order, 1):
             laps = self.lap_times[i]
             lap_durations = np.diff([0.0] + laps)
@@ -53,7 +63,15 @@ class RaceResult:
             fb = self.agent_stats[i].get("fallbacks", "-") if self.agent_stats else "-"
             rows.append(f"{pos:>3}  car_{i:<2} {self.agents[i]:<18} {self.progress[i]:>10.2f} "
                         f"{gap:>7.2f} {gap / max(speed, 1e-9):>6.2f} {len(laps):>4} {best:>10} "
-                        f"{self.contacts[i]:>8} {self.off_tracks[i]:>9} {fb:>9} {self.decision_ms[i]:>11.3f}")
+                        f"{self.contacts[i]:>8} {self.off_tracks[i]:>9} {fb:>9} {self.decision_ms[i]:>11.3f} "
+                        f"{m['passes'][i]:>6} {m['passes_contact'][i]:>11} {m['behind_1m_s'][i]:>12.1f}")
+        rows.append(f"winner car_{m['winner']} started "
+                    + ("from behind" if m["won_from_behind"] else "at the front")
+                    + f" (front: car_{m['front']}); passes (held >= 1 s, body clear sideways): "
+                    + (", ".join(f"car_{e['passer']} past car_{e['passed']} at {e['time_s']:.1f} s"
+                                 + (" (through contact)" if e["kind"] == "contact" else "")
+                                 for e in m["pass_events"] if e["kind"] in ("pass", "contact"))
+                       or "none"))
         rows.append(f"env step: {self.env_step_ms:.3f} ms mean")
         return "\n".join(rows)
 
@@ -63,7 +81,7 @@ class RaceResult:
                 "progress_m": self.progress.round(4).tolist(), "lap_times_s": self.lap_times,
                 "contacts": self.contacts.tolist(), "off_tracks": self.off_tracks.tolist(),
                 "decision_ms": self.decision_ms.round(4).tolist(), "env_step_ms": round(self.env_step_ms, 4),
-                "agent_stats": self.agent_stats}
+                "agent_stats": self.agent_stats, "metrics": self.metrics}
 
 
 def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_cycles: int = 500,
@@ -112,7 +130,8 @@ def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_
         lap_times=[list(t) for t in core.lap_times[0]], contacts=core.contacts[0].copy(),
         off_tracks=core.offtracks[0].copy(), decision_ms=1e3 * decide / max(steps, 1),
         env_step_ms=1e3 * env_time / max(steps, 1),
-        agent_stats=[dict(getattr(a, "stats", {}) or {}) for a in agents])
+        agent_stats=[dict(getattr(a, "stats", {}) or {}) for a in agents],
+        contact_dn=env.config.rules.contact_dn)
     env.close()
     return result, frames
 

@@ -157,6 +157,46 @@ def test_maximisation_finds_the_maximiser_within_bounds():
     assert phi >= phi_warm - 1e-6
 
 
+def test_maximisation_under_a_zeta_ceiling_stays_in_the_lowered_box():
+    """``high`` lowers one car's zeta bound: every result respects it, the ceiling binds
+    where the free maximiser lies above it, and the full box as ``high`` is the plain ascent
+    bit for bit."""
+    model, _ = _synthetic_model()
+    rng = np.random.default_rng(3)
+    for k in range(5):
+        x, _ = _joint(rng, 3)
+        free, _ = model.maximise(x, TRACK, restarts=4, iterations=40, rng=np.random.default_rng(k))
+        same = model.maximise(x, TRACK, restarts=4, iterations=40, rng=np.random.default_rng(k),
+                              high=np.tile(THETA_HIGH, (3, 1)))
+        assert same[0].tobytes() == free.tobytes()
+        ceiling = float(np.clip(free[0, 1] - 0.05, 0.8, 1.05))
+        high = np.tile(THETA_HIGH, (3, 1))
+        high[0, 1] = ceiling
+        capped, phi = model.maximise(x, TRACK, restarts=4, iterations=40,
+                                     rng=np.random.default_rng(k), high=high)
+        assert capped[0, 1] <= ceiling + 1e-12 and np.all(capped >= THETA_LOW - 1e-9)
+        assert capped[0, 1] == pytest.approx(ceiling, abs=0.01)     # the ceiling binds
+        assert phi == pytest.approx(model.potential(x[None], capped[None], TRACK)[0], abs=1e-6)
+    with pytest.raises(ValueError, match=r"high must be \(N, 5\) = \(3, 5\)"):
+        model.maximise(x, TRACK, high=np.ones((2, 5)))
+
+
+def test_alpha_agent_with_a_zeta_ceiling_never_drives_above_it():
+    from agents import make_agent_spec
+    from racing_env import RacingParallelEnv
+    env = RacingParallelEnv(track="default", n_cars=3, max_cycles=15)
+    obs, _ = env.reset(seed=2, options={"order": [1, 0, 2]})
+    agent = make_agent_spec("alpha:zeta_max=0.9")
+    agent.reset(env.track, "car_0", 7)
+    zetas = []
+    for _ in range(15):
+        action = agent.act(obs["car_0"])
+        zetas.append(agent.theta.zeta)
+        obs, *_ = env.step({"car_0": action, "car_1": np.zeros(2, np.float32),
+                            "car_2": np.zeros(2, np.float32)})
+    assert max(zetas) <= 0.9 + 1e-12 and agent.driven_theta.zeta <= 0.9
+
+
 def test_tiny_pipeline_end_to_end(tmp_path):
     """collect -> train -> validate -> race the alpha agent: the learned potential beats a
     constant potential on held-out deviations, and the agent reports its potential and theta."""

@@ -266,3 +266,48 @@ def test_a_folder_of_another_env_version_is_refused(tmp_path):
         json.dumps({"schema_version": SCHEMA_VERSION, "config": cfg.to_dict()}))
     with pytest.raises(ValueError, match="alpha_racer_v1 or older"):
         BenchRun(tmp_path / "old", cfg)
+
+
+# ---------------------------------------------------------------------------- strategy metrics
+def test_ego_regions_fix_the_egos_seat_and_keep_the_default_manifest():
+    assert BenchConfig().to_dict() == {"ego": "alpha", "opponents": "mpc", "races": 99,
+                                       "steps": 500, "track": "default", "seed": 0}
+    cfg = BenchConfig(races=5, ego_regions=("R2", "R3"))
+    assert [cfg.order(k) for k in range(4)] == [[1, 0, 2], [2, 0, 1]] * 2
+    assert cfg.to_dict()["ego_regions"] == ["R2", "R3"]
+    assert [BenchConfig().order(k) for k in range(6)] == [BenchConfig.start_order(k)
+                                                          for k in range(6)]
+    with pytest.raises(ValueError, match=r"ego_regions .* R1, R2, R3, got \['R4'\]"):
+        BenchConfig(ego_regions=("R4",))
+    with pytest.raises(ValueError, match=r"ego_regions .* got \[\]"):
+        BenchConfig(ego_regions=())
+
+
+def test_records_carry_the_metrics_of_their_stored_states_and_old_folders_get_them(tmp_path):
+    from experiments.metrics import RECORD_KEYS, record_metrics
+    summary = bench(TINY, tmp_path, workers=1, progress_bar=False)
+    run = BenchRun(tmp_path, TINY)
+    for k, rec in run.records().items():
+        assert {key: rec[key] for key in RECORD_KEYS} == record_metrics(run.states(k))
+    st = summary["strategy"]
+    assert st["races"] == 4 and st["missing"] == 0
+    assert sum(st["wins_by_start_region"].values()) == 4
+    wfb = sum(r["won_from_behind"] for r in run.records().values())
+    assert sum(st["wins_from_behind"].values()) == wfb
+    # an old folder: records without the metrics, states on disk -> the same summary
+    lines = (tmp_path / "races.jsonl").read_text().splitlines()
+    old = [{k: v for k, v in json.loads(line).items() if k not in RECORD_KEYS} for line in lines]
+    (tmp_path / "races.jsonl").write_text("".join(json.dumps(r) + "\n" for r in old))
+    again = BenchRun(tmp_path, TINY).write_summary()
+    assert again["strategy"] == st
+    # records without metrics and without states: missing, said so, never zeros
+    s = summarise(old, TINY)
+    assert s["strategy"]["races"] == 0 and s["strategy"]["passes"] is None
+    from experiments.bench import summary_markdown
+    md = summary_markdown(s)
+    assert "| passes per race (held 1 s, clear sideways) | - | - | - |" in md
+    assert "Strategy metrics missing for all 4 races" in md
+    half = summarise(old[:2] + [BenchRun(tmp_path, TINY).records_with_metrics()[k]
+                                for k in (old[2]["race"], old[3]["race"])], TINY)
+    assert half["strategy"]["races"] == 2 and half["strategy"]["missing"] == 2
+    assert "over 2 of 4 races" in summary_markdown(half)

@@ -179,6 +179,31 @@ def test_tiny_league_writes_consistent_outputs(tiny_league):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_leaderboard_reports_strategy_metrics_and_says_when_old_records_lack_them(tiny_league):
+    from experiments.metrics import RECORD_KEYS
+    out, board = tiny_league
+    records = read_jsonl(out / "races.jsonl")
+    for row in board["standings"]:
+        mine = [(r, r["agents"].index(row["agent"])) for r in records
+                if row["agent"] in r["agents"]]
+        assert row["strategy_races"] == row["races"] == len(mine)
+        assert row["passes"] == sum(r["passes"][i] for r, i in mine)
+        assert row["wins_from_behind"] == sum(r["won_from_behind"] and r["ranks"][i] == 1
+                                              for r, i in mine)
+    assert sum(r["wins_from_behind"] for r in board["standings"]) == \
+        sum(r["won_from_behind"] for r in records)
+    assert "| passes/race |" in (out / "leaderboard.md").read_text()
+    # records of an older league (no metrics, no states): None and a note, never zeros
+    old = [{k: v for k, v in r.items() if k not in RECORD_KEYS} for r in records]
+    stale = lg.leaderboard(old[:10] + records[10:], TINY)
+    assert all(0 < r["strategy_races"] < r["races"] for r in stale["standings"])
+    none = lg.leaderboard(old, TINY)
+    assert all(r["passes"] is None and r["wins_from_behind"] is None
+               for r in none["standings"])
+    md = lg.leaderboard_markdown(none)
+    assert "missing for some races" in md and "over 0 of 18 races" in md
+
+
 def test_resume_after_a_kill_runs_only_the_missing_races(tiny_league, tmp_path):
     out, board = tiny_league
     copy = tmp_path / "killed"

@@ -157,3 +157,20 @@ def test_rti_plans_cost_within_five_percent_of_ipopt_at_the_limit():
                                              s3=THETA.s3))
     assert gaps.size >= 25
     assert np.mean(gaps <= 0.05) >= 0.8
+
+
+def test_a_zeta_ceiling_drives_the_capped_theta_and_names_bad_values():
+    """``zeta_max`` caps the zeta the MPC drives with: ``zeta=1.02,zeta_max=0.95`` races as
+    ``zeta=0.95`` bit for bit; a ceiling above the zeta leaves the agent as it was."""
+    from agents import make_agent_spec
+    from experiments.race import run_race
+    a, _ = run_race(["mpc:zeta=1.02,zeta_max=0.95", "raceline"], seed=3, max_cycles=25,
+                    progress_bar=False)
+    b, _ = run_race(["mpc:zeta=0.95", "raceline"], seed=3, max_cycles=25, progress_bar=False)
+    assert a.states.tobytes() == b.states.tobytes()
+    agent = make_agent_spec("mpc:zeta=0.9,zeta_max=1.0")
+    assert agent.driven_theta is agent.theta
+    for bad, shown in (("0.5", "0.5"), ("1.1", "1.1"), ("true", "True")):
+        with pytest.raises(ValueError, match=rf"zeta_max must be a number in .*\[0.8, 1.05\], "
+                                             rf"got {shown}"):
+            make_agent_spec(f"mpc:zeta_max={bad}")

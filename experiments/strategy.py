@@ -1,0 +1,389 @@
+"""Strategy benchmark: a fixed, seeded suite of races that isolates maneuvers
+(``alpha-racer strategy``).
+
+Winning is not strategy: a faster car wins from any seat. Each scenario puts the ego where pace
+alone does not decide, and runs the same races (same seeds, same start orders, same seat) for
+the ego and for a *control* ego (default ``mpc:theta=best``, the best fixed theta), so that
+what the ego's decisions add shows as a difference between the two. Three cars per race,
+``races`` races of ``steps`` control periods per scenario and track:
+
+* ``pass``: the ego behind two slower cars that do not yield (``raceline``, the racing-line
+  follower), from R2 and R3 in turn (race k from R2 for even k, R3 for odd k).
+* ``equal``: the ego against two control cars, from R1, R2, R3 in turn (the paper's rotation).
+* ``defend``: the ego from R1, ahead of two control cars that are faster alone. The pace
+  difference is a *speed-scale ceiling* on the ego, the same for the ego and the control ego:
+  ``zeta_max`` (default :data:`ZETA_MAX`) caps the zeta of the ego's theta (the fixed-theta
+  MPC drives ``min(zeta, zeta_max)``; the alpha agent maximises its potential in the box with
+  its own zeta capped there). The opponents are the control without ceiling. The suite
+  *measures* the gap: one solo race from the grid of each capped ego and of the opponent
+  (``steps`` long, on every track), stored in ``pace.jsonl``; an opponent less than
+  :data:`PACE_GAP` (3%) faster than a capped ego is flagged in ``strategy.md``. An agent that
+  cannot race alone (the alpha agent: its potential takes 2..8 cars) is not measured; the
+  control ego's MPC under the same ceiling stands for the pace the ceiling allows.
+* ``table1``: the paper's Table-1 opponents, two cars of each of :data:`TABLE1_OPPONENTS`
+  (three benches ``table1_ibr``, ``table1_ppo``, ``table1_alpha``), the ego from R1, R2, R3
+  in turn.
+
+Output folder (``out``, default ``results/strategy``; run again to resume):
+
+* ``BENCH/TRACK/EGO/``: one ``alpha-racer bench`` folder per bench, track and ego (spec as a
+  file name), with its manifest, ``races.jsonl``, ``states/`` and summary; the control's
+  folders are reused by a suite with another ego.
+* ``pace.jsonl``: the solo pace races of ``defend``.
+* ``runs.jsonl``: one line per invocation that raced (races simulated, wall time).
+* ``strategy.json`` and ``strategy.md``: one table over scenarios and tracks, ego beside
+  control: wins (per ego start region), passes, passes through contact, wins from behind,
+  mean margin, time within 1 m behind; plus the measured pace gap of ``defend``.
+
+The pass and contact metrics are :mod:`experiments.metrics`'.
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+from .artifacts import append_jsonl, read_jsonl, slug, write_json, write_text
+from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs
+from .parallel import check_backend, run_tasks_with_progress
+
+SCHEMA_VERSION = 1
+SCENARIOS = ("pass", "equal", "defend", "table1")
+#: Opponents of the ``table1`` scenario: the paper's IBR and PPO baselines and an alpha car.
+TABLE1_OPPONENTS = ("ibr", "ppo", "alpha")
+#: The non-yielding, slower opponents of ``pass``.
+PASS_OPPONENTS = "raceline"
+#: Procedural tracks that no test, collection or model training uses (the general model saw
+#: random:0-299, its held-out report random:10000-10019; see agents/models/MODEL_CARD.md).
+DEFAULT_TRACKS = ("default", "random:20001", "random:20002")
+#: The defend ego's zeta ceiling. Measured alone from the grid on the three default tracks: a
+#: ``zeta=1.02`` MPC (and the box's corner ``q=5,zeta=1.05,s1=0.3,s2=0.5,s3=5``) covers
+#: 4.6-5.2% more in 12 s and 4.8-5.6% more in 30 s than the same MPC under a 0.94 ceiling;
+#: 0.95 gave 3.2-4.5% (12-30 s), too close to :data:`PACE_GAP` (docs: "Strategy benchmark").
+ZETA_MAX = 0.94
+#: The least solo pace advantage [fraction] of the defend scenario's opponents.
+PACE_GAP = 0.03
+
+
+def with_option(spec: str, key: str, value) -> str:
+    """The agent ``spec`` with ``key=value`` added (``alpha`` -> ``alpha:zeta_max=0.94``);
+    a ValueError if the spec sets ``key`` already."""
+    name, _, params = spec.partition(":")
+    if key in [item.partition("=")[0].strip() for item in params.split(",")]:
+        raise ValueError(f"agent spec {spec!r} sets {key} already; the suite sets it")
+    return f"{spec},{key}={value}" if params else f"{name}:{key}={value}"
+
+
+@dataclass(frozen=True)
+class StrategyConfig:
+    """The suite: ``ego`` and ``control`` (agent specs, raced in the same seats and races)
+    in ``scenarios`` (of :data:`SCENARIOS`) on ``tracks``, ``races`` races of ``steps``
+    control periods (0.1 s) per bench; ``seed`` fixes every race's start positions and
+    agents' seeds (race k of every bench has the seed of ``(seed, k)``); ``zeta_max`` is the
+    defend ego's speed-scale ceiling.
+
+    ``steps`` defaults to 120 (12 s): the full suite (6 benches x 2 egos x 3 tracks x 99
+    races = 3564 races) then takes 37-44 min on 2 cores, from races measured at 0.4 s
+    (``pass``), 1.1 s (``equal``, ``defend``), 2.0 s (``table1_ibr``), 0.5 s (``table1_ppo``)
+    and 1.3 s (``table1_alpha``) per 100 steps on one core, and at 1.6 s per 130-step race
+    of a whole 72-race suite, worker start-up included (docs: "Strategy benchmark")."""
+
+    ego: str = "alpha"
+    control: str = "mpc:theta=best"
+    tracks: tuple[str, ...] = DEFAULT_TRACKS
+    scenarios: tuple[str, ...] = SCENARIOS
+    races: int = 99
+    steps: int = 120
+    seed: int = 0
+    zeta_max: float = ZETA_MAX
+
+    def __post_init__(self):
+        object.__setattr__(self, "tracks", tuple(self.tracks))
+        object.__setattr__(self, "scenarios", tuple(self.scenarios))
+        for name in ("races", "steps"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"StrategyConfig.{name} must be a positive integer, got {v!r}")
+        if isinstance(self.seed, bool) or not (isinstance(self.seed, int) and self.seed >= 0):
+            raise ValueError(f"StrategyConfig.seed must be a non-negative integer, got "
+                             f"{self.seed!r}")
+        for name in ("ego", "control"):
+            if not isinstance(getattr(self, name), str) or not getattr(self, name):
+                raise ValueError(f"StrategyConfig.{name} must be an agent spec string, got "
+                                 f"{getattr(self, name)!r}")
+        if self.ego == self.control:
+            raise ValueError(f"the ego and the control are the same spec {self.ego!r}; "
+                             f"the suite compares two agents")
+        bad = [s for s in self.scenarios if s not in SCENARIOS]
+        if not self.scenarios or bad or len(set(self.scenarios)) != len(self.scenarios):
+            raise ValueError(f"scenarios must be distinct names of {', '.join(SCENARIOS)}, got "
+                             f"{list(self.scenarios)}")
+        if not self.tracks or len(set(self.tracks)) != len(self.tracks) or \
+                not all(isinstance(t, str) and t for t in self.tracks):
+            raise ValueError(f"tracks must be distinct track specs, got {list(self.tracks)}")
+        if isinstance(self.zeta_max, bool) or not isinstance(self.zeta_max, (int, float)) \
+                or not 0.8 <= self.zeta_max <= 1.05:
+            raise ValueError(f"zeta_max must be in the theta box's zeta range [0.8, 1.05], "
+                             f"got {self.zeta_max!r}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["tracks"], d["scenarios"] = list(self.tracks), list(self.scenarios)
+        return d
+
+    def capped(self, spec: str) -> str:
+        """``spec`` under the defend ceiling."""
+        return with_option(spec, "zeta_max", f"{self.zeta_max:g}")
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One bench of the suite: ``bench`` (``pass``, ``equal``, ``defend``, ``table1_ibr``,
+    ...) on ``track`` for ``role`` (``ego`` or ``control``), its :class:`BenchConfig`."""
+
+    bench: str
+    track: str
+    role: str
+    config: BenchConfig
+
+    def folder(self, out) -> Path:
+        return Path(out) / self.bench / slug(self.track) / slug(self.config.ego)
+
+
+def bench_names(scenarios) -> list[str]:
+    """The benches of ``scenarios`` in suite order (``table1`` is three benches)."""
+    out = []
+    for s in scenarios:
+        out += [f"table1_{o}" for o in TABLE1_OPPONENTS] if s == "table1" else [s]
+    return out
+
+
+def cells(config: StrategyConfig) -> list[Cell]:
+    """Every bench of the suite: for each scenario's benches, track and role (ego first)."""
+    out = []
+    for bench in bench_names(config.scenarios):
+        for track in config.tracks:
+            for role, spec in (("ego", config.ego), ("control", config.control)):
+                kw = dict(races=config.races, steps=config.steps, track=track, seed=config.seed)
+                if bench == "pass":
+                    cfg = BenchConfig(ego=spec, opponents=PASS_OPPONENTS,
+                                      ego_regions=("R2", "R3"), **kw)
+                elif bench == "equal":
+                    cfg = BenchConfig(ego=spec, opponents=config.control, **kw)
+                elif bench == "defend":
+                    cfg = BenchConfig(ego=config.capped(spec), opponents=config.control,
+                                      ego_regions=("R1",), **kw)
+                else:
+                    cfg = BenchConfig(ego=spec, opponents=bench.removeprefix("table1_"), **kw)
+                out.append(Cell(bench, track, role, cfg))
+    return out
+
+
+# ---------------------------------------------------------------------------- pace
+def solo_pace(spec: str, track: str, steps: int, seed: int) -> dict:
+    """Progress [m] of ``spec`` alone from the grid in ``steps`` control periods (pure: no
+    file access); ``progress_m`` None and ``reason`` when the agent cannot race alone."""
+    from .race import run_race
+    warnings.simplefilter("ignore")
+    rec = {"spec": spec, "track": track, "steps": steps, "seed": seed}
+    try:
+        result, _ = run_race([spec], track=track, seed=seed, max_cycles=steps, start="grid",
+                             progress_bar=False)
+    except ValueError as exc:
+        return {**rec, "progress_m": None, "reason": f"cannot race alone: {exc}"}
+    return {**rec, "progress_m": round(float(result.progress[0]), 4)}
+
+
+def pace_specs(config: StrategyConfig) -> list[str]:
+    """The specs measured alone for ``defend``: the capped ego, the capped control, and the
+    opponent (the control)."""
+    return [config.capped(config.ego), config.capped(config.control), config.control]
+
+
+def measure_pace(config: StrategyConfig, out, workers: int, backend: str, address,
+                 progress_bar: bool) -> dict:
+    """The defend scenario's solo races (missing ones raced, ``pace.jsonl`` resumed);
+    returns per track ``{"progress_m": {spec: m or None}, "reasons": {spec: text},
+    "gaps": {capped spec: opponent / capped - 1}, "ok": every measured gap >= PACE_GAP and at
+    least one measured}``."""
+    path = Path(out) / "pace.jsonl"
+    key = lambda r: (r["spec"], r["track"], r["steps"], r["seed"])
+    done = {key(r): r for r in read_jsonl(path)}
+    specs = pace_specs(config)
+    want = [(spec, track) for track in config.tracks for spec in specs]
+    tasks = [((spec, track), (spec, track, config.steps, config.seed)) for spec, track in want
+             if (spec, track, config.steps, config.seed) not in done]
+
+    def finished(k, rec):
+        append_jsonl(path, rec)
+        done[key(rec)] = rec
+
+    run_tasks_with_progress(solo_pace, tasks, finished, workers, backend, address,
+                            total=len(want), done=len(want) - len(tasks), desc="solo pace",
+                            unit="race", progress_bar=progress_bar)
+    out_pace = {}
+    for track in config.tracks:
+        recs = {spec: done[(spec, track, config.steps, config.seed)] for spec in specs}
+        progress = {spec: r["progress_m"] for spec, r in recs.items()}
+        opp = progress[config.control]
+        gaps = {spec: (None if progress[spec] is None or opp is None
+                       else opp / progress[spec] - 1.0) for spec in specs[:2]}
+        measured = [g for g in gaps.values() if g is not None]
+        out_pace[track] = {"progress_m": progress,
+                           "reasons": {s: r["reason"] for s, r in recs.items() if "reason" in r},
+                           "gaps": gaps, "ok": bool(measured) and min(measured) >= PACE_GAP}
+    return out_pace
+
+
+# ---------------------------------------------------------------------------- driver
+def strategy(config: StrategyConfig, out_dir="results/strategy", workers: int = 2,
+             backend: str = "local", address: str | None = None,
+             progress_bar: bool = True) -> dict:
+    """Run (or resume) the suite ``config`` into ``out_dir`` (module docstring): the defend
+    scenario's solo pace races, then every bench's missing races in one pool; writes
+    ``strategy.json`` and ``strategy.md`` and returns the former's content with
+    ``new_races``, the bench races this call ran."""
+    check_backend(backend, workers)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    todo_cells = cells(config)
+    check_agent_specs(dict.fromkeys(a for c in todo_cells for a in c.config.agents))
+    # every folder claimed first: one of another config fails before any race
+    runs = {(c.bench, c.track, c.role): BenchRun(c.folder(out), c.config) for c in todo_cells}
+    pace = None
+    if "defend" in config.scenarios:
+        pace = measure_pace(config, out, workers, backend, address, progress_bar)
+    new = sum(len(run.missing()) for run in runs.values())
+    t0 = time.perf_counter()
+    _run_many(runs, workers, backend, address, progress_bar)
+    wall = time.perf_counter() - t0
+    history = out / "runs.jsonl"
+    if new:
+        append_jsonl(history, {"config": config.to_dict(), "races_simulated": new,
+                               "wall_seconds": wall, "workers": workers, "backend": backend,
+                               "finished": time.strftime("%Y-%m-%dT%H:%M:%S")})
+    summaries = {k: run.write_summary() for k, run in runs.items()}
+    table = {"schema_version": SCHEMA_VERSION, "config": config.to_dict(),
+             "pace_gap_required": PACE_GAP, "pace": pace,
+             "flags": pace_flags(config, pace),
+             "rows": [table_row(b, t, summaries[(b, t, "ego")], summaries[(b, t, "control")],
+                                runs[(b, t, "ego")].out, runs[(b, t, "control")].out, out)
+                      for b in bench_names(config.scenarios) for t in config.tracks],
+             "runs": read_jsonl(history), "wall_seconds_this_run": wall}
+    write_json(out / "strategy.json", table)
+    write_text(out / "strategy.md", strategy_markdown(table))
+    return {**table, "new_races": new}
+
+
+def pace_flags(config: StrategyConfig, pace: dict | None) -> list[str]:
+    """One sentence per track where the defend opponents are not measurably
+    :data:`PACE_GAP` faster than every capped ego that could be measured."""
+    flags = []
+    for track, p in (pace or {}).items():
+        if p["ok"]:
+            continue
+        measured = {s: g for s, g in p["gaps"].items() if g is not None}
+        if not measured:
+            flags.append(f"defend on {track}: no capped ego could be measured alone, the pace "
+                         f"gap is unknown")
+        else:
+            flags.append(f"defend on {track}: the opponents ({config.control}) are not "
+                         f"{100 * PACE_GAP:g}% faster alone than "
+                         + ", ".join(f"{s} ({100 * g:+.1f}%)" for s, g in measured.items()
+                                     if g < PACE_GAP)
+                         + "; this defend row does not measure defending against a faster car")
+    return flags
+
+
+def _side(s: dict) -> dict:
+    st = s["strategy"]
+    return {"races": s["races"], "wins": s["wins"]["ego"]["wins"],
+            "wins_by_region": {reg: w["ego"]["wins"] for reg, w in s["by_region"].items()},
+            "races_by_region": {reg: w["ego"]["races"] for reg, w in s["by_region"].items()},
+            "passes": st["passes"] and st["passes"]["ego"],
+            "passes_contact": st["passes_contact"] and st["passes_contact"]["ego"],
+            "opponent_passes": st["passes"] and sum(v for r, v in st["passes"].items()
+                                                    if r != "ego"),
+            "wins_from_behind": st["wins_from_behind"] and st["wins_from_behind"]["ego"],
+            "margin_m_mean": s["margin_m"]["mean"],
+            "behind_1m_s": st["behind_1m_s"] and st["behind_1m_s"]["ego"],
+            "complete": s["complete"]}
+
+
+def table_row(bench: str, track: str, ego: dict, control: dict, ego_dir, control_dir,
+              out) -> dict:
+    """One row of the suite's table from the ego's and the control's bench summaries."""
+    return {"bench": bench, "track": track, "ego_spec": ego["config"]["ego"],
+            "control_spec": control["config"]["ego"], "opponents": ego["config"]["opponents"],
+            "ego": _side(ego), "control": _side(control),
+            "ego_dir": str(Path(ego_dir).relative_to(out)),
+            "control_dir": str(Path(control_dir).relative_to(out))}
+
+
+def _wins(side: dict) -> str:
+    split = " / ".join(f"{reg} {w}" for reg, w in side["wins_by_region"].items())
+    return f"{side['wins']}/{side['races']}" + (f" ({split})" if len(side["wins_by_region"]) > 1
+                                                else "")
+
+
+def _pair(a, b, fmt: str = "{}") -> str:
+    f = lambda v: "-" if v is None else fmt.format(v)
+    return f"{f(a)} / {f(b)}"
+
+
+def strategy_markdown(table: dict) -> str:
+    c = table["config"]
+    lines = ["# Strategy benchmark", "",
+             f"Ego `{c['ego']}` and control `{c['control']}` in the same seats and races: "
+             f"{c['races']} races per bench of {c['steps']} steps ({c['steps'] / 10:g} s), three "
+             f"cars, seed {c['seed']}. `pass`: behind two `{PASS_OPPONENTS}` cars from R2 and R3 "
+             f"in turn; `equal`: against two control cars from R1, R2, R3 in turn; `defend`: "
+             f"from R1 with a zeta ceiling of {c['zeta_max']:g} against two control cars "
+             f"without it; `table1_*`: against two cars of the paper's opponents from R1, R2, "
+             f"R3 in turn. Passes: held 1 s, clear sideways at the crossing (totals over the "
+             f"races); wins from behind: the winner did not start at the front; margin: the "
+             f"ego's progress minus the best opponent's; time within 1 m behind another car: "
+             f"mean seconds per race. Cells: ego / control.", "",
+             "| scenario | track | opponents | ego wins | control wins | passes | passes "
+             "through contact | opponents' passes | wins from behind | mean margin m "
+             "| within 1 m behind s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in table["rows"]:
+        e, k = r["ego"], r["control"]
+        partial = "" if e["complete"] and k["complete"] else " (partial)"
+        lines.append(
+            f"| {r['bench']}{partial} | `{r['track']}` | `{r['opponents']}` | {_wins(e)} "
+            f"| {_wins(k)} | {_pair(e['passes'], k['passes'])} "
+            f"| {_pair(e['passes_contact'], k['passes_contact'])} "
+            f"| {_pair(e['opponent_passes'], k['opponent_passes'])} "
+            f"| {_pair(e['wins_from_behind'], k['wins_from_behind'])} "
+            f"| {_pair(e['margin_m_mean'], k['margin_m_mean'], '{:+.2f}')} "
+            f"| {_pair(e['behind_1m_s'], k['behind_1m_s'], '{:.1f}')} |")
+    if table["pace"]:
+        lines += ["", f"## Defend: measured pace (alone from the grid, {c['steps']} steps)", "",
+                  f"The opponents must be at least {100 * table['pace_gap_required']:g}% faster "
+                  f"alone than the capped ego.", "",
+                  "| track | agent | progress m | opponents faster by |", "|---|---|---|---|"]
+        for track, p in table["pace"].items():
+            for spec, m in p["progress_m"].items():
+                gap = p["gaps"].get(spec)
+                what = ("(the opponent)" if spec == c["control"] else
+                        "-" if gap is None else f"{100 * gap:+.1f}%")
+                shown = "-" if m is None else f"{m:.2f}"
+                if spec in p["reasons"]:
+                    what = "not measured: " + p["reasons"][spec].split(";")[0]
+                lines.append(f"| `{track}` | `{spec}` | {shown} | {what} |")
+    if table["flags"]:
+        lines += ["", "**Flags:**", ""] + [f"- {f}" for f in table["flags"]]
+    runs = table.get("runs", [])
+    lines += ["", f"Wall time: {sum(r['wall_seconds'] for r in runs) / 60:.1f} min for the "
+                  f"{sum(r['races_simulated'] for r in runs)} races simulated over {len(runs)} "
+                  f"invocation(s) (`runs.jsonl`). Each bench's folder: "
+                  f"`SCENARIO/TRACK/EGO/summary.md`."]
+    return "\n".join(lines) + "\n"
+
+
+def config_defaults() -> dict:
+    """The :class:`StrategyConfig` defaults by field name (the command line's defaults)."""
+    return {f.name: f.default for f in fields(StrategyConfig)}
