@@ -132,11 +132,19 @@ class BenchConfig:
         return [ego] + [r for r in range(n_cars) if r != ego]
 
 
-def check_agent_specs(specs) -> None:
-    """Build each agent spec once, so a typo fails before any race starts."""
+def check_agent_specs(specs, tracks=()) -> None:
+    """Build each agent spec once, so a typo fails before any race starts; an agent with a
+    ``check_track(track)`` method (``mpc:theta=best``: the track's entry in the best-theta
+    table) checks each of ``tracks`` too."""
     from agents import make_agent_spec
     for spec in dict.fromkeys(specs):
-        make_agent_spec(spec)
+        agent = make_agent_spec(spec)
+        check = getattr(agent, "check_track", None)
+        for track in dict.fromkeys(tracks) if check is not None else ():
+            try:
+                check(track)
+            except ValueError as exc:
+                raise ValueError(f"agent {spec!r}: {exc}") from None
 
 
 def bench_race(config: BenchConfig, k: int) -> dict:
@@ -312,7 +320,7 @@ def bench(config: BenchConfig, out_dir, workers: int = 2, backend: str = "local"
           address: str | None = None, progress_bar: bool = True) -> dict:
     """Run (or resume) one benchmark into ``out_dir``; returns its summary."""
     check_backend(backend, workers)
-    check_agent_specs(config.agents)
+    check_agent_specs(config.agents, [config.track])
     run = BenchRun(out_dir, config)
     _run_many({"bench": run}, workers, backend, address, progress_bar)
     return run.write_summary()
@@ -333,7 +341,7 @@ def paper_table(out_dir, ego: str = "alpha", races: int = 99, steps: int = 500,
     out = Path(out_dir)
     configs = {c: BenchConfig(ego=ego, opponents=PAPER_CASES[c].opponents, races=races,
                               steps=steps, track=track, seed=seed) for c in cases}
-    check_agent_specs([ego] + [cfg.opponents for cfg in configs.values()])
+    check_agent_specs([ego] + [cfg.opponents for cfg in configs.values()], [track])
     runs = {c: BenchRun(out / f"case_{c}", cfg) for c, cfg in configs.items()}
     todo = sum(len(run.missing()) for run in runs.values())
     t0 = time.perf_counter()

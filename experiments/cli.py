@@ -1,6 +1,6 @@
 """The ``alpha-racer`` command line: ``race``, ``agents``, ``tracks``, ``raceline``, ``fuzz``,
 ``collect``, ``train``, ``selfplay``, ``bench``, ``league``, ``analyze``, ``reproduce``,
-``general-report``, ``policy-map``."""
+``general-report``, ``policy-map``, ``control``."""
 from __future__ import annotations
 
 import argparse
@@ -44,7 +44,8 @@ def _cmd_agents(args) -> int:
         for p in params:
             default = "(required)" if p.default is REQUIRED else f"= {p.default!r}"
             bounds = f"  in [{p.bounds[0]:g}, {p.bounds[1]:g}]" if p.bounds else ""
-            print(f"    {p.name} {default}{bounds}")
+            note = f"  ({p.note})" if p.note else ""
+            print(f"    {p.name} {default}{bounds}{note}")
         if open_kwargs:
             print("    ... and further keywords")
         if not params and not open_kwargs:
@@ -264,6 +265,24 @@ def _cmd_policy_map(args) -> int:
     print((out / "summary.md").read_text())
     print(f"{s['new_rows']} new rows; wrote {out / 'summary.md'}, {out / 'summary.json'}, "
           f"{out / 'rows.jsonl'} and heat maps into {out}")
+    return 0
+
+
+def _cmd_control(args) -> int:
+    from .control import ControlConfig, select_best_thetas
+    from .family import expand_tracks
+    cfg = ControlConfig(thetas=args.thetas, candidates=args.candidates, races=args.races,
+                        steps=args.steps, opponents=args.opponents, seed=args.seed)
+    out = Path(args.out)
+    s = select_best_thetas(cfg, expand_tracks(args.tracks), out, workers=args.workers,
+                           backend=args.backend, address=args.address,
+                           install_table=not args.no_install, table=args.table)
+    print((out / "summary.md").read_text())
+    from agents.best_theta import table_path
+    print(f"{s['new_map_runs']} new map runs and {s['new_races']} new playoff races in "
+          f"{s['wall_seconds_this_run'] / 60:.1f} min; wrote {out / 'summary.md'} and "
+          f"<track>/selection.json"
+          + ("" if args.no_install else f"; installed into {args.table or table_path()}"))
     return 0
 
 
@@ -539,6 +558,36 @@ def build_parser() -> argparse.ArgumentParser:
     gr.add_argument("--out", default="results/general", help="output folder; run again to resume")
     _add_parallel_args(gr)
     gr.set_defaults(fn=_cmd_general_report)
+
+    from .control import ControlConfig
+    ct = command("control", "choose the best fixed theta per track by a rule from measurements "
+                            "(policy map, top candidates, seeded playoff) and install it for "
+                            "mpc:theta=best (resumable)")
+    ct.add_argument("--tracks", nargs="+", default=["default"],
+                    help="track specs (random:A-B ranges allowed)")
+    ct.add_argument("--thetas", type=int, default=ControlConfig.thetas,
+                    help="Sobol thetas of each track's policy map (solo and race)")
+    ct.add_argument("--candidates", type=int, default=ControlConfig.candidates,
+                    help="K: thetas taken to the playoff by region-adjusted race progress "
+                         "(plus the best solo theta)")
+    ct.add_argument("--races", type=int, default=ControlConfig.races,
+                    help="playoff races per candidate, a multiple of 3 (every start region "
+                         "equally often)")
+    ct.add_argument("--steps", type=int, default=ControlConfig.steps,
+                    help="steps of 0.1 s per run (map and playoff)")
+    ct.add_argument("--opponents", default=ControlConfig.opponents,
+                    help="agent spec of the two other cars (map race mode and playoff)")
+    ct.add_argument("--seed", type=int, default=ControlConfig.seed,
+                    help="seed of the Sobol sample, the map's starts and the playoff races "
+                         "(not 0, the benchmarks' seed)")
+    ct.add_argument("--out", default="results/control", help="output folder; run again to resume")
+    ct.add_argument("--no-install", action="store_true",
+                    help="only measure: leave the best-theta table unchanged")
+    ct.add_argument("--table", default=None,
+                    help="best-theta table to install into (default: the package's "
+                         "agents/models/best_fixed_theta.json, or $ALPHA_RACER_BEST_THETA_TABLE)")
+    _add_parallel_args(ct)
+    ct.set_defaults(fn=_cmd_control)
 
     from .policy_map import DEFAULT_TRACKS, MODES
     pm = command("policy-map", "sweep the MPC policy space (q, zeta, s1, s2, s3): Sobol thetas, "
