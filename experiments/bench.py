@@ -399,3 +399,39 @@ def paper_table_markdown(table: dict) -> str:
                   f"{len(runs)} invocation(s) (`runs.jsonl`); the races themselves took "
                   f"{race_cpu / 60:.1f} worker-minutes."]
     return "\n".join(lines) + "\n"
+
+
+def comparison_markdown(tables: dict, note: str = "") -> str:
+    """One table over paper tables run on the same races with different egos (``tables``:
+    label -> ``paper_table.json`` content, the first label's cases in order): per case, each
+    ego's wins, its wins by start region R1/R2/R3 and its mean margin over the best opponent
+    [m]. ``note`` (a sentence) follows the description."""
+    labels = list(tables)
+    if not labels:
+        raise ValueError("no paper tables to compare")
+    first = tables[labels[0]]
+    lines = ["# The same races with other egos: what maximising the potential adds", "",
+             f"Every ego races the same {first['races']} races per case ({first['steps']} "
+             f"steps, seed {first['seed']}, same start orders and opponents): "
+             + ", ".join(f"{label} = `{t['ego']}`" for label, t in tables.items())
+             + ". Wins of the races, then by the ego's start region R1 / R2 / R3 (R1 the "
+               "front); margin: ego minus the best opponent, mean over the races [m]."
+             + (f" {note}" if note else ""), "",
+             "| case | opponents | " + " | ".join(f"{label} wins (R1/R2/R3)" for label in labels)
+             + " | margin m (" + " / ".join(labels) + ") |",
+             "|---|---|" + "---|" * (len(labels) + 1)]
+    for c, case in first["cases"].items():
+        cells, margins = [], []
+        for label in labels:
+            s = tables[label]["cases"].get(c, {}).get("summary")
+            if s is None:
+                cells.append("-")
+                margins.append("-")
+                continue
+            reg = "/".join(str(s["by_region"][r]["ego"]["wins"]) if r in s["by_region"] else "-"
+                           for r in REGIONS)
+            cells.append(f"{s['wins']['ego']['wins']}/{s['races']} ({reg})")
+            margins.append(f"{s['margin_m']['mean']:+.2f}")
+        lines.append(f"| {c} | `{case['opponents']}` | " + " | ".join(cells)
+                     + f" | {' / '.join(margins)} |")
+    return "\n".join(lines) + "\n"

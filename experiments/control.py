@@ -60,6 +60,8 @@ from .policy_map import (MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, 
                          theta_spec)
 
 SCHEMA_VERSION = 1
+BEST_FIXED_SPEC = "mpc:theta=best"
+"""The control's agent spec: the ``mpc`` agent with the track's best fixed theta."""
 RULE = ("map: Sobol thetas of the box, solo and as car_0 against two opponents (race); "
         "candidates: thetas with at most {off:g}% of the steps off track in both modes, the top "
         "K by race progress minus the median race progress of the thetas from the same start "
