@@ -10,10 +10,13 @@ A learned potential that chooses theta online is only worth something against th
    control periods each.
 2. **Candidates** (:func:`choose_candidates`): among the thetas on track in both modes (at
    most :data:`experiments.policy_map.OFF_TRACK_LIMIT` of the steps off track, no error),
-   the top ``candidates`` by *region-adjusted race progress* (the theta's race progress minus
-   the median race progress of all thetas that started from the same region, so that the
-   rotating start region does not decide), plus the best solo theta (most progress alone)
-   if it is not among them. Ties go to the lower Sobol index.
+   the top ``candidates`` by their rank among the thetas that started their race from the
+   same region (by race progress), then by *region-adjusted race progress* (race progress
+   minus the median of that region), then by the lower Sobol index: the best of R1, of R2
+   and of R3 first, then the second of each, and so on, so that the rotating start region
+   does not decide (from R1, with a free road, pace spreads progress far more than from R3
+   behind two cars that never yield). The best solo theta (most progress alone) joins if it
+   is not among them.
 3. **Playoff** (:func:`rank_playoff`): each candidate as the ego of the same ``races`` seeded
    races (:class:`experiments.bench.BenchConfig`: race k from R(k mod 3 + 1), so every
    region equally often, the same start positions for every candidate) against two
@@ -64,8 +67,9 @@ BEST_FIXED_SPEC = "mpc:theta=best"
 """The control's agent spec: the ``mpc`` agent with the track's best fixed theta."""
 RULE = ("map: Sobol thetas of the box, solo and as car_0 against two opponents (race); "
         "candidates: thetas with at most {off:g}% of the steps off track in both modes, the top "
-        "K by race progress minus the median race progress of the thetas from the same start "
-        "region, plus the best solo theta by progress; playoff: each candidate as ego in the "
+        "K by rank of race progress among the thetas from the same start region, then by race "
+        "progress minus that region's median, then by the lower Sobol index, plus the best "
+        "solo theta by progress; playoff: each candidate as ego in the "
         "same seeded races from every start region against two opponents, ranked by wins, then "
         "mean margin over the best opponent, then the lower Sobol index; the winner is the "
         "first").format(off=100 * OFF_TRACK_LIMIT)
@@ -140,11 +144,12 @@ def choose_candidates(rows, k: int) -> list[dict]:
 
     A theta is eligible when its solo and race rows are both on track (no ``error``, at most
     :data:`~experiments.policy_map.OFF_TRACK_LIMIT` of the steps off track). The top ``k``
-    eligible thetas by region-adjusted race progress [m] (race progress minus the median race
-    progress of all finished race rows from the same start region), then the best eligible
-    solo theta by progress if it is not among them. Ties go to the lower index. Returns dicts
-    ``index, theta, reasons, solo_progress_m, race_progress_m, race_adjusted_m, start_region,
-    race_margin_m``; ``ValueError`` when no theta is eligible."""
+    eligible thetas by their rank (1 = most race progress) among the eligible thetas from the
+    same start region, then by region-adjusted race progress [m] (race progress minus the
+    median race progress of all finished race rows from that region), then by the lower
+    index; then the best eligible solo theta by progress if it is not among them. Returns
+    dicts ``index, theta, reasons, solo_progress_m, race_progress_m, race_adjusted_m,
+    region_rank, start_region, race_margin_m``; ``ValueError`` when no theta is eligible."""
     if not (isinstance(k, int) and k >= 1):
         raise ValueError(f"candidates must be a positive integer, got {k!r}")
     rows = list(rows)
@@ -160,15 +165,21 @@ def choose_candidates(rows, k: int) -> list[dict]:
         raise ValueError(f"no theta of the map on {tracks} stays on track in both modes "
                          f"({len(solo)} solo and {len(race)} race rows); map more thetas")
 
+    adjusted = {i: race[i]["progress_m"] - median[race[i]["start_region"]] for i in eligible}
+    rank = {}
+    for reg in {race[i]["start_region"] for i in eligible}:
+        mine = sorted((i for i in eligible if race[i]["start_region"] == reg),
+                      key=lambda i: (-adjusted[i], i))
+        rank.update({i: r for r, i in enumerate(mine, 1)})
+
     def record(i, reason):
         s, r = solo[i], race[i]
         return {"index": i, "theta": r["theta"], "reasons": [reason],
                 "solo_progress_m": s["progress_m"], "race_progress_m": r["progress_m"],
-                "race_adjusted_m": round(r["progress_m"] - median[r["start_region"]], 4),
+                "race_adjusted_m": round(adjusted[i], 4), "region_rank": rank[i],
                 "start_region": r["start_region"], "race_margin_m": r["margin_m"]}
 
-    by_race = sorted(eligible, key=lambda i: (-(race[i]["progress_m"]
-                                                 - median[race[i]["start_region"]]), i))
+    by_race = sorted(eligible, key=lambda i: (rank[i], -adjusted[i], i))
     out = [record(i, "race") for i in by_race[:k]]
     best_solo = min(eligible, key=lambda i: (-solo[i]["progress_m"], i))
     chosen = {c["index"]: c for c in out}

@@ -36,7 +36,7 @@ def _rows(race: dict, solo: dict, off=(), solo_off=(), errors=()) -> list[dict]:
 
 
 # ---------------------------------------------------------------------------- the rule
-def test_candidates_are_ranked_by_region_adjusted_race_progress():
+def test_candidates_are_ranked_within_their_start_region_then_by_adjusted_progress():
     # R1 starts are worth more raw progress than R3 starts: adjusted, theta 3 (R3) is the best
     race = {0: ("R1", 110.0), 1: ("R1", 104.0), 2: ("R1", 100.0),
             3: ("R3", 99.0), 4: ("R3", 90.0), 5: ("R3", 91.0)}
@@ -44,8 +44,15 @@ def test_candidates_are_ranked_by_region_adjusted_race_progress():
     cands = ct.choose_candidates(_rows(race, solo), k=2)
     assert [c["index"] for c in cands] == [3, 0]        # +8.0 (99 - 91), +6.0 (110 - 104)
     assert cands[0]["race_adjusted_m"] == pytest.approx(8.0)
+    assert [c["region_rank"] for c in cands] == [1, 1]
     # the best solo theta (index 0 on a tie of all: the lower index) is already in: no extra
     assert cands[1]["reasons"] == ["race", "solo"]
+    # a wide spread from R1 (free road) does not crowd out the best from R3 (in traffic):
+    # theta 1 is +14.5 m over R1's median, theta 3 only +1 m over R3's, but it is R3's best
+    race = {0: ("R1", 130.0), 1: ("R1", 129.0), 2: ("R1", 100.0), 9: ("R1", 90.0),
+            3: ("R3", 96.0), 4: ("R3", 95.0), 5: ("R3", 94.0)}
+    cands = ct.choose_candidates(_rows(race, {k: 150.0 for k in race}), k=3)
+    assert [(c["index"], c["region_rank"]) for c in cands] == [(0, 1), (3, 1), (1, 2)]
 
 
 def test_best_solo_theta_joins_and_off_track_or_failed_thetas_never_do():
@@ -225,3 +232,29 @@ def test_ensure_selects_only_missing_tracks_and_claim_refuses_a_changed_table(ta
     table.write_text(json.dumps(table_now))
     with pytest.raises(ValueError, match="races of a best fixed theta of another configuration"):
         ct.claim_best_thetas(tmp_path / "run", ["oval", "default"])
+
+
+def test_one_theta_best_player_races_each_track_of_a_league_with_its_own_theta(table, tmp_path):
+    from experiments.league import LeagueConfig, league
+    a = {"q": 5.0, "zeta": 1.04, "s1": 0.3, "s2": 0.5, "s3": 4.0}
+    b = {"q": 300.0, "zeta": 0.85, "s1": 0.0, "s2": 10.0, "s3": 0.0}
+    _write(table, _entry("default", a), _entry("oval", b))
+    cfg = LeagueConfig(agents=("mpc:theta=best", "raceline"), tracks=("default", "oval"), cars=2,
+                       steps=20)
+    board = league(cfg, tmp_path / "lg", workers=1, progress_bar=False)
+    recs = [json.loads(x) for x in (tmp_path / "lg" / "races.jsonl").read_text().splitlines()]
+    assert {r["track"] for r in recs} == {"default", "oval"} and board["new_races"] == len(recs)
+    # the same theta alone on each track: the progress of the theta=best car in the league
+    from experiments.race import run_race
+    for r in recs:
+        car = r["agents"].index("mpc:theta=best")
+        theta = a if r["track"] == "default" else b
+        explicit = "mpc:" + ",".join(f"{k}={v!r}" for k, v in theta.items())
+        agents = [explicit if x == "mpc:theta=best" else x for x in r["agents"]]
+        res, _ = run_race(agents, track=r["track"], seed=r["seed"], max_cycles=20,
+                          start="regions", order=[int(s[1:]) - 1 for s in r["start_regions"]],
+                          progress_bar=False)
+        assert round(float(res.progress[car]), 4) == r["progress_m"][car]
+    _write(table, _entry("default", a))
+    with pytest.raises(ValueError, match="'mpc:theta=best': no best fixed theta for track 'oval'"):
+        league(cfg, tmp_path / "lg2", workers=1, progress_bar=False)
