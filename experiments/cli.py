@@ -217,7 +217,7 @@ def _cmd_reproduce(args) -> int:
     import json
 
     from .analyze import analyze
-    from .artifacts import slug
+    from .artifacts import slug, write_text
     from .bench import PAPER_CASES, comparison_markdown, paper_table
     from .control import BEST_FIXED_SPEC, ControlConfig, claim_best_thetas, ensure_best_thetas
     out = Path(args.out)
@@ -244,11 +244,12 @@ def _cmd_reproduce(args) -> int:
     note = (f"The best fixed theta on `{track}` ({theta}) was chosen by `alpha-racer control` "
             f"from {entry['selection']['file']} (sha256 {entry['selection']['sha256'][:12]}, env "
             f"`{entry['env']}`).")
-    comparison = out / "comparison.md"
-    comparison.write_text(comparison_markdown(
+    comparison = write_text(out / "comparison.md", comparison_markdown(
         {label: json.loads((d / "paper_table.json").read_text()) for label, d in compared.items()},
         note))
     tables.insert(1, comparison)
+    if (out / "control" / "summary.md").exists():      # the selection, if it ran here
+        tables.insert(2, out / "control" / "summary.md")
     from dataclasses import replace
     cases = ["IV"] + [c for c in PAPER_CASES if c != "IV"]     # the paper's overtake is vs IBR
     analyze(replace(_analyze_config(args), steps=args.steps), out / "analysis",
@@ -262,7 +263,8 @@ def _cmd_reproduce(args) -> int:
     text = "\n".join(p.read_text() for p in parts)
     (out / "README.md").write_text(text)
     print(text)
-    print(f"wrote {out / 'README.md'}, {out / 'paper_table'}, {out / 'analysis'}"
+    print(f"wrote {out / 'README.md'}, {out / 'paper_table'}, {control}, {comparison}, "
+          f"{out / 'analysis'}"
           + (f" and {out / 'policy_map'}" if args.policy_thetas else ""))
     return 0
 
