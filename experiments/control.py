@@ -85,7 +85,8 @@ class ControlConfig:
     3: every start region equally often), ``steps`` control periods of 0.1 s per run (map and
     playoff), ``opponents`` the agent spec of the two other cars (map and playoff), ``seed``
     the seed of the Sobol sample, the map's starts and the playoff races (not 0, the
-    benchmarks' seed). Defaults: about 4 CPU-minutes per track."""
+    benchmarks' seed). Defaults: about 6 CPU-minutes per track (256 map runs, up to 180
+    playoff races)."""
 
     thetas: int = 128
     candidates: int = 5

@@ -14,7 +14,7 @@ a held-out track among them is refused), except the last part, which is about ``
    against N - 1 ``mpc`` cars (the MPC at its fixed default theta, zeta 0.9). The control
    runs the same races with the best fixed theta on that track as ego (``mpc:theta=best``,
    chosen per held-out track by ``alpha-racer control`` with ``control_thetas`` and
-   ``control_races``, into ``control/`` unless the best-theta table has the track; about 4
+   ``control_races``, into ``control/`` unless the best-theta table has the track; about 6
    CPU-minutes per track with the defaults); an extra row runs them with an ``mpc`` ego at
    its default theta. ``bench/<track>_<N>cars/{alpha,control,mpc_default}/``;
    ``bench/best_fixed_theta.json`` ties the races to the thetas they used.
