@@ -59,6 +59,9 @@ class AlphaAgent(MPCAgent):
 
     def __init__(self, model=AUTO, restarts: int = 4, iterations: int = 3,
                  cold_restarts: int = 32, cold_iterations: int = 12, **mpc_kwargs):
+        if mpc_kwargs.get("theta") is not None:
+            raise ValueError(f"alpha chooses its theta online by maximising the potential; "
+                             f"theta={mpc_kwargs['theta']!r} is for the mpc agent")
         super().__init__(**mpc_kwargs)
         for name, v in (("restarts", restarts), ("cold_restarts", cold_restarts)):
             if not (isinstance(v, int) and v >= 1):

@@ -105,12 +105,14 @@ def make_agent(name: str, **kwargs: Any) -> Agent:
 
 @dataclass(frozen=True)
 class AgentParameter:
-    """One keyword of an agent's factory: its name, default (:data:`REQUIRED` if none) and
-    bounds ``(low, high)`` where the factory declares them (``None`` otherwise)."""
+    """One keyword of an agent's factory: its name, default (:data:`REQUIRED` if none),
+    bounds ``(low, high)`` where the factory declares them (``None`` otherwise) and a note
+    (the factory's ``param_notes``, e.g. the values a string keyword takes; ``""`` if none)."""
 
     name: str
     default: Any
     bounds: tuple[float, float] | None = None
+    note: str = ""
 
 
 REQUIRED = inspect.Parameter.empty
@@ -124,10 +126,20 @@ def agent_parameters(name: str) -> tuple[list[AgentParameter], bool]:
     (``alpha`` takes the ``mpc`` keywords), or to the callable in the factory's
     ``spec_keywords_from`` attribute (``ibr`` takes :class:`agents.ibr.IBRConfig` fields).
     Bounds come from the factory's ``param_bounds`` attribute (``{name: (low, high)}``; the
-    MPC's theta bounds :data:`agents.reference.THETA_LOW` / ``THETA_HIGH``).
+    MPC's theta bounds :data:`agents.reference.THETA_LOW` / ``THETA_HIGH``). A keyword whose
+    signature default is ``None`` shows the factory's ``param_defaults`` value instead, if it
+    declares one (the MPC's theta keywords default to ``None`` so that explicit values can be
+    told apart, and to :data:`agents.mpc_agent.DEFAULT_THETA` in effect); notes come from
+    ``param_notes`` (``{name: text}``).
     """
     factory = get_factory(name)
     bounds = dict(getattr(factory, "param_bounds", {}) or {})
+    shown = dict(getattr(factory, "param_defaults", {}) or {})
+    notes = dict(getattr(factory, "param_notes", {}) or {})
+
+    def param(p) -> AgentParameter:
+        default = shown.get(p.name, p.default) if p.default is None else p.default
+        return AgentParameter(p.name, default, bounds.get(p.name), notes.get(p.name, ""))
     params: dict[str, AgentParameter] = {}
     sources = [factory]
     if inspect.isclass(factory):
@@ -148,13 +160,13 @@ def agent_parameters(name: str) -> tuple[list[AgentParameter], bool]:
             if p.kind == p.VAR_KEYWORD:
                 open_kwargs = True
                 continue
-            params.setdefault(p.name, AgentParameter(p.name, p.default, bounds.get(p.name)))
+            params.setdefault(p.name, param(p))
         if not open_kwargs:
             break
     if open_kwargs and extra is not None:
         for p in inspect.signature(extra).parameters.values():
             if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD):
-                params.setdefault(p.name, AgentParameter(p.name, p.default, bounds.get(p.name)))
+                params.setdefault(p.name, param(p))
         open_kwargs = False
     return list(params.values()), open_kwargs
 

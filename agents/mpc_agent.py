@@ -10,6 +10,7 @@ from racing_env.tracks import make_track
 from racing_env.vehicle import VehicleParams
 
 from .base import median_p99, register_agent
+from .best_theta import best_theta
 from .mpc import MPC, MPCConfig
 from .reference import THETA_HIGH, THETA_LOW, THETA_NAMES, Theta, reference_trajectory
 from .threads import single_blas_thread
@@ -48,11 +49,22 @@ def progress_rate(state: np.ndarray, track: Track) -> np.ndarray:
     return (vx * np.cos(mu) - vy * np.sin(mu)) / (1.0 - n * kappa)
 
 
+DEFAULT_THETA = Theta(q=20.0, zeta=0.9, s1=0.1, s2=4.0, s3=1.0)
+"""The ``mpc`` agent's theta when none is given: mid-range and safe, 10% below the line's speed."""
+BEST = "best"
+"""``theta=BEST``: race the track's best fixed theta (:mod:`agents.best_theta`)."""
+
+
 @register_agent("mpc")
 class MPCAgent:
     """MPC tracking the theta-parametrised reference (paper section 2.2) with fixed theta.
 
-    ``theta`` keywords ``q, zeta, s1, s2, s3`` (defaults: a mid-range, safe setting), an
+    ``theta`` keywords ``q, zeta, s1, s2, s3`` (each defaults to :data:`DEFAULT_THETA`'s: a
+    mid-range, safe setting, zeta 0.9), or ``theta="best"``: at every ``reset(track)`` the
+    track's best fixed theta from the table of :mod:`agents.best_theta` (chosen by
+    ``alpha-racer control``; a track missing from the table, or chosen on another env version,
+    is a ``ValueError`` naming the track and the command that adds it; with ``theta="best"``
+    the theta keywords must not be given). Further: an
     :class:`MPCConfig`, :class:`VehicleParams`, and the env's ``n_preview`` (to read the
     observation layout), and ``line``, the racing line whose path and speed profile the
     reference shapes (``"curvature"``, the paper's minimum-curvature line, default; or
@@ -70,13 +82,25 @@ class MPCAgent:
 
     #: theta's bounds (:data:`agents.reference.THETA_LOW` / ``THETA_HIGH``), for ``alpha-racer agents``
     param_bounds = {k: (float(lo), float(hi)) for k, lo, hi in zip(THETA_NAMES, THETA_LOW, THETA_HIGH)}
+    #: what ``alpha-racer agents`` shows for the theta keywords (their signature default is None)
+    param_defaults = {k: getattr(DEFAULT_THETA, k) for k in THETA_NAMES}
+    param_notes = {"theta": "'best': the track's best fixed theta, chosen by alpha-racer control"}
 
-    def __init__(self, q: float = 20.0, zeta: float = 0.9, s1: float = 0.1, s2: float = 4.0,
-                 s3: float = 1.0, config: MPCConfig | None = None,
+    def __init__(self, q: float | None = None, zeta: float | None = None,
+                 s1: float | None = None, s2: float | None = None, s3: float | None = None,
+                 theta: str | None = None, config: MPCConfig | None = None,
                  vehicle: VehicleParams | None = None, n_preview: int = 10,
                  line: str = "curvature", zeta_max: float | None = None):
         from racing_env.raceline import RacelineConfig
-        self.theta = Theta(q=q, zeta=zeta, s1=s1, s2=s2, s3=s3)
+        given = {k: v for k, v in zip(THETA_NAMES, (q, zeta, s1, s2, s3)) if v is not None}
+        if theta is not None and theta != BEST:
+            raise ValueError(f"theta must be {BEST!r} (the track's best fixed theta) or left "
+                             f"out, got {theta!r}")
+        if theta == BEST and given:
+            raise ValueError(f"theta='best' takes the whole theta from the best-theta table; "
+                             f"drop {', '.join(f'{k}={v!r}' for k, v in given.items())}")
+        self.best = theta == BEST
+        self.theta = Theta(**{**{k: getattr(DEFAULT_THETA, k) for k in THETA_NAMES}, **given})
         lo, hi = THETA_LOW[1], THETA_HIGH[1]
         if zeta_max is not None and (isinstance(zeta_max, bool) or
                                      not isinstance(zeta_max, (int, float)) or
@@ -94,6 +118,8 @@ class MPCAgent:
     def reset(self, track, agent_id: str = "car_0", seed: int | None = None) -> None:
         from racing_env.raceline import get_raceline
         track = make_track(track)
+        if self.best:                   # before anything is built: a missing entry fails fast
+            self.theta = best_theta(track)
         if self.mpc is None or self.track is not track:
             self.mpc = MPC(track, self.vehicle, self.config, line=self.line)
         self.track = track
@@ -101,6 +127,12 @@ class MPCAgent:
         self.mpc.reset()
         self.agent_id = agent_id
         self._u_prev = np.zeros(2)
+
+    def check_track(self, track) -> None:
+        """Raise the ``ValueError`` that ``reset(track)`` would for a track without a best
+        theta (``theta="best"`` only; nothing is built), so a run fails before its races."""
+        if self.best:
+            best_theta(track)
 
     @property
     def driven_theta(self) -> Theta:

@@ -165,11 +165,19 @@ class BenchConfig:
         return [ego] + [r for r in range(self.n_cars) if r != ego]
 
 
-def check_agent_specs(specs) -> None:
-    """Build each agent spec once, so a typo fails before any race starts."""
+def check_agent_specs(specs, tracks=()) -> None:
+    """Build each agent spec once, so a typo fails before any race starts; an agent with a
+    ``check_track(track)`` method (``mpc:theta=best``: the track's entry in the best-theta
+    table) checks each of ``tracks`` too."""
     from agents import make_agent_spec
     for spec in dict.fromkeys(specs):
-        make_agent_spec(spec)
+        agent = make_agent_spec(spec)
+        check = getattr(agent, "check_track", None)
+        for track in dict.fromkeys(tracks) if check is not None else ():
+            try:
+                check(track)
+            except ValueError as exc:
+                raise ValueError(f"agent {spec!r}: {exc}") from None
 
 
 def bench_race(config: BenchConfig, k: int) -> dict:
@@ -445,7 +453,7 @@ def bench(config: BenchConfig, out_dir, workers: int = 2, backend: str = "local"
           address: str | None = None, progress_bar: bool = True) -> dict:
     """Run (or resume) one benchmark into ``out_dir``; returns its summary."""
     check_backend(backend, workers)
-    check_agent_specs(config.agents)
+    check_agent_specs(config.agents, [config.track])
     run = BenchRun(out_dir, config)
     _run_many({"bench": run}, workers, backend, address, progress_bar)
     return run.write_summary()
@@ -466,7 +474,7 @@ def paper_table(out_dir, ego: str = "alpha", races: int = 99, steps: int = 500,
     out = Path(out_dir)
     configs = {c: BenchConfig(ego=ego, opponents=PAPER_CASES[c].opponents, races=races,
                               steps=steps, track=track, seed=seed) for c in cases}
-    check_agent_specs([ego] + [cfg.opponents for cfg in configs.values()])
+    check_agent_specs([ego] + [cfg.opponents for cfg in configs.values()], [track])
     runs = {c: BenchRun(out / f"case_{c}", cfg) for c, cfg in configs.items()}
     todo = sum(len(run.missing()) for run in runs.values())
     t0 = time.perf_counter()
@@ -523,4 +531,40 @@ def paper_table_markdown(table: dict) -> str:
     lines += ["", f"Wall time: {total / 60:.1f} min for the {simulated} races simulated over "
                   f"{len(runs)} invocation(s) (`runs.jsonl`); the races themselves took "
                   f"{race_cpu / 60:.1f} worker-minutes."]
+    return "\n".join(lines) + "\n"
+
+
+def comparison_markdown(tables: dict, note: str = "") -> str:
+    """One table over paper tables run on the same races with different egos (``tables``:
+    label -> ``paper_table.json`` content, the first label's cases in order): per case, each
+    ego's wins, its wins by start region R1/R2/R3 and its mean margin over the best opponent
+    [m]. ``note`` (a sentence) follows the description."""
+    labels = list(tables)
+    if not labels:
+        raise ValueError("no paper tables to compare")
+    first = tables[labels[0]]
+    lines = ["# The same races with other egos: what maximising the potential adds", "",
+             f"Every ego races the same {first['races']} races per case ({first['steps']} "
+             f"steps, seed {first['seed']}, same start orders and opponents): "
+             + ", ".join(f"{label} = `{t['ego']}`" for label, t in tables.items())
+             + ". Wins of the races, then by the ego's start region R1 / R2 / R3 (R1 the "
+               "front); margin: ego minus the best opponent, mean over the races [m]."
+             + (f" {note}" if note else ""), "",
+             "| case | opponents | " + " | ".join(f"{label} wins (R1/R2/R3)" for label in labels)
+             + " | margin m (" + " / ".join(labels) + ") |",
+             "|---|---|" + "---|" * (len(labels) + 1)]
+    for c, case in first["cases"].items():
+        cells, margins = [], []
+        for label in labels:
+            s = tables[label]["cases"].get(c, {}).get("summary")
+            if s is None:
+                cells.append("-")
+                margins.append("-")
+                continue
+            reg = "/".join(str(s["by_region"][r]["ego"]["wins"]) if r in s["by_region"] else "-"
+                           for r in REGIONS)
+            cells.append(f"{s['wins']['ego']['wins']}/{s['races']} ({reg})")
+            margins.append(f"{s['margin_m']['mean']:+.2f}")
+        lines.append(f"| {c} | `{case['opponents']}` | " + " | ".join(cells)
+                     + f" | {' / '.join(margins)} |")
     return "\n".join(lines) + "\n"

@@ -1,6 +1,6 @@
 """The ``alpha-racer`` command line: ``race``, ``agents``, ``tracks``, ``raceline``, ``fuzz``,
 ``collect``, ``train``, ``selfplay``, ``bench``, ``league``, ``strategy``, ``analyze``,
-``reproduce``, ``general-report``, ``policy-map``."""
+``reproduce``, ``general-report``, ``policy-map``, ``control``."""
 from __future__ import annotations
 
 import argparse
@@ -44,7 +44,8 @@ def _cmd_agents(args) -> int:
         for p in params:
             default = "(required)" if p.default is REQUIRED else f"= {p.default!r}"
             bounds = f"  in [{p.bounds[0]:g}, {p.bounds[1]:g}]" if p.bounds else ""
-            print(f"    {p.name} {default}{bounds}")
+            note = f"  ({p.note})" if p.note else ""
+            print(f"    {p.name} {default}{bounds}{note}")
         if open_kwargs:
             print("    ... and further keywords")
         if not params and not open_kwargs:
@@ -222,18 +223,45 @@ def _cmd_analyze(args) -> int:
 
 
 def _cmd_reproduce(args) -> int:
-    """Every table and figure: the paper table, then the analyses (each resumable)."""
+    """Every table and figure: the paper table, the same races with the best fixed theta (the
+    control, selected first if the best-theta table lacks the track) and the extra fixed ego,
+    their comparison, then the analyses (each resumable)."""
+    import json
+
     from .analyze import analyze
-    from .artifacts import slug
-    from .bench import PAPER_CASES, paper_table
+    from .artifacts import slug, write_text
+    from .bench import PAPER_CASES, comparison_markdown, paper_table
+    from .control import BEST_FIXED_SPEC, ControlConfig, claim_best_thetas, ensure_best_thetas
     out = Path(args.out)
     kw = dict(workers=args.workers, backend=args.backend, address=args.address)
+    track = "default"                   # the paper table's track
+    # the control: the same races with the best fixed theta on the track as ego, selected
+    # first (resumable, into out/control) if the best-theta table lacks the track
+    ctl = ControlConfig(thetas=args.control_thetas, races=args.control_races, steps=args.steps)
+    entry = ensure_best_thetas([track], ctl, out / "control", **kw)[track]
     paper_table(out / "paper_table", races=args.races, steps=args.steps, **kw)
     tables = [out / "paper_table" / "paper_table.md"]
-    if args.control_ego != "none":      # the same races with a fixed ego: what alpha adds
-        control = out / f"paper_table_{slug(args.control_ego)}_ego"
-        paper_table(control, ego=args.control_ego, races=args.races, steps=args.steps, **kw)
-        tables.append(control / "paper_table.md")
+    compared = {"alpha": out / "paper_table"}
+    control = out / "paper_table_control"
+    claim_best_thetas(control, [track])      # a changed table never mixes into these races
+    paper_table(control, ego=BEST_FIXED_SPEC, races=args.races, steps=args.steps, **kw)
+    tables.append(control / "paper_table.md")
+    compared["best fixed"] = control
+    if args.control_ego != "none":      # an extra row: the same races with another fixed ego
+        extra = out / f"paper_table_{slug(args.control_ego)}_ego"
+        paper_table(extra, ego=args.control_ego, races=args.races, steps=args.steps, **kw)
+        tables.append(extra / "paper_table.md")
+        compared[args.control_ego] = extra
+    theta = ", ".join(f"{k} {v:.4g}" for k, v in entry["theta"].items())
+    note = (f"The best fixed theta on `{track}` ({theta}) was chosen by `alpha-racer control` "
+            f"from {entry['selection']['file']} (sha256 {entry['selection']['sha256'][:12]}, env "
+            f"`{entry['env']}`).")
+    comparison = write_text(out / "comparison.md", comparison_markdown(
+        {label: json.loads((d / "paper_table.json").read_text()) for label, d in compared.items()},
+        note))
+    tables.insert(1, comparison)
+    if (out / "control" / "summary.md").exists():      # the selection, if it ran here
+        tables.insert(2, out / "control" / "summary.md")
     from dataclasses import replace
     cases = ["IV"] + [c for c in PAPER_CASES if c != "IV"]     # the paper's overtake is vs IBR
     analyze(replace(_analyze_config(args), steps=args.steps), out / "analysis",
@@ -247,7 +275,8 @@ def _cmd_reproduce(args) -> int:
     text = "\n".join(p.read_text() for p in parts)
     (out / "README.md").write_text(text)
     print(text)
-    print(f"wrote {out / 'README.md'}, {out / 'paper_table'}, {out / 'analysis'}"
+    print(f"wrote {out / 'README.md'}, {out / 'paper_table'}, {control}, {comparison}, "
+          f"{out / 'analysis'}"
           + (f" and {out / 'policy_map'}" if args.policy_thetas else ""))
     return 0
 
@@ -258,10 +287,12 @@ def _cmd_general_report(args) -> int:
                               gap_cars=args.gap_cars, gap_races=args.gap_races,
                               gap_pairs=args.gap_pairs, bench_cars=args.bench_cars,
                               bench_rounds=args.bench_rounds, default_races=args.default_races,
-                              steps=args.steps, seed=args.seed)
+                              steps=args.steps, seed=args.seed,
+                              control_thetas=args.control_thetas,
+                              control_races=args.control_races)
     out = Path(args.out)
     general_report(cfg, out, workers=args.workers, backend=args.backend, address=args.address,
-                   command="alpha-racer " + " ".join(args.argv))
+                   command="alpha-racer " + " ".join(args.argv), control_dir=args.control_out)
     print((out / "summary.md").read_text())
     print(f"wrote {out / 'summary.md'} and {out / 'summary.json'}")
     return 0
@@ -276,6 +307,24 @@ def _cmd_policy_map(args) -> int:
     print((out / "summary.md").read_text())
     print(f"{s['new_rows']} new rows; wrote {out / 'summary.md'}, {out / 'summary.json'}, "
           f"{out / 'rows.jsonl'} and heat maps into {out}")
+    return 0
+
+
+def _cmd_control(args) -> int:
+    from .control import ControlConfig, select_best_thetas
+    from .family import expand_tracks
+    cfg = ControlConfig(thetas=args.thetas, candidates=args.candidates, races=args.races,
+                        steps=args.steps, opponents=args.opponents, seed=args.seed)
+    out = Path(args.out)
+    s = select_best_thetas(cfg, expand_tracks(args.tracks), out, workers=args.workers,
+                           backend=args.backend, address=args.address,
+                           install_table=not args.no_install, table=args.table)
+    print((out / "summary.md").read_text())
+    from agents.best_theta import table_path
+    print(f"{s['new_map_runs']} new map runs and {s['new_races']} new playoff races in "
+          f"{s['wall_seconds_this_run'] / 60:.1f} min; wrote {out / 'summary.md'} and "
+          f"<track>/selection.json"
+          + ("" if args.no_install else f"; installed into {args.table or table_path()}"))
     return 0
 
 
@@ -315,6 +364,7 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .control import ControlConfig
     p = argparse.ArgumentParser(prog="alpha-racer", description=__doc__,
                                 formatter_class=_HelpFormatter)
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
@@ -536,14 +586,20 @@ def build_parser() -> argparse.ArgumentParser:
     a.set_defaults(fn=_cmd_analyze)
 
     rp = command("reproduce", "every table and figure of the paper into one folder: "
-                              "bench --paper-table, then analyze, then the policy map "
-                              "(resumable)")
+                              "bench --paper-table, the same races with the best fixed theta "
+                              "(the control), then analyze, then the policy map (resumable)")
     rp.add_argument("--out", default="results", help="output folder; run again to resume")
     rp.add_argument("--races", type=int, default=99, help="races per paper case")
     rp.add_argument("--steps", type=int, default=500, help="steps per race (and per analysis race)")
     rp.add_argument("--control-ego", default="mpc",
-                    help="also run the five cases with this ego (mpc: the fixed-theta MPC) "
-                         "to show what the alpha agent adds; none skips it")
+                    help="an extra row besides the control (the five cases with the best fixed "
+                         "theta, mpc:theta=best): the five cases with this ego (mpc: the "
+                         "fixed-theta MPC at its default zeta 0.9); none skips it")
+    rp.add_argument("--control-thetas", type=int, default=ControlConfig.thetas,
+                    help="if the best-theta table lacks the track: thetas of the control "
+                         "selection (alpha-racer control, into OUT/control, --steps steps)")
+    rp.add_argument("--control-races", type=int, default=ControlConfig.races,
+                    help="if the best-theta table lacks the track: playoff races per candidate")
     rp.add_argument("--policy-thetas", type=int, default=256,
                     help="thetas of the policy map (policy-map's default tracks, both modes, "
                          "--steps steps); 0 skips it")
@@ -553,9 +609,10 @@ def build_parser() -> argparse.ArgumentParser:
     rp.set_defaults(fn=_cmd_reproduce)
 
     gr = command("general-report", "the general alpha-potential on held-out tracks: "
-                                   "approximation gap for N cars, races against the fixed-theta "
-                                   "MPC in the N-car protocol, and against the single-track "
-                                   "default model on default (resumable)")
+                                   "approximation gap for N cars, races in the N-car protocol "
+                                   "beside the best fixed theta on each track (the control), "
+                                   "and against the single-track default model on default "
+                                   "(resumable)")
     gr.add_argument("--model", default="general",
                     help="a general model: shipped name or path to a model.npz")
     gr.add_argument("--tracks", nargs="+", default=None, metavar="TRACK",
@@ -574,9 +631,45 @@ def build_parser() -> argparse.ArgumentParser:
                     help="races against the default model on default (0 skips them)")
     gr.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race")
     gr.add_argument("--seed", type=int, default=0, help="seed of the races and deviations")
+    gr.add_argument("--control-thetas", type=int, default=ControlConfig.thetas,
+                    help="thetas of the selection of the best fixed theta (the control) on "
+                         "each held-out track the best-theta table lacks")
+    gr.add_argument("--control-races", type=int, default=ControlConfig.races,
+                    help="playoff races per candidate of that selection")
+    gr.add_argument("--control-out", default=None,
+                    help="folder of that selection (default OUT/control); run again to resume")
     gr.add_argument("--out", default="results/general", help="output folder; run again to resume")
     _add_parallel_args(gr)
     gr.set_defaults(fn=_cmd_general_report)
+
+    ct = command("control", "choose the best fixed theta per track by a rule from measurements "
+                            "(policy map, top candidates, seeded playoff) and install it for "
+                            "mpc:theta=best (resumable)")
+    ct.add_argument("--tracks", nargs="+", default=["default"],
+                    help="track specs (random:A-B ranges allowed)")
+    ct.add_argument("--thetas", type=int, default=ControlConfig.thetas,
+                    help="Sobol thetas of each track's policy map (solo and race)")
+    ct.add_argument("--candidates", type=int, default=ControlConfig.candidates,
+                    help="K: thetas taken to the playoff by region-adjusted race progress "
+                         "(plus the best solo theta)")
+    ct.add_argument("--races", type=int, default=ControlConfig.races,
+                    help="playoff races per candidate, a multiple of 3 (every start region "
+                         "equally often)")
+    ct.add_argument("--steps", type=int, default=ControlConfig.steps,
+                    help="steps of 0.1 s per run (map and playoff)")
+    ct.add_argument("--opponents", default=ControlConfig.opponents,
+                    help="agent spec of the two other cars (map race mode and playoff)")
+    ct.add_argument("--seed", type=int, default=ControlConfig.seed,
+                    help="seed of the Sobol sample, the map's starts and the playoff races "
+                         "(not 0, the benchmarks' seed)")
+    ct.add_argument("--out", default="results/control", help="output folder; run again to resume")
+    ct.add_argument("--no-install", action="store_true",
+                    help="only measure: leave the best-theta table unchanged")
+    ct.add_argument("--table", default=None,
+                    help="best-theta table to install into (default: the package's "
+                         "agents/models/best_fixed_theta.json, or $ALPHA_RACER_BEST_THETA_TABLE)")
+    _add_parallel_args(ct)
+    ct.set_defaults(fn=_cmd_control)
 
     from .policy_map import DEFAULT_TRACKS, MODES
     pm = command("policy-map", "sweep the MPC policy space (q, zeta, s1, s2, s3): Sobol thetas, "

@@ -11,8 +11,13 @@ a held-out track among them is refused), except the last part, which is about ``
 2. **alpha (general) against the fixed-theta control** in the paper's protocol scaled to N
    cars (:class:`experiments.bench.BenchConfig` with ``n_cars = N``): on every held-out track
    and N, ``rounds`` rounds of N races (the ego from each start region once per round)
-   against N - 1 ``mpc`` cars (the MPC at its fixed default theta); the control runs the
-   same races with an ``mpc`` ego. ``bench/<track>_<N>cars/{alpha,control}/``.
+   against N - 1 ``mpc`` cars (the MPC at its fixed default theta, zeta 0.9). The control
+   runs the same races with the best fixed theta on that track as ego (``mpc:theta=best``,
+   chosen per held-out track by ``alpha-racer control`` with ``control_thetas`` and
+   ``control_races``, into ``control/`` unless the best-theta table has the track; about 6
+   CPU-minutes per track with the defaults); an extra row runs them with an ``mpc`` ego at
+   its default theta. ``bench/<track>_<N>cars/{alpha,control,mpc_default}/``;
+   ``bench/best_fixed_theta.json`` ties the races to the thetas they used.
 3. **alpha (general) against the single-track default model on default**: the general model
    against two ``alpha:model=default`` cars in the paper's 3-car protocol; the control runs
    the same races with the default model as ego. ``default/{general,control}/``.
@@ -32,6 +37,7 @@ import numpy as np
 
 from .artifacts import claim, slug, write_json, write_text
 from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, win_share
+from .control import BEST_FIXED_SPEC, ControlConfig, claim_best_thetas, ensure_best_thetas
 from .family import FamilyConfig, collect_family, expand_tracks, load_family, parse_cars
 from .parallel import check_backend
 
@@ -60,7 +66,9 @@ class GeneralReportConfig:
     :func:`default_heldout_tracks`). ``gap_races`` fresh races per field size of
     ``gap_cars``, ``gap_pairs`` deviations per field size. ``bench_cars`` field sizes of the
     N-car protocol, ``bench_rounds`` rounds of N races per track and N. ``default_races``
-    races of the comparison on ``default`` (0 skips it)."""
+    races of the comparison on ``default`` (0 skips it). ``control_thetas`` and
+    ``control_races``: the :class:`experiments.control.ControlConfig` of the selection of
+    the best fixed theta on held-out tracks the best-theta table lacks."""
 
     model: str = "general"
     tracks: tuple = ()
@@ -73,8 +81,11 @@ class GeneralReportConfig:
     default_races: int = 99
     steps: int = 500
     seed: int = 0
+    control_thetas: int = ControlConfig.thetas
+    control_races: int = ControlConfig.races
 
     def __post_init__(self):
+        self.control_config()                # names a bad control_thetas / control_races
         for name in ("gap_races", "gap_pairs", "bench_rounds", "steps"):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
@@ -91,6 +102,17 @@ class GeneralReportConfig:
         if any(ch in str(self.model) for ch in ",="):
             raise ValueError(f"model {self.model!r}: a name or path without ',' or '=' "
                              f"(it goes into an agent spec)")
+
+
+    def control_config(self) -> ControlConfig:
+        """The selection of the best fixed theta on a held-out track (this report's steps)."""
+        return ControlConfig(thetas=self.control_thetas, races=self.control_races,
+                             steps=self.steps)
+
+
+ROLES = ("alpha", "control", "mpc_default")
+"""Egos of the N-car races: the general model, the best fixed theta (the control) and the
+``mpc`` agent at its default theta (an extra row)."""
 
 
 def _model(name):
@@ -150,7 +172,7 @@ def _bench_runs(cfg: GeneralReportConfig, tracks, out: Path) -> dict:
     runs = {}
     for track in tracks:
         for N in cfg.bench_cars:
-            for role, who in (("alpha", ego), ("control", "mpc")):
+            for role, who in zip(ROLES, (ego, BEST_FIXED_SPEC, "mpc")):
                 bc = BenchConfig(ego=who, opponents="mpc", races=N * cfg.bench_rounds,
                                  steps=cfg.steps, track=track, seed=cfg.seed, n_cars=N)
                 runs[("field", track, N, role)] = BenchRun(
@@ -178,7 +200,7 @@ def field_results(runs: dict, cfg: GeneralReportConfig, tracks) -> dict:
     out = {}
     for N in cfg.bench_cars:
         per = {role: {t: runs[("field", t, N, role)].write_summary() for t in tracks}
-               for role in ("alpha", "control")}
+               for role in ROLES}
         out[str(N)] = {"chance": 1.0 / N,
                        **{role: _ego_wins(per[role].values()) for role in per},
                        "by_track": {t: {role: per[role][t]["wins"]["ego"]["wins"]
@@ -200,9 +222,12 @@ def default_results(runs: dict) -> dict:
 # ---------------------------------------------------------------------------- driver
 def general_report(cfg: GeneralReportConfig, out_dir="results/general", workers: int = 2,
                    backend: str = "local", address: str | None = None,
-                   progress_bar: bool = True, command: str | None = None) -> dict:
+                   progress_bar: bool = True, command: str | None = None,
+                   control_dir=None) -> dict:
     """Run (or resume) the three parts into ``out_dir``; returns ``summary.json``'s content.
-    ``command`` (the command line that made it) goes into the summary."""
+    ``command`` (the command line that made it) goes into the summary. The best fixed theta
+    of a held-out track the best-theta table lacks is selected into ``control_dir`` (default
+    ``out_dir/control``) and installed first."""
     check_backend(backend, workers)
     model = _model(cfg.model)
     tracks = heldout_tracks(cfg, model)
@@ -213,6 +238,11 @@ def general_report(cfg: GeneralReportConfig, out_dir="results/general", workers:
     claim(out / "manifest.json", {"config": json.loads(json.dumps(asdict(cfg))),
                                   "heldout_tracks": tracks}, "a general-model report")
     t0 = time.perf_counter()
+    # the control on every held-out track: selected first where the table lacks it
+    control_dir = Path(control_dir) if control_dir is not None else out / "control"
+    best = ensure_best_thetas(tracks, cfg.control_config(), control_dir, workers, backend,
+                              address, progress_bar=progress_bar)
+    claim_best_thetas(out / "bench", tracks)     # a changed table never mixes into these races
     fam = FamilyConfig(races=cfg.gap_races * len(cfg.gap_cars), tracks=tuple(tracks),
                        cars=cfg.gap_cars, steps=cfg.steps, seed=cfg.heldout_seed,
                        races_per_shard=1)
@@ -224,6 +254,10 @@ def general_report(cfg: GeneralReportConfig, out_dir="results/general", workers:
     _run_many(runs, workers, backend, address, progress_bar)
     summary = {"config": json.loads(json.dumps(asdict(cfg))), "model": _model_info(model),
                "heldout_tracks": tracks, "gap": gap,
+               "best_fixed_theta": {t: {"theta": e["theta"], "env": e["env"],
+                                        "selection": e["selection"]["file"],
+                                        "sha256": e["selection"]["sha256"]}
+                                    for t, e in best.items()},
                "field": field_results(runs, cfg, tracks),
                "default": default_results(runs) if cfg.default_races else None,
                "command": command or f"alpha-racer general-report --model {cfg.model} "
@@ -266,25 +300,31 @@ def summary_markdown(s: dict) -> str:
         lines.append(f"| {N} | {r['races']} | {100 * r['gap_rel_median']:.2f}% | "
                      f"{100 * r['gap_rel_p95']:.2f}% | {100 * r['const_rel_median']:.2f}% | "
                      f"{100 * r['const_rel_p95']:.2f}% | {r['value_range_heldout']:.3f} |")
-    lines += ["", "## alpha (general) against the fixed-theta MPC, N cars", "",
+    lines += ["", "## alpha (general) against the best fixed theta, N cars", "",
               f"On every held-out track, {c['bench_rounds']} round(s) of N races of "
               f"{c['steps']} steps: the ego from each of the N start regions once per round, "
-              f"N - 1 `mpc` opponents (fixed default theta) in the other regions front to back. "
-              f"The control races the same races with an `mpc` ego. Ego wins with Wilson 95% "
-              f"intervals; margin = ego minus the best opponent.", "",
-              "| cars | alpha (general) ego wins | margin m | mpc ego wins (control) | margin m "
-              "| chance |", "|---|---|---|---|---|---|"]
+              f"N - 1 `mpc` opponents (fixed default theta, zeta 0.9) in the other regions "
+              f"front to back. The control races the same races with the best fixed theta on "
+              f"that track as ego (`{BEST_FIXED_SPEC}`, chosen by `alpha-racer control`); the "
+              f"extra row with an `mpc` ego at its default theta (zeta 0.9). Ego wins with "
+              f"Wilson 95% intervals; margin = ego minus the best opponent.", "",
+              "| cars | alpha (general) ego wins | margin m | best fixed theta ego wins (control) "
+              "| margin m | `mpc` (zeta 0.9) ego wins | margin m | chance |",
+              "|---|---|---|---|---|---|---|---|"]
     for N, r in s["field"].items():
-        lines.append(f"| {N} | {_pct(r['alpha'])} | {r['alpha']['margin_m_mean']:+.2f} | "
-                     f"{_pct(r['control'])} | {r['control']['margin_m_mean']:+.2f} | "
-                     f"{100 * r['chance']:.0f}% |")
-    lines += ["", "Ego wins per track (alpha / control, of the races per track):", "",
-              "| track | " + " | ".join(f"{N} cars" for N in s["field"]) + " |",
-              "|---" * (len(s["field"]) + 1) + "|"]
+        lines.append(f"| {N} | " + " | ".join(f"{_pct(r[role])} | {r[role]['margin_m_mean']:+.2f}"
+                                              for role in ROLES)
+                     + f" | {100 * r['chance']:.0f}% |")
+    lines += ["", "Ego wins per track (alpha / best fixed theta / `mpc` at zeta 0.9, of the races "
+                  "per track), and the best fixed theta (q, zeta, s1, s2, s3):", "",
+              "| track | " + " | ".join(f"{N} cars" for N in s["field"]) + " | best fixed theta |",
+              "|---" * (len(s["field"]) + 2) + "|"]
     for t in tracks:
+        th = s.get("best_fixed_theta", {}).get(t)
+        th = ", ".join(f"{v:.3g}" for v in th["theta"].values()) if th else "-"
         lines.append(f"| `{t}` | " + " | ".join(
-            f"{r['by_track'][t]['alpha']} / {r['by_track'][t]['control']} of "
-            f"{r['by_track'][t]['races']}" for r in s["field"].values()) + " |")
+            " / ".join(str(r['by_track'][t][role]) for role in ROLES)
+            + f" of {r['by_track'][t]['races']}" for r in s["field"].values()) + f" | {th} |")
     d = s["default"]
     if d:
         lines += ["", "## alpha (general) against the single-track default model on `default`",

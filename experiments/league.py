@@ -525,7 +525,7 @@ def league(config: LeagueConfig, out_dir, workers: int = 2, backend: str = "loca
     check_backend(backend, workers)
     imports = tuple(str(Path(m).resolve()) if m.endswith(".py") else m for m in imports)
     _import_once(imports)
-    check_agent_specs(config.agents)
+    check_agent_specs(config.agents, config.tracks)
     check_tracks(config.tracks, config.cars)
     check_field(config.agents, config.cars, config.tracks[0])
     run = LeagueRun(out_dir, config)

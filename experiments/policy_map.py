@@ -482,7 +482,7 @@ def policy_map(config: PolicyMapConfig, out_dir, workers: int = 2, backend: str 
     for track in config.tracks:            # a typo fails before any run starts
         make_track(track)
     if "race" in config.modes:
-        check_agent_specs([config.opponents])
+        check_agent_specs([config.opponents], config.tracks)
     run = PolicyMapRun(out_dir, config)
     keys = run.missing()
     tasks = [(key, (config, *key, run.thetas[key[2]])) for key in keys]

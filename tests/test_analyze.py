@@ -92,11 +92,14 @@ def test_tiny_analysis_end_to_end(tmp_path):
         analyze(AnalyzeConfig(regret_states=3), tmp_path, workers=1, progress_bar=False)
 
 
-def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys):
+def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys, monkeypatch):
+    from agents.best_theta import TABLE_ENV_VAR, lookup
+    monkeypatch.setenv(TABLE_ENV_VAR, str(tmp_path / "best_fixed_theta.json"))   # empty table
     assert main(["reproduce", "--out", str(tmp_path), "--races", "3", "--steps", "30",
                  "--heldout-races", "2", "--gap-pairs", "300", "--regret-states", "2",
                  "--regret-horizon", "5", "--cem-iterations", "1", "--cem-samples", "2",
-                 "--slice-points", "5", "--policy-thetas", "2", "--workers", "1"]) == 0
+                 "--slice-points", "5", "--policy-thetas", "2", "--control-thetas", "2",
+                 "--control-races", "3", "--workers", "1"]) == 0
     table = json.loads((tmp_path / "paper_table" / "paper_table.json").read_text())
     assert list(table["cases"]) == ["I", "II", "III", "IV", "V"]
     md = (tmp_path / "paper_table" / "paper_table.md").read_text()
@@ -105,10 +108,24 @@ def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys):
         s = case["summary"]
         assert sum(w["wins"] for w in s["wins"].values()) == 3
     assert (tmp_path / "analysis" / "fig3_potential_slices.png").exists()
-    control = json.loads((tmp_path / "paper_table_mpc_ego" / "paper_table.json").read_text())
-    assert control["ego"] == "mpc" and list(control["cases"]) == list(table["cases"])
+    # the control: the best fixed theta, selected first because the table lacked default
+    sel = json.loads((tmp_path / "control" / "default" / "selection.json").read_text())
+    assert lookup("default")["theta"] == sel["winner"]["theta"]
+    control = json.loads((tmp_path / "paper_table_control" / "paper_table.json").read_text())
+    assert control["ego"] == "mpc:theta=best" and list(control["cases"]) == list(table["cases"])
+    claimed = json.loads((tmp_path / "paper_table_control" / "best_fixed_theta.json").read_text())
+    assert claimed["config"]["default"]["theta"] == sel["winner"]["theta"]
+    extra = json.loads((tmp_path / "paper_table_mpc_ego" / "paper_table.json").read_text())
+    assert extra["ego"] == "mpc" and list(extra["cases"]) == list(table["cases"])
     text = (tmp_path / "README.md").read_text()
     assert "Table 1" in text and "Nash regret" in text
+    comparison = (tmp_path / "comparison.md").read_text()
+    assert comparison in text and "| alpha wins (R1/R2/R3) | best fixed wins (R1/R2/R3) | mpc " \
+        "wins (R1/R2/R3) | margin m (alpha / best fixed / mpc) |" in comparison
+    for c, case in table["cases"].items():
+        s = case["summary"]
+        reg = "/".join(str(s["by_region"][r]["ego"]["wins"]) for r in ("R1", "R2", "R3"))
+        assert f"| {c} | `{case['opponents']}` | {s['wins']['ego']['wins']}/3 ({reg}) |" in comparison
     rows = [json.loads(line) for line in (tmp_path / "policy_map" / "rows.jsonl").open()]
     assert len(rows) == 2 * 2 * 4                      # thetas x modes x default tracks
     assert all(r["steps"] == 30 for r in rows if "error" not in r)

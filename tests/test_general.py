@@ -402,23 +402,37 @@ def test_model_general_is_refused_with_how_to_train_it_when_missing(monkeypatch,
 
 
 # ---------------------------------------------------------------------------- the report
-def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_path):
+def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_path,
+                                                            monkeypatch):
+    from agents.best_theta import TABLE_ENV_VAR, lookup
     from experiments.general import GeneralReportConfig, default_heldout_tracks, general_report
+    monkeypatch.setenv(TABLE_ENV_VAR, str(tmp_path / "best_fixed_theta.json"))   # empty table
     path = str(general_model / "model" / "model.npz")
     cfg = GeneralReportConfig(model=path, tracks=("random:10000",), gap_cars=(2, 3), gap_races=1,
-                              gap_pairs=300, bench_cars=(2,), default_races=3, steps=15)
+                              gap_pairs=300, bench_cars=(2,), default_races=3, steps=15,
+                              control_thetas=2, control_races=3)
     s = general_report(cfg, tmp_path, workers=1, progress_bar=False)
+    # the control: the best fixed theta on the held-out track, selected first into control/
+    sel = json.loads((tmp_path / "control" / "random_10000" / "selection.json").read_text())
+    assert lookup("random:10000")["theta"] == sel["winner"]["theta"] == \
+        s["best_fixed_theta"]["random:10000"]["theta"]
+    egos = {role: json.loads((tmp_path / "bench" / "random_10000_2cars" / role /
+                              "manifest.json").read_text())["config"]["ego"]
+            for role in ("alpha", "control", "mpc_default")}
+    assert egos == {"alpha": f"alpha:model={path}", "control": "mpc:theta=best",
+                    "mpc_default": "mpc"}
     assert set(s["gap"]["by_cars"]) == {"2", "3"}
     for g in s["gap"]["by_cars"].values():
         assert g["races"] == 1 and g["tracks"] == ["random:10000"]
         assert 0 <= g["gap_rel_median"] <= g["gap_rel_p95"] and np.isfinite(g["const_rel_p95"])
     f = s["field"]["2"]
-    assert f["alpha"]["races"] == f["control"]["races"] == 2 and f["chance"] == 0.5
+    assert f["alpha"]["races"] == f["control"]["races"] == f["mpc_default"]["races"] == 2
+    assert f["chance"] == 0.5
     assert f["by_track"]["random:10000"]["races"] == 2
     d = s["default"]["general"]
     assert sum(w["wins"] for w in d["wins"].values()) == 3
     text = (tmp_path / "summary.md").read_text()
-    for part in ("## Approximation gap", "against the fixed-theta MPC",
+    for part in ("## Approximation gap", "against the best fixed theta",
                  "against the single-track default model"):
         assert part in text
     lines = (tmp_path / "bench" / "random_10000_2cars" / "alpha" / "races.jsonl").read_text()
