@@ -83,18 +83,21 @@ class StrategyConfig:
     agents' seeds (race k of every bench has the seed of ``(seed, k)``); ``zeta_max`` is the
     defend ego's speed-scale ceiling.
 
-    ``steps`` defaults to 120 (12 s): the full suite (6 benches x 2 egos x 3 tracks x 99
-    races = 3564 races) then takes 37-44 min on 2 cores, from races measured at 0.4 s
-    (``pass``), 1.1 s (``equal``, ``defend``), 2.0 s (``table1_ibr``), 0.5 s (``table1_ppo``)
-    and 1.3 s (``table1_alpha``) per 100 steps on one core, and at 1.6 s per 130-step race
-    of a whole 72-race suite, worker start-up included (docs: "Strategy benchmark")."""
+    Every scenario runs ``races`` races per track and ego; ``table1`` shares them among its
+    three opponents (33 each of 99). ``steps`` defaults to 200 (20 s: long enough for a car
+    4% faster to close a start gap of 1-2 m and pass): the full suite (4 scenarios x 3
+    tracks x 2 egos x 99 races = 2376 races) is then estimated at 36 min on 2 cores, from
+    races measured at 0.4 s (``pass``), 1.1 s (``equal``, ``defend``), 2.0 s
+    (``table1_ibr``), 0.5 s (``table1_ppo``) and 1.3 s (``table1_alpha``) per 100 steps on
+    one core with an alpha ego, a fixed-theta ego about 10% less (docs: "Strategy
+    benchmark"); the README gives the measured time."""
 
     ego: str = "alpha"
     control: str = "mpc:theta=best"
     tracks: tuple[str, ...] = DEFAULT_TRACKS
     scenarios: tuple[str, ...] = SCENARIOS
     races: int = 99
-    steps: int = 120
+    steps: int = 200
     seed: int = 0
     zeta_max: float = ZETA_MAX
 
@@ -174,7 +177,8 @@ def cells(config: StrategyConfig) -> list[Cell]:
                 elif bench == "defend":
                     cfg = BenchConfig(ego=config.capped(spec), opponents=config.control,
                                       ego_regions=("R1",), **kw)
-                else:
+                else:   # the scenario's races shared among its opponents (33 each of 99)
+                    kw["races"] = max(1, config.races // len(TABLE1_OPPONENTS))
                     cfg = BenchConfig(ego=spec, opponents=bench.removeprefix("table1_"), **kw)
                 out.append(Cell(bench, track, role, cfg))
     return out

@@ -39,9 +39,10 @@ def test_the_suite_has_a_row_per_bench_and_track_and_the_cli_wrote_it(tiny_suite
     md = (out / "strategy.md").read_text()
     assert md.count("\n| ") == 1 + 6 + 1 + 3        # table header + rows, pace header + rows
     for r in table["rows"]:
+        n = 1 if r["bench"].startswith("table1_") else 3     # table1 shares its 3 races
         for side in ("ego", "control"):
-            assert r[side]["races"] == 3 and r[side]["complete"]
-            assert sum(r[side]["races_by_region"].values()) == 3
+            assert r[side]["races"] == n and r[side]["complete"]
+            assert sum(r[side]["races_by_region"].values()) == n
         assert (out / r["ego_dir"] / "summary.md").exists()
         assert (out / r["control_dir"] / "summary.md").exists()
         assert f"| {r['bench']} | `default` |" in md
@@ -56,13 +57,13 @@ def test_ego_and_control_race_the_same_seeds_seats_and_opponents(tiny_suite):
     for bench in opponents:
         ego, control = runs[(bench, "default", "ego")], runs[(bench, "default", "control")]
         e, c = ego.records(), control.records()
-        assert sorted(e) == sorted(c) == [0, 1, 2]
+        assert sorted(e) == sorted(c) == ([0] if bench.startswith("table1_") else [0, 1, 2])
         for k in e:
             assert (e[k]["seed"], e[k]["start_regions"]) == (c[k]["seed"], c[k]["start_regions"])
             assert e[k]["agents"][1:] == c[k]["agents"][1:] == [opponents[bench]] * 2
             # the same start positions: the opponents' cars start where they did for the other
             np.testing.assert_array_equal(ego.states(k)[0, 1:], control.states(k)[0, 1:])
-        assert [e[k]["ego_region"] for k in range(3)] == seats.get(bench, ["R1", "R2", "R3"])
+        assert [e[k]["ego_region"] for k in sorted(e)] == seats.get(bench, ["R1", "R2", "R3"])[:len(e)]
     assert runs[("defend", "default", "ego")].config.ego == "alpha:zeta_max=0.94"
     assert runs[("defend", "default", "control")].config.ego == "mpc:zeta=1.02,zeta_max=0.94"
 
