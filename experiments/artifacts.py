@@ -97,3 +97,21 @@ def read_jsonl(path) -> list:
         except json.JSONDecodeError:
             continue
     return out
+
+
+def uses_best_theta(specs) -> bool:
+    """Whether any agent spec of ``specs`` races the best-theta table (``theta=best``)."""
+    return any("theta=best" in spec.replace(" ", "") for spec in specs)
+
+
+def claim_best_thetas(folder, tracks, table=None) -> dict:
+    """Tie ``folder`` (a run whose races use ``mpc:theta=best``) to the thetas the table now
+    holds for ``tracks``: ``folder/best_fixed_theta.json`` records them, and a later run after
+    the table changed is refused (its races would mix two controls). Returns the entries."""
+    from agents.best_theta import lookup
+    entries = {t: lookup(t, table) for t in dict.fromkeys(tracks)}
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    claim(Path(folder) / "best_fixed_theta.json",
+          {"config": {t: {"theta": e["theta"], "env": e["env"]} for t, e in entries.items()}},
+          "races of a best fixed theta")
+    return entries

@@ -231,7 +231,7 @@ def _cmd_reproduce(args) -> int:
     from .analyze import analyze
     from .artifacts import slug, write_text
     from .bench import PAPER_CASES, comparison_markdown, paper_table
-    from .control import BEST_FIXED_SPEC, ControlConfig, claim_best_thetas, ensure_best_thetas
+    from .control import BEST_FIXED_SPEC, ControlConfig, ensure_best_thetas
     out = Path(args.out)
     kw = dict(workers=args.workers, backend=args.backend, address=args.address)
     track = "default"                   # the paper table's track
@@ -243,7 +243,6 @@ def _cmd_reproduce(args) -> int:
     tables = [out / "paper_table" / "paper_table.md"]
     compared = {"alpha": out / "paper_table"}
     control = out / "paper_table_control"
-    claim_best_thetas(control, [track])      # a changed table never mixes into these races
     paper_table(control, ego=BEST_FIXED_SPEC, races=args.races, steps=args.steps, **kw)
     tables.append(control / "paper_table.md")
     compared["best fixed"] = control

@@ -429,16 +429,3 @@ def ensure_best_thetas(tracks, cfg: ControlConfig, out_dir="results/control", wo
         select_best_thetas(cfg, missing, out_dir, workers, backend, address, True, table,
                            progress_bar)
     return {t: lookup(t, table) for t in dict.fromkeys(tracks)}
-
-
-def claim_best_thetas(folder, tracks, table=None) -> dict:
-    """Tie ``folder`` (a run whose races use ``mpc:theta=best``) to the thetas the table now
-    holds for ``tracks``: ``folder/best_fixed_theta.json`` records them, and a later run after
-    the table changed is refused (its races would mix two controls). Returns the entries."""
-    from agents.best_theta import lookup
-    entries = {t: lookup(t, table) for t in dict.fromkeys(tracks)}
-    Path(folder).mkdir(parents=True, exist_ok=True)
-    claim(Path(folder) / "best_fixed_theta.json",
-          {"config": {t: {"theta": e["theta"], "env": e["env"]} for t, e in entries.items()}},
-          "races of a best fixed theta")
-    return entries

@@ -37,7 +37,7 @@ import numpy as np
 
 from .artifacts import claim, slug, write_json, write_text
 from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, win_share
-from .control import BEST_FIXED_SPEC, ControlConfig, claim_best_thetas, ensure_best_thetas
+from .control import BEST_FIXED_SPEC, ControlConfig, ensure_best_thetas
 from .family import FamilyConfig, collect_family, expand_tracks, load_family, parse_cars
 from .parallel import check_backend
 
@@ -242,7 +242,6 @@ def general_report(cfg: GeneralReportConfig, out_dir="results/general", workers:
     control_dir = Path(control_dir) if control_dir is not None else out / "control"
     best = ensure_best_thetas(tracks, cfg.control_config(), control_dir, workers, backend,
                               address, progress_bar=progress_bar)
-    claim_best_thetas(out / "bench", tracks)     # a changed table never mixes into these races
     fam = FamilyConfig(races=cfg.gap_races * len(cfg.gap_cars), tracks=tuple(tracks),
                        cars=cfg.gap_cars, steps=cfg.steps, seed=cfg.heldout_seed,
                        races_per_shard=1)

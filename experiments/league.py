@@ -48,7 +48,8 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics as race_metrics
-from .artifacts import append_jsonl, claim, env_version, read_jsonl, write_json, write_text
+from .artifacts import (append_jsonl, claim, claim_best_thetas, env_version, read_jsonl,
+                        uses_best_theta, write_json, write_text)
 from .bench import check_agent_specs, wilson_interval
 from .parallel import check_backend, run_tasks_with_progress
 
@@ -449,6 +450,8 @@ class LeagueRun:
         meta = {"schema_version": SCHEMA_VERSION, "config": asdict(config), "env": env_version()}
         # compared as stored: JSON turns the config's tuples into lists
         claim(self.out / "manifest.json", json.loads(json.dumps(meta)), "a league")
+        if uses_best_theta(config.agents):   # a changed best-theta table never mixes in
+            claim_best_thetas(self.out, config.tracks)
 
     @property
     def records_path(self) -> Path:

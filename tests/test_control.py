@@ -4,6 +4,8 @@ import json
 import numpy as np
 import pytest
 
+from experiments.artifacts import claim_best_thetas
+
 pytest.importorskip("daqp")
 
 from agents import best_theta, make_agent_spec  # noqa: E402
@@ -225,13 +227,21 @@ def test_ensure_selects_only_missing_tracks_and_claim_refuses_a_changed_table(ta
                                 progress_bar=False)
     assert got["oval"]["theta"] == _theta(1) and got["default"]["selection"]["index"] in (0, 1)
     assert [p.parent.name for p in (tmp_path / "ctl").glob("*/selection.json")] == ["default"]
-    ct.claim_best_thetas(tmp_path / "run", ["oval", "default"])
-    ct.claim_best_thetas(tmp_path / "run", ["oval", "default"])           # same: resumes
+    claim_best_thetas(tmp_path / "run", ["oval", "default"])
+    claim_best_thetas(tmp_path / "run", ["oval", "default"])              # same: resumes
     table_now = json.loads(table.read_text())
     table_now["tracks"]["oval"]["theta"] = _theta(2)
     table.write_text(json.dumps(table_now))
     with pytest.raises(ValueError, match="races of a best fixed theta of another configuration"):
-        ct.claim_best_thetas(tmp_path / "run", ["oval", "default"])
+        claim_best_thetas(tmp_path / "run", ["oval", "default"])
+    # a bench that races mpc:theta=best claims its folder the same way
+    from experiments.bench import BenchConfig, BenchRun
+    cfg = BenchConfig(ego="mpc:theta=best", opponents="raceline", races=3, steps=5, track="oval")
+    with pytest.raises(ValueError, match="races of a best fixed theta of another configuration"):
+        BenchRun(tmp_path / "run", cfg)
+    BenchRun(tmp_path / "bench", cfg)
+    assert json.loads((tmp_path / "bench" / "best_fixed_theta.json").read_text())["config"] \
+        == {"oval": {"theta": _theta(2), "env": table_now["tracks"]["oval"]["env"]}}
 
 
 def test_one_theta_best_player_races_each_track_of_a_league_with_its_own_theta(table, tmp_path):
