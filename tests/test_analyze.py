@@ -113,8 +113,10 @@ def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys, monkeypa
     assert lookup("default")["theta"] == sel["winner"]["theta"]
     control = json.loads((tmp_path / "paper_table_control" / "paper_table.json").read_text())
     assert control["ego"] == "mpc:theta=best" and list(control["cases"]) == list(table["cases"])
-    claimed = json.loads((tmp_path / "paper_table_control" / "best_fixed_theta.json").read_text())
-    assert claimed["config"]["default"]["theta"] == sel["winner"]["theta"]
+    for case in control["cases"]:       # each case's folder records the theta it raced
+        claimed = json.loads((tmp_path / "paper_table_control" / f"case_{case}"
+                              / "best_fixed_theta.json").read_text())
+        assert claimed["config"]["default"]["theta"] == sel["winner"]["theta"]
     extra = json.loads((tmp_path / "paper_table_mpc_ego" / "paper_table.json").read_text())
     assert extra["ego"] == "mpc" and list(extra["cases"]) == list(table["cases"])
     text = (tmp_path / "README.md").read_text()

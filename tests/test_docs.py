@@ -15,7 +15,8 @@ ROOT_FILES = ("CITATION.cff", "CHANGELOG.md", "pyproject.toml", "mkdocs.yml", "R
 GENERATED = ("results/race", "results/ibr_race", "results/raceline", "results/bench", "results/example",
              "results/paper_table_mpc_ego", "results/paper_table/runs.jsonl", "results/policy_map",
              "results/league", "results/general", "agents/models/alpha_general.npz",
-             "results/control", "results/paper_table_control", "results/comparison.md")
+             "results/control", "results/paper_table_control", "results/comparison.md",
+             "results/analysis", "results/strategy")
 
 
 def _readme_paths() -> set[str]:

@@ -1,7 +1,7 @@
 """Integration, rules and reward of the compiled step, through BatchedRaces."""
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from racing_env import BatchedRaces, RaceConfig, RulesConfig, make_track
@@ -287,7 +287,9 @@ def _order_kept(before, after, length):
         for j in range(i + 1, n):
             d0 = (before[i, 0] - before[j, 0] + length / 2) % length - length / 2
             d1 = (after[i, 0] - after[j, 0] + length / 2) % length - length / 2
-            overlap = abs(before[i, 1] - before[j, 1]) < C_DN and abs(after[i, 1] - after[j, 1]) < C_DN
+            # (a pair pushed apart sideways sits at exactly c_dn: touching, not overlapping)
+            overlap = (abs(before[i, 1] - before[j, 1]) < C_DN - 1e-7
+                       and abs(after[i, 1] - after[j, 1]) < C_DN - 1e-7)
             out.append((overlap, (d0 > 0) == (d1 > 0), d1, after[i, 1] - after[j, 1]))
     return out
 
@@ -336,6 +338,7 @@ def test_full_throttle_cannot_push_through_a_stopped_car(track, s0):
 
 
 @settings(max_examples=40, deadline=None)
+@example(seed=2_147_483_647, n_cars=2, s=20.40397426061176, spread=0.13, track="default")
 @given(seed=st.integers(0, 2**31 - 1), n_cars=st.integers(2, 4), s=st.floats(0.5, 25.0),
        spread=st.floats(0.13, 0.6), track=st.sampled_from(["oval", "default"]))
 def test_no_two_cars_swap_order_while_they_overlap_laterally(seed, n_cars, s, spread, track):
