@@ -187,9 +187,8 @@ def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_r
         offtrack[b, i] = 0
     applied = np.ones(n_cars)
     possible = False
-    c_ds, c_dn = rules[R_CONTACT_DS], rules[R_CONTACT_DN]
-    ahead = np.empty((0, 0), dtype=np.bool_)
     if rules[R_CONTACT_ON] > 0.0 and n_cars > 1:
+        c_ds, c_dn = rules[R_CONTACT_DS], rules[R_CONTACT_DN]
         margin = 0.01  # [m] covers the difference between the two integrations
         for i in range(n_cars):
             for j in range(i + 1, n_cars):
@@ -202,18 +201,11 @@ def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_r
             _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, k_max,
                                    c_ds, c_dn, rules[R_FRONT], rules[R_REAR], applied, contact,
                                    substeps, ahead)
-    for i in range(n_cars):
-        # wall: a car cannot go further than the wall; it stops sideways there
-        x = state[b, i]
-        wl = _lookup(wall_left, x[0], ds, length)
-        wr = _lookup(wall_right, x[0], ds, length)
-        if x[1] > wl or x[1] < -wr:
-            x[1] = wl if x[1] > wl else -wr
-            x[2] = 0.0
-            x[4] = 0.0
-            x[5] = 0.0
-    if possible:   # a wall may have moved a car sideways into another: keep them apart
-        _separate(b, state, x0, ahead, length, c_ds, c_dn, False)
+            _clamp_to_walls(b, state, wall_left, wall_right, ds, length)
+            # a wall may have moved a car sideways into another: keep them apart
+            _separate(b, state, x0, ahead, length, c_ds, c_dn, False)
+    if not possible:
+        _clamp_to_walls(b, state, wall_left, wall_right, ds, length)
     for i in range(n_cars):
         x = state[b, i]
         if x[1] > _lookup(w_left, x[0], ds, length) or x[1] < -_lookup(w_right, x[0], ds, length):
@@ -236,6 +228,20 @@ def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_r
                 lead_after = max(lead_after, state[b, j, 0])
         reward[b, i] = (state[b, i, 0] - lead_after) - (before[i] - lead_before)
     return before
+
+
+@njit(cache=True, inline="always")
+def _clamp_to_walls(b, state, wall_left, wall_right, ds, length):
+    """A car cannot go further than a wall: it stops sideways there (race ``b``, in place)."""
+    for i in range(state.shape[1]):
+        x = state[b, i]
+        wl = _lookup(wall_left, x[0], ds, length)
+        wr = _lookup(wall_right, x[0], ds, length)
+        if x[1] > wl or x[1] < -wr:
+            x[1] = wl if x[1] > wl else -wr
+            x[2] = 0.0
+            x[4] = 0.0
+            x[5] = 0.0
 
 
 @njit(cache=True, inline="always")
