@@ -47,6 +47,7 @@ def main(argv=None) -> Path:
         ax.plot(mid, np.nanmean(table[k], 0), "k-", lw=2, label="mean of the seeds")
         ax.fill_between(mid, np.nanmin(table[k], 0), np.nanmax(table[k], 0), color="k", alpha=0.15,
                         label="min-max of the seeds")
+        ax.xaxis.set_major_formatter(lambda x, _: f"{x / 1000:.0f}k")
         ax.set_xlabel("PPO env steps")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
