@@ -7,7 +7,9 @@ The learning path of the docs (``docs/learning.md``), as one script that reads t
    the learner ``car_0`` against embedded opponents), ``VecMonitor`` (episode returns for
    SB3's ``ep_rew_mean``) and ``VecNormalize`` (observations and rewards scaled to unit
    variance: the raw observations mix metres, radians and metres per second, and their
-   ``Box`` bounds are far too loose to normalise by);
+   ``Box`` bounds are far too loose to normalise by); ``--off-track-penalty`` subtracts a
+   reward on every step off track (the env itself keeps the paper's rule, which only slows
+   the car);
 3. the model and the loop, logging every finished episode: steps, return, distance driven
    and the share of steps off track (``curve.csv``);
 4. the evaluation: deterministic actions on fresh races, the ``VecNormalize`` statistics
@@ -44,6 +46,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--n-steps", type=int, default=256, help="PPO rollout length per env (default 256)")
     p.add_argument("--eval-races", type=int, default=4, help="evaluation races (default 4)")
     p.add_argument("--race-steps", type=int, default=500, help="steps of the final race (default 500 = 50 s)")
+    p.add_argument("--off-track-penalty", type=float, default=0.0,
+                   help="metres of reward taken per step off track, in training only (default 0: the "
+                        "paper's rule, under which riding beyond the edge costs only speed)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--out", type=Path, default=Path("results/learning/run"))
     return p.parse_args(argv)
@@ -54,7 +59,7 @@ def main(argv=None) -> dict:
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+    from stable_baselines3.common.vec_env import VecEnvWrapper, VecMonitor, VecNormalize
 
     from agents.ppo_agent import save_checkpoint
     from experiments.race import run_race
@@ -66,7 +71,25 @@ def main(argv=None) -> dict:
     # ------------------------------------------------------------------ the training env
     raw = HeadToHeadVecEnv(n_envs=args.envs, opponents=args.opponents)
     raw.seed(args.seed)
-    venv = VecMonitor(raw)
+    venv = VecMonitor(raw)                              # ep_rew_mean: the env's own reward
+
+    class OffTrackPenalty(VecEnvWrapper):
+        """Reward minus ``penalty`` [m] on every step a car ends off track (training only)."""
+
+        def __init__(self, venv, penalty: float):
+            super().__init__(venv)
+            self.penalty = penalty
+
+        def reset(self):
+            return self.venv.reset()
+
+        def step_wait(self):
+            obs, rewards, dones, infos = self.venv.step_wait()
+            rewards = rewards - self.penalty * np.array([bool(i["off_track"]) for i in infos], np.float32)
+            return obs, rewards, dones, infos
+
+    if args.off_track_penalty:
+        venv = OffTrackPenalty(venv, args.off_track_penalty)
     venv = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=0.99)
 
     # ------------------------------------------------------------------ logging: the curve
@@ -136,6 +159,7 @@ def main(argv=None) -> dict:
                          max_cycles=args.race_steps, progress_bar=False)
     print(result.table())
     report = {"steps": args.steps, "envs": args.envs, "seed": args.seed, "train_s": round(train_s, 1),
+              "off_track_penalty": args.off_track_penalty,
               "evaluation": evaluation, "race_order": [int(i) for i in result.order],
               "race_progress_m": [round(float(p), 2) for p in result.progress], "checkpoint": str(path)}
     (args.out / "report.json").write_text(json.dumps(report, indent=2))

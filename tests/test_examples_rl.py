@@ -31,7 +31,7 @@ def test_learn_ppo_trains_evaluates_saves_and_races(tmp_path):
     out = tmp_path / "run"
     report = _example("learn_ppo.py")["main"](
         ["--steps", "1024", "--envs", "2", "--n-steps", "128", "--eval-races", "2",
-         "--race-steps", "20", "--out", str(out)])
+         "--race-steps", "20", "--off-track-penalty", "0.05", "--out", str(out)])
     assert (out / "curve.csv").read_text().startswith("steps,return,distance_m,off_track_share")
     assert 0.0 <= report["evaluation"]["off_track_share"] <= 1.0
     assert sorted(report["race_order"]) == [0, 1, 2]
