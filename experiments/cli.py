@@ -304,7 +304,8 @@ def _cmd_general_report(args) -> int:
 def _cmd_policy_map(args) -> int:
     from .policy_map import PolicyMapConfig, policy_map
     cfg = PolicyMapConfig(thetas=args.thetas, tracks=tuple(args.tracks), modes=tuple(args.modes),
-                          steps=args.steps, seed=args.seed, opponents=args.opponents)
+                          steps=args.steps, seed=args.seed, opponents=args.opponents,
+                          space=args.space)
     out = Path(args.out)
     s = policy_map(cfg, out, workers=args.workers, backend=args.backend, address=args.address)
     print((out / "summary.md").read_text())
@@ -692,6 +693,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "--opponents cars from the start regions")
     pm.add_argument("--opponents", default="mpc",
                     help="agent spec of the two opponents of the race mode")
+    pm.add_argument("--space", choices=("paper", "extended"), default="paper",
+                    help="policy space whose box is mapped (extended adds b, the weight of "
+                         "the lap-time line)")
     pm.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per run")
     pm.add_argument("--seed", type=int, default=0, help="Sobol scrambling and start seed")
     _add_parallel_args(pm)
