@@ -53,7 +53,7 @@ class TrackSet:
     ``lookup(name, s, track_id)`` with ``name`` in ``kappa``, ``w_left``, ``w_right``, ``s``
     unwrapped arc length [m] of any shape and ``track_id`` an integer array broadcastable to
     it: the periodic linear interpolation of that track's table, as
-    :meth:`racing_env.track.Track._interp` computes it.
+    :meth:`racing_env.track.Track.interp` computes it.
     """
 
     def __init__(self, tracks):

@@ -238,7 +238,7 @@ class Track:
         """Map unwrapped arc length to [0, length)."""
         return np.mod(s, self.length)
 
-    def _interp(self, table: np.ndarray, s):
+    def interp(self, table: np.ndarray, s):
         """Periodic linear interpolation of a grid table at (unwrapped) s."""
         sw = np.mod(np.asarray(s, dtype=float), self.length)
         f = sw / self.ds
@@ -260,7 +260,7 @@ class Track:
 
     def widths(self, s):
         """(w_left(s), w_right(s)) [m]."""
-        return self._interp(self.w_left, s), self._interp(self.w_right, s)
+        return self.interp(self.w_left, s), self.interp(self.w_right, s)
 
     def position(self, s):
         """Centre-line point (x, y) [m] at s."""

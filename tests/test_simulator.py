@@ -315,7 +315,7 @@ def test_full_throttle_cannot_push_through_a_stopped_car(track, s0):
     f = RacelineFollower()
     f.reset(r.track)
     n_ref = f.tables()[0]
-    line_n = lambda s: float(r.track._interp(n_ref, s))
+    line_n = lambda s: float(r.track.interp(n_ref, s))
     assert abs(r.track.curvature(s0 + 0.5)) > 0.5 or s0 in (1.0, 3.0)   # the corner cases bend
     place(r, [[s0 + 0.5, line_n(s0 + 0.5), 0, 0, 0, 0], [s0, line_n(s0), 0, 0, 0, 0]])
     tb = [np.asarray(a, dtype=float) for a in f.tables()]
