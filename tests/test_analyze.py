@@ -111,8 +111,14 @@ def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys, monkeypa
     # the control: the best fixed theta, selected first because the table lacked default
     sel = json.loads((tmp_path / "control" / "default" / "selection.json").read_text())
     assert lookup("default")["theta"] == sel["winner"]["theta"]
+    # chosen from map rows that ran: not vacuous if every row had errored
+    assert sel["map"]["rows"] > 0 and sel["map"]["errors"] == 0
+    assert 1 <= sel["map"]["eligible_thetas"] <= sel["map"]["rows"]
     control = json.loads((tmp_path / "paper_table_control" / "paper_table.json").read_text())
     assert control["ego"] == "mpc:theta=best" and list(control["cases"]) == list(table["cases"])
+    for case in control["cases"].values():          # and its races were raced, every one
+        s = case["summary"]
+        assert s["races"] == 3 and sum(w["wins"] for w in s["wins"].values()) == 3
     for case in control["cases"]:       # each case's folder records the theta it raced
         claimed = json.loads((tmp_path / "paper_table_control" / f"case_{case}"
                               / "best_fixed_theta.json").read_text())
