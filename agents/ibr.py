@@ -33,9 +33,8 @@ bang-bang step of arbitrary length, so it carries
   *nonlinear* prediction is rejected, and that car's trust weight quadruples (halving back
   towards ``trust_weight`` after accepted steps);
 * a guard on the linearisation: where it has blown up (a predicted position moving more than
-  ``max_sensitivity`` per unit of input; seen at about 0.1% of solves, with QPs so
-  ill-conditioned that DAQP ran to 10,000 iterations and a decision took up to 1 s), the QP
-  is not tried and the step counts as failed; DAQP also stops at ``qp_iter_limit``
+  ``max_sensitivity`` per unit of input; its QPs are so ill-conditioned that DAQP runs
+  for thousands of iterations), the QP is not tried and the step counts as failed; DAQP also stops at ``qp_iter_limit``
   iterations, so a decision's time is bounded.
 
 Rounds re-linearise, so R rounds are up to R SQP iterations per car, and the plans of one
@@ -108,8 +107,7 @@ class IBRConfig:
     sep_window: float = 2.0       # only stages closer than this in progress constrain [m]
     soft_rho: float = 1e-4        # DAQP rho_soft: reciprocal weight of soft violations
     max_sensitivity: float = 100.0  # a linearisation that moves a predicted position more than
-                                    # this per unit of input [m] has blown up (at 0.1% of solves,
-                                    # 1e3-1e12 m against a median of 2.3): the QP is not tried
+                                    # this per unit of input [m] has blown up: the QP is not tried
     qp_iter_limit: int = 2000     # DAQP iterations before a best response counts as failed
     restart_offtrack: float = 0.25  # warm start from a follower rollout when the shifted plan
                                     # leaves the track by more than this [m]
