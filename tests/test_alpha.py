@@ -197,6 +197,7 @@ def test_alpha_agent_with_a_zeta_ceiling_never_drives_above_it():
     assert max(zetas) <= 0.9 + 1e-12 and agent.driven_theta.zeta <= 0.9
 
 
+@pytest.mark.slow
 def test_tiny_pipeline_end_to_end(tmp_path):
     """collect -> train -> validate -> race the alpha agent: the learned potential beats a
     constant potential on held-out deviations, and the agent reports its potential and theta."""
@@ -370,6 +371,7 @@ np.save(sys.argv[1], result.states)
 """
 
 
+@pytest.mark.slow
 def test_a_race_with_the_alpha_agent_is_identical_with_1_and_2_threads(tmp_path):
     """The same race in fresh processes with 1 and 2 BLAS/OpenMP/numba threads: the same
     states bit for bit (the agent's decisions do not depend on the thread count)."""

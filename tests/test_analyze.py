@@ -27,6 +27,7 @@ def model():
     return load_model("default")
 
 
+@pytest.mark.slow
 def test_regret_detects_a_bad_theta_and_is_never_negative(model):
     track = make_track("default")
     good = maximiser(model, STATE, track, seed=0)
@@ -65,6 +66,7 @@ def test_bad_config_is_refused():
         AnalyzeConfig(slice_points=3, slice_rollouts=5)
 
 
+@pytest.mark.slow
 def test_tiny_analysis_end_to_end(tmp_path):
     s = analyze(TINY, tmp_path, workers=1, progress_bar=False)
     for name in ("track.png", "fig2a_approximation_gap.png", "fig2b_nash_regret.png",
@@ -92,6 +94,7 @@ def test_tiny_analysis_end_to_end(tmp_path):
         analyze(AnalyzeConfig(regret_states=3), tmp_path, workers=1, progress_bar=False)
 
 
+@pytest.mark.slow
 def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys, monkeypatch):
     from agents.best_theta import TABLE_ENV_VAR, lookup
     monkeypatch.setenv(TABLE_ENV_VAR, str(tmp_path / "best_fixed_theta.json"))   # empty table

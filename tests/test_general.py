@@ -403,6 +403,7 @@ def test_model_general_is_refused_with_how_to_train_it_when_missing(monkeypatch,
 
 
 # ---------------------------------------------------------------------------- the report
+@pytest.mark.slow
 def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_path,
                                                             monkeypatch):
     from agents.best_theta import TABLE_ENV_VAR, lookup
