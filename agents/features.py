@@ -22,13 +22,10 @@ network with respect to its theta slots is the gradient with respect to the scal
 
 These are the ``fixed`` feature set (one track, a fixed number of cars: the paper's models).
 The ``general`` set (:mod:`agents.general_features`: any track, any N up to 8, sorted and
-padded) is a second :class:`FeatureSet`; a model records its set's name and version in its
-metadata and :func:`feature_set` gives the functions it was trained with.
+padded) is a second feature set; a model records its set's name and version in its metadata and
+:func:`agents.feature_sets.feature_set` gives the functions it was trained with.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -53,7 +50,7 @@ def unscale_theta(z):
 def curvature_preview(track, s) -> np.ndarray:
     """Track curvature [1/m] at ``s + PREVIEW``: shape ``s.shape + (len(PREVIEW),)``."""
     s = np.asarray(s, dtype=float)[..., None] + PREVIEW
-    return track._interp(track.kappa, s)
+    return track.interp(track.kappa, s)
 
 
 def check_joint(states, thetas, max_cars: int | None = None):
@@ -130,42 +127,11 @@ def potential_features(states, thetas, track, order=None) -> np.ndarray:
     return per_car.reshape(batch + (-1,))
 
 
-@dataclass(frozen=True)
-class FeatureSet:
-    """One feature function pair and its layout, as a model needs it.
-
-    ``value_features(states, thetas, track, ego)`` and ``potential_features(states, thetas,
-    track, order=None)`` as above; ``value_dim(N)``, ``potential_dim(N)``,
-    ``potential_theta_slots(N)`` (N, 5) and ``progress_order(states)`` (..., N).
-    ``general``: the features take any N from 2 to ``max_cars`` and any track; otherwise the
-    model is tied to its training track and number of cars.
-    """
-
-    name: str
-    version: int
-    general: bool
-    max_cars: int | None
-    value_features: Callable
-    potential_features: Callable
-    value_dim: Callable
-    potential_dim: Callable
-    potential_theta_slots: Callable
-    progress_order: Callable
-
-
-FIXED = FeatureSet("fixed", FEATURE_VERSION, False, None, value_features, potential_features,
-                   value_dim, potential_dim, potential_theta_slots, progress_order)
-FEATURE_SETS = ("fixed", "general")
-
-
-def feature_set(name: str = "fixed") -> FeatureSet:
-    """The feature set called ``name`` (``fixed``: this module; ``general``:
-    :mod:`agents.general_features`)."""
-    if name == "fixed":
-        return FIXED
-    if name == "general":
-        from . import general_features as g
-        return FeatureSet("general", g.FEATURE_VERSION, True, g.N_MAX, g.value_features,
-                          g.potential_features, g.value_dim, g.potential_dim,
-                          g.potential_theta_slots, g.progress_order)
-    raise ValueError(f"unknown feature set {name!r}; expected one of {FEATURE_SETS}")
+def __getattr__(name: str):
+    """``feature_set``, ``FeatureSet``, ``FIXED`` and ``FEATURE_SETS`` moved to
+    :mod:`agents.feature_sets` (which imports this module and :mod:`agents.general_features`);
+    they are still found here, imported on first use, for code that imports them from here."""
+    if name in ("feature_set", "FeatureSet", "FIXED", "FEATURE_SETS"):
+        from . import feature_sets
+        return getattr(feature_sets, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

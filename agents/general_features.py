@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from racing_env.interp import periodic_interp
+
 from .features import N_STATE, N_THETA, check_joint, scale_theta
 
 FEATURE_VERSION = 1
@@ -53,7 +55,7 @@ class TrackSet:
     ``lookup(name, s, track_id)`` with ``name`` in ``kappa``, ``w_left``, ``w_right``, ``s``
     unwrapped arc length [m] of any shape and ``track_id`` an integer array broadcastable to
     it: the periodic linear interpolation of that track's table, as
-    :meth:`racing_env.track.Track._interp` computes it.
+    :meth:`racing_env.track.Track.interp` computes it.
     """
 
     def __init__(self, tracks):
@@ -79,13 +81,8 @@ class TrackSet:
     def lookup(self, name: str, s, track_id) -> np.ndarray:
         s = np.asarray(s, dtype=float)
         k = np.broadcast_to(np.asarray(track_id, dtype=np.int64), s.shape)
-        length, ds, m, off = self._length[k], self._ds[k], self._size[k], self._offset[k]
-        f = np.mod(s, length) / ds
-        fl = np.floor(f)
-        i0 = fl.astype(np.int64) % m
-        t = f - fl
-        table = self._tables[name]
-        return table[off + i0] * (1.0 - t) + table[off + (i0 + 1) % m] * t
+        return periodic_interp(self._tables[name], s, self._length[k], self._ds[k],
+                               size=self._size[k], offset=self._offset[k])
 
 
 _SINGLE: dict = {}

@@ -33,9 +33,8 @@ bang-bang step of arbitrary length, so it carries
   *nonlinear* prediction is rejected, and that car's trust weight quadruples (halving back
   towards ``trust_weight`` after accepted steps);
 * a guard on the linearisation: where it has blown up (a predicted position moving more than
-  ``max_sensitivity`` per unit of input; seen at about 0.1% of solves, with QPs so
-  ill-conditioned that DAQP ran to 10,000 iterations and a decision took up to 1 s), the QP
-  is not tried and the step counts as failed; DAQP also stops at ``qp_iter_limit``
+  ``max_sensitivity`` per unit of input; its QPs are so ill-conditioned that DAQP runs
+  for thousands of iterations), the QP is not tried and the step counts as failed; DAQP also stops at ``qp_iter_limit``
   iterations, so a decision's time is bounded.
 
 Rounds re-linearise, so R rounds are up to R SQP iterations per car, and the plans of one
@@ -55,7 +54,8 @@ wherever they are beside each other, instead of the side the plans happen to sug
 will pass on its other side, while that car holds its line); rivals' previous steering is
 unknown, so their first steering step is free.
 
-Never raises on a failed QP: a car whose QP fails keeps its current plan; when every QP of
+Never raises on a failed QP (a solver or numerical error; any other exception is a bug and
+propagates): a car whose QP fails keeps its current plan; when every QP of
 the IBR car fails in a decision it applies its shifted previous plan (a counted fallback).
 ``IBR.stats`` and ``IBR.last`` report per decision the rounds until the plans stopped
 changing, the decision and best-response times, failures and fallbacks.
@@ -107,8 +107,7 @@ class IBRConfig:
     sep_window: float = 2.0       # only stages closer than this in progress constrain [m]
     soft_rho: float = 1e-4        # DAQP rho_soft: reciprocal weight of soft violations
     max_sensitivity: float = 100.0  # a linearisation that moves a predicted position more than
-                                    # this per unit of input [m] has blown up (at 0.1% of solves,
-                                    # 1e3-1e12 m against a median of 2.3): the QP is not tried
+                                    # this per unit of input [m] has blown up: the QP is not tried
     qp_iter_limit: int = 2000     # DAQP iterations before a best response counts as failed
     restart_offtrack: float = 0.25  # warm start from a follower rollout when the shifted plan
                                     # leaves the track by more than this [m]
@@ -156,6 +155,37 @@ class _Plan:
     edge bounds ``lo, hi`` (K,) [m] on ``n`` at its predicted progress."""
 
     __slots__ = ("x0", "U", "kap", "X", "A", "B", "lo", "hi", "ok")
+
+
+@dataclass
+class _Decision:
+    """The obstacles of one decision, built by :meth:`IBR.solve` and passed to every best
+    response. Rows ``0..N-1`` are every car's current plan ``(S, N)`` (rows, K) [m], kept up
+    to date by :meth:`store`; when cautious, rows ``N..2N-1`` every car going on at its
+    present progress rate and lateral offset. ``ok`` (rows,) marks usable rows, ``owner``
+    (rows,) the car of each row, ``s_cap`` (rows, K) [m] the cap on each row's progress, and
+    ``side`` (N, rows) the kept sides (+1 left, -1 right, 0 free) of each car against each
+    row."""
+
+    S: np.ndarray
+    N: np.ndarray
+    ok: np.ndarray
+    owner: np.ndarray
+    s_cap: np.ndarray
+    side: np.ndarray
+
+    def store(self, c: int, plan: _Plan) -> None:
+        """Make car ``c``'s row its plan's predicted ``(s, n)`` (or mark it unusable)."""
+        self.ok[c] = plan.ok
+        if plan.ok:
+            self.S[c] = plan.X[0]
+            self.N[c] = plan.X[1]
+
+
+# what a best response may raise on a bad solve (counted as a failed QP): a solver's own error
+# (RuntimeError) and numerical errors. Anything else (a TypeError, NameError, ...) is a bug
+# and propagates.
+_SOLVE_ERRORS = (RuntimeError, ArithmeticError, np.linalg.LinAlgError)
 
 
 @njit(cache=True)
@@ -425,9 +455,9 @@ class IBR:
                       self._DtD, plan.lo, plan.hi, margin, cfg.progress_weight,
                       cfg.rate_weight, w_lat, cfg.slip_weight, 0.5 / cfg.soft_rho)
 
-    def _best_response(self, c: int, plans: list, u_prev, trust: float):
-        """One SQP iteration of car ``c``'s best response to the other plans, with
-        trust-region weight ``trust``.
+    def _best_response(self, c: int, plans: list, dec: _Decision, u_prev, trust: float):
+        """One SQP iteration of car ``c``'s best response to the other plans (the obstacles of
+        ``dec``), with trust-region weight ``trust``.
 
         The QP in the input correction ``du`` (2K,), with ``G`` the condensed sensitivities
         of the predicted ``(s^k, n^k)``::
@@ -446,8 +476,8 @@ class IBR:
         import daqp
         cfg, K = self.cfg, self.cfg.horizon
         p = plans[c]
-        S, N, cap, ok, owner = self._S_all, self._N_all, self._s_cap, self._ok, self._owner
-        sep = (cfg.sep_s, cfg.sep_n, cfg.sep_window, float(self.track.length), self._side[c])
+        S, N, cap, ok, owner = dec.S, dec.N, dec.s_cap, dec.ok, dec.owner
+        sep = (cfg.sep_s, cfg.sep_n, cfg.sep_window, float(self.track.length), dec.side[c])
         stage, lat, sign, margin = _separation_pairs(p.X[0], p.X[1], S, N, cap, ok, owner, c, *sep)
         Gx = condense_states(np.ascontiguousarray(p.A), np.ascontiguousarray(p.B), K)
         if not np.abs(Gx[:, :2, :]).max() <= cfg.max_sensitivity:  # also catches NaN
@@ -476,12 +506,6 @@ class IBR:
         return new, change
 
     # ------------------------------------------------------------------ the decision
-    def _store(self, c: int, plan: _Plan) -> None:
-        self._ok[c] = plan.ok
-        if plan.ok:
-            self._S_all[c] = plan.X[0]
-            self._N_all[c] = plan.X[1]
-
     def _closing_sides(self, states, s_const) -> np.ndarray:
         """Kept sides (N, N): ``side[a, b] = +1`` (-1) when car ``a`` must stay left (right) of
         car ``b`` wherever they are beside each other, 0 where free. Set for every car ``b``
@@ -535,25 +559,23 @@ class IBR:
         s_const = states[:, :1] + (np.maximum(progress_rate(states, self.track), 0.0)[:, None]
                                    * cfg.dt * np.arange(1, K + 1))
         rows = 2 * n if cfg.cautious else n
-        self._S_all, self._N_all = np.zeros((rows, K)), np.zeros((rows, K))
-        self._ok = np.zeros(rows, dtype=bool)
-        self._owner = np.arange(rows) % n
-        self._s_cap = np.full((rows, K), np.inf)
+        dec = _Decision(S=np.zeros((rows, K)), N=np.zeros((rows, K)),
+                        ok=np.zeros(rows, dtype=bool), owner=np.arange(rows) % n,
+                        s_cap=np.full((rows, K), np.inf), side=np.zeros((n, rows)))
         if cfg.cautious:
-            self._s_cap[:n] = s_const
-            self._S_all[n:] = s_const
-            self._N_all[n:] = states[:, 1:2]
-            self._ok[n:] = True
+            dec.s_cap[:n] = s_const
+            dec.S[n:] = s_const
+            dec.N[n:] = states[:, 1:2]
+            dec.ok[n:] = True
         # kept sides: a car closing in from behind and the car ahead each keep to their
         # present side of the other, against its plan and its constant-offset path alike
-        self._side = np.zeros((n, rows))
         if cfg.keep_sides:
             sides = self._closing_sides(states, s_const)
-            self._side[:, :n] = sides
+            dec.side[:, :n] = sides
             if cfg.cautious:
-                self._side[:, n:] = sides
+                dec.side[:, n:] = sides
         for c in range(n):
-            self._store(c, plans[c])
+            dec.store(c, plans[c])
         start_U = plans[0].U.copy()
         # rivals from the front to the back, then the deciding car (it answers the latest plans)
         order = [int(c) for c in np.argsort(-states[1:, 0], kind="stable") + 1] + [0]
@@ -563,7 +585,7 @@ class IBR:
         for r in range(cfg.rounds):
             rounds = r + 1
             change = 0.0
-            active = (_reach(self._S_all[:n], self._ok[:n], cfg.sep_window,
+            active = (_reach(dec.S[:n], dec.ok[:n], cfg.sep_window,
                              float(self.track.length))
                       if cfg.skip_independent else np.ones(n, bool))
             for c in order:
@@ -571,15 +593,15 @@ class IBR:
                     continue
                 if not plans[c].ok:
                     self._restart(plans[c])
-                    self._store(c, plans[c])
+                    dec.store(c, plans[c])
                     if not plans[c].ok:
                         failures += 1
                         continue
                 tb = time.perf_counter()
                 try:
-                    new, step = self._best_response(c, plans, u_prev if c == 0 else None,
+                    new, step = self._best_response(c, plans, dec, u_prev if c == 0 else None,
                                                     trust[c])
-                except Exception:                           # never crash on a bad solve
+                except _SOLVE_ERRORS:                       # a bad solve, not a bug: a failure
                     new, step = None, np.inf
                 br_ms.append(1e3 * (time.perf_counter() - tb))
                 if not np.isfinite(step):                   # the QP failed: keep the plan
@@ -595,7 +617,7 @@ class IBR:
                     continue
                 trust[c] = max(0.5 * trust[c], cfg.trust_weight)
                 plans[c] = new
-                self._store(c, new)
+                dec.store(c, new)
             changes.append(change)
             if change < cfg.tol:
                 converged = True

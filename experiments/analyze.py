@@ -142,7 +142,7 @@ def maximiser(model, state, track, seed: int):
 
 def simulated_value(model, track, state, thetas, car: int, horizon: int) -> float:
     """G_car = discounted rollout return over ``horizon`` steps + gamma^H V_car(x_H, thetas)."""
-    from experiments.train import discounted_rollout
+    from experiments.nets import discounted_rollout
     gamma = float(model.meta["gamma"])
     g, x_end = discounted_rollout(track.name, state, thetas, car, horizon, gamma)
     g += gamma ** horizon * float(model.value(x_end[None], thetas[None], track, np.array([car]))[0])

@@ -368,7 +368,15 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    # the options' defaults are read from the config dataclasses (one place for each default;
+    # tests/test_cli_defaults.py checks them)
+    from .bench import BenchConfig
     from .control import ControlConfig
+    from .general import GeneralReportConfig
+    from .league import LeagueConfig
+    from .nets import TrainConfig
+    from .policy_map import PolicyMapConfig
+    from .selfplay import SelfPlayConfig
     p = argparse.ArgumentParser(prog="alpha-racer", description=__doc__,
                                 formatter_class=_HelpFormatter)
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
@@ -457,55 +465,60 @@ def build_parser() -> argparse.ArgumentParser:
     tr = command("train", "fit the value and alpha-potential networks on collected races")
     tr.add_argument("--data", default="data/races", help="a directory written by `alpha-racer collect`")
     tr.add_argument("--out", default="models/alpha", help="output directory (resumes if it exists)")
-    tr.add_argument("--gamma", type=float, default=None, help="discount factor (default 0.99)")
+    tr.add_argument("--gamma", type=float, default=None, help=f"discount factor (default {TrainConfig.gamma})")
     tr.add_argument("--value-epochs", type=int, default=None,
-                    help="epochs of value-network training (default 8)")
+                    help=f"epochs of value-network training (default {TrainConfig.value_epochs})")
     tr.add_argument("--potential-steps", type=int, default=None,
-                    help="optimiser steps of the potential network (default 4000)")
+                    help=f"optimiser steps of the potential network (default "
+                         f"{TrainConfig.potential_steps})")
     tr.add_argument("--potential-batch", type=int, default=None,
                     help="unilateral deviations per optimiser step of the potential network "
-                         "(default 1024)")
+                         f"(default {TrainConfig.potential_batch})")
     tr.add_argument("--value-hidden", type=int, nargs="+", default=None,
-                    help="hidden layer widths of the value networks (default 128 128 64)")
+                    help="hidden layer widths of the value networks (default "
+                         f"{_words(TrainConfig.value_hidden)})")
     tr.add_argument("--potential-hidden", type=int, nargs="+", default=None,
-                    help="hidden layer widths of the potential network (default 384 384 192)")
+                    help="hidden layer widths of the potential network (default "
+                         f"{_words(TrainConfig.potential_hidden)})")
     tr.add_argument("--objective", choices=["mse", "smoothmax", "tail"], default=None,
                     help="potential loss: mse, or the paper's min-max as a smooth maximum or a "
-                         "tail average (default tail)")
-    tr.add_argument("--val-fraction", type=float, default=None, help="races held out (default 0.1)")
+                         f"tail average (default {TrainConfig.objective})")
+    tr.add_argument("--val-fraction", type=float, default=None, help=f"races held out (default {TrainConfig.val_fraction})")
     tr.add_argument("--rollout-pairs", type=int, default=None,
-                    help="paired-rollout checks on held-out states (default 40; 0 skips)")
+                    help=f"paired-rollout checks on held-out states (default "
+                         f"{TrainConfig.rollout_pairs}; 0 skips)")
     tr.add_argument("--rollout-steps", type=int, default=None,
-                    help="steps of each paired rollout (default 300)")
-    tr.add_argument("--seed", type=int, default=None, help="seed of the split and the training (default 0)")
+                    help=f"steps of each paired rollout (default {TrainConfig.rollout_steps})")
+    tr.add_argument("--seed", type=int, default=None, help=f"seed of the split and the training (default {TrainConfig.seed})")
     tr.add_argument("--threads", type=int, default=None,
-                    help="torch threads and rollout workers (default 2)")
+                    help=f"torch threads and rollout workers (default {TrainConfig.threads})")
     tr.set_defaults(fn=_cmd_train)
 
+    S = SelfPlayConfig
     sp = command("selfplay", "train PPO agents by iterated self-play (resumable)")
     sp.add_argument("--out", default="runs/selfplay", help="output folder; run again to resume")
-    sp.add_argument("--cars", type=int, default=3, help="cars per race")
-    sp.add_argument("--cycles", type=int, default=33, help="self-play cycles (each car learns once per cycle)")
-    sp.add_argument("--steps-per-turn", type=int, default=100_000, help="env steps per learning turn")
-    sp.add_argument("--envs", type=int, default=8, help="parallel races")
-    sp.add_argument("--batch-size", type=int, default=1024, help="PPO minibatch size")
-    sp.add_argument("--epochs", type=int, default=5, help="PPO epochs per rollout")
-    sp.add_argument("--lr", type=float, default=5e-4, help="PPO learning rate")
-    sp.add_argument("--gamma", type=float, default=0.99, help="discount factor")
-    sp.add_argument("--n-steps", type=int, default=2048, help="rollout length per env")
-    sp.add_argument("--track", default="default", help="track spec (as for race)")
-    sp.add_argument("--race-steps", type=int, default=500, help="steps of 0.1 s per race (episode)")
-    sp.add_argument("--seed", type=int, default=0, help="seed of the envs and the policies")
-    sp.add_argument("--vec-env", choices=["batched", "dummy", "subproc"], default="batched",
+    sp.add_argument("--cars", type=int, default=S.n_cars, help="cars per race")
+    sp.add_argument("--cycles", type=int, default=S.cycles, help="self-play cycles (each car learns once per cycle)")
+    sp.add_argument("--steps-per-turn", type=int, default=S.steps_per_turn, help="env steps per learning turn")
+    sp.add_argument("--envs", type=int, default=S.n_envs, help="parallel races")
+    sp.add_argument("--batch-size", type=int, default=S.batch_size, help="PPO minibatch size")
+    sp.add_argument("--epochs", type=int, default=S.n_epochs, help="PPO epochs per rollout")
+    sp.add_argument("--lr", type=float, default=S.learning_rate, help="PPO learning rate")
+    sp.add_argument("--gamma", type=float, default=S.gamma, help="discount factor")
+    sp.add_argument("--n-steps", type=int, default=S.n_steps, help="rollout length per env")
+    sp.add_argument("--track", default=S.track, help="track spec (as for race)")
+    sp.add_argument("--race-steps", type=int, default=S.max_cycles, help="steps of 0.1 s per race (episode)")
+    sp.add_argument("--seed", type=int, default=S.seed, help="seed of the envs and the policies")
+    sp.add_argument("--vec-env", choices=["batched", "dummy", "subproc"], default=S.vec_env,
                     help="vectorised env: our batched one, or SB3's DummyVecEnv/SubprocVecEnv")
-    sp.add_argument("--warmup-opponent", choices=["raceline", "initial"], default="raceline",
+    sp.add_argument("--warmup-opponent", choices=["raceline", "initial"], default=S.warmup_opponent,
                     help="who drives a car before its first turn")
-    sp.add_argument("--init", choices=["random", "bc"], default="random",
+    sp.add_argument("--init", choices=["random", "bc"], default=S.init,
                     help="a car's policy before its first turn: random (plain self-play) or "
                          "behaviour-cloned from the raceline follower")
-    sp.add_argument("--bc-steps", type=int, default=50_000, help="expert samples for --init bc")
-    sp.add_argument("--checkpoint-every", type=int, default=1, help="rollouts between in-turn checkpoints")
-    sp.add_argument("--eval-races", type=int, default=3, help="solo evaluation races after each turn")
+    sp.add_argument("--bc-steps", type=int, default=S.bc_steps, help="expert samples for --init bc")
+    sp.add_argument("--checkpoint-every", type=int, default=S.checkpoint_every, help="rollouts between in-turn checkpoints")
+    sp.add_argument("--eval-races", type=int, default=S.eval_races, help="solo evaluation races after each turn")
     sp.add_argument("--no-mpc-reference", action="store_true", help="skip measuring the MPC alone")
     sp.add_argument("--max-turns", type=int, default=None,
                     help="stop after this many turns (resumable; default: all)")
@@ -515,9 +528,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "the paper's start regions (resumable)",
                 "head-to-head benchmark: the ego against two opponents of one kind from the "
                 "paper's start regions, or against N - 1 from N regions with --cars N (resumable)")
-    b.add_argument("--ego", default="alpha", help="the ego's agent spec")
-    b.add_argument("--opponents", default="mpc", help="agent spec of every opponent O1, O2, ...")
-    b.add_argument("--cars", type=int, default=3,
+    b.add_argument("--ego", default=BenchConfig.ego, help="the ego's agent spec")
+    b.add_argument("--opponents", default=BenchConfig.opponents, help="agent spec of every opponent O1, O2, ...")
+    b.add_argument("--cars", type=int, default=BenchConfig.n_cars,
                    help="cars per race (2..8): N start regions, the ego from each equally often, "
                         "the opponents in the other regions front to back")
     b.add_argument("--paper-table", action="store_true",
@@ -525,11 +538,14 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--cases", nargs="+", default=None,
                    help="with --paper-table: a subset of I II III IV V (default: all)")
     b.add_argument("--races", type=int, default=None,
-                   help="races per benchmark, a multiple of --cars (default 99 with 3 cars: 33 "
-                        "per region; 33 N with N cars)")
-    b.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race (500 = 50 s)")
-    b.add_argument("--track", default="default", help="track spec (as for race)")
-    b.add_argument("--seed", type=int, default=0, help="seed of the races' start orders and agents")
+                   help=f"races per benchmark, a multiple of --cars (default {BenchConfig.races} with "
+                        f"3 cars: {BenchConfig.races // 3} per region; {BenchConfig.races // 3} N "
+                        "with N cars)")
+    b.add_argument("--steps", type=int, default=BenchConfig.steps,
+                   help="steps of 0.1 s per race (500 = 50 s)")
+    b.add_argument("--track", default=BenchConfig.track, help="track spec (as for race)")
+    b.add_argument("--seed", type=int, default=BenchConfig.seed,
+                   help="seed of the races' start orders and agents")
     b.add_argument("--out", default=None,
                    help="output folder (default results/bench/EGO_vs_OPPONENTS, or "
                         "results/paper_table with --paper-table); run again to resume")
@@ -543,15 +559,17 @@ def build_parser() -> argparse.ArgumentParser:
     lg.add_argument("--agents", nargs="+", default=list(LEAGUE_AGENTS),
                     help="distinct agent specs, each one player of the rating (as for race; "
                          "e.g. alpha:model=gamma0.98, mpc:zeta=1.0)")
-    lg.add_argument("--tracks", nargs="+", default=["default"], help="track specs (as for race)")
-    lg.add_argument("--cars", type=int, default=3,
+    lg.add_argument("--tracks", nargs="+", default=list(LeagueConfig.tracks),
+                    help="track specs (as for race)")
+    lg.add_argument("--cars", type=int, default=LeagueConfig.cars,
                     help="cars per race, 2..8; at most the number of agents")
-    lg.add_argument("--rounds", type=int, default=1,
+    lg.add_argument("--rounds", type=int, default=LeagueConfig.rounds,
                     help="times the whole schedule runs, each with new seeds")
-    lg.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race (500 = 50 s)")
-    lg.add_argument("--seed", type=int, default=0,
+    lg.add_argument("--steps", type=int, default=LeagueConfig.steps,
+                    help="steps of 0.1 s per race (500 = 50 s)")
+    lg.add_argument("--seed", type=int, default=LeagueConfig.seed,
                     help="seed of the group sample, the start positions and the agents")
-    lg.add_argument("--max-groups", type=int, default=60,
+    lg.add_argument("--max-groups", type=int, default=LeagueConfig.max_groups,
                     help="groups per round: every --cars-subset of the agents when there are at "
                          "most this many, else a balanced sample of at most this many (whole blocks "
                          "in which every agent races equally often; at least one)")
@@ -610,7 +628,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "selection (alpha-racer control, into OUT/control, --steps steps)")
     rp.add_argument("--control-races", type=int, default=ControlConfig.races,
                     help="if the best-theta table lacks the track: playoff races per candidate")
-    rp.add_argument("--policy-thetas", type=int, default=256,
+    rp.add_argument("--policy-thetas", type=int, default=PolicyMapConfig.thetas,
                     help="thetas of the policy map (policy-map's default tracks, both modes, "
                          "--steps steps); 0 skips it")
     _add_import_arg(rp)
@@ -623,24 +641,26 @@ def build_parser() -> argparse.ArgumentParser:
                                    "beside the best fixed theta on each track (the control), "
                                    "and against the single-track default model on default "
                                    "(resumable)")
-    gr.add_argument("--model", default="general",
+    gr.add_argument("--model", default=GeneralReportConfig.model,
                     help="a general model: shipped name or path to a model.npz")
     gr.add_argument("--tracks", nargs="+", default=None, metavar="TRACK",
                     help="held-out track specs (random:A-B ranges allowed); default "
                          "random:10000-10019 and the TUMFTM circuits (if the folder exists) "
                          "that the model was not trained on")
-    gr.add_argument("--gap-cars", default="2,3,5", help="field sizes of the approximation gap")
-    gr.add_argument("--gap-races", type=int, default=40,
+    gr.add_argument("--gap-cars", default=_commas(GeneralReportConfig.gap_cars), help="field sizes of the approximation gap")
+    gr.add_argument("--gap-races", type=int, default=GeneralReportConfig.gap_races,
                     help="fresh races per field size for the gap")
-    gr.add_argument("--gap-pairs", type=int, default=20000,
+    gr.add_argument("--gap-pairs", type=int, default=GeneralReportConfig.gap_pairs,
                     help="unilateral deviations per field size")
-    gr.add_argument("--bench-cars", default="2,3,5", help="field sizes of the N-car races")
-    gr.add_argument("--bench-rounds", type=int, default=1,
+    gr.add_argument("--bench-cars", default=_commas(GeneralReportConfig.bench_cars), help="field sizes of the N-car races")
+    gr.add_argument("--bench-rounds", type=int, default=GeneralReportConfig.bench_rounds,
                     help="rounds of N races (the ego from each region once) per track and N")
-    gr.add_argument("--default-races", type=int, default=99,
+    gr.add_argument("--default-races", type=int, default=GeneralReportConfig.default_races,
                     help="races against the default model on default (0 skips them)")
-    gr.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per race")
-    gr.add_argument("--seed", type=int, default=0, help="seed of the races and deviations")
+    gr.add_argument("--steps", type=int, default=GeneralReportConfig.steps,
+                    help="steps of 0.1 s per race")
+    gr.add_argument("--seed", type=int, default=GeneralReportConfig.seed,
+                    help="seed of the races and deviations")
     gr.add_argument("--control-thetas", type=int, default=ControlConfig.thetas,
                     help="thetas of the selection of the best fixed theta (the control) on "
                          "each held-out track the best-theta table lacks")
@@ -684,20 +704,22 @@ def build_parser() -> argparse.ArgumentParser:
     from .policy_map import DEFAULT_TRACKS, MODES
     pm = command("policy-map", "sweep the MPC policy space (q, zeta, s1, s2, s3): Sobol thetas, "
                                "solo and 3-car runs, summary and heat maps (resumable)")
-    pm.add_argument("--thetas", type=int, default=256,
+    pm.add_argument("--thetas", type=int, default=PolicyMapConfig.thetas,
                     help="Sobol points of the theta box (a power of two keeps the sequence "
                          "balanced)")
     pm.add_argument("--tracks", nargs="+", default=list(DEFAULT_TRACKS), help="track specs")
     pm.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES),
                     help="solo: the theta car alone from the grid; race: against two "
                          "--opponents cars from the start regions")
-    pm.add_argument("--opponents", default="mpc",
+    pm.add_argument("--opponents", default=PolicyMapConfig.opponents,
                     help="agent spec of the two opponents of the race mode")
-    pm.add_argument("--space", choices=("paper", "extended"), default="paper",
+    pm.add_argument("--space", choices=("paper", "extended"), default=PolicyMapConfig.space,
                     help="policy space whose box is mapped (extended adds b, the weight of "
                          "the lap-time line)")
-    pm.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per run")
-    pm.add_argument("--seed", type=int, default=0, help="Sobol scrambling and start seed")
+    pm.add_argument("--steps", type=int, default=PolicyMapConfig.steps,
+                    help="steps of 0.1 s per run")
+    pm.add_argument("--seed", type=int, default=PolicyMapConfig.seed,
+                    help="Sobol scrambling and start seed")
     _add_parallel_args(pm)
     pm.add_argument("--out", default="results/policy_map",
                     help="output folder; run again to resume")
@@ -705,15 +727,32 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _words(values) -> str:
+    return " ".join(str(v) for v in values)
+
+
+def _commas(values) -> str:
+    return ",".join(str(v) for v in values)
+
+
 def _add_analyze_args(p) -> None:
-    p.add_argument("--model", default=None, help="alpha-potential model: shipped name or path (default: default)")
-    p.add_argument("--heldout-races", type=int, default=None, help="fresh races for the gap (default 40)")
-    p.add_argument("--gap-pairs", type=int, default=None, help="deviations for the gap (default 20000)")
-    p.add_argument("--regret-states", type=int, default=None, help="race states for the regret (default 20)")
-    p.add_argument("--regret-horizon", type=int, default=None, help="rollout steps before V (default 100)")
-    p.add_argument("--cem-iterations", type=int, default=None, help="CEM iterations of the regret search (default 3)")
-    p.add_argument("--cem-samples", type=int, default=None, help="candidates per CEM iteration (default 10)")
-    p.add_argument("--slice-points", type=int, default=None, help="values per parameter in Figure 3 (default 41)")
+    from .analyze import AnalyzeConfig as A
+    p.add_argument("--model", default=None,
+                   help=f"alpha-potential model: shipped name or path (default: {A.model})")
+    p.add_argument("--heldout-races", type=int, default=None,
+                   help=f"fresh races for the gap (default {A.heldout_races})")
+    p.add_argument("--gap-pairs", type=int, default=None,
+                   help=f"deviations for the gap (default {A.gap_pairs})")
+    p.add_argument("--regret-states", type=int, default=None,
+                   help=f"race states for the regret (default {A.regret_states})")
+    p.add_argument("--regret-horizon", type=int, default=None,
+                   help=f"rollout steps before V (default {A.regret_horizon})")
+    p.add_argument("--cem-iterations", type=int, default=None,
+                   help=f"CEM iterations of the regret search (default {A.cem_iterations})")
+    p.add_argument("--cem-samples", type=int, default=None,
+                   help=f"candidates per CEM iteration (default {A.cem_samples})")
+    p.add_argument("--slice-points", type=int, default=None,
+                   help=f"values per parameter in Figure 3 (default {A.slice_points})")
 
 
 def main(argv: list[str] | None = None) -> int:

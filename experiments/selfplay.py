@@ -53,13 +53,14 @@ import math
 import os
 import shutil
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from .artifacts import claim, write_json, write_text
+from .imitation import behaviour_cloning
 
 SCHEMA_VERSION = 1
 VEC_ENVS = ("batched", "dummy", "subproc")
@@ -169,10 +170,75 @@ class SelfPlayConfig:
 
 
 # ---------------------------------------------------------------------- small file helpers
-def _new_state(cfg: SelfPlayConfig) -> dict:
-    return {"turn": 0, "turn_steps": 0, "current": None, "total_steps": 0,
-            "train_seconds": 0.0, "cars": [None] * cfg.n_cars, "trained_turns": [0] * cfg.n_cars,
-            "evals": [], "train_curve": [], "mpc_reference": None, "bc_init": None, "done": False}
+@dataclass
+class SelfPlayState:
+    """A run's progress, stored as ``state.json`` (:meth:`to_dict` / :meth:`from_dict`).
+
+    ``turn`` (turns finished), ``turn_steps`` (env steps done in the current turn),
+    ``current`` (its latest in-turn checkpoint, relative to the run folder, or None),
+    ``total_steps`` (all turns), ``train_seconds`` / ``train_cpu_seconds`` (wall and CPU time
+    of training [s]), ``cars`` (each car's latest turn-end checkpoint or None),
+    ``trained_turns`` (turns each car has had), ``evals`` (one row per evaluation, see
+    ``evals.csv``), ``train_curve`` (the learner's mean episode return after each rollout),
+    ``mpc_reference`` (the MPC alone, or None), ``bc_init`` (the behaviour-cloned start, or
+    None), ``bc_cpu_seconds`` (its CPU time [s], or None) and ``done``."""
+
+    turn: int = 0
+    turn_steps: int = 0
+    current: str | None = None
+    total_steps: int = 0
+    train_seconds: float = 0.0
+    train_cpu_seconds: float = 0.0
+    cars: list = field(default_factory=list)
+    trained_turns: list = field(default_factory=list)
+    evals: list = field(default_factory=list)
+    train_curve: list = field(default_factory=list)
+    mpc_reference: dict | None = None
+    bc_init: str | None = None
+    bc_cpu_seconds: float | None = None
+    done: bool = False
+
+    @classmethod
+    def new(cls, cfg: SelfPlayConfig) -> "SelfPlayState":
+        """The state of a run that has not started: no checkpoint for any of the cars."""
+        return cls(cars=[None] * cfg.n_cars, trained_turns=[0] * cfg.n_cars)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: every field by name."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict, cfg: SelfPlayConfig | None = None) -> "SelfPlayState":
+        """From :meth:`to_dict`'s output or an older ``state.json`` (fields it lacks, as
+        ``train_cpu_seconds`` and ``bc_cpu_seconds`` in runs before they were recorded, take
+        their defaults). With ``cfg``, the lists of cars must have ``cfg.n_cars`` entries.
+        Unknown keys are a ValueError."""
+        if not isinstance(d, dict):
+            raise ValueError(f"a self-play state must be a JSON object, got {type(d).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"unknown self-play state fields {sorted(unknown)}; expected some of "
+                             f"{sorted(known)}")
+        state = cls(**d)
+        if cfg is not None:
+            if len(state.cars) != cfg.n_cars or len(state.trained_turns) != cfg.n_cars:
+                raise ValueError(f"self-play state has {len(state.cars)} cars and "
+                                 f"{len(state.trained_turns)} turn counts, expected "
+                                 f"n_cars={cfg.n_cars} of each")
+        return state
+
+    @classmethod
+    def load(cls, path: Path, cfg: SelfPlayConfig) -> "SelfPlayState":
+        """``path`` (a ``state.json``) if it exists, else a new state."""
+        path = Path(path)
+        if not path.exists():
+            return cls.new(cfg)
+        return cls.from_dict(json.loads(path.read_text()), cfg)
+
+    def save(self, path: Path) -> None:
+        """Write the state to ``path`` atomically."""
+        write_json(path, self.to_dict())
 
 
 # ---------------------------------------------------------------------- envs and opponents
@@ -219,17 +285,17 @@ def live_policy(model, cfg: SelfPlayConfig):
                         n_preview=race_config(cfg).n_preview)
 
 
-def _opponents(cfg: SelfPlayConfig, out: Path, state: dict, car: int) -> tuple[list, list[str]]:
+def _opponents(cfg: SelfPlayConfig, out: Path, state: SelfPlayState, car: int) -> tuple[list, list[str]]:
     from racing_env.controllers import RacelineFollower
     opps, names = [], []
     for slot, k in enumerate(j for j in range(cfg.n_cars) if j != car):
-        if state["trained_turns"][k] == 0 and cfg.warmup_opponent == "raceline":
+        if state.trained_turns[k] == 0 and cfg.warmup_opponent == "raceline":
             mu = RACELINE_MU[slot % len(RACELINE_MU)]
             opps.append(RacelineFollower(mu=mu))
             names.append(f"raceline:mu={mu}")
         else:
-            opps.append(frozen_policy(out / state["cars"][k]))
-            names.append(f"car_{k}@{state['trained_turns'][k]}turns")
+            opps.append(frozen_policy(out / state.cars[k]))
+            names.append(f"car_{k}@{state.trained_turns[k]}turns")
     return opps, names
 
 
@@ -258,89 +324,22 @@ def mpc_reference(cfg: SelfPlayConfig) -> dict:
     return evaluate_solo(MPCAgent(), cfg)
 
 
-# ---------------------------------------------------------------------- behaviour cloning
-def behaviour_cloning(model, cfg: SelfPlayConfig, seed: int) -> dict:
-    """``init="bc"``: pretrain the PPO actor to imitate the raceline follower (DAgger).
-
-    Round 0 collects ``bc_steps`` learner steps in the learning env (raceline-follower
-    opponents) with the learner driven by a raceline follower (friction 0.85) whose actions
-    are perturbed by Gaussian noise of std ``bc_noise``; rounds 1 .. ``bc_rounds - 1`` let the
-    cloned policy drive (same noise) so the data holds the states it gets itself into. Every
-    step is labelled with the follower's action for that state. After each round the model's
-    ``VecNormalize`` observation statistics are updated and the actor (policy MLP + action
-    head) is fitted to all data so far by mean squared error for ``bc_epochs`` epochs (Adam,
-    lr 1e-3, batch ``batch_size``). The critic stays as initialised; the action log-std is set
-    to ``bc_log_std``. Returns the number of samples and the final fit error.
-    """
-    import torch
-    from agents.ppo_agent import FrozenPolicy
-    from racing_env.controllers import RacelineFollower
-    from racing_env.vec_env import HeadToHeadVecEnv
-
-    rng = np.random.default_rng(seed)
-    opps = [RacelineFollower(mu=RACELINE_MU[k % len(RACELINE_MU)]) for k in range(cfg.n_cars - 1)]
-    env = HeadToHeadVecEnv(cfg.n_envs, opponents=opps, track=cfg.track, config=race_config(cfg))
-    env.seed(int(rng.integers(2 ** 31)))
-    expert = RacelineFollower(mu=0.85)
-    expert.reset(env.track, "car_0")
-    vecnorm = model.get_vec_normalize_env()
-    policy = model.policy
-    params = list(policy.mlp_extractor.policy_net.parameters()) + list(policy.action_net.parameters())
-    opt = torch.optim.Adam(params, lr=1e-3)
-    gen = torch.Generator().manual_seed(seed)
-
-    def actor(xb):
-        return policy.action_net(policy.mlp_extractor.forward_actor(
-            policy.extract_features(xb, policy.pi_features_extractor)))
-
-    xs, ys = [], []
-    obs = env.reset()
-    for rnd in range(cfg.bc_rounds):
-        driver = None if rnd == 0 else FrozenPolicy(policy, vecnorm, n_cars=cfg.n_cars,
-                                                    n_preview=race_config(cfg).n_preview)
-        for _ in range(math.ceil(cfg.bc_steps / cfg.n_envs)):
-            target = np.array([expert.act(o) for o in obs], dtype=np.float32)
-            xs.append(obs)
-            ys.append(target)
-            act = target if driver is None else driver.act_batch(obs)
-            act = np.clip(act + rng.normal(0.0, cfg.bc_noise, act.shape), -1.0, 1.0)
-            obs, _, _, _ = env.step(act.astype(np.float32))
-        x, y = np.concatenate(xs), np.concatenate(ys)
-        vecnorm.obs_rms.update(np.concatenate(xs[-math.ceil(cfg.bc_steps / cfg.n_envs):]))
-        xn = torch.as_tensor(vecnorm.normalize_obs(x), dtype=torch.float32)
-        yt = torch.as_tensor(y)
-        policy.set_training_mode(True)
-        for _ in range(cfg.bc_epochs):
-            perm = torch.randperm(len(xn), generator=gen)
-            for i in range(0, len(xn), cfg.batch_size):
-                idx = perm[i:i + cfg.batch_size]
-                loss = torch.mean((actor(xn[idx]) - yt[idx]) ** 2)
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-        policy.set_training_mode(False)
-    with torch.no_grad():
-        final = float(torch.mean((torch.clamp(actor(xn), -1, 1) - yt) ** 2))
-        policy.log_std.fill_(cfg.bc_log_std)
-    return {"samples": int(len(xn)), "rounds": cfg.bc_rounds, "mse": final}
-
-
 # ---------------------------------------------------------------------- SB3 callbacks
 class _Clock:
     """Adds wall and CPU time since the last call to ``state`` (train_seconds, train_cpu_seconds)."""
 
-    def __init__(self, state: dict):
+    def __init__(self, state: SelfPlayState):
         self.state = state
         self.wall, self.cpu = time.perf_counter(), time.process_time()
 
     def book(self) -> None:
         wall, cpu = time.perf_counter(), time.process_time()
-        self.state["train_seconds"] = self.state.get("train_seconds", 0.0) + wall - self.wall
-        self.state["train_cpu_seconds"] = self.state.get("train_cpu_seconds", 0.0) + cpu - self.cpu
+        self.state.train_seconds += wall - self.wall
+        self.state.train_cpu_seconds += cpu - self.cpu
         self.wall, self.cpu = wall, cpu
 
 
-def _callbacks(cfg, out: Path, state: dict, turn: int, car: int, bar, turn_start_steps: int, clock):
+def _callbacks(cfg, out: Path, state: SelfPlayState, turn: int, car: int, bar, turn_start_steps: int, clock):
     from stable_baselines3.common.callbacks import BaseCallback
 
     class SelfPlayCheckpoint(BaseCallback):
@@ -349,24 +348,24 @@ def _callbacks(cfg, out: Path, state: dict, turn: int, car: int, bar, turn_start
 
         def _on_rollout_start(self) -> None:
             steps = self.model.num_timesteps - turn_start_steps
-            if steps - state["turn_steps"] < cfg.checkpoint_every * cfg.rollout:
+            if steps - state.turn_steps < cfg.checkpoint_every * cfg.rollout:
                 return
             path = out / "checkpoints" / "partial" / f"turn_{turn:03d}_car_{car}_{steps:09d}.zip"
             _save(self.model, cfg, state, path, car, turn, steps)
-            old = state["current"]
+            old = state.current
             _advance_state(state, steps)
             clock.book()
-            state["current"] = str(path.relative_to(out))
-            write_json(out / "state.json", state)
-            if old and old != state["current"]:
+            state.current = str(path.relative_to(out))
+            state.save(out / "state.json")
+            if old and old != state.current:
                 (out / old).unlink(missing_ok=True)     # superseded in-turn checkpoint
 
         def _on_rollout_end(self) -> None:
             buf = self.model.ep_info_buffer
             if buf:
-                state["train_curve"].append({
-                    "turn": turn, "car": car, "total_steps": state["total_steps"]
-                    + self.model.num_timesteps - turn_start_steps - state["turn_steps"],
+                state.train_curve.append({
+                    "turn": turn, "car": car, "total_steps": state.total_steps
+                    + self.model.num_timesteps - turn_start_steps - state.turn_steps,
                     "ep_rew_mean": float(np.mean([e["r"] for e in buf]))})
 
         def _on_step(self) -> bool:
@@ -376,10 +375,10 @@ def _callbacks(cfg, out: Path, state: dict, turn: int, car: int, bar, turn_start
     return SelfPlayCheckpoint()
 
 
-def _advance_state(state: dict, turn_steps: int) -> None:
+def _advance_state(state: SelfPlayState, turn_steps: int) -> None:
     """Count steps done in the current turn (``turn_steps`` in total so far)."""
-    state["total_steps"] += turn_steps - state["turn_steps"]
-    state["turn_steps"] = turn_steps
+    state.total_steps += turn_steps - state.turn_steps
+    state.turn_steps = turn_steps
 
 
 def _save(model, cfg, state, path: Path, car: int, turn: int, turn_steps: int, evaluation=None):
@@ -387,33 +386,33 @@ def _save(model, cfg, state, path: Path, car: int, turn: int, turn_steps: int, e
     meta = {"n_cars": cfg.n_cars, "n_preview": race_config(cfg).n_preview, "track": cfg.track,
             "car": car, "turn": turn, "cycle": turn // cfg.n_cars if turn >= 0 else -1,
             "turn_steps": turn_steps, "car_timesteps": int(model.num_timesteps),
-            "trained_turns": state["trained_turns"][car] if car >= 0 else 0,
+            "trained_turns": state.trained_turns[car] if car >= 0 else 0,
             "selfplay_config": cfg.to_dict(), "race_config": race_config(cfg).to_dict(),
             "evaluation": evaluation, "saved": time.strftime("%Y-%m-%d %H:%M:%S")}
     return save_checkpoint(model, model.get_vec_normalize_env(), path, meta)
 
 
 # ---------------------------------------------------------------------- outputs
-def write_evals_csv(out: Path, state: dict) -> None:
+def write_evals_csv(out: Path, state: SelfPlayState) -> None:
     keys = ["phase", "turn", "cycle", "car", "total_steps", "train_seconds", "train_cpu_seconds",
             "distance_m", "off_track_frac", "train_ep_return_m", "distance_vs_mpc"]
     buf = io.StringIO(newline="")
     w = csv.DictWriter(buf, keys, extrasaction="ignore")
     w.writeheader()
-    w.writerows(state["evals"])
+    w.writerows(state.evals)
     write_text(out / "evals.csv", buf.getvalue())
 
 
-def plot_learning_curve(out: Path, state: dict, cfg: SelfPlayConfig) -> Path:
+def plot_learning_curve(out: Path, state: SelfPlayState, cfg: SelfPlayConfig) -> Path:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
-    ref = state.get("mpc_reference")
+    ref = state.mpc_reference
     for car in range(cfg.n_cars):
-        ev = [e for e in state["evals"] if e["car"] == car and e["phase"] == "ppo"]
-        tc = [e for e in state["train_curve"] if e["car"] == car]
+        ev = [e for e in state.evals if e["car"] == car and e["phase"] == "ppo"]
+        tc = [e for e in state.train_curve if e["car"] == car]
         if ev:
             x = [e["total_steps"] for e in ev]
             axes[0].plot(x, [e["distance_m"] for e in ev], "o-", label=f"car {car}")
@@ -421,7 +420,7 @@ def plot_learning_curve(out: Path, state: dict, cfg: SelfPlayConfig) -> Path:
         if tc:
             axes[2].plot([e["total_steps"] for e in tc], [e["ep_rew_mean"] for e in tc], ".-",
                          lw=0.8, label=f"car {car} (learning)")
-    bc = [e for e in state["evals"] if e["phase"] == "bc"]
+    bc = [e for e in state.evals if e["phase"] == "bc"]
     if bc:
         axes[0].plot([0], [bc[-1]["distance_m"]], "k*", ms=10, label="behaviour-cloned start")
         axes[1].plot([0], [100 * bc[-1]["off_track_frac"]], "k*", ms=10, label="behaviour-cloned start")
@@ -457,8 +456,8 @@ def _new_model(cfg: SelfPlayConfig, env, seed: int):
                policy_kwargs={"net_arch": list(cfg.net_arch)}, seed=seed, device="cpu", verbose=0)
 
 
-def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: dict, bar) -> str:
-    """``init="bc"``: one behaviour-cloned PPO model (:func:`behaviour_cloning`), the
+def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: SelfPlayState, bar) -> str:
+    """``init="bc"``: one behaviour-cloned PPO model (:func:`~experiments.imitation.behaviour_cloning`), the
     starting point of every car; saved as ``checkpoints/bc_init.zip`` and evaluated alone."""
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
@@ -469,13 +468,13 @@ def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: dict, bar) -> 
                         gamma=cfg.gamma, norm_reward=cfg.norm_reward)
     model = _new_model(cfg, venv, cfg.seed)
     c0 = time.process_time()
-    fit = behaviour_cloning(model, cfg, cfg.seed)
-    state["bc_cpu_seconds"] = round(time.process_time() - c0, 1)
+    fit = behaviour_cloning(model, cfg, cfg.seed, race_config(cfg), RACELINE_MU)
+    state.bc_cpu_seconds = round(time.process_time() - c0, 1)
     path = out / "checkpoints" / "bc_init.zip"
     ev = evaluate_solo(live_policy(model, cfg), cfg)
     _save(model, cfg, state, path, -1, -1, 0, {**ev, "bc": fit})
-    state["evals"] = [e for e in state["evals"] if e["phase"] != "bc"]
-    state["evals"].append(_eval_row(cfg, state, -1, -1, ev, None, phase="bc"))
+    state.evals = [e for e in state.evals if e["phase"] != "bc"]
+    state.evals.append(_eval_row(cfg, state, -1, -1, ev, None, phase="bc"))
     bar.write(f"behaviour cloning (every car's start): {fit['samples']} samples, mse {fit['mse']:.4f}, "
               f"alone {ev['distance_m']:.1f} m, off track {100 * ev['off_track_frac']:.1f}%")
     return str(path.relative_to(out))
@@ -514,28 +513,28 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
     claim(out / "config.json", {"schema_version": SCHEMA_VERSION, "config": cfg.to_dict()},
           "a self-play run")
     state_path = out / "state.json"
-    state = json.loads(state_path.read_text()) if state_path.exists() else _new_state(cfg)
-    if cfg.mpc_reference and state["mpc_reference"] is None:
-        state["mpc_reference"] = mpc_reference(cfg)
-        write_json(state_path, state)
+    state = SelfPlayState.load(state_path, cfg)
+    if cfg.mpc_reference and state.mpc_reference is None:
+        state.mpc_reference = mpc_reference(cfg)
+        state.save(state_path)
     eval_logger = Logger(str(out / "logs" / "eval"), [make_output_format("tensorboard", str(out / "logs" / "eval"))])
 
     total = cfg.turns * cfg.steps_per_turn_actual
-    bar = tqdm(total=total, initial=state["total_steps"], unit="step", desc="selfplay",
+    bar = tqdm(total=total, initial=state.total_steps, unit="step", desc="selfplay",
                disable=not progress_bar, smoothing=0.05, dynamic_ncols=True)
     turns_run = 0
-    while state["turn"] < cfg.turns and (max_turns is None or turns_run < max_turns):
-        turn = state["turn"]
+    while state.turn < cfg.turns and (max_turns is None or turns_run < max_turns):
+        turn = state.turn
         car = turn % cfg.n_cars
         opponents, names = _opponents(cfg, out, state, car)
-        seed = int(np.random.SeedSequence([cfg.seed, turn, state["turn_steps"]]).generate_state(1)[0] % 2 ** 31)
+        seed = int(np.random.SeedSequence([cfg.seed, turn, state.turn_steps]).generate_state(1)[0] % 2 ** 31)
         venv = VecMonitor(make_learning_env(cfg, opponents, seed))
-        resume_from = state["current"] or state["cars"][car]
+        resume_from = state.current or state.cars[car]
         if not resume_from and cfg.init == "bc":
-            if not state.get("bc_init"):
-                state["bc_init"] = _behaviour_cloned_init(cfg, out, state, bar)
-                write_json(state_path, state)
-            resume_from = state["bc_init"]
+            if not state.bc_init:
+                state.bc_init = _behaviour_cloned_init(cfg, out, state, bar)
+                state.save(state_path)
+            resume_from = state.bc_init
         if resume_from:
             model = PPO.load(out / resume_from, env=None, device="cpu")
             vecnorm = load_vecnormalize(out / resume_from)
@@ -551,41 +550,41 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
         log_dir.mkdir(parents=True, exist_ok=True)
         model.set_logger(Logger(str(log_dir), [
             make_output_format("tensorboard", str(log_dir)),
-            CSVOutputFormat(str(log_dir / f"progress_turn{turn:03d}_{state['turn_steps']:09d}.csv"))]))
-        turn_start = model.num_timesteps - state["turn_steps"]
+            CSVOutputFormat(str(log_dir / f"progress_turn{turn:03d}_{state.turn_steps:09d}.csv"))]))
+        turn_start = model.num_timesteps - state.turn_steps
         bar.set_postfix_str(f"turn {turn + 1}/{cfg.turns} car {car} vs {', '.join(names)}")
         clock = _Clock(state)
         callback = _callbacks(cfg, out, state, turn, car, bar, turn_start, clock)
-        remaining = cfg.steps_per_turn_actual - state["turn_steps"]
+        remaining = cfg.steps_per_turn_actual - state.turn_steps
         if remaining > 0:
             model.learn(total_timesteps=remaining, reset_num_timesteps=False, callback=callback)
         clock.book()
         venv.close()
         # turn end: checkpoint, evaluation, state, outputs
         _advance_state(state, model.num_timesteps - turn_start)
-        state["trained_turns"][car] += 1
+        state.trained_turns[car] += 1
         path = out / "checkpoints" / f"turn_{turn:03d}_car_{car}.zip"
         evaluation = evaluate_solo(live_policy(model, cfg), cfg)
-        _save(model, cfg, state, path, car, turn, state["turn_steps"], evaluation)
-        ep = [e["ep_rew_mean"] for e in state["train_curve"] if e["turn"] == turn]
-        ref = state["mpc_reference"]
+        _save(model, cfg, state, path, car, turn, state.turn_steps, evaluation)
+        ep = [e["ep_rew_mean"] for e in state.train_curve if e["turn"] == turn]
+        ref = state.mpc_reference
         row = _eval_row(cfg, state, turn, car, evaluation, ep[-1] if ep else None)
-        state["evals"].append(row)
-        old_current = state["current"]
-        state["cars"][car] = str(path.relative_to(out))
-        state["current"] = None
-        state["turn"] += 1
-        state["turn_steps"] = 0
-        write_json(state_path, state)
-        if old_current and (out / old_current).exists() and old_current != state["cars"][car]:
+        state.evals.append(row)
+        old_current = state.current
+        state.cars[car] = str(path.relative_to(out))
+        state.current = None
+        state.turn += 1
+        state.turn_steps = 0
+        state.save(state_path)
+        if old_current and (out / old_current).exists() and old_current != state.cars[car]:
             (out / old_current).unlink()
         for key in ("distance_m", "off_track_frac", "distance_vs_mpc", "train_ep_return_m"):
             if row[key] is not None:
                 eval_logger.record(f"eval_car_{car}/{key}", row[key])
-        eval_logger.dump(step=state["total_steps"])
+        eval_logger.dump(step=state.total_steps)
         write_evals_csv(out, state)
         plot_learning_curve(out, state, cfg)
-        bar.write(f"turn {turn + 1}/{cfg.turns} car {car}: {state['total_steps']} steps, "
+        bar.write(f"turn {turn + 1}/{cfg.turns} car {car}: {state.total_steps} steps, "
                   f"alone {row['distance_m']:.1f} m"
                   + (f" ({100 * row['distance_vs_mpc']:.0f}% of MPC)" if ref else "")
                   + f", off track {100 * row['off_track_frac']:.1f}%"
@@ -597,10 +596,10 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
 
 
 def _eval_row(cfg, state, turn, car, evaluation, ep_return, phase="ppo") -> dict:
-    ref = state["mpc_reference"]
+    ref = state.mpc_reference
     return {"phase": phase, "turn": turn, "cycle": turn // cfg.n_cars if turn >= 0 else -1, "car": car,
-            "total_steps": state["total_steps"], "train_seconds": round(state["train_seconds"], 1),
-            "train_cpu_seconds": round(state.get("train_cpu_seconds", 0.0), 1),
+            "total_steps": state.total_steps, "train_seconds": round(state.train_seconds, 1),
+            "train_cpu_seconds": round(state.train_cpu_seconds, 1),
             "distance_m": round(evaluation["distance_m"], 3),
             "off_track_frac": round(evaluation["off_track_frac"], 4),
             "train_ep_return_m": None if ep_return is None else round(ep_return, 3),
@@ -632,7 +631,7 @@ def command_line(cfg: SelfPlayConfig, out: str) -> str:
     return " ".join(parts)
 
 
-def model_card(cfg: SelfPlayConfig, summary: dict, state: dict) -> str:
+def model_card(cfg: SelfPlayConfig, summary: dict, state: SelfPlayState) -> str:
     """Markdown description of the run's ``best.zip``: command, schedule, time, figures."""
     b, ref = summary["best"], summary["mpc_reference"]
     lines = [f"# PPO self-play checkpoint (car {b['car']} of a {cfg.n_cars}-car run)", "",
@@ -668,7 +667,7 @@ def model_card(cfg: SelfPlayConfig, summary: dict, state: dict) -> str:
               "Over training (each car after each of its turns; `bc` = the shared start):", "",
               "| phase | turn | car | total steps | distance m | vs MPC | off track % | training return m |",
               "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for e in state["evals"]:
+    for e in state.evals:
         vs = f"{100 * e['distance_vs_mpc']:.0f}%" if e.get("distance_vs_mpc") else "-"
         tr = "-" if e.get("train_ep_return_m") is None else f"{e['train_ep_return_m']:.1f}"
         lines.append(f"| {e['phase']} | {e['turn'] + 1 if e['turn'] >= 0 else '-'} | "
@@ -677,40 +676,40 @@ def model_card(cfg: SelfPlayConfig, summary: dict, state: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def summarize(cfg: SelfPlayConfig, state: dict, out) -> dict:
+def summarize(cfg: SelfPlayConfig, state: SelfPlayState, out) -> dict:
     """The closing figures of a run's state (no files touched); ``best`` is the last policy of
     the car that drives furthest alone with under 5% off-track steps (else furthest)."""
     last = {}
-    for e in state["evals"]:
+    for e in state.evals:
         if e["phase"] == "ppo":
             last[e["car"]] = e
     best = None
     if last:
         ok = [e for e in last.values() if e["off_track_frac"] < OFFTRACK_BAR] or list(last.values())
         best = max(ok, key=lambda e: e["distance_m"])
-    wall, cpu = state["train_seconds"], state.get("train_cpu_seconds", 0.0)
-    return {"done": state["turn"] >= cfg.turns, "turns": state["turn"], "total_steps": state["total_steps"],
+    wall, cpu = state.train_seconds, state.train_cpu_seconds
+    return {"done": state.turn >= cfg.turns, "turns": state.turn, "total_steps": state.total_steps,
             "train_seconds": round(wall, 1),
-            "steps_per_s": round(state["total_steps"] / wall, 1) if wall else None,
+            "steps_per_s": round(state.total_steps / wall, 1) if wall else None,
             "train_cpu_seconds": round(cpu, 1),
-            "steps_per_cpu_s": round(state["total_steps"] / cpu, 1) if cpu else None,
-            "bc_cpu_seconds": state.get("bc_cpu_seconds"),
-            "mpc_reference": state["mpc_reference"], "final": last,
-            "best": None if best is None else {"path": state["cars"][best["car"]], **best},
+            "steps_per_cpu_s": round(state.total_steps / cpu, 1) if cpu else None,
+            "bc_cpu_seconds": state.bc_cpu_seconds,
+            "mpc_reference": state.mpc_reference, "final": last,
+            "best": None if best is None else {"path": state.cars[best["car"]], **best},
             "out": str(out)}
 
 
-def finish(cfg: SelfPlayConfig, out: Path, state: dict) -> dict:
+def finish(cfg: SelfPlayConfig, out: Path, state: SelfPlayState) -> dict:
     """Copy the final policies, write ``best.zip``, ``summary.json`` and ``MODEL_CARD.md``
     (also for a partial run)."""
     summary = summarize(cfg, state, out)
-    for car, path in enumerate(state["cars"]):
+    for car, path in enumerate(state.cars):
         if path:
             shutil.copyfile(out / path, out / "final" / f"car_{car}.zip")
     if summary["best"] is not None:
         shutil.copyfile(out / summary["best"]["path"], out / "best.zip")
-    state["done"] = summary["done"]
-    write_json(out / "state.json", state)
+    state.done = summary["done"]
+    state.save(out / "state.json")
     write_json(out / "summary.json", summary)
     if summary["best"] is not None:
         write_text(out / "MODEL_CARD.md", model_card(cfg, summary, state))

@@ -30,158 +30,26 @@ it came from and the metrics; ``metrics.json`` and ``model_card.md`` sit beside 
 from __future__ import annotations
 
 import json
-import os
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from agents.features import FEATURE_VERSION, potential_dim, potential_features, value_dim, value_features
-from agents.mlp import MLP
 from agents.potential import PotentialModel
 from agents.reference import THETA_HIGH, THETA_LOW
 
-from .artifacts import claim, write_json, write_text
+from .artifacts import claim
+from .nets import (TrainConfig, ValueData, discounted_partial_returns, discounted_rollout,
+                   gap_statistics, input_scale, numpy_model, save_model, split_races,
+                   summary_text, train_potential, train_value, value_samples)
 from .parallel import pin_worker
-
-OBJECTIVES = ("mse", "smoothmax", "tail")
-# progress bars redraw twice a second on a terminal, once a minute into a log file
-_BAR_INTERVAL = 0.5 if sys.stderr.isatty() else 60.0
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Everything that shapes a model. Defaults: the paper's sizes, gamma 0.99."""
-
-    gamma: float = 0.99
-    val_fraction: float = 0.1          # share of races held out (whole races)
-    seed: int = 0
-    # value network
-    value_hidden: tuple = (128, 128, 64)
-    value_epochs: int = 8
-    value_batch: int = 4096
-    value_lr: float = 2e-3
-    value_stride: int = 2              # use every k-th step of a race (neighbours are near-copies)
-    # potential network
-    potential_hidden: tuple = (384, 384, 192)
-    potential_steps: int = 4000
-    potential_batch: int = 1024
-    potential_lr: float = 1e-3
-    objective: str = "tail"
-    tail_fraction: float = 0.2
-    smoothmax_tau: float = 0.05        # in units of the normalised gap
-    warmup_fraction: float = 0.3       # MSE warm-up share of the steps for min-max objectives
-    own_theta_fraction: float = 0.5    # pairs whose base theta is the race's own
-    save_every: int = 500
-    # validation
-    val_pairs: int = 20000
-    rollout_pairs: int = 40
-    rollout_steps: int = 300
-    threads: int = 2
-
-    def __post_init__(self):
-        if not 0.0 < self.gamma < 1.0:
-            raise ValueError(f"gamma must be in (0, 1), got {self.gamma!r}")
-        if not 0.0 < self.val_fraction < 1.0:
-            raise ValueError(f"val_fraction must be in (0, 1), got {self.val_fraction!r}")
-        if self.objective not in OBJECTIVES:
-            raise ValueError(f"objective must be one of {OBJECTIVES}, got {self.objective!r}")
-        for name in ("value_epochs", "value_batch", "value_stride", "potential_steps",
-                     "potential_batch", "save_every", "val_pairs", "rollout_steps", "threads"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, np.integer)) and v >= 1):
-                raise ValueError(f"TrainConfig.{name} must be a positive integer, got {v!r}")
-        if not (isinstance(self.rollout_pairs, int) and self.rollout_pairs >= 0):
-            raise ValueError(f"TrainConfig.rollout_pairs must be an integer >= 0, got "
-                             f"{self.rollout_pairs!r}")
-        if not 0.0 < self.tail_fraction <= 1.0:
-            raise ValueError(f"tail_fraction must be in (0, 1], got {self.tail_fraction!r}")
-        for name in ("value_hidden", "potential_hidden"):
-            h = getattr(self, name)
-            if not (len(h) >= 1 and all(isinstance(k, (int, np.integer)) and k >= 1 for k in h)):
-                raise ValueError(f"TrainConfig.{name} must be a tuple of positive layer widths, "
-                                 f"got {h!r}")
-            object.__setattr__(self, name, tuple(int(k) for k in h))
 
 
 # ---------------------------------------------------------------------------- data
-def discounted_partial_returns(rewards: np.ndarray, gamma: float):
-    """``P[:, t] = sum_{k < T - t} gamma^k r[:, t + k]`` and ``gamma^(T - t)``, for rewards
-    (R, T, N): returns (P (R, T, N), tail (T,))."""
-    R, T, N = rewards.shape
-    P = np.empty((R, T, N), dtype=np.float64)
-    acc = np.zeros((R, N))
-    for t in range(T - 1, -1, -1):
-        acc = rewards[:, t].astype(np.float64) + gamma * acc
-        P[:, t] = acc
-    return P, gamma ** (T - np.arange(T, dtype=np.float64))
-
-
-def split_races(n_races: int, val_fraction: float, seed: int):
-    """(train, val) race indices: a seeded permutation, whole races on either side."""
-    perm = np.random.default_rng(seed).permutation(n_races)
-    n_val = max(1, int(round(val_fraction * n_races)))
-    if n_val >= n_races:
-        raise ValueError(f"{n_races} races cannot be split into training and validation "
-                         f"(val_fraction {val_fraction}); collect more races")
-    return np.sort(perm[n_val:]), np.sort(perm[:n_val])
-
-
-def _torch_mlp(in_dim: int, hidden, torch):
-    layers, d = [], in_dim
-    for h in hidden:
-        layers += [torch.nn.Linear(d, h), torch.nn.SiLU()]
-        d = h
-    layers.append(torch.nn.Linear(d, 1))
-    return torch.nn.Sequential(*layers)
-
-
-def _to_numpy_mlp(net, mean, std, y_scale, y_shift) -> MLP:
-    lin = [m for m in net if hasattr(m, "weight")]
-    return MLP([(m.weight.detach().numpy().T, m.bias.detach().numpy()) for m in lin], mean, std,
-               y_scale, y_shift)
-
-
-def _numpy_model(value, potential, meta: dict) -> PotentialModel:
-    """The numpy :class:`PotentialModel` of the trained (normalised) torch networks."""
-    return PotentialModel(*(_to_numpy_mlp(n.net, n.mean.numpy(), n.std.numpy(), n.y_scale,
-                                          n.y_shift) for n in (value, potential)), meta)
-
-
-def _save_model(model: PotentialModel, metrics: dict, out: Path, card_text, command: str) -> None:
-    """Record ``metrics`` and ``command`` in the model and write ``model.npz``,
-    ``metrics.json`` and ``model_card.md`` (``card_text(meta)``) into ``out``."""
-    model.meta["metrics"] = metrics
-    model.meta["command"] = command
-    model.save(out / "model.npz")
-    write_json(out / "metrics.json", metrics)
-    write_text(out / "model_card.md", card_text(model.meta))
-
-
-def _save_atomic_torch(obj, path: Path, torch):
-    tmp = path.with_suffix(".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
-class _Normalised:
-    """A torch MLP with fixed input normalisation and output scale (what MLP evaluates)."""
-
-    def __init__(self, net, mean, std, y_scale, y_shift, torch):
-        self.net, self.torch = net, torch
-        self.mean = torch.as_tensor(mean, dtype=torch.float32)
-        self.std = torch.as_tensor(std, dtype=torch.float32)
-        self.y_scale, self.y_shift = float(y_scale), float(y_shift)
-
-    def raw(self, x):
-        return self.net((x - self.mean) / self.std)[..., 0]
-
-    def __call__(self, x):
-        return self.raw(x) * self.y_scale + self.y_shift
 
 
 # ---------------------------------------------------------------------------- training
@@ -211,18 +79,18 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
     log(f"data: {R} races x {T} steps x {N} cars from {data_dir} "
         f"({len(train_idx)} training, {len(val_idx)} held out)")
 
-    value = _train_value(_value_data(states, thetas, rewards, train_idx, val_idx, track, cfg),
-                         cfg, out, torch, progress_bar, log)
-    potential = _train_potential(_Deviations(states, thetas, train_idx, track,
-                                             cfg.own_theta_fraction),
-                                 cfg, value, out, torch, progress_bar, log)
+    value = train_value(_value_data(states, thetas, rewards, train_idx, val_idx, track, cfg),
+                        cfg, out, torch, progress_bar, log)
+    potential = train_potential(_Deviations(states, thetas, train_idx, track,
+                                            cfg.own_theta_fraction),
+                                cfg, value, out, torch, progress_bar, log)
     t_train = time.perf_counter() - t_start
     meta = {"feature_version": FEATURE_VERSION, "n_cars": N, "track": data["config"]["track"],
             "theta_low": THETA_LOW.tolist(), "theta_high": THETA_HIGH.tolist(),
             "gamma": cfg.gamma, "config": asdict(cfg),
             "data": {"dir": str(data_dir), "races": R, "steps": T, "collect": data["config"]},
             "train_seconds": t_train}
-    model = _numpy_model(value, potential, meta)
+    model = numpy_model(value, potential, meta)
     log("validation on held-out races ...")
     metrics = {"train_seconds": t_train, **value.metrics,
                **validate_gaps(model, states, thetas, val_idx, track, cfg)}
@@ -230,8 +98,8 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
         metrics.update(validate_rollouts(model, metrics["value_range"], states, thetas, val_idx,
                                          track, cfg, progress_bar))
     metrics["total_seconds"] = time.perf_counter() - t_start
-    _save_model(model, metrics, out, model_card_text,
-                command or f"alpha-racer train --data {data_dir} --out {out_dir}")
+    save_model(model, metrics, out, model_card_text,
+               command or f"alpha-racer train --data {data_dir} --out {out_dir}")
     log(summary_text(metrics))
     return metrics
 
@@ -253,13 +121,6 @@ def _write_or_check_config(out: Path, cfg: TrainConfig, data_dir) -> None:
     claim(out / "train_config.json", meta, "a training run (config or data)")
 
 
-def _value_samples(states, thetas, races, stride, T, N):
-    """(race, t, car) triples of the value dataset: every ``stride``-th step, every car."""
-    t = np.arange(0, T, stride)
-    r, tt, c = np.meshgrid(races, t, np.arange(N), indexing="ij")
-    return r.ravel(), tt.ravel(), c.ravel()
-
-
 def _features_in_chunks(states, thetas, r, t, c, track, chunk=200_000):
     out = np.empty((len(r), value_dim(states.shape[2])), dtype=np.float32)
     for lo in range(0, len(r), chunk):
@@ -268,45 +129,13 @@ def _features_in_chunks(states, thetas, r, t, c, track, chunk=200_000):
     return out
 
 
-@dataclass
-class ValueData:
-    """The value network's dataset. ``X_tr`` (n, D), ``X_va`` (m, D) float32 features of
-    (race, step, car) samples and ``X_end`` (E, D) those of every race's final state per car;
-    the discounted-return target of a sample is ``P + tail * V(X_end[end])`` (the observed
-    discounted rewards plus the bootstrap with the current network), with ``P``, ``tail``,
-    ``end`` per sample (``*_tr`` and ``*_va``). ``general``: the features are padded (columns
-    constant in training keep unit scale, see :func:`input_scale`)."""
-
-    X_tr: np.ndarray
-    X_va: np.ndarray
-    X_end: np.ndarray
-    P_tr: np.ndarray
-    tail_tr: np.ndarray
-    end_tr: np.ndarray
-    P_va: np.ndarray
-    tail_va: np.ndarray
-    end_va: np.ndarray
-    general: bool = False
-
-
-def input_scale(X: np.ndarray, general: bool = False):
-    """``(mean, std)`` (D,) of the input normalisation from training features ``X`` (n, D).
-    ``general``: a column that never varies in training (an empty slot of a field size the
-    data lack, a presence flag that is always set) keeps unit scale instead of 1e-6, so a
-    larger field at racing time gives finite inputs."""
-    mean, std = X.mean(axis=0), X.std(axis=0)
-    if general:
-        std = np.where(std < 1e-3, 1.0, std)
-    return mean, std + 1e-6
-
-
 def _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg) -> ValueData:
     """One track, one field size: every ``value_stride``-th step of the training races (every
     5th at least of the held-out ones), every car."""
     R, T, N = rewards.shape
     P, tail = discounted_partial_returns(rewards, cfg.gamma)
-    tr = _value_samples(states, thetas, train_idx, cfg.value_stride, T, N)
-    va = _value_samples(states, thetas, val_idx, max(cfg.value_stride, 5), T, N)
+    tr = value_samples(states, thetas, train_idx, cfg.value_stride, T, N)
+    va = value_samples(states, thetas, val_idx, max(cfg.value_stride, 5), T, N)
     X_tr = _features_in_chunks(states, thetas, *tr, track)
     X_va = _features_in_chunks(states, thetas, *va, track)
     # features of every race's final state, for the truncation bootstrap
@@ -315,74 +144,6 @@ def _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg) -> Valu
                            ).astype(np.float32)
     parts = lambda smp: (P[smp[0], smp[1], smp[2]], tail[smp[1]], smp[0] * N + smp[2])
     return ValueData(X_tr, X_va, X_end, *parts(tr), *parts(va))
-
-
-def _train_value(data: ValueData, cfg, out, torch, progress_bar, log):
-    rng = np.random.default_rng(cfg.seed)
-    X_tr, X_va, X_end = data.X_tr, data.X_va, data.X_end
-    mean, std = input_scale(X_tr, data.general)
-    y0 = data.P_tr
-    y_shift, y_scale = float(y0.mean()), float(y0.std() + 1e-9)
-    net = _torch_mlp(X_tr.shape[1], cfg.value_hidden, torch)
-    model = _Normalised(net, mean, std, y_scale, y_shift, torch)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.value_lr)
-    steps_per_epoch = -(-len(X_tr) // cfg.value_batch)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.value_lr, pct_start=0.1,
-                                                total_steps=cfg.value_epochs * steps_per_epoch)
-    ckpt = out / "value_ckpt.pt"
-    epoch0, history = 0, []
-    if ckpt.exists():
-        st = torch.load(ckpt, weights_only=False)
-        net.load_state_dict(st["net"]), opt.load_state_dict(st["opt"])
-        sched.load_state_dict(st["sched"])
-        epoch0, history = st["epoch"], st["history"]
-        log(f"value: resuming after epoch {epoch0}")
-    Xt, Xv, Xe = (torch.from_numpy(a) for a in (X_tr, X_va, X_end))
-    tr = (data.P_tr, data.tail_tr, data.end_tr)
-    va = (data.P_va, data.tail_va, data.end_va)
-
-    def targets(parts):
-        P, tail, end = parts
-        with torch.no_grad():
-            v_end = model(Xe).numpy().astype(np.float64)
-        return P + tail * v_end[end]
-
-    t0 = time.perf_counter()
-    for epoch in range(epoch0, cfg.value_epochs):
-        y = torch.from_numpy(((targets(tr) - y_shift) / y_scale).astype(np.float32))
-        perm = torch.from_numpy(rng.permutation(len(X_tr)))
-        net.train()
-        total = 0.0
-        bar = tqdm(range(steps_per_epoch), desc=f"value epoch {epoch + 1}/{cfg.value_epochs}",
-                   disable=not progress_bar, leave=False, mininterval=_BAR_INTERVAL)
-        for b in bar:
-            idx = perm[b * cfg.value_batch:(b + 1) * cfg.value_batch]
-            loss = torch.nn.functional.mse_loss(model.raw(Xt[idx]), y[idx])
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            sched.step()
-            total += loss.item() * len(idx)
-        yv = targets(va)
-        with torch.no_grad():
-            pv = model(Xv).numpy()
-        r2 = 1.0 - np.mean((pv - yv) ** 2) / np.var(yv)
-        history.append({"epoch": epoch + 1, "train_mse_normalised": total / len(X_tr),
-                        "val_r2": float(r2)})
-        log(f"value epoch {epoch + 1}: train mse {total / len(X_tr):.4f} (normalised), "
-            f"held-out R^2 {r2:.4f}")
-        _save_atomic_torch({"net": net.state_dict(), "opt": opt.state_dict(),
-                            "sched": sched.state_dict(), "epoch": epoch + 1,
-                            "history": history}, ckpt, torch)
-    yv = targets(va)
-    with torch.no_grad():
-        pv = model(Xv).numpy()
-    model.metrics = {"value_val_r2": float(1.0 - np.mean((pv - yv) ** 2) / np.var(yv)),
-                     "value_val_rmse": float(np.sqrt(np.mean((pv - yv) ** 2))),
-                     "value_target_std": float(np.std(yv)), "value_history": history,
-                     "value_seconds_this_run": time.perf_counter() - t0}
-    net.eval()
-    return model
 
 
 def sample_deviations(states, thetas, races, n: int, rng, own_theta_fraction: float = 0.5):
@@ -427,72 +188,6 @@ class _Deviations:
         return potential_features(x, (th1, th2)[k - 1], self.track)
 
 
-def _train_potential(data, cfg, value, out, torch, progress_bar, log):
-    """Fit Phi on deviations drawn from ``data`` (a :class:`_Deviations` or its family
-    counterpart) so that dPhi matches dV_i."""
-    rng = np.random.default_rng(cfg.seed + 1)
-    # input normalisation from a sample of training states with uniform thetas
-    F = data.potential_features(data.draw(20000, rng), 1)
-    mean, std = input_scale(F, data.general)
-    batch = data.draw(20000, rng)
-    f32 = lambda a: torch.from_numpy(a.astype(np.float32))
-    with torch.no_grad():
-        dv = value(f32(data.value_features(batch, 2))) - value(f32(data.value_features(batch, 1)))
-    y_scale = float(dv.std() + 1e-9)             # gaps are learned in units of std(dV)
-    net = _torch_mlp(data.potential_dim, cfg.potential_hidden, torch)
-    phi = _Normalised(net, mean, std, y_scale, 0.0, torch)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.potential_lr)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.potential_lr, pct_start=0.1,
-                                                total_steps=cfg.potential_steps)
-    ckpt = out / "potential_ckpt.pt"
-    step0, history = 0, []
-    if ckpt.exists():
-        st = torch.load(ckpt, weights_only=False)
-        net.load_state_dict(st["net"]), opt.load_state_dict(st["opt"])
-        sched.load_state_dict(st["sched"])
-        step0, history = st["step"], st["history"]
-        rng = np.random.default_rng([cfg.seed + 1, step0])
-        log(f"potential: resuming after step {step0}")
-    warm = int(cfg.warmup_fraction * cfg.potential_steps) if cfg.objective != "mse" else cfg.potential_steps
-    t0 = time.perf_counter()
-    bar = tqdm(range(step0, cfg.potential_steps), desc="potential", disable=not progress_bar,
-               initial=step0, total=cfg.potential_steps, mininterval=_BAR_INTERVAL)
-    window = []
-    for step in bar:
-        batch = data.draw(cfg.potential_batch, rng)
-        fv1, fv2 = (f32(data.value_features(batch, k)) for k in (1, 2))
-        fp1, fp2 = (f32(data.potential_features(batch, k)) for k in (1, 2))
-        with torch.no_grad():
-            dv = (value(fv2) - value(fv1)) / y_scale
-        gap = (phi.raw(fp2) - phi.raw(fp1)) - dv
-        if step < warm or cfg.objective == "mse":
-            loss = (gap ** 2).mean()
-        elif cfg.objective == "tail":
-            k = max(1, int(cfg.tail_fraction * len(gap)))
-            loss = torch.topk(gap.abs(), k).values.pow(2).mean()
-        else:
-            tau = cfg.smoothmax_tau
-            loss = tau * (torch.logsumexp(gap.abs() / tau, 0) - np.log(len(gap)))
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-        window.append(float(gap.detach().abs().median()))
-        if (step + 1) % 100 == 0:
-            bar.set_postfix(median_gap=f"{np.mean(window):.3f}")
-            history.append({"step": step + 1, "median_abs_gap_std_units": float(np.mean(window))})
-            window = []
-        if (step + 1) % cfg.save_every == 0 or step + 1 == cfg.potential_steps:
-            _save_atomic_torch({"net": net.state_dict(), "opt": opt.state_dict(),
-                                "sched": sched.state_dict(), "step": step + 1,
-                                "history": history}, ckpt, torch)
-    bar.close()
-    net.eval()
-    value.metrics["potential_history"] = history
-    value.metrics["potential_seconds_this_run"] = time.perf_counter() - t0
-    return phi
-
-
 # ---------------------------------------------------------------------------- validation
 def approximation_gaps(model: PotentialModel, x, th1, th2, i, track):
     """(dPhi, dV) of deviations (arrays (n,))."""
@@ -523,33 +218,6 @@ def validate_gaps(model, states, thetas, val_idx, track, cfg) -> dict:
                                        cfg.own_theta_fraction)
     _, _, dphi, dv = relative_gaps(model, x, th1, th2, i, track, vr)
     return {"value_range": vr, "val_pairs": int(cfg.val_pairs), **gap_statistics(dphi, dv, vr)}
-
-
-def gap_statistics(dphi, dv, vr: float) -> dict:
-    """Statistics of the approximation gap of deviations with potential changes ``dphi`` and
-    value changes ``dv`` (arrays (n,)), relative to the value range ``vr`` [m]: median, 95th
-    percentile and maximum of ``|dPhi - dV| / vr``, alpha (the largest absolute gap), the
-    share within 10%, those of a constant potential (``|dV| / vr``), a histogram and the sign
-    agreement of dPhi and dV."""
-    rel, base = np.abs(dphi - dv) / vr, np.abs(dv) / vr
-    q = lambda a, p: float(np.percentile(a, p))
-    return {"gap_rel_median": q(rel, 50), "gap_rel_p95": q(rel, 95),
-            "gap_rel_max": float(rel.max()),
-            "alpha": float(np.abs(dphi - dv).max()),
-            "gap_rel_within_10pct": float(np.mean(rel <= 0.10)),
-            "const_rel_median": q(base, 50), "const_rel_p95": q(base, 95),
-            "gap_rel_histogram": np.histogram(rel, bins=20, range=(0, 0.2))[0].tolist(),
-            "sign_agreement": float(np.mean(np.sign(dphi) == np.sign(dv)))}
-
-
-def discounted_rollout(track: str, x, thetas, car: int, steps: int, gamma: float):
-    """``(G, x_end)``: car ``car``'s gamma-discounted return over ``steps`` of MPC cars with
-    ``thetas`` (N, 5) from the joint state ``x`` (N, 6) on ``track`` (a name), and the joint
-    state after them (N, 6) for a bootstrap with V."""
-    from experiments.collect import rollout_from_state
-    states, rewards = rollout_from_state(track, x, thetas, steps)
-    disc = gamma ** np.arange(len(rewards))
-    return float(disc @ rewards[:, car]), states[-1]
 
 
 def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_bar) -> dict:
@@ -618,18 +286,3 @@ def model_card_text(meta: dict) -> str:
         ""])
 
 
-def summary_text(m: dict) -> str:
-    lines = [f"value network: held-out R^2 {m['value_val_r2']:.3f}",
-             f"approximation gap |dPhi - dV_i| / range(V) on {m['val_pairs']} held-out deviations: "
-             f"median {100 * m['gap_rel_median']:.2f}%, 95th pct {100 * m['gap_rel_p95']:.2f}%, "
-             f"max {100 * m['gap_rel_max']:.1f}% (alpha = {m['alpha']:.4f}); "
-             f"{100 * m['gap_rel_within_10pct']:.1f}% within 10%",
-             f"constant potential: median {100 * m['const_rel_median']:.2f}%, "
-             f"95th pct {100 * m['const_rel_p95']:.2f}%"]
-    if "rollout_pairs" in m:
-        lines.append(f"paired rollouts ({m['rollout_pairs']}): |dPhi - dG_sim| / range median "
-                     f"{100 * m['rollout_phi_rel_median']:.2f}% (|dV - dG_sim| "
-                     f"{100 * m['rollout_value_rel_median']:.2f}%, constant "
-                     f"{100 * m['rollout_const_rel_median']:.2f}%)")
-    lines.append(f"training {m['train_seconds']:.0f} s, total {m['total_seconds']:.0f} s")
-    return "\n".join(lines)

@@ -37,10 +37,10 @@ from agents.reference import THETA_HIGH, THETA_LOW
 
 from .artifacts import claim
 from .family import RaceGroup, load_family
+from .nets import (TrainConfig, ValueData, discounted_partial_returns, discounted_rollout,
+                   gap_statistics, numpy_model, save_model, split_races, summary_text,
+                   train_potential, train_value, value_samples)
 from .parallel import pin_worker
-from .train import (TrainConfig, ValueData, _numpy_model, _save_model, _train_potential, _train_value,
-                    _value_samples, discounted_partial_returns, discounted_rollout,
-                    gap_statistics, split_races, summary_text)
 
 
 class FamilyData:
@@ -162,7 +162,7 @@ def _value_data(data: FamilyData, train_idx, val_idx, cfg, chunk: int = 100_000)
         for key, chosen, stride in (("tr", train_set, cfg.value_stride),
                                     ("va", val_set, max(cfg.value_stride, 5))):
             local = np.array([k for k, g in enumerate(b["race"]) if g in chosen], dtype=np.int64)
-            r, t, c = _value_samples(None, None, local, stride, data.T, N)
+            r, t, c = value_samples(None, None, local, stride, data.T, N)
             X = np.empty((len(r), gf.VALUE_DIM), dtype=np.float32)
             for lo in range(0, len(r), chunk):
                 sl = slice(lo, lo + chunk)
@@ -184,7 +184,7 @@ def _value_data(data: FamilyData, train_idx, val_idx, cfg, chunk: int = 100_000)
 def family_gaps(model: PotentialModel, data: FamilyData, races, pairs: int, seed: int,
                 own_theta_fraction: float = 0.5, value_range: float | None = None) -> dict:
     """Approximation gaps of ``pairs`` unilateral deviations at states of ``races``:
-    :func:`experiments.train.gap_statistics` relative to ``value_range`` (default: the range
+    :func:`experiments.nets.gap_statistics` relative to ``value_range`` (default: the range
     of V over 20000 states of these races with uniform thetas, as for one track), overall and
     per field size (``by_cars``: pairs, median, p95, max and the constant potential's median
     and p95). Also ``value_range_measured``, the range of V over these races."""
@@ -271,10 +271,10 @@ def train_general(data_dir, out_dir, config: TrainConfig | None = None, progress
     log(f"data: {data.n_races} races x {data.T} steps on {len(data.tracks)} tracks with "
         f"{', '.join(map(str, data.cars))} cars from {data_dir} ({len(train_idx)} training, "
         f"{len(val_idx)} held out)")
-    value = _train_value(_value_data(data, train_idx, val_idx, cfg), cfg, out, torch,
-                         progress_bar, log)
-    potential = _train_potential(FamilyDeviations(data, train_idx, cfg.own_theta_fraction),
-                                 cfg, value, out, torch, progress_bar, log)
+    value = train_value(_value_data(data, train_idx, val_idx, cfg), cfg, out, torch,
+                        progress_bar, log)
+    potential = train_potential(FamilyDeviations(data, train_idx, cfg.own_theta_fraction),
+                                cfg, value, out, torch, progress_bar, log)
     t_train = time.perf_counter() - t_start
     meta = {"feature_set": "general", "feature_version": gf.FEATURE_VERSION,
             "n_max": gf.N_MAX, "n_cars_range": [min(data.cars), max(data.cars)],
@@ -285,7 +285,7 @@ def train_general(data_dir, out_dir, config: TrainConfig | None = None, progress
             "data": {"dir": str(data_dir), "races": data.n_races, "steps": data.T,
                      "collect": manifest["config"]},
             "train_seconds": t_train}
-    model = _numpy_model(value, potential, meta)
+    model = numpy_model(value, potential, meta)
     log("validation on held-out races ...")
     metrics = {"train_seconds": t_train, **value.metrics,
                **family_gaps(model, data, val_idx, cfg.val_pairs, cfg.seed + 2,
@@ -294,8 +294,8 @@ def train_general(data_dir, out_dir, config: TrainConfig | None = None, progress
         metrics.update(family_rollouts(model, metrics["value_range"], data, val_idx, cfg,
                                        progress_bar))
     metrics["total_seconds"] = time.perf_counter() - t_start
-    _save_model(model, metrics, out, general_model_card_text,
-                command or f"alpha-racer train --data {data_dir} --out {out_dir}")
+    save_model(model, metrics, out, general_model_card_text,
+               command or f"alpha-racer train --data {data_dir} --out {out_dir}")
     log(summary_text(metrics))
     for N, s in metrics["by_cars"].items():
         log(f"  {N} cars: gap median {100 * s['gap_rel_median']:.2f}%, 95th pct "

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from .interp import periodic_lookup as _lookup  # also imported from here by controllers, agents.mpc
 from .track import Track
 from .vehicle import P_BF, P_BR, P_CF, P_CR, P_DF, P_DR, P_IZ, P_LF, P_LR, P_M, P_VLOW, bind, frenet_ode
 
@@ -59,16 +60,6 @@ class TrackTables:
         f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
         return cls(f64(k), f64(track.w_left), f64(track.w_right), f64(wall_l), f64(wall_r),
                    float(track.ds), float(track.length))
-
-
-@njit(cache=True, inline="always")
-def _lookup(table, s, ds, length):
-    f = (s % length) / ds
-    i = int(f)
-    t = f - i
-    m = table.shape[0]
-    i = i % m
-    return table[i] * (1.0 - t) + table[(i + 1) % m] * t
 
 
 @njit(cache=True)

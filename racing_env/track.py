@@ -23,6 +23,8 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.spatial import cKDTree
 
+from .interp import periodic_interp
+
 MIN_POINTS = 8
 """Fewest centre-line points a track may be built from."""
 
@@ -238,13 +240,10 @@ class Track:
         """Map unwrapped arc length to [0, length)."""
         return np.mod(s, self.length)
 
-    def _interp(self, table: np.ndarray, s):
-        """Periodic linear interpolation of a grid table at (unwrapped) s."""
-        sw = np.mod(np.asarray(s, dtype=float), self.length)
-        f = sw / self.ds
-        i0 = np.floor(f).astype(np.int64) % len(table)
-        t = f - np.floor(f)
-        return table[i0] * (1.0 - t) + table[(i0 + 1) % len(table)] * t
+    def interp(self, table: np.ndarray, s):
+        """Periodic linear interpolation of a grid table (M,) at (unwrapped) ``s`` [m], any
+        shape (:func:`racing_env.interp.periodic_interp`)."""
+        return periodic_interp(table, s, self.length, self.ds)
 
     def curvature(self, s):
         """kappa(s) [1/m] from the spline's second derivative, any shape of s."""
@@ -260,7 +259,7 @@ class Track:
 
     def widths(self, s):
         """(w_left(s), w_right(s)) [m]."""
-        return self._interp(self.w_left, s), self._interp(self.w_right, s)
+        return self.interp(self.w_left, s), self.interp(self.w_right, s)
 
     def position(self, s):
         """Centre-line point (x, y) [m] at s."""

@@ -11,7 +11,7 @@ from agents.features import (potential_dim, potential_features, potential_theta_
                              unscale_theta, value_dim, value_features)
 from agents.mlp import MLP
 from agents.reference import THETA_HIGH, THETA_LOW
-from experiments.train import TrainConfig, discounted_partial_returns, split_races
+from experiments.nets import TrainConfig, discounted_partial_returns, split_races
 from racing_env import make_track
 
 TRACK = make_track("default")
@@ -76,7 +76,7 @@ def test_bad_feature_input_is_refused():
 
 def test_numpy_network_matches_torch_and_its_input_gradient_matches_finite_differences():
     torch = pytest.importorskip("torch")
-    from experiments.train import _to_numpy_mlp, _torch_mlp
+    from experiments.nets import to_numpy_mlp as _to_numpy_mlp, torch_mlp as _torch_mlp
     torch.manual_seed(0)
     net = _torch_mlp(7, (16, 8), torch)
     mean, std = np.linspace(-1, 1, 7), np.linspace(0.5, 2, 7)
@@ -197,6 +197,7 @@ def test_alpha_agent_with_a_zeta_ceiling_never_drives_above_it():
     assert max(zetas) <= 0.9 + 1e-12 and agent.driven_theta.zeta <= 0.9
 
 
+@pytest.mark.slow
 def test_tiny_pipeline_end_to_end(tmp_path):
     """collect -> train -> validate -> race the alpha agent: the learned potential beats a
     constant potential on held-out deviations, and the agent reports its potential and theta."""
@@ -370,6 +371,7 @@ np.save(sys.argv[1], result.states)
 """
 
 
+@pytest.mark.slow
 def test_a_race_with_the_alpha_agent_is_identical_with_1_and_2_threads(tmp_path):
     """The same race in fresh processes with 1 and 2 BLAS/OpenMP/numba threads: the same
     states bit for bit (the agent's decisions do not depend on the thread count)."""

@@ -27,6 +27,7 @@ def model():
     return load_model("default")
 
 
+@pytest.mark.slow
 def test_regret_detects_a_bad_theta_and_is_never_negative(model):
     track = make_track("default")
     good = maximiser(model, STATE, track, seed=0)
@@ -65,6 +66,7 @@ def test_bad_config_is_refused():
         AnalyzeConfig(slice_points=3, slice_rollouts=5)
 
 
+@pytest.mark.slow
 def test_tiny_analysis_end_to_end(tmp_path):
     s = analyze(TINY, tmp_path, workers=1, progress_bar=False)
     for name in ("track.png", "fig2a_approximation_gap.png", "fig2b_nash_regret.png",
@@ -92,6 +94,7 @@ def test_tiny_analysis_end_to_end(tmp_path):
         analyze(AnalyzeConfig(regret_states=3), tmp_path, workers=1, progress_bar=False)
 
 
+@pytest.mark.slow
 def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys, monkeypatch):
     from agents.best_theta import TABLE_ENV_VAR, lookup
     monkeypatch.setenv(TABLE_ENV_VAR, str(tmp_path / "best_fixed_theta.json"))   # empty table
@@ -111,8 +114,14 @@ def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys, monkeypa
     # the control: the best fixed theta, selected first because the table lacked default
     sel = json.loads((tmp_path / "control" / "default" / "selection.json").read_text())
     assert lookup("default")["theta"] == sel["winner"]["theta"]
+    # chosen from map rows that ran: not vacuous if every row had errored
+    assert sel["map"]["rows"] > 0 and sel["map"]["errors"] == 0
+    assert 1 <= sel["map"]["eligible_thetas"] <= sel["map"]["rows"]
     control = json.loads((tmp_path / "paper_table_control" / "paper_table.json").read_text())
     assert control["ego"] == "mpc:theta=best" and list(control["cases"]) == list(table["cases"])
+    for case in control["cases"].values():          # and its races were raced, every one
+        s = case["summary"]
+        assert s["races"] == 3 and sum(w["wins"] for w in s["wins"].values()) == 3
     for case in control["cases"]:       # each case's folder records the theta it raced
         claimed = json.loads((tmp_path / "paper_table_control" / f"case_{case}"
                               / "best_fixed_theta.json").read_text())

@@ -233,6 +233,7 @@ np.save(sys.argv[1], np.array(states))
 """
 
 
+@pytest.mark.slow
 def test_batched_races_are_identical_with_1_and_2_numba_threads(tmp_path):
     """The simulator's kernels parallel over races give every race the same result whatever
     numba's thread count (each race is one thread's work)."""

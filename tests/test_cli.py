@@ -66,6 +66,7 @@ def test_tracks_and_raceline_commands(tmp_path, capsys):
     assert float(text.split("lap time estimate ")[1].split(" s")[0]) <= curvature_lap
 
 
+@pytest.mark.slow
 def test_short_fuzz_finds_nothing():
     report = run_fuzz(steps=20_000, n_races=64, n_cars=3, seed=1, progress_bar=False)
     assert report.ok, report.text()
@@ -92,6 +93,7 @@ def test_fuzz_catches_a_drive_through_and_nothing_else():
     assert drive_through(half_lap, moved, L, 0.12, 0.06) is None
 
 
+@pytest.mark.slow
 def test_short_eight_car_fuzz_finds_no_drive_through():
     report = run_fuzz(steps=20_000, n_races=64, n_cars=8, seed=2, progress_bar=False)
     assert report.ok, report.text()

@@ -61,6 +61,7 @@ def test_collect_command(tmp_path, capsys):
     assert "2 races simulated" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_ray_backend_gives_the_same_data_as_the_local_pool(tmp_path):
     pytest.importorskip("ray")
     collect(CFG, tmp_path / "local", workers=1, progress_bar=False)

@@ -194,6 +194,7 @@ TINY = ["control", "--tracks", "default", "--thetas", "2", "--candidates", "1", 
         "--steps", "20", "--workers", "1"]
 
 
+@pytest.mark.slow
 def test_control_command_selects_installs_and_resumes(table, tmp_path, capsys):
     out = tmp_path / "ctl"
     assert main(TINY + ["--out", str(out)]) == 0
@@ -220,6 +221,7 @@ def test_control_command_selects_installs_and_resumes(table, tmp_path, capsys):
     assert "another configuration" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_ensure_selects_only_missing_tracks_and_claim_refuses_a_changed_table(table, tmp_path):
     cfg = ct.ControlConfig(thetas=2, candidates=1, races=3, steps=20)
     _write(table, _entry("oval", _theta(1)))

@@ -321,6 +321,10 @@ def test_parallel_env_has_a_seeded_np_random():
     a = env.np_random.random(3)
     env.reset(seed=5)
     np.testing.assert_array_equal(a, env.np_random.random(3))
+
+
+def test_supersuit_frame_skip_wraps_the_parallel_env():
+    # its own test: a missing supersuit skips this, not the np_random check above
     supersuit = pytest.importorskip("supersuit")
     skipped = supersuit.frame_skip_v0(racing_env.parallel_env(n_cars=2, max_cycles=20), 2)
     skipped.reset(seed=0)

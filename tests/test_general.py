@@ -10,7 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agents import general_features as gf
-from agents.features import feature_set, scale_theta
+from agents.feature_sets import feature_set
+from agents.features import scale_theta
 from agents.reference import THETA_HIGH, THETA_LOW
 from experiments.family import (FamilyConfig, collect_family, expand_tracks, load_family,
                                 parse_cars, simulate_family_shard)
@@ -113,7 +114,7 @@ def test_local_track_matches_the_tracks_own_lookups_for_a_mix_of_tracks():
     for k, name in enumerate(names):
         t = make_track(name)
         m = ids == k
-        kappa = t._interp(t.kappa, s[m, None] + gf.PREVIEW)
+        kappa = t.interp(t.kappa, s[m, None] + gf.PREVIEW)
         wl, wr = t.widths(s[m])
         np.testing.assert_array_equal(got[m], np.column_stack([kappa, wl, wr]))
     # features of a mix of tracks are those of each track on its own
@@ -402,6 +403,7 @@ def test_model_general_is_refused_with_how_to_train_it_when_missing(monkeypatch,
 
 
 # ---------------------------------------------------------------------------- the report
+@pytest.mark.slow
 def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_path,
                                                             monkeypatch):
     from agents.best_theta import TABLE_ENV_VAR, lookup

@@ -220,6 +220,28 @@ def test_a_failing_solver_falls_back_without_crashing(monkeypatch):
     assert np.isfinite(ibr.act(obs["car_0"])).all()
     assert ibr.stats["fallbacks"] == 4
 
+    def singular(*args, **kwargs):
+        raise np.linalg.LinAlgError("singular matrix")
+
+    monkeypatch.setattr(daqp, "solve", singular)
+    assert np.isfinite(ibr.act(obs["car_0"])).all()
+    assert ibr.stats["fallbacks"] == 5
+
+
+def test_a_bug_in_a_best_response_is_not_counted_as_a_failed_qp(monkeypatch):
+    import daqp
+    env = RacingParallelEnv(n_cars=2, max_cycles=5)
+    obs, _ = env.reset(seed=0)
+    ibr = IBRAgent(rounds=2)
+    ibr.reset(env.track, "car_0", 0)
+
+    def typo(*args, **kwargs):
+        raise NameError("name 'du_vec' is not defined")
+
+    monkeypatch.setattr(daqp, "solve", typo)
+    with pytest.raises(NameError, match="du_vec"):
+        ibr.act(obs["car_0"])
+
 
 def test_a_blown_up_linearisation_is_not_handed_to_the_qp(monkeypatch):
     """Sensitivities of the predicted positions beyond ``max_sensitivity`` (a linearisation

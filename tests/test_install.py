@@ -49,6 +49,7 @@ def _kernels(folder: Path, package: str) -> list[Path]:
 
 
 # ------------------------------------------------------------------------------ cache folder
+@pytest.mark.slow
 @pytest.mark.parametrize("where", ["ALPHA_RACER_CACHE", "HOME"])
 def test_unwritable_cache_and_home_fall_back_to_a_temp_folder(tmp_path, where):
     """No writable cache folder, no usable home: import and race anyway, with a warning, and
@@ -70,6 +71,7 @@ def test_unwritable_cache_and_home_fall_back_to_a_temp_folder(tmp_path, where):
     assert _kernels(used / "numba", "racing_env")
 
 
+@pytest.mark.slow
 def test_compiled_artefacts_land_under_ALPHA_RACER_CACHE(tmp_path):
     """numba kernels (racing_env's and agents'), the MPC's C library and the racing line all go
     to $ALPHA_RACER_CACHE; nothing goes to the home folder."""
@@ -216,6 +218,7 @@ for name in ("torch", "stable_baselines3", "tensorboard"):
 """
 
 
+@pytest.mark.slow
 def test_race_without_the_learn_extra(tmp_path):
     code = BLOCK_LEARN + """
 import racing_env, agents, agents.mpc_agent, agents.alpha_agent, agents.ibr

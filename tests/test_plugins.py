@@ -53,6 +53,7 @@ def plugin_site(tmp_path_factory):
     return site
 
 
+@pytest.mark.slow
 def test_installed_plugin_races_from_the_command_line(plugin_site, tmp_path):
     out = tmp_path / "race"
     proc = _cli(["race", "--agents", "mine:throttle=0.8", "raceline", "--steps", "5",

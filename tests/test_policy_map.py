@@ -157,6 +157,7 @@ def test_a_map_of_another_theta_box_is_refused(tiny_map, monkeypatch):
         pm.policy_map(cfg, tiny_map, workers=1, progress_bar=False)
 
 
+@pytest.mark.slow
 def test_same_seed_same_rows_and_a_torn_row_is_redone(tiny_map, tmp_path):
     out = tmp_path / "again"
     cfg = pm.PolicyMapConfig(thetas=4, tracks=("default",), steps=30, seed=5)

@@ -112,6 +112,21 @@ def test_adapt_observation_pads_phantoms_and_keeps_nearest():
 
 
 # ---------------------------------------------------------------------- the pipeline
+def _assert_learning_curve_drawn(path):
+    """The figure of :func:`experiments.selfplay.plot_learning_curve`: 8 x 9 in at 110 dpi,
+    three panels with coloured curves on white."""
+    from PIL import Image
+    img = np.asarray(Image.open(path).convert("RGB")).astype(int)
+    assert img.shape == (990, 880, 3)
+    white = (img == 255).all(axis=2)
+    assert 0.5 < white.mean() < 0.99                      # mostly background, not blank
+    coloured = np.ptp(img, axis=2) > 60                   # saturated pixels: curves, not text
+    assert coloured.sum() > 200
+    rows = np.flatnonzero(coloured.any(axis=1))
+    # curves in the top and the bottom panel (the middle one holds the 5% line)
+    assert rows.min() < img.shape[0] // 3 and rows.max() > 2 * img.shape[0] // 3
+
+
 def test_selfplay_tiny_end_to_end(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["selfplay", "--out", str(out), "--init", "bc", "--bc-steps", "96"] + TINY_ARGS) == 0
@@ -120,7 +135,7 @@ def test_selfplay_tiny_end_to_end(tmp_path, capsys):
                  "best.zip", "final/car_0.zip", "final/car_1.zip", "checkpoints/bc_init.zip",
                  "checkpoints/turn_000_car_0.zip", "checkpoints/turn_001_car_1.zip"):
         assert (out / name).is_file(), name
-    assert (out / "learning_curve.png").stat().st_size > 10_000
+    _assert_learning_curve_drawn(out / "learning_curve.png")
     assert list((out / "logs" / "car_0").glob("events.out.tfevents.*"))      # TensorBoard
     assert list((out / "logs" / "eval").glob("events.out.tfevents.*"))
     progress = list((out / "logs" / "car_1").glob("progress_*.csv"))

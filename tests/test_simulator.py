@@ -231,19 +231,34 @@ def test_batched_races_equal_single_races(seed, n_cars):
         np.testing.assert_array_equal(batch.state[b], one.state[0])
 
 
-def test_parallel_kernel_equals_serial_kernel():
+def test_parallel_kernel_equals_serial_kernel(monkeypatch):
+    # the same 8 races stepped once by each kernel: the threshold that picks the kernel is set
+    # per call, so the comparison holds whatever core.PARALLEL_MIN_RACES is
+    import racing_env.core as core
     rng = np.random.default_rng(1)
-    big = BatchedRaces("default", RaceConfig(n_cars=3), n_races=32, seed=5)   # parallel path
-    small = BatchedRaces("default", RaceConfig(n_cars=3), n_races=8, seed=5)  # serial path
-    big.reset()
-    small.reset()
-    small.state[:] = big.state[:8]
+    par = BatchedRaces("default", RaceConfig(n_cars=3), n_races=8, seed=5)
+    ser = BatchedRaces("default", RaceConfig(n_cars=3), n_races=8, seed=5)
+    par.reset()
+    ser.reset()
+    ser.state[:] = par.state
+    kernels = {"parallel": 0, "serial": 0}
+    for name, fn in (("parallel", "advance_parallel"), ("serial", "advance")):
+        real = getattr(core, fn)
+
+        def counted(*args, _real=real, _name=name, **kwargs):
+            kernels[_name] += 1
+            return _real(*args, **kwargs)
+
+        monkeypatch.setattr(core, fn, counted)
     for _ in range(20):
-        a = rng.uniform(-1, 1, (32, 3, 2))
-        ob, rb, _, _ = big.step(a)
-        os_, rs, _, _ = small.step(a[:8])
-    np.testing.assert_array_equal(big.state[:8], small.state)
-    np.testing.assert_array_equal(ob[:8], os_)
+        a = rng.uniform(-1, 1, (8, 3, 2))
+        monkeypatch.setattr(core, "PARALLEL_MIN_RACES", 1)            # parallel for any n
+        op, _, _, _ = par.step(a)
+        monkeypatch.setattr(core, "PARALLEL_MIN_RACES", 10 ** 9)      # serial for any n
+        os_, _, _, _ = ser.step(a)
+    assert kernels == {"parallel": 20, "serial": 20}
+    np.testing.assert_array_equal(par.state, ser.state)
+    np.testing.assert_array_equal(op, os_)
 
 
 def test_bad_actions_raise_clear_errors():
@@ -315,7 +330,7 @@ def test_full_throttle_cannot_push_through_a_stopped_car(track, s0):
     f = RacelineFollower()
     f.reset(r.track)
     n_ref = f.tables()[0]
-    line_n = lambda s: float(r.track._interp(n_ref, s))
+    line_n = lambda s: float(r.track.interp(n_ref, s))
     assert abs(r.track.curvature(s0 + 0.5)) > 0.5 or s0 in (1.0, 3.0)   # the corner cases bend
     place(r, [[s0 + 0.5, line_n(s0 + 0.5), 0, 0, 0, 0], [s0, line_n(s0), 0, 0, 0, 0]])
     tb = [np.asarray(a, dtype=float) for a in f.tables()]

@@ -31,6 +31,7 @@ def _runs(out, config=TINY):
             for c in sg.cells(config)}
 
 
+@pytest.mark.slow
 def test_the_suite_has_a_row_per_bench_and_track_and_the_cli_wrote_it(tiny_suite):
     out, table = tiny_suite
     assert [r["bench"] for r in table["rows"]] == ["pass", "equal", "defend", "table1_ibr",
@@ -48,6 +49,7 @@ def test_the_suite_has_a_row_per_bench_and_track_and_the_cli_wrote_it(tiny_suite
         assert f"| {r['bench']} | `default` |" in md
 
 
+@pytest.mark.slow
 def test_ego_and_control_race_the_same_seeds_seats_and_opponents(tiny_suite):
     out, table = tiny_suite
     runs = _runs(out)
@@ -68,6 +70,7 @@ def test_ego_and_control_race_the_same_seeds_seats_and_opponents(tiny_suite):
     assert runs[("defend", "default", "control")].config.ego == "mpc:zeta=1.02,zeta_max=0.94"
 
 
+@pytest.mark.slow
 def test_the_table_equals_the_metrics_recomputed_from_the_stored_states(tiny_suite):
     out, table = tiny_suite
     runs = _runs(out)
@@ -92,6 +95,7 @@ def test_the_table_equals_the_metrics_recomputed_from_the_stored_states(tiny_sui
             assert got["wins"] == sum(int(np.argmax(st[-1, :, 0])) == 0 for st in s)
 
 
+@pytest.mark.slow
 def test_defend_measures_the_pace_gap_and_flags_a_small_one(tiny_suite):
     out, table = tiny_suite
     pace = table["pace"]["default"]
@@ -110,6 +114,7 @@ def test_defend_measures_the_pace_gap_and_flags_a_small_one(tiny_suite):
     assert sorted(r["spec"] for r in recs) == sorted(sg.pace_specs(TINY))
 
 
+@pytest.mark.slow
 def test_a_resumed_suite_runs_no_race_and_writes_the_same_table(tiny_suite):
     out, table = tiny_suite
     lines = {p: p.read_text() for p in out.rglob("*.jsonl")}

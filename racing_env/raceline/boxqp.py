@@ -1,6 +1,7 @@
 """The box-constrained QP of every linearisation of the racing line,
-``min 1/2 x' H x + g' x  s.t.  lo <= x <= hi``: a primal-dual active-set method, with OSQP and
-DAQP (through CasADi) as fallbacks."""
+``min 1/2 x' H x + g' x  s.t.  lo <= x <= hi``: a primal-dual active-set method; where its
+active sets do not settle, an interior-point method whose solution the active-set method then
+polishes; OSQP and DAQP (through CasADi) as last fallbacks."""
 from __future__ import annotations
 
 import numpy as np
@@ -21,17 +22,29 @@ def _to_casadi(sp_matrix, pattern=None):
     return casadi.DM(sp, vals)
 
 
+INTERIOR_POINT_FIRST_ABOVE = 1000
+"""Offsets above which a QP the active-set method does not settle goes to the interior-point
+method before OSQP. Every track at 1:43 has at most 1,000 (the track grid's size), so their
+lines keep the solvers they were computed with, bit for bit."""
+
+
 class BoxQP:
     """``min 1/2 x' H x + g' x  s.t.  lo <= x <= hi`` for a fixed sparsity pattern of ``H``.
 
     A primal-dual active-set method (:func:`box_qp_active_set`: sparse direct solves on the
-    free offsets, exact to rounding) first; OSQP (through CasADi's ``conic``, polished) if it
-    does not settle, DAQP (an exact dual active-set solver) if OSQP does not report success.
-    Warm-started (every iteration after the first two or so) the active-set method settles in
-    a few sparse solves. The curvature Hessians are banded and very badly conditioned (a
-    squared second difference: a condition number growing like ``N^4``); from a cold start
-    its active sets can cycle, and OSQP then pays for the conditioning too (at 2,900 stations
-    its first solve ends "solved inaccurate" after 20,000 iterations).
+    free offsets, exact to rounding) first; warm-started it mostly settles in a few sparse
+    solves. The curvature Hessians are banded and very badly conditioned (a squared second
+    difference: a condition number growing like ``N^4``), and its active sets can wander
+    without settling (a third of the QPs on the 1:43 tracks, most of them at full scale).
+    Then, up to :data:`INTERIOR_POINT_FIRST_ABOVE` offsets (every track at 1:43, whose
+    cached lines come from this path), OSQP (through CasADi's ``conic``, polished), and DAQP
+    (an exact dual active-set solver, dense) if OSQP does not report success. Above it (a
+    full-scale circuit: 2,895 stations at Monza, where OSQP ends "solved inaccurate" or at
+    its 20,000-iteration limit after about 15 s and DAQP takes about 30 s), a primal-dual
+    interior-point method (:func:`box_qp_interior_point`: 20-30 banded sparse solves, no
+    active-set combinatorics) first, its solution polished by the active-set method (which,
+    started there, settles in one or two solves: exact to rounding again); OSQP and DAQP
+    only if it fails.
     """
 
     def __init__(self, pattern, lo, hi):
@@ -52,6 +65,11 @@ class BoxQP:
         x = box_qp_active_set(h, g, self.lo, self.hi, x0)
         if x is not None:
             return x
+        if len(g) > INTERIOR_POINT_FIRST_ABOVE and np.all(self.hi > self.lo):
+            x_ip = box_qp_interior_point(h, g, self.lo, self.hi, x0)
+            if x_ip is not None:
+                x = box_qp_active_set(h, g, self.lo, self.hi, x_ip)       # polish
+                return x if x is not None else np.clip(x_ip, self.lo, self.hi)
         hdm = _to_casadi(h, self.pattern)
         args = dict(h=hdm, g=g, lbx=self.lo, ubx=self.hi)
         if x0 is not None:
@@ -112,3 +130,65 @@ def box_qp_active_set(h, g, lo, hi, x0=None, max_iter: int = 30):
                 return None
     return None
 
+
+
+def box_qp_interior_point(h, g, lo, hi, x0=None, max_iter: int = 100, tol: float = 1e-12):
+    """``argmin 1/2 x' H x + g' x`` over ``lo < x < hi`` by a primal-dual interior-point
+    method (Mehrotra's predictor-corrector), ``H`` sparse symmetric positive definite, shapes
+    (n, n), (n,), (n,), (n,) with ``lo < hi``. With the bound multipliers ``z_lo, z_hi >= 0``
+    each iteration solves ``(H + Z_lo / (x - lo) + Z_hi / (hi - x)) dx = r`` twice on one
+    sparse LU (predictor, then corrector with the centring ``sigma = (mu_aff / mu)^3``) and
+    steps 0.995 of the way to the boundary. ``x0`` only places the strictly interior start
+    (clipped to 5% of the width inside the bounds). Stops once the mean complementarity is
+    below ``tol`` times the gradient scale times the mean width and the gradient residual
+    below ``1e3 tol`` times the gradient scale; returns ``x`` (strictly inside the bounds, so
+    not exactly on the active ones: polish with :func:`box_qp_active_set`), or ``None`` if
+    it does not converge in ``max_iter`` iterations or a solve is not finite."""
+    from scipy.sparse.linalg import splu
+    h = sparse.csc_matrix(h)
+    g, lo, hi = np.asarray(g, float), np.asarray(lo, float), np.asarray(hi, float)
+    if not np.all(hi > lo):
+        raise ValueError(f"box_qp_interior_point needs lo < hi everywhere, got "
+                         f"{int(np.sum(hi <= lo))} of {len(lo)} bounds with hi <= lo")
+    n, w = len(g), hi - lo
+    x = np.zeros(n) if x0 is None else np.asarray(x0, float)
+    x = np.clip(x, lo + 0.05 * w, hi - 0.05 * w)
+    grad = h @ x + g
+    scale = max(float(np.abs(g).max()), float(np.abs(grad).max()), 1e-300)
+    z_lo = np.maximum(grad, 0.0) + 0.1 * scale
+    z_hi = np.maximum(-grad, 0.0) + 0.1 * scale
+
+    def to_boundary(v, dv):
+        neg = dv < 0
+        return min(1.0, float(np.min(-v[neg] / dv[neg]))) if neg.any() else 1.0
+
+    for _ in range(int(max_iter)):
+        d_lo, d_hi = x - lo, hi - x
+        r_d = h @ x + g - z_lo + z_hi
+        mu = float(d_lo @ z_lo + d_hi @ z_hi) / (2 * n)
+        if mu < tol * scale * float(w.mean()) and float(np.abs(r_d).max()) < 1e3 * tol * scale:
+            return x
+        try:
+            lu = splu((h + sparse.diags(z_lo / d_lo + z_hi / d_hi)).tocsc())
+        except RuntimeError:                          # singular
+            return None
+
+        def newton(c_lo, c_hi):
+            dx = lu.solve(-r_d + c_lo / d_lo - c_hi / d_hi)
+            return dx, (c_lo - z_lo * dx) / d_lo, (c_hi + z_hi * dx) / d_hi
+
+        dx, dz_lo, dz_hi = newton(-d_lo * z_lo, -d_hi * z_hi)          # predictor
+        ap = min(to_boundary(d_lo, dx), to_boundary(d_hi, -dx))
+        ad = min(to_boundary(z_lo, dz_lo), to_boundary(z_hi, dz_hi))
+        mu_aff = float((d_lo + ap * dx) @ (z_lo + ad * dz_lo)
+                       + (d_hi - ap * dx) @ (z_hi + ad * dz_hi)) / (2 * n)
+        sm = (mu_aff / mu) ** 3 * mu
+        dx, dz_lo, dz_hi = newton(sm - d_lo * z_lo - dx * dz_lo,            # corrector
+                                  sm - d_hi * z_hi + dx * dz_hi)
+        if not (np.all(np.isfinite(dx)) and np.all(np.isfinite(dz_lo))
+                and np.all(np.isfinite(dz_hi))):
+            return None
+        ap = 0.995 * min(to_boundary(d_lo, dx), to_boundary(d_hi, -dx))
+        ad = 0.995 * min(to_boundary(z_lo, dz_lo), to_boundary(z_hi, dz_hi))
+        x, z_lo, z_hi = x + ap * dx, z_lo + ad * dz_lo, z_hi + ad * dz_hi
+    return None

@@ -59,9 +59,7 @@ class RacelineConfig:
       path, so its fixed point is biased towards the inside of corners: it is *not* the exact
       minimiser of ``sum kappa^2`` (on a plain circle it hugs the inner edge, whose curvature is
       higher than the centre line's), but the bias shortens the lap, and its lap times are as
-      good or better on most tracks we tried (point-mass profile at 0.85 g, before the
-      envelope: default 9.98 s vs 10.41 s, Monza 34.19 s vs 34.10 s, Norisring 14.82 s vs
-      15.04 s).
+      good or better on most tracks we tried (the figures are in CHANGELOG.md).
       ``"exact"`` gives the true (local) minimum-curvature line.
     * ``objective``: ``"curvature"`` (default; the paper's minimum-curvature line) or
       ``"lap_time"``: the line that adds ``length_weight`` times the path length term (below)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..interp import periodic_interp
 from ..track import Track
 from .config import CACHE_VERSION
 from .speed import lap_time_of
@@ -104,13 +105,9 @@ class Raceline:
     def _interp(self, table: np.ndarray, s_track):
         """Periodic linear interpolation of a per-point table at (unwrapped) centre-line s."""
         m = len(self.s_track)
-        f = np.mod(np.asarray(s_track, dtype=float), self.track_length) * (m / self.track_length)
-        r = np.rint(f)
-        f = np.where(np.abs(f - r) < 1e-9, r, f)          # grid points hit their entry exactly
-        fl = np.floor(f)
-        i0 = fl.astype(np.int64) % m
-        t = f - fl
-        return table[..., i0] * (1.0 - t) + table[..., (i0 + 1) % m] * t
+        # grid points hit their entry exactly (snap)
+        return periodic_interp(table, s_track, self.track_length, per_metre=m / self.track_length,
+                               size=m, snap=1e-9)
 
     def offset_at(self, s_track):
         """Racing-line offset ``n`` [m] (left positive) at centre-line arc length ``s_track`` [m]

@@ -1,0 +1,87 @@
+"""Behaviour cloning (DAgger) of the raceline follower into a PPO actor: the ``init="bc"``
+start of a self-play run (:mod:`experiments.selfplay`)."""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:                      # annotations only: selfplay imports this module
+    from racing_env import RaceConfig
+
+    from .selfplay import SelfPlayConfig
+
+
+def behaviour_cloning(model, cfg: "SelfPlayConfig", seed: int, race_config: "RaceConfig",
+                      opponent_mus: Sequence[float]) -> dict:
+    """``init="bc"``: pretrain the PPO actor to imitate the raceline follower (DAgger).
+
+    ``model`` an SB3 ``PPO`` with a ``VecNormalize`` env, ``cfg`` the run's
+    :class:`~experiments.selfplay.SelfPlayConfig` (``n_envs``, ``n_cars``, ``track``,
+    ``batch_size`` and the ``bc_*`` fields), ``race_config`` the learning env's
+    :class:`~racing_env.RaceConfig`, ``opponent_mus`` the envelope scales of the
+    raceline-follower opponents by slot (cycled).
+
+    Round 0 collects ``bc_steps`` learner steps in the learning env (raceline-follower
+    opponents) with the learner driven by a raceline follower (friction 0.85) whose actions
+    are perturbed by Gaussian noise of std ``bc_noise``; rounds 1 .. ``bc_rounds - 1`` let the
+    cloned policy drive (same noise) so the data holds the states it gets itself into. Every
+    step is labelled with the follower's action for that state. After each round the model's
+    ``VecNormalize`` observation statistics are updated and the actor (policy MLP + action
+    head) is fitted to all data so far by mean squared error for ``bc_epochs`` epochs (Adam,
+    lr 1e-3, batch ``batch_size``). The critic stays as initialised; the action log-std is set
+    to ``bc_log_std``. Returns the number of samples and the final fit error.
+    """
+    import torch
+    from agents.ppo_agent import FrozenPolicy
+    from racing_env.controllers import RacelineFollower
+    from racing_env.vec_env import HeadToHeadVecEnv
+
+    rng = np.random.default_rng(seed)
+    opps = [RacelineFollower(mu=opponent_mus[k % len(opponent_mus)]) for k in range(cfg.n_cars - 1)]
+    env = HeadToHeadVecEnv(cfg.n_envs, opponents=opps, track=cfg.track, config=race_config)
+    env.seed(int(rng.integers(2 ** 31)))
+    expert = RacelineFollower(mu=0.85)
+    expert.reset(env.track, "car_0")
+    vecnorm = model.get_vec_normalize_env()
+    policy = model.policy
+    params = list(policy.mlp_extractor.policy_net.parameters()) + list(policy.action_net.parameters())
+    opt = torch.optim.Adam(params, lr=1e-3)
+    gen = torch.Generator().manual_seed(seed)
+
+    def actor(xb):
+        return policy.action_net(policy.mlp_extractor.forward_actor(
+            policy.extract_features(xb, policy.pi_features_extractor)))
+
+    xs, ys = [], []
+    obs = env.reset()
+    for rnd in range(cfg.bc_rounds):
+        driver = None if rnd == 0 else FrozenPolicy(policy, vecnorm, n_cars=cfg.n_cars,
+                                                    n_preview=race_config.n_preview)
+        for _ in range(math.ceil(cfg.bc_steps / cfg.n_envs)):
+            target = np.array([expert.act(o) for o in obs], dtype=np.float32)
+            xs.append(obs)
+            ys.append(target)
+            act = target if driver is None else driver.act_batch(obs)
+            act = np.clip(act + rng.normal(0.0, cfg.bc_noise, act.shape), -1.0, 1.0)
+            obs, _, _, _ = env.step(act.astype(np.float32))
+        x, y = np.concatenate(xs), np.concatenate(ys)
+        vecnorm.obs_rms.update(np.concatenate(xs[-math.ceil(cfg.bc_steps / cfg.n_envs):]))
+        xn = torch.as_tensor(vecnorm.normalize_obs(x), dtype=torch.float32)
+        yt = torch.as_tensor(y)
+        policy.set_training_mode(True)
+        for _ in range(cfg.bc_epochs):
+            perm = torch.randperm(len(xn), generator=gen)
+            for i in range(0, len(xn), cfg.batch_size):
+                idx = perm[i:i + cfg.batch_size]
+                loss = torch.mean((actor(xn[idx]) - yt[idx]) ** 2)
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+        policy.set_training_mode(False)
+    with torch.no_grad():
+        final = float(torch.mean((torch.clamp(actor(xn), -1, 1) - yt) ** 2))
+        policy.log_std.fill_(cfg.bc_log_std)
+    return {"samples": int(len(xn)), "rounds": cfg.bc_rounds, "mse": final}
