@@ -19,14 +19,14 @@ nearest others (by progress difference), in index order.
 from __future__ import annotations
 
 import json
-import os
 import pickle
-import tempfile
 import zipfile
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
+
+from racing_env.files import atomic_path
 
 from .base import register_agent
 
@@ -47,10 +47,7 @@ def save_checkpoint(model, vec_normalize, path, meta: dict) -> Path:
     """Write ``model`` (SB3 PPO), its ``VecNormalize`` (or None) and ``meta`` to one zip,
     atomically (temporary file in the same folder, then rename). Returns the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".zip.tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path, ".zip") as tmp:
         with open(tmp, "wb") as f:          # a file object: SB3 would append ".zip" to a name
             model.save(f)
         meta = {"schema_version": CHECKPOINT_SCHEMA, "kind": "alpha_racer.ppo", **meta}
@@ -58,11 +55,6 @@ def save_checkpoint(model, vec_normalize, path, meta: dict) -> Path:
             z.writestr(META_NAME, json.dumps(meta, indent=2, default=_jsonable))
             if vec_normalize is not None:
                 z.writestr(VECNORM_NAME, pickle.dumps(vec_normalize))
-        os.chmod(tmp, 0o644)                 # mkstemp makes it private; a checkpoint is data
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
     return path
 
 

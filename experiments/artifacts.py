@@ -11,6 +11,8 @@ import json
 import os
 from pathlib import Path
 
+from racing_env.files import atomic_path
+
 
 def slug(spec: str) -> str:
     """An agent or track spec as a file-name part: characters other than letters, digits,
@@ -28,9 +30,8 @@ def env_version() -> str:
 def write_text(path, text: str) -> Path:
     """Write ``text`` to ``path`` atomically (temporary file, then rename)."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
     return path
 
 
@@ -62,10 +63,8 @@ def write_npz(path, compressed: bool = False, **arrays) -> Path:
     """Save ``arrays`` to the ``.npz`` file ``path`` atomically."""
     import numpy as np
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:        # a file object: savez would append ".npz" to a name
+    with atomic_path(path, ".npz") as tmp, open(tmp, "wb") as f:   # savez would append ".npz" to a name
         (np.savez_compressed if compressed else np.savez)(f, **arrays)
-    os.replace(tmp, path)
     return path
 
 

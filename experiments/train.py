@@ -30,7 +30,6 @@ it came from and the metrics; ``metrics.json`` and ``model_card.md`` sit beside 
 from __future__ import annotations
 
 import json
-import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -44,6 +43,8 @@ from agents.features import FEATURE_VERSION, potential_dim, potential_features, 
 from agents.mlp import MLP
 from agents.potential import PotentialModel
 from agents.reference import THETA_HIGH, THETA_LOW
+
+from racing_env.files import atomic_path
 
 from .artifacts import claim, write_json, write_text
 from .parallel import pin_worker
@@ -163,9 +164,8 @@ def _save_model(model: PotentialModel, metrics: dict, out: Path, card_text, comm
 
 
 def _save_atomic_torch(obj, path: Path, torch):
-    tmp = path.with_suffix(".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
 
 
 class _Normalised:

@@ -145,7 +145,15 @@ def _script(path: Path, body: str) -> Path:
     return path
 
 
-def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypatch):
+@pytest.fixture
+def fresh_compiler_fallback(monkeypatch):
+    """The compiler fallback as in a new process (it warns once per process)."""
+    from agents.mpc import codegen
+    monkeypatch.setattr(codegen, "_WARNED", False)
+    monkeypatch.setattr(codegen, "_FAILED", set())
+
+
+def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypatch, fresh_compiler_fallback):
     from agents.mpc import MPCConfig, trajectory_function
     from racing_env.vehicle import VehicleParams
 
@@ -174,7 +182,7 @@ def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypat
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
 
 
-def test_mpc_agent_races_with_a_failing_compiler(tmp_path, monkeypatch):
+def test_mpc_agent_races_with_a_failing_compiler(tmp_path, monkeypatch, fresh_compiler_fallback):
     from agents import make_agent
     from racing_env import parallel_env
 
@@ -189,6 +197,31 @@ def test_mpc_agent_races_with_a_failing_compiler(tmp_path, monkeypatch):
         a = agent.act(obs["car_0"])
         assert np.all(np.isfinite(a))
         obs, *_ = env.step({"car_0": a})
+
+
+def test_compiler_fallback_warns_once_per_process_in_one_line(tmp_path, monkeypatch,
+                                                            fresh_compiler_fallback):
+    """Three MPC cars with a broken compiler: one warning line in all, and the failing
+    compiler runs once per compiled function, not once per car."""
+    from agents import make_agent
+    from racing_env import parallel_env
+
+    log = tmp_path / "cc.log"
+    monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", str(_script(tmp_path / "cc", f'echo run >> "{log}"\nexit 1\n')))
+    env = parallel_env(n_cars=3, max_cycles=2)
+    obs, _ = env.reset(seed=0)
+    cars = [make_agent("mpc") for _ in range(3)]
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")            # no dedup by the warnings module itself
+        for i, car in enumerate(cars):
+            car.reset(env.track, f"car_{i}")
+        env.step({f"car_{i}": car.act(obs[f"car_{i}"]) for i, car in enumerate(cars)})
+    warned = [str(w.message) for w in record if issubclass(w.category, RuntimeWarning)]
+    assert len(warned) == 1, warned
+    assert "\n" not in warned[0]
+    assert "not compiled" in warned[0] and "exit status 1" in warned[0] and "Set CC" in warned[0]
+    assert log.read_text().count("run") <= 2          # 6 before: every car compiled again
 
 
 def test_CC_is_the_compiler(tmp_path, monkeypatch):
