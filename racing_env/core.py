@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .cache import notice
 from .config import RaceConfig, StartConfig
 from .simulator import TrackTables, advance, advance_parallel, observe, observe_parallel
 
@@ -85,6 +86,7 @@ class BatchedRaces:
                  n_races: int = 1, seed: int | None = None):
         if not (isinstance(n_races, (int, np.integer)) and n_races >= 1):
             raise ValueError(f"n_races must be a positive integer, got {n_races!r}")
+        notice()                    # the cache-fallback warning, if any, once per process
         self.track = make_track(track)
         self.config = config or RaceConfig()
         self.n_races = int(n_races)

@@ -70,6 +70,49 @@ def test_unwritable_cache_and_home_fall_back_to_a_temp_folder(tmp_path, where):
     assert _kernels(used / "numba", "racing_env")
 
 
+def _unwritable_home(tmp_path) -> dict:
+    blocker = tmp_path / "a-file"            # nothing can be created under a file, even by root
+    blocker.write_text("")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir(exist_ok=True)
+    return _clean_env(TMPDIR=tmp, HOME=blocker)
+
+
+def test_cache_fallback_is_one_line_once_and_not_on_version_or_help(tmp_path):
+    env = _unwritable_home(tmp_path)
+    for args in (["--version"], ["--help"], ["race", "--help"]):
+        r = subprocess.run([sys.executable, "-m", "experiments.cli", *args], cwd=ROOT, env=env,
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0 and r.stderr == "", (args, r.stderr)
+    code = ("import racing_env\nracing_env.parallel_env(n_cars=2)\nracing_env.parallel_env(n_cars=3)\n"
+            "from racing_env.cache import cache_dir, cache_root\ncache_dir('raceline')\nprint(cache_root())")
+    r = _run(code, env)                          # two envs and a cache look-up: one line in all
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1, r.stderr
+    assert "cannot write to the default cache folder" in lines[0] and "Not a directory" in lines[0]
+    used = r.stdout.strip().splitlines()[-1]
+    assert f"temporary folder {used!r}" in lines[0] and "Set ALPHA_RACER_CACHE" in lines[0]
+
+
+def test_import_under_W_error_and_matplotlib_in_our_cache(tmp_path):
+    """``python -W error -c "import racing_env"`` with a writable ALPHA_RACER_CACHE, even
+    without a writable home: Matplotlib's config goes into our cache, so it does not warn."""
+    env = _unwritable_home(tmp_path)
+    env["ALPHA_RACER_CACHE"] = str(tmp_path / "cache")
+    code = ("import os, racing_env, matplotlib.pyplot, matplotlib; "
+            "print(os.environ['MPLCONFIGDIR']); print(matplotlib.get_configdir())")
+    r = subprocess.run([sys.executable, "-W", "error", "-c", code], cwd=ROOT, env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    mpl = str(tmp_path / "cache" / "matplotlib")
+    assert r.stdout.split() == [mpl, mpl]
+    env["HOME"] = str(tmp_path / "home")                # a writable home: Matplotlib's own folder
+    env["MPLCONFIGDIR"] = ""
+    r = _run("import os, racing_env; print(os.environ.get('MPLCONFIGDIR', ''))", env)
+    assert r.returncode == 0 and r.stdout.strip() == "", r.stderr
+
+
 def test_compiled_artefacts_land_under_ALPHA_RACER_CACHE(tmp_path):
     """numba kernels (racing_env's and agents'), the MPC's C library and the racing line all go
     to $ALPHA_RACER_CACHE; nothing goes to the home folder."""
