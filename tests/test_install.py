@@ -338,11 +338,34 @@ def _names(reqs) -> set[str]:
 def test_learning_packages_are_an_extra_that_dev_includes():
     project = _pyproject()["project"]
     learn = _names(project["optional-dependencies"]["learn"])
-    assert learn == {"torch", "stable-baselines3", "tensorboard"}
+    assert learn == {"torch", "stable-baselines3", "tensorboard", "rich"}    # rich: SB3's progress_bar
     assert not learn & _names(project["dependencies"])
     assert learn <= _names(project["optional-dependencies"]["dev"])
     assert not [r for r in project["dependencies"] if "==" in r]          # ranges, not pins
     assert project["license"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")
+
+
+def test_metadata_declares_llvmlite_and_every_supported_python():
+    import re
+    project = _pyproject()["project"]
+    assert "llvmlite" in _names(project["dependencies"])       # codegen.py imports llvmlite.ir
+    minimum = re.fullmatch(r">=3\.(\d+)", project["requires-python"]).group(1)
+    versions = sorted(int(c.rsplit(".", 1)[1]) for c in project["classifiers"]
+                      if re.fullmatch(r"Programming Language :: Python :: 3\.\d+", c))
+    assert versions == list(range(int(minimum), versions[-1] + 1)), versions
+    assert sys.version_info[1] in versions
+
+
+def test_package_index_description_renders_without_broken_links():
+    """README.md's pictures and links are repository-relative: the index page gets its own."""
+    import re
+    readme = _pyproject()["project"]["readme"]
+    text = (ROOT / readme).read_text()
+    assert len(text) < 5000 and not re.search(r"!\[", text)           # no images
+    for target in re.findall(r"\]\(([^)\s]+)\)|<(\S+?)>", text):
+        link = next(t for t in target if t)
+        assert link.startswith("https://"), link
+    assert "pip install alpha-racer" in text and "HeadToHead-v2" in text
 
 
 def test_version(capsys):
