@@ -24,6 +24,32 @@ def _is_agent(obj) -> bool:
     return not isinstance(obj, type) and callable(getattr(obj, "act", None)) and callable(getattr(obj, "reset", None))
 
 
+def agent_label(agent, spec: str | None = None) -> str:
+    """How errors name an agent: its spec string if given, else its ``name`` or class name."""
+    if spec:
+        return repr(spec)
+    return repr(getattr(agent, "name", None) or type(agent).__name__)
+
+
+def act_named(agent, observation, car: str, spec: str | None = None):
+    """``agent.act(observation)``; a ``ValueError``, ``TypeError`` or ``IndexError`` raised in it
+    (a shape mismatch: "operands could not be broadcast together ...") is raised again, of the
+    same type, with the agent, its car and the observation size named."""
+    try:
+        return agent.act(observation)
+    except (ValueError, TypeError, IndexError) as exc:
+        msg = str(exc)
+        if car in msg:
+            raise
+        size = np.shape(observation)[-1] if np.ndim(observation) else "?"
+        try:
+            named = type(exc)(f"agent {agent_label(agent, spec)} driving {car} (observation of "
+                              f"{size} values): {msg}")
+        except Exception:
+            raise exc from None
+        raise named from exc
+
+
 def make_opponent(spec: OpponentSpec, k: int = 0):
     """A fresh opponent agent of its own from ``spec`` (see :data:`OpponentSpec`): a spec string
     is built through the agents registry, a factory is called, an instance is deep-copied, so
@@ -208,7 +234,7 @@ class HeadToHeadEnv(gym.Env):
         actions = {self.learner: np.asarray(action, dtype=np.float32)}
         for k, opp in enumerate(self.opponents):
             agent = self.race.possible_agents[k + 1]
-            actions[agent] = opp.act(self._last_obs[agent])
+            actions[agent] = act_named(opp, self._last_obs[agent], agent)
         obs, rew, term, trunc, infos = self.race.step(actions)
         self._last_obs = obs
         a = self.learner
