@@ -575,6 +575,7 @@ def check_field(agents, cars: int, track: str) -> None:
                 run_race([spec] + ["raceline"] * (cars - 1), track=track, max_cycles=1,
                          start="regions", order=list(range(cars)), progress_bar=False)
         except Exception as exc:
+            exc = getattr(exc, "agent_error", exc)        # this message names the agent already
             raise ValueError(f"agent {spec!r} cannot race in a field of {cars} cars on "
                              f"{track!r}: {type(exc).__name__}: {exc}") from None
 

@@ -47,6 +47,7 @@ def act_named(agent, observation, car: str, spec: str | None = None):
                               f"{size} values): {msg}")
         except Exception:
             raise exc from None
+        named.agent_error = exc         # the agent's own error, for callers that name it themselves
         raise named from exc
 
 
