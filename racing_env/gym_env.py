@@ -91,7 +91,7 @@ class HeadToHeadEnv(gym.Env):
     **Observation space**: ``car_0``'s observation in :class:`RacingParallelEnv` (own Frenet
     state, opponents relative to it, curvature preview), ``Box`` float32 of ``6 N + n_preview``.
     Scales (default track and car): own ``s`` 0..38.9 m, ``n`` within +-0.4 m, ``vx`` 0..4.2
-    m/s, ``vy`` and ``omega`` mostly within +-1 m/s and +-5 rad/s, relative ``s`` a few metres,
+    m/s, ``vy`` and ``omega`` mostly within +-1 m/s and +-6 rad/s, relative ``s`` a few metres,
     curvature within +-1.3 1/m. The ``Box`` bounds are the envelope, not a scale: normalise
     with running statistics (SB3's ``VecNormalize``; ``VecMonitor`` logs ``ep_rew_mean``).
 

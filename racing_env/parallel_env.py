@@ -57,13 +57,15 @@ class RacingParallelEnv(ParallelEnv):
     ==========================  =============================================================
 
     Scales, for normalisation (default track, 38.9 m; default vehicle, top speed 4.2 m/s):
-    own ``s`` in ``[0, L)``; ``n`` within the walls (+-0.40 m, the track edges at about
+    own ``s`` in ``[0, L)``; ``n`` within the walls (+-0.40 m; the track edges are at
     +-0.25 m); ``mu`` in ``[-pi, pi]``, a few tenths on track; ``vx`` 0..4.2 m/s; ``vy`` and
-    ``omega`` mostly within +-1 m/s and +-5 rad/s; relative ``s`` a few metres in a close race
+    ``omega`` mostly within +-1 m/s and +-6 rad/s; relative ``s`` a few metres in a close race
     and at most a lap or two in 50 s; curvature within +-1.3 1/m. The bounds of the ``Box``
-    are the proven envelope (:meth:`racing_env.BatchedRaces.observation_bounds`), far wider
-    than these scales: normalise with running statistics (SB3's ``VecNormalize``), not with
-    the bounds.
+    (:meth:`racing_env.BatchedRaces.observation_bounds`) are guaranteed, not typical: own
+    ``s``, ``n``, ``mu`` and the curvature are tight, ``vx`` and ``vy`` within 1.5 x top speed
+    + 1 m/s, ``omega`` within +-100 rad/s, relative ``s`` within the +-1e4 m at which it is
+    clipped (no tighter bound holds for every race: contact can push cars back). Normalise
+    with running statistics (SB3's ``VecNormalize``), not with the bounds.
 
     ``state()`` returns the global joint state: every car's ``(s, n, mu, vx, vy, omega)`` with
     unwrapped ``s``, flattened in agent order (``6 N`` float32).
