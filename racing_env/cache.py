@@ -195,8 +195,19 @@ def _configure_matplotlib() -> None:
         default = matplotlib_config_dir()
     except (RuntimeError, KeyError):        # no home directory at all
         default = Path("~")
-    if _writable(default) is not None:
+    if not _could_write(default):
         os.environ["MPLCONFIGDIR"] = str(cache_dir("matplotlib", quiet=True))
+
+
+def _could_write(folder: Path) -> bool:
+    """Whether ``folder`` is, or could be created as, a writable folder, judged without
+    creating anything (the home folder stays untouched when Matplotlib is never imported)."""
+    if not folder.is_absolute():
+        return False
+    for p in (folder, *folder.parents):
+        if p.exists():
+            return p.is_dir() and os.access(p, os.W_OK | os.X_OK)
+    return False
 
 
 def _configure() -> None:
