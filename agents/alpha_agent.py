@@ -62,6 +62,10 @@ class AlphaAgent(MPCAgent):
         if mpc_kwargs.get("theta") is not None:
             raise ValueError(f"alpha chooses its theta online by maximising the potential; "
                              f"theta={mpc_kwargs['theta']!r} is for the mpc agent")
+        if mpc_kwargs.get("space", "paper") != "paper":
+            raise ValueError(f"alpha maximises a potential learned on the paper's policy space; "
+                             f"space={mpc_kwargs['space']!r} needs a model trained on it "
+                             f"(none is shipped yet)")
         super().__init__(**mpc_kwargs)
         for name, v in (("restarts", restarts), ("cold_restarts", cold_restarts)):
             if not (isinstance(v, int) and v >= 1):

@@ -12,7 +12,8 @@ from racing_env.vehicle import VehicleParams
 from .base import median_p99, register_agent
 from .best_theta import best_theta
 from .mpc import MPC, MPCConfig
-from .reference import THETA_HIGH, THETA_LOW, THETA_NAMES, Theta, reference_trajectory
+from .reference import (EXTENDED_HIGH, EXTENDED_LOW, EXTENDED_NAMES, THETA_HIGH, THETA_LOW, Theta,
+                        opponent_neighbours, policy_space, reference_trajectory)
 from .threads import single_blas_thread
 
 
@@ -81,18 +82,19 @@ class MPCAgent:
     """
 
     #: theta's bounds (:data:`agents.reference.THETA_LOW` / ``THETA_HIGH``), for ``alpha-racer agents``
-    param_bounds = {k: (float(lo), float(hi)) for k, lo, hi in zip(THETA_NAMES, THETA_LOW, THETA_HIGH)}
+    param_bounds = {k: (float(lo), float(hi))
+                    for k, lo, hi in zip(EXTENDED_NAMES, EXTENDED_LOW, EXTENDED_HIGH)}
     #: what ``alpha-racer agents`` shows for the theta keywords (their signature default is None)
-    param_defaults = {k: getattr(DEFAULT_THETA, k) for k in THETA_NAMES}
+    param_defaults = {k: getattr(DEFAULT_THETA, k) for k in EXTENDED_NAMES}
     param_notes = {"theta": "'best': the track's best fixed theta, chosen by alpha-racer control"}
 
     def __init__(self, q: float | None = None, zeta: float | None = None,
                  s1: float | None = None, s2: float | None = None, s3: float | None = None,
-                 theta: str | None = None, config: MPCConfig | None = None,
+                 b: float | None = None, theta: str | None = None, space: str = "paper", config: MPCConfig | None = None,
                  vehicle: VehicleParams | None = None, n_preview: int = 10,
                  line: str = "curvature", zeta_max: float | None = None):
         from racing_env.raceline import RacelineConfig
-        given = {k: v for k, v in zip(THETA_NAMES, (q, zeta, s1, s2, s3)) if v is not None}
+        given = {k: v for k, v in zip(EXTENDED_NAMES, (q, zeta, s1, s2, s3, b)) if v is not None}
         if theta is not None and theta != BEST:
             raise ValueError(f"theta must be {BEST!r} (the track's best fixed theta) or left "
                              f"out, got {theta!r}")
@@ -100,7 +102,7 @@ class MPCAgent:
             raise ValueError(f"theta='best' takes the whole theta from the best-theta table; "
                              f"drop {', '.join(f'{k}={v!r}' for k, v in given.items())}")
         self.best = theta == BEST
-        self.theta = Theta(**{**{k: getattr(DEFAULT_THETA, k) for k in THETA_NAMES}, **given})
+        self.theta = Theta(**{**{k: getattr(DEFAULT_THETA, k) for k in EXTENDED_NAMES}, **given})
         lo, hi = THETA_LOW[1], THETA_HIGH[1]
         if zeta_max is not None and (isinstance(zeta_max, bool) or
                                      not isinstance(zeta_max, (int, float)) or
@@ -108,7 +110,14 @@ class MPCAgent:
             raise ValueError(f"zeta_max must be a number in the theta box's zeta range "
                              f"[{lo:g}, {hi:g}], got {zeta_max!r}")
         self.zeta_max = None if zeta_max is None else float(zeta_max)
+        self.space = policy_space(space).name
+        if self.space == "paper" and self.theta.b != 0:
+            raise ValueError(f"b = {self.theta.b!r} is a parameter of the extended policy "
+                             f"space; add space='extended'")
         self.raceline_config = RacelineConfig(objective=line)     # names line and choices if bad
+        if line != "curvature" and self.theta.b > 0:
+            raise ValueError(f"b = {self.theta.b!r} blends the lap-time line into the "
+                             f"minimum-curvature line; it needs line='curvature', got {line!r}")
         self.n_preview = n_preview      # the env's RaceConfig.n_preview (observation layout)
         self.config = config or MPCConfig()
         self.vehicle = vehicle or VehicleParams()
@@ -124,6 +133,8 @@ class MPCAgent:
             self.mpc = MPC(track, self.vehicle, self.config, line=self.line)
         self.track = track
         self.raceline = get_raceline(track, self.vehicle, self.raceline_config)
+        self.blend_line = None                 # the lap-time line, built at the first b > 0
+        self._held = None                      # extended space: (car ahead, side) being passed
         self.mpc.reset()
         self.agent_id = agent_id
         self._u_prev = np.zeros(2)
@@ -133,6 +144,30 @@ class MPCAgent:
         theta (``theta="best"`` only; nothing is built), so a run fails before its races."""
         if self.best:
             best_theta(track)
+
+    def _pass_side(self, ego, others):
+        """The extended space's pass side for :func:`reference_trajectory`: the side held
+        while the same car stays ahead within the overtake shift's range (a pass once started
+        is finished on the side it started), else ``"room"`` (the side the car is on, unless
+        the car ahead leaves too little room there); ``None`` (the paper's rule) in the
+        paper's space."""
+        if self.space != "extended":
+            return None
+        if self._held is not None and len(others):
+            ahead, _ = opponent_neighbours(ego[0], others[:, 0], self.track.length)
+            if ahead == self._held[0]:
+                return self._held[1]
+        return "room"
+
+    def _blend_line(self, theta: Theta):
+        """The lap-time race line that ``theta.b`` blends in (None while ``b`` is 0)."""
+        if theta.b == 0.0:
+            return None
+        if self.blend_line is None:
+            from racing_env.raceline import RacelineConfig, get_raceline
+            self.blend_line = get_raceline(self.track, self.vehicle,
+                                           RacelineConfig(objective="lap_time"))
+        return self.blend_line
 
     @property
     def driven_theta(self) -> Theta:
@@ -162,7 +197,10 @@ class MPCAgent:
             theta = self.driven_theta
             ref = reference_trajectory(theta, ego, others if len(others) else None,
                                        self.raceline, self.track, K=self.config.horizon,
-                                       dt=self.config.dt)
+                                       dt=self.config.dt, blend=self._blend_line(theta),
+                                       side=self._pass_side(ego, others))
+            if self.space == "extended":
+                self._held = (ref.ahead, ref.side) if ref.side else None
             neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
             opp = None
             if neighbours:

@@ -33,8 +33,9 @@ import numpy as np
 
 from racing_env.vehicle import VehicleParams
 
-__all__ = ["THETA_NAMES", "THETA_LOW", "THETA_HIGH", "THETA_UNITS", "Theta", "Reference",
-           "opponent_neighbours", "reference_trajectory", "clear_cache"]
+__all__ = ["THETA_NAMES", "THETA_LOW", "THETA_HIGH", "THETA_UNITS", "Theta", "PolicySpace",
+           "SPACES", "policy_space", "Reference", "opponent_neighbours", "reference_trajectory",
+           "clear_cache"]
 
 # ====================================================================== theta
 THETA_NAMES = ("q", "zeta", "s1", "s2", "s3")
@@ -100,27 +101,37 @@ class Theta:
     s1: float
     s2: float
     s3: float
+    b: float = 0.0
 
     __doc__ += "\n" + THETA_BOUNDS_DOC
 
     def __post_init__(self):
-        for i, name in enumerate(THETA_NAMES):
-            v = _check_theta_value(name, getattr(self, name), THETA_LOW[i], THETA_HIGH[i])
+        for i, name in enumerate(EXTENDED_NAMES):
+            v = _check_theta_value(name, getattr(self, name), EXTENDED_LOW[i], EXTENDED_HIGH[i])
             object.__setattr__(self, name, v)
 
-    def as_array(self) -> np.ndarray:
-        """``[q, zeta, s1, s2, s3]`` as a float array, shape (5,)."""
-        return np.array([self.q, self.zeta, self.s1, self.s2, self.s3], dtype=float)
+    def as_array(self, space: str = "paper") -> np.ndarray:
+        """The parameters of policy space ``space`` as a float array: ``[q, zeta, s1, s2, s3]``
+        (shape (5,), ``"paper"``, the default) or ``[q, zeta, s1, s2, s3, b]`` (shape (6,),
+        ``"extended"``). A theta with ``b > 0`` is not in the paper's space (``ValueError``)."""
+        if policy_space(space).dim == 5:
+            if self.b != 0.0:
+                raise ValueError(f"theta with b = {self.b!r} is outside the paper's space "
+                                 f"(its race line is the minimum-curvature line, b = 0)")
+            return np.array([self.q, self.zeta, self.s1, self.s2, self.s3], dtype=float)
+        return np.array([self.q, self.zeta, self.s1, self.s2, self.s3, self.b], dtype=float)
 
     @classmethod
     def from_array(cls, a) -> "Theta":
-        """Theta from a length-5 array-like in :data:`THETA_NAMES` order; ``ValueError`` on a
-        wrong shape or a value outside its bounds (naming parameter, value and bounds)."""
+        """Theta from an array-like in :data:`THETA_NAMES` order (length 5, the paper's space)
+        or in the extended space's order (length 6, ``b`` last); ``ValueError`` on a wrong
+        shape or a value outside its bounds (naming parameter, value and bounds)."""
         if isinstance(a, Theta):
             return a
         arr = np.asarray(a, dtype=float)
-        if arr.shape != (5,):
-            raise ValueError(f"theta must have shape (5,) {THETA_NAMES}, got shape {arr.shape}")
+        if arr.shape not in ((5,), (6,)):
+            raise ValueError(f"theta must have shape (5,) {THETA_NAMES} or (6,) "
+                             f"{EXTENDED_NAMES}, got shape {arr.shape}")
         return cls(*(float(x) for x in arr))
 
     @classmethod
@@ -129,6 +140,78 @@ class Theta:
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         a = rng.uniform(THETA_LOW, THETA_HIGH)
         return cls.from_array(np.clip(a, THETA_LOW, THETA_HIGH))
+
+
+# ====================================================================== policy spaces
+EXTENDED_NAMES = THETA_NAMES + ("b",)
+"""Names of the extended space's parameters: the paper's five, then ``b``."""
+EXTENDED_LOW = np.append(THETA_LOW, 0.0)
+EXTENDED_HIGH = np.append(THETA_HIGH, 1.0)
+EXTENDED_LOW.setflags(write=False)
+EXTENDED_HIGH.setflags(write=False)
+
+
+@dataclass(frozen=True)
+class PolicySpace:
+    """A box of policy parameters: ``names`` (in array order), bounds ``low``/``high``
+    (shape (dim,)) and ``units``.
+
+    * ``"paper"``: the paper's ``(q, zeta, s1, s2, s3)``; the reference follows the
+      minimum-curvature race line.
+    * ``"extended"``: the paper's five and ``b`` in [0, 1] [-], the weight of the track's
+      lap-time race line blended into the reference's path and speed (0: the paper's
+      minimum-curvature line; 1: the lap-time line). The lap-time line is shorter where the
+      car is motor-limited (above about 2.2 m/s), so a car on it drives another path than a
+      car on the curvature line and gains there: that offset is where passes start
+      (docs: "Policy spaces").
+    """
+
+    name: str
+    names: tuple
+    low: np.ndarray
+    high: np.ndarray
+    units: tuple
+
+    @property
+    def dim(self) -> int:
+        """Number of parameters."""
+        return len(self.names)
+
+    def theta(self, a) -> "Theta":
+        """The :class:`Theta` of an array-like of shape (dim,) (``ValueError`` otherwise)."""
+        arr = np.asarray(a, dtype=float)
+        if arr.shape != (self.dim,):
+            raise ValueError(f"a theta of the {self.name!r} space has shape ({self.dim},) "
+                             f"{self.names}, got shape {arr.shape}")
+        return Theta.from_array(arr)
+
+    def array(self, theta: "Theta") -> np.ndarray:
+        """``theta``'s parameters in this space's order, shape (dim,)."""
+        return theta.as_array(self.name)
+
+    def sample(self, rng=None) -> np.ndarray:
+        """A uniform sample of the box, shape (dim,) (``rng`` a Generator or a seed)."""
+        rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        return np.clip(rng.uniform(self.low, self.high), self.low, self.high)
+
+
+SPACES = {
+    "paper": PolicySpace("paper", THETA_NAMES, THETA_LOW, THETA_HIGH, THETA_UNITS),
+    "extended": PolicySpace("extended", EXTENDED_NAMES, EXTENDED_LOW, EXTENDED_HIGH,
+                            THETA_UNITS + ("-",)),
+}
+"""The policy spaces by name."""
+
+
+def policy_space(name) -> PolicySpace:
+    """The :class:`PolicySpace` called ``name`` (a PolicySpace is returned as is);
+    ``ValueError`` naming the choices otherwise."""
+    if isinstance(name, PolicySpace):
+        return name
+    try:
+        return SPACES[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"policy space must be one of {sorted(SPACES)}, got {name!r}") from None
 
 
 # ====================================================================== neighbours
@@ -279,15 +362,18 @@ class Reference:
       the car's width;
     * ``n_pert`` [m] perturbed race line, ``n_ot`` [m] overtake shift, ``n_bl`` [m] block shift;
     * ``v_pert`` [m/s] perturbed race-line progress rate ``zeta * s_dot_rl`` at step ``k``;
-    * ``ahead`` / ``behind``: opponent row indices of ``j^*`` / ``j_*`` (``-1`` if none).
+    * ``ahead`` / ``behind``: opponent row indices of ``j^*`` / ``j_*`` (``-1`` if none);
+    * ``side``: the side (+1 left, -1 right) on which the overtake shift passes ``j^*`` when
+      :func:`reference_trajectory` chose it (``side`` given), 0 where no shift applies.
     """
 
-    __slots__ = ("s_ref", "n_ref", "n_pert", "n_ot", "n_bl", "v_pert", "ahead", "behind")
+    __slots__ = ("s_ref", "n_ref", "n_pert", "n_ot", "n_bl", "v_pert", "ahead", "behind",
+                 "side")
 
-    def __init__(self, s_ref, n_ref, n_pert, n_ot, n_bl, v_pert, ahead, behind):
+    def __init__(self, s_ref, n_ref, n_pert, n_ot, n_bl, v_pert, ahead, behind, side=0.0):
         self.s_ref, self.n_ref, self.n_pert = s_ref, n_ref, n_pert
         self.n_ot, self.n_bl, self.v_pert = n_ot, n_bl, v_pert
-        self.ahead, self.behind = ahead, behind
+        self.ahead, self.behind, self.side = ahead, behind, side
 
     @property
     def s_pert(self) -> np.ndarray:
@@ -313,7 +399,8 @@ def _bad_state(name: str, arr: np.ndarray) -> None:
 
 def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt: float = 0.1,
                          vehicle_width: float | None = None, friction: float | None = None,
-                         integration: str = "exact", reachable: bool = True) -> Reference:
+                         integration: str = "exact", reachable: bool = True,
+                         blend=None, side=None) -> Reference:
     """The MPC reference of the paper for one car.
 
     Parameters
@@ -435,39 +522,19 @@ def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt
     s_e_w = s_e - base                                     # in [0, L)
 
     # ---- 1. perturbed race line, sampled in time from the ego's s
-    tk = steps + _interp1(tab.tt, s_e_w, inv_ds)           # (K+1,) race-line times [s]
-    if tk[-1] < 2.0 * T:
-        skw = np.interp(tk, tab.tt2, tab.st2)              # race-line s at tk, 0..2L [m]
-        sk = skw                                           # ... already unwrapped from base
-    else:                                                  # horizon longer than a lap
-        lapk = np.floor(tk / T)
-        skw = np.interp(tk - lapk * T, tab.tt2, tab.st2)   # wrapped, [0, L]
-        sk = skw + lapk * L                                # unwrapped from base
-    sd = np.interp(skw, tab.st2, tab.sdot2)                # (K+1,) race-line s_dot [m/s]
-    if exact:
-        # step velocity = race-line displacement over the step / dt (exact time average of the
-        # Frenet velocity), so p_pert^k = p^0 + zeta (p_rl(t_k) - p_rl(t_0))
-        nk = np.interp(skw, tab.st2, tab.nrl2)             # (K+1,) race-line n at t_k
-        s_pert = sk[1:] - sk[0]
-        s_pert *= th.zeta
-        s_pert += s_e
-        n_pert0 = float(nk[0])
-        n_pert = nk[1:] - nk[0]
-        n_pert *= th.zeta
-        n_pert += nk[0]
-    else:
-        # explicit Euler on the point velocities at t_{k-1}, literally as printed
-        nd = np.interp(skw, tab.st2, tab.ndot2)            # (K+1,) race-line n_dot [m/s]
-        zdt = th.zeta * dt
-        s_pert = sd[:K].cumsum()
-        s_pert *= zdt
-        s_pert += s_e
-        n_pert0 = _interp1(tab.nrl, s_e_w, inv_ds)
-        n_pert = nd[:K].cumsum()
-        n_pert *= zdt
-        n_pert += n_pert0
-    v_pert = sd[1:]
-    v_pert *= th.zeta                                      # (K,) zeta * s_dot_rl(t_k)
+    s_pert, n_pert, n_pert0, v_pert = _perturbed_line(tab, th.zeta, s_e, s_e_w, steps, K, dt,
+                                                      exact)
+    if th.b > 0.0:                                         # extended space: blend the lines
+        if blend is None:
+            raise ValueError(f"theta b = {th.b!r} blends in a second race line; pass it as "
+                             f"blend= (the track's lap-time line)")
+        s_b, n_b, n_b0, v_b = _perturbed_line(_tables(blend, track, friction), th.zeta, s_e,
+                                              s_e_w, steps, K, dt, exact)
+        a = 1.0 - th.b
+        s_pert = a * s_pert + th.b * s_b
+        n_pert = a * n_pert + th.b * n_b
+        n_pert0 = a * n_pert0 + th.b * n_b0
+        v_pert = a * v_pert + th.b * v_b
     if reachable:                                          # ---- 1b. cap at the run-up
         den_e = 1.0 - n_e * _interp1(tab.kap, s_e_w, inv_ds)
         if den_e <= 0:
@@ -499,6 +566,7 @@ def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt
     n_ref = n_pert.copy()
     n_ot = n_bl = None                                     # stay None while no shift applies
     ahead = behind = -1
+    pass_side = 0.0
     if m:
         rows = opp.tolist()
         ahead, behind = _neighbours_list([r[0] - s_e for r in rows])
@@ -523,8 +591,12 @@ def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt
             # ---- 3. overtake: sign(dn) max((s1 - |dn|) decay, 0); decay > 0 leaves the max
             #      to the scalar (s1 - |dn|)
             dn = n_e - nj
-            c = s1 - abs(dn)
-            if c > 0:
+            if side is not None and j == ahead:            # extended: chosen / held side
+                sgn = _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half)
+                c = s1 - sgn * dn                          # to s1 beside j on that side
+                pass_side = sgn if decay.max() > PASS_HOLD_DECAY else 0.0
+            else:
+                c = s1 - abs(dn)
                 if dn > 0:
                     sgn = 1.0
                 elif dn < 0:
@@ -533,6 +605,7 @@ def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt
                     room_l = _interp1(tab.wl, sj_w, inv_ds) - nj
                     room_r = _interp1(tab.wr, sj_w, inv_ds) + nj
                     sgn = 1.0 if room_l >= room_r else -1.0
+            if c > 0:
                 decay_c = decay * (sgn * c)
                 if n_ot is None:
                     n_ot = decay_c
@@ -581,7 +654,73 @@ def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt
         np.minimum(n_ref, hi, out=n_ref)
         np.negative(lo, out=lo)
         np.maximum(n_ref, lo, out=n_ref)
-    return Reference(s_pert, n_ref, n_pert, n_ot, n_bl, v_pert, ahead, behind)
+    return Reference(s_pert, n_ref, n_pert, n_ot, n_bl, v_pert, ahead, behind, pass_side)
+
+
+PASS_HOLD_DECAY = 1e-3
+"""The chosen side is reported (and an agent may hold it) while the overtake shift's decay
+``exp(-s2 gap^2)`` exceeds this somewhere on the horizon."""
+PASS_ROOM = 0.12
+"""Least free width [m] beside the car ahead, between it and the track edge (two car widths),
+for the extended space's ``side="room"`` rule to pass on that side."""
+
+
+def _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half) -> float:
+    """The side (+1 left, -1 right) of the car ahead to pass on: ``side`` itself when it is
+    +-1 (held by the agent), else (``"room"``) the side the ego is on (``sign(dn)``, the one
+    with more room when level), unless the room between the car ahead and that edge is below
+    :data:`PASS_ROOM` and the other side has more."""
+    if side == 1 or side == -1:
+        return float(side)
+    if side != "room":
+        raise ValueError(f"side must be None, 'room', 1 or -1, got {side!r}")
+    room_l = _interp1(tab.wl, sj_w, inv_ds) - nj - w_half
+    room_r = _interp1(tab.wr, sj_w, inv_ds) + nj - w_half
+    sgn = 1.0 if dn > 0 or (dn == 0 and room_l >= room_r) else -1.0
+    mine, other = (room_l, room_r) if sgn > 0 else (room_r, room_l)
+    if mine < PASS_ROOM and other > mine:
+        sgn = -sgn
+    return sgn
+
+
+def _perturbed_line(tab, zeta, s_e, s_e_w, steps, K, dt, exact):
+    """Step 1 of :func:`reference_trajectory` on one race line's tables: ``(s_pert, n_pert,
+    n_pert0, v_pert)``, shapes (K,), (K,), scalar, (K,)."""
+    L, T, inv_ds = tab.L, tab.T, tab.inv_ds
+    tk = steps + _interp1(tab.tt, s_e_w, inv_ds)           # (K+1,) race-line times [s]
+    if tk[-1] < 2.0 * T:
+        skw = np.interp(tk, tab.tt2, tab.st2)              # race-line s at tk, 0..2L [m]
+        sk = skw                                           # ... already unwrapped from base
+    else:                                                  # horizon longer than a lap
+        lapk = np.floor(tk / T)
+        skw = np.interp(tk - lapk * T, tab.tt2, tab.st2)   # wrapped, [0, L]
+        sk = skw + lapk * L                                # unwrapped from base
+    sd = np.interp(skw, tab.st2, tab.sdot2)                # (K+1,) race-line s_dot [m/s]
+    if exact:
+        # step velocity = race-line displacement over the step / dt (exact time average of the
+        # Frenet velocity), so p_pert^k = p^0 + zeta (p_rl(t_k) - p_rl(t_0))
+        nk = np.interp(skw, tab.st2, tab.nrl2)             # (K+1,) race-line n at t_k
+        s_pert = sk[1:] - sk[0]
+        s_pert *= zeta
+        s_pert += s_e
+        n_pert0 = float(nk[0])
+        n_pert = nk[1:] - nk[0]
+        n_pert *= zeta
+        n_pert += nk[0]
+    else:
+        # explicit Euler on the point velocities at t_{k-1}, literally as printed
+        nd = np.interp(skw, tab.st2, tab.ndot2)            # (K+1,) race-line n_dot [m/s]
+        zdt = zeta * dt
+        s_pert = sd[:K].cumsum()
+        s_pert *= zdt
+        s_pert += s_e
+        n_pert0 = _interp1(tab.nrl, s_e_w, inv_ds)
+        n_pert = nd[:K].cumsum()
+        n_pert *= zdt
+        n_pert += n_pert0
+    v_pert = sd[1:]
+    v_pert *= zeta                                      # (K,) zeta * s_dot_rl(t_k)
+    return s_pert, n_pert, n_pert0, v_pert
 
 
 _DEFAULT_HALF_WIDTH = 0.5 * VehicleParams().width

@@ -99,12 +99,16 @@ def _cmd_collect(args) -> int:
     if args.tracks is None and len(cars) == 1:        # one track, one field size: as always
         cfg = CollectConfig(races=args.races, n_cars=cars[0], steps=args.steps,
                             track=args.track or "default", seed=args.seed,
-                            races_per_shard=args.shard_size or 25)
+                            races_per_shard=args.shard_size or 25, space=args.space,
+                            start=args.start)
         summary = collect(cfg, args.out, **kw)
     else:
         if args.track is not None and args.tracks is not None:
             raise ValueError(f"give either --track ({args.track!r}) or --tracks "
                              f"({' '.join(args.tracks)}), not both")
+        if (args.space, args.start) != ("paper", "paper"):
+            raise ValueError(f"--space {args.space} / --start {args.start} are options of a "
+                             f"one-track collection; a family collection races the paper's")
         cfg = FamilyConfig(races=args.races, tracks=tuple(args.tracks or [args.track or "default"]),
                            cars=cars, steps=args.steps, seed=args.seed,
                            races_per_shard=args.shard_size or 4)
@@ -300,7 +304,8 @@ def _cmd_general_report(args) -> int:
 def _cmd_policy_map(args) -> int:
     from .policy_map import PolicyMapConfig, policy_map
     cfg = PolicyMapConfig(thetas=args.thetas, tracks=tuple(args.tracks), modes=tuple(args.modes),
-                          steps=args.steps, seed=args.seed, opponents=args.opponents)
+                          steps=args.steps, seed=args.seed, opponents=args.opponents,
+                          space=args.space)
     out = Path(args.out)
     s = policy_map(cfg, out, workers=args.workers, backend=args.backend, address=args.address)
     print((out / "summary.md").read_text())
@@ -436,6 +441,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "random:A .. random:B, e.g. --tracks default oval random:0-299 "
                         "tumftm:Monza")
     c.add_argument("--seed", type=int, default=0, help="seed of the thetas and start positions")
+    c.add_argument("--space", choices=("paper", "extended"), default="paper",
+                   help="policy space the thetas are drawn from (extended: the paper's five "
+                        "and b, the lap-time line's weight)")
+    c.add_argument("--start", choices=("paper", "close"), default="paper",
+                   help="start regions: the paper's (0.4 m long, 0.6 m apart) or close (0.2 m "
+                        "long, 0.1 m apart: more passing and blocking)")
     c.add_argument("--shard-size", type=int, default=None,
                    help="races per shard file (default 25; 4 for a family collection, so that "
                         "its shards spread over many tracks)")
@@ -682,6 +693,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "--opponents cars from the start regions")
     pm.add_argument("--opponents", default="mpc",
                     help="agent spec of the two opponents of the race mode")
+    pm.add_argument("--space", choices=("paper", "extended"), default="paper",
+                    help="policy space whose box is mapped (extended adds b, the weight of "
+                         "the lap-time line)")
     pm.add_argument("--steps", type=int, default=500, help="steps of 0.1 s per run")
     pm.add_argument("--seed", type=int, default=0, help="Sobol scrambling and start seed")
     _add_parallel_args(pm)

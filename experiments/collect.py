@@ -12,7 +12,8 @@ or recomputed. Race ``i`` draws everything from ``SeedSequence(seed).spawn`` chi
 same seed gives the same data whatever the worker count or backend.
 
 Shard arrays (R races, T steps, N cars): ``states`` (R, T + 1, N, 6) float32 joint Frenet
-states (unwrapped s); ``thetas`` (R, N, 5) float32; ``rewards`` (R, T, N) float32;
+states (unwrapped s); ``thetas`` (R, N, dim) float32 (dim 5 in the paper's policy space, 6 in
+the extended one, ``CollectConfig.space``); ``rewards`` (R, T, N) float32;
 ``race_index`` (R,) int64; ``start_order`` (R, N) int64 (start region of each car);
 ``fallbacks`` (R, N) int32 (MPC fallbacks, to spot bad races).
 """
@@ -30,6 +31,9 @@ from .artifacts import claim, provenance, write_npz
 from .parallel import check_backend, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
+#: Start-region geometry of a collection's races (``StartConfig`` region_length, region_gap
+#: [m]): the paper's, or close together so that the cars interact from the first corner.
+START_REGIONS = {"paper": (0.4, 0.6), "close": (0.2, 0.1)}
 
 
 class ShardedRaces:
@@ -58,8 +62,16 @@ class CollectConfig(ShardedRaces):
     seed: int = 0
     races_per_shard: int = 25
     start_jitter: float = 0.8      # lateral jitter of the start positions (fraction of the room)
+    space: str = "paper"           # policy space the thetas are drawn from (agents.reference)
+    start: str = "paper"           # start regions: "paper" (0.4 m long, 0.6 m apart) or
+                                   # "close" (0.2 m long, 0.1 m apart: pass and block at once)
 
     def __post_init__(self):
+        from agents.reference import policy_space
+        policy_space(self.space)                         # names the choices if unknown
+        if self.start not in START_REGIONS:
+            raise ValueError(f"CollectConfig.start must be one of {sorted(START_REGIONS)}, got "
+                             f"{self.start!r}")
         for name in ("races", "n_cars", "steps", "races_per_shard"):
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 1):
@@ -68,10 +80,11 @@ class CollectConfig(ShardedRaces):
             raise ValueError(f"CollectConfig.n_cars must be in 2..8, got {self.n_cars}")
 
 
-def _mpc_agents(track, thetas, rng=None, agent_ids=None) -> list:
-    """This process's MPC agents set to ``thetas`` (N, 5) and reset on ``track``."""
+def _mpc_agents(track, thetas, rng=None, agent_ids=None, space: str = "paper") -> list:
+    """This process's MPC agents of policy space ``space`` set to ``thetas`` (N, dim) and
+    reset on ``track``."""
     from agents.reference import Theta
-    agents = _agents(len(thetas))
+    agents = _agents(len(thetas), space)
     for k, (agent, theta) in enumerate(zip(agents, thetas)):
         agent.theta = Theta.from_array(theta)
         agent.reset(track, agent_ids[k] if agent_ids else f"car_{k}",
@@ -81,16 +94,22 @@ def _mpc_agents(track, thetas, rng=None, agent_ids=None) -> list:
 
 def simulate_race(config: CollectConfig, race_index: int) -> dict:
     """Simulate race ``race_index`` of the config; everything random comes from its own seed."""
-    from agents.reference import Theta
+    from agents.reference import Theta, policy_space
     from racing_env import RacingParallelEnv, StartConfig
 
     rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(race_index + 1)[race_index])
+    length, gap = START_REGIONS[config.start]
     env = RacingParallelEnv(track=config.track, n_cars=config.n_cars, max_cycles=config.steps,
-                            start=StartConfig(mode="regions", lateral_jitter=config.start_jitter))
+                            start=StartConfig(mode="regions", lateral_jitter=config.start_jitter,
+                                              region_length=length, region_gap=gap))
     order = rng.permutation(config.n_cars)
     obs, _ = env.reset(seed=int(rng.integers(2 ** 31)), options={"order": order.tolist()})
-    thetas = np.array([Theta.sample(rng).as_array() for _ in range(config.n_cars)])
-    agents = _mpc_agents(env.track, thetas, rng, env.possible_agents)
+    if config.space == "paper":                      # the paper's draw, unchanged
+        thetas = np.array([Theta.sample(rng).as_array() for _ in range(config.n_cars)])
+    else:
+        space = policy_space(config.space)
+        thetas = np.array([space.sample(rng) for _ in range(config.n_cars)])
+    agents = _mpc_agents(env.track, thetas, rng, env.possible_agents, config.space)
     fallbacks0 = [a.stats["fallbacks"] for a in agents]
     states = np.empty((config.steps + 1, config.n_cars, 6), dtype=np.float32)
     rewards = np.zeros((config.steps, config.n_cars), dtype=np.float32)
@@ -128,7 +147,8 @@ def rollout_from_state(track, state, thetas, steps: int):
     core.state[0] = state
     core.start[0] = state
     core.s_line[0] = state[:, 0].max()
-    agents = _mpc_agents(core.track, np.asarray(thetas, dtype=float))
+    thetas = np.asarray(thetas, dtype=float)
+    agents = _mpc_agents(core.track, thetas, space="extended" if thetas.shape[-1] == 6 else "paper")
     obs = core.observe()[0]
     states = np.empty((steps + 1, N, 6))
     rewards = np.empty((steps, N))
@@ -142,15 +162,17 @@ def rollout_from_state(track, state, thetas, steps: int):
     return states, rewards
 
 
-_AGENTS: list = []
+_AGENTS: dict = {}
 
 
-def _agents(n: int) -> list:
-    """MPC agents reused across races in this process (building one compiles and loads code)."""
+def _agents(n: int, space: str = "paper") -> list:
+    """MPC agents of policy space ``space`` reused across races in this process (building one
+    compiles and loads code)."""
     from agents.mpc_agent import MPCAgent
-    while len(_AGENTS) < n:
-        _AGENTS.append(MPCAgent())
-    return _AGENTS[:n]
+    pool = _AGENTS.setdefault(space, [])
+    while len(pool) < n:
+        pool.append(MPCAgent(space=space))
+    return pool[:n]
 
 
 def simulate_shard(config: CollectConfig, shard: int) -> dict:

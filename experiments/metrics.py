@@ -165,6 +165,27 @@ def behind_time(states, dt: float = 0.1, gap_m: float = BEHIND_GAP_M) -> np.ndar
     return close.sum(axis=0) * float(dt)
 
 
+def interaction_share(states, gap_m: float = BEHIND_GAP_M) -> float:
+    """Share of the states after steps 1..T (``states`` (T + 1, N, 6), or a batch
+    (R, T + 1, N, 6) of races) in which some car has another within ``gap_m`` [m] behind or
+    beside it (``0 <= s_i - s_j <= gap_m`` on unwrapped progress, some i != j): the steps in
+    which passing or blocking is possible. A collection's share says how much interaction
+    the potential can learn from."""
+    st = np.asarray(states, dtype=float)
+    if st.ndim == 3:
+        st = st[None]
+    if st.ndim != 4 or st.shape[-1] != 6 or st.shape[1] < 2 or st.shape[2] < 2:
+        raise ValueError(f"states must have shape (T + 1, N, 6) or (R, T + 1, N, 6) with "
+                         f"T >= 1 and N >= 2, got {np.shape(states)}")
+    if not (np.isfinite(gap_m) and gap_m > 0):
+        raise ValueError(f"gap_m must be a positive number, got {gap_m!r}")
+    s = st[:, 1:, :, 0]                                          # (R, T, N)
+    d = np.abs(s[..., :, None] - s[..., None, :])                # (R, T, N, N)
+    n = s.shape[-1]
+    d[..., np.arange(n), np.arange(n)] = np.inf
+    return float((d <= gap_m).any(axis=(-1, -2)).mean())
+
+
 def race_metrics(states, dt: float = 0.1, contact_dn: float = 0.06,
                  hold_s: float = PASS_HOLD_S, gap_m: float = BEHIND_GAP_M) -> dict:
     """The strategy metrics of one race, as a JSON-ready dict (lists indexed by car):

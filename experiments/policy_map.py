@@ -55,7 +55,8 @@ QUANTILES = (0.0, 0.05, 0.25, 0.5, 0.75, 0.95, 1.0)
 class PolicyMapConfig:
     """One policy map: ``thetas`` Sobol points of the theta box (scrambled with ``seed``) on
     each of ``tracks`` in each of ``modes``, ``steps`` control periods of 0.1 s per run.
-    ``opponents`` is the agent spec of the two fixed cars of the ``race`` mode."""
+    ``opponents`` is the agent spec of the two fixed cars of the ``race`` mode; ``space`` the
+    policy space whose box is mapped (``"paper"`` or ``"extended"``, :mod:`agents.reference`)."""
 
     thetas: int = 256
     tracks: tuple[str, ...] = DEFAULT_TRACKS
@@ -63,8 +64,11 @@ class PolicyMapConfig:
     steps: int = 500
     seed: int = 0
     opponents: str = "mpc"
+    space: str = "paper"
 
     def __post_init__(self):
+        from agents.reference import policy_space
+        policy_space(self.space)                     # names the choices if unknown
         object.__setattr__(self, "tracks", tuple(self.tracks))
         object.__setattr__(self, "modes", tuple(self.modes))
         for name in ("thetas", "steps"):
@@ -85,10 +89,20 @@ class PolicyMapConfig:
         return int(np.random.SeedSequence([self.seed, k]).generate_state(1)[0])
 
 
-def theta_box() -> tuple[np.ndarray, np.ndarray]:
-    """The current ``(THETA_LOW, THETA_HIGH)`` (looked up at call time, never copied)."""
+def theta_box(space: str = "paper") -> tuple[np.ndarray, np.ndarray]:
+    """The current box ``(low, high)`` of policy space ``space`` (for the paper's space
+    ``THETA_LOW, THETA_HIGH``, looked up at call time, never copied)."""
     from agents import reference
-    return np.array(reference.THETA_LOW, dtype=float), np.array(reference.THETA_HIGH, dtype=float)
+    if space == "paper":
+        return np.array(reference.THETA_LOW, dtype=float), np.array(reference.THETA_HIGH, dtype=float)
+    sp = reference.policy_space(space)
+    return np.array(sp.low, dtype=float), np.array(sp.high, dtype=float)
+
+
+def theta_names(space: str = "paper") -> tuple:
+    """Parameter names of policy space ``space``, in array order."""
+    from agents.reference import policy_space
+    return policy_space(space).names
 
 
 def sample_thetas(n: int, seed: int, low=None, high=None) -> np.ndarray:
@@ -108,14 +122,16 @@ def sample_thetas(n: int, seed: int, low=None, high=None) -> np.ndarray:
 
 
 def theta_spec(theta) -> str:
-    """The ``mpc`` agent spec of a theta (5,), exact (floats in ``repr`` form)."""
-    from agents.reference import THETA_NAMES
-    return "mpc:" + ",".join(f"{name}={float(v)!r}" for name, v in zip(THETA_NAMES, theta))
+    """The ``mpc`` agent spec of a theta, exact (floats in ``repr`` form): shape (5,) of the
+    paper's space, or (6,) of the extended space (the spec then says ``space=extended``)."""
+    names = theta_names("extended" if len(theta) == 6 else "paper")
+    head = "mpc:space=extended," if len(theta) == 6 else "mpc:"
+    return head + ",".join(f"{name}={float(v)!r}" for name, v in zip(names, theta))
 
 
 def _theta_dict(theta) -> dict:
-    from agents.reference import THETA_NAMES
-    return {name: float(v) for name, v in zip(THETA_NAMES, theta)}
+    names = theta_names("extended" if len(theta) == 6 else "paper")
+    return {name: float(v) for name, v in zip(names, theta)}
 
 
 def best_flying_lap(lap_times) -> float | None:
@@ -182,14 +198,14 @@ class PolicyMapRun:
     def __init__(self, out_dir, config: PolicyMapConfig):
         self.out = Path(out_dir)
         self.config = config
-        low, high = theta_box()
+        low, high = theta_box(config.space)
         self.thetas = sample_thetas(config.thetas, config.seed, low, high)
         self.out.mkdir(parents=True, exist_ok=True)
-        from agents.reference import THETA_NAMES
         # the box goes into "config", so a refusal after a change of the box names it
         meta = {"schema_version": SCHEMA_VERSION,
                 "config": {**asdict(config), "theta_box": {
-                    "names": list(THETA_NAMES), "low": low.tolist(), "high": high.tolist()}},
+                    "names": list(theta_names(config.space)), "low": low.tolist(),
+                    "high": high.tolist()}},
                 "env": env_version()}
         # compared as stored: JSON turns the config's tuples into lists
         claim(self.out / "manifest.json", json.loads(json.dumps(meta)), "a policy map")
@@ -296,10 +312,10 @@ def summarise(rows: list[dict], config: PolicyMapConfig) -> dict:
     the steps), the best theta among those on track and its progress, progress quantiles [m],
     the top 10 thetas on track by progress, and progress / best lap / off-track by zeta bins;
     per mode over all tracks: the share of rows off track and of thetas off track on any."""
-    from agents.reference import THETA_NAMES
+    THETA_NAMES = theta_names(config.space)
     if not rows:
         raise ValueError("no finished rows to summarise")
-    low, high = theta_box()
+    low, high = theta_box(config.space)
     iz = THETA_NAMES.index("zeta")
     zeta_edges = np.linspace(low[iz], high[iz], ZETA_BINS + 1)
     expected = config.thetas * len(config.tracks) * len(config.modes)

@@ -89,3 +89,31 @@ def test_rollout_from_a_stored_state_continues_the_race(tmp_path):
     lead = np.stack([np.delete(s, i, axis=1).max(axis=1) for i in range(3)], axis=1)
     np.testing.assert_allclose(rewards, np.diff(s - lead, axis=0), atol=1e-9)
     assert np.all(np.diff(s, axis=0) > 0)          # every car keeps moving forward
+
+
+def test_an_extended_close_collection_draws_six_parameters_and_starts_close(tmp_path):
+    from agents.reference import EXTENDED_HIGH, EXTENDED_LOW
+    cfg = CollectConfig(races=2, n_cars=3, steps=5, seed=7, races_per_shard=2,
+                        space="extended", start="close")
+    collect(cfg, tmp_path, workers=1, progress_bar=False)
+    data = load_races(tmp_path)
+    th = data["thetas"]
+    assert th.shape == (2, 3, 6)
+    assert np.all(th >= EXTENDED_LOW - 1e-6) and np.all(th <= EXTENDED_HIGH + 1e-6)
+    s0 = data["states"][:, 0, :, 0]
+    assert np.ptp(s0, axis=1).max() <= 3 * 0.2 + 2 * 0.1 + 1e-6   # three 0.2 m regions, 0.1 m apart
+    paper = load_races_of(CollectConfig(races=2, n_cars=3, steps=5, seed=7, races_per_shard=2),
+                          tmp_path / "paper")
+    assert np.ptp(paper["states"][:, 0, :, 0], axis=1).min() > 0.6    # the paper's 0.6 m gaps
+
+
+def load_races_of(cfg, out):
+    collect(cfg, out, workers=1, progress_bar=False)
+    return load_races(out)
+
+
+def test_collect_config_names_bad_space_and_start():
+    with pytest.raises(ValueError, match="policy space must be one of"):
+        CollectConfig(space="wide")
+    with pytest.raises(ValueError, match=r"start must be one of \['close', 'paper'\], got 'near'"):
+        CollectConfig(start="near")

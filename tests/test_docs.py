@@ -1,6 +1,12 @@
 """The README, the examples and the project files it points to."""
+import argparse
+import contextlib
+import io
+import os
 import re
 import runpy
+import shlex
+import subprocess
 import sys
 from pathlib import Path
 
@@ -85,3 +91,103 @@ def test_docs_pages_and_pictures_exist():
     for page in (ROOT / "docs").rglob("*.md"):
         for img in re.findall(r"!\[[^]]*\]\(([^)]+)\)", page.read_text()):
             assert (page.parent / img).resolve().exists(), f"{page}: {img}"
+
+
+# ---------------------------------------------------------------------- commands quoted in the docs
+DOC_FILES = [ROOT / "README.md"] + sorted((ROOT / "docs").rglob("*.md"))
+
+
+def quoted_commands(text: str) -> list[str]:
+    """Every ``alpha-racer ...`` command of a Markdown text: the lines of its shell code blocks
+    (backslash continuations joined, comments dropped, ``&&`` chains split) and its inline code."""
+    commands = []
+    blocks = re.findall(r"^[ \t]*```(\w*)[^\n]*\n(.*?)^[ \t]*```", text, re.S | re.M)
+    for lang, body in blocks:
+        if lang not in ("", "bash", "sh", "shell", "console"):
+            continue
+        for line in re.sub(r"\\\n\s*", " ", body).splitlines():
+            for part in re.split(r"&&|;", line.split(" #")[0]):
+                if part.strip().startswith("alpha-racer "):
+                    commands.append(" ".join(part.split()))
+    prose = re.sub(r"^[ \t]*```.*?^[ \t]*```", "", text, flags=re.S | re.M)
+    for span in re.findall(r"`([^`\n]+)`", prose):
+        for part in re.split(r"&&|;", span):
+            if part.strip().startswith("alpha-racer "):
+                commands.append(" ".join(part.split()))
+    return commands
+
+
+def test_quoted_commands_are_found():
+    text = ("Run `alpha-racer race --steps 100` or\n\n```bash\nalpha-racer bench --ego alpha \\\n"
+            "    --opponents ibr   # a comment\npip install -e . && alpha-racer tracks\n```\n"
+            "```python\nalpha-racer = 1\n```\n")
+    assert quoted_commands(text) == ["alpha-racer bench --ego alpha --opponents ibr",
+                                     "alpha-racer tracks", "alpha-racer race --steps 100"]
+
+
+def test_every_quoted_command_parses_with_the_current_cli():
+    from experiments.cli import build_parser
+    parser = build_parser()
+    subcommands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    found, bad = 0, []
+    for path in DOC_FILES:
+        for command in quoted_commands(path.read_text()):
+            # placeholders of the prose: [optional parts], "...", COMMAND
+            argv = [t for t in shlex.split(command.replace("[", " ").replace("]", " "))[1:] if t != "..."]
+            if not argv or argv[0] == "COMMAND":
+                continue
+            found += 1
+            if argv[0] not in subcommands:
+                bad.append(f"{path.relative_to(ROOT)}: {command!r}: no command {argv[0]!r}")
+                continue
+            if len(argv) == 1:                  # the command named in prose: its name suffices
+                continue
+            err = io.StringIO()
+            try:
+                with contextlib.redirect_stderr(err):
+                    parser.parse_args(argv)
+            except SystemExit:
+                bad.append(f"{path.relative_to(ROOT)}: {command!r}: {err.getvalue().strip().splitlines()[-1]}")
+    assert found > 50, f"only {found} commands found: is the extraction broken?"
+    assert not bad, "commands in the docs that the CLI refuses:\n" + "\n".join(bad)
+
+
+# ---------------------------------------------------------------------- the README's first examples
+def test_readme_python_examples_run(monkeypatch, tmp_path):
+    """The README's Python blocks (the PettingZoo and the Gymnasium examples) run as printed."""
+    monkeypatch.chdir(tmp_path)
+    blocks = re.findall(r"^```python\n(.*?)^```", README, re.S | re.M)
+    assert len(blocks) >= 2
+    for code in blocks:
+        exec(compile(code, "README.md", "exec"), {"__name__": "readme_example"})
+
+
+# ---------------------------------------------------------------------- the built site
+def test_built_site_has_no_literal_sphinx_roles(tmp_path):
+    """The API reference renders the docstrings' Sphinx roles as links or code (about 6 s)."""
+    pytest.importorskip("mkdocs")
+    pytest.importorskip("mkdocstrings")
+    site = tmp_path / "site"
+    env = dict(os.environ, NO_MKDOCS_2_WARNING="1")
+    run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet",
+                          "--site-dir", str(site)], cwd=ROOT, env=env, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr[-3000:]
+    role = re.compile(r":(?:py:)?(?:class|func|meth|data|mod|attr|exc|obj|const):(?:<code>|`)")
+    pages = list(site.rglob("*.html"))
+    assert len(pages) > 10
+    literal = {str(p.relative_to(site)): role.findall(p.read_text())[:3] for p in pages}
+    literal = {k: v for k, v in literal.items() if v}
+    assert not literal, f"literal Sphinx roles in the built site: {literal}"
+    api = (site / "api" / "racing_env" / "index.html").read_text()
+    assert 'class="autorefs autorefs-internal"' in api     # roles became links
+
+
+def test_sphinx_roles_become_optional_cross_references():
+    griffe = pytest.importorskip("griffe")
+    hooks = runpy.run_path(str(ROOT / "docs" / "hooks.py"))
+    module = griffe.Module("m")
+    text = "See :class:`~racing_env.track.Track`, :func:`make <racing_env.make_track>` and :mod:`agents`."
+    out = hooks["replace_roles"](text, module)
+    assert ":class:" not in out and ":func:" not in out and ":mod:" not in out
+    assert '<autoref identifier="racing_env.track.Track" optional><code>Track</code></autoref>' in out
+    assert '<autoref identifier="racing_env.make_track" optional><code>make</code></autoref>' in out

@@ -174,3 +174,30 @@ def test_a_zeta_ceiling_drives_the_capped_theta_and_names_bad_values():
         with pytest.raises(ValueError, match=rf"zeta_max must be a number in .*\[0.8, 1.05\], "
                                              rf"got {shown}"):
             make_agent_spec(f"mpc:zeta_max={bad}")
+
+
+def test_extended_space_agent_checks_and_holds_the_pass_side():
+    """``space='extended'`` takes ``b``; ``b`` needs that space and the curvature base line;
+    with ``b = 0`` and no car near, the extended agent races as the paper's bit for bit; once
+    a pass has a side, the agent holds it while the same car is ahead."""
+    from experiments.race import run_race
+    with pytest.raises(ValueError, match="b = 0.5 is a parameter of the extended policy space"):
+        make_agent_spec("mpc:b=0.5")
+    with pytest.raises(ValueError, match="it needs line='curvature', got 'lap_time'"):
+        make_agent_spec("mpc:space=extended,b=0.5,line=lap_time")
+    with pytest.raises(ValueError, match="policy space must be one of"):
+        make_agent_spec("mpc:space=huge")
+    with pytest.raises(ValueError, match="learned on the paper's policy space"):
+        make_agent_spec("alpha:space=extended")
+    a, _ = run_race(["mpc:space=extended,b=0"], seed=3, max_cycles=20, progress_bar=False)
+    b, _ = run_race(["mpc"], seed=3, max_cycles=20, progress_bar=False)
+    assert a.states.tobytes() == b.states.tobytes()
+    agent = make_agent_spec("mpc:space=extended,s1=0.3,s2=1,b=1")
+    env = RacingParallelEnv(n_cars=2, max_cycles=5, start=StartConfig(mode="regions"))
+    obs, _ = env.reset(seed=1, options={"order": [1, 0]})
+    agent.reset(env.track, "car_0", 0)
+    agent.act(obs["car_0"])
+    assert agent._held is not None and agent._held[0] == 0 and agent._held[1] in (-1.0, 1.0)
+    ego, others = joint_state_from_observation(obs["car_0"], 2)
+    assert agent._pass_side(ego, others) == agent._held[1]
+    assert make_agent_spec("mpc:s1=0.3")._pass_side(ego, others) is None    # paper: its rule

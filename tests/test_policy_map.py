@@ -194,3 +194,19 @@ def test_cli_races_the_theta_against_the_opponents_named(tmp_path):
     rows = [json.loads(line) for line in (out / "rows.jsonl").open()]
     assert len(rows) == 2 and all(len(r["opponents_progress_m"]) == 2 for r in rows)
     assert "race opponents: two `raceline`" in (out / "summary.md").read_text()
+
+
+def test_an_extended_map_samples_b_and_races_it():
+    from agents import make_agent_spec
+    cfg = pm.PolicyMapConfig(thetas=2, tracks=("default",), modes=("solo",), steps=5,
+                             space="extended")
+    low, high = pm.theta_box("extended")
+    assert low.shape == (6,) and (low[5], high[5]) == (0.0, 1.0)
+    th = pm.sample_thetas(2, 0, low, high)
+    spec = pm.theta_spec(th[0])
+    assert spec.startswith("mpc:space=extended,") and f"b={float(th[0][5])!r}" in spec
+    assert make_agent_spec(spec).theta.b == th[0][5]
+    row = pm.map_row(cfg, "solo", "default", 0, th[0])
+    assert row["theta"]["b"] == th[0][5] and row["progress_m"] > 0
+    with pytest.raises(ValueError, match="policy space must be one of"):
+        pm.PolicyMapConfig(space="big")

@@ -453,3 +453,93 @@ def test_reachable_reference_advances_and_never_passes_the_paper(s0, v, zeta):
     assert np.all(np.diff(np.append(s0, a.s_ref)) > 0)
     assert np.all(a.s_ref <= b.s_ref + 1e-12)
     assert np.all(np.isfinite(a.n_ref)) and np.all(a.v_pert <= b.v_pert + 1e-12)
+
+
+# ====================================================================== extended space
+
+
+def lap_time_line():
+    from racing_env.raceline import RacelineConfig
+    return get_raceline(TRACK, config=RacelineConfig(objective="lap_time"))
+
+
+def test_policy_spaces():
+    from agents.reference import SPACES, policy_space
+    paper, ext = policy_space("paper"), policy_space("extended")
+    assert paper.names == THETA_NAMES and paper.dim == 5
+    assert ext.names == THETA_NAMES + ("b",) and ext.dim == 6
+    assert ext.low[:5].tolist() == THETA_LOW.tolist() and (ext.low[5], ext.high[5]) == (0, 1)
+    assert set(SPACES) == {"paper", "extended"} and policy_space(ext) is ext
+    with pytest.raises(ValueError, match=r"policy space must be one of \['extended', 'paper'\], got 'x'"):
+        policy_space("x")
+    a = ext.sample(3)
+    assert ext.array(ext.theta(a)).tolist() == a.tolist()
+    with pytest.raises(ValueError, match=r"shape \(6,\)"):
+        ext.theta(a[:5])
+
+
+def test_theta_b_bounds_and_paper_array():
+    t = th(b=0.4)
+    assert t.as_array("extended")[-1] == 0.4
+    with pytest.raises(ValueError, match="b = 0.4 is outside the paper's space"):
+        t.as_array()
+    with pytest.raises(ValueError, match=r"b = 1.5 is outside its bounds \[0, 1\]"):
+        th(b=1.5)
+    assert th().as_array("extended")[-1] == 0.0 and Theta.from_array(t.as_array("extended")) == t
+
+
+def test_blend_zero_is_the_paper_reference_bit_for_bit():
+    o = np.array([car(5.3, -0.05, 2.5), car(4.5, -0.2, 4.5)])
+    a = ref(th(), car(5.0, -0.1, 3.0), o)
+    b = ref(th(b=0.0), car(5.0, -0.1, 3.0), o, blend=lap_time_line())
+    for name in ("s_ref", "n_ref", "v_pert", "n_ot", "n_bl"):
+        assert getattr(a, name).tobytes() == getattr(b, name).tobytes()
+
+
+@pytest.mark.parametrize("s0", [0.5, 7.0, 13.5])
+def test_blend_one_is_the_lap_time_line_and_half_is_between(s0):
+    lt = lap_time_line()
+    ego = car(s0, 0.0, 3.0)
+    one = ref(th(b=1.0), ego, blend=lt)
+    on_lt = reference_trajectory(th(), ego, None, lt, TRACK, reachable=False)
+    assert np.array_equal(one.s_ref, on_lt.s_ref) and np.array_equal(one.n_ref, on_lt.n_ref)
+    zero = ref(th(), ego)
+    half = ref(th(b=0.5), ego, blend=lt)
+    np.testing.assert_allclose(half.n_pert, 0.5 * (zero.n_pert + one.n_pert), atol=1e-12)
+    np.testing.assert_allclose(half.v_pert, 0.5 * (zero.v_pert + one.v_pert), atol=1e-12)
+    assert np.abs(one.n_pert - zero.n_pert).max() > 0.01      # the lines do differ here
+
+
+def test_blend_needs_the_second_line():
+    with pytest.raises(ValueError, match="b = 0.5 blends in a second race line"):
+        ref(th(b=0.5), car(5.0, 0.0, 3.0))
+
+
+def test_side_room_passes_on_the_car_s_side_with_room():
+    # the ego 0.02 m left of a car 0.3 m ahead in the middle of the track: pass on the left,
+    # to s1 beside it (the paper's rule stops at s1 - |dn| from the line)
+    o = np.array([car(5.3, 0.0, 2.5)])
+    r = ref(th(s3=0.0), car(5.0, 0.02, 3.0), o, side="room")
+    assert r.side == 1.0 and np.all(r.n_ot > 0)
+    paper = ref(th(s3=0.0), car(5.0, 0.02, 3.0), o)
+    assert r.side == 1.0 and paper.side == 0.0
+    assert np.allclose(r.n_ot, paper.n_ot)         # same side, same size while the ego is left
+
+
+def test_side_room_flips_when_the_edge_leaves_no_room():
+    w = float(TRACK.w_left[0])
+    o = np.array([car(5.3, w - 0.08, 2.5)])        # car ahead near the left edge
+    r = ref(th(s3=0.0), car(5.0, w - 0.06, 3.0), o, side="room")
+    assert r.side == -1.0 and r.n_ot.min() < 0      # ego left of it, but no room there
+    p = ref(th(s3=0.0), car(5.0, w - 0.06, 3.0), o)
+    assert p.n_ot.min() >= 0                        # the paper's rule pushes into the edge
+
+
+def test_held_side_and_bad_side():
+    o = np.array([car(5.3, 0.0, 2.5)])
+    r = ref(th(s3=0.0), car(5.0, 0.05, 3.0), o, side=-1)
+    assert r.side == -1.0 and np.all(r.n_ot < 0)    # held right, although the ego is left
+    far = ref(th(s3=0.0), car(5.0, 0.05, 3.0), np.array([car(15.0, 0.0, 2.5)]), side=-1)
+    assert far.side == 0.0                          # out of the shift's range: nothing to hold
+    with pytest.raises(ValueError, match="side must be None, 'room', 1 or -1, got 'up'"):
+        ref(th(), car(5.0, 0.05, 3.0), o, side="up")
