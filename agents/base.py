@@ -18,6 +18,12 @@ class Agent(Protocol):
     :class:`racing_env.RacingParallelEnv`: own Frenet state, every other car relative to it,
     curvature preview) to an action in the env's action space: a float32 array
     ``[throttle, steering]`` in [-1, 1].
+
+    Optionally, an agent declares ``field_sizes``, the numbers of cars it can race among (a
+    container of ints such as ``range(2, 9)``; default: any). Races check it before the start
+    and name the agent and its car when the field does not fit (see
+    :mod:`agents.observations`, which also has :func:`agents.adapt_observation` to read any
+    field in a fixed layout).
     """
 
     def reset(self, track, agent_id: str, seed: int | None = None) -> None: ...

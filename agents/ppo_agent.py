@@ -19,16 +19,17 @@ nearest others (by progress difference), in index order.
 from __future__ import annotations
 
 import json
-import os
 import pickle
-import tempfile
 import zipfile
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
+from racing_env.files import atomic_path
+
 from .base import register_agent
+from .observations import adapt_observation  # noqa: F401  (also importable from here, as before)
 
 CHECKPOINT_SCHEMA = 1
 META_NAME = "alpha_racer.json"
@@ -45,12 +46,17 @@ def default_checkpoint() -> Path:
 # ---------------------------------------------------------------------- checkpoint files
 def save_checkpoint(model, vec_normalize, path, meta: dict) -> Path:
     """Write ``model`` (SB3 PPO), its ``VecNormalize`` (or None) and ``meta`` to one zip,
-    atomically (temporary file in the same folder, then rename). Returns the path."""
+    atomically (temporary file in the same folder, then rename). Returns the path.
+
+    ``meta`` must give the observation layout the policy reads, ``{"n_cars": N, "n_preview":
+    K}`` (``HeadToHead-v2``'s defaults: 3 and 10), and may hold anything JSON-serialisable
+    (the training config, step counts). The file races as ``ppo:checkpoint=PATH``."""
+    missing = {"n_cars", "n_preview"} - set(meta)
+    if missing:
+        raise ValueError(f"save_checkpoint meta must give the observation layout; missing "
+                         f"{sorted(missing)} (e.g. {{'n_cars': 3, 'n_preview': 10}})")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".zip.tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path, ".zip") as tmp:
         with open(tmp, "wb") as f:          # a file object: SB3 would append ".zip" to a name
             model.save(f)
         meta = {"schema_version": CHECKPOINT_SCHEMA, "kind": "alpha_racer.ppo", **meta}
@@ -58,11 +64,6 @@ def save_checkpoint(model, vec_normalize, path, meta: dict) -> Path:
             z.writestr(META_NAME, json.dumps(meta, indent=2, default=_jsonable))
             if vec_normalize is not None:
                 z.writestr(VECNORM_NAME, pickle.dumps(vec_normalize))
-        os.chmod(tmp, 0o644)                 # mkstemp makes it private; a checkpoint is data
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
     return path
 
 
@@ -76,17 +77,34 @@ def _jsonable(o):
     raise TypeError(f"{type(o).__name__} is not JSON serialisable")
 
 
+SAVE_HINT = ("write one with agents.ppo_agent.save_checkpoint(model, vec_normalize, path, meta), "
+             "or race a plain SB3 zip with ppo:checkpoint=PATH,vecnormalize=PATH_OR_none")
+
+
+def is_sb3_zip(path) -> bool:
+    """True for a zip written by SB3's ``model.save`` (members ``data`` and ``policy.pth``)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            return {"data", "policy.pth"} <= set(z.namelist())
+    except (zipfile.BadZipFile, OSError):
+        return False
+
+
 def read_checkpoint_meta(path) -> dict:
     """The ``alpha_racer.json`` of a checkpoint; a clear ``ValueError`` if the file is not an
-    alpha-racer PPO checkpoint or has another schema version."""
+    alpha-racer PPO checkpoint (naming :func:`save_checkpoint`) or has another schema version."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"PPO checkpoint {str(path)!r} does not exist")
     try:
         with zipfile.ZipFile(path) as z:
             meta = json.loads(z.read(META_NAME))
-    except (zipfile.BadZipFile, KeyError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{str(path)!r} is not an alpha-racer PPO checkpoint ({exc})") from None
+    except KeyError:
+        what = "a plain SB3 model zip" if is_sb3_zip(path) else "an alpha-racer PPO checkpoint"
+        raise ValueError(f"{str(path)!r} is {what} without {META_NAME}: {SAVE_HINT}") from None
+    except (zipfile.BadZipFile, json.JSONDecodeError) as exc:
+        raise ValueError(f"{str(path)!r} is not an alpha-racer PPO checkpoint ({exc}); "
+                         f"{SAVE_HINT}") from None
     if meta.get("schema_version") != CHECKPOINT_SCHEMA:
         raise ValueError(f"PPO checkpoint {str(path)!r} has schema version "
                          f"{meta.get('schema_version')!r}; this code reads {CHECKPOINT_SCHEMA}")
@@ -106,34 +124,11 @@ def load_ppo(path, env=None, **kwargs):
     saved by another SB3 version loads); ``kwargs`` go to ``PPO.load``."""
     from racing_env.extras import require
     PPO = require("stable_baselines3", "the 'ppo' agent").PPO
-    read_checkpoint_meta(path)
+    if not is_sb3_zip(path):
+        read_checkpoint_meta(path)              # the clear error for what is not a checkpoint
     custom = {"lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.0}
     custom.update(kwargs.pop("custom_objects", {}))
     return PPO.load(path, env=env, device="cpu", custom_objects=custom, **kwargs)
-
-
-# ---------------------------------------------------------------------- observations
-def adapt_observation(obs: np.ndarray, n_cars: int, n_preview: int, track_length: float) -> np.ndarray:
-    """Observations (..., 6 M + n_preview) of races with M cars in the layout of ``n_cars``
-    cars: phantoms for missing cars (half a lap behind, otherwise level), the nearest others
-    when there are too many (see the module docstring)."""
-    obs = np.asarray(obs, dtype=np.float32)
-    m, rest = divmod(obs.shape[-1] - n_preview, 6)
-    if rest or m < 1:
-        raise ValueError(f"observation of length {obs.shape[-1]} does not fit 6 N + n_preview "
-                         f"with n_preview = {n_preview}")
-    if m == n_cars:
-        return obs
-    own, preview = obs[..., :6], obs[..., 6 * m:]
-    others = obs[..., 6:6 * m].reshape(obs.shape[:-1] + (m - 1, 6))
-    if m < n_cars:
-        phantom = np.zeros(obs.shape[:-1] + (n_cars - m, 6), dtype=np.float32)
-        phantom[..., 0] = -0.5 * track_length
-        others = np.concatenate([others, phantom], axis=-2)
-    else:
-        near = np.sort(np.argsort(np.abs(others[..., 0]), axis=-1, kind="stable")[..., :n_cars - 1], axis=-1)
-        others = np.take_along_axis(others, near[..., None], axis=-2)
-    return np.concatenate([own, others.reshape(obs.shape[:-1] + (-1,)), preview], axis=-1)
 
 
 # ---------------------------------------------------------------------- the frozen policy
@@ -168,6 +163,12 @@ class FrozenPolicy:
                          np.float32(vec_normalize.clip_obs))
         self.layers = _numpy_actor(policy)
         self.track_length = None
+        self.agent_id = None
+
+    @property
+    def obs_dim(self) -> int:
+        """Length of the observations the policy reads: ``6 n_cars + n_preview``."""
+        return 6 * self.n_cars + self.n_preview
 
     def __getstate__(self):
         state = self.__dict__.copy()
@@ -192,7 +193,16 @@ class FrozenPolicy:
         return x
 
     def act_batch(self, observations: np.ndarray) -> np.ndarray:
-        """Actions (B, 2) float32 for observations (B, D) in this policy's layout."""
+        """Actions (B, 2) float32 for observations (B, D): in this policy's layout, or of
+        another field size once :meth:`reset` gave the track (adapted as :meth:`act` does)."""
+        observations = np.asarray(observations)
+        if observations.shape[-1] != self.obs_dim:
+            if self.track_length is None:
+                raise ValueError(f"agent {self.name!r}: observations of {observations.shape[-1]} "
+                                 f"values, its policy reads {self.obs_dim} ({self.n_cars} cars); "
+                                 f"call reset(track, ...) first to adapt other field sizes")
+            observations = adapt_observation(observations, self.n_cars, self.n_preview,
+                                             self.track_length)
         h = self.normalize(observations)
         if self.layers is None:
             a, _ = self.policy.predict(h, deterministic=True)
@@ -247,14 +257,66 @@ class PPOAgent(FrozenPolicy):
     was trained). Runs on the CPU; deterministic actions.
 
     ``checkpoint``: path of a checkpoint written by ``alpha-racer selfplay`` (files
-    ``checkpoints/*.zip``, ``final/car_K.zip``, ``best.zip`` of its output folder).
+    ``checkpoints/*.zip``, ``final/car_K.zip``, ``best.zip`` of its output folder) or by
+    :func:`save_checkpoint` (an SB3 ``PPO``, its ``VecNormalize`` and the layout in one zip), or
+    a plain SB3 zip of ``model.save`` (for example from a run on ``HeadToHead-v2``): then
+    ``vecnormalize`` is required, the path of the file of its ``VecNormalize.save`` or
+    ``"none"`` if it was trained without one, and the field size is read from the policy's
+    observation size (``n_preview`` curvature values, 10 as the env's default).
     """
 
-    def __init__(self, checkpoint: "str | Path | None" = None):
+    def __init__(self, checkpoint: "str | Path | None" = None, vecnormalize: "str | Path | None" = None,
+                 n_preview: int = 10):
         path = Path(checkpoint) if checkpoint else default_checkpoint()
         self.checkpoint = path
-        self.meta = read_checkpoint_meta(path)
-        model = load_ppo(path)
-        super().__init__(model.policy, load_vecnormalize(path), n_cars=int(self.meta["n_cars"]),
+        self.vecnormalize = None
+        if path.is_file() and is_sb3_zip(path) and not _has_meta(path):
+            if vecnormalize is None:
+                raise ValueError(f"{str(path)!r} is a plain SB3 zip: give its observation "
+                                 f"normalisation, ppo:checkpoint={path},vecnormalize=PATH (the file "
+                                 f"of VecNormalize.save) or vecnormalize=none if it was trained "
+                                 f"without VecNormalize; or {SAVE_HINT.split(', or')[0]}")
+            norm = None
+            if str(vecnormalize).lower() != "none":
+                self.vecnormalize = Path(vecnormalize)
+                norm = _load_vecnormalize_file(self.vecnormalize)
+            model = load_ppo(path)
+            dim = int(np.prod(model.observation_space.shape))
+            n_cars, rest = divmod(dim - int(n_preview), 6)
+            if rest or n_cars < 1:
+                raise ValueError(f"{str(path)!r}: observation size {dim} is not 6 N + n_preview "
+                                 f"with n_preview = {n_preview}; pass ppo:...,n_preview=K")
+            self.meta = {"kind": "sb3", "n_cars": n_cars, "n_preview": int(n_preview)}
+        else:
+            if vecnormalize is not None:
+                raise ValueError(f"vecnormalize={vecnormalize!r} is for plain SB3 zips; "
+                                 f"{str(path)!r} carries its own normalisation")
+            self.meta = read_checkpoint_meta(path)
+            model = load_ppo(path)
+            norm = load_vecnormalize(path)
+        super().__init__(model.policy, norm, n_cars=int(self.meta["n_cars"]),
                          n_preview=int(self.meta["n_preview"]))
         self.policy.set_training_mode(False)
+
+    def model_files(self) -> list[Path]:
+        """The files this agent loaded (for a run's provenance: their content hashes)."""
+        return [self.checkpoint] + ([self.vecnormalize] if self.vecnormalize else [])
+
+
+def _has_meta(path) -> bool:
+    with zipfile.ZipFile(path) as z:
+        return META_NAME in z.namelist()
+
+
+def _load_vecnormalize_file(path: Path):
+    """A ``VecNormalize`` from the pickle file of SB3's ``VecNormalize.save``."""
+    if not path.is_file():
+        raise ValueError(f"vecnormalize file {str(path)!r} does not exist")
+    try:
+        with open(path, "rb") as fh:
+            norm = pickle.load(fh)
+    except Exception as exc:
+        raise ValueError(f"{str(path)!r} is not a VecNormalize.save file ({type(exc).__name__}: {exc})") from None
+    if not hasattr(norm, "obs_rms"):
+        raise ValueError(f"{str(path)!r} holds a {type(norm).__name__}, not an SB3 VecNormalize")
+    return norm

@@ -7,9 +7,13 @@ another config is refused (so results of two configs never mix).
 """
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import os
 from pathlib import Path
+
+from racing_env.files import atomic_path
 
 
 def slug(spec: str) -> str:
@@ -28,9 +32,8 @@ def env_version() -> str:
 def write_text(path, text: str) -> Path:
     """Write ``text`` to ``path`` atomically (temporary file, then rename)."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
     return path
 
 
@@ -39,13 +42,19 @@ def write_json(path, obj) -> Path:
     return write_text(path, json.dumps(obj, indent=2))
 
 
-def claim(path, meta: dict, what: str, overwrite: bool = False) -> None:
+def claim(path, meta: dict, what: str, overwrite: bool = False, provenance: dict | None = None) -> None:
     """Tie the folder of manifest ``path`` to ``meta``: write it if missing (or ``overwrite``),
     else raise a ValueError naming both configs when the stored one differs. ``what`` names
-    the folder's content in the message ("a benchmark", "race data", ...)."""
+    the folder's content in the message ("a benchmark", "race data", ...).
+
+    ``provenance`` (:func:`provenance`: package version, git commit, content hashes of the
+    model files the agents load) is stored beside ``meta`` under ``"provenance"`` and checked
+    on a resume by :func:`check_provenance`: changed weights are refused, a changed version or
+    commit is warned about (naming both)."""
     path = Path(path)
     if path.exists() and not overwrite:
         old = json.loads(path.read_text())
+        stored_prov = old.pop("provenance", None)
         if "env" in meta and "env" not in old:     # made before manifests named the env
             old = {**old, "env": "alpha_racer_v1 or older"}
         if old != meta:
@@ -54,18 +63,127 @@ def claim(path, meta: dict, what: str, overwrite: bool = False) -> None:
                              if old.get(k) != meta.get(k))
             raise ValueError(f"{path.parent} holds {what} of another configuration ({diff}). "
                              f"Use another --out or the same settings to resume")
+        if provenance is not None:
+            merged = check_provenance(stored_prov, provenance, path.parent, what)
+            if merged != stored_prov:
+                write_json(path, {**json.loads(path.read_text()), "provenance": merged})
         return
-    write_json(path, meta)
+    write_json(path, {**meta, "provenance": provenance} if provenance is not None else meta)
+
+
+# ---------------------------------------------------------------------------- provenance
+def sha256_file(path) -> str:
+    """Hex SHA-256 of a file's content."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+@functools.lru_cache(maxsize=None)
+def git_commit() -> str | None:
+    """The commit of the git work tree the ``racing_env`` package is imported from (with
+    ``+dirty`` when its tracked files have uncommitted changes), or None (an installed wheel,
+    no git)."""
+    import subprocess
+    import racing_env
+    root = Path(racing_env.__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,
+                              text=True, timeout=10)
+        if head.returncode:
+            return None
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+
+
+def agent_model_files(spec: str, agent=None) -> list[Path]:
+    """The model and checkpoint files the agent of ``spec`` loads: its ``model_files()`` if it
+    has one (``ppo``: the checkpoint and a ``vecnormalize`` file); for ``alpha``, the shipped
+    model its ``model`` names (both candidates of ``model=auto``) or the path; and any spec
+    parameter value that is an existing file (a plugin's ``weights=...``)."""
+    from agents import make_agent_spec
+    agent = make_agent_spec(spec) if agent is None else agent
+    files: list[Path] = []
+    if callable(getattr(agent, "model_files", None)):
+        files += [Path(f) for f in agent.model_files()]
+    name = getattr(agent, "model_name", None)
+    if spec.partition(":")[0] == "alpha" and isinstance(name, str):
+        from agents.potential import MODEL_DIR, SHIPPED
+        names = ["default", "general"] if name == "auto" else [name]
+        files += [MODEL_DIR / SHIPPED[n] if n in SHIPPED else Path(n) for n in names]
+    for item in filter(None, spec.partition(":")[2].split(",")):
+        value = item.partition("=")[2].strip()
+        if value and Path(value).is_file():
+            files.append(Path(value))
+    seen = {}
+    for f in files:
+        if f.is_file():
+            seen.setdefault(str(f.resolve()), f)
+    return list(seen.values())
+
+
+def provenance(specs=(), agents=None) -> dict:
+    """What made a run, for its manifest: ``package_version``, ``git_commit`` (None outside a
+    git work tree) and ``model_files``: per agent spec, ``{path: sha256}`` of every model or
+    checkpoint file it loads (:func:`agent_model_files`). ``agents``: already built agents of
+    ``specs`` (same order), to avoid building them twice."""
+    from racing_env import __version__
+    files = {}
+    for spec in dict.fromkeys(specs):
+        agent = None if agents is None else agents[list(specs).index(spec)]
+        found = agent_model_files(spec, agent)
+        if found:
+            files[spec] = {str(f.resolve()): sha256_file(f) for f in found}
+    return {"package_version": __version__, "git_commit": git_commit(), "model_files": files}
+
+
+def check_provenance(stored: dict | None, current: dict, folder, what: str) -> dict:
+    """Compare a resumed run's stored provenance with this run's: a model file of an agent
+    whose content changed is refused (``ValueError`` naming the agent, the file and both
+    hashes: the races would mix two different agents); another package version or commit is
+    warned about (naming both) and recorded under ``resumed_with``. Returns the provenance to
+    store (the stored one, with the files of agents new to the run added)."""
+    import warnings
+    if not stored:
+        return current
+    changed = []
+    merged_files = {k: dict(v) for k, v in stored.get("model_files", {}).items()}
+    for spec, files in current.get("model_files", {}).items():
+        old = merged_files.setdefault(spec, {})
+        for path, digest in files.items():
+            if path in old and old[path] != digest:
+                changed.append(f"agent {spec!r}: {path} was sha256 {old[path][:12]}..., "
+                               f"now {digest[:12]}...")
+            old.setdefault(path, digest)
+    if changed:
+        raise ValueError(f"{folder} holds {what} raced with other weights, so resuming would mix "
+                         f"two different agents: {'; '.join(changed)}. Use another --out, or "
+                         f"restore the files")
+    merged = {**stored, "model_files": merged_files}
+    code = ("package_version", "git_commit")
+    if any(stored.get(k) != current.get(k) for k in code):
+        warnings.warn(f"{folder}: resuming {what} made by alpha-racer {stored.get('package_version')} "
+                      f"(commit {stored.get('git_commit')}) with alpha-racer "
+                      f"{current.get('package_version')} (commit {current.get('git_commit')}); "
+                      f"its summary will hold races of both", RuntimeWarning, stacklevel=3)
+        seen = [{k: r.get(k) for k in code} for r in merged.get("resumed_with", [])]
+        now = {k: current.get(k) for k in code}
+        if now not in seen:
+            merged["resumed_with"] = [*merged.get("resumed_with", []), now]
+    return merged
 
 
 def write_npz(path, compressed: bool = False, **arrays) -> Path:
     """Save ``arrays`` to the ``.npz`` file ``path`` atomically."""
     import numpy as np
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:        # a file object: savez would append ".npz" to a name
+    with atomic_path(path, ".npz") as tmp, open(tmp, "wb") as f:   # savez would append ".npz" to a name
         (np.savez_compressed if compressed else np.savez)(f, **arrays)
-    os.replace(tmp, path)
     return path
 
 

@@ -43,8 +43,8 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics as race_metrics
-from .artifacts import (append_jsonl, claim, claim_best_thetas, env_version, read_jsonl,
-                        uses_best_theta, write_json, write_npz, write_text)
+from .artifacts import (append_jsonl, claim, claim_best_thetas, env_version, provenance,
+                        read_jsonl, uses_best_theta, write_json, write_npz, write_text)
 from .parallel import check_backend, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
@@ -222,7 +222,7 @@ class BenchRun:
         (self.out / "states").mkdir(exist_ok=True)
         claim(self.out / "manifest.json",
               {"schema_version": SCHEMA_VERSION, "config": config.to_dict(),
-               "env": env_version()}, "a benchmark")
+               "env": env_version()}, "a benchmark", provenance=provenance(config.agents))
         if uses_best_theta(config.agents):   # a changed best-theta table never mixes in
             claim_best_thetas(self.out, [config.track])
 

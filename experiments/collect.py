@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import claim, write_npz
+from .artifacts import claim, provenance, write_npz
 from .parallel import check_backend, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
@@ -214,7 +214,7 @@ def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     claim(out / "manifest.json", {"schema_version": SCHEMA_VERSION, "config": asdict(config)},
-          "race data")
+          "race data", provenance=provenance())
     todo = [k for k in range(config.n_shards)
             if not shard_is_complete(out / f"shard_{k:05d}.npz", config, k)]
     done_races = config.races - sum(len(config.shard_races(k)) for k in todo)

@@ -42,14 +42,14 @@ import json
 import math
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from . import metrics as race_metrics
-from .artifacts import (append_jsonl, claim, claim_best_thetas, env_version, read_jsonl,
-                        uses_best_theta, write_json, write_text)
+from .artifacts import (append_jsonl, claim, claim_best_thetas, env_version, provenance,
+                        read_jsonl, uses_best_theta, write_json, write_text)
 from .bench import check_agent_specs, wilson_interval
 from .parallel import check_backend, run_tasks_with_progress
 
@@ -157,22 +157,50 @@ def round_groups(config: LeagueConfig, rnd: int) -> list[tuple[int, ...]]:
     return balanced_groups(k, n, config.max_groups, rng)
 
 
-def schedule(config: LeagueConfig) -> list[ScheduledRace]:
-    """Every race of the league, in schedule order (the module docstring); pure."""
+def schedule(config: LeagueConfig, stages=None) -> list[ScheduledRace]:
+    """Every race of the league, in schedule order (the module docstring); pure.
+
+    ``stages``: the numbers of agents the league had as agents joined it (``[3, 4]``: three
+    agents raced first, the fourth joined later; default one stage of all agents). The races
+    of the first stage are those of a league of its agents alone, unchanged by later joins;
+    each later stage adds only the groups that hold at least one of its new agents (every
+    such group while there are at most ``max_groups``, else a sample of ``max_groups`` drawn
+    from the seed), with the same rounds, rotations and tracks, numbered on from the races
+    before them."""
+    stages = [len(config.agents)] if stages is None else list(stages)
+    if stages[-1] != len(config.agents) or any(b <= a for a, b in zip(stages, stages[1:])) \
+            or stages[0] < config.cars:
+        raise ValueError(f"league stages must grow from at least {config.cars} to "
+                         f"{len(config.agents)} agents, got {stages}")
     races = []
     n = config.cars
+    first = replace(config, agents=config.agents[:stages[0]])
     for rnd in range(config.rounds):
-        groups = round_groups(config, rnd)
-        slots = [(rot, track, g) for rot in range(n) for track in config.tracks for g in groups]
-        shuffle = np.random.default_rng(np.random.SeedSequence([config.seed, rnd, 2]))
-        for i in shuffle.permutation(len(slots)):
-            rot, track, g = slots[i]
-            k = len(races)
-            races.append(ScheduledRace(
-                index=k, round=rnd, rotation=rot, track=track,
-                agents=tuple(config.agents[a] for a in g),
-                order=tuple((j + rot) % n for j in range(n)), seed=config.race_seed(k)))
+        _add_round(races, config, rnd, round_groups(first, rnd), (config.seed, rnd, 2))
+    for before, now in zip(stages, stages[1:]):
+        for rnd in range(config.rounds):
+            groups = [g for g in itertools.combinations(range(now), n) if g[-1] >= before]
+            if len(groups) > config.max_groups:
+                rng = np.random.default_rng(np.random.SeedSequence([config.seed, rnd, 3, before]))
+                groups = [groups[i] for i in sorted(rng.choice(len(groups), config.max_groups,
+                                                               replace=False))]
+            _add_round(races, config, rnd, groups, (config.seed, rnd, 2, before))
     return races
+
+
+def _add_round(races: list, config: LeagueConfig, rnd: int, groups, shuffle_key) -> None:
+    """Append round ``rnd`` of ``groups`` (every rotation on every track, shuffled by
+    ``shuffle_key``) to ``races``, numbered on."""
+    n = config.cars
+    slots = [(rot, track, g) for rot in range(n) for track in config.tracks for g in groups]
+    shuffle = np.random.default_rng(np.random.SeedSequence(list(shuffle_key)))
+    for i in shuffle.permutation(len(slots)):
+        rot, track, g = slots[i]
+        k = len(races)
+        races.append(ScheduledRace(
+            index=k, round=rnd, rotation=rot, track=track,
+            agents=tuple(config.agents[a] for a in g),
+            order=tuple((j + rot) % n for j in range(n)), seed=config.race_seed(k)))
 
 
 # ---------------------------------------------------------------------------- one race
@@ -445,13 +473,44 @@ class LeagueRun:
     def __init__(self, out_dir, config: LeagueConfig):
         self.out = Path(out_dir)
         self.config = config
-        self.races = schedule(config)
         self.out.mkdir(parents=True, exist_ok=True)
+        manifest = self.out / "manifest.json"
+        self.stages, joining = self._stages(manifest, config)
+        self.races = schedule(config, self.stages)
         meta = {"schema_version": SCHEMA_VERSION, "config": asdict(config), "env": env_version()}
+        if len(self.stages) > 1:
+            meta["stages"] = self.stages
         # compared as stored: JSON turns the config's tuples into lists
-        claim(self.out / "manifest.json", json.loads(json.dumps(meta)), "a league")
+        meta = json.loads(json.dumps(meta))
+        if joining:              # agents join: the stored manifest is of the league before them
+            stored = json.loads(manifest.read_text())
+            claim(manifest, {k: v for k, v in stored.items() if k != "provenance"}, "a league",
+                  provenance=provenance(config.agents))
+            merged = json.loads(manifest.read_text())["provenance"]
+            write_json(manifest, {**meta, "provenance": merged})
+        else:
+            claim(manifest, meta, "a league", provenance=provenance(config.agents))
         if uses_best_theta(config.agents):   # a changed best-theta table never mixes in
             claim_best_thetas(self.out, config.tracks)
+
+    @staticmethod
+    def _stages(manifest: Path, config: LeagueConfig) -> tuple[list[int], bool]:
+        """The league's stages (see :func:`schedule`) and whether agents join now: the stored
+        stages, plus one when ``config`` adds agents to the stored league (its agents first,
+        in their order, every other setting equal); a league of another configuration is left
+        for :func:`claim` to refuse."""
+        if not manifest.exists():
+            return [len(config.agents)], False
+        stored = json.loads(manifest.read_text())
+        old = stored.get("config", {})
+        stages = list(stored.get("stages") or [len(old.get("agents", []))])
+        now = json.loads(json.dumps(asdict(config)))
+        old_agents, new_agents = old.get("agents", []), now["agents"]
+        same_rest = {k: v for k, v in old.items() if k != "agents"} == \
+            {k: v for k, v in now.items() if k != "agents"}
+        if same_rest and len(new_agents) > len(old_agents) and new_agents[:len(old_agents)] == old_agents:
+            return stages + [len(new_agents)], True
+        return (stages if old_agents == new_agents else [len(config.agents)]), False
 
     @property
     def records_path(self) -> Path:
@@ -516,6 +575,7 @@ def check_field(agents, cars: int, track: str) -> None:
                 run_race([spec] + ["raceline"] * (cars - 1), track=track, max_cycles=1,
                          start="regions", order=list(range(cars)), progress_bar=False)
         except Exception as exc:
+            exc = getattr(exc, "agent_error", exc)        # this message names the agent already
             raise ValueError(f"agent {spec!r} cannot race in a field of {cars} cars on "
                              f"{track!r}: {type(exc).__name__}: {exc}") from None
 

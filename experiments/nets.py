@@ -5,7 +5,6 @@ checkpointed every epoch / ``save_every`` steps and resumed from its checkpoint)
 model they turn into, and the gap statistics and summary both report."""
 from __future__ import annotations
 
-import os
 import sys
 import time
 from dataclasses import dataclass
@@ -16,6 +15,8 @@ from tqdm import tqdm
 
 from agents.mlp import MLP
 from agents.potential import PotentialModel
+
+from racing_env.files import atomic_path
 
 from .artifacts import write_json, write_text
 
@@ -135,9 +136,8 @@ def save_model(model: PotentialModel, metrics: dict, out: Path, card_text, comma
 
 
 def _save_atomic_torch(obj, path: Path, torch):
-    tmp = path.with_suffix(".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
 
 
 class Normalised:

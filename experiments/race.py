@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from agents import make_agent_spec
+from agents import check_field_size, make_agent_spec
 from racing_env import RacingParallelEnv
 from racing_env.config import RulesConfig
+from racing_env.gym_env import act_named
 
 from .artifacts import write_json
 from .metrics import race_metrics
@@ -99,6 +100,8 @@ def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_
     env = RacingParallelEnv(track=track, n_cars=len(agent_names), max_cycles=max_cycles,
                             laps=laps, start=start)
     agents = [make_agent_spec(spec) for spec in agent_names]
+    for agent, spec, agent_id in zip(agents, agent_names, env.possible_agents):
+        check_field_size(agent, len(agents), agent_id, spec)
     obs, _ = env.reset(seed=seed, options=None if order is None else {"order": list(order)})
     for k, (a, agent_id) in enumerate(zip(agents, env.possible_agents)):
         a.reset(env.track, agent_id, seed + 1000 * (k + 1))
@@ -113,7 +116,7 @@ def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_
             actions = {}
             for k, agent_id in enumerate(env.possible_agents):
                 t0 = time.perf_counter()
-                actions[agent_id] = agents[k].act(obs[agent_id])
+                actions[agent_id] = act_named(agents[k], obs[agent_id], agent_id, agent_names[k])
                 decide[k] += time.perf_counter() - t0
             t0 = time.perf_counter()
             obs, _, _, _, _ = env.step(actions)

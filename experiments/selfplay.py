@@ -50,7 +50,6 @@ import csv
 import io
 import json
 import math
-import os
 import shutil
 import time
 from dataclasses import asdict, dataclass, field, fields
@@ -58,6 +57,8 @@ from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
+
+from racing_env.files import atomic_path
 
 from .artifacts import claim, write_json, write_text
 from .imitation import behaviour_cloning
@@ -440,10 +441,9 @@ def plot_learning_curve(out: Path, state: SelfPlayState, cfg: SelfPlayConfig) ->
                       f"{cfg.steps_per_turn_actual} steps per turn")
     fig.tight_layout()
     path = out / "learning_curve.png"
-    tmp = out / "learning_curve.tmp.png"
-    fig.savefig(tmp, dpi=110)
+    with atomic_path(path, ".png") as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    os.replace(tmp, path)
     return path
 
 

@@ -8,7 +8,12 @@ Location, in this order:
    ``~/Library/Caches/alpha-racer`` on macOS, ``%LOCALAPPDATA%\\alpha-racer\\Cache`` on Windows;
 3. when that folder cannot be created or written (a read-only or missing home in a container
    or on a cluster node), a private temporary folder, ``$TMPDIR/alpha-racer-<uid>``, with a
-   warning. Everything still works; compiled code is just rebuilt once per temporary folder.
+   warning: one line, once per process, when the cache is first used (not on ``import`` or
+   ``alpha-racer --version`` / ``--help``). Everything still works; compiled code is just
+   rebuilt once per temporary folder.
+
+When Matplotlib's own config folder cannot be written either, ``MPLCONFIGDIR`` is pointed at
+``matplotlib/`` of the cache (Matplotlib would otherwise warn on every import).
 
 Sub-folders: ``numba/<hash>/`` (the compiled kernels of ``racing_env`` and ``agents``, in a
 folder named by a hash of both packages' sources, :func:`kernel_sources_hash`), ``mpc/`` (the
@@ -84,10 +89,12 @@ def _private_temp_root() -> Path:
     return folder if safe else Path(tempfile.mkdtemp(prefix=f"{APP_NAME}-"))
 
 
-def cache_root() -> Path:
+def cache_root(defer_warning: bool = False) -> Path:
     """The cache folder in use (see the module docstring): ``$ALPHA_RACER_CACHE``, else the
-    per-user cache folder, else (with a warning) a private temporary folder. Resolved once per
-    value of ``ALPHA_RACER_CACHE``; raises OSError only if no temporary folder is writable."""
+    per-user cache folder, else (with a one-line warning, once) a private temporary folder.
+    Resolved once per value of ``ALPHA_RACER_CACHE``; raises OSError only if no temporary folder
+    is writable. ``defer_warning`` (used at import) keeps the warning until the cache is first
+    used (:func:`notice`), so ``alpha-racer --version`` or ``--help`` print none."""
     requested = os.environ.get(ENV_VAR, "")
     if requested in _resolved:
         return _resolved[requested]
@@ -96,7 +103,8 @@ def cache_root() -> Path:
         if not str(root).startswith("~"):          # relative to the working directory
             root = root.absolute()
     else:
-        root, what = default_cache_root(), f"the default cache folder (set {ENV_VAR} to choose one)"
+        root = default_cache_root()
+        what = f"the default cache folder {str(root)!r}"
     why = _writable(root)
     if why is not None:
         fallback = _private_temp_root()
@@ -104,17 +112,34 @@ def cache_root() -> Path:
         if why_tmp is not None:
             raise OSError(f"alpha-racer has no writable cache folder: {what}: {why}; temporary "
                           f"folder: {why_tmp}. Set {ENV_VAR} to a writable folder.")
-        warnings.warn(f"alpha-racer cannot write to {what}: {why}. Compiled code and racing lines "
-                      f"go to the temporary folder {str(fallback)!r} instead; set {ENV_VAR} to a "
-                      f"writable folder to keep them.", RuntimeWarning, stacklevel=3)
+        why = why.replace(f" ({str(root)!r})", "")
+        _pending.append(f"alpha-racer cannot write to {what} ({why}): its compiled code and racing "
+                        f"lines go to the temporary folder {str(fallback)!r} instead. Set "
+                        f"{ENV_VAR} to a writable folder to keep them.")
+        if not defer_warning:
+            notice()
         root = fallback
     _resolved[requested] = root
     return root
 
 
-def cache_dir(sub: str | None = None) -> Path:
-    """The cache folder, or its sub-folder ``sub`` (``"numba"``, ``"mpc"``, ``"raceline"``),
-    created if missing."""
+_pending: list[str] = []            # the fallback warning, until the cache is first used
+
+
+def notice() -> None:
+    """Emit the cache-fallback warning held back at import (once per process; see
+    :func:`cache_root`): one line, ``alpha-racer cache: RuntimeWarning: ...``, with no source
+    line under it. Called when the cache is first used: :func:`cache_dir`, a new race core."""
+    while _pending:
+        warnings.warn_explicit(_pending.pop(0), RuntimeWarning, "alpha-racer cache", 0,
+                               module="racing_env.cache")
+
+
+def cache_dir(sub: str | None = None, quiet: bool = False) -> Path:
+    """The cache folder, or its sub-folder ``sub`` (``"numba"``, ``"mpc"``, ``"raceline"``,
+    ``"matplotlib"``), created if missing. Emits the held-back fallback warning unless ``quiet``."""
+    if not quiet:
+        notice()
     folder = cache_root() if sub is None else cache_root() / sub
     folder.mkdir(parents=True, exist_ok=True)
     return folder
@@ -149,14 +174,51 @@ def kernel_sources_hash(folders=None) -> str:
     return sources_hash([path for folder in folders for path in sorted(Path(folder).rglob("*.py"))])
 
 
+def matplotlib_config_dir() -> Path:
+    """Matplotlib's default config folder (where it would go without ``MPLCONFIGDIR``):
+    ``$XDG_CONFIG_HOME/matplotlib`` or ``~/.config/matplotlib`` on Linux and the BSDs,
+    ``~/.matplotlib`` elsewhere (as ``matplotlib.get_configdir`` finds it, without importing it)."""
+    import sys
+    if sys.platform.startswith(("linux", "freebsd")):
+        xdg = os.environ.get("XDG_CONFIG_HOME")
+        return Path(xdg or Path.home() / ".config") / "matplotlib"
+    return Path.home() / ".matplotlib"
+
+
+def _configure_matplotlib() -> None:
+    """Point Matplotlib's config and font cache into ``matplotlib/`` of our cache when its own
+    default folder cannot be written (it would warn on every import and rebuild its font cache
+    each time); ``MPLCONFIGDIR``, when set, is left alone."""
+    if os.environ.get("MPLCONFIGDIR"):
+        return
+    try:
+        default = matplotlib_config_dir()
+    except (RuntimeError, KeyError):        # no home directory at all
+        default = Path("~")
+    if not _could_write(default):
+        os.environ["MPLCONFIGDIR"] = str(cache_dir("matplotlib", quiet=True))
+
+
+def _could_write(folder: Path) -> bool:
+    """Whether ``folder`` is, or could be created as, a writable folder, judged without
+    creating anything (the home folder stays untouched when Matplotlib is never imported)."""
+    if not folder.is_absolute():
+        return False
+    for p in (folder, *folder.parents):
+        if p.exists():
+            return p.is_dir() and os.access(p, os.W_OK | os.X_OK)
+    return False
+
+
 def _configure() -> None:
     """Export the resolved folder and point numba's cache into it (see the module docstring)."""
-    root = cache_root()
+    root = cache_root(defer_warning=True)
     os.environ[ENV_VAR] = str(root)
     _resolved.setdefault(str(root), root)
+    _configure_matplotlib()
     if not os.environ.get("NUMBA_CACHE_DIR"):
         import numba
-        numba.config.CACHE_DIR = str(cache_dir("numba") / kernel_sources_hash())
+        numba.config.CACHE_DIR = str(cache_dir("numba", quiet=True) / kernel_sources_hash())
 
 
 _configure()

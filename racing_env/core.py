@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .cache import notice
 from .config import RaceConfig, StartConfig
 from .simulator import TrackTables, advance, advance_parallel, observe, observe_parallel
 
@@ -85,6 +86,7 @@ class BatchedRaces:
                  n_races: int = 1, seed: int | None = None):
         if not (isinstance(n_races, (int, np.integer)) and n_races >= 1):
             raise ValueError(f"n_races must be a positive integer, got {n_races!r}")
+        notice()                    # the cache-fallback warning, if any, once per process
         self.track = make_track(track)
         self.config = config or RaceConfig()
         self.n_races = int(n_races)
@@ -135,14 +137,22 @@ class BatchedRaces:
 
         ``seed`` reseeds the race generator (same seed, same starts). ``order`` fixes the
         start regions of the cars (see :func:`start_states`); ``start`` overrides the config.
+        A reset that raises (a bad order, cars that do not fit) leaves every race and the
+        generator as they were.
         """
-        if seed is not None:
-            self.rng = np.random.default_rng(seed)
         idx = np.arange(self.n_races) if races is None else np.atleast_1d(races)
         start = start or self.config.start
-        for b in idx:
-            self.state[b] = start_states(self.track, self.n_cars, start, self.config.vehicle.width,
-                                         self.rng, order)
+        if seed is not None:
+            rng = np.random.default_rng(seed)
+        else:                       # a copy: a failed draw must not advance the race generator
+            rng = np.random.Generator(type(self.rng.bit_generator)())
+            rng.bit_generator.state = self.rng.bit_generator.state
+        # every start first (each may raise), then the races change: a failed reset changes nothing
+        starts = [start_states(self.track, self.n_cars, start, self.config.vehicle.width, rng, order)
+                  for _ in idx]
+        self.rng = rng
+        for b, x in zip(idx, starts):
+            self.state[b] = x
             self.start[b] = self.state[b]
             self.s_line[b] = self.state[b, :, 0].max()
             self.t[b] = 0

@@ -9,7 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from .config import RaceConfig, StartConfig
-from .parallel_env import RacingParallelEnv
+from .parallel_env import RacingParallelEnv, _check_reset_options, check_reward_options
 from .track import Track
 
 
@@ -22,6 +22,33 @@ an agent instance (an object with ``reset(track, agent_id, seed)`` and ``act(obs
 def _is_agent(obj) -> bool:
     """An agent instance (a class with ``act`` and ``reset`` is a factory, not an agent)."""
     return not isinstance(obj, type) and callable(getattr(obj, "act", None)) and callable(getattr(obj, "reset", None))
+
+
+def agent_label(agent, spec: str | None = None) -> str:
+    """How errors name an agent: its spec string if given, else its ``name`` or class name."""
+    if spec:
+        return repr(spec)
+    return repr(getattr(agent, "name", None) or type(agent).__name__)
+
+
+def act_named(agent, observation, car: str, spec: str | None = None):
+    """``agent.act(observation)``; a ``ValueError``, ``TypeError`` or ``IndexError`` raised in it
+    (a shape mismatch: "operands could not be broadcast together ...") is raised again, of the
+    same type, with the agent, its car and the observation size named."""
+    try:
+        return agent.act(observation)
+    except (ValueError, TypeError, IndexError) as exc:
+        msg = str(exc)
+        if car in msg:
+            raise
+        size = np.shape(observation)[-1] if np.ndim(observation) else "?"
+        try:
+            named = type(exc)(f"agent {agent_label(agent, spec)} driving {car} (observation of "
+                              f"{size} values): {msg}")
+        except Exception:
+            raise exc from None
+        named.agent_error = exc         # the agent's own error, for callers that name it themselves
+        raise named from exc
 
 
 def make_opponent(spec: OpponentSpec, k: int = 0):
@@ -63,15 +90,23 @@ class HeadToHeadEnv(gym.Env):
 
     **Observation space**: ``car_0``'s observation in :class:`RacingParallelEnv` (own Frenet
     state, opponents relative to it, curvature preview), ``Box`` float32 of ``6 N + n_preview``.
+    Scales (default track and car): own ``s`` 0..38.9 m, ``n`` within +-0.4 m, ``vx`` 0..4.2
+    m/s, ``vy`` and ``omega`` mostly within +-1 m/s and +-6 rad/s, relative ``s`` a few metres,
+    curvature within +-1.3 1/m. The ``Box`` bounds are the envelope, not a scale: normalise
+    with running statistics (SB3's ``VecNormalize``; ``VecMonitor`` logs ``ep_rew_mean``).
 
-    **Reward**: ``car_0``'s relative progress per step, the change of ``s_0 - max_{j>0} s_j`` [m].
+    **Reward**: ``car_0``'s relative progress per step, the change of ``s_0 - max_{j>0} s_j`` [m]
+    (the paper's reward, the default), minus ``offtrack_penalty`` [m] on every step the
+    learner's off-track rule applies (default 0: off track then costs only the rule's
+    slow-down, and a learner may learn to ride outside the edge).
 
     **Starting state**: as :class:`RacingParallelEnv` (``start``: ``"regions"`` by default, or
     ``"grid"``, ``"random"``, a :class:`racing_env.StartConfig`); ``reset(seed)`` draws the
     race's seed from the env's ``np_random``, opponent k is reset with that seed + k + 1.
 
-    **Episode end**: ``terminated`` when a car completes ``laps`` (if set); ``truncated`` after
-    ``max_cycles`` steps (default 500 = 50 s).
+    **Episode end**: ``terminated`` when a car completes ``laps`` (if set), or, with
+    ``terminate_off_track=True`` (default False, the paper's rule), when the learner goes off
+    track; ``truncated`` after ``max_cycles`` steps (default 500 = 50 s).
 
     **Arguments**: ``opponents``: a sequence, one per opponent car, of agent spec strings
     (``"mpc:zeta=0.9"``, built by :func:`agents.make_agent_spec`), factories (callables
@@ -81,7 +116,13 @@ class HeadToHeadEnv(gym.Env):
     two :class:`racing_env.controllers.RacelineFollower` s on the speed profiles of friction
     0.75 and 0.8. ``n_cars`` defaults to ``1 + len(opponents)``. Other keywords (``track``,
     ``max_cycles``, ``laps``, ``start``, ``vehicle``, ``rules``, ``config``, ``render_mode``)
-    go to :class:`RacingParallelEnv`. ``reset(options=...)`` accepts ``start`` and ``order``.
+    go to :class:`RacingParallelEnv`. ``offtrack_penalty`` (0.0, m per step off track) and
+    ``terminate_off_track`` (False) apply to the learner only (opponents are not learning).
+    ``reset(options=...)`` accepts ``start`` and ``order``.
+
+    **Attributes**: ``observation_space`` and ``action_space`` (the ``Box`` es above, ``car_0``'s
+    spaces of the underlying :class:`RacingParallelEnv`, ``self.race``); ``opponents`` (the
+    opponent agents, in car order from ``car_1``); ``learner`` (``"car_0"``).
 
     **Info**: the learner's per-step info of the parallel env.
 
@@ -94,11 +135,14 @@ class HeadToHeadEnv(gym.Env):
 
     def __init__(self, opponents: Sequence | None = None, track: "str | Track" = "default",
                  render_mode: str | None = None, config: RaceConfig | None = None,
-                 start: "str | StartConfig | None" = None, **kwargs):
+                 start: "str | StartConfig | None" = None, offtrack_penalty: float = 0.0,
+                 terminate_off_track: bool = False, **kwargs):
         if opponents is None:
             opponents = default_opponents()
         if isinstance(opponents, str) or _is_agent(opponents):
             raise ValueError(f"opponents must be a sequence (one per opponent car), got {opponents!r}")
+        self.offtrack_penalty, self.terminate_off_track = check_reward_options(
+            offtrack_penalty, terminate_off_track)
         self.opponents = [make_opponent(o, k) for k, o in enumerate(opponents)]
         n_cars = kwargs.pop("n_cars", 1 + len(self.opponents))
         if n_cars != 1 + len(self.opponents):
@@ -112,7 +156,41 @@ class HeadToHeadEnv(gym.Env):
         self.action_space = self.race.action_space(self.learner)
         self._last_obs = None
 
-    def reset(self, *, seed=None, options=None):
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start a new race against freshly reset opponents.
+
+        Parameters
+        ----------
+        seed : int, optional
+            Seeds the env's ``np_random``, from which the race's seed is drawn (the start
+            positions; opponent k is reset with that seed + k + 1). None continues the stream.
+        options : dict, optional
+            ``start`` (``"regions"``, ``"grid"``, ``"random"`` or a :class:`StartConfig`, for
+            this race only) and ``order`` (``order[i]``: start region of car i, 0 = R1).
+
+        Returns
+        -------
+        observation : numpy.ndarray
+            The learner's first observation (see ``observation_space``).
+        info : dict
+            The learner's info dict (as :meth:`RacingParallelEnv.reset` gives it).
+
+        Raises
+        ------
+        ValueError
+            On a bad option (unknown key, start mode, order, or ``n_cars``: the car count is
+            fixed by the opponents). Options are checked first: after the error the env, its
+            random stream included, is as it was.
+        """
+        options = dict(options or {})
+        if "n_cars" in options and options["n_cars"] != self.race.core.n_cars:
+            raise ValueError(f"reset option n_cars = {options['n_cars']!r}: the Gymnasium env races "
+                             f"{self.race.core.n_cars} cars (the learner and {len(self.opponents)} "
+                             f"opponents); make a new env to race another number")
+        unknown = set(options) - {"n_cars", "start", "order"}
+        if unknown:
+            raise ValueError(f"unknown reset options {sorted(unknown)}; known: start, order")
+        _check_reset_options(options, self.race.core)
         super().reset(seed=seed)
         race_seed = int(self.np_random.integers(2 ** 31))
         obs, infos = self.race.reset(seed=race_seed, options=options)
@@ -122,17 +200,85 @@ class HeadToHeadEnv(gym.Env):
         return obs[self.learner], infos[self.learner]
 
     def step(self, action):
+        """Advance by one control period (0.1 s): the learner's action, the opponents' own.
+
+        Parameters
+        ----------
+        action : array_like
+            ``[throttle, steering]`` in ``[-1, 1]`` (see ``action_space``; clipped).
+
+        Returns
+        -------
+        observation : numpy.ndarray
+            The learner's new observation.
+        reward : float
+            The change of ``s_0 - max_{j>0} s_j`` [m], minus ``offtrack_penalty`` when the
+            learner is off track.
+        terminated : bool
+            ``laps`` completed by the first car, or the learner off track with
+            ``terminate_off_track``.
+        truncated : bool
+            ``max_cycles`` steps reached.
+        info : dict
+            The learner's info (``contact``, ``off_track``, ``laps``, ``progress``,
+            ``substeps``, ``contacts``, ``off_tracks``).
+
+        Raises
+        ------
+        RuntimeError
+            Before :meth:`reset`, or after the episode ended.
+        ValueError
+            A NaN action or one of another shape than ``(2,)``.
+        """
+        if self._last_obs is None:
+            raise RuntimeError("step() called before reset(); call reset() first")
         actions = {self.learner: np.asarray(action, dtype=np.float32)}
         for k, opp in enumerate(self.opponents):
             agent = self.race.possible_agents[k + 1]
-            actions[agent] = opp.act(self._last_obs[agent])
+            actions[agent] = act_named(opp, self._last_obs[agent], agent)
         obs, rew, term, trunc, infos = self.race.step(actions)
         self._last_obs = obs
         a = self.learner
-        return obs[a], rew[a], term[a], trunc[a], infos[a]
+        reward, terminated, truncated = rew[a], term[a], trunc[a]
+        if self.offtrack_penalty or self.terminate_off_track:
+            if infos[a]["off_track"]:
+                reward = reward - self.offtrack_penalty
+                if self.terminate_off_track and not terminated:
+                    terminated, truncated = True, False
+                    self.race.agents = []
+        return obs[a], reward, terminated, truncated, infos[a]
+
+    def state(self) -> np.ndarray:
+        """The global joint state: :meth:`RacingParallelEnv.state` of the race.
+
+        Returns
+        -------
+        numpy.ndarray
+            float32 ``(6 N,)``, every car's ``(s, n, mu, vx, vy, omega)``, ``s`` unwrapped.
+
+        Raises
+        ------
+        RuntimeError
+            Before the first :meth:`reset`.
+        """
+        return self.race.state()
 
     def render(self):
+        """Draw the race (:meth:`RacingParallelEnv.render`).
+
+        Returns
+        -------
+        numpy.ndarray or None
+            ``render_mode="rgb_array"``: the frame ``(H, W, 3)`` uint8; ``"human"``: None
+            (shown in a window); no render mode: warns and returns None.
+
+        Raises
+        ------
+        RuntimeError
+            Before the first :meth:`reset`.
+        """
         return self.race.render()
 
-    def close(self):
+    def close(self) -> None:
+        """Close the ``"human"`` window if one is open."""
         self.race.close()

@@ -7,8 +7,9 @@ and env ``b`` behaves exactly like ``gymnasium.make("alpha_racer/HeadToHead-v2")
 Gymnasium's ``SyncVectorEnv`` seeds it (``seed + b``), autoreset included (``NEXT_STEP``:
 the step after an episode end returns the new episode's first observation, reward 0).
 
-Imports stable-baselines3 (the batched core lives in :mod:`racing_env.vec_env`);
-``import racing_env`` alone does not load this module.
+Needs only the core install (no stable-baselines3: the batched races live in
+:mod:`racing_env.batched_env`; the SB3 ``VecEnv`` is :mod:`racing_env.vec_env`, behind the
+``learn`` extra). ``import racing_env`` alone does not load this module.
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from gymnasium.vector.utils import batch_space
 
 from .config import RaceConfig
 from .track import Track
-from .vec_env import HeadToHeadVecEnv
+from .batched_env import HeadToHeadBatch
 
 
 class HeadToHeadVectorEnv(VectorEnv):
@@ -44,7 +45,7 @@ class HeadToHeadVectorEnv(VectorEnv):
     def __init__(self, num_envs: int = 8, opponents: Sequence | None = None,
                  track: "str | Track" = "default", config: RaceConfig | None = None,
                  max_episode_steps: int | None = None, **kwargs):
-        self._batch = HeadToHeadVecEnv(num_envs, opponents=opponents, track=track, config=config,
+        self._batch = HeadToHeadBatch(num_envs, opponents=opponents, track=track, config=config,
                                        **kwargs)
         self.num_envs = self._batch.num_envs
         self.single_observation_space = self._batch.observation_space
@@ -94,8 +95,8 @@ class HeadToHeadVectorEnv(VectorEnv):
                 for b in np.flatnonzero(~done):
                     acts[b, k + 1] = opp[b].act(obs[b, k + 1])
         _, rew, term, trunc = self.core.step(acts)
+        rew, term = self._batch._learner_step(rew, term)
         trunc = (trunc & ~term) | (self.core.t >= self._time_limit)
-        rew = rew[:, 0].copy()
         for b in np.flatnonzero(done):
             self._batch._reset_race(int(b), None, None)
         rew[done], term[done], trunc[done] = 0.0, False, False

@@ -7,11 +7,24 @@ from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from .config import RaceConfig, RulesConfig, StartConfig
-from .core import BatchedRaces
+from .core import BatchedRaces, start_states
 from .track import Track
 from .vehicle import VehicleParams
 
+RESET_OPTIONS = ("n_cars", "start", "order")
 
+
+def check_reward_options(offtrack_penalty, terminate_off_track) -> tuple[float, bool]:
+    """Validated ``(offtrack_penalty, terminate_off_track)`` of an env (see
+    :class:`RacingParallelEnv`): a finite penalty >= 0 [m per step off track] and a bool."""
+    if isinstance(offtrack_penalty, (bool, np.bool_)) or not isinstance(
+            offtrack_penalty, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(offtrack_penalty) or offtrack_penalty < 0:
+        raise ValueError(f"offtrack_penalty must be a finite number >= 0 (metres of reward taken "
+                         f"per step off track), got {offtrack_penalty!r}")
+    if not isinstance(terminate_off_track, (bool, np.bool_)):
+        raise ValueError(f"terminate_off_track must be True or False, got {terminate_off_track!r}")
+    return float(offtrack_penalty), bool(terminate_off_track)
 
 
 class RacingParallelEnv(ParallelEnv):
@@ -43,12 +56,27 @@ class RacingParallelEnv(ParallelEnv):
     last ``n_preview``          track curvature [1/m] at ``s_i + k * preview_ds``, k = 0..
     ==========================  =============================================================
 
+    Scales, for normalisation (default track, 38.9 m; default vehicle, top speed 4.2 m/s):
+    own ``s`` in ``[0, L)``; ``n`` within the walls (+-0.40 m; the track edges are at
+    +-0.25 m); ``mu`` in ``[-pi, pi]``, a few tenths on track; ``vx`` 0..4.2 m/s; ``vy`` and
+    ``omega`` mostly within +-1 m/s and +-6 rad/s; relative ``s`` a few metres in a close race
+    and at most a lap or two in 50 s; curvature within +-1.3 1/m. The bounds of the ``Box``
+    (:meth:`racing_env.BatchedRaces.observation_bounds`) are guaranteed, not typical: own
+    ``s``, ``n``, ``mu`` and the curvature are tight, ``vx`` and ``vy`` within 1.5 x top speed
+    + 1 m/s, ``omega`` within +-100 rad/s, relative ``s`` within the +-1e4 m at which it is
+    clipped (no tighter bound holds for every race: contact can push cars back). Normalise
+    with running statistics (SB3's ``VecNormalize``), not with the bounds.
+
     ``state()`` returns the global joint state: every car's ``(s, n, mu, vx, vy, omega)`` with
     unwrapped ``s``, flattened in agent order (``6 N`` float32).
 
     **Reward**: per step, the change of ``s_i - max_{j != i} s_j`` [m] on unwrapped arc
     length (the paper's relative progress; ``s_i`` alone when N = 1). Crossing the start/finish
-    line causes no jump and driving backwards always costs reward.
+    line causes no jump and driving backwards always costs reward. This is the paper's reward,
+    the default. Off track costs nothing in it beyond the rule's slow-down (half the speed,
+    re-aligned), so a learner may find riding outside the edge safe; ``offtrack_penalty`` (m
+    per step, default 0) subtracts that much from a car's reward on every step its off-track
+    rule applies.
 
     **Starting state** (``start``, see :class:`StartConfig`; standing start, ``vx = speed`` = 0
     by default): ``"regions"`` (default, the paper's): car i gets start region ``order[i]`` (a
@@ -61,7 +89,9 @@ class RacingParallelEnv(ParallelEnv):
 
     **Episode end**: truncation after ``max_cycles`` steps (default 500 = 50 s); with ``laps``
     set, termination of every agent when the first car completes that many laps (the line is
-    the start position of the front-most car).
+    the start position of the front-most car); with ``terminate_off_track=True`` (default
+    False, the paper's rule), termination of every agent at the first step on which any car's
+    off-track rule applies.
 
     **Info** (per agent): ``contact`` and ``off_track`` (rule applied this step), ``laps``
     (completed), ``progress`` (m driven since the start), ``substeps`` (RK4 sub-steps used),
@@ -72,10 +102,13 @@ class RacingParallelEnv(ParallelEnv):
     (None), ``start`` (``"regions"``, ``"grid"`` or ``"random"``, or a :class:`StartConfig`),
     ``vehicle`` (:class:`VehicleParams`), ``rules`` (:class:`RulesConfig`), ``config`` (a full
     :class:`RaceConfig`; the other keywords override its fields), ``render_mode``
-    (``"human"`` or ``"rgb_array"``).
+    (``"human"`` or ``"rgb_array"``), ``offtrack_penalty`` (0.0) and ``terminate_off_track``
+    (False): the reward and episode-end options above (not part of :class:`RaceConfig`; the
+    defaults are the paper's game).
 
     **Reset options**: ``{"n_cars": int, "start": mode or StartConfig, "order": list}`` where
-    ``order[i]`` is the start region of car i (0 = R1, the front-most region).
+    ``order[i]`` is the start region of car i (0 = R1, the front-most region). All options are
+    checked before anything changes: a reset that raises leaves the env as it was.
 
     **Version History** (``metadata["name"]``; the Gymnasium id ``alpha_racer/HeadToHead-vN``
     carries the same number):
@@ -109,7 +142,8 @@ class RacingParallelEnv(ParallelEnv):
                  max_cycles: int | None = None, laps: int | None = None,
                  start: "str | StartConfig | None" = None, vehicle: VehicleParams | None = None,
                  rules: RulesConfig | None = None, config: RaceConfig | None = None,
-                 render_mode: str | None = None):
+                 render_mode: str | None = None, offtrack_penalty: float = 0.0,
+                 terminate_off_track: bool = False):
         cfg = config or RaceConfig()
         changes = {}
         if n_cars is not None:
@@ -128,6 +162,8 @@ class RacingParallelEnv(ParallelEnv):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, "
                              f"got {render_mode!r}")
+        self.offtrack_penalty, self.terminate_off_track = check_reward_options(
+            offtrack_penalty, terminate_off_track)
         self.render_mode = render_mode
         self.core = BatchedRaces(track, cfg, n_races=1)
         self.track = self.core.track
@@ -152,31 +188,87 @@ class RacingParallelEnv(ParallelEnv):
                                       dtype=np.float32)
         self._actions = np.zeros((1, n, 2))
 
-    def observation_space(self, agent):
-        return self._obs_spaces[agent]
+    def observation_space(self, agent: str) -> spaces.Box:
+        """The observation space of one agent.
 
-    def action_space(self, agent):
-        return self._act_spaces[agent]
+        Parameters
+        ----------
+        agent : str
+            ``"car_0"`` .. ``"car_{N-1}"`` (any of ``possible_agents``).
+
+        Returns
+        -------
+        gymnasium.spaces.Box
+            float32 of shape ``(6 N + n_preview,)``: own Frenet state, the other cars relative
+            to this one, the curvature preview (layout and scales in the class docstring). The
+            bounds are the envelope every observation stays in, not a scale to normalise by.
+        """
+        return self._space(self._obs_spaces, agent)
+
+    def action_space(self, agent: str) -> spaces.Box:
+        """The action space of one agent.
+
+        Parameters
+        ----------
+        agent : str
+            ``"car_0"`` .. ``"car_{N-1}"`` (any of ``possible_agents``).
+
+        Returns
+        -------
+        gymnasium.spaces.Box
+            ``Box(-1, 1, (2,), float32)``: ``[throttle, steering]``, mapped affinely onto the
+            vehicle's ``[d_min, d_max]`` and ``[-delta_max, delta_max]`` rad (positive left).
+            The env applies no steering-rate bound (``VehicleParams.delta_rate_max`` binds
+            the MPC agents only): the steering angle may jump within one step.
+        """
+        return self._space(self._act_spaces, agent)
+
+    def _space(self, table: dict, agent) -> spaces.Box:
+        try:
+            return table[agent]
+        except (KeyError, TypeError):
+            raise ValueError(f"unknown agent {agent!r}; the agents are {self.possible_agents}") from None
 
     @property
     def config(self) -> RaceConfig:
         return self.core.config
 
     # ------------------------------------------------------------------ API
-    def reset(self, seed=None, options=None):
-        options = options or {}
-        unknown = set(options) - {"n_cars", "start", "order"}
-        if unknown:  # the PettingZoo checkers pass arbitrary options; ignore them loudly
-            import gymnasium
-            gymnasium.logger.warn(f"ignoring unknown reset options {sorted(unknown)}; "
-                                  f"known: n_cars, start, order")
-        if "n_cars" in options and options["n_cars"] != self.core.n_cars:
-            self.core.set_n_cars(options["n_cars"])
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        """Start a new race.
+
+        Parameters
+        ----------
+        seed : int, optional
+            Seeds the start positions (same seed, same starts); None continues the current
+            random stream.
+        options : dict, optional
+            ``n_cars`` (1..8: changes the agents and the spaces), ``start`` (``"regions"``,
+            ``"grid"``, ``"random"`` or a :class:`StartConfig`, for this race only) and
+            ``order`` (``order[i]``: start region of car i, 0 = R1, in ``"regions"`` mode).
+            Unknown keys are ignored with a warning (PettingZoo's checkers pass some).
+
+        Returns
+        -------
+        observations : dict[str, numpy.ndarray]
+            Per agent the first observation (see :meth:`observation_space`).
+        infos : dict[str, dict]
+            Per agent the info dict (keys in the class docstring; counts at zero).
+
+        Raises
+        ------
+        ValueError
+            On a bad option (a car count outside 1..8, an unknown start mode, an order that is
+            not a permutation, cars that do not fit on the track). Every option is checked
+            before any state changes, so after the error the env is as it was.
+        """
+        n_cars, start, order = _check_reset_options(options, self.core)
+        if n_cars != self.core.n_cars:
+            self.core.set_n_cars(n_cars)
             self._set_agents()
-        start = _start_config(options["start"], self.config.start) if "start" in options else None
         if seed is not None:
             self.np_random, self.np_random_seed = seeding.np_random(seed)
-        obs = self.core.reset(seed=seed, order=options.get("order"), start=start)
+        obs = self.core.reset(seed=seed, order=order, start=start)
         self._was_reset = True
         self.agents = list(self.possible_agents)
         if self.render_mode == "human":
@@ -185,7 +277,33 @@ class RacingParallelEnv(ParallelEnv):
         return ({a: obs[0, i] for i, a in enumerate(self.agents)},
                 {a: infos[i] for i, a in enumerate(self.agents)})
 
-    def step(self, actions):
+    def step(self, actions: dict):
+        """Advance the race by one control period (0.1 s) with one action per live agent.
+
+        Parameters
+        ----------
+        actions : dict[str, array_like]
+            For every live agent (``self.agents``), ``[throttle, steering]`` in ``[-1, 1]``
+            (see :meth:`action_space`; values outside are clipped).
+
+        Returns
+        -------
+        observations, rewards, terminations, truncations, infos : dict
+            Per live agent: the new observation; the reward (the change of relative progress
+            ``s_i - max_{j != i} s_j`` [m], minus ``offtrack_penalty`` if the car is off
+            track); ``terminated`` (``laps`` completed by the first car, or a car off track
+            with ``terminate_off_track``); ``truncated`` (``max_cycles`` reached); the info
+            dict (contact and off-track flags and counts, laps, progress, sub-steps). When
+            the episode ends, ``agents`` becomes empty.
+
+        Raises
+        ------
+        RuntimeError
+            Before the first :meth:`reset`, or after the episode ended.
+        ValueError
+            An action missing for a live agent, given for an unknown one, of another shape
+            than ``(2,)``, or NaN (naming the agent).
+        """
         if not self.agents:
             if not self._was_reset:
                 raise RuntimeError("step() called before reset(); call reset() first")
@@ -205,7 +323,12 @@ class RacingParallelEnv(ParallelEnv):
                 raise ValueError(f"action of {a} is NaN: {act.tolist()}")
             acts[0, self._index[a]] = act
         obs, rew, term, trunc = self.core.step(acts)
-        term_b, trunc_b = bool(term[0]), bool(trunc[0]) and not bool(term[0])
+        term_b = bool(term[0])
+        if self.offtrack_penalty or self.terminate_off_track:
+            off = self.core.offtrack[0].astype(bool)
+            rew = rew - self.offtrack_penalty * off[None]
+            term_b = term_b or (self.terminate_off_track and bool(off.any()))
+        trunc_b = bool(trunc[0]) and not term_b
         agents = self.agents
         rew = rew[0].tolist()
         infos = self._infos()
@@ -224,15 +347,48 @@ class RacingParallelEnv(ParallelEnv):
         """Per-car info dicts (see the class docstring), in car order."""
         return self.core.infos(0, np.arange(self.core.n_cars))
 
+    def _require_reset(self, what: str) -> None:
+        if not self._was_reset:
+            raise RuntimeError(f"{what} called before reset(): there is no race yet; call reset() first")
+
     def state(self) -> np.ndarray:
+        """The global joint state of the race (for centralised critics).
+
+        Returns
+        -------
+        numpy.ndarray
+            float32 of shape ``(6 N,)``: every car's ``(s, n, mu, vx, vy, omega)`` in agent
+            order, ``s`` unwrapped (it keeps growing across laps); bounds in ``state_space``.
+
+        Raises
+        ------
+        RuntimeError
+            Before the first :meth:`reset`.
+        """
+        self._require_reset("state()")
         return self.core.state[0].reshape(-1).astype(np.float32)
 
     # ------------------------------------------------------------------ rendering
     def render(self):
+        """Draw the race in the ``render_mode`` given to the constructor.
+
+        Returns
+        -------
+        numpy.ndarray or None
+            ``"rgb_array"``: the frame, ``(H, W, 3)`` uint8 (track, racing line, cars, a
+            head-up display of time, positions and laps). ``"human"``: shows it in a window
+            and returns None. Without a render mode: warns and returns None.
+
+        Raises
+        ------
+        RuntimeError
+            Before the first :meth:`reset` (there is no race to draw).
+        """
         if self.render_mode is None:
             import gymnasium
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode=...")
             return None
+        self._require_reset("render()")
         frame = self.render_frame()
         if self.render_mode == "rgb_array":
             return frame
@@ -244,6 +400,7 @@ class RacingParallelEnv(ParallelEnv):
 
     def render_frame(self) -> np.ndarray:
         """RGB frame (H, W, 3) uint8 of the current race, whatever the render mode."""
+        self._require_reset("render_frame()")
         if self._renderer is None:
             from .raceline import get_raceline
             from .render import Renderer
@@ -255,10 +412,38 @@ class RacingParallelEnv(ParallelEnv):
         hud += [f"P{k + 1} car_{i}  lap {c.laps[0, i]}" for k, i in enumerate(order)]
         return self._renderer.frame(c.state[0], hud=hud)
 
-    def close(self):
+    def close(self) -> None:
+        """Close the ``"human"`` window if one is open (the env can still be reset and used)."""
         if self._viewer is not None:
             self._viewer.close()
             self._viewer = None
+
+
+def _check_reset_options(options: dict | None, core: BatchedRaces, known=RESET_OPTIONS):
+    """``(n_cars, start, order)`` of a reset's ``options``, every one checked (by a dry run of
+    the start on a throwaway generator) before the caller changes anything: a car count
+    outside 1..8, a bad start mode, an order that is not a permutation, or cars that do not
+    fit raise ``ValueError`` with the env untouched. Unknown keys are warned about."""
+    options = options or {}
+    unknown = set(options) - set(known)
+    if unknown:  # the PettingZoo checkers pass arbitrary options; ignore them loudly
+        import gymnasium
+        gymnasium.logger.warn(f"ignoring unknown reset options {sorted(unknown)}; "
+                              f"known: {', '.join(known)}")
+    n_cars = options.get("n_cars", core.n_cars)
+    cfg = core.config.with_(n_cars=n_cars) if n_cars != core.n_cars else core.config
+    start = _start_config(options["start"], cfg.start) if "start" in options else None
+    order = options.get("order")
+    if order is not None:
+        try:
+            order = [int(o) for o in order]
+        except (TypeError, ValueError):
+            raise ValueError(f"start order must be a list of start-region indices, got {order!r}") from None
+        if sorted(order) != list(range(cfg.n_cars)):
+            raise ValueError(f"start order must be a permutation of 0..{cfg.n_cars - 1}, got {order}")
+    start_states(core.track, cfg.n_cars, start or cfg.start, cfg.vehicle.width,
+                 np.random.default_rng(0), order)
+    return cfg.n_cars, start, options.get("order")
 
 
 def _start_config(start, base: StartConfig) -> StartConfig:

@@ -20,29 +20,28 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 import numpy as np
-from gymnasium import spaces
-from gymnasium.utils import seeding
 
+from .batched_env import HeadToHeadBatch
 from .config import RaceConfig
-from .core import BatchedRaces
 from .extras import require
-from .gym_env import _is_agent, default_opponents, make_opponent
-from .parallel_env import _start_config
 from .track import Track
 
 VecEnv = require("stable_baselines3.common.vec_env.base_vec_env", "racing_env.vec_env").VecEnv
 
 
-class HeadToHeadVecEnv(VecEnv):
+class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
     """B races of one learner (``car_0``) against embedded opponents, as an SB3 ``VecEnv``.
 
     Arguments as :class:`racing_env.gym_env.HeadToHeadEnv` (``opponents``, ``track``,
-    ``config`` and the :class:`RaceConfig` keywords ``max_cycles``, ``laps``, ``start``,
-    ``vehicle``, ``rules``) plus ``n_envs`` (B). Spaces, rewards, episode ends and the
+    ``config``, the :class:`RaceConfig` keywords ``max_cycles``, ``laps``, ``start``,
+    ``vehicle``, ``rules``, and the reward options ``offtrack_penalty`` and
+    ``terminate_off_track``) plus ``n_envs`` (B). Spaces, rewards, episode ends and the
     per-step info dicts are those of ``HeadToHeadEnv`` plus ``TimeLimit.truncated``; on an
     episode end the info also holds ``terminal_observation`` and the race restarts at once (SB3's
     VecEnv convention). ``seed(s)`` seeds race ``b`` with ``s + b`` at the next reset;
     ``set_options`` takes ``{"start": ..., "order": [...]}`` as ``HeadToHeadEnv.reset`` does.
+    Wrap it in SB3's ``VecMonitor`` to log ``ep_rew_mean`` and in ``VecNormalize`` to
+    normalise observations (their scales are in ``HeadToHeadEnv``'s docstring).
     """
 
     metadata = {"render_modes": []}
@@ -50,60 +49,12 @@ class HeadToHeadVecEnv(VecEnv):
 
     def __init__(self, n_envs: int = 8, opponents: Sequence | None = None,
                  track: "str | Track" = "default", config: RaceConfig | None = None, **kwargs):
-        if not (isinstance(n_envs, (int, np.integer)) and n_envs >= 1):
-            raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
-        if opponents is None:
-            opponents = default_opponents()
-        opponents = list(opponents)
-        cfg = config or RaceConfig()
-        changes = {}
-        n_cars = kwargs.pop("n_cars", 1 + len(opponents))
-        if n_cars != 1 + len(opponents):
-            raise ValueError(f"n_cars = {n_cars} but {len(opponents)} opponents were given; "
-                             f"n_cars must be 1 + number of opponents")
-        changes["n_cars"] = n_cars
-        for key in ("max_cycles", "laps", "vehicle", "rules"):
-            if kwargs.get(key) is not None:
-                changes[key] = kwargs.pop(key)
-        if kwargs.get("start") is not None:
-            changes["start"] = _start_config(kwargs.pop("start"), cfg.start)
-        kwargs.pop("start", None)
-        if kwargs:
-            raise ValueError(f"unknown arguments {sorted(kwargs)}")
-        cfg = cfg.with_(**changes)
-        self.core = BatchedRaces(track, cfg, n_races=int(n_envs))
-        self.track = self.core.track
-        lo, hi = self.core.observation_bounds()
-        super().__init__(int(n_envs), spaces.Box(lo, hi, dtype=np.float32),
-                         spaces.Box(-1.0, 1.0, (2,), dtype=np.float32))
-        self._install(opponents)
-        self._rngs = [None] * self.num_envs          # per-race generators, as HeadToHeadEnv.np_random
+        HeadToHeadBatch.__init__(self, n_envs, opponents=opponents, track=track, config=config,
+                                 **kwargs)
+        VecEnv.__init__(self, self.num_envs, self.observation_space, self.action_space)
         self._obs = None
-        self._actions = np.zeros((self.num_envs, n_cars, 2))
-        self.agent_ids = [f"car_{i}" for i in range(n_cars)]
-
-    @property
-    def config(self) -> RaceConfig:
-        return self.core.config
 
     # ------------------------------------------------------------------ resets
-    def _reset_race(self, b: int, seed: int | None, options: dict | None) -> None:
-        if seed is not None or self._rngs[b] is None:
-            self._rngs[b], _ = seeding.np_random(seed)
-        race_seed = int(self._rngs[b].integers(2 ** 31))
-        options = options or {}
-        unknown = set(options) - {"start", "order"}
-        if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; known: start, order")
-        start = _start_config(options["start"], self.config.start) if "start" in options else None
-        self.core.reset(seed=race_seed, races=[b], order=options.get("order"), start=start)
-        for k, opp in enumerate(self.opponents):
-            agent_id = self.agent_ids[k + 1]
-            if self._batched[k]:
-                opp.reset(self.track, agent_id, race_seed + k + 1)
-            else:
-                opp[b].reset(self.track, agent_id, race_seed + k + 1)
-
     def reset(self):
         for b in range(self.num_envs):
             self._reset_race(b, self._seeds[b], self._options[b])
@@ -128,6 +79,7 @@ class HeadToHeadVecEnv(VecEnv):
                 for b in range(self.num_envs):
                     self._actions[b, k + 1] = opp[b].act(obs[b, k + 1])
         obs, rew, term, trunc = self.core.step(self._actions)
+        rew, term = self._learner_step(rew, term)
         trunc = trunc & ~term
         dones = term | trunc
         infos = self._infos(range(self.num_envs))
@@ -141,35 +93,7 @@ class HeadToHeadVecEnv(VecEnv):
             for b in np.flatnonzero(dones):
                 self.reset_infos[b] = self._infos([b])[0]
         self._obs = obs
-        return obs[:, 0].copy(), rew[:, 0].astype(np.float32), dones, infos
-
-    def _infos(self, races) -> list[dict]:
-        """The learner's info dicts of races ``races`` (keys as the parallel env's)."""
-        return self.core.infos(np.fromiter(races, dtype=np.int64), 0)
-
-    # ------------------------------------------------------------------ VecEnv plumbing
-    def set_opponents(self, opponents: Sequence) -> None:
-        """Replace the opponents (same number); they act from the next step, are reset at the
-        next episode start of each race (call :meth:`reset` to restart every race now)."""
-        opponents = list(opponents)
-        if len(opponents) != len(self.opponents):
-            raise ValueError(f"{len(opponents)} opponents given, the env has {len(self.opponents)}")
-        self._install(opponents)
-
-    def _install(self, opponents: list) -> None:
-        """Build the opponents (specs, factories or agents; see
-        :data:`racing_env.gym_env.OpponentSpec`): a batched agent instance (``act_batch``) acts
-        for all races at once as it is; every other opponent gets one agent of its own per race."""
-        built, batched = [], []
-        for k, opp in enumerate(opponents):
-            if _is_agent(opp) and callable(getattr(opp, "act_batch", None)):
-                built.append(opp)
-                batched.append(True)
-            else:
-                built.append([make_opponent(opp, k) for _ in range(self.num_envs)])
-                batched.append(False)
-        self._batched = batched
-        self.opponents = built
+        return obs[:, 0].copy(), rew.astype(np.float32), dones, infos
 
     def close(self) -> None:
         pass

@@ -311,7 +311,7 @@ def test_a_single_track_collection_keeps_its_schema_and_loads_as_one_group(tmp_p
     assert main(["collect", "--races", "2", "--steps", "5", "--cars", "3", "--shard-size", "1",
                  "--workers", "1", "--out", str(tmp_path)]) == 0
     meta = json.loads((tmp_path / "manifest.json").read_text())
-    assert set(meta) == {"schema_version", "config"} and meta["schema_version"] == 1
+    assert set(meta) == {"schema_version", "config", "provenance"} and meta["schema_version"] == 1
     assert set(meta["config"]) == {"races", "n_cars", "steps", "track", "seed", "races_per_shard",
                                    "start_jitter"}
     with np.load(tmp_path / "shard_00000.npz") as z:

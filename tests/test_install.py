@@ -71,6 +71,49 @@ def test_unwritable_cache_and_home_fall_back_to_a_temp_folder(tmp_path, where):
     assert _kernels(used / "numba", "racing_env")
 
 
+def _unwritable_home(tmp_path) -> dict:
+    blocker = tmp_path / "a-file"            # nothing can be created under a file, even by root
+    blocker.write_text("")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir(exist_ok=True)
+    return _clean_env(TMPDIR=tmp, HOME=blocker)
+
+
+def test_cache_fallback_is_one_line_once_and_not_on_version_or_help(tmp_path):
+    env = _unwritable_home(tmp_path)
+    for args in (["--version"], ["--help"], ["race", "--help"]):
+        r = subprocess.run([sys.executable, "-m", "experiments.cli", *args], cwd=ROOT, env=env,
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0 and r.stderr == "", (args, r.stderr)
+    code = ("import racing_env\nracing_env.parallel_env(n_cars=2)\nracing_env.parallel_env(n_cars=3)\n"
+            "from racing_env.cache import cache_dir, cache_root\ncache_dir('raceline')\nprint(cache_root())")
+    r = _run(code, env)                          # two envs and a cache look-up: one line in all
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1, r.stderr
+    assert "cannot write to the default cache folder" in lines[0] and "Not a directory" in lines[0]
+    used = r.stdout.strip().splitlines()[-1]
+    assert f"temporary folder {used!r}" in lines[0] and "Set ALPHA_RACER_CACHE" in lines[0]
+
+
+def test_import_under_W_error_and_matplotlib_in_our_cache(tmp_path):
+    """``python -W error -c "import racing_env"`` with a writable ALPHA_RACER_CACHE, even
+    without a writable home: Matplotlib's config goes into our cache, so it does not warn."""
+    env = _unwritable_home(tmp_path)
+    env["ALPHA_RACER_CACHE"] = str(tmp_path / "cache")
+    code = ("import os, racing_env, matplotlib.pyplot, matplotlib; "
+            "print(os.environ['MPLCONFIGDIR']); print(matplotlib.get_configdir())")
+    r = subprocess.run([sys.executable, "-W", "error", "-c", code], cwd=ROOT, env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    mpl = str(tmp_path / "cache" / "matplotlib")
+    assert r.stdout.split() == [mpl, mpl]
+    env["HOME"] = str(tmp_path / "home")                # a writable home: Matplotlib's own folder
+    env["MPLCONFIGDIR"] = ""
+    r = _run("import os, racing_env; print(os.environ.get('MPLCONFIGDIR', ''))", env)
+    assert r.returncode == 0 and r.stdout.strip() == "", r.stderr
+
+
 @pytest.mark.slow
 def test_compiled_artefacts_land_under_ALPHA_RACER_CACHE(tmp_path):
     """numba kernels (racing_env's and agents'), the MPC's C library and the racing line all go
@@ -147,7 +190,15 @@ def _script(path: Path, body: str) -> Path:
     return path
 
 
-def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypatch):
+@pytest.fixture
+def fresh_compiler_fallback(monkeypatch):
+    """The compiler fallback as in a new process (it warns once per process)."""
+    from agents.mpc import codegen
+    monkeypatch.setattr(codegen, "_WARNED", False)
+    monkeypatch.setattr(codegen, "_FAILED", set())
+
+
+def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypatch, fresh_compiler_fallback):
     from agents.mpc import MPCConfig, trajectory_function
     from racing_env.vehicle import VehicleParams
 
@@ -176,7 +227,7 @@ def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypat
         np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
 
 
-def test_mpc_agent_races_with_a_failing_compiler(tmp_path, monkeypatch):
+def test_mpc_agent_races_with_a_failing_compiler(tmp_path, monkeypatch, fresh_compiler_fallback):
     from agents import make_agent
     from racing_env import parallel_env
 
@@ -191,6 +242,31 @@ def test_mpc_agent_races_with_a_failing_compiler(tmp_path, monkeypatch):
         a = agent.act(obs["car_0"])
         assert np.all(np.isfinite(a))
         obs, *_ = env.step({"car_0": a})
+
+
+def test_compiler_fallback_warns_once_per_process_in_one_line(tmp_path, monkeypatch,
+                                                            fresh_compiler_fallback):
+    """Three MPC cars with a broken compiler: one warning line in all, and the failing
+    compiler runs once per compiled function, not once per car."""
+    from agents import make_agent
+    from racing_env import parallel_env
+
+    log = tmp_path / "cc.log"
+    monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", str(_script(tmp_path / "cc", f'echo run >> "{log}"\nexit 1\n')))
+    env = parallel_env(n_cars=3, max_cycles=2)
+    obs, _ = env.reset(seed=0)
+    cars = [make_agent("mpc") for _ in range(3)]
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")            # no dedup by the warnings module itself
+        for i, car in enumerate(cars):
+            car.reset(env.track, f"car_{i}")
+        env.step({f"car_{i}": car.act(obs[f"car_{i}"]) for i, car in enumerate(cars)})
+    warned = [str(w.message) for w in record if issubclass(w.category, RuntimeWarning)]
+    assert len(warned) == 1, warned
+    assert "\n" not in warned[0]
+    assert "not compiled" in warned[0] and "exit status 1" in warned[0] and "Set CC" in warned[0]
+    assert log.read_text().count("run") <= 2          # 6 before: every car compiled again
 
 
 def test_CC_is_the_compiler(tmp_path, monkeypatch):
@@ -265,11 +341,34 @@ def _names(reqs) -> set[str]:
 def test_learning_packages_are_an_extra_that_dev_includes():
     project = _pyproject()["project"]
     learn = _names(project["optional-dependencies"]["learn"])
-    assert learn == {"torch", "stable-baselines3", "tensorboard"}
+    assert learn == {"torch", "stable-baselines3", "tensorboard", "rich"}    # rich: SB3's progress_bar
     assert not learn & _names(project["dependencies"])
     assert learn <= _names(project["optional-dependencies"]["dev"])
     assert not [r for r in project["dependencies"] if "==" in r]          # ranges, not pins
     assert project["license"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")
+
+
+def test_metadata_declares_llvmlite_and_every_supported_python():
+    import re
+    project = _pyproject()["project"]
+    assert "llvmlite" in _names(project["dependencies"])       # codegen.py imports llvmlite.ir
+    minimum = re.fullmatch(r">=3\.(\d+)", project["requires-python"]).group(1)
+    versions = sorted(int(c.rsplit(".", 1)[1]) for c in project["classifiers"]
+                      if re.fullmatch(r"Programming Language :: Python :: 3\.\d+", c))
+    assert versions == list(range(int(minimum), versions[-1] + 1)), versions
+    assert sys.version_info[1] in versions
+
+
+def test_package_index_description_renders_without_broken_links():
+    """README.md's pictures and links are repository-relative: the index page gets its own."""
+    import re
+    readme = _pyproject()["project"]["readme"]
+    text = (ROOT / readme).read_text()
+    assert len(text) < 5000 and not re.search(r"!\[", text)           # no images
+    for target in re.findall(r"\]\(([^)\s]+)\)|<(\S+?)>", text):
+        link = next(t for t in target if t)
+        assert link.startswith("https://"), link
+    assert "pip install alpha-racer" in text and "HeadToHead-v2" in text
 
 
 def test_version(capsys):

@@ -19,6 +19,8 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
+from racing_env.files import atomic_path
+
 
 def _cache_root() -> Path:
     """Folder of the compiled predictions: ``mpc/`` of the alpha-racer cache folder."""
@@ -30,9 +32,9 @@ def load_prediction(fn, horizon: int, substeps: int, name: str):
     """The CasADi horizon function ``fn`` (inputs ``x0, U, kap``) as C: generated, compiled to
     ``mpc/<name>_<hash of the code>.so`` in the cache folder (once; the compiler is ``$CC``
     if set, a command such as ``"ccache gcc"``, else ``gcc`` or ``cc``) and loaded, a
-    :class:`CompiledTrajectory`. When there is no compiler, or it fails (its error message is
-    shown), or the library does not load, an :class:`InterpretedTrajectory` with a warning:
-    same results, slower."""
+    :class:`CompiledTrajectory`. When there is no compiler, or it fails (the end of its error
+    message is shown), or the library does not load, an :class:`InterpretedTrajectory`: same
+    results, slower, with one warning line per process (not one per car)."""
     import casadi as ca
 
     gen = ca.CodeGenerator(f"{name}.c", {"with_header": False})
@@ -41,39 +43,59 @@ def load_prediction(fn, horizon: int, substeps: int, name: str):
     flags = ["-O3", "-fPIC", "-shared"]
     key = hashlib.sha1((code + " ".join(flags)).encode()).hexdigest()[:16]
     lib = _cache_root() / f"{name}_{key}.so"
-    interpreted = "the MPC runs its prediction interpreted by CasADi (same results, slower)"
+    if (lib, os.environ.get("CC")) in _FAILED:   # failed before in this process: not retried per car
+        return InterpretedTrajectory(fn)
     if not lib.exists():
         cc = _c_compiler()
         if cc is None:
             cc_env = os.environ.get("CC", "").strip()
-            why = f"CC={cc_env!r} is not a program on the PATH" if cc_env else "set CC or install gcc"
-            warnings.warn(f"no C compiler found ({why}): {interpreted}", RuntimeWarning, stacklevel=3)
-            return InterpretedTrajectory(fn)
+            why = f"CC={cc_env!r} is not a program on the PATH" if cc_env else "no gcc or cc on the PATH"
+            return _interpreted(fn, lib, f"no C compiler found ({why})")
         with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
             src = Path(tmp) / f"{name}.c"
             src.write_text(code)
-            out = Path(tmp) / lib.name
-            cmd = [*cc, *flags, str(src), "-o", str(out)]
             try:
-                subprocess.run(cmd, check=True, capture_output=True, text=True)
-            except subprocess.CalledProcessError as exc:
-                output = (exc.stderr or exc.stdout or "").strip()[-2000:]
-                failure = f"exited with status {exc.returncode}:\n{output}"
-            except OSError as exc:          # not executable, not a program, ...
-                failure = f"could not run: {exc}"
-            else:
-                failure = None
-            if failure is not None:
-                warnings.warn(f"compiling the MPC prediction failed: {shlex.join(cmd)} {failure}\n"
-                              f"{interpreted}", RuntimeWarning, stacklevel=3)
-                return InterpretedTrajectory(fn)
-            os.replace(out, lib)            # atomic: a killed compile leaves no broken library
+                with atomic_path(lib, ".so") as out:   # a killed compile leaves no broken library
+                    cmd = [*cc, *flags, str(src), "-o", str(out)]
+                    _compile(cmd)
+            except _CompileError as exc:
+                return _interpreted(fn, lib, f"compiling it with {shlex.join(cc)} failed ({exc})")
     try:
         return CompiledTrajectory(lib, horizon, substeps, name)
     except (OSError, AttributeError) as exc:  # not a loadable library, or not ours
-        warnings.warn(f"cannot load the compiled MPC prediction {str(lib)!r} ({exc}): {interpreted}",
-                      RuntimeWarning, stacklevel=3)
-        return InterpretedTrajectory(fn)
+        return _interpreted(fn, lib, f"cannot load the compiled {str(lib)!r} ({exc})")
+
+
+_FAILED: set[tuple[Path, str | None]] = set()     # (library, $CC) that failed in this process
+_WARNED = False
+
+
+class _CompileError(Exception):
+    """The compiler did not produce the library (the message says why, on one line)."""
+
+
+def _compile(cmd: list[str]) -> None:
+    try:
+        subprocess.run(cmd, check=True, capture_output=True, text=True)
+    except subprocess.CalledProcessError as exc:
+        output = " ".join((exc.stderr or exc.stdout or "").split())
+        raise _CompileError(f"exit status {exc.returncode}"
+                            + (f": ...{output[-300:]}" if output else "")) from None
+    except OSError as exc:          # not executable, not a program, ...
+        raise _CompileError(f"could not run: {exc}") from None
+
+
+def _interpreted(fn, lib: Path, why: str) -> "InterpretedTrajectory":
+    """The interpreted prediction, with one warning line per process (not one per car): what
+    failed, that the results stay the same, and how to fix it."""
+    global _WARNED
+    _FAILED.add((lib, os.environ.get("CC")))
+    if not _WARNED:
+        _WARNED = True
+        warnings.warn(f"alpha-racer: the MPC prediction is not compiled, {why}; it runs "
+                      f"interpreted by CasADi (same results, slower). Set CC to a working C "
+                      f"compiler to speed it up", RuntimeWarning, stacklevel=4)
+    return InterpretedTrajectory(fn)
 
 
 def _c_compiler() -> list[str] | None:
