@@ -111,6 +111,9 @@ ALLOWED_LAZY = {
     # agents.potential still imports feature_set from agents.features (a module-level
     # __getattr__ forwards it to agents.feature_sets); drop once it imports agents.feature_sets
     ("agents.features", "agents.feature_sets"),
+    # the one import up the layers (an opponent spec string is built by the agents registry
+    # when an env is made, never at import): agents.observations re-exports gym_env helpers
+    ("racing_env.gym_env", "agents"),
 }
 
 
