@@ -201,3 +201,19 @@ def test_extended_space_agent_checks_and_holds_the_pass_side():
     ego, others = joint_state_from_observation(obs["car_0"], 2)
     assert agent._pass_side(ego, others) == agent._held[1]
     assert make_agent_spec("mpc:s1=0.3")._pass_side(ego, others) is None    # paper: its rule
+
+
+@pytest.mark.slow
+def test_the_extended_space_passes_a_racing_line_follower_the_paper_s_best_theta_cannot():
+    """From R2 behind a ``raceline`` follower on ``default`` (seed 7000, 30 s), a fixed theta
+    of the extended space passes it through free space and leads; the track's best fixed theta
+    of the paper's space stays behind (docs: "The extended policy space")."""
+    from experiments.metrics import race_metrics
+    from experiments.race import run_race
+    ext = "mpc:space=extended,q=5,zeta=1.05,s1=0.3,s2=0.5,s3=0,b=1"
+    for spec, passes in ((ext, 1), ("mpc:theta=best", 0)):
+        r, _ = run_race([spec, "raceline", "raceline"], track="default", seed=7000,
+                        max_cycles=300, order=[1, 0, 2], progress_bar=False)
+        m = race_metrics(r.states)
+        assert m["passes"][0] == passes and m["passes_contact"][0] == 0, (spec, m)
+        assert (r.order[0] == 0) == bool(passes), (spec, r.order)
