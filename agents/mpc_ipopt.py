@@ -94,11 +94,13 @@ class IpoptMPC:
 
     def reset(self) -> None:
         self._w0 = None
+        self.last_U = None
 
     def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None,
               init=None) -> np.ndarray:
         """Like :meth:`MPC.solve`; ``init = (X (6, K + 1), U (2, K))`` replaces the warm start
-        by an explicit initial guess (states from ``x0`` on). ``last_U`` (2, K) holds the plan."""
+        by an explicit initial guess (states from ``x0`` on). ``last_U`` (2, K) holds the plan,
+        ``None`` after a failed solve."""
         t0 = time.perf_counter()
         cfg, K = self.cfg, self.cfg.horizon
         x0 = np.asarray(x0, dtype=float)
@@ -138,6 +140,7 @@ class IpoptMPC:
         if not ok or not np.isfinite(w).all():
             self.stats["fallbacks"] += 1
             self._w0 = None
+            self.last_U = None
             return np.array([0.0, u_prev[1]])
         self._w0 = w
         self.last_U = w[self._nx:self._nx + self._nu].reshape(K, 2).T.copy()

@@ -4,6 +4,8 @@
     python benchmarks/mpc_speed.py --quick    # a smoke check
     python benchmarks/mpc_speed.py --quality-only --config sqp_iterations=2 curvature_passes=0
                                               # the plan quality of another MPCConfig
+    python benchmarks/mpc_speed.py --quality-only --line curvature --quality-steps 100
+                                              # a shorter plan-quality check, one line
 
 Both solve the same MPC (K = 15, 3 RK4 sub-steps per stage, same cost and soft constraints) in
 closed loop on the default track, warm-started from their previous solution:
@@ -13,13 +15,19 @@ closed loop on the default track, warm-started from their previous solution:
 2. race: three cars from the paper's start regions, all driven by the solver under test, each
    with two opponents (separation constraints active), 300 steps: solve times of all cars.
 
-3. plan quality: one car driven by the RTI at the limit (zeta = 1), every 5th state of a
-   50 s solo race: the cost of the RTI's plan (its nonlinear rollout, the MPC's own
-   objective with the soft rows' penalty) against IPOPT's optimum of the same problem (the
-   better of IPOPT started from the RTI's plan and from the follower's rollout), both costed
-   on the same rollout model. The goal: within 5% in 90% of the states. ``--config`` sets
-   fields of the :class:`MPCConfig` of both solvers here (IPOPT ignores the RTI's iteration
-   settings, so they still solve the same problem).
+3. plan quality: at every 5th state, the cost of the RTI's plan against IPOPT's optimum of
+   the same problem (same state, reference and opponents; the better of IPOPT started from
+   the RTI's plan and from the follower's rollout). Both plans are costed the same way
+   (:func:`rollout_cost`: the nonlinear rollout with the curvature along the plan's own
+   progress, and the MPC's objective on it with the soft rows' penalty). Solo: one car at
+   the limit (zeta = 1), 500 steps; traffic: two 3-car races from the paper's start regions
+   at the top of the policy box (:data:`TRAFFIC_RACES`), every car driven by the RTI and
+   every car's plan compared, 300 steps each. Both along the curvature line and along the
+   lap-time line (``--line``). Prints the share of states within 5%, the median and the 90th
+   percentile of the relative excess, and the RTI's solve times in those races. The goal:
+   within 5% in 90% of the states. ``--config`` sets fields of the :class:`MPCConfig` of
+   both solvers here (IPOPT ignores the RTI's iteration settings, so they still solve the
+   same problem).
 
 Also prints the env step time beside the MPC time. One core (numba threads = 1).
 """
@@ -69,35 +77,88 @@ def closed_loop(solvers, n_cars, steps, start):
     return env, env_s, info
 
 
-def plan_quality(track, steps: int, every: int, theta: Theta, config: MPCConfig | None = None):
-    """Cost ratios RTI / IPOPT - 1 (array) at every ``every``-th state of a solo race; the RTI
-    with ``config`` (default :class:`MPCConfig`)."""
-    env = RacingParallelEnv(n_cars=1, max_cycles=steps, start=StartConfig(mode="grid"))
-    obs, _ = env.reset(seed=0)
-    rl = get_raceline(env.track)
-    rti, ipopt = MPC(env.track, config=config), IpoptMPC(env.track, config=config)
-    u_prev, gaps = np.zeros(2), []
+def rollout_cost(rti: MPC, x0, U, s_ref, n_ref, q: float, opp) -> float:
+    """The cost of inputs ``U`` (2, K) from state ``x0``, the same for every solver's plan: the
+    nonlinear rollout with the curvature looked up along the plan's own progress (three
+    passes from a constant-speed guess) and the MPC's objective on it (tracking, input rates,
+    the soft rows' quadratic penalty for the track edges and the separations chosen along the
+    rollout; :meth:`MPC._score`)."""
+    K, dt = rti.cfg.horizon, rti.cfg.dt
+    nodes = x0[0] + max(float(x0[3]), 0.5) * dt * np.arange(K + 1)
+    X = rti._plan(x0, U, s_prev=nodes, jacobians=False, passes=3)[0]
+    return rti._merit(X, np.asarray(U, dtype=float), s_ref, n_ref, q, opp)
+
+
+def plan_quality(track, steps: int, every: int, thetas, config: MPCConfig | None = None,
+                 line: str = "curvature", seed: int = 0, start: str = "grid"):
+    """``(gaps, solve_ms)``: the relative excess cost RTI / IPOPT - 1 (array) of every car's plan at every
+    ``every``-th state of a race of ``len(thetas)`` cars, car i driven by the RTI (``config``,
+    default :class:`MPCConfig`) with ``thetas[i]`` along racing line ``line``. IPOPT solves the
+    same problem (same state, reference, opponents) from the RTI's plan and from the
+    follower's rollout, and the better of the two is its optimum; both solvers' plans are
+    costed by :func:`rollout_cost`; and the RTI's solve times [ms] (all cars, after the first
+    three solves of each)."""
+    from racing_env.raceline import RacelineConfig
+    n_cars = len(thetas)
+    env = RacingParallelEnv(track=track, n_cars=n_cars, max_cycles=steps,
+                            start=StartConfig(mode=start))
+    obs, _ = env.reset(seed=seed)
+    rl = get_raceline(env.track, config=RacelineConfig(objective=line))
+    rtis = [MPC(env.track, config=config, line=line) for _ in range(n_cars)]
+    ipopt = IpoptMPC(env.track, config=config)
+    u_prev = [np.zeros(2) for _ in range(n_cars)]
+    gaps = []
     for k in range(steps):
-        ego, _ = joint_state_from_observation(obs["car_0"], 1)
-        ref = reference_trajectory(theta, ego, None, rl, env.track)
-        u = rti.solve(ego, ref.s_ref, ref.n_ref, theta.q, None, u_prev)
-        if k % every == 0 and k > 0:
-            U_rti, J_rti = rti.last_plan
-            X_rti = rti.last_prediction
-            nodes = np.concatenate([[ego[0]], X_rti[0]])
-            costs = []
-            for U0 in (U_rti, rti._follower_warm_start(ego)):
-                X0 = np.column_stack([ego, rti._plan(ego, U0, s_prev=nodes, jacobians=False)[0]])
-                ipopt.solve(ego, ref.s_ref, ref.n_ref, theta.q, None, u_prev, init=(X0, U0))
-                if getattr(ipopt, "last_U", None) is not None:
-                    Xi = rti._plan(ego, ipopt.last_U, s_prev=nodes, jacobians=False)[0]
-                    costs.append(rti._merit(Xi, ipopt.last_U, ref.s_ref, ref.n_ref, theta.q,
-                                            np.zeros((0, 3))))
-            if costs and np.isfinite(J_rti):
-                gaps.append(J_rti / max(min(costs), 1e-12) - 1.0)
-        u_prev = u
-        obs, _, _, _, _ = env.step({"car_0": u.astype(np.float32)})
-    return np.array(gaps)
+        if not env.agents:
+            break
+        actions = {}
+        for i, agent in enumerate(env.possible_agents):
+            theta, rti = thetas[i], rtis[i]
+            ego, others = joint_state_from_observation(obs[agent], n_cars)
+            ref = reference_trajectory(theta, ego, others if len(others) else None, rl,
+                                       env.track)
+            opp = np.zeros((0, 3))
+            nb = [j for j in (ref.ahead, ref.behind) if j >= 0]
+            if nb:
+                o = others[nb]
+                opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, env.track)])
+            u = rti.solve(ego, ref.s_ref, ref.n_ref, theta.q, opp if len(opp) else None,
+                          u_prev[i])
+            if k % every == 0 and k > 0 and rti.last_status == "ok":
+                U_rti = rti.last_plan[0]
+                J_rti = rollout_cost(rti, ego, U_rti, ref.s_ref, ref.n_ref, theta.q, opp)
+                costs = []
+                for U0 in (U_rti, rti._follower_warm_start(ego)):
+                    nodes = ego[0] + max(float(ego[3]), 0.5) * rti.cfg.dt * np.arange(
+                        rti.cfg.horizon + 1)
+                    X0 = np.column_stack([ego, rti._plan(ego, U0, s_prev=nodes, jacobians=False,
+                                                         passes=3)[0]])
+                    ipopt.solve(ego, ref.s_ref, ref.n_ref, theta.q, opp if len(opp) else None,
+                                u_prev[i], init=(X0, U0))
+                    if ipopt.last_U is not None:
+                        costs.append(rollout_cost(rti, ego, ipopt.last_U, ref.s_ref, ref.n_ref,
+                                                  theta.q, opp))
+                if costs and np.isfinite(J_rti):
+                    gaps.append(J_rti / max(min(costs), 1e-12) - 1.0)
+            u_prev[i] = u
+            actions[agent] = u.astype(np.float32)
+        obs, _, _, _, _ = env.step(actions)
+    solve_ms = np.concatenate([list(r.stats["solve_ms"])[3:] for r in rtis])
+    return np.array(gaps), solve_ms
+
+
+SOLO_THETA = Theta(q=THETA.q, zeta=1.0, s1=THETA.s1, s2=THETA.s2, s3=THETA.s3)
+"""The solo plan-quality race's theta: the default agent's at the limit (zeta = 1)."""
+TRAFFIC_RACES = (
+    (0, (Theta(q=5.0, zeta=1.05, s1=0.3, s2=0.5, s3=0.0),
+         Theta(q=10.0, zeta=1.0, s1=0.3, s2=1.0, s3=5.0),
+         Theta(q=20.0, zeta=1.05, s1=0.3, s2=0.75, s3=2.5))),
+    (1, (Theta(q=20.0, zeta=1.0, s1=0.3, s2=1.0, s3=0.0),
+         Theta(q=5.0, zeta=1.05, s1=0.3, s2=0.75, s3=5.0),
+         Theta(q=10.0, zeta=1.05, s1=0.3, s2=0.5, s3=2.5))),
+)
+"""(seed, thetas) of the 3-car plan-quality races: the top of the policy box (zeta 1-1.05,
+s1 0.3, small s2), from the paper's start regions, so that the cars race close together."""
 
 
 def summary(ms):
@@ -128,13 +189,18 @@ def main(argv=None):
                     help="only part 3, the plan quality against IPOPT")
     ap.add_argument("--config", nargs="*", default=[], metavar="KEY=VALUE",
                     help="MPCConfig fields of both solvers in the plan-quality part")
+    ap.add_argument("--line", choices=("curvature", "lap_time", "both"), default="both",
+                    help="racing line(s) of the plan-quality races (default both)")
+    ap.add_argument("--quality-steps", type=int, default=None, metavar="N",
+                    help="steps of every plan-quality race (default 500 solo, 300 traffic)")
     args = ap.parse_args(argv)
+    lines = ("curvature", "lap_time") if args.line == "both" else (args.line,)
     config = parse_config(args.config)
     warnings.simplefilter("ignore")
     numba.set_num_threads(1)
     track = RacingParallelEnv(n_cars=1).track
     if args.quality_only:
-        return report_quality(track, args.quick, config)
+        return report_quality(track, args.quick, config, lines, args.quality_steps)
     solo_steps, race_steps = (120, 60) if args.quick else (250, 300)
     print(f"MPC: K = 15, dt = 0.1 s, default track; solo {solo_steps} steps, race {race_steps} steps")
     print(f"{'solver':<8} {'scenario':<8} {'median ms':>9} {'p99 ms':>7} {'laps s':<18} {'off-track':>9} {'fallbacks':>9}")
@@ -158,24 +224,40 @@ def main(argv=None):
         if name == "RTI":
             print(f"{'':<8} env step with 3 MPC cars: {1e3 * np.median(env_s):.3f} ms median")
     print(f"\nRTI is {med['IPOPT'] / med['RTI']:.0f}x faster than IPOPT (median, race scenario)")
-    report_quality(track, args.quick, config)
+    report_quality(track, args.quick, config, lines, args.quality_steps)
     if len(laps["RTI"]) > 1 and len(laps["IPOPT"]) > 1:
         gap = laps["RTI"][1] / laps["IPOPT"][1] - 1.0
         print(f"flying lap: RTI {laps['RTI'][1]:.3f} s vs converged IPOPT {laps['IPOPT'][1]:.3f} s "
               f"({100 * gap:+.2f} %)")
 
 
-def report_quality(track, quick: bool, config: MPCConfig) -> None:
-    """Print part 3: the RTI's plan cost against IPOPT's at zeta = 1."""
-    gaps = plan_quality(track, 150 if quick else 500, 5,
-                        Theta(q=THETA.q, zeta=1.0, s1=THETA.s1, s2=THETA.s2, s3=THETA.s3), config)
-    if gaps.size:
-        changed = {f.name: getattr(config, f.name) for f in fields(MPCConfig)
-                   if getattr(config, f.name) != getattr(MPCConfig(), f.name)}
-        print(f"\nplan cost, RTI {changed or '(default MPCConfig)'} against IPOPT on the same "
-              f"problem ({gaps.size} states of a solo race at zeta = 1): within 5% in "
-              f"{100 * np.mean(gaps <= 0.05):.0f}% of them, median {100 * np.median(gaps):+.2f}%, "
-              f"p90 {100 * np.percentile(gaps, 90):+.2f}%")
+def report_quality(track, quick: bool, config: MPCConfig, lines=("curvature", "lap_time"),
+                   steps: int | None = None) -> None:
+    """Print part 3: the RTI's plan cost against IPOPT's, alone at zeta = 1 and in 3-car
+    races at the top of the box, along each racing line of ``lines``."""
+    changed = {f.name: getattr(config, f.name) for f in fields(MPCConfig)
+               if getattr(config, f.name) != getattr(MPCConfig(), f.name)}
+    solo_steps = steps or (150 if quick else 500)
+    race_steps = steps or (100 if quick else 300)
+    print(f"\nplan cost, RTI {changed or '(default MPCConfig)'} against IPOPT on the same "
+          f"problem, both costed on the same rollout: every 5th state; solo {solo_steps} "
+          f"steps at zeta = 1, traffic {len(TRAFFIC_RACES)} races of 3 cars x {race_steps} "
+          f"steps at the top of the box")
+    print(f"{'line':<10} {'scenario':<8} {'states':>6} {'within 5%':>9} {'median':>8} "
+          f"{'p90':>8} {'solve median ms':>15} {'p99 ms':>7}")
+    for line in lines:
+        runs = {"solo": [plan_quality(track, solo_steps, 5, (SOLO_THETA,), config, line)],
+                "traffic": [plan_quality(track, race_steps, 5, thetas, config, line, seed,
+                                         "regions") for seed, thetas in TRAFFIC_RACES]}
+        for scenario, results in runs.items():
+            gaps = np.concatenate([g for g, _ in results])
+            ms = np.concatenate([t for _, t in results])
+            if not gaps.size:
+                continue
+            m, p = summary(ms)
+            print(f"{line:<10} {scenario:<8} {gaps.size:>6} {100 * np.mean(gaps <= 0.05):>8.0f}% "
+                  f"{100 * np.median(gaps):>+7.2f}% {100 * np.percentile(gaps, 90):>+7.1f}% "
+                  f"{m:>15.3f} {p:>7.3f}")
 
 
 if __name__ == "__main__":
