@@ -92,6 +92,17 @@ def _mpc_agents(track, thetas, rng=None, agent_ids=None, space: str = "paper") -
     return agents
 
 
+def manifest_config(config: CollectConfig) -> dict:
+    """The config as ``manifest.json`` records it: ``space`` and ``start`` only where they are
+    not the paper's, so that a collection made before they existed keeps its manifest (and
+    resumes)."""
+    d = asdict(config)
+    for key in ("space", "start"):
+        if d[key] == "paper":
+            del d[key]
+    return d
+
+
 def simulate_race(config: CollectConfig, race_index: int) -> dict:
     """Simulate race ``race_index`` of the config; everything random comes from its own seed."""
     from agents.reference import Theta, policy_space
@@ -213,7 +224,7 @@ def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool
     check_backend(backend, workers)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    claim(out / "manifest.json", {"schema_version": SCHEMA_VERSION, "config": asdict(config)},
+    claim(out / "manifest.json", {"schema_version": SCHEMA_VERSION, "config": manifest_config(config)},
           "race data", provenance=provenance())
     todo = [k for k in range(config.n_shards)
             if not shard_is_complete(out / f"shard_{k:05d}.npz", config, k)]

@@ -99,6 +99,15 @@ def theta_box(space: str = "paper") -> tuple[np.ndarray, np.ndarray]:
     return np.array(sp.low, dtype=float), np.array(sp.high, dtype=float)
 
 
+def _manifest_config(config: PolicyMapConfig) -> dict:
+    """The config as ``manifest.json`` records it: ``space`` only where it is not the paper's,
+    so that a map made before the extended space existed keeps its manifest (and resumes)."""
+    d = asdict(config)
+    if d["space"] == "paper":
+        del d["space"]
+    return d
+
+
 def theta_names(space: str = "paper") -> tuple:
     """Parameter names of policy space ``space``, in array order."""
     from agents.reference import policy_space
@@ -203,7 +212,7 @@ class PolicyMapRun:
         self.out.mkdir(parents=True, exist_ok=True)
         # the box goes into "config", so a refusal after a change of the box names it
         meta = {"schema_version": SCHEMA_VERSION,
-                "config": {**asdict(config), "theta_box": {
+                "config": {**_manifest_config(config), "theta_box": {
                     "names": list(theta_names(config.space)), "low": low.tolist(),
                     "high": high.tolist()}},
                 "env": env_version()}
