@@ -4,7 +4,7 @@ maximisation of Phi over the joint theta that the alpha agent runs at every step
 ``load_model("default")`` loads the model shipped in ``agents/models`` (see its model card,
 ``agents/models/MODEL_CARD.md``); any path to a ``model.npz`` written by ``alpha-racer train``
 works too. A model records its feature set (``fixed``, the paper's single-track models, or
-``general``, any track and any field size up to 8 cars; see :func:`agents.features.feature_set`)
+``general``, any track and any field size up to 8 cars; see :func:`agents.feature_sets.feature_set`)
 and that set's version; a model of another version is refused.
 """
 from __future__ import annotations
@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .features import feature_set, scale_theta, unscale_theta
+from .feature_sets import feature_set
+from .features import scale_theta, unscale_theta
 from .mlp import MLP
 from .reference import THETA_HIGH, THETA_LOW
 from .threads import single_blas_thread

@@ -108,8 +108,8 @@ def test_no_import_cycle_among_the_package_modules():
 
 # lazy imports that close a cycle, each until the module that needs it moves on
 ALLOWED_LAZY = {
-    # agents.potential still imports feature_set from agents.features (a module-level
-    # __getattr__ forwards it to agents.feature_sets); drop once it imports agents.feature_sets
+    # agents.features forwards feature_set & co. to agents.feature_sets on first use (a
+    # module-level __getattr__ kept for code that imports them from their old place)
     ("agents.features", "agents.feature_sets"),
     # the one import up the layers (an opponent spec string is built by the agents registry
     # when an env is made, never at import): agents.observations re-exports gym_env helpers
