@@ -322,9 +322,9 @@ def select_best_thetas(cfg: ControlConfig, tracks, out_dir="results/control", wo
     check_agent_specs([cfg.opponents], tracks)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    claim(out / "manifest.json", json.loads(json.dumps(
-        {"schema_version": SCHEMA_VERSION, "config": asdict(cfg), "env": env_name()})),
-        "a best-fixed-theta selection")
+    claim(out / "manifest.json",
+          {"schema_version": SCHEMA_VERSION, "config": asdict(cfg), "env": env_name()},
+          "a best-fixed-theta selection")
     t0 = time.perf_counter()
     maps = {t: PolicyMapRun(track_dir(out, t) / "map", cfg.map_config(t)) for t in tracks}
     tasks = [((t, *key), (run.config, *key, run.thetas[key[2]]))
