@@ -389,7 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = command("race", "race agents head to head, print the result, write an animation")
     r.add_argument("--agents", nargs="+", default=DEFAULT_AGENTS,
                    help="one agent spec per car: an agent name (alpha-racer agents lists them) "
-                        "with optional parameters, e.g. raceline:mu=0.75")
+                        "with optional parameters, e.g. raceline:grip=0.75")
     r.add_argument("--track", default="default",
                    help="default, oval, random:SEED, tumftm:NAME or a TUMFTM .csv path")
     r.add_argument("--seed", type=int, default=0, help="seed of the start positions and the agents")

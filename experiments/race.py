@@ -89,7 +89,7 @@ def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_
              start: str = "regions", laps: int | None = None, render: bool = False,
              progress_bar: bool = True, order=None):
     """Race ``agent_names`` (agent specs, one per car: a registry name with optional
-    parameters, ``"raceline:mu=0.75"``) and return ``(RaceResult, frames)``.
+    parameters, ``"raceline:grip=0.75"``) and return ``(RaceResult, frames)``.
 
     ``order`` (start ``"regions"``): ``order[i]`` is car i's start region (0 = R1, the
     front-most); default a random permutation drawn from ``seed``. ``frames`` is a list of

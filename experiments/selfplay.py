@@ -67,7 +67,8 @@ SCHEMA_VERSION = 1
 VEC_ENVS = ("batched", "dummy", "subproc")
 WARMUP_OPPONENTS = ("raceline", "initial")
 INITS = ("random", "bc")
-RACELINE_MU = (0.75, 0.8, 0.85, 0.7, 0.9, 0.65, 0.95)
+RACELINE_GRIP = (0.75, 0.8, 0.85, 0.7, 0.9, 0.65, 0.95)
+RACELINE_MU = RACELINE_GRIP   # the old name (mu names the heading in the state)
 """Friction of the raceline followers standing in for untrained cars, by opponent slot."""
 OFFTRACK_BAR = 0.05
 
@@ -291,9 +292,9 @@ def _opponents(cfg: SelfPlayConfig, out: Path, state: SelfPlayState, car: int) -
     opps, names = [], []
     for slot, k in enumerate(j for j in range(cfg.n_cars) if j != car):
         if state.trained_turns[k] == 0 and cfg.warmup_opponent == "raceline":
-            mu = RACELINE_MU[slot % len(RACELINE_MU)]
-            opps.append(RacelineFollower(mu=mu))
-            names.append(f"raceline:mu={mu}")
+            grip = RACELINE_GRIP[slot % len(RACELINE_GRIP)]
+            opps.append(RacelineFollower(grip=grip))
+            names.append(f"raceline:grip={grip}")
         else:
             opps.append(frozen_policy(out / state.cars[k]))
             names.append(f"car_{k}@{state.trained_turns[k]}turns")
@@ -468,7 +469,7 @@ def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: SelfPlayState,
                         gamma=cfg.gamma, norm_reward=cfg.norm_reward)
     model = _new_model(cfg, venv, cfg.seed)
     c0 = time.process_time()
-    fit = behaviour_cloning(model, cfg, cfg.seed, race_config(cfg), RACELINE_MU)
+    fit = behaviour_cloning(model, cfg, cfg.seed, race_config(cfg), RACELINE_GRIP)
     state.bc_cpu_seconds = round(time.process_time() - c0, 1)
     path = out / "checkpoints" / "bc_init.zip"
     ev = evaluate_solo(live_policy(model, cfg), cfg)

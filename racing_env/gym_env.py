@@ -73,7 +73,7 @@ def make_opponent(spec: OpponentSpec, k: int = 0):
 def default_opponents() -> list:
     """Two :class:`racing_env.controllers.RacelineFollower` s (envelope scales 0.75 and 0.8)."""
     from .controllers import RacelineFollower
-    return [RacelineFollower(mu=0.75), RacelineFollower(mu=0.8)]
+    return [RacelineFollower(grip=0.75), RacelineFollower(grip=0.8)]
 
 
 class HeadToHeadEnv(gym.Env):

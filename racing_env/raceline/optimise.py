@@ -284,7 +284,7 @@ def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
     line = line_on_grid(track, vehicle, config, s_sub, n_sub, with_lap=False)
     kappa, ds = line["kappa"], line["ds"]
     mus = config.mus
-    lib = [speed_profile(kappa, ds, float(mu), vehicle) for mu in mus]
+    lib = [speed_profile(kappa, ds, float(grip), vehicle) for grip in mus]
     vx_lib = np.array([v for v, _ in lib])
     ax_lib = np.array([a for _, a in lib])
     j = int(np.argmin(np.abs(mus - config.mu_nominal)))
