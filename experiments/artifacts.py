@@ -91,7 +91,7 @@ def sha256_file(path) -> str:
     return h.hexdigest()
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def git_commit() -> str | None:
     """The commit of the git work tree the ``racing_env`` package is imported from (with
     ``+dirty`` when its tracked files have uncommitted changes), or None (an installed wheel,

@@ -431,7 +431,7 @@ def strategy_note(st: dict | None, races: int) -> list[str]:
     if st is None or not st.get("races"):
         return ["", f"Strategy metrics missing for all {races} races (recorded before they "
                     f"existed, and no stored states to compute them from)."]
-    lines = ["", f"Wins by the winner's start region: " + ", ".join(
+    lines = ["", "Wins by the winner's start region: " + ", ".join(
         f"{reg} {w}" for reg, w in st["wins_by_start_region"].items())
         + " (from R2 and behind: wins from behind)."]
     if st["missing"]:
@@ -500,7 +500,7 @@ def paper_table(out_dir, ego: str = "alpha", races: int = 99, steps: int = 500,
 
 
 def paper_table_markdown(table: dict) -> str:
-    lines = [f"# Head-to-head benchmark: the paper's Table 1",
+    lines = ["# Head-to-head benchmark: the paper's Table 1",
              "",
              f"Ego `{table['ego']}` against two opponents of one kind; {table['races']} races per "
              f"case of {table['steps']} steps ({table['steps'] / 10:.0f} s), the ego starting "
@@ -517,7 +517,7 @@ def paper_table_markdown(table: dict) -> str:
         w = s["wins"]
         reg = " / ".join(str(s["by_region"][r]["ego"]["wins"]) if r in s["by_region"] else "-"
                          for r in REGIONS)
-        opp = lambda key: 0.5 * (s[key]["O1"] + s[key]["O2"])
+        opp = lambda key: 0.5 * (s[key]["O1"] + s[key]["O2"])  # noqa: B023
         lines.append(
             f"| {c} | `{case['opponents']}` | {_pct(w['ego'])} | {w['O1']['wins']} | "
             f"{w['O2']['wins']} | {'/'.join(map(str, case['paper_wins']))} | {reg} | "

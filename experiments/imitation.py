@@ -14,7 +14,7 @@ if TYPE_CHECKING:                      # annotations only: selfplay imports this
     from .selfplay import SelfPlayConfig
 
 
-def behaviour_cloning(model, cfg: "SelfPlayConfig", seed: int, race_config: "RaceConfig",
+def behaviour_cloning(model, cfg: SelfPlayConfig, seed: int, race_config: RaceConfig,
                       opponent_mus: Sequence[float]) -> dict:
     """``init="bc"``: pretrain the PPO actor to imitate the raceline follower (DAgger).
 

@@ -310,7 +310,7 @@ def leaderboard(records: list[dict], config: LeagueConfig) -> dict:
         if cars:
             wins = sum(r["ranks"][i] == 1 for r, i in cars)
             lo, hi = wilson_interval(wins, len(cars))
-            mean = lambda key: float(np.mean([r[key][i] for r, i in cars]))
+            mean = lambda key: float(np.mean([r[key][i] for r, i in cars]))  # noqa: B023
             row.update({"wins": int(wins), "win_rate": wins / len(cars), "win_ci95": [lo, hi],
                         "mean_finish": mean("ranks"), "progress_m": mean("progress_m"),
                         "off_tracks": mean("off_tracks"),

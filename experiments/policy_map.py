@@ -26,7 +26,6 @@ Output directory:
 """
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from dataclasses import asdict, dataclass

@@ -163,7 +163,7 @@ class SelfPlayConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "SelfPlayConfig":
+    def from_dict(cls, d: dict) -> SelfPlayConfig:
         known = {f.name for f in fields(cls)}
         unknown = set(d) - known
         if unknown:
@@ -201,7 +201,7 @@ class SelfPlayState:
     done: bool = False
 
     @classmethod
-    def new(cls, cfg: SelfPlayConfig) -> "SelfPlayState":
+    def new(cls, cfg: SelfPlayConfig) -> SelfPlayState:
         """The state of a run that has not started: no checkpoint for any of the cars."""
         return cls(cars=[None] * cfg.n_cars, trained_turns=[0] * cfg.n_cars)
 
@@ -210,7 +210,7 @@ class SelfPlayState:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict, cfg: SelfPlayConfig | None = None) -> "SelfPlayState":
+    def from_dict(cls, d: dict, cfg: SelfPlayConfig | None = None) -> SelfPlayState:
         """From :meth:`to_dict`'s output or an older ``state.json`` (fields it lacks, as
         ``train_cpu_seconds`` and ``bc_cpu_seconds`` in runs before they were recorded, take
         their defaults). With ``cfg``, the lists of cars must have ``cfg.n_cars`` entries.
@@ -231,7 +231,7 @@ class SelfPlayState:
         return state
 
     @classmethod
-    def load(cls, path: Path, cfg: SelfPlayConfig) -> "SelfPlayState":
+    def load(cls, path: Path, cfg: SelfPlayConfig) -> SelfPlayState:
         """``path`` (a ``state.json``) if it exists, else a new state."""
         path = Path(path)
         if not path.exists():
@@ -656,7 +656,7 @@ def model_card(cfg: SelfPlayConfig, summary: dict, state: SelfPlayState) -> str:
              f"{summary['train_seconds']:.0f} s of training wall time ({summary['steps_per_s']} "
              f"steps/s), {summary['train_cpu_seconds']:.0f} CPU s ({summary['steps_per_cpu_s']} steps per CPU s)"
              + (f"; behaviour cloning {summary['bc_cpu_seconds']:.0f} CPU s" if summary.get("bc_cpu_seconds") else ""),
-             "", 
+             "",
              f"Alone on `{cfg.track}` for {cfg.max_cycles / 10:.0f} s ({cfg.eval_races} fixed starts):",
              ""]
     if ref:

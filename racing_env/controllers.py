@@ -87,7 +87,7 @@ class RacelineFollower:
         """The racing line followed (``RacelineConfig.objective``)."""
         return self.raceline_config.objective
 
-    def reset(self, track: "Track | str", agent_id: str = "car_0", seed: int | None = None) -> None:
+    def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         from .raceline import get_raceline
         self.track = make_track(track)
         self.raceline = rl = get_raceline(self.track, self.vehicle, self.raceline_config)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from agents import agent_names, agent_parameters, make_agent_spec, register_agent
+from agents import agent_names, agent_parameters, register_agent
 from agents.base import _REGISTRY, ENTRY_POINT_GROUP
 from agents.reference import THETA_HIGH, THETA_LOW
 from experiments.cli import main

@@ -62,7 +62,7 @@ class _Stations:
 
     @classmethod
     def on(cls, track: Track, vehicle: VehicleParams, config: RacelineConfig,
-           w_len: float) -> "_Stations":
+           w_len: float) -> _Stations:
         """The problem on ``track`` with the shortest-path weight ``w_len`` (0: none)."""
         m_grid = len(track.s_grid)
         n_pts = int(min(m_grid, max(16, math.ceil(track.length / config.point_spacing))))
@@ -186,7 +186,7 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
     n = np.clip(np.zeros(n_pts) if n_init is None else np.asarray(n_init, dtype=float), st.lo,
                 st.hi)
     converged, change, prev_change, alpha, it = False, np.inf, np.inf, 1.0, 0
-    for it in range(1, int(config.max_iter) + 1):
+    for it in range(1, int(config.max_iter) + 1):  # noqa: B007
         hess, grad = st.least_squares(n, exact)
         n_new = qp.solve(hess, grad, x0=n)
         change = float(np.max(np.abs(n_new - n)))     # fixed-point residual [m]

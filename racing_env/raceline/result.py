@@ -44,7 +44,7 @@ class Raceline:
     ``iterations`` / ``converged`` / ``last_change`` [m] of the minimum-curvature iteration,
     ``cost`` / ``cost_center`` the integral of kappa^2 along the path [1/m] of line / centre
     line on the optimisation stations, ``compute_time`` [s]. ``from_cache`` tells whether it was loaded.
-    """
+    """  # noqa: E501
 
     s: np.ndarray
     x: np.ndarray
@@ -206,7 +206,7 @@ class Raceline:
         return d
 
     @classmethod
-    def from_npz_dict(cls, d) -> "Raceline":
+    def from_npz_dict(cls, d) -> Raceline:
         """Inverse of :meth:`to_npz_dict`; raises ``ValueError``/``KeyError`` on bad content."""
         meta = json.loads(str(d["meta"][()]))
         kw = {name: np.array(d[name], dtype=float) for name in _ARRAYS}
@@ -231,7 +231,7 @@ def plot_raceline(track: Track, raceline: Raceline, path, grip=None, dpi: int = 
                   mu=None) -> Path:
     """Write a PNG [path] of the track edges, the centre line and the racing line coloured by
     speed [m/s] (profile for envelope scale ``grip``, default nominal; ``mu``: its deprecated name). Uses matplotlib's Agg canvas directly, so
-    it never touches the global backend."""
+    it never touches the global backend."""  # noqa: E501
     if track is None:
         raise ValueError("plot_raceline needs the track (raceline.track is not set)")
     from matplotlib.backends.backend_agg import FigureCanvasAgg
