@@ -45,6 +45,9 @@ class RacelineFollower:
     profile speed ``speed_preview`` s ahead (so it brakes before corners). Ignores other cars.
     """
 
+    #: shown by ``alpha-racer agents`` beside the deprecated keyword
+    param_notes = {"mu": "deprecated name of grip"}
+
     def __init__(self, vehicle: VehicleParams | None = None, grip: float = 1.0,
                  speed_scale: float = 1.0, line_fraction: float = 0.9, preview_min: float = 0.5,
                  preview_time: float = 0.2, speed_preview: float = 0.3, k_speed: float = 2.0,
