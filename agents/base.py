@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -188,7 +189,7 @@ def _parse_value(text: str):
 
 def make_agent_spec(spec: str) -> Agent:
     """Build an agent from a spec ``name`` or ``name:key=value,key=value`` (command line form),
-    e.g. ``"raceline:mu=0.75,line_fraction=0.8"``; values are parsed as int, float, bool or str.
+    e.g. ``"raceline:grip=0.75,line_fraction=0.8"``; values are parsed as int, float, bool or str.
 
     Every error is a ``ValueError`` naming the spec: an unknown name (with the registered
     names), an unknown key (with the agent's keys), a missing file (a model or checkpoint).

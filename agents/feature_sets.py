@@ -5,7 +5,7 @@ imports it, so the two feature modules do not import each other."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable
 
 from . import features as f
 from . import general_features

@@ -72,7 +72,7 @@ class MLP:
             g = np.broadcast_to(g, h.shape[:-1] + (self.in_dim,))
         return y, g.astype(np.float64)
 
-    def restricted(self, x, free) -> "MLP":
+    def restricted(self, x, free) -> MLP:
         """This network as a function of the inputs ``free`` (column indices, F) alone, the
         others fixed at ``x`` (in,): an MLP of F inputs (unnormalised) sharing the deeper
         layers' weights. The fixed inputs' share of the first layer is computed here once, so
@@ -105,7 +105,7 @@ class MLP:
         return out
 
     @classmethod
-    def from_arrays(cls, z, prefix: str) -> "MLP":
+    def from_arrays(cls, z, prefix: str) -> MLP:
         n = int(z[f"{prefix}n_layers"])
         layers = [(z[f"{prefix}W{i}"], z[f"{prefix}b{i}"]) for i in range(n)]
         ys = z[f"{prefix}y"]

@@ -87,7 +87,7 @@ class PotentialModel:
         return path
 
     @classmethod
-    def load(cls, path) -> "PotentialModel":
+    def load(cls, path) -> PotentialModel:
         with np.load(path) as z:
             meta = json.loads(str(z["meta"]))
             return cls(MLP.from_arrays(z, "v_"), MLP.from_arrays(z, "p_"), meta)

@@ -265,7 +265,7 @@ class PPOAgent(FrozenPolicy):
     observation size (``n_preview`` curvature values, 10 as the env's default).
     """
 
-    def __init__(self, checkpoint: "str | Path | None" = None, vecnormalize: "str | Path | None" = None,
+    def __init__(self, checkpoint: str | Path | None = None, vecnormalize: str | Path | None = None,
                  n_preview: int = 10):
         path = Path(checkpoint) if checkpoint else default_checkpoint()
         self.checkpoint = path

@@ -122,7 +122,7 @@ class Theta:
         return np.array([self.q, self.zeta, self.s1, self.s2, self.s3, self.b], dtype=float)
 
     @classmethod
-    def from_array(cls, a) -> "Theta":
+    def from_array(cls, a) -> Theta:
         """Theta from an array-like in :data:`THETA_NAMES` order (length 5, the paper's space)
         or in the extended space's order (length 6, ``b`` last); ``ValueError`` on a wrong
         shape or a value outside its bounds (naming parameter, value and bounds)."""
@@ -135,7 +135,7 @@ class Theta:
         return cls(*(float(x) for x in arr))
 
     @classmethod
-    def sample(cls, rng: np.random.Generator | int | None = None) -> "Theta":
+    def sample(cls, rng: np.random.Generator | int | None = None) -> Theta:
         """Uniform sample within ``[THETA_LOW, THETA_HIGH]`` (``rng`` a Generator or a seed)."""
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         a = rng.uniform(THETA_LOW, THETA_HIGH)
@@ -177,7 +177,7 @@ class PolicySpace:
         """Number of parameters."""
         return len(self.names)
 
-    def theta(self, a) -> "Theta":
+    def theta(self, a) -> Theta:
         """The :class:`Theta` of an array-like of shape (dim,) (``ValueError`` otherwise)."""
         arr = np.asarray(a, dtype=float)
         if arr.shape != (self.dim,):
@@ -185,7 +185,7 @@ class PolicySpace:
                              f"{self.names}, got shape {arr.shape}")
         return Theta.from_array(arr)
 
-    def array(self, theta: "Theta") -> np.ndarray:
+    def array(self, theta: Theta) -> np.ndarray:
         """``theta``'s parameters in this space's order, shape (dim,)."""
         return theta.as_array(self.name)
 

@@ -203,7 +203,7 @@ def main(argv=None):
         return report_quality(track, args.quick, config, lines, args.quality_steps)
     solo_steps, race_steps = (120, 60) if args.quick else (250, 300)
     print(f"MPC: K = 15, dt = 0.1 s, default track; solo {solo_steps} steps, race {race_steps} steps")
-    print(f"{'solver':<8} {'scenario':<8} {'median ms':>9} {'p99 ms':>7} {'laps s':<18} {'off-track':>9} {'fallbacks':>9}")
+    print(f"{'solver':<8} {'scenario':<8} {'median ms':>9} {'p99 ms':>7} {'laps s':<18} {'off-track':>9} {'fallbacks':>9}")  # noqa: E501
     closed_loop([MPC(track) for _ in range(3)], 3, 30, StartConfig(mode="regions"))   # warm-up (JIT, caches)
     med = {}
     laps = {}

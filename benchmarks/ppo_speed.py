@@ -134,7 +134,7 @@ def main() -> None:
         venv.close()
         rows.append((backend, env_rate, learn_rate))
         cpu_ok = not backend.startswith("subproc")      # workers' CPU time is not this process's
-        fmt = lambda r: f"{r:10.0f}" if cpu_ok else f"{'-':>10}"
+        fmt = lambda r: f"{r:10.0f}" if cpu_ok else f"{'-':>10}"  # noqa: B023
         print(f"{backend:<15} {env_rate[0]:12.0f} {fmt(env_rate[1])}   {learn_rate[0]:17.0f} {fmt(learn_rate[1])}",
               flush=True)
     base = {r[0]: r for r in rows}.get("dummy+predict")

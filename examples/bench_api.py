@@ -12,7 +12,7 @@ from experiments.race import run_race, write_outputs
 
 def main(out: Path) -> dict:
     # One race: agent specs as on the command line, one per car.
-    result, frames = run_race(["mpc:zeta=0.95", "raceline", "raceline:mu=0.7"], track="default",
+    result, frames = run_race(["mpc:zeta=0.95", "raceline", "raceline:grip=0.7"], track="default",
                               seed=0, max_cycles=20, render=True, progress_bar=False)
     print(result.table())
     print("winner:", result.agents[result.order[0]], "| progress [m]:", result.progress.round(2))

@@ -59,7 +59,7 @@ def main(iterations: int = 2) -> list[float]:
     mean_rewards = []
     for i, batch in enumerate(collector):
         with torch.no_grad():
-            loss.value_estimator(batch, params=loss.critic_network_params, target_params=loss.target_critic_network_params)
+            loss.value_estimator(batch, params=loss.critic_network_params, target_params=loss.target_critic_network_params)  # noqa: E501
         for _ in range(4):                        # epochs over the batch
             terms = loss(batch)
             total = terms["loss_objective"] + terms["loss_critic"] + terms["loss_entropy"]

@@ -3,7 +3,9 @@
 A job killed mid-write must leave either the old file or the new one, never half of one:
 every write goes to a temporary file that is then renamed over the target. A resumable job
 claims its folder with :func:`claim`: the first run writes the manifest, a later run with
-another config is refused (so results of two configs never mix).
+another config is refused (so results of two configs never mix). :class:`ResumableRun` is the
+output folder of such a job (bench, league, policy map, the strategy suite's pace races): the
+claim, the records file, the missing tasks and the adding of a finished one, in one place.
 """
 from __future__ import annotations
 
@@ -42,9 +44,16 @@ def write_json(path, obj) -> Path:
     return write_text(path, json.dumps(obj, indent=2))
 
 
+def as_stored(obj):
+    """``obj`` as it reads back from JSON (tuples become lists, dict keys strings), so that a
+    config compares equal with the manifest it wrote."""
+    return json.loads(json.dumps(obj))
+
+
 def claim(path, meta: dict, what: str, overwrite: bool = False, provenance: dict | None = None) -> None:
     """Tie the folder of manifest ``path`` to ``meta``: write it if missing (or ``overwrite``),
-    else raise a ValueError naming both configs when the stored one differs. ``what`` names
+    else raise a ValueError naming both configs when the stored one differs (compared as
+    stored, :func:`as_stored`: a config's tuples equal the stored lists). ``what`` names
     the folder's content in the message ("a benchmark", "race data", ...).
 
     ``provenance`` (:func:`provenance`: package version, git commit, content hashes of the
@@ -52,6 +61,7 @@ def claim(path, meta: dict, what: str, overwrite: bool = False, provenance: dict
     on a resume by :func:`check_provenance`: changed weights are refused, a changed version or
     commit is warned about (naming both)."""
     path = Path(path)
+    meta = as_stored(meta)
     if path.exists() and not overwrite:
         old = json.loads(path.read_text())
         stored_prov = old.pop("provenance", None)
@@ -81,7 +91,7 @@ def sha256_file(path) -> str:
     return h.hexdigest()
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def git_commit() -> str | None:
     """The commit of the git work tree the ``racing_env`` package is imported from (with
     ``+dirty`` when its tracked files have uncommitted changes), or None (an installed wheel,
@@ -233,3 +243,80 @@ def claim_best_thetas(folder, tracks, table=None) -> dict:
           {"config": {t: {"theta": e["theta"], "env": e["env"]} for t, e in entries.items()}},
           "races of a best fixed theta")
     return entries
+
+
+# ---------------------------------------------------------------------------- resumable runs
+class ResumableRun:
+    """The output folder of a resumable job: a manifest that ties it to one configuration
+    (:meth:`claim`) and a JSON-lines file of finished records, one per task, appended and
+    fsynced as each task finishes (:meth:`add`), so that a rerun does only the
+    :meth:`missing` tasks.
+
+    A subclass sets :attr:`what` (the folder's content, for refusals) and
+    :attr:`records_name`, and defines :meth:`tasks` (every task of the run, in order),
+    :meth:`record_key` (a record's key) and, when a task is not its own key,
+    :meth:`task_key`. :meth:`check_record` may drop a record (its other files are missing) or
+    refuse it."""
+
+    what = "a run"
+    records_name = "records.jsonl"
+    manifest_name = "manifest.json"
+
+    def __init__(self, out_dir):
+        self.out = Path(out_dir)
+        self.out.mkdir(parents=True, exist_ok=True)
+
+    @property
+    def manifest_path(self) -> Path:
+        return self.out / self.manifest_name
+
+    @property
+    def records_path(self) -> Path:
+        return self.out / self.records_name
+
+    def claim(self, meta: dict, agents=None, tracks=(), stored: dict | None = None) -> None:
+        """Tie the folder to ``meta`` (:func:`claim`). With ``agents``
+        (agent specs), the run's :func:`provenance` is stored and checked on a resume, and
+        when an agent races the best-theta table, the thetas of ``tracks`` are claimed too
+        (:func:`claim_best_thetas`). ``stored``: the meta the folder must hold when it differs
+        from the one this run writes (a league that agents join holds the league before
+        them); the manifest is then rewritten with ``meta`` and the merged provenance."""
+        prov = None if agents is None else provenance(agents)
+        if stored is None:
+            claim(self.manifest_path, meta, self.what, provenance=prov)
+        else:
+            claim(self.manifest_path, stored, self.what, provenance=prov)
+            merged = json.loads(self.manifest_path.read_text()).get("provenance")
+            write_json(self.manifest_path, meta if prov is None else {**meta, "provenance": merged})
+        if agents is not None and uses_best_theta(agents):   # a changed table never mixes in
+            claim_best_thetas(self.out, tracks)
+
+    def tasks(self) -> list:
+        """Every task of the run, in order."""
+        raise NotImplementedError
+
+    def task_key(self, task):
+        """The key of ``task``'s record (the task itself by default)."""
+        return task
+
+    def record_key(self, record: dict):
+        """The key of a finished ``record``."""
+        raise NotImplementedError
+
+    def check_record(self, record: dict) -> bool:
+        """Whether ``record`` counts as finished (raise to refuse the folder)."""
+        return True
+
+    def records(self) -> dict:
+        """Finished records by key; a torn (partly written) last line is ignored."""
+        return {self.record_key(rec): rec for rec in read_jsonl(self.records_path)
+                if self.check_record(rec)}
+
+    def missing(self) -> list:
+        """The tasks without a finished record, in order."""
+        done = self.records()
+        return [task for task in self.tasks() if self.task_key(task) not in done]
+
+    def add(self, record: dict) -> None:
+        """Store one finished record (one JSON line, flushed and fsynced)."""
+        append_jsonl(self.records_path, record)

@@ -43,8 +43,8 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics as race_metrics
-from .artifacts import (append_jsonl, claim, claim_best_thetas, env_version, provenance,
-                        read_jsonl, uses_best_theta, write_json, write_npz, write_text)
+from .artifacts import (ResumableRun, append_jsonl, env_version, read_jsonl, write_json,
+                        write_npz, write_text)
 from .parallel import check_backend, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
@@ -212,38 +212,38 @@ def bench_race(config: BenchConfig, k: int) -> dict:
 
 
 # ---------------------------------------------------------------------------- storage
-class BenchRun:
+class BenchRun(ResumableRun):
     """The output directory of one benchmark (see the module docstring)."""
 
-    def __init__(self, out_dir, config: BenchConfig):
-        self.out = Path(out_dir)
-        self.config = config
-        self.out.mkdir(parents=True, exist_ok=True)
-        (self.out / "states").mkdir(exist_ok=True)
-        claim(self.out / "manifest.json",
-              {"schema_version": SCHEMA_VERSION, "config": config.to_dict(),
-               "env": env_version()}, "a benchmark", provenance=provenance(config.agents))
-        if uses_best_theta(config.agents):   # a changed best-theta table never mixes in
-            claim_best_thetas(self.out, [config.track])
+    what = "a benchmark"
+    records_name = "races.jsonl"
 
-    @property
-    def records_path(self) -> Path:
-        return self.out / "races.jsonl"
+    def __init__(self, out_dir, config: BenchConfig):
+        super().__init__(out_dir)
+        self.config = config
+        (self.out / "states").mkdir(exist_ok=True)
+        self.claim({"schema_version": SCHEMA_VERSION, "config": config.to_dict(),
+                    "env": env_version()}, config.agents, [config.track])
+
+    def tasks(self) -> list[int]:
+        return list(range(self.config.races))
+
+    def record_key(self, record: dict) -> int:
+        return record["race"]
+
+    def check_record(self, record: dict) -> bool:
+        return self._states_path(record["race"]).exists()
 
     def records(self) -> dict[int, dict]:
-        """Finished races by index; a torn (partly written) last line is ignored."""
-        return {rec["race"]: rec for rec in read_jsonl(self.records_path)
-                if self._states_path(rec["race"]).exists()}
-
-    def missing(self) -> list[int]:
-        done = self.records()
-        return [k for k in range(self.config.races) if k not in done]
+        """Finished races by index (those with their states); a torn (partly written) last
+        line is ignored."""
+        return super().records()
 
     def add(self, result: dict) -> None:
         """Store one race: states first, then its JSON line (a line means a complete race)."""
         rec = result["record"]
         write_npz(self._states_path(rec["race"]), compressed=True, states=result["states"])
-        append_jsonl(self.records_path, rec)
+        super().add(rec)
 
     def _states_path(self, k: int) -> Path:
         return self.out / "states" / f"race_{k:05d}.npz"
@@ -431,7 +431,7 @@ def strategy_note(st: dict | None, races: int) -> list[str]:
     if st is None or not st.get("races"):
         return ["", f"Strategy metrics missing for all {races} races (recorded before they "
                     f"existed, and no stored states to compute them from)."]
-    lines = ["", f"Wins by the winner's start region: " + ", ".join(
+    lines = ["", "Wins by the winner's start region: " + ", ".join(
         f"{reg} {w}" for reg, w in st["wins_by_start_region"].items())
         + " (from R2 and behind: wins from behind)."]
     if st["missing"]:
@@ -500,7 +500,7 @@ def paper_table(out_dir, ego: str = "alpha", races: int = 99, steps: int = 500,
 
 
 def paper_table_markdown(table: dict) -> str:
-    lines = [f"# Head-to-head benchmark: the paper's Table 1",
+    lines = ["# Head-to-head benchmark: the paper's Table 1",
              "",
              f"Ego `{table['ego']}` against two opponents of one kind; {table['races']} races per "
              f"case of {table['steps']} steps ({table['steps'] / 10:.0f} s), the ego starting "
@@ -517,7 +517,7 @@ def paper_table_markdown(table: dict) -> str:
         w = s["wins"]
         reg = " / ".join(str(s["by_region"][r]["ego"]["wins"]) if r in s["by_region"] else "-"
                          for r in REGIONS)
-        opp = lambda key: 0.5 * (s[key]["O1"] + s[key]["O2"])
+        opp = lambda key: 0.5 * (s[key]["O1"] + s[key]["O2"])  # noqa: B023
         lines.append(
             f"| {c} | `{case['opponents']}` | {_pct(w['ego'])} | {w['O1']['wins']} | "
             f"{w['O2']['wins']} | {'/'.join(map(str, case['paper_wins']))} | {reg} | "

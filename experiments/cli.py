@@ -389,7 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = command("race", "race agents head to head, print the result, write an animation")
     r.add_argument("--agents", nargs="+", default=DEFAULT_AGENTS,
                    help="one agent spec per car: an agent name (alpha-racer agents lists them) "
-                        "with optional parameters, e.g. raceline:mu=0.75")
+                        "with optional parameters, e.g. raceline:grip=0.75")
     r.add_argument("--track", default="default",
                    help="default, oval, random:SEED, tumftm:NAME or a TUMFTM .csv path")
     r.add_argument("--seed", type=int, default=0, help="seed of the start positions and the agents")
@@ -483,13 +483,13 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--objective", choices=["mse", "smoothmax", "tail"], default=None,
                     help="potential loss: mse, or the paper's min-max as a smooth maximum or a "
                          f"tail average (default {TrainConfig.objective})")
-    tr.add_argument("--val-fraction", type=float, default=None, help=f"races held out (default {TrainConfig.val_fraction})")
+    tr.add_argument("--val-fraction", type=float, default=None, help=f"races held out (default {TrainConfig.val_fraction})")  # noqa: E501
     tr.add_argument("--rollout-pairs", type=int, default=None,
                     help=f"paired-rollout checks on held-out states (default "
                          f"{TrainConfig.rollout_pairs}; 0 skips)")
     tr.add_argument("--rollout-steps", type=int, default=None,
                     help=f"steps of each paired rollout (default {TrainConfig.rollout_steps})")
-    tr.add_argument("--seed", type=int, default=None, help=f"seed of the split and the training (default {TrainConfig.seed})")
+    tr.add_argument("--seed", type=int, default=None, help=f"seed of the split and the training (default {TrainConfig.seed})")  # noqa: E501
     tr.add_argument("--threads", type=int, default=None,
                     help=f"torch threads and rollout workers (default {TrainConfig.threads})")
     tr.set_defaults(fn=_cmd_train)
@@ -517,7 +517,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="a car's policy before its first turn: random (plain self-play) or "
                          "behaviour-cloned from the raceline follower")
     sp.add_argument("--bc-steps", type=int, default=S.bc_steps, help="expert samples for --init bc")
-    sp.add_argument("--checkpoint-every", type=int, default=S.checkpoint_every, help="rollouts between in-turn checkpoints")
+    sp.add_argument("--checkpoint-every", type=int, default=S.checkpoint_every, help="rollouts between in-turn checkpoints")  # noqa: E501
     sp.add_argument("--eval-races", type=int, default=S.eval_races, help="solo evaluation races after each turn")
     sp.add_argument("--no-mpc-reference", action="store_true", help="skip measuring the MPC alone")
     sp.add_argument("--max-turns", type=int, default=None,
@@ -647,12 +647,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="held-out track specs (random:A-B ranges allowed); default "
                          "random:10000-10019 and the TUMFTM circuits (if the folder exists) "
                          "that the model was not trained on")
-    gr.add_argument("--gap-cars", default=_commas(GeneralReportConfig.gap_cars), help="field sizes of the approximation gap")
+    gr.add_argument("--gap-cars", default=_commas(GeneralReportConfig.gap_cars), help="field sizes of the approximation gap")  # noqa: E501
     gr.add_argument("--gap-races", type=int, default=GeneralReportConfig.gap_races,
                     help="fresh races per field size for the gap")
     gr.add_argument("--gap-pairs", type=int, default=GeneralReportConfig.gap_pairs,
                     help="unilateral deviations per field size")
-    gr.add_argument("--bench-cars", default=_commas(GeneralReportConfig.bench_cars), help="field sizes of the N-car races")
+    gr.add_argument("--bench-cars", default=_commas(GeneralReportConfig.bench_cars), help="field sizes of the N-car races")  # noqa: E501
     gr.add_argument("--bench-rounds", type=int, default=GeneralReportConfig.bench_rounds,
                     help="rounds of N races (the ego from each region once) per track and N")
     gr.add_argument("--default-races", type=int, default=GeneralReportConfig.default_races,

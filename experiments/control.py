@@ -66,13 +66,13 @@ SCHEMA_VERSION = 1
 BEST_FIXED_SPEC = "mpc:theta=best"
 """The control's agent spec: the ``mpc`` agent with the track's best fixed theta."""
 RULE = ("map: Sobol thetas of the box, solo and as car_0 against two opponents (race); "
-        "candidates: thetas with at most {off:g}% of the steps off track in both modes, the top "
+        f"candidates: thetas with at most {100 * OFF_TRACK_LIMIT:g}% of the steps off track in both modes, the top "
         "K by rank of race progress among the thetas from the same start region, then by race "
         "progress minus that region's median, then by the lower Sobol index, plus the best "
         "solo theta by progress; playoff: each candidate as ego in the "
         "same seeded races from every start region against two opponents, ranked by wins, then "
         "mean margin over the best opponent, then the lower Sobol index; the winner is the "
-        "first").format(off=100 * OFF_TRACK_LIMIT)
+        "first")
 """The selection rule in one sentence (stored in every ``selection.json``)."""
 
 
@@ -322,9 +322,9 @@ def select_best_thetas(cfg: ControlConfig, tracks, out_dir="results/control", wo
     check_agent_specs([cfg.opponents], tracks)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    claim(out / "manifest.json", json.loads(json.dumps(
-        {"schema_version": SCHEMA_VERSION, "config": asdict(cfg), "env": env_name()})),
-        "a best-fixed-theta selection")
+    claim(out / "manifest.json",
+          {"schema_version": SCHEMA_VERSION, "config": asdict(cfg), "env": env_name()},
+          "a best-fixed-theta selection")
     t0 = time.perf_counter()
     maps = {t: PolicyMapRun(track_dir(out, t) / "map", cfg.map_config(t)) for t in tracks}
     tasks = [((t, *key), (run.config, *key, run.thetas[key[2]]))

@@ -235,7 +235,7 @@ def general_report(cfg: GeneralReportConfig, out_dir="results/general", workers:
                       if cfg.default_races else [f"alpha:model={cfg.model}", "mpc"])
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    claim(out / "manifest.json", {"config": json.loads(json.dumps(asdict(cfg))),
+    claim(out / "manifest.json", {"config": asdict(cfg),
                                   "heldout_tracks": tracks}, "a general-model report")
     t0 = time.perf_counter()
     # the control on every held-out track: selected first where the table lacks it

@@ -14,7 +14,7 @@ if TYPE_CHECKING:                      # annotations only: selfplay imports this
     from .selfplay import SelfPlayConfig
 
 
-def behaviour_cloning(model, cfg: "SelfPlayConfig", seed: int, race_config: "RaceConfig",
+def behaviour_cloning(model, cfg: SelfPlayConfig, seed: int, race_config: RaceConfig,
                       opponent_mus: Sequence[float]) -> dict:
     """``init="bc"``: pretrain the PPO actor to imitate the raceline follower (DAgger).
 
@@ -40,10 +40,10 @@ def behaviour_cloning(model, cfg: "SelfPlayConfig", seed: int, race_config: "Rac
     from racing_env.vec_env import HeadToHeadVecEnv
 
     rng = np.random.default_rng(seed)
-    opps = [RacelineFollower(mu=opponent_mus[k % len(opponent_mus)]) for k in range(cfg.n_cars - 1)]
+    opps = [RacelineFollower(grip=opponent_mus[k % len(opponent_mus)]) for k in range(cfg.n_cars - 1)]
     env = HeadToHeadVecEnv(cfg.n_envs, opponents=opps, track=cfg.track, config=race_config)
     env.seed(int(rng.integers(2 ** 31)))
-    expert = RacelineFollower(mu=0.85)
+    expert = RacelineFollower(grip=0.85)
     expert.reset(env.track, "car_0")
     vecnorm = model.get_vec_normalize_env()
     policy = model.policy

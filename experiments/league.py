@@ -48,8 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics as race_metrics
-from .artifacts import (append_jsonl, claim, claim_best_thetas, env_version, provenance,
-                        read_jsonl, uses_best_theta, write_json, write_text)
+from .artifacts import ResumableRun, as_stored, env_version, write_json, write_text
 from .bench import check_agent_specs, wilson_interval
 from .parallel import check_backend, run_tasks_with_progress
 
@@ -311,7 +310,7 @@ def leaderboard(records: list[dict], config: LeagueConfig) -> dict:
         if cars:
             wins = sum(r["ranks"][i] == 1 for r, i in cars)
             lo, hi = wilson_interval(wins, len(cars))
-            mean = lambda key: float(np.mean([r[key][i] for r, i in cars]))
+            mean = lambda key: float(np.mean([r[key][i] for r, i in cars]))  # noqa: B023
             row.update({"wins": int(wins), "win_rate": wins / len(cars), "win_ci95": [lo, hi],
                         "mean_finish": mean("ranks"), "progress_m": mean("progress_m"),
                         "off_tracks": mean("off_tracks"),
@@ -467,31 +466,26 @@ def plot_pairwise(board: dict, path, dpi: int = 120) -> Path:
 
 
 # ---------------------------------------------------------------------------- storage
-class LeagueRun:
+class LeagueRun(ResumableRun):
     """The output directory of one league (see the module docstring)."""
 
+    what = "a league"
+    records_name = "races.jsonl"
+
     def __init__(self, out_dir, config: LeagueConfig):
-        self.out = Path(out_dir)
+        super().__init__(out_dir)
         self.config = config
-        self.out.mkdir(parents=True, exist_ok=True)
-        manifest = self.out / "manifest.json"
-        self.stages, joining = self._stages(manifest, config)
+        self.stages, joining = self._stages(self.manifest_path, config)
         self.races = schedule(config, self.stages)
         meta = {"schema_version": SCHEMA_VERSION, "config": asdict(config), "env": env_version()}
         if len(self.stages) > 1:
             meta["stages"] = self.stages
-        # compared as stored: JSON turns the config's tuples into lists
-        meta = json.loads(json.dumps(meta))
-        if joining:              # agents join: the stored manifest is of the league before them
-            stored = json.loads(manifest.read_text())
-            claim(manifest, {k: v for k, v in stored.items() if k != "provenance"}, "a league",
-                  provenance=provenance(config.agents))
-            merged = json.loads(manifest.read_text())["provenance"]
-            write_json(manifest, {**meta, "provenance": merged})
-        else:
-            claim(manifest, meta, "a league", provenance=provenance(config.agents))
-        if uses_best_theta(config.agents):   # a changed best-theta table never mixes in
-            claim_best_thetas(self.out, config.tracks)
+        # agents join: the stored manifest is of the league before them
+        stored = None
+        if joining:
+            stored = {k: v for k, v in json.loads(self.manifest_path.read_text()).items()
+                      if k != "provenance"}
+        self.claim(meta, config.agents, config.tracks, stored=stored)
 
     @staticmethod
     def _stages(manifest: Path, config: LeagueConfig) -> tuple[list[int], bool]:
@@ -504,7 +498,7 @@ class LeagueRun:
         stored = json.loads(manifest.read_text())
         old = stored.get("config", {})
         stages = list(stored.get("stages") or [len(old.get("agents", []))])
-        now = json.loads(json.dumps(asdict(config)))
+        now = as_stored(asdict(config))
         old_agents, new_agents = old.get("agents", []), now["agents"]
         same_rest = {k: v for k, v in old.items() if k != "agents"} == \
             {k: v for k, v in now.items() if k != "agents"}
@@ -512,32 +506,26 @@ class LeagueRun:
             return stages + [len(new_agents)], True
         return (stages if old_agents == new_agents else [len(config.agents)]), False
 
-    @property
-    def records_path(self) -> Path:
-        return self.out / "races.jsonl"
+    def tasks(self) -> list[ScheduledRace]:
+        return self.races
 
-    def records(self) -> dict[int, dict]:
-        """Finished races by index; a torn (partly written) last line is ignored. A record
-        that is not the scheduled race of its index (agents, track, seed) is an error: the
-        schedule has changed since it was written."""
-        out = {}
-        for rec in read_jsonl(self.records_path):
-            k = rec.get("race")
-            race = self.races[k] if isinstance(k, int) and 0 <= k < len(self.races) else None
-            if race is None or (rec["agents"], rec["track"], rec["seed"]) != \
-                    (list(race.agents), race.track, race.seed):
-                raise ValueError(f"{self.records_path}: race {k} is not the race this league "
-                                 f"schedules there (written by another version?); use "
-                                 f"another --out")
-            out[k] = rec
-        return out
+    def task_key(self, task: ScheduledRace) -> int:
+        return task.index
 
-    def missing(self) -> list[ScheduledRace]:
-        done = self.records()
-        return [r for r in self.races if r.index not in done]
+    def record_key(self, record: dict) -> int:
+        return record["race"]
 
-    def add(self, record: dict) -> None:
-        append_jsonl(self.records_path, record)
+    def check_record(self, record: dict) -> bool:
+        """A record that is not the scheduled race of its index (agents, track, seed) is an
+        error: the schedule has changed since it was written."""
+        k = record.get("race")
+        race = self.races[k] if isinstance(k, int) and 0 <= k < len(self.races) else None
+        if race is None or (record["agents"], record["track"], record["seed"]) != \
+                (list(race.agents), race.track, race.seed):
+            raise ValueError(f"{self.records_path}: race {k} is not the race this league "
+                             f"schedules there (written by another version?); use "
+                             f"another --out")
+        return True
 
     def write_outputs(self) -> dict:
         board = leaderboard(list(self.records().values()), self.config)

@@ -15,7 +15,7 @@ bench and collect runs with 1 and 2 workers bit for bit).
 from __future__ import annotations
 
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from typing import Callable, Hashable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 
 BACKENDS = ("local", "ray")
 

@@ -26,7 +26,6 @@ Output directory:
 """
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from dataclasses import asdict, dataclass
@@ -34,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import append_jsonl, claim, env_version, read_jsonl, slug, write_json, write_text
+from .artifacts import ResumableRun, env_version, slug, write_json, write_text
 from .bench import REGIONS, BenchConfig, check_agent_specs
 from .parallel import check_backend, run_tasks_with_progress
 
@@ -201,42 +200,40 @@ def map_row(config: PolicyMapConfig, mode: str, track: str, k: int, theta) -> di
 
 
 # ---------------------------------------------------------------------------- storage
-class PolicyMapRun:
+class PolicyMapRun(ResumableRun):
     """The output directory of one policy map (see the module docstring)."""
 
+    what = "a policy map"
+    records_name = "rows.jsonl"
+
     def __init__(self, out_dir, config: PolicyMapConfig):
-        self.out = Path(out_dir)
         self.config = config
         low, high = theta_box(config.space)
         self.thetas = sample_thetas(config.thetas, config.seed, low, high)
-        self.out.mkdir(parents=True, exist_ok=True)
+        super().__init__(out_dir)
         # the box goes into "config", so a refusal after a change of the box names it
-        meta = {"schema_version": SCHEMA_VERSION,
-                "config": {**_manifest_config(config), "theta_box": {
-                    "names": list(theta_names(config.space)), "low": low.tolist(),
-                    "high": high.tolist()}},
-                "env": env_version()}
-        # compared as stored: JSON turns the config's tuples into lists
-        claim(self.out / "manifest.json", json.loads(json.dumps(meta)), "a policy map")
+        self.claim({"schema_version": SCHEMA_VERSION,
+                    "config": {**_manifest_config(config), "theta_box": {
+                        "names": list(theta_names(config.space)), "low": low.tolist(),
+                        "high": high.tolist()}},
+                    "env": env_version()})
 
     @property
     def rows_path(self) -> Path:
-        return self.out / "rows.jsonl"
+        return self.records_path
 
     def rows(self) -> dict[tuple, dict]:
         """Finished rows by (mode, track, index); a torn last line is ignored."""
-        return {(r["mode"], r["track"], r["index"]): r for r in read_jsonl(self.rows_path)}
+        return self.records()
 
-    def keys(self) -> list[tuple]:
+    def tasks(self) -> list[tuple]:
         c = self.config
         return [(m, t, k) for m in c.modes for t in c.tracks for k in range(c.thetas)]
 
-    def missing(self) -> list[tuple]:
-        done = self.rows()
-        return [key for key in self.keys() if key not in done]
+    keys = tasks
 
-    def add(self, row: dict) -> None:
-        append_jsonl(self.rows_path, row)
+    def record_key(self, record: dict) -> tuple:
+        return (record["mode"], record["track"], record["index"])
 
     def write_outputs(self) -> dict:
         rows = list(self.rows().values())

@@ -89,7 +89,7 @@ def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_
              start: str = "regions", laps: int | None = None, render: bool = False,
              progress_bar: bool = True, order=None):
     """Race ``agent_names`` (agent specs, one per car: a registry name with optional
-    parameters, ``"raceline:mu=0.75"``) and return ``(RaceResult, frames)``.
+    parameters, ``"raceline:grip=0.75"``) and return ``(RaceResult, frames)``.
 
     ``order`` (start ``"regions"``): ``order[i]`` is car i's start region (0 = R1, the
     front-most); default a random permutation drawn from ``seed``. ``frames`` is a list of
@@ -128,7 +128,7 @@ def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_
             bar.update(1)
     core = env.core
     result = RaceResult(
-        agents=list(agent_names), track=track if isinstance(track, str) else env.track.name, seed=seed, dt=env.config.dt,
+        agents=list(agent_names), track=track if isinstance(track, str) else env.track.name, seed=seed, dt=env.config.dt,  # noqa: E501
         states=np.array(states), progress=core.state[0, :, 0] - core.s_line[0],
         lap_times=[list(t) for t in core.lap_times[0]], contacts=core.contacts[0].copy(),
         off_tracks=core.offtracks[0].copy(), decision_ms=1e3 * decide / max(steps, 1),

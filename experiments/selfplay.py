@@ -67,7 +67,8 @@ SCHEMA_VERSION = 1
 VEC_ENVS = ("batched", "dummy", "subproc")
 WARMUP_OPPONENTS = ("raceline", "initial")
 INITS = ("random", "bc")
-RACELINE_MU = (0.75, 0.8, 0.85, 0.7, 0.9, 0.65, 0.95)
+RACELINE_GRIP = (0.75, 0.8, 0.85, 0.7, 0.9, 0.65, 0.95)
+RACELINE_MU = RACELINE_GRIP   # the old name (mu names the heading in the state)
 """Friction of the raceline followers standing in for untrained cars, by opponent slot."""
 OFFTRACK_BAR = 0.05
 
@@ -162,7 +163,7 @@ class SelfPlayConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "SelfPlayConfig":
+    def from_dict(cls, d: dict) -> SelfPlayConfig:
         known = {f.name for f in fields(cls)}
         unknown = set(d) - known
         if unknown:
@@ -200,7 +201,7 @@ class SelfPlayState:
     done: bool = False
 
     @classmethod
-    def new(cls, cfg: SelfPlayConfig) -> "SelfPlayState":
+    def new(cls, cfg: SelfPlayConfig) -> SelfPlayState:
         """The state of a run that has not started: no checkpoint for any of the cars."""
         return cls(cars=[None] * cfg.n_cars, trained_turns=[0] * cfg.n_cars)
 
@@ -209,7 +210,7 @@ class SelfPlayState:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict, cfg: SelfPlayConfig | None = None) -> "SelfPlayState":
+    def from_dict(cls, d: dict, cfg: SelfPlayConfig | None = None) -> SelfPlayState:
         """From :meth:`to_dict`'s output or an older ``state.json`` (fields it lacks, as
         ``train_cpu_seconds`` and ``bc_cpu_seconds`` in runs before they were recorded, take
         their defaults). With ``cfg``, the lists of cars must have ``cfg.n_cars`` entries.
@@ -230,7 +231,7 @@ class SelfPlayState:
         return state
 
     @classmethod
-    def load(cls, path: Path, cfg: SelfPlayConfig) -> "SelfPlayState":
+    def load(cls, path: Path, cfg: SelfPlayConfig) -> SelfPlayState:
         """``path`` (a ``state.json``) if it exists, else a new state."""
         path = Path(path)
         if not path.exists():
@@ -291,9 +292,9 @@ def _opponents(cfg: SelfPlayConfig, out: Path, state: SelfPlayState, car: int) -
     opps, names = [], []
     for slot, k in enumerate(j for j in range(cfg.n_cars) if j != car):
         if state.trained_turns[k] == 0 and cfg.warmup_opponent == "raceline":
-            mu = RACELINE_MU[slot % len(RACELINE_MU)]
-            opps.append(RacelineFollower(mu=mu))
-            names.append(f"raceline:mu={mu}")
+            grip = RACELINE_GRIP[slot % len(RACELINE_GRIP)]
+            opps.append(RacelineFollower(grip=grip))
+            names.append(f"raceline:grip={grip}")
         else:
             opps.append(frozen_policy(out / state.cars[k]))
             names.append(f"car_{k}@{state.trained_turns[k]}turns")
@@ -468,7 +469,7 @@ def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: SelfPlayState,
                         gamma=cfg.gamma, norm_reward=cfg.norm_reward)
     model = _new_model(cfg, venv, cfg.seed)
     c0 = time.process_time()
-    fit = behaviour_cloning(model, cfg, cfg.seed, race_config(cfg), RACELINE_MU)
+    fit = behaviour_cloning(model, cfg, cfg.seed, race_config(cfg), RACELINE_GRIP)
     state.bc_cpu_seconds = round(time.process_time() - c0, 1)
     path = out / "checkpoints" / "bc_init.zip"
     ev = evaluate_solo(live_policy(model, cfg), cfg)
@@ -655,7 +656,7 @@ def model_card(cfg: SelfPlayConfig, summary: dict, state: SelfPlayState) -> str:
              f"{summary['train_seconds']:.0f} s of training wall time ({summary['steps_per_s']} "
              f"steps/s), {summary['train_cpu_seconds']:.0f} CPU s ({summary['steps_per_cpu_s']} steps per CPU s)"
              + (f"; behaviour cloning {summary['bc_cpu_seconds']:.0f} CPU s" if summary.get("bc_cpu_seconds") else ""),
-             "", 
+             "",
              f"Alone on `{cfg.track}` for {cfg.max_cycles / 10:.0f} s ({cfg.eval_races} fixed starts):",
              ""]
     if ref:

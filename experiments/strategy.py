@@ -44,7 +44,7 @@ import warnings
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-from .artifacts import append_jsonl, read_jsonl, slug, write_json, write_text
+from .artifacts import ResumableRun, append_jsonl, read_jsonl, slug, write_json, write_text
 from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs
 from .parallel import check_backend, run_tasks_with_progress
 
@@ -205,27 +205,41 @@ def pace_specs(config: StrategyConfig) -> list[str]:
     return [config.capped(config.ego), config.capped(config.control), config.control]
 
 
+class PaceRun(ResumableRun):
+    """The defend scenario's solo pace races in the suite's folder: ``pace.jsonl``, one record
+    per (spec, track, steps, seed). No manifest of its own: the records carry their settings,
+    and the benches' folders are claimed by :class:`~experiments.bench.BenchRun`."""
+
+    what = "solo pace races"
+    records_name = "pace.jsonl"
+
+    def __init__(self, out_dir, config: StrategyConfig):
+        super().__init__(out_dir)
+        self.config = config
+
+    def tasks(self) -> list[tuple]:
+        c = self.config
+        return [(spec, track, c.steps, c.seed) for track in c.tracks for spec in pace_specs(c)]
+
+    def record_key(self, record: dict) -> tuple:
+        return (record["spec"], record["track"], record["steps"], record["seed"])
+
+
 def measure_pace(config: StrategyConfig, out, workers: int, backend: str, address,
                  progress_bar: bool) -> dict:
     """The defend scenario's solo races (missing ones raced, ``pace.jsonl`` resumed);
     returns per track ``{"progress_m": {spec: m or None}, "reasons": {spec: text},
     "gaps": {capped spec: opponent / capped - 1}, "ok": every measured gap >= PACE_GAP and at
     least one measured}``."""
-    path = Path(out) / "pace.jsonl"
-    key = lambda r: (r["spec"], r["track"], r["steps"], r["seed"])
-    done = {key(r): r for r in read_jsonl(path)}
+    run = PaceRun(out, config)
     specs = pace_specs(config)
-    want = [(spec, track) for track in config.tracks for spec in specs]
-    tasks = [((spec, track), (spec, track, config.steps, config.seed)) for spec, track in want
-             if (spec, track, config.steps, config.seed) not in done]
-
-    def finished(k, rec):
-        append_jsonl(path, rec)
-        done[key(rec)] = rec
-
-    run_tasks_with_progress(solo_pace, tasks, finished, workers, backend, address,
-                            total=len(want), done=len(want) - len(tasks), desc="solo pace",
+    total = len(run.tasks())
+    tasks = [((spec, track), (spec, track, steps, seed))
+             for spec, track, steps, seed in run.missing()]
+    run_tasks_with_progress(solo_pace, tasks, lambda k, rec: run.add(rec), workers, backend,
+                            address, total=total, done=total - len(tasks), desc="solo pace",
                             unit="race", progress_bar=progress_bar)
+    done = run.records()
     out_pace = {}
     for track in config.tracks:
         recs = {spec: done[(spec, track, config.steps, config.seed)] for spec in specs}

@@ -44,7 +44,7 @@ from agents.reference import THETA_HIGH, THETA_LOW
 
 from .artifacts import claim
 from .nets import (TrainConfig, ValueData, discounted_partial_returns, discounted_rollout,
-                   gap_statistics, input_scale, numpy_model, save_model, split_races,
+                   gap_statistics, numpy_model, save_model, split_races,
                    summary_text, train_potential, train_value, value_samples)
 from .parallel import pin_worker
 

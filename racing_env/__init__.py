@@ -19,6 +19,6 @@ __all__ = ["BatchedRaces", "RaceConfig", "RacingParallelEnv", "RulesConfig", "St
            "VehicleParams", "env", "load_tumftm_csv", "make_track", "parallel_env", "random_track",
            "raw_env", "track_names"]
 
-from . import registration as _registration  # noqa: E402  registers the Gymnasium env
+from . import registration as _registration  # noqa: E402, F401
 
 __version__ = "0.1.0"

@@ -9,7 +9,7 @@ time exactly as :class:`racing_env.gym_env.HeadToHeadEnv` resets its race.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from gymnasium import spaces
@@ -33,7 +33,7 @@ class HeadToHeadBatch:
     """
 
     def __init__(self, n_envs: int = 8, opponents: Sequence | None = None,
-                 track: "str | Track" = "default", config: RaceConfig | None = None, **kwargs):
+                 track: str | Track = "default", config: RaceConfig | None = None, **kwargs):
         if not (isinstance(n_envs, (int, np.integer)) and n_envs >= 1):
             raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
         if opponents is None:

@@ -135,7 +135,7 @@ class RaceConfig:
             raise ValueError(f"n_preview must be a non-negative integer, got {self.n_preview!r}")
         _positive(self, "dt", "preview_ds")
 
-    def with_(self, **changes) -> "RaceConfig":
+    def with_(self, **changes) -> RaceConfig:
         """A copy with some fields changed (validated)."""
         return replace(self, **changes)
 

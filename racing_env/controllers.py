@@ -25,7 +25,8 @@ def understeer_gradient(v: VehicleParams) -> float:
 
 
 class RacelineFollower:
-    """Follows the racing line at the speed profile of envelope scale ``mu``.
+    """Follows the racing line at the speed profile of envelope scale ``grip`` (agent spec
+    ``raceline:grip=0.75``; ``mu=``, its old name, is still accepted with a DeprecationWarning).
 
     ``line`` picks the line (:data:`racing_env.raceline.OBJECTIVES`): ``"curvature"``
     (default, the paper's minimum-curvature line) or ``"lap_time"``.
@@ -44,11 +45,16 @@ class RacelineFollower:
     profile speed ``speed_preview`` s ahead (so it brakes before corners). Ignores other cars.
     """
 
-    def __init__(self, vehicle: VehicleParams | None = None, mu: float = 1.0,
+    #: shown by ``alpha-racer agents`` beside the deprecated keyword
+    param_notes = {"mu": "deprecated name of grip"}
+
+    def __init__(self, vehicle: VehicleParams | None = None, grip: float = 1.0,
                  speed_scale: float = 1.0, line_fraction: float = 0.9, preview_min: float = 0.5,
                  preview_time: float = 0.2, speed_preview: float = 0.3, k_speed: float = 2.0,
-                 line: str = "curvature"):
+                 line: str = "curvature", *, mu: float | None = None):
+        from .envelope import grip_arg
         from .raceline import RacelineConfig
+        grip = grip_arg(grip, mu, "RacelineFollower (agent spec raceline)", 1.0)
         self.raceline_config = RacelineConfig(objective=line)     # names line and choices if bad
         if not (0.0 < speed_scale <= 1.5):
             raise ValueError(f"speed_scale must be in (0, 1.5], got {speed_scale}")
@@ -59,7 +65,7 @@ class RacelineFollower:
                              f"speed_preview non-negative; got {preview_min}, {k_speed}, "
                              f"{preview_time}, {speed_preview}")
         self.vehicle = vehicle or VehicleParams()
-        self.mu = mu
+        self.grip = grip
         self.speed_scale = speed_scale
         self.line_fraction = line_fraction
         self.preview_min = preview_min
@@ -72,15 +78,23 @@ class RacelineFollower:
         self.agent_id = None
 
     @property
+    def mu(self) -> float:
+        """Deprecated name of :attr:`grip` (``mu`` names the heading in the state)."""
+        import warnings
+        warnings.warn("RacelineFollower.mu is deprecated, use .grip (the envelope scale)",
+                      DeprecationWarning, stacklevel=2)
+        return self.grip
+
+    @property
     def line(self) -> str:
         """The racing line followed (``RacelineConfig.objective``)."""
         return self.raceline_config.objective
 
-    def reset(self, track: "Track | str", agent_id: str = "car_0", seed: int | None = None) -> None:
+    def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         from .raceline import get_raceline
         self.track = make_track(track)
         self.raceline = rl = get_raceline(self.track, self.vehicle, self.raceline_config)
-        rl.speed_at(0.0, mu=self.mu)            # fail now, with the library's message, if mu is out of range
+        rl.speed_at(0.0, self.grip)     # fail now, with the library's message, if out of range
         f = self.line_fraction
         # reference tables on the track grid: offset, its slope (heading to the centre line), curvature
         t = self.track
@@ -88,7 +102,7 @@ class RacelineFollower:
         self._mu_ref = np.arctan(np.gradient(np.concatenate([self._n_ref[-1:], self._n_ref, self._n_ref[:1]]),
                                              t.ds)[1:-1])
         self._kappa_ref = f * np.interp(t.s_grid, rl.s_track, rl.kappa, period=t.length) + (1 - f) * t.kappa
-        self._v_ref = self.speed_scale * rl.speed_at(t.s_grid, mu=self.mu)
+        self._v_ref = self.speed_scale * rl.speed_at(t.s_grid, self.grip)
         self._gains = self.gains()
         self.agent_id = agent_id
 

@@ -13,8 +13,8 @@ from .simulator import TrackTables, advance, advance_parallel, observe, observe_
 
 PARALLEL_MIN_RACES = 16
 """Batches of at least this many races are stepped by the multi-threaded kernels."""
-from .track import Track
-from .tracks import make_track
+from .track import Track  # noqa: E402
+from .tracks import make_track  # noqa: E402
 
 S_CLIP = 1.0e4
 """Bound [m] of the relative progress entries of an observation."""
@@ -82,7 +82,7 @@ class BatchedRaces:
     a race is the start position of its front-most car.
     """
 
-    def __init__(self, track: "Track | str" = "default", config: RaceConfig | None = None,
+    def __init__(self, track: Track | str = "default", config: RaceConfig | None = None,
                  n_races: int = 1, seed: int | None = None):
         if not (isinstance(n_races, (int, np.integer)) and n_races >= 1):
             raise ValueError(f"n_races must be a positive integer, got {n_races!r}")

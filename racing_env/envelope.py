@@ -32,8 +32,9 @@ and cached in memory (:func:`ggv`): on a speed grid ``v`` (0 .. a little above t
   ``a_y = r[j] ay_max[i]`` (``r`` in [0, 1]). ``ax_max`` is negative where the motor cannot hold
   the speed in that corner (the car slows through it), ``ax_min`` is always negative.
 
-A *scaled* envelope (factor ``mu`` in (0, 1.5]) multiplies every acceleration by ``mu``: the
-racing line's speed library (:mod:`racing_env.raceline`) holds profiles over ``mu``, ``mu = 1``
+A *scaled* envelope (grip factor ``grip`` in (0, 1.5]; ``mu`` before 0.x, which names the
+heading in the state) multiplies every acceleration by ``grip``: the
+racing line's speed library (:mod:`racing_env.raceline`) holds profiles over ``grip``, ``grip = 1``
 being the car's own limit. Units: SI (m/s, m/s^2, rad).
 """
 from __future__ import annotations
@@ -53,6 +54,22 @@ N_SPEEDS = 240
 """Points of the speed grid of :func:`ggv`."""
 N_FRACTIONS = 41
 """Points of the lateral-fraction grid ``r`` of :func:`ggv`."""
+
+
+def grip_arg(grip, mu, where: str, default=None):
+    """The envelope scale of a call that takes ``grip`` and still accepts its old name ``mu``
+    (which now names only the heading in the state): ``mu`` given warns (DeprecationWarning
+    naming ``grip``) and is used; both given is a ValueError. ``default``: the value when
+    neither is given (None: ``grip`` as passed)."""
+    if mu is None:
+        return default if grip is None else grip
+    import warnings
+    if grip is not None and grip != default:
+        raise ValueError(f"{where}: give the envelope scale once, as grip= (mu= is its old "
+                         f"name), got grip={grip!r} and mu={mu!r}")
+    warnings.warn(f"{where}: mu= is deprecated as the envelope (grip) scale, use grip={mu!r} "
+                  f"(mu names the heading in the state)", DeprecationWarning, stacklevel=3)
+    return mu
 
 
 def steady_corner(V, ay, vehicle: VehicleParams | None = None):
@@ -144,27 +161,32 @@ class GGV:
     ax_min: np.ndarray
     top_speed: float
 
-    def lateral_limit(self, v, mu: float = 1.0):
-        """Largest lateral acceleration [m/s^2] at speed ``v`` [m/s] (any shape), scaled by ``mu``."""
-        return mu * np.interp(v, self.v, self.ay_max)
+    def lateral_limit(self, v, grip: float = 1.0, *, mu: float | None = None):
+        """Largest lateral acceleration [m/s^2] at speed ``v`` [m/s] (any shape), scaled by
+        ``grip`` (``mu``: deprecated name of ``grip``)."""
+        grip = grip_arg(grip, mu, "lateral_limit", 1.0)
+        return grip * np.interp(v, self.v, self.ay_max)
 
-    def longitudinal_limits(self, v, ay, mu: float = 1.0):
+    def longitudinal_limits(self, v, ay, grip: float = 1.0, *, mu: float | None = None):
         """``(ax_max, ax_min)`` [m/s^2] at speed ``v`` and lateral acceleration ``ay`` (arrays
-        broadcast) of the envelope scaled by ``mu``; ``ay`` beyond the limit counts as at it."""
+        broadcast) of the envelope scaled by ``grip``; ``ay`` beyond the limit counts as at it.
+        ``mu``: deprecated name of ``grip``."""
+        grip = grip_arg(grip, mu, "longitudinal_limits", 1.0)
         v, ay = np.broadcast_arrays(np.asarray(v, dtype=float), np.abs(np.asarray(ay, dtype=float)))
-        v_tab, ay_tab, r_tab, hi_tab, lo_tab = self.tables(mu)
+        v_tab, ay_tab, r_tab, hi_tab, lo_tab = self.tables(grip)
         flat = (np.ascontiguousarray(v).ravel(), np.ascontiguousarray(ay).ravel(), v_tab, ay_tab,
                 r_tab)
         return (_envelope_many(*flat, hi_tab).reshape(v.shape),
                 _envelope_many(*flat, lo_tab).reshape(v.shape))
 
-    def corner_speed(self, kappa, mu: float = 1.0):
+    def corner_speed(self, kappa, grip: float = 1.0, *, mu: float | None = None):
         """Highest speed [m/s] at which curvature ``kappa`` [1/m] (any shape) can be held:
-        the largest grid speed ``v`` with ``v^2 |kappa| <= mu ay_max(u)`` for every ``u <= v``
+        the largest grid speed ``v`` with ``v^2 |kappa| <= grip ay_max(u)`` for every ``u <= v``
         (the connected feasible range from standstill), interpolated between grid points,
-        capped at the top speed."""
+        capped at the top speed. ``mu``: deprecated name of ``grip``."""
+        grip = grip_arg(grip, mu, "corner_speed", 1.0)
         k = np.abs(np.asarray(kappa, dtype=float))
-        lim = mu * self.ay_max                                   # (I,)
+        lim = grip * self.ay_max                                   # (I,)
         slack = lim[None, :] - self.v[None, :] ** 2 * k.reshape(-1, 1)   # (P, I), >= 0 feasible
         bad = slack < 0
         first = np.where(bad.any(axis=1), bad.argmax(axis=1), len(self.v))
@@ -177,10 +199,11 @@ class GGV:
         out[hit] = self.v[i0] + w * (self.v[i] - self.v[i0])
         return np.minimum(out, self.top_speed).reshape(k.shape)
 
-    def tables(self, mu: float = 1.0):
-        """Arrays for the compiled speed profile: ``(v, mu * ay_max, r, mu * ax_max,
-        mu * ax_min)``."""
-        return self.v, mu * self.ay_max, self.r, mu * self.ax_max, mu * self.ax_min
+    def tables(self, grip: float = 1.0, *, mu: float | None = None):
+        """Arrays for the compiled speed profile: ``(v, grip * ay_max, r, grip * ax_max,
+        grip * ax_min)`` (``mu``: deprecated name of ``grip``)."""
+        grip = grip_arg(grip, mu, "tables", 1.0)
+        return self.v, grip * self.ay_max, self.r, grip * self.ax_max, grip * self.ax_min
 
 
 @njit(cache=True)

@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import copy
-from typing import Any, Callable, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 
 from .config import RaceConfig, StartConfig
 from .parallel_env import RacingParallelEnv, _check_reset_options, check_reward_options
@@ -73,7 +73,7 @@ def make_opponent(spec: OpponentSpec, k: int = 0):
 def default_opponents() -> list:
     """Two :class:`racing_env.controllers.RacelineFollower` s (envelope scales 0.75 and 0.8)."""
     from .controllers import RacelineFollower
-    return [RacelineFollower(mu=0.75), RacelineFollower(mu=0.8)]
+    return [RacelineFollower(grip=0.75), RacelineFollower(grip=0.8)]
 
 
 class HeadToHeadEnv(gym.Env):
@@ -133,9 +133,9 @@ class HeadToHeadEnv(gym.Env):
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
 
-    def __init__(self, opponents: Sequence | None = None, track: "str | Track" = "default",
+    def __init__(self, opponents: Sequence | None = None, track: str | Track = "default",
                  render_mode: str | None = None, config: RaceConfig | None = None,
-                 start: "str | StartConfig | None" = None, offtrack_penalty: float = 0.0,
+                 start: str | StartConfig | None = None, offtrack_penalty: float = 0.0,
                  terminate_off_track: bool = False, **kwargs):
         if opponents is None:
             opponents = default_opponents()

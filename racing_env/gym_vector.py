@@ -14,7 +14,7 @@ Needs only the core install (no stable-baselines3: the batched races live in
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -43,7 +43,7 @@ class HeadToHeadVectorEnv(VectorEnv):
     render_mode = None
 
     def __init__(self, num_envs: int = 8, opponents: Sequence | None = None,
-                 track: "str | Track" = "default", config: RaceConfig | None = None,
+                 track: str | Track = "default", config: RaceConfig | None = None,
                  max_episode_steps: int | None = None, **kwargs):
         self._batch = HeadToHeadBatch(num_envs, opponents=opponents, track=track, config=config,
                                        **kwargs)
@@ -65,7 +65,7 @@ class HeadToHeadVectorEnv(VectorEnv):
     def opponents(self) -> list:
         return self._batch.opponents
 
-    def reset(self, *, seed: "int | Sequence[int | None] | None" = None, options: dict | None = None):
+    def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
         super().reset(seed=seed if isinstance(seed, int) else None)
         if seed is None or isinstance(seed, int):
             seeds = [None if seed is None else seed + b for b in range(self.num_envs)]

@@ -138,9 +138,9 @@ class RacingParallelEnv(ParallelEnv):
     metadata = {"name": "alpha_racer_v2", "render_modes": ["human", "rgb_array"],
                 "render_fps": 10, "is_parallelizable": True}
 
-    def __init__(self, track: "str | Track" = "default", n_cars: int | None = None,
+    def __init__(self, track: str | Track = "default", n_cars: int | None = None,
                  max_cycles: int | None = None, laps: int | None = None,
-                 start: "str | StartConfig | None" = None, vehicle: VehicleParams | None = None,
+                 start: str | StartConfig | None = None, vehicle: VehicleParams | None = None,
                  rules: RulesConfig | None = None, config: RaceConfig | None = None,
                  render_mode: str | None = None, offtrack_penalty: float = 0.0,
                  terminate_off_track: bool = False):

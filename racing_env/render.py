@@ -26,7 +26,7 @@ import sys
 import tempfile
 import warnings
 from pathlib import Path
-from typing import Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont

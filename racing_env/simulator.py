@@ -48,7 +48,7 @@ class TrackTables:
     length: float
 
     @classmethod
-    def from_track(cls, track: Track, wall_margin: float) -> "TrackTables":
+    def from_track(cls, track: Track, wall_margin: float) -> TrackTables:
         """Walls sit ``wall_margin`` m beyond each edge, and never closer than 10% of the
         radius of curvature to its centre (keeps ``1 - n kappa >= 0.1``)."""
         k = track.kappa

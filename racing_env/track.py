@@ -152,7 +152,7 @@ class Track:
     @classmethod
     def from_centerline(cls, x, y, w_right, w_left, name: str = "custom",
                         ds: float | None = None, allow_crossing: bool = False,
-                        narrow_tight: bool = False) -> "Track":
+                        narrow_tight: bool = False) -> Track:
         """Build a track from a closed centre line (x, y) [m] with right/left widths [m].
 
         The points go around the track once (the first point may or may not be repeated at
@@ -192,7 +192,7 @@ class Track:
         return cls._from_grid(name, s_grid, gx, gy, w_l, w_r, length, narrow_tight)
 
     @classmethod
-    def _from_grid(cls, name, s_grid, gx, gy, w_l, w_r, length, narrow_tight=False) -> "Track":
+    def _from_grid(cls, name, s_grid, gx, gy, w_l, w_r, length, narrow_tight=False) -> Track:
         knots = np.append(s_grid, length)
         sx = CubicSpline(knots, np.append(gx, gx[0]), bc_type="periodic")
         sy = CubicSpline(knots, np.append(gy, gy[0]), bc_type="periodic")

@@ -217,7 +217,7 @@ def track_names() -> list[str]:
 _CACHE: dict[tuple, Track] = {}
 
 
-def make_track(spec: "str | Track", scale: float | None = None) -> Track:
+def make_track(spec: str | Track, scale: float | None = None) -> Track:
     """Build a track from a name: ``default``, ``oval``, ``random:SEED``, ``tumftm:NAME``
     (a circuit from the TUMFTM folder, default scale 1/43) or a path to a TUMFTM CSV file.
     A :class:`Track` is returned unchanged. Results are memoised per process.

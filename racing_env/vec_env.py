@@ -17,7 +17,8 @@ load this module.
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -48,7 +49,7 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
     render_mode = None
 
     def __init__(self, n_envs: int = 8, opponents: Sequence | None = None,
-                 track: "str | Track" = "default", config: RaceConfig | None = None, **kwargs):
+                 track: str | Track = "default", config: RaceConfig | None = None, **kwargs):
         HeadToHeadBatch.__init__(self, n_envs, opponents=opponents, track=track, config=config,
                                  **kwargs)
         VecEnv.__init__(self, self.num_envs, self.observation_space, self.action_space)

@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_race_command_writes_table_animation_and_plot(tmp_path, capsys):
     out = tmp_path / "race"
-    assert main(["race", "--agents", "raceline", "raceline:mu=0.7", "--steps", "40",
+    assert main(["race", "--agents", "raceline", "raceline:grip=0.7", "--steps", "40",
                  "--seed", "3", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "progress m" in text and "car_1" in text

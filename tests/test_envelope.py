@@ -81,4 +81,4 @@ def test_corner_speed_round_trip():
         kappa = float(env.lateral_limit(V)) / V ** 2
         assert float(env.corner_speed(kappa)) == pytest.approx(V, rel=0.01)
     assert float(env.corner_speed(0.0)) == pytest.approx(VEH.top_speed)
-    assert float(env.corner_speed(1.0, mu=0.5)) < float(env.corner_speed(1.0))
+    assert float(env.corner_speed(1.0, grip=0.5)) < float(env.corner_speed(1.0))

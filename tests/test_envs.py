@@ -126,7 +126,7 @@ def test_gymnasium_env_passes_checkers():
 
 
 def test_gymnasium_env_opponents_drive():
-    env = HeadToHeadEnv(opponents=[RacelineFollower(mu=0.7)], max_cycles=80, start="grid")
+    env = HeadToHeadEnv(opponents=[RacelineFollower(grip=0.7)], max_cycles=80, start="grid")
     obs, info = env.reset(seed=1)
     assert obs.shape == env.observation_space.shape == (6 * 2 + 10,)
     total = 0.0
@@ -172,7 +172,7 @@ class Wobbler:
 
 def _vec_opponents():
     import functools
-    return [Wobbler(0.4), functools.partial(Wobbler, -0.3), "raceline:mu=0.8"]
+    return [Wobbler(0.4), functools.partial(Wobbler, -0.3), "raceline:grip=0.8"]
 
 
 @pytest.mark.parametrize("mode", ["sync", "async", "vector_entry_point"])
@@ -210,7 +210,7 @@ def test_vector_envs_each_get_their_own_opponents():
     a, b = (opp for opp in venv.opponents[0]), (opp for opp in venv.opponents[1])
     ids = {id(o) for o in [*a, *b, shared]}
     assert len(ids) == 5
-    sb3 = HeadToHeadVecEnv(2, opponents=["raceline:mu=0.7"])
+    sb3 = HeadToHeadVecEnv(2, opponents=["raceline:grip=0.7"])
     assert sb3.opponents[0][0] is not sb3.opponents[0][1]
     env = HeadToHeadEnv(opponents=[shared])
     assert env.opponents[0] is not shared

@@ -4,7 +4,6 @@ import os
 import shutil
 import subprocess
 import sys
-import tempfile
 import textwrap
 import warnings
 from pathlib import Path

@@ -17,7 +17,7 @@ from experiments import league as lg  # noqa: E402
 from experiments.artifacts import read_jsonl  # noqa: E402
 from experiments.cli import main  # noqa: E402
 
-RACELINES = ("raceline", "raceline:mu=0.6", "raceline:speed_scale=0.7",
+RACELINES = ("raceline", "raceline:grip=0.6", "raceline:speed_scale=0.7",
              "raceline:line_fraction=0.5")
 TINY = lg.LeagueConfig(agents=RACELINES, tracks=("default", "oval"), cars=3, steps=40, seed=4)
 
@@ -278,7 +278,7 @@ def test_imported_user_agents_race_in_the_league(tmp_path, monkeypatch):
     (tmp_path / "league_user_agents.py").write_text(
         "from agents import register_agent\nfrom agents.simple import RacelineFollower\n\n\n"
         "@register_agent('cautious_user')\ndef cautious(mu: float = 0.6):\n"
-        "    return RacelineFollower(mu=mu)\n")
+        "    return RacelineFollower(grip=mu)\n")
     monkeypatch.chdir(tmp_path)
     monkeypatch.delitem(sys.modules, "league_user_agents", raising=False)
     try:

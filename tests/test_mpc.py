@@ -116,7 +116,7 @@ def test_a_plan_is_rolled_out_along_its_own_progress(mpc):
         wrong = x0[0] + 0.5 + 0.1 * np.arange(K + 1)   # 0.5 m ahead, at 1 m/s
 
         def nodes(X):
-            return np.concatenate([[x0[0]], X[0]])
+            return np.concatenate([[x0[0]], X[0]])  # noqa: B023
 
         rollouts = [mpc._plan(x0, U, s_prev=wrong, jacobians=False, passes=p)[0]
                     for p in range(4)]

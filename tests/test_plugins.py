@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from agents import agent_names, agent_parameters, make_agent_spec, register_agent
+from agents import agent_names, agent_parameters, register_agent
 from agents.base import _REGISTRY, ENTRY_POINT_GROUP
 from agents.reference import THETA_HIGH, THETA_LOW
 from experiments.cli import main
@@ -115,7 +115,8 @@ def test_agents_command_lists_parameters_defaults_and_theta_bounds(capsys):
         assert f"\n{name}:" in "\n" + text
     assert f"zeta = 0.9  in [{THETA_LOW[1]:g}, {THETA_HIGH[1]:g}]" in text
     assert f"q = 20.0  in [{THETA_LOW[0]:g}, {THETA_HIGH[0]:g}]" in text
-    assert "model = 'auto'" in text and "rounds = 6" in text and "mu = 1.0" in text
+    assert "model = 'auto'" in text and "rounds = 6" in text and "grip = 1.0" in text
+    assert "mu = None  (deprecated name of grip)" in text
 
 
 def test_agent_parameters_follow_kwargs_to_the_base_class():

@@ -32,8 +32,8 @@ TINY_ARGS = ["--cars", "2", "--cycles", "1", "--steps-per-turn", "128", "--envs"
 def test_batched_vec_env_equals_dummy_vec_env_over_the_gym_env():
     from stable_baselines3.common.vec_env import DummyVecEnv
     cfg = RaceConfig(n_cars=3, max_cycles=25)
-    opps = [RacelineFollower(mu=0.75), RacelineFollower(mu=0.8)]
-    ref = DummyVecEnv([lambda: HeadToHeadEnv(opponents=[RacelineFollower(mu=0.75), RacelineFollower(mu=0.8)],
+    opps = [RacelineFollower(grip=0.75), RacelineFollower(grip=0.8)]
+    ref = DummyVecEnv([lambda: HeadToHeadEnv(opponents=[RacelineFollower(grip=0.75), RacelineFollower(grip=0.8)],
                                              config=cfg)] * 3)
     bat = HeadToHeadVecEnv(3, opponents=opps, config=cfg)
     assert bat.observation_space == ref.observation_space and bat.action_space == ref.action_space

@@ -5,7 +5,6 @@ import json
 import shutil
 import warnings
 
-import numpy as np
 import pytest
 
 from experiments import artifacts
@@ -93,7 +92,7 @@ def test_collect_manifest_records_provenance(tmp_path):
 
 
 # ---------------------------------------------------------------------------- league join
-BASE = ("raceline", "raceline:mu=0.6", "raceline:speed_scale=0.7")
+BASE = ("raceline", "raceline:grip=0.6", "raceline:speed_scale=0.7")
 NEW = "raceline:line_fraction=0.5"
 CFG = lg.LeagueConfig(agents=BASE, tracks=("oval",), cars=2, steps=20, seed=1)
 
@@ -132,5 +131,5 @@ def test_an_agent_joins_a_finished_league_and_only_its_races_run(tmp_path):
         assert row["mu"] == pytest.approx(replay[row["agent"]][0])
     assert board["standings"]
     with pytest.raises(ValueError, match="another configuration"):       # other settings: refused
-        lg.league(lg.LeagueConfig(**{**full.__dict__, "agents": BASE + (NEW, "raceline:mu=0.7"),
+        lg.league(lg.LeagueConfig(**{**full.__dict__, "agents": BASE + (NEW, "raceline:grip=0.7"),
                                      "steps": 21}), out, workers=1, progress_bar=False)

@@ -1,7 +1,6 @@
 """Tests of racing_env.render: frames, background cache, animations, viewer, trajectory plot."""
 from __future__ import annotations
 
-import os
 import shutil
 import sys
 import warnings

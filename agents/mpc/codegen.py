@@ -85,7 +85,7 @@ def _compile(cmd: list[str]) -> None:
         raise _CompileError(f"could not run: {exc}") from None
 
 
-def _interpreted(fn, lib: Path, why: str) -> "InterpretedTrajectory":
+def _interpreted(fn, lib: Path, why: str) -> InterpretedTrajectory:
     """The interpreted prediction, with one warning line per process (not one per car): what
     failed, that the results stay the same, and how to fix it."""
     global _WARNED

@@ -52,7 +52,7 @@ Modules, one job each: :mod:`.config` (the settings and the cache key), :mod:`.p
 line's geometry), :mod:`.boxqp` (the QP of each linearisation), :mod:`.optimise` (the
 minimum-curvature and lap-time lines, :func:`compute_raceline`), :mod:`.speed` (the speed
 profile), :mod:`.result` (:class:`Raceline`, its files and plot), :mod:`.cache` (the disk cache).
-"""
+"""  # noqa: E501
 from .boxqp import box_qp_active_set, box_qp_interior_point
 from .cache import cache_dir, cache_path, clear_memo, get_raceline
 from .config import (CACHE_VERSION, LENGTH_WEIGHTS, OBJECTIVES, SOURCES, TOL_PER_WIDTH,

@@ -174,8 +174,8 @@ def box_qp_interior_point(h, g, lo, hi, x0=None, max_iter: int = 100, tol: float
             return None
 
         def newton(c_lo, c_hi):
-            dx = lu.solve(-r_d + c_lo / d_lo - c_hi / d_hi)
-            return dx, (c_lo - z_lo * dx) / d_lo, (c_hi + z_hi * dx) / d_hi
+            dx = lu.solve(-r_d + c_lo / d_lo - c_hi / d_hi)  # noqa: B023
+            return dx, (c_lo - z_lo * dx) / d_lo, (c_hi + z_hi * dx) / d_hi  # noqa: B023
 
         dx, dz_lo, dz_hi = newton(-d_lo * z_lo, -d_hi * z_hi)          # predictor
         ap = min(to_boundary(d_lo, dx), to_boundary(d_hi, -dx))

@@ -52,7 +52,7 @@ def _save(path: Path, rl: Raceline) -> None:
         warnings.warn(f"could not write racing-line cache {path}: {exc}", RuntimeWarning, stacklevel=3)
 
 
-def get_raceline(track: "Track | str", vehicle: VehicleParams | None = None,
+def get_raceline(track: Track | str, vehicle: VehicleParams | None = None,
                  config: RacelineConfig | None = None, use_cache: bool = True) -> Raceline:
     """The racing line of ``track`` (a :class:`Track` or a :func:`~racing_env.tracks.make_track`
     name) for ``vehicle`` and ``config``, from the in-process memo, else the disk cache

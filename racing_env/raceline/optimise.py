@@ -62,7 +62,7 @@ class _Stations:
 
     @classmethod
     def on(cls, track: Track, vehicle: VehicleParams, config: RacelineConfig,
-           w_len: float) -> "_Stations":
+           w_len: float) -> _Stations:
         """The problem on ``track`` with the shortest-path weight ``w_len`` (0: none)."""
         m_grid = len(track.s_grid)
         n_pts = int(min(m_grid, max(16, math.ceil(track.length / config.point_spacing))))
@@ -186,7 +186,7 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
     n = np.clip(np.zeros(n_pts) if n_init is None else np.asarray(n_init, dtype=float), st.lo,
                 st.hi)
     converged, change, prev_change, alpha, it = False, np.inf, np.inf, 1.0, 0
-    for it in range(1, int(config.max_iter) + 1):
+    for it in range(1, int(config.max_iter) + 1):  # noqa: B007
         hess, grad = st.least_squares(n, exact)
         n_new = qp.solve(hess, grad, x0=n)
         change = float(np.max(np.abs(n_new - n)))     # fixed-point residual [m]
@@ -284,7 +284,7 @@ def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
     line = line_on_grid(track, vehicle, config, s_sub, n_sub, with_lap=False)
     kappa, ds = line["kappa"], line["ds"]
     mus = config.mus
-    lib = [speed_profile(kappa, ds, float(mu), vehicle) for mu in mus]
+    lib = [speed_profile(kappa, ds, float(grip), vehicle) for grip in mus]
     vx_lib = np.array([v for v, _ in lib])
     ax_lib = np.array([a for _, a in lib])
     j = int(np.argmin(np.abs(mus - config.mu_nominal)))

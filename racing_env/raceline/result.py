@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..envelope import grip_arg
 from ..interp import periodic_interp
 from ..track import Track
 from .config import CACHE_VERSION
@@ -43,7 +44,7 @@ class Raceline:
     ``iterations`` / ``converged`` / ``last_change`` [m] of the minimum-curvature iteration,
     ``cost`` / ``cost_center`` the integral of kappa^2 along the path [1/m] of line / centre
     line on the optimisation stations, ``compute_time`` [s]. ``from_cache`` tells whether it was loaded.
-    """
+    """  # noqa: E501
 
     s: np.ndarray
     x: np.ndarray
@@ -114,38 +115,41 @@ class Raceline:
         (any shape, unwrapped allowed); same shape as ``s_track``."""
         return self._interp(self.n, s_track)
 
-    def _check_mu(self, mu) -> float:
-        mu_f = float(mu)
+    def _check_grip(self, grip) -> float:
+        grip_f = float(grip)
         lo, hi = float(self.mus[0]), float(self.mus[-1])
-        if not (math.isfinite(mu_f) and lo - 1e-12 <= mu_f <= hi + 1e-12):
-            raise ValueError(f"friction mu={mu!r} is outside the speed library range "
+        if not (math.isfinite(grip_f) and lo - 1e-12 <= grip_f <= hi + 1e-12):
+            raise ValueError(f"envelope scale grip={grip!r} is outside the speed library range "
                              f"[{lo}, {hi}]")
-        return min(max(mu_f, lo), hi)
+        return min(max(grip_f, lo), hi)
 
-    def profile(self, mu=None):
-        """``(vx, ax)`` per point [m/s], [m/s^2] for envelope scale ``mu`` (default ``mu_nominal``),
-        linearly interpolated between the library's neighbouring profiles; shapes (M,)."""
-        if mu is None:
+    def profile(self, grip=None, *, mu=None):
+        """``(vx, ax)`` per point [m/s], [m/s^2] for envelope scale ``grip`` (default
+        ``mu_nominal``), linearly interpolated between the library's neighbouring profiles;
+        shapes (M,). ``mu``: deprecated name of ``grip``."""
+        grip = grip_arg(grip, mu, "Raceline.profile")
+        if grip is None:
             return self.vx, self.ax
-        mu = self._check_mu(mu)
-        hit = np.flatnonzero(np.abs(self.mus - mu) <= 1e-12)
+        grip = self._check_grip(grip)
+        hit = np.flatnonzero(np.abs(self.mus - grip) <= 1e-12)
         if hit.size:                                   # a library entry: exactly its profile
             return self.vx_lib[hit[0]], self.ax_lib[hit[0]]
-        j = int(np.clip(np.searchsorted(self.mus, mu, side="right") - 1, 0, len(self.mus) - 2))
-        w = (mu - self.mus[j]) / (self.mus[j + 1] - self.mus[j])
+        j = int(np.clip(np.searchsorted(self.mus, grip, side="right") - 1, 0, len(self.mus) - 2))
+        w = (grip - self.mus[j]) / (self.mus[j + 1] - self.mus[j])
         vx = (1.0 - w) * self.vx_lib[j] + w * self.vx_lib[j + 1]
         ax = (1.0 - w) * self.ax_lib[j] + w * self.ax_lib[j + 1]
         return vx, ax
 
-    def speed_at(self, s_track, mu=None):
+    def speed_at(self, s_track, grip=None, *, mu=None):
         """Reference speed ``vx`` [m/s] at centre-line ``s_track`` [m] (any shape, unwrapped
-        allowed) for envelope scale ``mu`` (scalar in ``[mus[0], mus[-1]]``, default ``mu_nominal``).
-        Raises ``ValueError`` for a ``mu`` outside the library range."""
-        return self._interp(self.profile(mu)[0], s_track)
+        allowed) for envelope scale ``grip`` (scalar in ``[mus[0], mus[-1]]``, default
+        ``mu_nominal``; ``mu``: its deprecated name). Raises ``ValueError`` for a ``grip``
+        outside the library range."""
+        return self._interp(self.profile(grip_arg(grip, mu, "Raceline.speed_at"))[0], s_track)
 
-    def accel_at(self, s_track, mu=None):
+    def accel_at(self, s_track, grip=None, *, mu=None):
         """Reference acceleration ``ax`` [m/s^2] at centre-line ``s_track`` (like :meth:`speed_at`)."""
-        return self._interp(self.profile(mu)[1], s_track)
+        return self._interp(self.profile(grip_arg(grip, mu, "Raceline.accel_at"))[1], s_track)
 
     def heading_at(self, s_track):
         """Racing-line heading ``psi`` [rad], wrapped to (-pi, pi], at centre-line ``s_track`` [m]."""
@@ -166,9 +170,10 @@ class Raceline:
         st_ext = np.append(self.s_track, self.track_length)
         return lap * self.length + np.interp(s_track - lap * self.track_length, st_ext, s_ext)
 
-    def lap_time_at(self, mu=None) -> float:
-        """Lap time [s] of the profile for ``mu`` (default ``mu_nominal``)."""
-        return lap_time_of(self.profile(mu)[0], self.ds)
+    def lap_time_at(self, grip=None, *, mu=None) -> float:
+        """Lap time [s] of the profile for envelope scale ``grip`` (default ``mu_nominal``;
+        ``mu``: its deprecated name)."""
+        return lap_time_of(self.profile(grip_arg(grip, mu, "Raceline.lap_time_at"))[0], self.ds)
 
     # ------------------------------------------------------------------ output
     def to_csv(self, path) -> Path:
@@ -185,9 +190,10 @@ class Raceline:
         np.savetxt(path, data, delimiter=",", header=header, fmt="%.9g")
         return path
 
-    def plot(self, path, track: Track | None = None, mu=None) -> Path:
+    def plot(self, path, track: Track | None = None, grip=None, *, mu=None) -> Path:
         """Write a PNG of the track edges, centre line and racing line coloured by speed."""
-        return plot_raceline(track if track is not None else self.track, self, path, mu=mu)
+        return plot_raceline(track if track is not None else self.track, self, path,
+                             grip=grip_arg(grip, mu, "Raceline.plot"))
 
     def to_npz_dict(self) -> dict:
         """Arrays and metadata for :func:`numpy.savez` (no objects, loadable without pickle)."""
@@ -200,7 +206,7 @@ class Raceline:
         return d
 
     @classmethod
-    def from_npz_dict(cls, d) -> "Raceline":
+    def from_npz_dict(cls, d) -> Raceline:
         """Inverse of :meth:`to_npz_dict`; raises ``ValueError``/``KeyError`` on bad content."""
         meta = json.loads(str(d["meta"][()]))
         kw = {name: np.array(d[name], dtype=float) for name in _ARRAYS}
@@ -221,10 +227,11 @@ class Raceline:
                 f"converged={self.converged})")
 
 
-def plot_raceline(track: Track, raceline: Raceline, path, mu=None, dpi: int = 150) -> Path:
+def plot_raceline(track: Track, raceline: Raceline, path, grip=None, dpi: int = 150, *,
+                  mu=None) -> Path:
     """Write a PNG [path] of the track edges, the centre line and the racing line coloured by
-    speed [m/s] (profile for ``mu``, default nominal). Uses matplotlib's Agg canvas directly, so
-    it never touches the global backend."""
+    speed [m/s] (profile for envelope scale ``grip``, default nominal; ``mu``: its deprecated name). Uses matplotlib's Agg canvas directly, so
+    it never touches the global backend."""  # noqa: E501
     if track is None:
         raise ValueError("plot_raceline needs the track (raceline.track is not set)")
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -232,7 +239,8 @@ def plot_raceline(track: Track, raceline: Raceline, path, mu=None, dpi: int = 15
     from matplotlib.figure import Figure
 
     path = Path(path)
-    vx = raceline.profile(mu)[0]
+    grip = grip_arg(grip, mu, "plot_raceline")
+    vx = raceline.profile(grip)[0]
     fig = Figure(figsize=(8, 6))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(111)
@@ -248,8 +256,8 @@ def plot_raceline(track: Track, raceline: Raceline, path, mu=None, dpi: int = 15
     ax.add_collection(lc)
     fig.colorbar(lc, ax=ax, label="speed [m/s]")
     ax.plot(raceline.x[0], raceline.y[0], "r>", ms=8, label="start")
-    mu_txt = raceline.mu_nominal if mu is None else float(mu)
-    ax.set_title(f"{raceline.track_name}: racing line, mu = {mu_txt:g}, "
+    grip_txt = raceline.mu_nominal if grip is None else float(grip)
+    ax.set_title(f"{raceline.track_name}: racing line, grip = {grip_txt:g}, "
                  f"lap {lap_time_of(vx, raceline.ds):.2f} s")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")

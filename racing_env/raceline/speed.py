@@ -1,4 +1,4 @@
-"""The speed profile along a closed path for the car's g-g-v envelope scaled by ``mu``
+"""The speed profile along a closed path for the car's g-g-v envelope scaled by ``grip``
 (:mod:`racing_env.envelope`): forward (drive) and backward (braking) passes around the lap
 until nothing changes, and the lap time of a profile."""
 from __future__ import annotations
@@ -8,41 +8,54 @@ import math
 import numpy as np
 from numba import njit
 
-from ..envelope import envelope_at, ggv
+from ..envelope import envelope_at, ggv, grip_arg
 from ..vehicle import VehicleParams
 
 G = 9.81
 """Gravitational acceleration [m/s^2]."""
 
 
-def accel_limits(v, kappa, mu: float, vehicle: VehicleParams | None = None):
+def accel_limits(v, kappa, grip: float | None = None, vehicle: VehicleParams | None = None, *,
+                 mu: float | None = None):
     """Largest acceleration and deceleration [m/s^2] (deceleration >= 0) at speed ``v`` [m/s]
-    on a path of curvature ``kappa`` [1/m] for the car's g-g-v envelope scaled by ``mu``
-    (:mod:`racing_env.envelope`); arrays broadcast.
+    on a path of curvature ``kappa`` [1/m] for the car's g-g-v envelope scaled by ``grip``
+    (:mod:`racing_env.envelope`; ``mu``: deprecated name of ``grip``); arrays broadcast.
 
-    ``a_acc = mu ax_max(v, v^2 |kappa|)`` is the drive acceleration on top of that corner: it is
+    ``a_acc = grip ax_max(v, v^2 |kappa|)`` is the drive acceleration on top of that corner: it is
     *negative* where the motor cannot hold the speed in the corner (the car slows through it).
-    ``a_brk = -mu ax_min(v, v^2 |kappa|)``. A lateral demand beyond the envelope counts as at it.
+    ``a_brk = -grip ax_min(v, v^2 |kappa|)``. A lateral demand beyond the envelope counts as at it.
     """
+    grip = _required_grip(grip, mu, "accel_limits")
     env = ggv(vehicle or VehicleParams())
     v = np.asarray(v, dtype=float)
-    hi, lo = env.longitudinal_limits(v, v * v * np.abs(np.asarray(kappa, dtype=float)), mu)
+    hi, lo = env.longitudinal_limits(v, v * v * np.abs(np.asarray(kappa, dtype=float)), grip)
     return hi, np.maximum(-lo, 0.0)
 
 
-def speed_limit(kappa, mu: float, vehicle: VehicleParams | None = None):
+def _required_grip(grip, mu, where: str) -> float:
+    grip = grip_arg(grip, mu, where)
+    if grip is None:
+        raise TypeError(f"{where}() missing the envelope scale grip")
+    return grip
+
+
+def speed_limit(kappa, grip: float | None = None, vehicle: VehicleParams | None = None, *,
+                mu: float | None = None):
     """Quasi-steady speed cap [m/s] of curvature ``kappa`` [1/m] (any shape): the highest speed
-    at which the envelope scaled by ``mu`` holds ``v^2 |kappa|`` (the steering bound at low
-    speed, the tyres above), and never above the top speed (:meth:`GGV.corner_speed`)."""
-    return ggv(vehicle or VehicleParams()).corner_speed(kappa, mu)
+    at which the envelope scaled by ``grip`` holds ``v^2 |kappa|`` (the steering bound at low
+    speed, the tyres above), and never above the top speed (:meth:`GGV.corner_speed`).
+    ``mu``: deprecated name of ``grip``."""
+    grip = _required_grip(grip, mu, "speed_limit")
+    return ggv(vehicle or VehicleParams()).corner_speed(kappa, grip)
 
 
-def speed_profile(kappa, ds, mu: float, vehicle: VehicleParams | None = None, max_sweeps: int = 50):
+def speed_profile(kappa, ds, grip: float | None = None, vehicle: VehicleParams | None = None,
+                  max_sweeps: int = 50, *, mu: float | None = None):
     """Periodic speed profile ``(vx, ax)`` [m/s], [m/s^2] on a closed path, shapes (M,).
 
     ``kappa`` [1/m] at the M points, ``ds[k]`` [m] the distance from point k to point k+1
-    (the last one closes the lap); ``mu`` scales the car's g-g-v envelope
-    (:func:`racing_env.envelope.ggv`; 1 = the car's own limit). Starts from
+    (the last one closes the lap); ``grip`` scales the car's g-g-v envelope
+    (:func:`racing_env.envelope.ggv`; 1 = the car's own limit; ``mu``: its deprecated name). Starts from
     :func:`speed_limit` and repeats a forward (drive) and a backward (braking) pass around the
     lap until no speed changes; the result satisfies
     ``v[k+1]^2 - v[k]^2 <= 2 ds[k] a_acc(v[k], kappa[k])`` and
@@ -50,6 +63,7 @@ def speed_profile(kappa, ds, mu: float, vehicle: VehicleParams | None = None, ma
     :func:`accel_limits`; ``a_acc`` may be negative in fast corners, where the car slows).
     ``ax[k] = (v[k+1]^2 - v[k]^2) / (2 ds[k])`` is the acceleration on segment k.
     """
+    grip = _required_grip(grip, mu, "speed_profile")
     p = vehicle or VehicleParams()
     kappa = np.asarray(kappa, dtype=float)
     ds = np.asarray(ds, dtype=float)
@@ -57,11 +71,11 @@ def speed_profile(kappa, ds, mu: float, vehicle: VehicleParams | None = None, ma
         raise ValueError(f"speed_profile needs kappa and ds of equal 1-D shape, got {kappa.shape}, {ds.shape}")
     if not (np.all(np.isfinite(kappa)) and np.all(np.isfinite(ds)) and np.all(ds > 0)):
         raise ValueError("speed_profile needs finite kappa and finite positive ds")
-    if not (math.isfinite(mu) and 0 < mu <= 1.5):
-        raise ValueError(f"envelope scale mu must be in (0, 1.5], got {mu!r}")
+    if not (math.isfinite(grip) and 0 < grip <= 1.5):
+        raise ValueError(f"envelope scale grip must be in (0, 1.5], got {grip!r}")
     env = ggv(p)
-    v2 = speed_limit(kappa, mu, p) ** 2
-    v_tab, ay_tab, r_tab, axp_tab, axm_tab = env.tables(mu)
+    v2 = speed_limit(kappa, grip, p) ** 2
+    v_tab, ay_tab, r_tab, axp_tab, axm_tab = env.tables(grip)
     ok = _profile_sweeps(v2, np.abs(kappa), ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab,
                          int(np.argmin(v2)), int(max_sweeps))
     if not ok:
