@@ -195,7 +195,7 @@ class BatchedRaces:
             for b, i in np.argwhere(self._lap_event >= 0.0):
                 self.lap_times[b][i].append(float(self._lap_event[b, i]))
 
-    def step_physical(self, phys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def step_physical(self, phys: np.ndarray) -> None:
         """Advance all races by one control period with physical inputs (B, N, 2) = (d, delta)."""
         self._advance(phys, normalised=False)
 
@@ -230,7 +230,8 @@ class BatchedRaces:
         """Distance driven since the start [m], (B, N)."""
         return self.state[:, :, 0] - self.start[:, :, 0]
 
-    def infos(self, races: Sequence[int] | np.ndarray, cars: Sequence[int] | np.ndarray) -> list[dict]:
+    def infos(self, races: int | Sequence[int] | np.ndarray,
+              cars: int | Sequence[int] | np.ndarray) -> list[dict]:
         """The envs' info dicts (keys :data:`INFO_KEYS`) of the cars ``cars`` in races
         ``races`` (integers or index arrays, broadcast together), in that order."""
         r, c = np.broadcast_arrays(np.asarray(races), np.asarray(cars))
