@@ -12,6 +12,7 @@ bit for bit whatever the process's thread count.
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 import warnings
 from collections import deque
 
@@ -22,6 +23,9 @@ from .mpc_agent import MPCAgent, split_observation
 from .potential import PotentialModel, cached_model
 from .reference import THETA_HIGH, THETA_LOW, THETA_NAMES, Theta
 from .threads import single_blas_thread
+
+if TYPE_CHECKING:
+    from racing_env.track import Track
 
 AUTO = "auto"
 
@@ -84,7 +88,7 @@ class AlphaAgent(MPCAgent):
         self._theta_joint = None
         self._max_ms: deque = deque(maxlen=100_000)
 
-    def reset(self, track, agent_id: str = "car_0", seed: int | None = None) -> None:
+    def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         super().reset(track, agent_id, seed)
         if self.auto:
             self.model = None
@@ -127,7 +131,7 @@ class AlphaAgent(MPCAgent):
                                      map(float, self.theta.as_array())))})
         return st
 
-    def act(self, observation) -> np.ndarray:
+    def act(self, observation: np.ndarray) -> np.ndarray:
         if self.mpc is None:
             raise RuntimeError("AlphaAgent.act() before reset(track, ...)")
         with single_blas_thread():

@@ -3,10 +3,14 @@ from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 from collections.abc import Callable
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable, Sequence
+    from racing_env.track import Track
 
 
 @runtime_checkable
@@ -27,12 +31,12 @@ class Agent(Protocol):
     field in a fixed layout).
     """
 
-    def reset(self, track, agent_id: str, seed: int | None = None) -> None: ...
+    def reset(self, track: Track | str, agent_id: str, seed: int | None = None) -> None: ...
 
     def act(self, observation: np.ndarray) -> np.ndarray: ...
 
 
-def median_p99(values) -> tuple[float, float]:
+def median_p99(values: Sequence[float] | np.ndarray) -> tuple[float, float]:
     """(median, 99th percentile) of ``values`` (e.g. decision times for an agent's ``stats``);
     NaN for no values."""
     a = np.asarray(values, dtype=float)
@@ -49,7 +53,7 @@ _REGISTRY: dict[str, Callable[..., Agent]] = {}
 ENTRY_POINT_GROUP = "alpha_racer.agents"
 
 
-def register_agent(name: str, factory: Callable[..., Agent] | None = None):
+def register_agent(name: str, factory: Callable[..., Agent] | None = None) -> Any:
     """Register ``factory`` (a class or function returning an Agent) under ``name``.
 
     Usable as a decorator: ``@register_agent("mine") class Mine: ...``. An installed package
@@ -213,7 +217,7 @@ def make_agent_spec(spec: str) -> Agent:
         raise ValueError(msg if spec in msg else f"agent {spec!r}: {msg}") from None
 
 
-def import_agent_modules(modules) -> None:
+def import_agent_modules(modules: Iterable[str]) -> None:
     """Import each of ``modules`` (module names, or paths of ``.py`` files) so that the agents
     they register become available to specs; the current directory is searched as by
     ``python -m``. ``ValueError`` in one line naming a module that fails to import."""

@@ -22,6 +22,11 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from racing_env.track import Track
+    from .reference import Theta
 
 SCHEMA_VERSION = 1
 DEFAULT_TABLE = Path(__file__).parent / "models" / "best_fixed_theta.json"
@@ -48,7 +53,7 @@ def empty_table() -> dict:
     return {"schema_version": SCHEMA_VERSION, "tracks": {}}
 
 
-def read_table(path=None) -> dict:
+def read_table(path: str | os.PathLike | None = None) -> dict:
     """The table at ``path`` (default :func:`table_path`); an empty table if the file does not
     exist. ``ValueError`` naming the file for a file that is not a table of this schema."""
     path = Path(path) if path is not None else table_path()
@@ -74,7 +79,7 @@ def _command(spec: str) -> str:
     return f"alpha-racer control --tracks {spec}"
 
 
-def lookup(track, path=None) -> dict:
+def lookup(track: str | Track, path: str | os.PathLike | None = None) -> dict:
     """The table entry for ``track`` (a :class:`racing_env.Track` or a track spec), matched by
     the geometry's fingerprint. ``ValueError`` naming the track, the table and the command that
     adds it when there is no entry, when the entry's geometry differs, or when the entry was
@@ -104,7 +109,7 @@ def lookup(track, path=None) -> dict:
     return entry
 
 
-def best_theta(track, path=None):
+def best_theta(track: str | Track, path: str | os.PathLike | None = None) -> Theta:
     """The :class:`agents.reference.Theta` of ``track``'s entry (see :func:`lookup`)."""
     from .reference import THETA_NAMES, Theta
     entry = lookup(track, path)

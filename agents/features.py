@@ -27,9 +27,15 @@ padded) is a second feature set; a model records its set's name and version in i
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .reference import THETA_HIGH, THETA_LOW
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from racing_env.track import Track
 
 FEATURE_VERSION = 1
 PREVIEW = np.array([0.0, 0.5, 1.0, 2.0])    # curvature look-ahead distances [m]
@@ -37,23 +43,23 @@ N_STATE = 5                                 # n, mu, vx, vy, omega
 N_THETA = 5
 
 
-def scale_theta(theta):
+def scale_theta(theta: np.ndarray | Sequence[float]) -> np.ndarray:
     """Theta (..., 5) -> [-1, 1] (..., 5) by the documented bounds."""
     return 2.0 * (np.asarray(theta, dtype=float) - THETA_LOW) / (THETA_HIGH - THETA_LOW) - 1.0
 
 
-def unscale_theta(z):
+def unscale_theta(z: np.ndarray | Sequence[float]) -> np.ndarray:
     """Inverse of :func:`scale_theta`."""
     return THETA_LOW + 0.5 * (np.asarray(z, dtype=float) + 1.0) * (THETA_HIGH - THETA_LOW)
 
 
-def curvature_preview(track, s) -> np.ndarray:
+def curvature_preview(track: Track, s: float | np.ndarray) -> np.ndarray:
     """Track curvature [1/m] at ``s + PREVIEW``: shape ``s.shape + (len(PREVIEW),)``."""
     s = np.asarray(s, dtype=float)[..., None] + PREVIEW
     return track.interp(track.kappa, s)
 
 
-def check_joint(states, thetas, max_cars: int | None = None):
+def check_joint(states: np.ndarray, thetas: np.ndarray, max_cars: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``states`` (..., N, 6) and ``thetas`` (..., N, 5) as float arrays, checked: matching
     shapes and 2 <= N (<= ``max_cars`` when given)."""
     states = np.asarray(states, dtype=float)
@@ -86,7 +92,7 @@ def potential_theta_slots(n_cars: int) -> np.ndarray:
     return np.arange(n_cars)[:, None] * per + (per - N_THETA) + np.arange(N_THETA)
 
 
-def value_features(states, thetas, track, ego) -> np.ndarray:
+def value_features(states: np.ndarray, thetas: np.ndarray, track: Track, ego: int) -> np.ndarray:
     """Features of car ``ego`` (int or int array broadcast over the batch): (..., value_dim)."""
     states, thetas = check_joint(states, thetas)
     N = states.shape[-2]
@@ -109,12 +115,13 @@ def value_features(states, thetas, track, ego) -> np.ndarray:
                            scale_theta(e_theta), others], axis=-1)
 
 
-def progress_order(states) -> np.ndarray:
+def progress_order(states: np.ndarray) -> np.ndarray:
     """Car indices sorted by progress, leader first (..., N)."""
     return np.argsort(-np.asarray(states)[..., 0], axis=-1, kind="stable")
 
 
-def potential_features(states, thetas, track, order=None) -> np.ndarray:
+def potential_features(states: np.ndarray, thetas: np.ndarray, track: Track,
+                       order: np.ndarray | None = None) -> np.ndarray:
     """Joint features (..., potential_dim) with cars in ``order`` (default progress order)."""
     states, thetas = check_joint(states, thetas)
     batch = states.shape[:-2]

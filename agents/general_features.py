@@ -31,11 +31,16 @@ Bump :data:`FEATURE_VERSION` whenever the output changes; models record it.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from racing_env.interp import periodic_interp
 
 from .features import N_STATE, N_THETA, check_joint, scale_theta
+
+if TYPE_CHECKING:
+    from racing_env.track import Track
 
 FEATURE_VERSION = 1
 N_MAX = 8                                                  # slots: the env's largest field
@@ -78,7 +83,7 @@ class TrackSet:
     def __len__(self) -> int:
         return len(self.tracks)
 
-    def lookup(self, name: str, s, track_id) -> np.ndarray:
+    def lookup(self, name: str, s: float | np.ndarray, track_id: int | np.ndarray) -> np.ndarray:
         s = np.asarray(s, dtype=float)
         k = np.broadcast_to(np.asarray(track_id, dtype=np.int64), s.shape)
         return periodic_interp(self._tables[name], s, self._length[k], self._ds[k],
@@ -88,7 +93,7 @@ class TrackSet:
 _SINGLE: dict = {}
 
 
-def track_set(track) -> TrackSet:
+def track_set(track: Track | str) -> TrackSet:
     """A one-track :class:`TrackSet` of ``track`` (a Track or a name), memoised per track."""
     from racing_env.tracks import make_track
     track = make_track(track)
@@ -115,7 +120,7 @@ def _tracks(track, track_id, batch):
     return track_set(track), np.zeros(batch, dtype=np.int64)
 
 
-def local_track(tracks: TrackSet, s, track_id) -> np.ndarray:
+def local_track(tracks: TrackSet, s: float | np.ndarray, track_id: int | np.ndarray) -> np.ndarray:
     """Curvature at ``s + PREVIEW`` [1/m] and half widths (left, right) at s [m]:
     shape ``s.shape + (N_LOCAL,)``."""
     s = np.asarray(s, dtype=float)
@@ -156,14 +161,15 @@ def potential_theta_slots(n_cars: int) -> np.ndarray:
             + np.arange(N_THETA))
 
 
-def progress_order(states, thetas=None) -> np.ndarray:
+def progress_order(states: np.ndarray, thetas: np.ndarray | None = None) -> np.ndarray:
     """Car indices (..., N) sorted by progress, leader first; ties broken by the rest of the
     state (and by theta when given)."""
     states = np.asarray(states, dtype=float)
     return _sort(-states[..., 0], states, thetas)
 
 
-def value_features(states, thetas, track, ego, track_id=None) -> np.ndarray:
+def value_features(states: np.ndarray, thetas: np.ndarray, track: Track | TrackSet, ego: int,
+                   track_id: int | np.ndarray | None = None) -> np.ndarray:
     """Features of car ``ego`` (int or int array broadcast over the batch), (..., VALUE_DIM).
 
     ``states`` (..., N, 6) with s unwrapped [m], ``thetas`` (..., N, 5); ``track`` a Track
@@ -195,7 +201,8 @@ def value_features(states, thetas, track, ego, track_id=None) -> np.ndarray:
     return np.concatenate([ego_part, others.reshape(batch + (-1,))], axis=-1)
 
 
-def potential_features(states, thetas, track, order=None, track_id=None) -> np.ndarray:
+def potential_features(states: np.ndarray, thetas: np.ndarray, track: Track | TrackSet,
+                       order: np.ndarray | None = None, track_id: int | np.ndarray | None = None) -> np.ndarray:
     """Joint features (..., POTENTIAL_DIM) with the cars in ``order`` (default
     :func:`progress_order` of states and thetas) in the first N slots; ``track`` and
     ``track_id`` as for :func:`value_features`."""

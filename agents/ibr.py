@@ -534,7 +534,7 @@ class IBR:
                     side[b, a] = -side[a, b]
         return side
 
-    def solve(self, states, u_prev=None) -> np.ndarray:
+    def solve(self, states: np.ndarray, u_prev: np.ndarray | None = None) -> np.ndarray:
         t0 = time.perf_counter()
         cfg = self.cfg
         states = np.asarray(states, dtype=float)
@@ -681,7 +681,7 @@ class IBRAgent:
         self.ibr: IBR | None = None
         self.track: Track | None = None
 
-    def reset(self, track, agent_id: str = "car_0", seed: int | None = None) -> None:
+    def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         track = make_track(track)
         if self.ibr is None or self.track is not track:
             self.ibr = IBR(track, self.vehicle, self.config)
@@ -707,7 +707,7 @@ class IBRAgent:
                 "decision_ms_median": med, "decision_ms_p99": p99,
                 "br_ms_median": br_med, "br_ms_p99": br_p99}
 
-    def act(self, observation) -> np.ndarray:
+    def act(self, observation: np.ndarray) -> np.ndarray:
         if self.ibr is None:
             raise RuntimeError("IBRAgent.act() before reset(track, ...)")
         ego, others = split_observation(observation, self.n_preview)

@@ -8,7 +8,12 @@ which the alpha agent's gradient ascent over theta needs.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping, Sequence
 
 # float32 throughout: for the small batches of online maximisation, numpy's float64 products
 # with these layer sizes measured 3-4x slower (and transposed ones 15x) than float32 ones on
@@ -52,7 +57,7 @@ class MLP:
         W, b = self.layers[-1]
         return (h @ W + b)[..., 0].astype(np.float64) * self.y_scale + self.y_shift
 
-    def value_and_input_grad(self, x):
+    def value_and_input_grad(self, x: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(y (B,), dy/dx (B, in)) for x (B, in)."""
         h = self._check(x)
         dsilu = []
@@ -72,7 +77,7 @@ class MLP:
             g = np.broadcast_to(g, h.shape[:-1] + (self.in_dim,))
         return y, g.astype(np.float64)
 
-    def restricted(self, x, free) -> MLP:
+    def restricted(self, x: float | np.ndarray, free: Sequence[int] | np.ndarray) -> MLP:
         """This network as a function of the inputs ``free`` (column indices, F) alone, the
         others fixed at ``x`` (in,): an MLP of F inputs (unnormalised) sharing the deeper
         layers' weights. The fixed inputs' share of the first layer is computed here once, so
@@ -105,7 +110,7 @@ class MLP:
         return out
 
     @classmethod
-    def from_arrays(cls, z, prefix: str) -> MLP:
+    def from_arrays(cls, z: Mapping[str, np.ndarray], prefix: str) -> MLP:
         n = int(z[f"{prefix}n_layers"])
         layers = [(z[f"{prefix}W{i}"], z[f"{prefix}b{i}"]) for i in range(n)]
         ys = z[f"{prefix}y"]

@@ -17,7 +17,7 @@ from .reference import (EXTENDED_HIGH, EXTENDED_LOW, EXTENDED_NAMES, THETA_HIGH,
 from .threads import single_blas_thread
 
 
-def joint_state_from_observation(obs: np.ndarray, n_cars: int):
+def joint_state_from_observation(obs: np.ndarray, n_cars: int) -> tuple[np.ndarray, np.ndarray]:
     """(ego (6,), others (N-1, 6)) Frenet states from an env observation.
 
     The ego's ``s`` is its wrapped arc length; the others' are ego ``s`` plus their unwrapped
@@ -30,7 +30,7 @@ def joint_state_from_observation(obs: np.ndarray, n_cars: int):
     return ego, others
 
 
-def split_observation(observation, n_preview: int):
+def split_observation(observation: np.ndarray, n_preview: int) -> tuple[np.ndarray, np.ndarray]:
     """(ego (6,), others (N-1, 6)) from an env observation whose curvature preview has
     ``n_preview`` entries; ``ValueError`` when the length does not fit ``6 N + n_preview``."""
     obs = np.asarray(observation, dtype=float)
@@ -124,7 +124,7 @@ class MPCAgent:
         self.mpc: MPC | None = None
         self.track: Track | None = None
 
-    def reset(self, track, agent_id: str = "car_0", seed: int | None = None) -> None:
+    def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         from racing_env.raceline import get_raceline
         track = make_track(track)
         if self.best:                   # before anything is built: a missing entry fails fast
@@ -139,7 +139,7 @@ class MPCAgent:
         self.agent_id = agent_id
         self._u_prev = np.zeros(2)
 
-    def check_track(self, track) -> None:
+    def check_track(self, track: Track) -> None:
         """Raise the ``ValueError`` that ``reset(track)`` would for a track without a best
         theta (``theta="best"`` only; nothing is built), so a run fails before its races."""
         if self.best:
@@ -189,7 +189,7 @@ class MPCAgent:
                 "restarts": st.get("restarts", 0),
                 "solve_ms_median": med, "solve_ms_p99": p99}
 
-    def act(self, observation) -> np.ndarray:
+    def act(self, observation: np.ndarray) -> np.ndarray:
         if self.mpc is None:
             raise RuntimeError("MPCAgent.act() before reset(track, ...)")
         with single_blas_thread():       # results independent of the BLAS thread count

@@ -96,8 +96,9 @@ class IpoptMPC:
         self._w0 = None
         self.last_U = None
 
-    def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None,
-              init=None) -> np.ndarray:
+    def solve(self, x0: np.ndarray, s_ref: np.ndarray, n_ref: np.ndarray, q: float,
+              opponents: np.ndarray | None = None, u_prev: np.ndarray | None = None,
+              init: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """Like :meth:`MPC.solve`; ``init = (X (6, K + 1), U (2, K))`` replaces the warm start
         by an explicit initial guess (states from ``x0`` on). ``last_U`` (2, K) holds the plan,
         ``None`` after a failed solve."""

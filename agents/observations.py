@@ -10,9 +10,14 @@ reads a fixed layout can instead accept any field by :func:`adapt_observation`.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from racing_env.gym_env import act_named, agent_label  # noqa: F401  (re-exported)
+
+if TYPE_CHECKING:
+    from typing import Any
 
 
 def adapt_observation(obs: np.ndarray, n_cars: int, n_preview: int, track_length: float) -> np.ndarray:
@@ -66,7 +71,7 @@ _adapt_observation = adapt_observation
 """The former private name, kept as an alias."""
 
 
-def check_field_size(agent, n_cars: int, car: str, spec: str | None = None) -> None:
+def check_field_size(agent: Any, n_cars: int, car: str, spec: str | None = None) -> None:
     """Raise ``ValueError`` naming the agent, its car and the sizes it supports when ``agent``
     declares ``field_sizes`` that do not include ``n_cars``; agents without a declaration pass."""
     sizes = getattr(agent, "field_sizes", None)

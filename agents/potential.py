@@ -10,6 +10,7 @@ and that set's version; a model of another version is refused.
 from __future__ import annotations
 
 import json
+from typing import TYPE_CHECKING
 import warnings
 from pathlib import Path
 
@@ -20,6 +21,11 @@ from .features import scale_theta, unscale_theta
 from .mlp import MLP
 from .reference import THETA_HIGH, THETA_LOW
 from .threads import single_blas_thread
+
+if TYPE_CHECKING:
+    import os
+
+    from racing_env.track import Track
 
 MODEL_DIR = Path(__file__).parent / "models"
 SHIPPED = {"default": "alpha_default.npz", "gamma0.98": "alpha_gamma098.npz",
@@ -76,7 +82,7 @@ class PotentialModel:
         return self.features.general
 
     # ------------------------------------------------------------------ io
-    def save(self, path) -> Path:
+    def save(self, path: str | os.PathLike) -> Path:
         path = Path(path)
         arrays = {**self.value_net.to_arrays("v_"), **self.potential_net.to_arrays("p_")}
         arrays["meta"] = np.array(json.dumps(self.meta))
@@ -87,7 +93,7 @@ class PotentialModel:
         return path
 
     @classmethod
-    def load(cls, path) -> PotentialModel:
+    def load(cls, path: str | os.PathLike) -> PotentialModel:
         with np.load(path) as z:
             meta = json.loads(str(z["meta"]))
             return cls(MLP.from_arrays(z, "v_"), MLP.from_arrays(z, "p_"), meta)
@@ -103,12 +109,12 @@ class PotentialModel:
             raise ValueError(f"this model was trained for {self.n_cars} cars, got states of {n}")
         return n
 
-    def value(self, states, thetas, track, ego) -> np.ndarray:
+    def value(self, states: np.ndarray, thetas: np.ndarray, track: Track, ego: int) -> np.ndarray:
         """V_ego(x, theta) [m of discounted relative progress], shape of the batch."""
         self._check_cars(states)
         return self.value_net(self.features.value_features(states, thetas, track, ego))
 
-    def potential(self, states, thetas, track) -> np.ndarray:
+    def potential(self, states: np.ndarray, thetas: np.ndarray, track: Track) -> np.ndarray:
         """Phi(x, theta), shape of the batch."""
         self._check_cars(states)
         return self.potential_net(self.features.potential_features(states, thetas, track))
@@ -128,10 +134,10 @@ class PotentialModel:
         base = f.potential_features(state, np.zeros((n, 5)), track, order)
         return rng or np.random.default_rng(0), slots, base
 
-    def maximise(self, state, track, theta0=None, restarts: int | None = None,
+    def maximise(self, state: np.ndarray, track: Track, theta0: np.ndarray | None = None, restarts: int | None = None,
                  iterations: int | None = None, rng: np.random.Generator | None = None,
                  step: float = 0.5, warm_step: float = 0.15, decay: float = 0.8,
-                 high: np.ndarray | None = None):
+                 high: np.ndarray | None = None) -> tuple[np.ndarray, float]:
         """Projected gradient ascent (Adam steps) of Phi(x, .) over the joint theta within its
         bounds; returns ``(theta* (N, 5), Phi*)``, the best iterate seen.
 
@@ -208,9 +214,10 @@ class PotentialModel:
                 lr *= decay
         return unscale_theta(best_z.reshape(N, 5)), best_val
 
-    def maximise_reference(self, state, track, theta0=None, restarts: int = 4, iterations: int = 8,
+    def maximise_reference(self, state: np.ndarray, track: Track, theta0: np.ndarray | None = None,
+                           restarts: int = 4, iterations: int = 8,
                  rng: np.random.Generator | None = None, step: float = 0.4, decay: float = 0.7,
-                 per_coordinate: bool = False):
+                 per_coordinate: bool = False) -> tuple[np.ndarray, float]:
         """The maximisation of the first release (6 RMS-normalised steps from 4 starts), kept as
         the baseline that ``benchmarks/alpha_speed.py`` compares :meth:`maximise` with.
 
@@ -260,7 +267,7 @@ class PotentialModel:
         return unscale_theta(best_z), best_val
 
 
-def cached_model(name_or_path="default") -> PotentialModel:
+def cached_model(name_or_path: str | os.PathLike = "default") -> PotentialModel:
     """:func:`load_model`, loaded once per process and name (agents and workers share it;
     treat it as read-only)."""
     key = str(name_or_path)
@@ -272,7 +279,7 @@ def cached_model(name_or_path="default") -> PotentialModel:
 _LOADED: dict = {}
 
 
-def load_model(name_or_path="default") -> PotentialModel:
+def load_model(name_or_path: str | os.PathLike = "default") -> PotentialModel:
     """A shipped model by name (``default``, ``gamma0.98``, ``gamma0.995``, ``races400``,
     ``general``) or a path to a ``model.npz``."""
     if str(name_or_path) in SHIPPED:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import pickle
+from typing import TYPE_CHECKING
 import zipfile
 from importlib import resources
 from pathlib import Path
@@ -30,6 +31,12 @@ from racing_env.files import atomic_path
 
 from .base import register_agent
 from .observations import adapt_observation  # noqa: F401  (also importable from here, as before)
+
+if TYPE_CHECKING:
+    import os
+    from typing import Any
+
+    from racing_env.track import Track
 
 CHECKPOINT_SCHEMA = 1
 META_NAME = "alpha_racer.json"
@@ -44,7 +51,7 @@ def default_checkpoint() -> Path:
 
 
 # ---------------------------------------------------------------------- checkpoint files
-def save_checkpoint(model, vec_normalize, path, meta: dict) -> Path:
+def save_checkpoint(model: Any, vec_normalize: Any, path: str | os.PathLike, meta: dict) -> Path:
     """Write ``model`` (SB3 PPO), its ``VecNormalize`` (or None) and ``meta`` to one zip,
     atomically (temporary file in the same folder, then rename). Returns the path.
 
@@ -81,7 +88,7 @@ SAVE_HINT = ("write one with agents.ppo_agent.save_checkpoint(model, vec_normali
              "or race a plain SB3 zip with ppo:checkpoint=PATH,vecnormalize=PATH_OR_none")
 
 
-def is_sb3_zip(path) -> bool:
+def is_sb3_zip(path: str | os.PathLike) -> bool:
     """True for a zip written by SB3's ``model.save`` (members ``data`` and ``policy.pth``)."""
     try:
         with zipfile.ZipFile(path) as z:
@@ -90,7 +97,7 @@ def is_sb3_zip(path) -> bool:
         return False
 
 
-def read_checkpoint_meta(path) -> dict:
+def read_checkpoint_meta(path: str | os.PathLike) -> dict:
     """The ``alpha_racer.json`` of a checkpoint; a clear ``ValueError`` if the file is not an
     alpha-racer PPO checkpoint (naming :func:`save_checkpoint`) or has another schema version."""
     path = Path(path)
@@ -111,7 +118,7 @@ def read_checkpoint_meta(path) -> dict:
     return meta
 
 
-def load_vecnormalize(path):
+def load_vecnormalize(path: str | os.PathLike) -> Any:
     """The checkpoint's pickled SB3 ``VecNormalize`` (without a venv), or None."""
     with zipfile.ZipFile(path) as z:
         if VECNORM_NAME not in z.namelist():
@@ -119,7 +126,7 @@ def load_vecnormalize(path):
         return pickle.loads(z.read(VECNORM_NAME))
 
 
-def load_ppo(path, env=None, **kwargs):
+def load_ppo(path: str | os.PathLike, env: Any = None, **kwargs) -> Any:
     """``PPO.load`` of a checkpoint on the CPU (schedules replaced by constants, so a model
     saved by another SB3 version loads); ``kwargs`` go to ``PPO.load``."""
     from racing_env.extras import require
@@ -176,7 +183,7 @@ class FrozenPolicy:
             state["policy"] = None        # the numpy actor suffices: light to copy to workers
         return state
 
-    def reset(self, track, agent_id: str = "car_0", seed: int | None = None) -> None:
+    def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         from racing_env.tracks import make_track
         self.track_length = make_track(track).length
         self.agent_id = agent_id
@@ -219,7 +226,7 @@ class FrozenPolicy:
         np.maximum(h, -1.0, out=h)
         return h
 
-    def act(self, observation) -> np.ndarray:
+    def act(self, observation: np.ndarray) -> np.ndarray:
         if self.track_length is None:
             raise RuntimeError(f"{self.name}.act() before reset(track, ...)")
         obs = adapt_observation(observation, self.n_cars, self.n_preview, self.track_length)

@@ -28,10 +28,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from racing_env.vehicle import VehicleParams
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from racing_env.raceline.result import Raceline
+    from racing_env.track import Track
 
 __all__ = ["THETA_NAMES", "THETA_LOW", "THETA_HIGH", "THETA_UNITS", "Theta", "PolicySpace",
            "SPACES", "policy_space", "Reference", "opponent_neighbours", "reference_trajectory",
@@ -122,7 +129,7 @@ class Theta:
         return np.array([self.q, self.zeta, self.s1, self.s2, self.s3, self.b], dtype=float)
 
     @classmethod
-    def from_array(cls, a) -> Theta:
+    def from_array(cls, a: Sequence[float] | np.ndarray) -> Theta:
         """Theta from an array-like in :data:`THETA_NAMES` order (length 5, the paper's space)
         or in the extended space's order (length 6, ``b`` last); ``ValueError`` on a wrong
         shape or a value outside its bounds (naming parameter, value and bounds)."""
@@ -177,7 +184,7 @@ class PolicySpace:
         """Number of parameters."""
         return len(self.names)
 
-    def theta(self, a) -> Theta:
+    def theta(self, a: Sequence[float] | np.ndarray) -> Theta:
         """The :class:`Theta` of an array-like of shape (dim,) (``ValueError`` otherwise)."""
         arr = np.asarray(a, dtype=float)
         if arr.shape != (self.dim,):
@@ -189,7 +196,7 @@ class PolicySpace:
         """``theta``'s parameters in this space's order, shape (dim,)."""
         return theta.as_array(self.name)
 
-    def sample(self, rng=None) -> np.ndarray:
+    def sample(self, rng: np.random.Generator | int | None = None) -> np.ndarray:
         """A uniform sample of the box, shape (dim,) (``rng`` a Generator or a seed)."""
         rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         return np.clip(rng.uniform(self.low, self.high), self.low, self.high)
@@ -203,7 +210,7 @@ SPACES = {
 """The policy spaces by name."""
 
 
-def policy_space(name) -> PolicySpace:
+def policy_space(name: str | PolicySpace) -> PolicySpace:
     """The :class:`PolicySpace` called ``name`` (a PolicySpace is returned as is);
     ``ValueError`` naming the choices otherwise."""
     if isinstance(name, PolicySpace):
@@ -215,7 +222,7 @@ def policy_space(name) -> PolicySpace:
 
 
 # ====================================================================== neighbours
-def opponent_neighbours(ego_s: float, opp_s, length: float) -> tuple[int, int]:
+def opponent_neighbours(ego_s: float, opp_s: np.ndarray, length: float) -> tuple[int, int]:
     """Indices ``(ahead, behind)`` into ``opp_s`` of the car just ahead (``j^*``) and just
     behind (``j_*``) the ego, ``-1`` where there is none.
 
@@ -397,10 +404,12 @@ def _bad_state(name: str, arr: np.ndarray) -> None:
     raise ValueError(f"{where} state {_STATE_NAMES[c]} is not finite: {float(flat[r, c])!r}")
 
 
-def reference_trajectory(theta, ego, opponents, raceline, track, K: int = 15, dt: float = 0.1,
+def reference_trajectory(theta: Theta | Sequence[float] | np.ndarray, ego: np.ndarray,
+                         opponents: np.ndarray | None, raceline: Raceline, track: Track,
+                         K: int = 15, dt: float = 0.1,
                          vehicle_width: float | None = None, friction: float | None = None,
                          integration: str = "exact", reachable: bool = True,
-                         blend=None, side=None) -> Reference:
+                         blend: float | None = None, side: float | None = None) -> Reference:
     """The MPC reference of the paper for one car.
 
     Parameters

@@ -1,11 +1,16 @@
 """Simple agents: the raceline follower, and random / constant drivers for tests and benchmarks."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from racing_env.controllers import RacelineFollower
 
 from .base import register_agent
+
+if TYPE_CHECKING:
+    from racing_env.track import Track
 
 register_agent("raceline", RacelineFollower)
 
@@ -17,10 +22,10 @@ class RandomAgent:
     def __init__(self):
         self.rng = np.random.default_rng()
 
-    def reset(self, track, agent_id: str, seed: int | None = None) -> None:
+    def reset(self, track: Track | str, agent_id: str, seed: int | None = None) -> None:
         self.rng = np.random.default_rng(seed)
 
-    def act(self, observation) -> np.ndarray:
+    def act(self, observation: np.ndarray) -> np.ndarray:
         return self.rng.uniform(-1.0, 1.0, 2).astype(np.float32)
 
 
@@ -35,8 +40,8 @@ class ConstantAgent:
             raise ValueError(f"throttle and steering must be in [-1, 1], got {throttle}, {steering}")
         self.action = np.array([throttle, steering], dtype=np.float32)
 
-    def reset(self, track, agent_id: str, seed: int | None = None) -> None:
+    def reset(self, track: Track | str, agent_id: str, seed: int | None = None) -> None:
         pass
 
-    def act(self, observation) -> np.ndarray:
+    def act(self, observation: np.ndarray) -> np.ndarray:
         return self.action.copy()

@@ -18,6 +18,10 @@ from __future__ import annotations
 import os
 import sys
 from contextlib import contextmanager
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
 
 #: variables read by the pools a process starts later (OpenMP of a torch imported afterwards)
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -58,7 +62,7 @@ def pin_threads(n: int = 1) -> None:
 
 
 @contextmanager
-def limited_threads(n: int = 1):
+def limited_threads(n: int = 1) -> Iterator[None]:
     """Every native thread pool at ``n`` threads inside the block, the previous limits after
     it. Costs about a millisecond (it scans the loaded libraries): once per task, not per step."""
     from threadpoolctl import threadpool_limits
@@ -79,7 +83,7 @@ _blas: list = []
 
 
 @contextmanager
-def single_blas_thread():
+def single_blas_thread() -> Iterator[None]:
     """numpy's BLAS at one thread inside the block (nested blocks cost nothing more).
 
     Small matrix products of the agents run as fast on one thread, and their results then do

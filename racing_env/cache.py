@@ -43,9 +43,13 @@ import importlib.util
 import os
 import stat
 import tempfile
+from typing import TYPE_CHECKING
 import uuid
 import warnings
 from pathlib import Path
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
 
 ENV_VAR = "ALPHA_RACER_CACHE"
 APP_NAME = "alpha-racer"
@@ -149,7 +153,7 @@ def cache_dir(sub: str | None = None, quiet: bool = False) -> Path:
 KERNEL_PACKAGES = ("racing_env", "agents")
 
 
-def sources_hash(paths) -> str:
+def sources_hash(paths: Iterable[str | os.PathLike]) -> str:
     """Hash [hex, 16 chars] of the files ``paths`` (each one's name and bytes, in the order
     given): a cache key part that changes with the code that made the cached result."""
     h = hashlib.sha1()
@@ -159,7 +163,7 @@ def sources_hash(paths) -> str:
     return h.hexdigest()[:16]
 
 
-def kernel_sources_hash(folders=None) -> str:
+def kernel_sources_hash(folders: Iterable[str | os.PathLike] | None = None) -> str:
     """:func:`sources_hash` of every ``.py`` file (sorted by path) in ``folders`` and their
     sub-folders (sub-packages such as ``agents/mpc/``), by default the installed
     :data:`KERNEL_PACKAGES` (a package that cannot be found is left out): the name of numba's

@@ -113,11 +113,11 @@ class RacelineFollower:
                          v.lf + v.lr, self.k_us, v.C1, v.C2, v.C3, v.C4, v.d_min, v.d_max,
                          v.delta_max])
 
-    def tables(self):
+    def tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(n_ref, mu_ref, kappa_ref, v_ref) on the track grid, the follower's references."""
         return self._n_ref, self._mu_ref, self._kappa_ref, self._v_ref
 
-    def act(self, observation) -> np.ndarray:
+    def act(self, observation: np.ndarray) -> np.ndarray:
         """Normalised ``[throttle, steering]`` (float32, in [-1, 1]) from an env observation."""
         if self.track is None:
             raise RuntimeError("RacelineFollower.act() before reset(track, ...)")

@@ -5,6 +5,8 @@ the PettingZoo and Gymnasium environments, which run it with ``n_races=1``.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .cache import notice
@@ -16,6 +18,9 @@ PARALLEL_MIN_RACES = 16
 from .track import Track  # noqa: E402
 from .tracks import make_track  # noqa: E402
 
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
 S_CLIP = 1.0e4
 """Bound [m] of the relative progress entries of an observation."""
 
@@ -24,7 +29,7 @@ INFO_KEYS = ("contact", "off_track", "laps", "progress", "substeps", "contacts",
 
 
 def start_states(track: Track, n_cars: int, start: StartConfig, width: float,
-                 rng: np.random.Generator, order=None) -> np.ndarray:
+                 rng: np.random.Generator, order: Sequence[int] | np.ndarray | None = None) -> np.ndarray:
     """Initial states (n_cars, 6) for one race; see :class:`StartConfig` for the modes.
 
     ``order`` (regions mode): ``order[i]`` is the region index (0 = R1, front-most) of car i;
@@ -132,7 +137,8 @@ class BatchedRaces:
             self.config = self.config.with_(n_cars=n_cars)
             self._alloc()
 
-    def reset(self, seed: int | None = None, races=None, order=None, start: StartConfig | None = None):
+    def reset(self, seed: int | None = None, races: Sequence[int] | np.ndarray | None = None,
+              order: Sequence[int] | np.ndarray | None = None, start: StartConfig | None = None) -> np.ndarray:
         """Put races (default: all; or an index array) on the start line; returns observations.
 
         ``seed`` reseeds the race generator (same seed, same starts). ``order`` fixes the
@@ -189,11 +195,11 @@ class BatchedRaces:
             for b, i in np.argwhere(self._lap_event >= 0.0):
                 self.lap_times[b][i].append(float(self._lap_event[b, i]))
 
-    def step_physical(self, phys):
+    def step_physical(self, phys: np.ndarray) -> None:
         """Advance all races by one control period with physical inputs (B, N, 2) = (d, delta)."""
         self._advance(phys, normalised=False)
 
-    def step(self, actions):
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """One control period for every race with normalised actions (B, N, 2).
 
         Actions are clipped to [-1, 1] (+-inf too); a NaN raises ``ValueError`` naming the race and car
@@ -224,7 +230,8 @@ class BatchedRaces:
         """Distance driven since the start [m], (B, N)."""
         return self.state[:, :, 0] - self.start[:, :, 0]
 
-    def infos(self, races, cars) -> list[dict]:
+    def infos(self, races: int | Sequence[int] | np.ndarray,
+              cars: int | Sequence[int] | np.ndarray) -> list[dict]:
         """The envs' info dicts (keys :data:`INFO_KEYS`) of the cars ``cars`` in races
         ``races`` (integers or index arrays, broadcast together), in that order."""
         r, c = np.broadcast_arrays(np.asarray(races), np.asarray(cars))

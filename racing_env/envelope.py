@@ -56,7 +56,7 @@ N_FRACTIONS = 41
 """Points of the lateral-fraction grid ``r`` of :func:`ggv`."""
 
 
-def grip_arg(grip, mu, where: str, default=None):
+def grip_arg(grip: float | None, mu: float | None, where: str, default: float | None = None) -> float | None:
     """The envelope scale of a call that takes ``grip`` and still accepts its old name ``mu``
     (which now names only the heading in the state): ``mu`` given warns (DeprecationWarning
     naming ``grip``) and is used; both given is a ValueError. ``default``: the value when
@@ -72,7 +72,8 @@ def grip_arg(grip, mu, where: str, default=None):
     return mu
 
 
-def steady_corner(V, ay, vehicle: VehicleParams | None = None):
+def steady_corner(V: float | np.ndarray, ay: float | np.ndarray,
+                  vehicle: VehicleParams | None = None) -> dict[str, np.ndarray]:
     """Quasi-steady cornering at path speed ``V`` [m/s] and lateral acceleration ``ay`` [m/s^2]
     (arrays broadcast; the sign of ``ay`` is the turn direction, the result is symmetric).
 
@@ -161,13 +162,14 @@ class GGV:
     ax_min: np.ndarray
     top_speed: float
 
-    def lateral_limit(self, v, grip: float = 1.0, *, mu: float | None = None):
+    def lateral_limit(self, v: float | np.ndarray, grip: float = 1.0, *, mu: float | None = None) -> float | np.ndarray:
         """Largest lateral acceleration [m/s^2] at speed ``v`` [m/s] (any shape), scaled by
         ``grip`` (``mu``: deprecated name of ``grip``)."""
         grip = grip_arg(grip, mu, "lateral_limit", 1.0)
         return grip * np.interp(v, self.v, self.ay_max)
 
-    def longitudinal_limits(self, v, ay, grip: float = 1.0, *, mu: float | None = None):
+    def longitudinal_limits(self, v: float | np.ndarray, ay: float | np.ndarray, grip: float = 1.0,
+                            *, mu: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``(ax_max, ax_min)`` [m/s^2] at speed ``v`` and lateral acceleration ``ay`` (arrays
         broadcast) of the envelope scaled by ``grip``; ``ay`` beyond the limit counts as at it.
         ``mu``: deprecated name of ``grip``."""
@@ -179,7 +181,7 @@ class GGV:
         return (_envelope_many(*flat, hi_tab).reshape(v.shape),
                 _envelope_many(*flat, lo_tab).reshape(v.shape))
 
-    def corner_speed(self, kappa, grip: float = 1.0, *, mu: float | None = None):
+    def corner_speed(self, kappa: float | np.ndarray, grip: float = 1.0, *, mu: float | None = None) -> np.ndarray:
         """Highest speed [m/s] at which curvature ``kappa`` [1/m] (any shape) can be held:
         the largest grid speed ``v`` with ``v^2 |kappa| <= grip ay_max(u)`` for every ``u <= v``
         (the connected feasible range from standstill), interpolated between grid points,
@@ -199,7 +201,8 @@ class GGV:
         out[hit] = self.v[i0] + w * (self.v[i] - self.v[i0])
         return np.minimum(out, self.top_speed).reshape(k.shape)
 
-    def tables(self, grip: float = 1.0, *, mu: float | None = None):
+    def tables(self, grip: float = 1.0, *, mu: float | None = None) -> tuple[np.ndarray,
+               np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Arrays for the compiled speed profile: ``(v, grip * ay_max, r, grip * ax_max,
         grip * ax_min)`` (``mu``: deprecated name of ``grip``)."""
         grip = grip_arg(grip, mu, "tables", 1.0)

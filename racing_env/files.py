@@ -5,6 +5,10 @@ import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
 
 
 def current_umask() -> int:
@@ -22,7 +26,7 @@ def current_umask() -> int:
 
 
 @contextmanager
-def atomic_path(path, suffix: str = "", mode: int = 0o666):
+def atomic_path(path: str | os.PathLike, suffix: str = "", mode: int = 0o666) -> Iterator[Path]:
     """A temporary file beside ``path`` (its parent folder created if missing) to write instead
     of ``path``: moved onto ``path`` when the ``with`` block ends, deleted if it raises, so a
     reader never sees half a file. ``suffix`` ends the temporary name (``".npz"``: writers that

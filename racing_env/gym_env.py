@@ -24,14 +24,14 @@ def _is_agent(obj) -> bool:
     return not isinstance(obj, type) and callable(getattr(obj, "act", None)) and callable(getattr(obj, "reset", None))
 
 
-def agent_label(agent, spec: str | None = None) -> str:
+def agent_label(agent: object, spec: str | None = None) -> str:
     """How errors name an agent: its spec string if given, else its ``name`` or class name."""
     if spec:
         return repr(spec)
     return repr(getattr(agent, "name", None) or type(agent).__name__)
 
 
-def act_named(agent, observation, car: str, spec: str | None = None):
+def act_named(agent: Any, observation: np.ndarray, car: str, spec: str | None = None) -> np.ndarray:
     """``agent.act(observation)``; a ``ValueError``, ``TypeError`` or ``IndexError`` raised in it
     (a shape mismatch: "operands could not be broadcast together ...") is raised again, of the
     same type, with the agent, its car and the observation size named."""
@@ -51,7 +51,7 @@ def act_named(agent, observation, car: str, spec: str | None = None):
         raise named from exc
 
 
-def make_opponent(spec: OpponentSpec, k: int = 0):
+def make_opponent(spec: OpponentSpec, k: int = 0) -> Any:
     """A fresh opponent agent of its own from ``spec`` (see :data:`OpponentSpec`): a spec string
     is built through the agents registry, a factory is called, an instance is deep-copied, so
     that no two envs share an opponent's state. ``k`` (the opponent's index) names it in errors."""
@@ -156,7 +156,7 @@ class HeadToHeadEnv(gym.Env):
         self.action_space = self.race.action_space(self.learner)
         self._last_obs = None
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         """Start a new race against freshly reset opponents.
 
         Parameters
@@ -199,7 +199,7 @@ class HeadToHeadEnv(gym.Env):
         self._last_obs = obs
         return obs[self.learner], infos[self.learner]
 
-    def step(self, action):
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         """Advance by one control period (0.1 s): the learner's action, the opponents' own.
 
         Parameters
@@ -263,7 +263,7 @@ class HeadToHeadEnv(gym.Env):
         """
         return self.race.state()
 
-    def render(self):
+    def render(self) -> np.ndarray | None:
         """Draw the race (:meth:`RacingParallelEnv.render`).
 
         Returns

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -23,6 +24,9 @@ from gymnasium.vector.utils import batch_space
 from .config import RaceConfig
 from .track import Track
 from .batched_env import HeadToHeadBatch
+
+if TYPE_CHECKING:
+    from .core import BatchedRaces
 
 
 class HeadToHeadVectorEnv(VectorEnv):
@@ -57,7 +61,7 @@ class HeadToHeadVectorEnv(VectorEnv):
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
 
     @property
-    def core(self):
+    def core(self) -> BatchedRaces:
         """The :class:`racing_env.BatchedRaces` of the B races."""
         return self._batch.core
 
@@ -65,7 +69,8 @@ class HeadToHeadVectorEnv(VectorEnv):
     def opponents(self) -> list:
         return self._batch.opponents
 
-    def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
+    def reset(self, *, seed: int | Sequence[int | None] | None = None,
+              options: dict | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed if isinstance(seed, int) else None)
         if seed is None or isinstance(seed, int):
             seeds = [None if seed is None else seed + b for b in range(self.num_envs)]
@@ -79,7 +84,7 @@ class HeadToHeadVectorEnv(VectorEnv):
         self._all_obs = self.core.observe()
         return self._all_obs[:, 0].copy(), self._infos()
 
-    def step(self, actions):
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         if self._all_obs is None:
             raise RuntimeError("step() called before reset(); call reset() first")
         a = np.asarray(actions, dtype=np.float64)
@@ -110,5 +115,5 @@ class HeadToHeadVectorEnv(VectorEnv):
             infos = self._add_info(infos, info, b)
         return infos
 
-    def close_extras(self, **kwargs):
+    def close_extras(self, **kwargs) -> None:
         self._batch.close()

@@ -15,8 +15,9 @@ import numpy as np
 from numba import njit
 
 
-def periodic_interp(table: np.ndarray, s, length, ds=None, *, per_metre=None, size=None,
-                    offset=0, snap: float = 0.0) -> np.ndarray:
+def periodic_interp(table: np.ndarray, s: float | np.ndarray, length: float,
+                    ds: float | None = None, *, per_metre: float | None = None, size: int | None = None,
+                    offset: int = 0, snap: float = 0.0) -> np.ndarray:
     """Periodic linear interpolation of ``table`` at unwrapped arc lengths ``s`` [m].
 
     ``table`` (..., M): values at the grid points (the last axis; leading axes are

@@ -14,7 +14,7 @@ from .vehicle import VehicleParams
 RESET_OPTIONS = ("n_cars", "start", "order")
 
 
-def check_reward_options(offtrack_penalty, terminate_off_track) -> tuple[float, bool]:
+def check_reward_options(offtrack_penalty: float, terminate_off_track: bool) -> tuple[float, bool]:
     """Validated ``(offtrack_penalty, terminate_off_track)`` of an env (see
     :class:`RacingParallelEnv`): a finite penalty >= 0 [m per step off track] and a bool."""
     if isinstance(offtrack_penalty, (bool, np.bool_)) or not isinstance(
@@ -234,7 +234,8 @@ class RacingParallelEnv(ParallelEnv):
         return self.core.config
 
     # ------------------------------------------------------------------ API
-    def reset(self, seed: int | None = None, options: dict | None = None):
+    def reset(self, seed: int | None = None,
+              options: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
         """Start a new race.
 
         Parameters
@@ -277,7 +278,8 @@ class RacingParallelEnv(ParallelEnv):
         return ({a: obs[0, i] for i, a in enumerate(self.agents)},
                 {a: infos[i] for i, a in enumerate(self.agents)})
 
-    def step(self, actions: dict):
+    def step(self, actions: dict) -> tuple[dict[str, np.ndarray], dict[str, float],
+             dict[str, bool], dict[str, bool], dict[str, dict]]:
         """Advance the race by one control period (0.1 s) with one action per live agent.
 
         Parameters
@@ -369,7 +371,7 @@ class RacingParallelEnv(ParallelEnv):
         return self.core.state[0].reshape(-1).astype(np.float32)
 
     # ------------------------------------------------------------------ rendering
-    def render(self):
+    def render(self) -> np.ndarray | None:
         """Draw the race in the ``render_mode`` given to the constructor.
 
         Returns
@@ -460,7 +462,7 @@ def parallel_env(**kwargs) -> RacingParallelEnv:
     return RacingParallelEnv(**kwargs)
 
 
-def env(**kwargs):
+def env(**kwargs) -> RacingParallelEnv:
     """Make the AEC version of :class:`RacingParallelEnv` (cars act in turn, step together)."""
     from pettingzoo.utils.conversions import parallel_to_aec
     return parallel_to_aec(RacingParallelEnv(**kwargs))

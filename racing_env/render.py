@@ -218,7 +218,7 @@ class Renderer:
         self.background = bg
 
     # ------------------------------------------------------------------ transform
-    def world_to_pixel(self, x, y):
+    def world_to_pixel(self, x: float | np.ndarray, y: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World (x, y) [m] -> pixel (u, v) [px] (column, row; floats, any broadcastable shape)."""
         u = 0.5 * self.width + self.scale * (np.asarray(x, dtype=float) - self._cx)
         v = 0.5 * self.height - self.scale * (np.asarray(y, dtype=float) - self._cy)
@@ -234,7 +234,7 @@ class Renderer:
                                  v[:, None] - (bx * s + by * c)], axis=-1))
         return out[0], out[1]
 
-    def car_pixel_positions(self, state) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def car_pixel_positions(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pixel centre (u, v) [px] and world heading phi [rad] of each car, each shape (N,)."""
         st = _as_race_state(state)
         x, y, phi = self.track.to_cartesian(st[:, 0], st[:, 1], st[:, 2])
@@ -292,7 +292,7 @@ class Renderer:
         return img.reduce(f)  # box filter: anti-aliased, no ringing
 
     # ------------------------------------------------------------------ frames
-    def frame(self, state, labels: Sequence[str] | None = None,
+    def frame(self, state: np.ndarray, labels: Sequence[str] | None = None,
               hud: Sequence[str] | None = None) -> np.ndarray:
         """Render one race state.
 
@@ -538,7 +538,7 @@ def _write_mp4(frames: list[np.ndarray], tmp: str, fps: float, ffmpeg: str) -> N
     raise RuntimeError("ffmpeg failed to write the mp4: " + " | ".join(errors))
 
 
-def save_animation(frames, path: str | os.PathLike, fps: float = 10) -> Path:
+def save_animation(frames: Sequence[np.ndarray], path: str | os.PathLike, fps: float = 10) -> Path:
     """Write frames to an animated ``.gif`` or ``.mp4`` file; returns the path.
 
     Parameters
@@ -582,7 +582,8 @@ def save_animation(frames, path: str | os.PathLike, fps: float = 10) -> Path:
 
 
 # ---------------------------------------------------------------------------- trajectory plot
-def plot_trajectories(track: Track, states, path: str | os.PathLike, raceline_xy=None,
+def plot_trajectories(track: Track, states: np.ndarray, path: str | os.PathLike,
+                      raceline_xy: tuple[np.ndarray, np.ndarray] | np.ndarray | None = None,
                       labels: Sequence[str] | None = None, title: str | None = None,
                       dpi: int = 150) -> Path:
     """Plot each car's path over an episode on the track to a PNG (matplotlib Agg, no pyplot).

@@ -62,7 +62,8 @@ def _segments_intersect(p: np.ndarray) -> tuple[int, int] | None:
     return None
 
 
-def validate_centerline(x, y, w_right, w_left, allow_crossing: bool = False) -> tuple[np.ndarray, ...]:
+def validate_centerline(x: np.ndarray, y: np.ndarray, w_right: float | np.ndarray,
+                        w_left: float | np.ndarray, allow_crossing: bool = False) -> tuple[np.ndarray, ...]:
     """Check raw centre-line data and return it as float arrays with a repeated end point removed.
 
     Raises ``ValueError`` naming what is wrong and where (point index and coordinates).
@@ -150,7 +151,8 @@ class Track:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_centerline(cls, x, y, w_right, w_left, name: str = "custom",
+    def from_centerline(cls, x: np.ndarray, y: np.ndarray, w_right: float | np.ndarray,
+                        w_left: float | np.ndarray, name: str = "custom",
                         ds: float | None = None, allow_crossing: bool = False,
                         narrow_tight: bool = False) -> Track:
         """Build a track from a closed centre line (x, y) [m] with right/left widths [m].
@@ -236,38 +238,39 @@ class Track:
         return h.hexdigest()[:16]
 
     # ------------------------------------------------------------------ lookups
-    def wrap(self, s):
+    def wrap(self, s: float | np.ndarray) -> float | np.ndarray:
         """Map unwrapped arc length to [0, length)."""
         return np.mod(s, self.length)
 
-    def interp(self, table: np.ndarray, s):
+    def interp(self, table: np.ndarray, s: float | np.ndarray) -> float | np.ndarray:
         """Periodic linear interpolation of a grid table (M,) at (unwrapped) ``s`` [m], any
         shape (:func:`racing_env.interp.periodic_interp`)."""
         return periodic_interp(table, s, self.length, self.ds)
 
-    def curvature(self, s):
+    def curvature(self, s: float | np.ndarray) -> float | np.ndarray:
         """kappa(s) [1/m] from the spline's second derivative, any shape of s."""
         sw = np.mod(np.asarray(s, dtype=float), self.length)
         dx, dy = self._sx(sw, 1), self._sy(sw, 1)
         ddx, ddy = self._sx(sw, 2), self._sy(sw, 2)
         return (dx * ddy - dy * ddx) / np.maximum(np.hypot(dx, dy), 1e-12) ** 3
 
-    def heading(self, s):
+    def heading(self, s: float | np.ndarray) -> float | np.ndarray:
         """psi(s) [rad] in (-pi, pi], any shape of s."""
         sw = np.mod(np.asarray(s, dtype=float), self.length)
         return np.arctan2(self._sy(sw, 1), self._sx(sw, 1))
 
-    def widths(self, s):
+    def widths(self, s: float | np.ndarray) -> tuple[float | np.ndarray, float | np.ndarray]:
         """(w_left(s), w_right(s)) [m]."""
         return self.interp(self.w_left, s), self.interp(self.w_right, s)
 
-    def position(self, s):
+    def position(self, s: float | np.ndarray) -> tuple[float | np.ndarray, float | np.ndarray]:
         """Centre-line point (x, y) [m] at s."""
         sw = np.mod(np.asarray(s, dtype=float), self.length)
         return self._sx(sw), self._sy(sw)
 
     # ------------------------------------------------------------------ Frenet <-> Cartesian
-    def to_cartesian(self, s, n, mu=None):
+    def to_cartesian(self, s: float | np.ndarray, n: float | np.ndarray,
+                     mu: float | np.ndarray | None = None) -> tuple[float | np.ndarray, ...]:
         """Frenet (s, n[, mu]) -> Cartesian (x, y[, phi]); arrays broadcast together.
 
         ``mu`` is the heading relative to the centre line; ``phi = psi(s) + mu`` is returned
@@ -285,7 +288,9 @@ class Track:
         phi = np.arctan2(ty, tx) + np.asarray(mu, dtype=float)
         return x, y, np.arctan2(np.sin(phi), np.cos(phi))
 
-    def to_frenet(self, x, y, phi=None, s_hint=None, window: float | None = None, k: int = 8):
+    def to_frenet(self, x: float | np.ndarray, y: float | np.ndarray,
+                  phi: float | np.ndarray | None = None, s_hint: float | np.ndarray | None = None,
+                  window: float | None = None, k: int = 8) -> tuple[float | np.ndarray, ...]:
         """Cartesian (x, y[, phi]) -> Frenet (s, n[, mu]) by nearest-point projection.
 
         Robust on hairpins: the ``k`` nearest grid points are each refined by Newton steps on
@@ -339,7 +344,8 @@ class Track:
         return s_out, n_out, np.arctan2(np.sin(mu), np.cos(mu))
 
     # ------------------------------------------------------------------ edges
-    def edges(self, s=None):
+    def edges(self, s: float | np.ndarray | None = None) -> tuple[tuple[float | np.ndarray, ...],
+              tuple[float | np.ndarray, ...]]:
         """Left and right edge polylines: ((xl, yl), (xr, yr)) at s (default: the grid)."""
         s = self.s_grid if s is None else s
         wl, wr = self.widths(s)

@@ -56,7 +56,7 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
         self._obs = None
 
     # ------------------------------------------------------------------ resets
-    def reset(self):
+    def reset(self) -> np.ndarray:
         for b in range(self.num_envs):
             self._reset_race(b, self._seeds[b], self._options[b])
         self._reset_seeds()
@@ -69,7 +69,7 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
     def step_async(self, actions: np.ndarray) -> None:
         self._actions[:, 0] = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 2)
 
-    def step_wait(self):
+    def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict]]:
         if self._obs is None:
             raise RuntimeError("step() before reset()")
         obs = self._obs
@@ -99,18 +99,19 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
     def close(self) -> None:
         pass
 
-    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+    def get_attr(self, attr_name: str, indices: int | Sequence[int] | None = None) -> list[Any]:
         return [getattr(self, attr_name) for _ in self._get_indices(indices)]
 
-    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+    def set_attr(self, attr_name: str, value: Any, indices: int | Sequence[int] | None = None) -> None:
         setattr(self, attr_name, value)
 
-    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+    def env_method(self, method_name: str, *method_args,
+                   indices: int | Sequence[int] | None = None, **method_kwargs) -> list[Any]:
         return [getattr(self, method_name)(*method_args, **method_kwargs)
                 for _ in self._get_indices(indices)]
 
-    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+    def env_is_wrapped(self, wrapper_class: type, indices: int | Sequence[int] | None = None) -> list[bool]:
         return [False for _ in self._get_indices(indices)]
 
-    def get_images(self):
+    def get_images(self) -> list[None]:
         return [None for _ in range(self.num_envs)]

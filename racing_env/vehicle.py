@@ -44,8 +44,14 @@ from __future__ import annotations
 import math
 import types
 from dataclasses import asdict, dataclass, fields
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from types import ModuleType
+    from typing import Any
 
 M = math  # the maths backend of frenet_ode; replaced per copy by bind()
 
@@ -108,7 +114,7 @@ class VehicleParams:
         a, b, c = self.C4, self.C2, self.C3 - self.C1       # C4 v^2 + C2 v + (C3 - C1) = 0
         return float((-b + math.sqrt(b * b - 4 * a * c)) / (2 * a))
 
-    def stiffness(self, vx):
+    def stiffness(self, vx: float | np.ndarray) -> float | np.ndarray:
         """Rough largest eigenvalue [1/s] of the lateral/yaw dynamics at speed vx (for sub-steps)."""
         ca_f = self.Bf * self.Cf * self.Df
         ca_r = self.Br * self.Cr * self.Dr
@@ -116,7 +122,8 @@ class VehicleParams:
         return (ca_f + ca_r) / (self.m * v) + (ca_f * self.lf ** 2 + ca_r * self.lr ** 2) / (self.Iz * v)
 
 
-def frenet_ode(n, mu, vx, vy, omega, d, delta, kappa, p):
+def frenet_ode(n: Any, mu: Any, vx: Any, vy: Any, omega: Any, d: Any, delta: Any, kappa: Any,
+               p: Any) -> tuple[Any, Any, Any, Any, Any, Any]:
     """Time derivatives (s', n', mu', vx', vy', omega') of the Frenet bicycle model.
 
     Arguments are scalars, equally shaped arrays, or CasADi expressions (whichever the bound
@@ -145,7 +152,7 @@ def frenet_ode(n, mu, vx, vy, omega, d, delta, kappa, p):
     return s_dot, n_dot, mu_dot, vx_dot, vy_dot, omega_dot
 
 
-def bind(fn, backend):
+def bind(fn: Callable[..., Any], backend: ModuleType) -> Callable[..., Any]:
     """A copy of ``fn`` whose global ``M`` is ``backend`` (numpy, math or casadi)."""
     g = dict(fn.__globals__)
     g["M"] = backend
@@ -156,13 +163,13 @@ frenet_ode_numpy = bind(frenet_ode, np)
 """:func:`frenet_ode` on numpy arrays (batched over any leading shape)."""
 
 
-def frenet_ode_casadi():
+def frenet_ode_casadi() -> Callable[..., tuple]:
     """:func:`frenet_ode` on CasADi symbols (imports casadi lazily)."""
     import casadi
     return bind(frenet_ode, casadi)
 
 
-def casadi_model(params: VehicleParams | None = None):
+def casadi_model(params: VehicleParams | None = None) -> Any:
     """CasADi ``Function('f', [x(6), u(2), kappa], [x_dot(6)])`` of the model."""
     import casadi
     p = [float(v) for v in (params or VehicleParams()).pack()]

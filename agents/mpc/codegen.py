@@ -12,7 +12,7 @@ import subprocess
 import tempfile
 import warnings
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from llvmlite import ir
@@ -21,6 +21,9 @@ from numba.extending import intrinsic
 
 from racing_env.files import atomic_path
 
+if TYPE_CHECKING:
+    from typing import Any
+
 
 def _cache_root() -> Path:
     """Folder of the compiled predictions: ``mpc/`` of the alpha-racer cache folder."""
@@ -28,7 +31,7 @@ def _cache_root() -> Path:
     return cache_dir("mpc")
 
 
-def load_prediction(fn, horizon: int, substeps: int, name: str):
+def load_prediction(fn: Any, horizon: int, substeps: int, name: str) -> CompiledTrajectory | InterpretedTrajectory:
     """The CasADi horizon function ``fn`` (inputs ``x0, U, kap``) as C: generated, compiled to
     ``mpc/<name>_<hash of the code>.so`` in the cache folder (once; the compiler is ``$CC``
     if set, a command such as ``"ccache gcc"``, else ``gcc`` or ``cc``) and loaded, a
@@ -121,12 +124,12 @@ class InterpretedTrajectory:
         out = out if isinstance(out, (tuple, list)) else (out,)   # one output comes bare
         return tuple(np.asarray(o, dtype=float) for o in out)
 
-    def states(self, x0, u_vec, kap_flat, K: int):
+    def states(self, x0: np.ndarray, u_vec: np.ndarray, kap_flat: np.ndarray, K: int) -> np.ndarray:
         """Predicted states (6, K) of flat inputs: ``u_vec`` (2K,) ``[d0, delta0, d1, ...]``,
         ``kap_flat`` (substeps K,) stage after stage (the layouts of the compiled buffers)."""
         return np.ascontiguousarray(self.full(x0, u_vec, kap_flat, K)[0])
 
-    def full(self, x0, u_vec, kap_flat, K: int):
+    def full(self, x0: np.ndarray, u_vec: np.ndarray, kap_flat: np.ndarray, K: int) -> tuple[np.ndarray, ...]:
         """``(X, A, B)`` (or ``(X,)``) of flat inputs, like :meth:`states`."""
         U = np.asarray(u_vec).reshape(K, 2).T
         kap = np.asarray(kap_flat).reshape(K, -1).T
@@ -200,14 +203,14 @@ class CompiledTrajectory:
         """Same inputs and outputs as the CasADi Function (U (2, K), kap (m, K) arrays)."""
         return self.full(x0, np.asarray(U).T.ravel(), np.asarray(kap).T.ravel(), self.K)
 
-    def states(self, x0, u_vec, kap_flat, K: int):
+    def states(self, x0: np.ndarray, u_vec: np.ndarray, kap_flat: np.ndarray, K: int) -> np.ndarray:
         """Predicted states (6, K) of flat inputs: ``u_vec`` (2K,) ``[d0, delta0, d1, ...]``,
         ``kap_flat`` (substeps K,) stage after stage: the buffers' own layouts, so the inputs
         are copied once and not transposed."""
         self._run(x0, u_vec, kap_flat)
         return self.X.reshape(K, 6).T.copy()
 
-    def full(self, x0, u_vec, kap_flat, K: int):
+    def full(self, x0: np.ndarray, u_vec: np.ndarray, kap_flat: np.ndarray, K: int) -> tuple[np.ndarray, ...]:
         """``(X (6, K), A (36, K), B (12, K))`` (``(X,)`` for a states-only prediction) of
         flat inputs, like :meth:`states`."""
         self._run(x0, u_vec, kap_flat)

@@ -4,6 +4,8 @@ curvature along a plan's progress, and the raceline follower's rollout that warm
 plan."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numba import njit
 
@@ -15,8 +17,16 @@ from racing_env.vehicle import P_VLOW, VehicleParams
 from .codegen import load_prediction
 from .config import MPCConfig
 
+if TYPE_CHECKING:
+    from collections.abc import Callable
+    from typing import Any
 
-def prediction_v_low(vx, v_low_sim: float, cfg: MPCConfig, exp=np.exp):
+    from racing_env.controllers import RacelineFollower
+
+    from .codegen import CompiledTrajectory, InterpretedTrajectory
+
+
+def prediction_v_low(vx: Any, v_low_sim: float, cfg: MPCConfig, exp: Callable[[Any], Any] = np.exp) -> Any:
     """Slip regularisation [m/s] of the prediction model at speed ``vx`` [m/s]:
     ``v_low_sim + (cfg.v_low - v_low_sim) exp(-(vx / cfg.v_blend)^2)``. Near rest the larger
     ``cfg.v_low`` keeps the RK4 sub-steps stable; at racing speed (within 1e-3 above
@@ -25,7 +35,7 @@ def prediction_v_low(vx, v_low_sim: float, cfg: MPCConfig, exp=np.exp):
     return v_low_sim + (cfg.v_low - v_low_sim) * exp(-(vx / cfg.v_blend) ** 2)
 
 
-def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True):
+def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True) -> Any:
     """CasADi ``stage(x[6], u[2], kap[substeps]) -> (x_next, vec(dx_next/dx), vec(dx_next/du))``:
     one 0.1 s stage of ``substeps`` RK4 steps of the simulator's model (``frenet_ode``) with
     the prediction's ``v_low``; ``u`` are the env's normalised inputs. Without ``jacobians``
@@ -63,7 +73,8 @@ def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = Tru
                         ca.densify(ca.vec(ca.jacobian(xn, u)))])
 
 
-def trajectory_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True):
+def trajectory_function(vehicle: VehicleParams, cfg: MPCConfig,
+                        jacobians: bool = True) -> CompiledTrajectory | InterpretedTrajectory:
     """The horizon ``(x0[6], U[2xK], KAP[substeps x K]) -> (X[6xK], A[36xK], B[12xK])`` (numpy
     arrays): the stage function folded K times (mapaccum), compiled to C and cached on disk
     by :func:`~agents.mpc.codegen.load_prediction` (interpreted by CasADi, with a warning, when
@@ -74,7 +85,7 @@ def trajectory_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool 
     return load_prediction(stage.mapaccum(name, cfg.horizon), cfg.horizon, cfg.substeps, name)
 
 
-def stage_nodes(s_nominal, x0, K: int, dt: float) -> np.ndarray:
+def stage_nodes(s_nominal: np.ndarray | None, x0: np.ndarray, K: int, dt: float) -> np.ndarray:
     """Progress (K + 1,) at the stage boundaries to look curvature up at: the previous nominal
     (K + 1,) shifted by one stage and re-anchored at ``x0``, or, without one, constant speed."""
     if s_nominal is None:
@@ -83,7 +94,7 @@ def stage_nodes(s_nominal, x0, K: int, dt: float) -> np.ndarray:
     return nodes - nodes[0] + x0[0]
 
 
-def kappa_at_substeps(track: Track, s_nodes, substeps: int) -> np.ndarray:
+def kappa_at_substeps(track: Track, s_nodes: np.ndarray, substeps: int) -> np.ndarray:
     """Track curvature (substeps, K) at the start of every RK4 sub-step between the stage
     boundaries ``s_nodes`` (K + 1,) (progress interpolated linearly within a stage)."""
     s_nodes = np.asarray(s_nodes, dtype=float)
@@ -115,7 +126,8 @@ def _rollout(x, n_ref, mu_ref, kappa_ref, v_ref, kappa_tab, ds, length, gains, p
                       p, dt, _n_substeps(x[3], p, dt, 1.0, 100))
 
 
-def follower_rollout(track: Track, vehicle: VehicleParams, follower, x0, K: int, dt: float):
+def follower_rollout(track: Track, vehicle: VehicleParams, follower: RacelineFollower,
+                     x0: np.ndarray, K: int, dt: float) -> np.ndarray:
     """Normalised inputs (2, K) from rolling the raceline follower's law forward from ``x0``
     (6,) in the simulator's model for ``K`` stages of ``dt`` s: an on-track initial guess.
     ``follower`` is a :class:`racing_env.controllers.RacelineFollower` reset on ``track``."""
@@ -128,7 +140,7 @@ def follower_rollout(track: Track, vehicle: VehicleParams, follower, x0, K: int,
     return U
 
 
-def make_follower(track: Track, vehicle: VehicleParams, line: str = "curvature"):
+def make_follower(track: Track, vehicle: VehicleParams, line: str = "curvature") -> RacelineFollower:
     """A raceline follower of racing line ``line`` reset on ``track`` (for
     :func:`follower_rollout`)."""
     from racing_env.controllers import RacelineFollower

@@ -3,6 +3,8 @@ penalty), the track-edge bounds and separation choices, and the condensed QP in 
 corrections that one SQP iteration solves with DAQP."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numba import njit
 
@@ -11,6 +13,9 @@ from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
 
 from .config import MPCConfig
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
 
 
 @njit(cache=True)
@@ -75,7 +80,9 @@ class EdgeBounds:
                 _grid_interp(self.hi_table, s, t.ds, t.length))
 
 
-def separation_choice(s_pred, n_pred, opponent, cfg: MPCConfig):
+def separation_choice(s_pred: np.ndarray, n_pred: np.ndarray,
+                      opponent: Sequence[float] | np.ndarray,
+                      cfg: MPCConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Which separation to impose against one opponent at each predicted stage k = 1..K.
 
     ``opponent = (s_j, n_j, s_dot_j)`` moves at constant progress rate and lateral position.

@@ -276,7 +276,8 @@ class MPC:
         """The cost of :meth:`_score` alone."""
         return self._score(X, U, s_ref, n_ref, q, opp)[0]
 
-    def solve(self, x0, s_ref, n_ref, q: float, opponents=None, u_prev=None) -> np.ndarray:
+    def solve(self, x0: np.ndarray, s_ref: np.ndarray, n_ref: np.ndarray, q: float,
+              opponents: np.ndarray | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
         import daqp
         t0 = time.perf_counter()
         cfg, K = self.cfg, self.cfg.horizon

@@ -59,7 +59,7 @@ class BoxQP:
         prob = {"h": _to_casadi(self.pattern).sparsity(), "a": casadi.Sparsity(0, nvar)}
         return casadi.conic(name, plugin, prob, {"error_on_fail": False, **opts})
 
-    def solve(self, h, g, x0=None):
+    def solve(self, h: np.ndarray, g: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
         """Minimiser, shape (n,), clipped to the bounds; raises RuntimeError if every solver fails."""
         g = np.asarray(g, float)
         x = box_qp_active_set(h, g, self.lo, self.hi, x0)
@@ -96,7 +96,8 @@ class BoxQP:
         return np.clip(x, self.lo, self.hi)
 
 
-def box_qp_active_set(h, g, lo, hi, x0=None, max_iter: int = 30):
+def box_qp_active_set(h: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                      x0: np.ndarray | None = None, max_iter: int = 30) -> np.ndarray | None:
     """``argmin 1/2 x' H x + g' x`` over ``lo <= x <= hi`` by the primal-dual active-set
     method (Hintermueller, Ito and Kunisch 2002), ``H`` sparse symmetric positive definite,
     shapes (n, n), (n,), (n,), (n,). Each iteration fixes at a bound every ``x_i`` whose
@@ -132,7 +133,8 @@ def box_qp_active_set(h, g, lo, hi, x0=None, max_iter: int = 30):
 
 
 
-def box_qp_interior_point(h, g, lo, hi, x0=None, max_iter: int = 100, tol: float = 1e-12):
+def box_qp_interior_point(h: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                          x0: np.ndarray | None = None, max_iter: int = 100, tol: float = 1e-12) -> np.ndarray | None:
     """``argmin 1/2 x' H x + g' x`` over ``lo < x < hi`` by a primal-dual interior-point
     method (Mehrotra's predictor-corrector), ``H`` sparse symmetric positive definite, shapes
     (n, n), (n,), (n,), (n,) with ``lo < hi``. With the bound multipliers ``z_lo, z_hi >= 0``

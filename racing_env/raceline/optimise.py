@@ -159,7 +159,9 @@ class _Stations:
 
 def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None,
                               config: RacelineConfig | None = None,
-                              length_weight: float | None = None, n_init=None):
+                              length_weight: float | None = None,
+                              n_init: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray,
+                              dict]:
     """Solve the minimum-curvature problem on ``N`` uniform centre-line stations.
 
     ``length_weight`` (default ``config.length_weight``) adds the shortest-path term
@@ -216,7 +218,8 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
 
 
 def lap_time_weight_search(track: Track, vehicle: VehicleParams | None = None,
-                           config: RacelineConfig | None = None, refine: int = 6):
+                           config: RacelineConfig | None = None, refine: int = 6) -> tuple[float,
+                           np.ndarray, np.ndarray, dict, list]:
     """The ``length_weight`` whose line has the shortest lap estimate at ``mu_nominal``.
 
     Tries :data:`LENGTH_WEIGHTS` in increasing order (each iteration warm-started from the

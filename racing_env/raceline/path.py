@@ -11,7 +11,8 @@ from .config import RacelineConfig
 from .speed import lap_time_of, speed_profile
 
 
-def offset_bounds(track: Track, s_track, vehicle: VehicleParams, margin: float):
+def offset_bounds(track: Track, s_track: np.ndarray, vehicle: VehicleParams,
+                  margin: float) -> tuple[np.ndarray, np.ndarray]:
     """Lower / upper bounds ``(n_lo, n_hi)`` [m] on the racing-line offset at centre-line ``s_track``.
 
     ``n_lo = -w_right + width/2 + margin``, ``n_hi = w_left - width/2 - margin``; raises
@@ -30,7 +31,7 @@ def offset_bounds(track: Track, s_track, vehicle: VehicleParams, margin: float):
     return lo, hi
 
 
-def line_geometry(px, py):
+def line_geometry(px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
     """Arc length, lap length, heading and curvature of the closed polyline (px, py), shape (M,)."""
     chord = np.hypot(np.diff(np.append(px, px[0])), np.diff(np.append(py, py[0])))
     if np.any(chord <= 1e-12):
@@ -53,8 +54,8 @@ def line_geometry(px, py):
     return s, length, psi, kappa
 
 
-def line_on_grid(track: Track, vehicle: VehicleParams, config: RacelineConfig, s_sub, n_sub,
-                  with_lap: bool = True):
+def line_on_grid(track: Track, vehicle: VehicleParams, config: RacelineConfig, s_sub: np.ndarray, n_sub: np.ndarray,
+                  with_lap: bool = True) -> dict:
     """The line through offsets ``n_sub`` [m] at stations ``s_sub`` [m], on the track grid:
     a dict of ``n``, ``n_lo``, ``n_hi`` (the target bounds), ``x``, ``y``, ``s``, ``length``,
     ``psi``, ``kappa``, ``ds`` and (with ``with_lap``) the lap estimate ``lap_time`` [s] of its

@@ -6,6 +6,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -14,6 +15,9 @@ from ..interp import periodic_interp
 from ..track import Track
 from .config import CACHE_VERSION
 from .speed import lap_time_of
+
+if TYPE_CHECKING:
+    import os
 
 
 CSV_COLUMNS = ("s_m", "x_m", "y_m", "psi_rad", "kappa_radpm", "vx_mps", "ax_mps2", "n_m",
@@ -110,7 +114,7 @@ class Raceline:
         return periodic_interp(table, s_track, self.track_length, per_metre=m / self.track_length,
                                size=m, snap=1e-9)
 
-    def offset_at(self, s_track):
+    def offset_at(self, s_track: float | np.ndarray) -> float | np.ndarray:
         """Racing-line offset ``n`` [m] (left positive) at centre-line arc length ``s_track`` [m]
         (any shape, unwrapped allowed); same shape as ``s_track``."""
         return self._interp(self.n, s_track)
@@ -123,7 +127,7 @@ class Raceline:
                              f"[{lo}, {hi}]")
         return min(max(grip_f, lo), hi)
 
-    def profile(self, grip=None, *, mu=None):
+    def profile(self, grip: float | None = None, *, mu: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``(vx, ax)`` per point [m/s], [m/s^2] for envelope scale ``grip`` (default
         ``mu_nominal``), linearly interpolated between the library's neighbouring profiles;
         shapes (M,). ``mu``: deprecated name of ``grip``."""
@@ -140,28 +144,30 @@ class Raceline:
         ax = (1.0 - w) * self.ax_lib[j] + w * self.ax_lib[j + 1]
         return vx, ax
 
-    def speed_at(self, s_track, grip=None, *, mu=None):
+    def speed_at(self, s_track: float | np.ndarray, grip: float | None = None, *,
+                 mu: float | None = None) -> float | np.ndarray:
         """Reference speed ``vx`` [m/s] at centre-line ``s_track`` [m] (any shape, unwrapped
         allowed) for envelope scale ``grip`` (scalar in ``[mus[0], mus[-1]]``, default
         ``mu_nominal``; ``mu``: its deprecated name). Raises ``ValueError`` for a ``grip``
         outside the library range."""
         return self._interp(self.profile(grip_arg(grip, mu, "Raceline.speed_at"))[0], s_track)
 
-    def accel_at(self, s_track, grip=None, *, mu=None):
+    def accel_at(self, s_track: float | np.ndarray, grip: float | None = None, *,
+                 mu: float | None = None) -> float | np.ndarray:
         """Reference acceleration ``ax`` [m/s^2] at centre-line ``s_track`` (like :meth:`speed_at`)."""
         return self._interp(self.profile(grip_arg(grip, mu, "Raceline.accel_at"))[1], s_track)
 
-    def heading_at(self, s_track):
+    def heading_at(self, s_track: float | np.ndarray) -> float | np.ndarray:
         """Racing-line heading ``psi`` [rad], wrapped to (-pi, pi], at centre-line ``s_track`` [m]."""
         c = self._interp(np.cos(self.psi), s_track)
         sn = self._interp(np.sin(self.psi), s_track)
         return np.arctan2(sn, c)
 
-    def kappa_at(self, s_track):
+    def kappa_at(self, s_track: float | np.ndarray) -> float | np.ndarray:
         """Racing-line curvature ``kappa`` [1/m] at centre-line ``s_track`` [m]."""
         return self._interp(self.kappa, s_track)
 
-    def s_line_at(self, s_track):
+    def s_line_at(self, s_track: float | np.ndarray) -> float | np.ndarray:
         """Arc length along the racing line [m] at centre-line ``s_track`` [m], unwrapped the
         same way (``s_track + k * track_length`` maps to ``... + k * length``)."""
         s_track = np.asarray(s_track, dtype=float)
@@ -170,13 +176,13 @@ class Raceline:
         st_ext = np.append(self.s_track, self.track_length)
         return lap * self.length + np.interp(s_track - lap * self.track_length, st_ext, s_ext)
 
-    def lap_time_at(self, grip=None, *, mu=None) -> float:
+    def lap_time_at(self, grip: float | None = None, *, mu: float | None = None) -> float:
         """Lap time [s] of the profile for envelope scale ``grip`` (default ``mu_nominal``;
         ``mu``: its deprecated name)."""
         return lap_time_of(self.profile(grip_arg(grip, mu, "Raceline.lap_time_at"))[0], self.ds)
 
     # ------------------------------------------------------------------ output
-    def to_csv(self, path) -> Path:
+    def to_csv(self, path: str | os.PathLike) -> Path:
         """Write the nominal racing line as CSV (columns :data:`CSV_COLUMNS`, units in the names:
         ``_m`` metres, ``_rad`` radians, ``_radpm`` 1/m, ``_mps`` m/s, ``_mps2`` m/s^2)."""
         path = Path(path)
@@ -190,7 +196,8 @@ class Raceline:
         np.savetxt(path, data, delimiter=",", header=header, fmt="%.9g")
         return path
 
-    def plot(self, path, track: Track | None = None, grip=None, *, mu=None) -> Path:
+    def plot(self, path: str | os.PathLike, track: Track | None = None, grip: float | None = None,
+             *, mu: float | None = None) -> Path:
         """Write a PNG of the track edges, centre line and racing line coloured by speed."""
         return plot_raceline(track if track is not None else self.track, self, path,
                              grip=grip_arg(grip, mu, "Raceline.plot"))
@@ -206,7 +213,7 @@ class Raceline:
         return d
 
     @classmethod
-    def from_npz_dict(cls, d) -> Raceline:
+    def from_npz_dict(cls, d: dict) -> Raceline:
         """Inverse of :meth:`to_npz_dict`; raises ``ValueError``/``KeyError`` on bad content."""
         meta = json.loads(str(d["meta"][()]))
         kw = {name: np.array(d[name], dtype=float) for name in _ARRAYS}
@@ -227,8 +234,9 @@ class Raceline:
                 f"converged={self.converged})")
 
 
-def plot_raceline(track: Track, raceline: Raceline, path, grip=None, dpi: int = 150, *,
-                  mu=None) -> Path:
+def plot_raceline(track: Track, raceline: Raceline, path: str | os.PathLike,
+                  grip: float | None = None, dpi: int = 150, *,
+                  mu: float | None = None) -> Path:
     """Write a PNG [path] of the track edges, the centre line and the racing line coloured by
     speed [m/s] (profile for envelope scale ``grip``, default nominal; ``mu``: its deprecated name). Uses matplotlib's Agg canvas directly, so
     it never touches the global backend."""  # noqa: E501

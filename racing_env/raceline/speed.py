@@ -15,8 +15,9 @@ G = 9.81
 """Gravitational acceleration [m/s^2]."""
 
 
-def accel_limits(v, kappa, grip: float | None = None, vehicle: VehicleParams | None = None, *,
-                 mu: float | None = None):
+def accel_limits(v: float | np.ndarray, kappa: float | np.ndarray, grip: float | None = None,
+                 vehicle: VehicleParams | None = None, *,
+                 mu: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Largest acceleration and deceleration [m/s^2] (deceleration >= 0) at speed ``v`` [m/s]
     on a path of curvature ``kappa`` [1/m] for the car's g-g-v envelope scaled by ``grip``
     (:mod:`racing_env.envelope`; ``mu``: deprecated name of ``grip``); arrays broadcast.
@@ -39,8 +40,8 @@ def _required_grip(grip, mu, where: str) -> float:
     return grip
 
 
-def speed_limit(kappa, grip: float | None = None, vehicle: VehicleParams | None = None, *,
-                mu: float | None = None):
+def speed_limit(kappa: float | np.ndarray, grip: float | None = None, vehicle: VehicleParams | None = None, *,
+                mu: float | None = None) -> float | np.ndarray:
     """Quasi-steady speed cap [m/s] of curvature ``kappa`` [1/m] (any shape): the highest speed
     at which the envelope scaled by ``grip`` holds ``v^2 |kappa|`` (the steering bound at low
     speed, the tyres above), and never above the top speed (:meth:`GGV.corner_speed`).
@@ -49,8 +50,9 @@ def speed_limit(kappa, grip: float | None = None, vehicle: VehicleParams | None 
     return ggv(vehicle or VehicleParams()).corner_speed(kappa, grip)
 
 
-def speed_profile(kappa, ds, grip: float | None = None, vehicle: VehicleParams | None = None,
-                  max_sweeps: int = 50, *, mu: float | None = None):
+def speed_profile(kappa: np.ndarray, ds: float | np.ndarray, grip: float | None = None,
+                  vehicle: VehicleParams | None = None,
+                  max_sweeps: int = 50, *, mu: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Periodic speed profile ``(vx, ax)`` [m/s], [m/s^2] on a closed path, shapes (M,).
 
     ``kappa`` [1/m] at the M points, ``ds[k]`` [m] the distance from point k to point k+1
@@ -117,7 +119,7 @@ def _profile_sweeps(v2, kab, ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab, start, 
     return False
 
 
-def lap_time_of(vx, ds) -> float:
+def lap_time_of(vx: np.ndarray, ds: float | np.ndarray) -> float:
     """Lap time [s] of a periodic profile: ``sum 2 ds[k] / (v[k] + v[k+1])``."""
     vx = np.asarray(vx, dtype=float)
     return float(np.sum(2.0 * np.asarray(ds) / np.maximum(vx + np.roll(vx, -1), 1e-12)))
