@@ -144,8 +144,9 @@ def test_mpc_speed_config_pairs_set_numeric_fields_and_name_bad_ones():
 def test_rti_plans_cost_within_five_percent_of_ipopt_at_the_limit():
     """The issue's measure of the RTI's plans: in a solo race at zeta = 1, the cost of the
     RTI's plan against IPOPT's optimum of the same problem, both costed on the same rollout
-    (``benchmarks/mpc_speed.py``, its quick run: 29 states). Before plans were rolled out along their own progress and the SQP
-    iterated to convergence, 24% of these states were within 5%."""
+    (``benchmarks/mpc_speed.py``, its quick run: 29 states). Before plans were rolled out
+    along their own progress and the SQP iterated to convergence, 24% of these states were
+    within 5%."""
     import sys
     from pathlib import Path
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
