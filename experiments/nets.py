@@ -135,6 +135,18 @@ def save_model(model: PotentialModel, metrics: dict, out: Path, card_text, comma
     write_text(out / "model_card.md", card_text(model.meta))
 
 
+def _resume(ckpt: Path, net, opt, sched, torch) -> dict | None:
+    """Load a training checkpoint written by :func:`_save_atomic_torch` into ``net``, ``opt``
+    and ``sched``; returns its dict (epoch or step, history), or None when there is none."""
+    if not ckpt.exists():
+        return None
+    st = torch.load(ckpt, weights_only=False)
+    net.load_state_dict(st["net"])
+    opt.load_state_dict(st["opt"])
+    sched.load_state_dict(st["sched"])
+    return st
+
+
 def _save_atomic_torch(obj, path: Path, torch):
     with atomic_path(path) as tmp:
         torch.save(obj, tmp)
@@ -209,10 +221,8 @@ def train_value(data: ValueData, cfg, out, torch, progress_bar, log):
                                                 total_steps=cfg.value_epochs * steps_per_epoch)
     ckpt = out / "value_ckpt.pt"
     epoch0, history = 0, []
-    if ckpt.exists():
-        st = torch.load(ckpt, weights_only=False)
-        net.load_state_dict(st["net"]), opt.load_state_dict(st["opt"])
-        sched.load_state_dict(st["sched"])
+    st = _resume(ckpt, net, opt, sched, torch)
+    if st is not None:
         epoch0, history = st["epoch"], st["history"]
         log(f"value: resuming after epoch {epoch0}")
     Xt, Xv, Xe = (torch.from_numpy(a) for a in (X_tr, X_va, X_end))
@@ -282,10 +292,8 @@ def train_potential(data, cfg, value, out, torch, progress_bar, log):
                                                 total_steps=cfg.potential_steps)
     ckpt = out / "potential_ckpt.pt"
     step0, history = 0, []
-    if ckpt.exists():
-        st = torch.load(ckpt, weights_only=False)
-        net.load_state_dict(st["net"]), opt.load_state_dict(st["opt"])
-        sched.load_state_dict(st["sched"])
+    st = _resume(ckpt, net, opt, sched, torch)
+    if st is not None:
         step0, history = st["step"], st["history"]
         rng = np.random.default_rng([cfg.seed + 1, step0])
         log(f"potential: resuming after step {step0}")

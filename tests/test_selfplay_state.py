@@ -50,3 +50,4 @@ def test_unknown_fields_and_a_wrong_number_of_cars_are_refused():
         SelfPlayState.from_dict({"cars": [None, None], "trained_turns": [0, 0]}, cfg)
     with pytest.raises(ValueError, match="JSON object"):
         SelfPlayState.from_dict([1, 2], cfg)
+
