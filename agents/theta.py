@@ -1,0 +1,194 @@
+"""The policy parameters theta and their spaces: the paper's ``(q, zeta, s1, s2, s3)`` and the
+extended space's ``b``, with their bounds, units and validation (:class:`Theta`,
+:class:`PolicySpace`). :mod:`agents.reference` builds the MPC reference from a theta and
+re-exports these names."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+__all__ = ["THETA_NAMES", "THETA_LOW", "THETA_HIGH", "THETA_UNITS", "THETA_BOUNDS_DOC", "Theta",
+           "EXTENDED_NAMES", "EXTENDED_LOW", "EXTENDED_HIGH", "PolicySpace", "SPACES",
+           "policy_space"]
+
+# ====================================================================== theta
+THETA_NAMES = ("q", "zeta", "s1", "s2", "s3")
+"""Names of the policy parameters, in array order."""
+
+THETA_UNITS = ("-", "-", "m", "1/m^2", "s/m")
+"""Units of the policy parameters, in array order."""
+
+THETA_LOW = np.array([5.0, 0.8, 0.0, 0.5, 0.0])
+THETA_HIGH = np.array([500.0, 1.05, 0.3, 20.0, 5.0])
+THETA_LOW.setflags(write=False)
+THETA_HIGH.setflags(write=False)
+THETA_BOUNDS_DOC = """Bounds of theta (``THETA_LOW``, ``THETA_HIGH``) and why.
+
+* ``q`` in [5, 500] [-]: ``Q = q I`` weighs squared position errors [m^2] against ``R = I`` on
+  squared input-rate steps (throttle in [-1, 1], steering [rad], typical steps 0.01..0.1).
+  A 5 cm error costs ``q * 2.5e-3``: at ``q = 5`` that equals a 0.1 input step (loose, smooth
+  tracking), at ``q = 500`` a full-scale step (tight tracking that starts to oscillate, as the
+  paper describes). Outside this range the MPC either ignores the reference or is badly
+  conditioned.
+* ``zeta`` in [0.8, 1.05] [-]: scale of the race-line speeds. The race line's nominal profile
+  is the car's own g-g-v envelope (:mod:`racing_env.envelope`, ``mu = 1``), so ``zeta = 1``
+  asks for the limit; measured alone for 50 s (MPC, q = 20) it drives with no off-track step
+  and laps within 3% of the profile's estimate on ``default``, ``oval`` and procedural tracks.
+  1.05 asks for 5% more than the car can hold: the MPC saturates there and still stays on
+  the track (the top of the box is just beyond the limit, not a crash). Above it (1.08,
+  1.12, 1.16, measured alone with the bound lifted on the four tracks of
+  ``alpha-racer policy-map``) it laps no faster and covers 0.1-1.4 m less in 50 s, still on the
+  track. 0.8 is a cautious 20% below the limit; slower policies only lose.
+* ``s1`` in [0, 0.3] [m]: lateral clearance wanted from a neighbour when overtaking. 0 turns
+  overtaking off; 0.3 m is more than half the 0.5 m wide built-in tracks (cars are 0.06 m
+  wide), enough to ask for a full change of side.
+* ``s2`` in [0.5, 20] [1/m^2]: the shifts decay like ``exp(-s2 ds^2)`` with the longitudinal
+  gap ``ds``; the 1/e distance ``1/sqrt(s2)`` runs from 1.41 m (about the length of half a
+  horizon at racing speed, K dt v = 1.5 s * 2..4 m/s) down to 0.22 m (two car lengths).
+* ``s3`` in [0, 5] [s/m]: blocking moves the reference a fraction ``1 - exp(-s3 dv)`` of the
+  lateral gap toward a faster car, ``dv`` [m/s] its speed advantage. 0 turns blocking off;
+  with 5 a 0.1 m/s faster car draws 39 % of the gap, a 0.5 m/s faster one 92 %.
+"""
+
+
+def _check_theta_value(name: str, value: float, lo: float, hi: float) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"theta parameter {name} must be a number, got {value!r}") from None
+    if not (math.isfinite(v) and lo <= v <= hi):
+        raise ValueError(f"theta parameter {name} = {v!r} is outside its bounds [{lo:g}, {hi:g}]")
+    return v
+
+
+@dataclass(frozen=True)
+class Theta:
+    """One car's policy parameters (see :data:`THETA_BOUNDS_DOC` for units and bounds).
+
+    ``q`` [-] tracking weight, ``zeta`` [-] race-line speed scale, ``s1`` [m] overtaking
+    clearance, ``s2`` [1/m^2] longitudinal decay, ``s3`` [s/m] blocking strength. Construction
+    validates the bounds (``ValueError`` naming parameter, value and bounds).
+    """
+
+    q: float
+    zeta: float
+    s1: float
+    s2: float
+    s3: float
+    b: float = 0.0
+
+    __doc__ += "\n" + THETA_BOUNDS_DOC
+
+    def __post_init__(self):
+        for i, name in enumerate(EXTENDED_NAMES):
+            v = _check_theta_value(name, getattr(self, name), EXTENDED_LOW[i], EXTENDED_HIGH[i])
+            object.__setattr__(self, name, v)
+
+    def as_array(self, space: str = "paper") -> np.ndarray:
+        """The parameters of policy space ``space`` as a float array: ``[q, zeta, s1, s2, s3]``
+        (shape (5,), ``"paper"``, the default) or ``[q, zeta, s1, s2, s3, b]`` (shape (6,),
+        ``"extended"``). A theta with ``b > 0`` is not in the paper's space (``ValueError``)."""
+        if policy_space(space).dim == 5:
+            if self.b != 0.0:
+                raise ValueError(f"theta with b = {self.b!r} is outside the paper's space "
+                                 f"(its race line is the minimum-curvature line, b = 0)")
+            return np.array([self.q, self.zeta, self.s1, self.s2, self.s3], dtype=float)
+        return np.array([self.q, self.zeta, self.s1, self.s2, self.s3, self.b], dtype=float)
+
+    @classmethod
+    def from_array(cls, a: Sequence[float] | np.ndarray) -> Theta:
+        """Theta from an array-like in :data:`THETA_NAMES` order (length 5, the paper's space)
+        or in the extended space's order (length 6, ``b`` last); ``ValueError`` on a wrong
+        shape or a value outside its bounds (naming parameter, value and bounds)."""
+        if isinstance(a, Theta):
+            return a
+        arr = np.asarray(a, dtype=float)
+        if arr.shape not in ((5,), (6,)):
+            raise ValueError(f"theta must have shape (5,) {THETA_NAMES} or (6,) "
+                             f"{EXTENDED_NAMES}, got shape {arr.shape}")
+        return cls(*(float(x) for x in arr))
+
+    @classmethod
+    def sample(cls, rng: np.random.Generator | int | None = None) -> Theta:
+        """Uniform sample within ``[THETA_LOW, THETA_HIGH]`` (``rng`` a Generator or a seed)."""
+        rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        a = rng.uniform(THETA_LOW, THETA_HIGH)
+        return cls.from_array(np.clip(a, THETA_LOW, THETA_HIGH))
+
+
+# ====================================================================== policy spaces
+EXTENDED_NAMES = THETA_NAMES + ("b",)
+"""Names of the extended space's parameters: the paper's five, then ``b``."""
+EXTENDED_LOW = np.append(THETA_LOW, 0.0)
+EXTENDED_HIGH = np.append(THETA_HIGH, 1.0)
+EXTENDED_LOW.setflags(write=False)
+EXTENDED_HIGH.setflags(write=False)
+
+
+@dataclass(frozen=True)
+class PolicySpace:
+    """A box of policy parameters: ``names`` (in array order), bounds ``low``/``high``
+    (shape (dim,)) and ``units``.
+
+    * ``"paper"``: the paper's ``(q, zeta, s1, s2, s3)``; the reference follows the
+      minimum-curvature race line.
+    * ``"extended"``: the paper's five and ``b`` in [0, 1] [-], the weight of the track's
+      lap-time race line blended into the reference's path and speed (0: the paper's
+      minimum-curvature line; 1: the lap-time line). The lap-time line is shorter where the
+      car is motor-limited (above about 2.2 m/s), so a car on it drives another path than a
+      car on the curvature line and gains there: that offset is where passes start
+      (docs: "Policy spaces").
+    """
+
+    name: str
+    names: tuple
+    low: np.ndarray
+    high: np.ndarray
+    units: tuple
+
+    @property
+    def dim(self) -> int:
+        """Number of parameters."""
+        return len(self.names)
+
+    def theta(self, a: Sequence[float] | np.ndarray) -> Theta:
+        """The :class:`Theta` of an array-like of shape (dim,) (``ValueError`` otherwise)."""
+        arr = np.asarray(a, dtype=float)
+        if arr.shape != (self.dim,):
+            raise ValueError(f"a theta of the {self.name!r} space has shape ({self.dim},) "
+                             f"{self.names}, got shape {arr.shape}")
+        return Theta.from_array(arr)
+
+    def array(self, theta: Theta) -> np.ndarray:
+        """``theta``'s parameters in this space's order, shape (dim,)."""
+        return theta.as_array(self.name)
+
+    def sample(self, rng: np.random.Generator | int | None = None) -> np.ndarray:
+        """A uniform sample of the box, shape (dim,) (``rng`` a Generator or a seed)."""
+        rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        return np.clip(rng.uniform(self.low, self.high), self.low, self.high)
+
+
+SPACES = {
+    "paper": PolicySpace("paper", THETA_NAMES, THETA_LOW, THETA_HIGH, THETA_UNITS),
+    "extended": PolicySpace("extended", EXTENDED_NAMES, EXTENDED_LOW, EXTENDED_HIGH,
+                            THETA_UNITS + ("-",)),
+}
+"""The policy spaces by name."""
+
+
+def policy_space(name: str | PolicySpace) -> PolicySpace:
+    """The :class:`PolicySpace` called ``name`` (a PolicySpace is returned as is);
+    ``ValueError`` naming the choices otherwise."""
+    if isinstance(name, PolicySpace):
+        return name
+    try:
+        return SPACES[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"policy space must be one of {sorted(SPACES)}, got {name!r}") from None
