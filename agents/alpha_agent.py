@@ -12,9 +12,9 @@ bit for bit whatever the process's thread count.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
 import warnings
 from collections import deque
+from typing import TYPE_CHECKING
 
 import numpy as np
 

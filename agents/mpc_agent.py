@@ -90,7 +90,8 @@ class MPCAgent:
 
     def __init__(self, q: float | None = None, zeta: float | None = None,
                  s1: float | None = None, s2: float | None = None, s3: float | None = None,
-                 b: float | None = None, theta: str | None = None, space: str = "paper", config: MPCConfig | None = None,
+                 b: float | None = None, theta: str | None = None, space: str = "paper",
+                 config: MPCConfig | None = None,
                  vehicle: VehicleParams | None = None, n_preview: int = 10,
                  line: str = "curvature", zeta_max: float | None = None):
         from racing_env.raceline import RacelineConfig

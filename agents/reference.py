@@ -251,10 +251,11 @@ def reference_trajectory(theta: Theta | Sequence[float] | np.ndarray, ego: np.nd
        that leaves the track at its tail (a car stopped beside the track could wait for
        ever). So the progress ``s_pert^k - s_ego`` is capped at ``REACH_SLACK`` (1.1) times
        the distance a full-throttle run on a straight covers in ``k dt`` from the car's
-       progress rate (the g-g-v envelope's drive limit, :func:`_run_up`). Where the cap binds the reference keeps its
-       path and arrives later: ``n_pert^k`` is the uncapped reference's lateral offset at the
-       capped progress (interpolated in ``s``), and ``v_pert^k`` at most the run's speed. At racing speed the run outpaces the profile and the
-       cap does not bind.
+       progress rate (the g-g-v envelope's drive limit, :func:`_run_up`). Where the cap binds
+       the reference keeps its path and arrives later: ``n_pert^k`` is the uncapped
+       reference's lateral offset at the capped progress (interpolated in ``s``), and
+       ``v_pert^k`` at most the run's speed. At racing speed the run outpaces the profile and
+       the cap does not bind.
     2. *Opponents* keep their Frenet progress rate ``s_dot_j = (vx cos mu - vy sin mu) /
        (1 - n kappa)`` and lateral position: ``s_j^k = s_j + k dt s_dot_j``, ``n_j^k = n_j``.
        Only ``j^*`` (just ahead) and ``j_*`` (just behind), see :func:`opponent_neighbours`.
@@ -313,7 +314,7 @@ def reference_trajectory(theta: Theta | Sequence[float] | np.ndarray, ego: np.nd
         if not (math.isfinite(w_half) and w_half >= 0):
             raise ValueError(f"vehicle_width must be a finite width >= 0 [m], got {vehicle_width!r}")
     tab = _tables(raceline, track, friction)
-    L, T, inv_ds = tab.L, tab.T, tab.inv_ds
+    L, inv_ds = tab.L, tab.inv_ds
     steps, steps1 = _steps(K, dt)                          # dt*(0..K), dt*(1..K)
     s_e, n_e = float(x[0]), float(x[1])
     base = math.floor(s_e / L) * L                         # start of the ego's lap [m]
@@ -400,8 +401,7 @@ def reference_trajectory(theta: Theta | Sequence[float] | np.ndarray, ego: np.nd
                 elif dn < 0:
                     sgn = -1.0
                 else:                                      # level: side with more room
-                    room_l = _interp1(tab.wl, sj_w, inv_ds) - nj
-                    room_r = _interp1(tab.wr, sj_w, inv_ds) + nj
+                    room_l, room_r = _room(tab, sj_w, inv_ds, nj)
                     sgn = 1.0 if room_l >= room_r else -1.0
             if c > 0:
                 decay_c = decay * (sgn * c)
@@ -463,6 +463,12 @@ PASS_ROOM = 0.12
 for the extended space's ``side="room"`` rule to pass on that side."""
 
 
+def _room(tab: _Tables, sj_w: float, inv_ds: float, nj: float) -> tuple[float, float]:
+    """Room [m] between a car at lateral offset ``nj`` and the left and right track edges at
+    wrapped progress ``sj_w``."""
+    return _interp1(tab.wl, sj_w, inv_ds) - nj, _interp1(tab.wr, sj_w, inv_ds) + nj
+
+
 def _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half) -> float:
     """The side (+1 left, -1 right) of the car ahead to pass on: ``side`` itself when it is
     +-1 (held by the agent), else (``"room"``) the side the ego is on (``sign(dn)``, the one
@@ -472,8 +478,9 @@ def _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half) -> float:
         return float(side)
     if side != "room":
         raise ValueError(f"side must be None, 'room', 1 or -1, got {side!r}")
-    room_l = _interp1(tab.wl, sj_w, inv_ds) - nj - w_half
-    room_r = _interp1(tab.wr, sj_w, inv_ds) + nj - w_half
+    room_l, room_r = _room(tab, sj_w, inv_ds, nj)
+    room_l -= w_half
+    room_r -= w_half
     sgn = 1.0 if dn > 0 or (dn == 0 and room_l >= room_r) else -1.0
     mine, other = (room_l, room_r) if sgn > 0 else (room_r, room_l)
     if mine < PASS_ROOM and other > mine:

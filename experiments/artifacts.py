@@ -50,6 +50,14 @@ def as_stored(obj):
     return json.loads(json.dumps(obj))
 
 
+def manifest_config(config, added: dict) -> dict:
+    """``asdict(config)`` as a manifest records it: a field of ``added`` (name -> the value it
+    defaults to) is left out while it has that value, so that a folder written before the
+    field existed keeps its manifest and resumes."""
+    from dataclasses import asdict
+    return {k: v for k, v in asdict(config).items() if not (k in added and v == added[k])}
+
+
 def claim(path, meta: dict, what: str, overwrite: bool = False, provenance: dict | None = None) -> None:
     """Tie the folder of manifest ``path`` to ``meta``: write it if missing (or ``overwrite``),
     else raise a ValueError naming both configs when the stored one differs (compared as

@@ -22,18 +22,21 @@ from __future__ import annotations
 import json
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .artifacts import claim, provenance, write_npz
+from .artifacts import claim, manifest_config, provenance, write_npz
 from .parallel import check_backend, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
 #: Start-region geometry of a collection's races (``StartConfig`` region_length, region_gap
 #: [m]): the paper's, or close together so that the cars interact from the first corner.
 START_REGIONS = {"paper": (0.4, 0.6), "close": (0.2, 0.1)}
+#: Config fields added after collections were first made, with their paper defaults: a manifest
+#: records them only when they differ (:func:`experiments.artifacts.manifest_config`).
+ADDED_FIELDS = {"space": "paper", "start": "paper"}
 
 
 class ShardedRaces:
@@ -90,17 +93,6 @@ def _mpc_agents(track, thetas, rng=None, agent_ids=None, space: str = "paper") -
         agent.reset(track, agent_ids[k] if agent_ids else f"car_{k}",
                     None if rng is None else int(rng.integers(2 ** 31)))
     return agents
-
-
-def manifest_config(config: CollectConfig) -> dict:
-    """The config as ``manifest.json`` records it: ``space`` and ``start`` only where they are
-    not the paper's, so that a collection made before they existed keeps its manifest (and
-    resumes)."""
-    d = asdict(config)
-    for key in ("space", "start"):
-        if d[key] == "paper":
-            del d[key]
-    return d
 
 
 def simulate_race(config: CollectConfig, race_index: int) -> dict:
@@ -224,7 +216,7 @@ def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool
     check_backend(backend, workers)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    claim(out / "manifest.json", {"schema_version": SCHEMA_VERSION, "config": manifest_config(config)},
+    claim(out / "manifest.json", {"schema_version": SCHEMA_VERSION, "config": manifest_config(config, ADDED_FIELDS)},
           "race data", provenance=provenance())
     todo = [k for k in range(config.n_shards)
             if not shard_is_complete(out / f"shard_{k:05d}.npz", config, k)]

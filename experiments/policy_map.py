@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import ResumableRun, env_version, slug, write_json, write_text
+from .artifacts import ResumableRun, env_version, manifest_config, slug, write_json, write_text
 from .bench import REGIONS, BenchConfig, check_agent_specs
 from .parallel import check_backend, run_tasks_with_progress
 
@@ -96,15 +96,6 @@ def theta_box(space: str = "paper") -> tuple[np.ndarray, np.ndarray]:
         return np.array(reference.THETA_LOW, dtype=float), np.array(reference.THETA_HIGH, dtype=float)
     sp = reference.policy_space(space)
     return np.array(sp.low, dtype=float), np.array(sp.high, dtype=float)
-
-
-def _manifest_config(config: PolicyMapConfig) -> dict:
-    """The config as ``manifest.json`` records it: ``space`` only where it is not the paper's,
-    so that a map made before the extended space existed keeps its manifest (and resumes)."""
-    d = asdict(config)
-    if d["space"] == "paper":
-        del d["space"]
-    return d
 
 
 def theta_names(space: str = "paper") -> tuple:
@@ -213,7 +204,7 @@ class PolicyMapRun(ResumableRun):
         super().__init__(out_dir)
         # the box goes into "config", so a refusal after a change of the box names it
         self.claim({"schema_version": SCHEMA_VERSION,
-                    "config": {**_manifest_config(config), "theta_box": {
+                    "config": {**manifest_config(config, {"space": "paper"}), "theta_box": {
                         "names": list(theta_names(config.space)), "low": low.tolist(),
                         "high": high.tolist()}},
                     "env": env_version()})
