@@ -15,7 +15,7 @@ if TYPE_CHECKING:
 
 __all__ = ["THETA_NAMES", "THETA_LOW", "THETA_HIGH", "THETA_UNITS", "THETA_BOUNDS_DOC", "Theta",
            "EXTENDED_NAMES", "EXTENDED_LOW", "EXTENDED_HIGH", "PolicySpace", "SPACES",
-           "policy_space"]
+           "policy_space", "space_of"]
 
 # ====================================================================== theta
 THETA_NAMES = ("q", "zeta", "s1", "s2", "s3")
@@ -181,6 +181,16 @@ SPACES = {
                             THETA_UNITS + ("-",)),
 }
 """The policy spaces by name."""
+
+
+def space_of(theta: Sequence[float] | np.ndarray) -> PolicySpace:
+    """The policy space whose parameters an array-like ``theta`` holds (by its length: 5 the
+    paper's, 6 the extended one); ``ValueError`` for another length."""
+    n = len(theta)
+    for space in SPACES.values():
+        if space.dim == n:
+            return space
+    raise ValueError(f"a theta has {sorted(s.dim for s in SPACES.values())} parameters, got {n}")
 
 
 def policy_space(name: str | PolicySpace) -> PolicySpace:

@@ -2,7 +2,7 @@
 beside another (:func:`experiments.metrics.interaction_share`), and the passes, for the first
 races of ``alpha-racer collect`` in each policy space and start geometry.
 
-    python benchmarks/interaction_share.py               # 30 races per setting, ~4 min on 2 cores
+    python benchmarks/interaction_share.py               # 30 races per setting
     python benchmarks/interaction_share.py --races 8     # a smoke check
 
 Settings: the paper's collection (``--space paper --start paper``), close starts

@@ -234,11 +234,6 @@ class BenchRun(ResumableRun):
     def check_record(self, record: dict) -> bool:
         return self._states_path(record["race"]).exists()
 
-    def records(self) -> dict[int, dict]:
-        """Finished races by index (those with their states); a torn (partly written) last
-        line is ignored."""
-        return super().records()
-
     def add(self, result: dict) -> None:
         """Store one race: states first, then its JSON line (a line means a complete race)."""
         rec = result["record"]

@@ -370,7 +370,10 @@ def _version() -> str:
 def build_parser() -> argparse.ArgumentParser:
     # the options' defaults are read from the config dataclasses (one place for each default;
     # tests/test_cli_defaults.py checks them)
+    from agents.theta import SPACES
+
     from .bench import BenchConfig
+    from .collect import START_REGIONS
     from .control import ControlConfig
     from .general import GeneralReportConfig
     from .league import LeagueConfig
@@ -449,10 +452,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "random:A .. random:B, e.g. --tracks default oval random:0-299 "
                         "tumftm:Monza")
     c.add_argument("--seed", type=int, default=0, help="seed of the thetas and start positions")
-    c.add_argument("--space", choices=("paper", "extended"), default="paper",
+    c.add_argument("--space", choices=sorted(SPACES), default="paper",
                    help="policy space the thetas are drawn from (extended: the paper's five "
                         "and b, the lap-time line's weight)")
-    c.add_argument("--start", choices=("paper", "close"), default="paper",
+    c.add_argument("--start", choices=sorted(START_REGIONS), default="paper",
                    help="start regions: the paper's (0.4 m long, 0.6 m apart) or close (0.2 m "
                         "long, 0.1 m apart: more passing and blocking)")
     c.add_argument("--shard-size", type=int, default=None,
@@ -713,7 +716,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "--opponents cars from the start regions")
     pm.add_argument("--opponents", default=PolicyMapConfig.opponents,
                     help="agent spec of the two opponents of the race mode")
-    pm.add_argument("--space", choices=("paper", "extended"), default=PolicyMapConfig.space,
+    pm.add_argument("--space", choices=sorted(SPACES), default=PolicyMapConfig.space,
                     help="policy space whose box is mapped (extended adds b, the weight of "
                          "the lap-time line)")
     pm.add_argument("--steps", type=int, default=PolicyMapConfig.steps,

@@ -97,7 +97,7 @@ def _mpc_agents(track, thetas, rng=None, agent_ids=None, space: str = "paper") -
 
 def simulate_race(config: CollectConfig, race_index: int) -> dict:
     """Simulate race ``race_index`` of the config; everything random comes from its own seed."""
-    from agents.reference import Theta, policy_space
+    from agents.reference import policy_space
     from racing_env import RacingParallelEnv, StartConfig
 
     rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(race_index + 1)[race_index])
@@ -107,11 +107,8 @@ def simulate_race(config: CollectConfig, race_index: int) -> dict:
                                               region_length=length, region_gap=gap))
     order = rng.permutation(config.n_cars)
     obs, _ = env.reset(seed=int(rng.integers(2 ** 31)), options={"order": order.tolist()})
-    if config.space == "paper":                      # the paper's draw, unchanged
-        thetas = np.array([Theta.sample(rng).as_array() for _ in range(config.n_cars)])
-    else:
-        space = policy_space(config.space)
-        thetas = np.array([space.sample(rng) for _ in range(config.n_cars)])
+    space = policy_space(config.space)       # the paper's draws are Theta.sample's, bit for bit
+    thetas = np.array([space.sample(rng) for _ in range(config.n_cars)])
     agents = _mpc_agents(env.track, thetas, rng, env.possible_agents, config.space)
     fallbacks0 = [a.stats["fallbacks"] for a in agents]
     states = np.empty((config.steps + 1, config.n_cars, 6), dtype=np.float32)
@@ -151,7 +148,8 @@ def rollout_from_state(track, state, thetas, steps: int):
     core.start[0] = state
     core.s_line[0] = state[:, 0].max()
     thetas = np.asarray(thetas, dtype=float)
-    agents = _mpc_agents(core.track, thetas, space="extended" if thetas.shape[-1] == 6 else "paper")
+    from agents.theta import space_of
+    agents = _mpc_agents(core.track, thetas, space=space_of(thetas[0]).name)
     obs = core.observe()[0]
     states = np.empty((steps + 1, N, 6))
     rewards = np.empty((steps, N))

@@ -123,14 +123,15 @@ def sample_thetas(n: int, seed: int, low=None, high=None) -> np.ndarray:
 def theta_spec(theta) -> str:
     """The ``mpc`` agent spec of a theta, exact (floats in ``repr`` form): shape (5,) of the
     paper's space, or (6,) of the extended space (the spec then says ``space=extended``)."""
-    names = theta_names("extended" if len(theta) == 6 else "paper")
-    head = "mpc:space=extended," if len(theta) == 6 else "mpc:"
-    return head + ",".join(f"{name}={float(v)!r}" for name, v in zip(names, theta))
+    from agents.theta import space_of
+    space = space_of(theta)
+    head = "mpc:" if space.name == "paper" else f"mpc:space={space.name},"
+    return head + ",".join(f"{name}={float(v)!r}" for name, v in zip(space.names, theta))
 
 
 def _theta_dict(theta) -> dict:
-    names = theta_names("extended" if len(theta) == 6 else "paper")
-    return {name: float(v) for name, v in zip(names, theta)}
+    from agents.theta import space_of
+    return {name: float(v) for name, v in zip(space_of(theta).names, theta)}
 
 
 def best_flying_lap(lap_times) -> float | None:
