@@ -200,7 +200,8 @@ def _cmd_strategy(args) -> int:
     from .strategy import StrategyConfig, strategy
     cfg = StrategyConfig(ego=args.ego, control=args.control, tracks=tuple(args.tracks),
                          scenarios=tuple(args.scenarios), races=args.races, steps=args.steps,
-                         seed=args.seed, zeta_max=args.zeta_max)
+                         seed=args.seed, zeta_max=args.zeta_max,
+                         pass_opponents=args.pass_opponents)
     out = Path(args.out)
     t = strategy(cfg, out, workers=args.workers, backend=args.backend, address=args.address)
     print((out / "strategy.md").read_text())
@@ -600,6 +601,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "on 2 cores)")
     sg.add_argument("--zeta-max", type=float, default=d["zeta_max"],
                     help="defend: the ego's zeta ceiling (the same for ego and control)")
+    sg.add_argument("--pass-opponents", default=d["pass_opponents"],
+                    help="pass: the agent spec of the two slower cars that do not yield "
+                         "(e.g. raceline:grip=0.9 for followers slower in the corners only)")
     sg.add_argument("--seed", type=int, default=d["seed"],
                     help="seed of the races' start positions and agents")
     sg.add_argument("--out", default="results/strategy", help="output folder; run again to resume")

@@ -81,7 +81,8 @@ class StrategyConfig:
     in ``scenarios`` (of :data:`SCENARIOS`) on ``tracks``, ``races`` races of ``steps``
     control periods (0.1 s) per bench; ``seed`` fixes every race's start positions and
     agents' seeds (race k of every bench has the seed of ``(seed, k)``); ``zeta_max`` is the
-    defend ego's speed-scale ceiling.
+    defend ego's speed-scale ceiling; ``pass_opponents`` the spec of the two non-yielding
+    cars of ``pass`` (default :data:`PASS_OPPONENTS`, the racing-line follower).
 
     Every scenario runs ``races`` races per track and ego; ``table1`` shares them among its
     three opponents (33 each of 99). ``steps`` defaults to 200 (20 s: long enough for a car
@@ -100,6 +101,7 @@ class StrategyConfig:
     steps: int = 200
     seed: int = 0
     zeta_max: float = ZETA_MAX
+    pass_opponents: str = PASS_OPPONENTS
 
     def __post_init__(self):
         object.__setattr__(self, "tracks", tuple(self.tracks))
@@ -111,7 +113,7 @@ class StrategyConfig:
         if isinstance(self.seed, bool) or not (isinstance(self.seed, int) and self.seed >= 0):
             raise ValueError(f"StrategyConfig.seed must be a non-negative integer, got "
                              f"{self.seed!r}")
-        for name in ("ego", "control"):
+        for name in ("ego", "control", "pass_opponents"):
             if not isinstance(getattr(self, name), str) or not getattr(self, name):
                 raise ValueError(f"StrategyConfig.{name} must be an agent spec string, got "
                                  f"{getattr(self, name)!r}")
@@ -170,7 +172,7 @@ def cells(config: StrategyConfig) -> list[Cell]:
             for role, spec in (("ego", config.ego), ("control", config.control)):
                 kw = dict(races=config.races, steps=config.steps, track=track, seed=config.seed)
                 if bench == "pass":
-                    cfg = BenchConfig(ego=spec, opponents=PASS_OPPONENTS,
+                    cfg = BenchConfig(ego=spec, opponents=config.pass_opponents,
                                       ego_regions=("R2", "R3"), **kw)
                 elif bench == "equal":
                     cfg = BenchConfig(ego=spec, opponents=config.control, **kw)
@@ -355,7 +357,8 @@ def strategy_markdown(table: dict) -> str:
     lines = ["# Strategy benchmark", "",
              f"Ego `{c['ego']}` and control `{c['control']}` in the same seats and races: "
              f"{c['races']} races per bench of {c['steps']} steps ({c['steps'] / 10:g} s), three "
-             f"cars, seed {c['seed']}. `pass`: behind two `{PASS_OPPONENTS}` cars from R2 and R3 "
+             f"cars, seed {c['seed']}. `pass`: behind two "
+             f"`{c.get('pass_opponents', PASS_OPPONENTS)}` cars from R2 and R3 "
              f"in turn; `equal`: against two control cars from R1, R2, R3 in turn; `defend`: "
              f"from R1 with a zeta ceiling of {c['zeta_max']:g} against two control cars "
              f"without it; `table1_*`: against two cars of the paper's opponents from R1, R2, "

@@ -150,3 +150,13 @@ def test_bad_suites_are_refused_naming_the_value(tmp_path, capsys):
     assert main(["strategy", "--ego", "nosuchagent", "--out", str(tmp_path)]) == 2
     assert "unknown agent 'nosuchagent'" in capsys.readouterr().err
     assert not list(tmp_path.rglob("races.jsonl"))           # refused before any race
+
+
+def test_pass_opponents_name_the_pass_benches_followers_only():
+    config = sg.StrategyConfig(ego="mpc", control="mpc:zeta=1.02", tracks=("default",),
+                               pass_opponents="raceline:grip=0.9")
+    opponents = {c.bench: c.config.opponents for c in sg.cells(config)}
+    assert opponents["pass"] == "raceline:grip=0.9"
+    assert opponents["equal"] == opponents["defend"] == "mpc:zeta=1.02"
+    with pytest.raises(ValueError, match="pass_opponents"):
+        sg.StrategyConfig(pass_opponents="")
