@@ -1,4 +1,4 @@
-"""Rendering of races: fast RGB frames, a human viewer, animations and trajectory plots.
+"""Rendering of races in the env's two render modes: RGB frames and a window.
 
 * :class:`Renderer` turns a race state into an RGB image ``(height, width, 3)`` uint8. The
   static background (grass, track surface, edge lines, start/finish line at ``s = 0``,
@@ -7,8 +7,11 @@
   :data:`CAR_COLORS`), optional labels and a HUD.
 * :class:`HumanViewer` shows frames in a matplotlib window (``render_mode="human"``); without a
   display it warns once and only keeps the last frame.
-* :func:`save_animation` writes frames to ``.gif`` (PIL) or ``.mp4`` (ffmpeg), atomically.
-* :func:`plot_trajectories` draws the cars' paths over an episode to a PNG (matplotlib Agg).
+
+The colours and drawing primitives are in :mod:`racing_env.draw`, the writing of animations
+(:func:`save_animation`) in :mod:`racing_env.animation`, the trajectory plot
+(:func:`plot_trajectories`) in :mod:`racing_env.trajectory_plot`; their public names are
+re-exported here, so ``from racing_env.render import save_animation`` keeps working.
 
 Conventions: world coordinates in metres, ``y`` up; pixel coordinates ``(u, v)`` are
 (column, row) with the origin at the top-left corner of the image, ``v`` down; a pixel
@@ -20,123 +23,22 @@ from __future__ import annotations
 import math
 import numbers
 import os
-import shutil
-import subprocess
 import sys
-import tempfile
 import warnings
-from pathlib import Path
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
-from PIL import Image, ImageDraw, ImageFont
+from PIL import Image, ImageDraw
 
-from .files import atomic_path
+from .animation import ffmpeg_available, save_animation  # noqa: F401 (re-exported)
+from .draw import (CAR_COLORS, CHECKER_COLORS, EDGE_COLOR, GRASS_COLOR,  # noqa: F401 (re-exported)
+                   HUD_BOX_COLOR, HUD_TEXT_COLOR, RACELINE_COLOR, TRACK_COLOR, _as_race_state,
+                   _as_xy, _draw_patch, _fill_convex, _load_font, car_color)
 from .track import Track
+from .trajectory_plot import plot_trajectories  # noqa: F401 (re-exported)
 from .vehicle import VehicleParams
 
-# ---------------------------------------------------------------------------- colours
-CAR_COLORS: tuple[tuple[int, int, int], ...] = (
-    (230, 25, 75),    # 0 red
-    (0, 130, 200),    # 1 blue
-    (255, 225, 25),   # 2 yellow
-    (60, 180, 75),    # 3 green
-    (245, 130, 48),   # 4 orange
-    (145, 30, 180),   # 5 purple
-    (240, 50, 230),   # 6 magenta
-    (170, 110, 40),   # 7 brown
-)
-"""Fixed RGB colour of car ``i`` (cars beyond 8 reuse the palette, ``i % 8``). None of these
-colours occurs in the rendered background."""
-
-GRASS_COLOR = (34, 66, 38)
-TRACK_COLOR = (82, 82, 88)
-EDGE_COLOR = (235, 235, 235)
-RACELINE_COLOR = (70, 220, 230)
-CHECKER_COLORS = ((245, 245, 245), (15, 15, 15))
-HUD_TEXT_COLOR = (245, 245, 245)
-HUD_BOX_COLOR = (10, 10, 10)
-
 _SUPERSAMPLE = 3  # background is drawn at 3x and box-filtered down (anti-aliasing)
-
-
-def car_color(i: int) -> tuple[int, int, int]:
-    """RGB colour (0..255) of car index ``i``."""
-    return CAR_COLORS[int(i) % len(CAR_COLORS)]
-
-
-def _load_font():
-    """PIL's built-in bitmap font (about 11 px high): ~10x faster to draw than FreeType text."""
-    try:
-        return ImageFont.load_default_imagefont()  # Pillow >= 10.1
-    except AttributeError:  # pragma: no cover - older Pillow: load_default() is the bitmap font
-        return ImageFont.load_default()
-
-
-def _fill_convex(out: np.ndarray, polys_colors) -> None:
-    """Fill convex polygons into ``out`` (H, W, 3) in place, in order (later ones on top).
-
-    ``polys_colors`` is a sequence of ``(poly, color)`` with ``poly`` (K, 2) vertices [px, (u, v)]
-    and ``color`` RGB. A pixel is filled when its centre lies inside (or on) a polygon; no
-    anti-aliasing, so the exact colour is kept. Vectorised over the polygons' joint bounding box,
-    which is clipped to the image.
-    """
-    h, w = out.shape[:2]
-    allp = np.concatenate([p for p, _ in polys_colors])
-    u0, v0 = max(int(math.floor(allp[:, 0].min())), 0), max(int(math.floor(allp[:, 1].min())), 0)
-    u1, v1 = min(int(math.ceil(allp[:, 0].max())) + 1, w), min(int(math.ceil(allp[:, 1].max())) + 1, h)
-    if u1 <= u0 or v1 <= v0:
-        return  # entirely outside the image
-    pu = np.arange(u0, u1) + 0.5                 # pixel centres
-    pv = (np.arange(v0, v1) + 0.5)[:, None]
-    region = out[v0:v1, u0:u1]
-    for poly, color in polys_colors:
-        a = poly[:, :, None, None]                # (K, 2, 1, 1)
-        e = np.roll(poly, -1, axis=0)[:, :, None, None] - a
-        cross = e[:, 0] * (pv - a[:, 1]) - e[:, 1] * (pu - a[:, 0])   # (K, h, w)
-        inside = (cross >= 0).all(axis=0) | (cross <= 0).all(axis=0)
-        region[inside] = color
-
-
-def _draw_patch(out: np.ndarray, lo, hi, draw_fn) -> None:
-    """Run ``draw_fn(ImageDraw, ox, oy)`` on the pixel box [lo, hi] of ``out`` (H, W, 3) in place.
-
-    Only the (small) box is converted to a PIL image and back, which is much cheaper than
-    converting the whole frame; ``draw_fn`` gets the box origin (ox, oy) to offset its
-    coordinates by.
-    """
-    h, w = out.shape[:2]
-    u0, v0 = max(int(math.floor(lo[0])) - 1, 0), max(int(math.floor(lo[1])) - 1, 0)
-    u1, v1 = min(int(math.ceil(hi[0])) + 2, w), min(int(math.ceil(hi[1])) + 2, h)
-    if u1 <= u0 or v1 <= v0:
-        return  # entirely outside the image
-    patch = Image.fromarray(out[v0:v1, u0:u1])
-    draw_fn(ImageDraw.Draw(patch), u0, v0)
-    out[v0:v1, u0:u1] = np.asarray(patch)
-
-
-def _as_xy(raceline_xy) -> tuple[np.ndarray, np.ndarray]:
-    """(x, y) arrays [m] from ``(x, y)`` or an (M, 2) array; validates shape and finiteness."""
-    a = np.asarray(raceline_xy, dtype=float)
-    if a.ndim != 2 or 2 not in a.shape:
-        raise ValueError(f"raceline_xy must be (x, y) arrays or an (M, 2) array, got shape {a.shape}")
-    if a.shape[0] != 2:
-        a = a.T
-    if a.shape[1] < 2:
-        raise ValueError(f"raceline_xy needs at least 2 points, got {a.shape[1]}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError("raceline_xy contains NaN or inf")
-    return a[0], a[1]
-
-
-def _as_race_state(state, what: str = "state") -> np.ndarray:
-    """A race state as float array (N, 6); a single car's (6,) vector becomes (1, 6)."""
-    a = np.asarray(state, dtype=float)
-    if a.ndim == 1:
-        a = a[None, :]
-    if a.ndim != 2 or a.shape[1] != 6:
-        raise ValueError(f"{what} must have shape (N, 6) (s, n, mu, vx, vy, omega), got {a.shape}")
-    return a
 
 
 # ---------------------------------------------------------------------------- renderer
@@ -449,210 +351,3 @@ class HumanViewer:
                 pass
         self._fig = None
         self._im = None
-
-
-# ---------------------------------------------------------------------------- animations
-def _check_frames(frames) -> list[np.ndarray]:
-    if isinstance(frames, np.ndarray):
-        if frames.ndim != 4:
-            raise ValueError(f"frames array must have shape (T, H, W, 3), got {frames.shape}")
-        frames = list(frames)
-    elif isinstance(frames, Iterable) and not isinstance(frames, (str, bytes)):
-        frames = list(frames)
-    else:
-        raise ValueError(f"frames must be a sequence of (H, W, 3) uint8 arrays, got {type(frames).__name__}")
-    if not frames:
-        raise ValueError("frames is empty: nothing to save")
-    shape0 = None
-    for i, f in enumerate(frames):
-        if not isinstance(f, np.ndarray):
-            raise ValueError(f"frame {i} is a {type(f).__name__}, expected a numpy array")
-        if f.dtype != np.uint8:
-            raise ValueError(f"frame {i} has dtype {f.dtype}, expected uint8")
-        if f.ndim != 3 or f.shape[2] != 3 or f.shape[0] < 1 or f.shape[1] < 1:
-            raise ValueError(f"frame {i} has shape {f.shape}, expected (H, W, 3)")
-        if shape0 is None:
-            shape0 = f.shape
-        elif f.shape != shape0:
-            raise ValueError(f"frame {i} has shape {f.shape}, but frame 0 has {shape0}")
-    return frames
-
-
-def _check_fps(fps) -> float:
-    if isinstance(fps, bool) or not isinstance(fps, numbers.Real) or not math.isfinite(fps) or fps <= 0:
-        raise ValueError(f"fps must be a positive finite number, got {fps!r}")
-    return float(fps)
-
-
-def ffmpeg_available() -> bool:
-    """Whether :func:`save_animation` can write ``.mp4`` here (an ffmpeg on ``PATH`` or from
-    imageio-ffmpeg); check it before a long run whose animation needs it."""
-    return _find_ffmpeg() is not None
-
-
-def _find_ffmpeg() -> str | None:
-    exe = shutil.which("ffmpeg")
-    if exe:
-        return exe
-    try:  # imageio's bundled ffmpeg, if installed
-        import imageio_ffmpeg
-        return imageio_ffmpeg.get_ffmpeg_exe()
-    except Exception:
-        return None
-
-
-def _write_gif(frames: list[np.ndarray], tmp: str, fps: float) -> None:
-    # one global palette from up to 8 evenly spaced frames: consistent colours, no flicker
-    idx = np.unique(np.linspace(0, len(frames) - 1, min(8, len(frames))).round().astype(int))
-    sample = Image.fromarray(np.concatenate([frames[i] for i in idx], axis=0))
-    pal = sample.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
-    images = [Image.fromarray(f).quantize(palette=pal, dither=Image.Dither.NONE) for f in frames]
-    duration = max(int(round(1000.0 / fps)), 10)  # ms; GIF stores centiseconds
-    images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
-                   duration=duration, loop=0, optimize=False, disposal=1)
-
-
-def _write_mp4(frames: list[np.ndarray], tmp: str, fps: float, ffmpeg: str) -> None:
-    h, w = frames[0].shape[:2]
-    base = [ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
-            "-s", f"{w}x{h}", "-r", f"{fps:g}", "-i", "-", "-an",
-            "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2"]
-    codecs = (["-c:v", "libx264", "-pix_fmt", "yuv420p", "-movflags", "+faststart"],
-              ["-c:v", "mpeg4", "-q:v", "3", "-pix_fmt", "yuv420p"])
-    errors = []
-    for codec in codecs:
-        with tempfile.TemporaryFile() as err:
-            proc = subprocess.Popen(base + codec + ["-f", "mp4", tmp], stdin=subprocess.PIPE,
-                                    stdout=subprocess.DEVNULL, stderr=err)
-            try:
-                for f in frames:
-                    proc.stdin.write(np.ascontiguousarray(f).tobytes())
-                proc.stdin.close()
-            except (BrokenPipeError, OSError):
-                pass
-            rc = proc.wait()
-            if rc == 0:
-                return
-            err.seek(0)
-            errors.append(f"{codec[1]}: exit {rc}: {err.read().decode(errors='replace').strip()[-500:]}")
-    raise RuntimeError("ffmpeg failed to write the mp4: " + " | ".join(errors))
-
-
-def save_animation(frames: Sequence[np.ndarray], path: str | os.PathLike, fps: float = 10) -> Path:
-    """Write frames to an animated ``.gif`` or ``.mp4`` file; returns the path.
-
-    Parameters
-    ----------
-    frames : sequence of np.ndarray
-        T >= 1 frames, each (H, W, 3) uint8, all the same shape (or one (T, H, W, 3) array).
-    path : str or PathLike
-        Output file; the suffix picks the format (``.gif`` or ``.mp4``, any case). The parent
-        folder is created if needed. The file is written to a temporary file in the same
-        folder and moved into place with ``os.replace``, so it is either complete or absent.
-    fps : float
-        Frames per second (> 0). GIF stores frame durations in 1/100 s, so the GIF duration is
-        ``round(1000 / fps)`` ms rounded to 10 ms (at least 10 ms); consecutive identical frames
-        are merged by PIL into one longer frame.
-
-    Raises
-    ------
-    ValueError
-        Empty frames, wrong dtype/shape, unknown suffix, fps <= 0.
-    RuntimeError
-        ``.mp4`` requested but no ffmpeg executable was found (or ffmpeg failed).
-    """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".gif", ".mp4"):
-        raise ValueError(f"unknown animation suffix {path.suffix!r} in {str(path)!r}; use .gif or .mp4")
-    fps = _check_fps(fps)
-    frames = _check_frames(frames)
-    ffmpeg = None
-    if suffix == ".mp4":
-        ffmpeg = _find_ffmpeg()
-        if ffmpeg is None:
-            raise RuntimeError(f"cannot write {str(path)!r}: ffmpeg is missing (not on PATH and "
-                               f"imageio-ffmpeg not installed); install ffmpeg or save as .gif")
-    with atomic_path(path, suffix) as tmp:
-        if suffix == ".gif":
-            _write_gif(frames, str(tmp), fps)
-        else:
-            _write_mp4(frames, str(tmp), fps, ffmpeg)
-    return path
-
-
-# ---------------------------------------------------------------------------- trajectory plot
-def plot_trajectories(track: Track, states: np.ndarray, path: str | os.PathLike,
-                      raceline_xy: tuple[np.ndarray, np.ndarray] | np.ndarray | None = None,
-                      labels: Sequence[str] | None = None, title: str | None = None,
-                      dpi: int = 150) -> Path:
-    """Plot each car's path over an episode on the track to a PNG (matplotlib Agg, no pyplot).
-
-    Parameters
-    ----------
-    track : Track
-    states : array (T, N, 6) (or (T, 6) for one car)
-        Frenet states ``(s, n, mu, vx, vy, omega)`` over T steps; non-finite rows break the line.
-    path : str or PathLike
-        Output PNG file (written atomically; parent folder created if needed).
-    raceline_xy : optional
-        Racing line as ``(x, y)`` arrays [m] or (M, 2), drawn dashed.
-    labels : sequence of N str, optional
-        Legend entries (default ``car 0``, ``car 1``, ...).
-    title : str, optional
-    dpi : int
-
-    Returns
-    -------
-    Path
-        The path written. Car ``i`` has the colour :func:`car_color` ``(i)``, as in
-        :class:`Renderer`; a circle marks its first and a cross its last position.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    path = Path(path)
-    if path.suffix.lower() != ".png":
-        raise ValueError(f"plot_trajectories writes PNG; got suffix {path.suffix!r} in {str(path)!r}")
-    st = np.asarray(states, dtype=float)
-    if st.ndim == 2:
-        st = st[:, None, :]
-    if st.ndim != 3 or st.shape[2] != 6 or st.shape[0] < 1:
-        raise ValueError(f"states must have shape (T, N, 6), got {np.shape(states)}")
-    n_cars = st.shape[1]
-    if labels is None:
-        labels = [f"car {i}" for i in range(n_cars)]
-    labels = list(labels)
-    if len(labels) != n_cars:
-        raise ValueError(f"labels must have one entry per car ({n_cars}), got {len(labels)}")
-
-    (xl, yl), (xr, yr) = track.edges()
-    aspect = np.ptp(np.r_[yl, yr]) / max(np.ptp(np.r_[xl, xr]), 1e-9)
-    fig = Figure(figsize=(9.0, float(np.clip(8.0 * aspect + 1.2, 3.0, 9.0))))
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(111)
-    for ex, ey in ((xl, yl), (xr, yr)):
-        ax.plot(np.append(ex, ex[0]), np.append(ey, ey[0]), color="0.2", lw=1.0)
-    (sl_x, sl_y), (sr_x, sr_y) = track.edges(np.array([0.0]))
-    ax.plot([sl_x[0], sr_x[0]], [sl_y[0], sr_y[0]], color="k", lw=2.0, label="start/finish")
-    if raceline_xy is not None:
-        rx, ry = _as_xy(raceline_xy)
-        ax.plot(np.append(rx, rx[0]), np.append(ry, ry[0]), "--", color="0.55", lw=1.0,
-                label="racing line")
-    for i in range(n_cars):
-        x, y = track.to_cartesian(st[:, i, 0], st[:, i, 1])
-        col = np.array(car_color(i)) / 255.0
-        ax.plot(x, y, color=col, lw=1.3, label=str(labels[i]))
-        good = np.flatnonzero(np.isfinite(x) & np.isfinite(y))
-        if good.size:
-            ax.plot(x[good[0]], y[good[0]], "o", color=col, ms=5)
-            ax.plot(x[good[-1]], y[good[-1]], "x", color=col, ms=6, mew=2)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(title or f"{track.name}: {n_cars} car(s), {st.shape[0]} steps")
-    ax.legend(loc="best", fontsize=8, framealpha=0.8)
-    fig.tight_layout()
-    with atomic_path(path, ".png") as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
-    return path

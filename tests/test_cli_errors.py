@@ -73,8 +73,8 @@ def test_unknown_agent_key_lists_the_valid_keys(capsys):
 
 
 def test_mp4_without_ffmpeg_fails_before_the_race(capsys, monkeypatch, tmp_path):
-    import racing_env.render
-    monkeypatch.setattr(racing_env.render, "_find_ffmpeg", lambda: None)
+    import racing_env.animation
+    monkeypatch.setattr(racing_env.animation, "_find_ffmpeg", lambda: None)
     monkeypatch.setattr(experiments.race, "run_race", _no_race)
     err = _one_line_error(capsys, ["race", "--agents", "raceline", "--steps", "5",
                                    "--format", "mp4", "--out", str(tmp_path)])

@@ -1,4 +1,5 @@
-"""Tests of racing_env.render: frames, background cache, animations, viewer, trajectory plot."""
+"""Tests of racing_env.render and the modules it re-exports (draw, animation, trajectory_plot):
+frames, background cache, animations, viewer, trajectory plot."""
 from __future__ import annotations
 
 import shutil
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from racing_env import render
+from racing_env import animation, render
 from racing_env.render import (CAR_COLORS, HumanViewer, Renderer, plot_trajectories,
                                save_animation)
 from racing_env.tracks import make_track
@@ -231,7 +232,7 @@ def _fake_ffmpeg(tmp_path, fail=False):
 def test_mp4_pipe_with_stand_in_ffmpeg(tmp_path, monkeypatch):
     out = tmp_path / "out"
     out.mkdir()
-    monkeypatch.setattr(render.shutil, "which", lambda name: _fake_ffmpeg(tmp_path))
+    monkeypatch.setattr(animation.shutil, "which", lambda name: _fake_ffmpeg(tmp_path))
     path = save_animation(_frames(7), out / "a.mp4", fps=5)
     assert path.read_text() == "7"
     assert [p.name for p in out.iterdir()] == ["a.mp4"]
@@ -241,14 +242,14 @@ def test_mp4_pipe_with_stand_in_ffmpeg(tmp_path, monkeypatch):
 def test_mp4_failure_leaves_nothing(tmp_path, monkeypatch):
     out = tmp_path / "out"
     out.mkdir()
-    monkeypatch.setattr(render.shutil, "which", lambda name: _fake_ffmpeg(tmp_path, fail=True))
+    monkeypatch.setattr(animation.shutil, "which", lambda name: _fake_ffmpeg(tmp_path, fail=True))
     with pytest.raises(RuntimeError, match="ffmpeg failed"):
         save_animation(_frames(3), out / "a.mp4")
     assert list(out.iterdir()) == []
 
 
 def test_mp4_without_ffmpeg_raises(tmp_path, monkeypatch):
-    monkeypatch.setattr(render, "_find_ffmpeg", lambda: None)
+    monkeypatch.setattr(animation, "_find_ffmpeg", lambda: None)
     with pytest.raises(RuntimeError, match="ffmpeg is missing.*gif"):
         save_animation(_frames(), tmp_path / "a.mp4")
     assert list(tmp_path.iterdir()) == []
