@@ -92,24 +92,58 @@ def potential_theta_slots(n_cars: int) -> np.ndarray:
     return np.arange(n_cars)[:, None] * per + (per - N_THETA) + np.arange(N_THETA)
 
 
+def relative_to_ego(states: np.ndarray, thetas: np.ndarray, ego: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The field as car ``ego`` sees it, the start of both feature sets' value features.
+
+    Parameters
+    ----------
+    states : np.ndarray
+        Joint states (..., N, 6), s unwrapped [m].
+    thetas : np.ndarray
+        Joint thetas (..., N, 5).
+    ego : np.ndarray
+        The ego's index (...), int64, broadcast to the batch shape.
+
+    Returns
+    -------
+    ego_state, ego_theta : np.ndarray
+        The ego's state (..., 6) and theta (..., 5).
+    rel : np.ndarray
+        Every car's progress relative to the ego's, ``s_j - s_i`` (..., N) [m].
+    key : np.ndarray
+        Sort key (..., N) of the others, nearest ahead first: the cars ahead (``rel > 0``)
+        ascending, then those behind descending; the ego itself last (``inf``).
+    """
+    e_state = np.take_along_axis(states, ego[..., None, None], axis=-2)[..., 0, :]
+    e_theta = np.take_along_axis(thetas, ego[..., None, None], axis=-2)[..., 0, :]
+    rel = states[..., 0] - e_state[..., None, 0]
+    is_ego = np.arange(states.shape[-2]) == ego[..., None]
+    key = np.where(rel > 0, rel, 1e6 - rel)
+    key = np.where(is_ego, np.inf, key)
+    return e_state, e_theta, rel, key
+
+
+def others_in_order(states: np.ndarray, thetas: np.ndarray, rel: np.ndarray, order: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The other cars, in ``order`` (..., M) (indices of cars), as the value features hold them:
+    progress relative to the ego (..., M, 1) [m] (from ``rel`` of :func:`relative_to_ego`),
+    state without s (..., M, 5) and scaled theta (..., M, 5)."""
+    o_rel = np.take_along_axis(rel, order, axis=-1)[..., None]
+    o_state = np.take_along_axis(states, order[..., None], axis=-2)[..., 1:]
+    o_theta = scale_theta(np.take_along_axis(thetas, order[..., None], axis=-2))
+    return o_rel, o_state, o_theta
+
+
 def value_features(states: np.ndarray, thetas: np.ndarray, track: Track, ego: int) -> np.ndarray:
     """Features of car ``ego`` (int or int array broadcast over the batch): (..., value_dim)."""
     states, thetas = check_joint(states, thetas)
     N = states.shape[-2]
     batch = states.shape[:-2]
     ego = np.broadcast_to(np.asarray(ego, dtype=np.int64), batch)
-    e_state = np.take_along_axis(states, ego[..., None, None], axis=-2)[..., 0, :]
-    e_theta = np.take_along_axis(thetas, ego[..., None, None], axis=-2)[..., 0, :]
-    rel = states[..., 0] - e_state[..., None, 0]                       # (..., N) s_j - s_i
-    # others sorted by relative progress, nearest ahead first: ahead (rel > 0) ascending, then
-    # behind descending; the ego itself last and dropped
-    is_ego = np.arange(N) == ego[..., None]
-    key = np.where(rel > 0, rel, 1e6 - rel)
-    key = np.where(is_ego, np.inf, key)
-    order = np.argsort(key, axis=-1, kind="stable")[..., :N - 1]
-    o_rel = np.take_along_axis(rel, order, axis=-1)[..., None]
-    o_state = np.take_along_axis(states, order[..., None], axis=-2)[..., 1:]
-    o_theta = scale_theta(np.take_along_axis(thetas, order[..., None], axis=-2))
+    e_state, e_theta, rel, key = relative_to_ego(states, thetas, ego)
+    order = np.argsort(key, axis=-1, kind="stable")[..., :N - 1]     # the ego (last) dropped
+    o_rel, o_state, o_theta = others_in_order(states, thetas, rel, order)
     others = np.concatenate([o_rel, o_state, o_theta], axis=-1).reshape(batch + (-1,))
     return np.concatenate([e_state[..., 1:], curvature_preview(track, e_state[..., 0]),
                            scale_theta(e_theta), others], axis=-1)

@@ -37,7 +37,8 @@ import numpy as np
 
 from racing_env.interp import periodic_interp
 
-from .features import N_STATE, N_THETA, check_joint, scale_theta
+from .features import (N_STATE, N_THETA, check_joint, others_in_order, relative_to_ego,
+                       scale_theta)
 
 if TYPE_CHECKING:
     from racing_env.track import Track
@@ -183,16 +184,9 @@ def value_features(states: np.ndarray, thetas: np.ndarray, track: Track | TrackS
     ego = np.broadcast_to(np.asarray(ego, dtype=np.int64), batch)
     if ego.size and (ego.min() < 0 or ego.max() >= N):
         raise ValueError(f"ego must be in 0..{N - 1}, got {int(ego.min())}..{int(ego.max())}")
-    e_state = np.take_along_axis(states, ego[..., None, None], axis=-2)[..., 0, :]
-    e_theta = np.take_along_axis(thetas, ego[..., None, None], axis=-2)[..., 0, :]
-    rel = states[..., 0] - e_state[..., None, 0]                    # (..., N) s_j - s_i
-    is_ego = np.arange(N) == ego[..., None]
-    key = np.where(rel > 0, rel, 1e6 - rel)
-    key = np.where(is_ego, np.inf, key)
-    order = _sort(key, states, thetas)[..., :N - 1]
-    o_rel = np.take_along_axis(rel, order, axis=-1)[..., None]
-    o_state = np.take_along_axis(states, order[..., None], axis=-2)[..., 1:]
-    o_theta = scale_theta(np.take_along_axis(thetas, order[..., None], axis=-2))
+    e_state, e_theta, rel, key = relative_to_ego(states, thetas, ego)
+    order = _sort(key, states, thetas)[..., :N - 1]                 # the ego (last) dropped
+    o_rel, o_state, o_theta = others_in_order(states, thetas, rel, order)
     others = np.zeros(batch + (N_MAX - 1, OTHER_DIM))
     others[..., :N - 1, :] = np.concatenate([np.ones_like(o_rel), o_rel, o_state, o_theta],
                                             axis=-1)
