@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from agents.potential import PotentialModel
 from racing_env.files import atomic_path
 
 from .artifacts import write_json, write_text
+from .parallel import pin_worker
 
 OBJECTIVES = ("mse", "smoothmax", "tail")
 
@@ -362,6 +364,29 @@ def discounted_rollout(track: str, x, thetas, car: int, steps: int, gamma: float
     states, rewards = rollout_from_state(track, x, thetas, steps)
     disc = gamma ** np.arange(len(rewards))
     return float(disc @ rewards[:, car]), states[-1]
+
+
+def paired_rollouts(jobs: list[tuple], threads: int, progress_bar: bool) -> list[tuple]:
+    """:func:`discounted_rollout` of every job ``(track, x, thetas, car, steps, gamma)`` on a
+    pool of ``threads`` worker processes, each pinned to one thread per library; the
+    ``(G, x_end)`` of each job, in the jobs' order."""
+    with ProcessPoolExecutor(max_workers=threads, initializer=pin_worker) as pool:
+        return list(tqdm(pool.map(discounted_rollout, *zip(*jobs)), total=len(jobs),
+                         desc="paired rollouts", disable=not progress_bar))
+
+
+def rollout_statistics(dphi, dv, dG, vr: float, steps: int) -> dict:
+    """Statistics of paired rollouts of ``steps`` steps with simulated (bootstrapped) return
+    differences ``dG``, potential changes ``dphi`` and value changes ``dv`` (arrays (n,)),
+    relative to the value range ``vr`` [m]: median and 95th percentile of
+    ``|dPhi - dG| / vr``, the medians of ``|dV - dG| / vr`` and of a constant potential
+    (``|dG| / vr``), and the sign agreement of dPhi and dG."""
+    return {"rollout_pairs": len(dG), "rollout_steps": steps,
+            "rollout_phi_rel_median": float(np.median(np.abs(dphi - dG)) / vr),
+            "rollout_phi_rel_p95": float(np.percentile(np.abs(dphi - dG), 95) / vr),
+            "rollout_value_rel_median": float(np.median(np.abs(dv - dG)) / vr),
+            "rollout_const_rel_median": float(np.median(np.abs(dG)) / vr),
+            "rollout_sign_agreement_phi": float(np.mean(np.sign(dphi) == np.sign(dG)))}
 
 
 def summary_text(m: dict) -> str:

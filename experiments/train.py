@@ -31,22 +31,19 @@ from __future__ import annotations
 
 import json
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from agents.features import FEATURE_VERSION, potential_dim, potential_features, value_dim, value_features
 from agents.potential import PotentialModel
 from agents.reference import THETA_HIGH, THETA_LOW
 
 from .artifacts import claim
-from .nets import (TrainConfig, ValueData, discounted_partial_returns, discounted_rollout,
-                   gap_statistics, numpy_model, save_model, split_races,
+from .nets import (TrainConfig, ValueData, discounted_partial_returns, gap_statistics,
+                   numpy_model, paired_rollouts, rollout_statistics, save_model, split_races,
                    summary_text, train_potential, train_value, value_samples)
-from .parallel import pin_worker
 
 
 # ---------------------------------------------------------------------------- data
@@ -228,21 +225,14 @@ def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_b
     x, th1, th2, i = sample_deviations(states, thetas, val_idx, n, rng, own_theta_fraction=1.0)
     jobs = [(model.meta["track"], x[k], th, int(i[k]), cfg.rollout_steps, cfg.gamma)
             for k in range(n) for th in (th1[k], th2[k])]
-    with ProcessPoolExecutor(max_workers=cfg.threads, initializer=pin_worker) as pool:
-        res = list(tqdm(pool.map(discounted_rollout, *zip(*jobs)), total=len(jobs),
-                        desc="paired rollouts", disable=not progress_bar))
+    res = paired_rollouts(jobs, cfg.threads, progress_bar)
     G = np.array([r[0] for r in res]).reshape(n, 2)
     x_end = np.array([r[1] for r in res]).reshape(n, 2, *x.shape[1:])
     boot = cfg.gamma ** cfg.rollout_steps
     v_end = np.stack([model.value(x_end[:, k], (th1, th2)[k], track, i) for k in range(2)], axis=1)
     dG = (G[:, 1] + boot * v_end[:, 1]) - (G[:, 0] + boot * v_end[:, 0])
     dphi, dv = approximation_gaps(model, x, th1, th2, i, track)
-    return {"rollout_pairs": n, "rollout_steps": cfg.rollout_steps,
-            "rollout_phi_rel_median": float(np.median(np.abs(dphi - dG)) / vr),
-            "rollout_phi_rel_p95": float(np.percentile(np.abs(dphi - dG), 95) / vr),
-            "rollout_value_rel_median": float(np.median(np.abs(dv - dG)) / vr),
-            "rollout_const_rel_median": float(np.median(np.abs(dG)) / vr),
-            "rollout_sign_agreement_phi": float(np.mean(np.sign(dphi) == np.sign(dG)))}
+    return rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
 
 
 def _box_text(meta: dict) -> str:

@@ -23,12 +23,10 @@ from __future__ import annotations
 
 import json
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from agents import general_features as gf
 from agents.general_features import TrackSet
@@ -37,10 +35,9 @@ from agents.reference import THETA_HIGH, THETA_LOW
 
 from .artifacts import claim
 from .family import RaceGroup, load_family
-from .nets import (TrainConfig, ValueData, discounted_partial_returns, discounted_rollout,
-                   gap_statistics, numpy_model, save_model, split_races, summary_text,
-                   train_potential, train_value, value_samples)
-from .parallel import pin_worker
+from .nets import (TrainConfig, ValueData, discounted_partial_returns, gap_statistics,
+                   numpy_model, paired_rollouts, rollout_statistics, save_model, split_races,
+                   summary_text, train_potential, train_value, value_samples)
 
 
 class FamilyData:
@@ -224,9 +221,7 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
     thetas = [(b["theta"][0][k, :len(x)], b["theta"][1][k, :len(x)]) for k, x in enumerate(xs)]
     jobs = [(specs[k], xs[k], th, int(b["i"][k]), cfg.rollout_steps, cfg.gamma)
             for k in range(n) for th in thetas[k]]
-    with ProcessPoolExecutor(max_workers=cfg.threads, initializer=pin_worker) as pool:
-        res = list(tqdm(pool.map(discounted_rollout, *zip(*jobs)), total=len(jobs),
-                        desc="paired rollouts", disable=not progress_bar))
+    res = paired_rollouts(jobs, cfg.threads, progress_bar)
     boot = cfg.gamma ** cfg.rollout_steps
     dG, dphi, dv = np.empty(n), np.empty(n), np.empty(n)
     for k in range(n):
@@ -237,12 +232,7 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
         dG[k] = g[1] - g[0]
         dv[k] = float(model.value(x, th2, tr, i)[0] - model.value(x, th1, tr, i)[0])
         dphi[k] = float(model.potential(x, th2, tr)[0] - model.potential(x, th1, tr)[0])
-    return {"rollout_pairs": n, "rollout_steps": cfg.rollout_steps,
-            "rollout_phi_rel_median": float(np.median(np.abs(dphi - dG)) / vr),
-            "rollout_phi_rel_p95": float(np.percentile(np.abs(dphi - dG), 95) / vr),
-            "rollout_value_rel_median": float(np.median(np.abs(dv - dG)) / vr),
-            "rollout_const_rel_median": float(np.median(np.abs(dG)) / vr),
-            "rollout_sign_agreement_phi": float(np.mean(np.sign(dphi) == np.sign(dG)))}
+    return rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
 
 
 # ---------------------------------------------------------------------------- training
