@@ -5,7 +5,8 @@ every write goes to a temporary file that is then renamed over the target. A res
 claims its folder with :func:`claim`: the first run writes the manifest, a later run with
 another config is refused (so results of two configs never mix). :class:`ResumableRun` is the
 output folder of such a job (bench, league, policy map, the strategy suite's pace races): the
-claim, the records file, the missing tasks and the adding of a finished one, in one place.
+claim, the records file, the missing tasks, their running and the adding of a finished one, in
+one place.
 """
 from __future__ import annotations
 
@@ -13,9 +14,13 @@ import functools
 import hashlib
 import json
 import os
+from collections.abc import Callable, Hashable
 from pathlib import Path
+from typing import Any
 
 from racing_env.files import atomic_path
+
+from .parallel import run_tasks_with_progress
 
 
 def slug(spec: str) -> str:
@@ -328,3 +333,20 @@ class ResumableRun:
     def add(self, record: dict) -> None:
         """Store one finished record (one JSON line, flushed and fsynced)."""
         append_jsonl(self.records_path, record)
+
+    def run_missing(self, fn: Callable[..., dict], args: Callable[[Any], tuple], workers: int,
+                    backend: str, address: str | None, *, desc: str, unit: str,
+                    progress_bar: bool,
+                    postfix: Callable[[Hashable, dict], str] | None = None) -> int:
+        """Run the :meth:`missing` tasks, ``fn(*args(task))`` each, on ``workers`` local
+        processes or Ray (:func:`experiments.parallel.run_tasks`), storing each record
+        (:meth:`add`) as it arrives, behind a progress bar over all the run's tasks (``desc``,
+        ``unit``; ``postfix(key, record)`` with the task's :meth:`task_key` shows the last
+        one). Returns the number of tasks run."""
+        tasks = [(self.task_key(task), args(task)) for task in self.missing()]
+        total = len(self.tasks())
+        run_tasks_with_progress(fn, tasks, lambda key, record: self.add(record), workers,
+                                backend, address, total=total, done=total - len(tasks),
+                                desc=desc, unit=unit, progress_bar=progress_bar,
+                                postfix=postfix)
+        return len(tasks)

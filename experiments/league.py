@@ -50,7 +50,7 @@ import numpy as np
 from . import metrics as race_metrics
 from .artifacts import ResumableRun, as_stored, env_version, write_json, write_text
 from .bench import check_agent_specs, wilson_interval
-from .parallel import check_backend, run_tasks_with_progress
+from .parallel import check_backend
 
 SCHEMA_VERSION = 1
 #: openskill Plackett-Luce parameters: the package's defaults (mu 25, sigma 25/3, beta 25/6)
@@ -580,13 +580,10 @@ def league(config: LeagueConfig, out_dir, workers: int = 2, backend: str = "loca
     check_tracks(config.tracks, config.cars)
     check_field(config.agents, config.cars, config.tracks[0])
     run = LeagueRun(out_dir, config)
-    todo = run.missing()
-    total = len(run.races)
-    tasks = [(race.index, (race, config.steps, imports)) for race in todo]
-    run_tasks_with_progress(league_race, tasks, lambda k, rec: run.add(rec), workers, backend,
-                            address, total=total, done=total - len(tasks), desc="league",
-                            unit="race", progress_bar=progress_bar,
-                            postfix=lambda k, rec: f"{k}:{rec['winner']}")
+    new = run.run_missing(league_race, lambda race: (race, config.steps, imports), workers,
+                          backend, address, desc="league", unit="race",
+                          progress_bar=progress_bar,
+                          postfix=lambda k, rec: f"{k}:{rec['winner']}")
     board = run.write_outputs()
-    board["new_races"] = len(tasks)
+    board["new_races"] = new
     return board

@@ -35,7 +35,7 @@ import numpy as np
 
 from .artifacts import ResumableRun, env_version, manifest_config, slug, write_json, write_text
 from .bench import REGIONS, BenchConfig, check_agent_specs
-from .parallel import check_backend, run_tasks_with_progress
+from .parallel import check_backend
 
 SCHEMA_VERSION = 1
 MODES = ("solo", "race")
@@ -498,13 +498,10 @@ def policy_map(config: PolicyMapConfig, out_dir, workers: int = 2, backend: str 
     if "race" in config.modes:
         check_agent_specs([config.opponents], config.tracks)
     run = PolicyMapRun(out_dir, config)
-    keys = run.missing()
-    tasks = [(key, (config, *key, run.thetas[key[2]])) for key in keys]
-    total = len(run.keys())
-    run_tasks_with_progress(map_row, tasks, lambda key, row: run.add(row), workers, backend,
-                            address, total=total, done=total - len(tasks), desc="policy map",
-                            unit="run", progress_bar=progress_bar,
-                            postfix=lambda key, row: f"{key[0]}:{key[1]}:{key[2]}")
+    new = run.run_missing(map_row, lambda key: (config, *key, run.thetas[key[2]]), workers,
+                          backend, address, desc="policy map", unit="run",
+                          progress_bar=progress_bar,
+                          postfix=lambda key, row: f"{key[0]}:{key[1]}:{key[2]}")
     summary = run.write_outputs()
-    summary["new_rows"] = len(tasks)
+    summary["new_rows"] = new
     return summary

@@ -46,7 +46,7 @@ from pathlib import Path
 
 from .artifacts import ResumableRun, append_jsonl, read_jsonl, slug, write_json, write_text
 from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs
-from .parallel import check_backend, run_tasks_with_progress
+from .parallel import check_backend
 
 SCHEMA_VERSION = 1
 SCENARIOS = ("pass", "equal", "defend", "table1")
@@ -235,12 +235,8 @@ def measure_pace(config: StrategyConfig, out, workers: int, backend: str, addres
     least one measured}``."""
     run = PaceRun(out, config)
     specs = pace_specs(config)
-    total = len(run.tasks())
-    tasks = [((spec, track), (spec, track, steps, seed))
-             for spec, track, steps, seed in run.missing()]
-    run_tasks_with_progress(solo_pace, tasks, lambda k, rec: run.add(rec), workers, backend,
-                            address, total=total, done=total - len(tasks), desc="solo pace",
-                            unit="race", progress_bar=progress_bar)
+    run.run_missing(solo_pace, lambda task: task, workers, backend, address, desc="solo pace",
+                    unit="race", progress_bar=progress_bar)
     done = run.records()
     out_pace = {}
     for track in config.tracks:
