@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -116,10 +117,7 @@ class BenchConfig:
         elif self.n_cars != 3 and self.races % self.n_cars:
             raise ValueError(f"BenchConfig.races must be a multiple of n_cars = {self.n_cars} "
                              f"(every start region equally often), got {self.races}")
-        for name in ("ego", "opponents"):
-            if not isinstance(getattr(self, name), str) or not getattr(self, name):
-                raise ValueError(f"BenchConfig.{name} must be an agent spec string, got "
-                                 f"{getattr(self, name)!r}")
+        check_spec_fields(self, ("ego", "opponents"))
 
     @property
     def agents(self) -> list[str]:
@@ -163,6 +161,15 @@ class BenchConfig:
             return self.start_order(k, self.n_cars)
         ego = self.regions.index(self.ego_regions[k % len(self.ego_regions)])
         return [ego] + [r for r in range(self.n_cars) if r != ego]
+
+
+def check_spec_fields(config: object, names: Sequence[str]) -> None:
+    """Raise a ValueError naming the first field of ``config`` among ``names`` that is not
+    an agent spec string (a non-empty ``str``)."""
+    for name in names:
+        if not isinstance(getattr(config, name), str) or not getattr(config, name):
+            raise ValueError(f"{type(config).__name__}.{name} must be an agent spec string, "
+                             f"got {getattr(config, name)!r}")
 
 
 def check_agent_specs(specs, tracks=()) -> None:

@@ -45,7 +45,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from .artifacts import ResumableRun, append_jsonl, read_jsonl, slug, write_json, write_text
-from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs
+from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, check_spec_fields
 from .parallel import check_backend
 
 SCHEMA_VERSION = 1
@@ -113,10 +113,7 @@ class StrategyConfig:
         if isinstance(self.seed, bool) or not (isinstance(self.seed, int) and self.seed >= 0):
             raise ValueError(f"StrategyConfig.seed must be a non-negative integer, got "
                              f"{self.seed!r}")
-        for name in ("ego", "control", "pass_opponents"):
-            if not isinstance(getattr(self, name), str) or not getattr(self, name):
-                raise ValueError(f"StrategyConfig.{name} must be an agent spec string, got "
-                                 f"{getattr(self, name)!r}")
+        check_spec_fields(self, ("ego", "control", "pass_opponents"))
         if self.ego == self.control:
             raise ValueError(f"the ego and the control are the same spec {self.ego!r}; "
                              f"the suite compares two agents")
