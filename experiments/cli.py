@@ -746,20 +746,15 @@ def _add_analyze_args(p) -> None:
     from .analyze import AnalyzeConfig as A
     p.add_argument("--model", default=None,
                    help=f"alpha-potential model: shipped name or path (default: {A.model})")
-    p.add_argument("--heldout-races", type=int, default=None,
-                   help=f"fresh races for the gap (default {A.heldout_races})")
-    p.add_argument("--gap-pairs", type=int, default=None,
-                   help=f"deviations for the gap (default {A.gap_pairs})")
-    p.add_argument("--regret-states", type=int, default=None,
-                   help=f"race states for the regret (default {A.regret_states})")
-    p.add_argument("--regret-horizon", type=int, default=None,
-                   help=f"rollout steps before V (default {A.regret_horizon})")
-    p.add_argument("--cem-iterations", type=int, default=None,
-                   help=f"CEM iterations of the regret search (default {A.cem_iterations})")
-    p.add_argument("--cem-samples", type=int, default=None,
-                   help=f"candidates per CEM iteration (default {A.cem_samples})")
-    p.add_argument("--slice-points", type=int, default=None,
-                   help=f"values per parameter in Figure 3 (default {A.slice_points})")
+    for flag, what in (("--heldout-races", "fresh races for the gap"),
+                       ("--gap-pairs", "deviations for the gap"),
+                       ("--regret-states", "race states for the regret"),
+                       ("--regret-horizon", "rollout steps before V"),
+                       ("--cem-iterations", "CEM iterations of the regret search"),
+                       ("--cem-samples", "candidates per CEM iteration"),
+                       ("--slice-points", "values per parameter in Figure 3")):
+        default = getattr(A, flag[2:].replace("-", "_"))
+        p.add_argument(flag, type=int, default=None, help=f"{what} (default {default})")
 
 
 def main(argv: list[str] | None = None) -> int:
