@@ -260,10 +260,10 @@ def claim_best_thetas(folder, tracks, table=None) -> dict:
 
 # ---------------------------------------------------------------------------- resumable runs
 class ResumableRun:
-    """The output folder of a resumable job: a manifest that ties it to one configuration
-    (:meth:`claim`) and a JSON-lines file of finished records, one per task, appended and
-    fsynced as each task finishes (:meth:`add`), so that a rerun does only the
-    :meth:`missing` tasks.
+    """The output folder of a resumable job of one configuration (:attr:`config`): a manifest
+    that ties the folder to it (:meth:`claim`) and a JSON-lines file of finished records, one
+    per task, appended and fsynced as each task finishes (:meth:`add`), so that a rerun does
+    only the :meth:`missing` tasks (:meth:`run_missing`).
 
     A subclass sets :attr:`what` (the folder's content, for refusals) and
     :attr:`records_name`, and defines :meth:`tasks` (every task of the run, in order),
@@ -275,8 +275,9 @@ class ResumableRun:
     records_name = "records.jsonl"
     manifest_name = "manifest.json"
 
-    def __init__(self, out_dir):
+    def __init__(self, out_dir, config: Any):
         self.out = Path(out_dir)
+        self.config = config
         self.out.mkdir(parents=True, exist_ok=True)
 
     @property

@@ -226,8 +226,7 @@ class BenchRun(ResumableRun):
     records_name = "races.jsonl"
 
     def __init__(self, out_dir, config: BenchConfig):
-        super().__init__(out_dir)
-        self.config = config
+        super().__init__(out_dir, config)
         (self.out / "states").mkdir(exist_ok=True)
         self.claim({"schema_version": SCHEMA_VERSION, "config": config.to_dict(),
                     "env": env_version()}, config.agents, [config.track])

@@ -473,8 +473,7 @@ class LeagueRun(ResumableRun):
     records_name = "races.jsonl"
 
     def __init__(self, out_dir, config: LeagueConfig):
-        super().__init__(out_dir)
-        self.config = config
+        super().__init__(out_dir, config)
         self.stages, joining = self._stages(self.manifest_path, config)
         self.races = schedule(config, self.stages)
         meta = {"schema_version": SCHEMA_VERSION, "config": asdict(config), "env": env_version()}

@@ -199,10 +199,9 @@ class PolicyMapRun(ResumableRun):
     records_name = "rows.jsonl"
 
     def __init__(self, out_dir, config: PolicyMapConfig):
-        self.config = config
         low, high = theta_box(config.space)
         self.thetas = sample_thetas(config.thetas, config.seed, low, high)
-        super().__init__(out_dir)
+        super().__init__(out_dir, config)
         # the box goes into "config", so a refusal after a change of the box names it
         self.claim({"schema_version": SCHEMA_VERSION,
                     "config": {**manifest_config(config, {"space": "paper"}), "theta_box": {

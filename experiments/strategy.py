@@ -212,10 +212,6 @@ class PaceRun(ResumableRun):
     what = "solo pace races"
     records_name = "pace.jsonl"
 
-    def __init__(self, out_dir, config: StrategyConfig):
-        super().__init__(out_dir)
-        self.config = config
-
     def tasks(self) -> list[tuple]:
         c = self.config
         return [(spec, track, c.steps, c.seed) for track in c.tracks for spec in pace_specs(c)]

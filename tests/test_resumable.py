@@ -12,8 +12,7 @@ class Squares(ResumableRun):
     records_name = "rows.jsonl"
 
     def __init__(self, out, config: dict):
-        super().__init__(out)
-        self.config = config
+        super().__init__(out, config)
         self.claim({"config": config})
 
     def tasks(self):
@@ -35,6 +34,20 @@ def test_a_run_resumes_with_the_missing_tasks(tmp_path):
     again.add({"k": 1, "v": 1})
     assert sorted(again.records()) == [("sq", 0), ("sq", 1), ("sq", 2)]
     assert json.loads(again.manifest_path.read_text()) == {"config": {"n": 4, "shape": [2, 3]}}
+
+
+def _square(k: int) -> dict:
+    return {"k": k, "v": k * k}
+
+
+def test_run_missing_runs_and_stores_only_the_missing_tasks(tmp_path):
+    run = Squares(tmp_path, {"n": 4})
+    run.add({"k": 1, "v": 1})
+    kw = dict(workers=1, backend="local", address=None, desc="squares", unit="task",
+              progress_bar=False)
+    assert run.run_missing(_square, lambda task: (task[1],), **kw) == 3
+    assert {k: rec["v"] for (_, k), rec in run.records().items()} == {0: 0, 1: 1, 2: 4, 3: 9}
+    assert run.run_missing(_square, lambda task: (task[1],), **kw) == 0
 
 
 def test_a_run_of_another_configuration_is_refused(tmp_path):
