@@ -13,7 +13,7 @@ from .base import median_p99, register_agent
 from .best_theta import best_theta
 from .mpc import MPC, MPCConfig
 from .reference import (EXTENDED_HIGH, EXTENDED_LOW, EXTENDED_NAMES, THETA_HIGH, THETA_LOW, Theta,
-                        opponent_neighbours, policy_space, reference_trajectory)
+                        policy_space, reference_trajectory)
 from .threads import single_blas_thread
 
 
@@ -135,7 +135,6 @@ class MPCAgent:
         self.track = track
         self.raceline = get_raceline(track, self.vehicle, self.raceline_config)
         self.blend_line = None                 # the lap-time line, built at the first b > 0
-        self._held = None                      # extended space: (car ahead, side) being passed
         self.mpc.reset()
         self.agent_id = agent_id
         self._u_prev = np.zeros(2)
@@ -146,19 +145,13 @@ class MPCAgent:
         if self.best:
             best_theta(track)
 
-    def _pass_side(self, ego, others):
-        """The extended space's pass side for :func:`reference_trajectory`: the side held
-        while the same car stays ahead within the overtake shift's range (a pass once started
-        is finished on the side it started), else ``"room"`` (the side the car is on, unless
-        the car ahead leaves too little room there); ``None`` (the paper's rule) in the
-        paper's space."""
-        if self.space != "extended":
-            return None
-        if self._held is not None and len(others):
-            ahead, _ = opponent_neighbours(ego[0], others[:, 0], self.track.length)
-            if ahead == self._held[0]:
-                return self._held[1]
-        return "room"
+    def _pass_side(self) -> str | None:
+        """The overtake shift's side rule for :func:`reference_trajectory`: ``"room"`` in the
+        extended space (the side the car is on, unless the car ahead leaves too little room
+        there; chosen again at every step: a side held while the same car stays ahead kept
+        the car on the side where the track closes, docs "The extended policy space"),
+        ``None`` (the paper's rule) in the paper's space."""
+        return "room" if self.space == "extended" else None
 
     def _blend_line(self, theta: Theta):
         """The lap-time race line that ``theta.b`` blends in (None while ``b`` is 0)."""
@@ -199,9 +192,7 @@ class MPCAgent:
             ref = reference_trajectory(theta, ego, others if len(others) else None,
                                        self.raceline, self.track, K=self.config.horizon,
                                        dt=self.config.dt, blend=self._blend_line(theta),
-                                       side=self._pass_side(ego, others))
-            if self.space == "extended":
-                self._held = (ref.ahead, ref.side) if ref.side else None
+                                       side=self._pass_side())
             neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
             opp = None
             if neighbours:
