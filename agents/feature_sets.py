@@ -15,9 +15,11 @@ from . import general_features
 class FeatureSet:
     """One feature function pair and its layout, as a model needs it.
 
-    ``value_features(states, thetas, track, ego)`` and ``potential_features(states, thetas,
-    track, order=None)`` as in :mod:`agents.features`; ``value_dim(N)``, ``potential_dim(N)``,
-    ``potential_theta_slots(N)`` (N, 5) and ``progress_order(states)`` (..., N).
+    ``value_features(states, thetas, track, ego, space=None)`` and
+    ``potential_features(states, thetas, track, order=None, space=None)`` as in
+    :mod:`agents.features`; ``value_dim(N, space)``, ``potential_dim(N, space)``,
+    ``potential_theta_slots(N, space)`` (N, dim) and ``progress_order(states)`` (..., N);
+    ``space`` a policy space (name or :class:`agents.theta.PolicySpace`, default the paper's).
     ``general``: the features take any N from 2 to ``max_cars`` and any track; otherwise the
     model is tied to its training track and number of cars.
     """

@@ -7,7 +7,12 @@ Bump :data:`FEATURE_VERSION` whenever the output changes; checkpoints record it 
 checkpoint of another version is an error.
 
 Inputs: ``states`` (..., N, 6) joint Frenet states ``(s, n, mu, vx, vy, omega)`` with s
-unwrapped [m], ``thetas`` (..., N, 5) policy parameters ``(q, zeta, s1, s2, s3)``.
+unwrapped [m], ``thetas`` (..., N, dim) policy parameters of one policy space
+(:data:`agents.theta.SPACES`): ``(q, zeta, s1, s2, s3)`` (dim 5, the paper's) or
+``(q, zeta, s1, s2, s3, b)`` (dim 6, the extended space). Every function takes ``space`` (a
+name or :class:`agents.theta.PolicySpace`); ``None`` (the default) reads it from the thetas'
+last dimension, a given space must match it. The layout is the same in both spaces, each
+theta block ``dim`` wide; the paper's features are those of the first release, bit for bit.
 
 * :func:`value_features` (ego-centric, for V_i): the ego's own state without s, the track's
   curvature ahead of it, its theta; then every other car, sorted by progress relative to the
@@ -17,7 +22,7 @@ unwrapped [m], ``thetas`` (..., N, 5) policy parameters ``(q, zeta, s1, s2, s3)`
   each as progress relative to the pack's mean, its state, the curvature ahead and its theta.
   Any reordering of the cars gives the same features, so Phi is symmetric by construction.
 
-Thetas enter scaled to [-1, 1] by their bounds (:func:`scale_theta`), so the gradient of a
+Thetas enter scaled to [-1, 1] by their space's bounds (:func:`scale_theta`), so the gradient of a
 network with respect to its theta slots is the gradient with respect to the scaled theta.
 
 These are the ``fixed`` feature set (one track, a fixed number of cars: the paper's models).
@@ -31,7 +36,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .reference import THETA_HIGH, THETA_LOW
+from .theta import SPACES, PolicySpace, policy_space
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -40,17 +45,48 @@ if TYPE_CHECKING:
 FEATURE_VERSION = 1
 PREVIEW = np.array([0.0, 0.5, 1.0, 2.0])    # curvature look-ahead distances [m]
 N_STATE = 5                                 # n, mu, vx, vy, omega
-N_THETA = 5
+N_THETA = 5                                 # the paper's space; theta_dim(space) in general
 
 
-def scale_theta(theta: np.ndarray | Sequence[float]) -> np.ndarray:
-    """Theta (..., 5) -> [-1, 1] (..., 5) by the documented bounds."""
-    return 2.0 * (np.asarray(theta, dtype=float) - THETA_LOW) / (THETA_HIGH - THETA_LOW) - 1.0
+def theta_dim(space: str | PolicySpace = "paper") -> int:
+    """Number of parameters of a theta of policy space ``space`` (5 paper, 6 extended)."""
+    return policy_space(space).dim
 
 
-def unscale_theta(z: np.ndarray | Sequence[float]) -> np.ndarray:
+def theta_space(thetas: np.ndarray | Sequence[float],
+                space: str | PolicySpace | None = None) -> PolicySpace:
+    """The policy space of ``thetas`` (..., dim): ``space`` when given (``ValueError`` naming
+    both when the thetas' last dimension is not its dim), else the space of that dimension
+    (:func:`agents.theta.space_of`)."""
+    dim = np.shape(thetas)[-1] if np.ndim(thetas) else None
+    if space is not None:
+        sp = policy_space(space)
+        if dim != sp.dim:
+            raise ValueError(f"thetas of the {sp.name!r} policy space have {sp.dim} parameters "
+                             f"{sp.names}, got thetas of shape {np.shape(thetas)}")
+        return sp
+    for sp in SPACES.values():
+        if sp.dim == dim:
+            return sp
+    raise ValueError(f"thetas must have {' or '.join(str(sp.dim) for sp in SPACES.values())} "
+                     f"parameters in the last dimension ("
+                     f"{', '.join(f'{sp.name!r}: {sp.names}' for sp in SPACES.values())}), got "
+                     f"shape {np.shape(thetas)}")
+
+
+def scale_theta(theta: np.ndarray | Sequence[float],
+                space: str | PolicySpace | None = None) -> np.ndarray:
+    """Theta (..., dim) -> [-1, 1] (..., dim) by the bounds of its policy space (``space``, or
+    the space of the last dimension: 5 the paper's, 6 the extended one)."""
+    sp = theta_space(theta, space)
+    return 2.0 * (np.asarray(theta, dtype=float) - sp.low) / (sp.high - sp.low) - 1.0
+
+
+def unscale_theta(z: np.ndarray | Sequence[float],
+                  space: str | PolicySpace | None = None) -> np.ndarray:
     """Inverse of :func:`scale_theta`."""
-    return THETA_LOW + 0.5 * (np.asarray(z, dtype=float) + 1.0) * (THETA_HIGH - THETA_LOW)
+    sp = theta_space(z, space)
+    return sp.low + 0.5 * (np.asarray(z, dtype=float) + 1.0) * (sp.high - sp.low)
 
 
 def curvature_preview(track: Track, s: float | np.ndarray) -> np.ndarray:
@@ -59,15 +95,18 @@ def curvature_preview(track: Track, s: float | np.ndarray) -> np.ndarray:
     return track.interp(track.kappa, s)
 
 
-def check_joint(states: np.ndarray, thetas: np.ndarray, max_cars: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``states`` (..., N, 6) and ``thetas`` (..., N, 5) as float arrays, checked: matching
-    shapes and 2 <= N (<= ``max_cars`` when given)."""
+def check_joint(states: np.ndarray, thetas: np.ndarray, max_cars: int | None = None,
+                space: str | PolicySpace | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``states`` (..., N, 6) and ``thetas`` (..., N, dim) as float arrays, checked: matching
+    shapes, thetas of a policy space (``space`` when given, see :func:`theta_space`) and
+    2 <= N (<= ``max_cars`` when given)."""
     states = np.asarray(states, dtype=float)
     thetas = np.asarray(thetas, dtype=float)
     if states.ndim < 2 or states.shape[-1] != 6:
         raise ValueError(f"states must have shape (..., N, 6), got {states.shape}")
-    if thetas.shape != states.shape[:-1] + (5,):
-        raise ValueError(f"thetas must have shape {states.shape[:-1] + (5,)} to match states "
+    dim = theta_space(thetas, space).dim
+    if thetas.shape != states.shape[:-1] + (dim,):
+        raise ValueError(f"thetas must have shape {states.shape[:-1] + (dim,)} to match states "
                          f"{states.shape}, got {thetas.shape}")
     n = states.shape[-2]
     if max_cars is not None and not 2 <= n <= max_cars:
@@ -77,19 +116,23 @@ def check_joint(states: np.ndarray, thetas: np.ndarray, max_cars: int | None = N
     return states, thetas
 
 
-def value_dim(n_cars: int) -> int:
-    return N_STATE + len(PREVIEW) + N_THETA + (n_cars - 1) * (1 + N_STATE + N_THETA)
+def value_dim(n_cars: int, space: str | PolicySpace = "paper") -> int:
+    """Size of :func:`value_features` for ``n_cars`` cars and thetas of ``space``."""
+    d = theta_dim(space)
+    return N_STATE + len(PREVIEW) + d + (n_cars - 1) * (1 + N_STATE + d)
 
 
-def potential_dim(n_cars: int) -> int:
-    return n_cars * (1 + N_STATE + len(PREVIEW) + N_THETA)
+def potential_dim(n_cars: int, space: str | PolicySpace = "paper") -> int:
+    """Size of :func:`potential_features` for ``n_cars`` cars and thetas of ``space``."""
+    return n_cars * (1 + N_STATE + len(PREVIEW) + theta_dim(space))
 
 
-def potential_theta_slots(n_cars: int) -> np.ndarray:
-    """Column indices of the scaled thetas in :func:`potential_features`, (N, 5) in the
+def potential_theta_slots(n_cars: int, space: str | PolicySpace = "paper") -> np.ndarray:
+    """Column indices of the scaled thetas in :func:`potential_features`, (N, dim) in the
     features' (progress-sorted) car order."""
-    per = 1 + N_STATE + len(PREVIEW) + N_THETA
-    return np.arange(n_cars)[:, None] * per + (per - N_THETA) + np.arange(N_THETA)
+    d = theta_dim(space)
+    per = 1 + N_STATE + len(PREVIEW) + d
+    return np.arange(n_cars)[:, None] * per + (per - d) + np.arange(d)
 
 
 def relative_to_ego(states: np.ndarray, thetas: np.ndarray, ego: np.ndarray
@@ -101,14 +144,14 @@ def relative_to_ego(states: np.ndarray, thetas: np.ndarray, ego: np.ndarray
     states : np.ndarray
         Joint states (..., N, 6), s unwrapped [m].
     thetas : np.ndarray
-        Joint thetas (..., N, 5).
+        Joint thetas (..., N, dim) of one policy space (5 the paper's, 6 the extended one).
     ego : np.ndarray
         The ego's index (...), int64, broadcast to the batch shape.
 
     Returns
     -------
     ego_state, ego_theta : np.ndarray
-        The ego's state (..., 6) and theta (..., 5).
+        The ego's state (..., 6) and theta (..., dim), unscaled.
     rel : np.ndarray
         Every car's progress relative to the ego's, ``s_j - s_i`` (..., N) [m].
     key : np.ndarray
@@ -124,29 +167,32 @@ def relative_to_ego(states: np.ndarray, thetas: np.ndarray, ego: np.ndarray
     return e_state, e_theta, rel, key
 
 
-def others_in_order(states: np.ndarray, thetas: np.ndarray, rel: np.ndarray, order: np.ndarray
+def others_in_order(states: np.ndarray, thetas: np.ndarray, rel: np.ndarray, order: np.ndarray,
+                    space: str | PolicySpace | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The other cars, in ``order`` (..., M) (indices of cars), as the value features hold them:
     progress relative to the ego (..., M, 1) [m] (from ``rel`` of :func:`relative_to_ego`),
-    state without s (..., M, 5) and scaled theta (..., M, 5)."""
+    state without s (..., M, 5) and theta (..., M, dim) scaled by the box of its policy space
+    (``space``, or the space of the thetas' last dimension; see :func:`scale_theta`)."""
     o_rel = np.take_along_axis(rel, order, axis=-1)[..., None]
     o_state = np.take_along_axis(states, order[..., None], axis=-2)[..., 1:]
-    o_theta = scale_theta(np.take_along_axis(thetas, order[..., None], axis=-2))
+    o_theta = scale_theta(np.take_along_axis(thetas, order[..., None], axis=-2), space)
     return o_rel, o_state, o_theta
 
 
-def value_features(states: np.ndarray, thetas: np.ndarray, track: Track, ego: int) -> np.ndarray:
+def value_features(states: np.ndarray, thetas: np.ndarray, track: Track, ego: int,
+                   space: str | PolicySpace | None = None) -> np.ndarray:
     """Features of car ``ego`` (int or int array broadcast over the batch): (..., value_dim)."""
-    states, thetas = check_joint(states, thetas)
+    states, thetas = check_joint(states, thetas, space=space)
     N = states.shape[-2]
     batch = states.shape[:-2]
     ego = np.broadcast_to(np.asarray(ego, dtype=np.int64), batch)
     e_state, e_theta, rel, key = relative_to_ego(states, thetas, ego)
     order = np.argsort(key, axis=-1, kind="stable")[..., :N - 1]     # the ego (last) dropped
-    o_rel, o_state, o_theta = others_in_order(states, thetas, rel, order)
+    o_rel, o_state, o_theta = others_in_order(states, thetas, rel, order, space)
     others = np.concatenate([o_rel, o_state, o_theta], axis=-1).reshape(batch + (-1,))
     return np.concatenate([e_state[..., 1:], curvature_preview(track, e_state[..., 0]),
-                           scale_theta(e_theta), others], axis=-1)
+                           scale_theta(e_theta, space), others], axis=-1)
 
 
 def progress_order(states: np.ndarray) -> np.ndarray:
@@ -155,9 +201,10 @@ def progress_order(states: np.ndarray) -> np.ndarray:
 
 
 def potential_features(states: np.ndarray, thetas: np.ndarray, track: Track,
-                       order: np.ndarray | None = None) -> np.ndarray:
+                       order: np.ndarray | None = None,
+                       space: str | PolicySpace | None = None) -> np.ndarray:
     """Joint features (..., potential_dim) with cars in ``order`` (default progress order)."""
-    states, thetas = check_joint(states, thetas)
+    states, thetas = check_joint(states, thetas, space=space)
     batch = states.shape[:-2]
     order = progress_order(states) if order is None else order
     st = np.take_along_axis(states, order[..., None], axis=-2)

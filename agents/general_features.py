@@ -7,14 +7,18 @@ set sorts the cars and pads to :data:`N_MAX` slots with a presence flag per slot
 
 * :func:`value_features` (ego-centric, for V_i), shape (..., :data:`VALUE_DIM`): the ego's
   state without s (5), its local track (:data:`N_LOCAL`: curvature at ``s + PREVIEW`` [1/m]
-  and the half widths left and right at s [m]) and its scaled theta (5); then N_MAX - 1 slots
-  of the other cars, nearest ahead first (ahead ascending, then behind descending), each as
-  presence (1), progress difference ``s_j - s_i`` [m] on unwrapped s, state without s (5)
-  and scaled theta (5); slots beyond the field are all zero.
+  and the half widths left and right at s [m]) and its scaled theta (dim); then N_MAX - 1
+  slots of the other cars, nearest ahead first (ahead ascending, then behind descending), each
+  as presence (1), progress difference ``s_j - s_i`` [m] on unwrapped s, state without s (5)
+  and scaled theta (dim); slots beyond the field are all zero.
 * :func:`potential_features` (joint, for Phi), shape (..., :data:`POTENTIAL_DIM`): N_MAX slots
   of the cars sorted by progress, leader first, each as presence (1), progress relative to
-  the field's mean [m], state without s (5), local track (N_LOCAL) and scaled theta (5);
+  the field's mean [m], state without s (5), local track (N_LOCAL) and scaled theta (dim);
   empty slots are zero.
+
+``dim`` is the number of parameters of the thetas' policy space (5 the paper's, 6 the
+extended one; every function takes ``space`` as :mod:`agents.features` does). The module's
+``*_DIM`` constants are the paper space's sizes; :func:`dims` gives those of any space.
 
 Ties in the sort keys are broken by the rest of each car's state (and theta), so any
 reordering of the cars gives the same features exactly, ties included. A field of N cars
@@ -38,15 +42,30 @@ import numpy as np
 from racing_env.interp import periodic_interp
 
 from .features import (N_STATE, N_THETA, check_joint, others_in_order, relative_to_ego,
-                       scale_theta)
+                       scale_theta, theta_dim, theta_space)
 
 if TYPE_CHECKING:
     from racing_env.track import Track
+
+    from .theta import PolicySpace
 
 FEATURE_VERSION = 1
 N_MAX = 8                                                  # slots: the env's largest field
 PREVIEW = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 3.0])       # curvature look-ahead distances [m]
 N_LOCAL = len(PREVIEW) + 2                                 # preview + half widths (left, right)
+
+
+def dims(space: str | PolicySpace = "paper") -> dict:
+    """The feature sizes for thetas of policy space ``space``: ``ego``, ``other`` (presence,
+    s_j - s_i, state, theta), ``slot`` (presence, s - mean s, state, local, theta), ``value``
+    and ``potential``."""
+    d = theta_dim(space)
+    ego, other, slot = N_STATE + N_LOCAL + d, 2 + N_STATE + d, 2 + N_STATE + N_LOCAL + d
+    return {"ego": ego, "other": other, "slot": slot, "value": ego + (N_MAX - 1) * other,
+            "potential": N_MAX * slot}
+
+
+# the paper space's sizes (N_THETA = 5)
 EGO_DIM = N_STATE + N_LOCAL + N_THETA
 OTHER_DIM = 2 + N_STATE + N_THETA                          # presence, s_j - s_i, state, theta
 SLOT_DIM = 2 + N_STATE + N_LOCAL + N_THETA                 # presence, s - mean s, state, local, theta
@@ -137,29 +156,31 @@ def _sort(primary, states, thetas=None) -> np.ndarray:
     same sorted sequence."""
     keys = []
     if thetas is not None:
-        keys += [thetas[..., k] for k in range(N_THETA - 1, -1, -1)]
+        keys += [thetas[..., k] for k in range(thetas.shape[-1] - 1, -1, -1)]
     keys += [states[..., k] for k in range(5, 0, -1)]
     keys.append(primary)
     return np.lexsort(keys, axis=-1)
 
 
-def value_dim(n_cars: int | None = None) -> int:
-    """Size of :func:`value_features`: :data:`VALUE_DIM` for every N <= N_MAX."""
-    return VALUE_DIM
+def value_dim(n_cars: int | None = None, space: str | PolicySpace = "paper") -> int:
+    """Size of :func:`value_features` for thetas of ``space``, the same for every N <= N_MAX
+    (:data:`VALUE_DIM` in the paper's space)."""
+    return dims(space)["value"]
 
 
-def potential_dim(n_cars: int | None = None) -> int:
-    """Size of :func:`potential_features`: :data:`POTENTIAL_DIM` for every N <= N_MAX."""
-    return POTENTIAL_DIM
+def potential_dim(n_cars: int | None = None, space: str | PolicySpace = "paper") -> int:
+    """Size of :func:`potential_features` for thetas of ``space``, the same for every
+    N <= N_MAX (:data:`POTENTIAL_DIM` in the paper's space)."""
+    return dims(space)["potential"]
 
 
-def potential_theta_slots(n_cars: int) -> np.ndarray:
-    """Column indices (N, 5) of the scaled thetas of the first ``n_cars`` slots of
+def potential_theta_slots(n_cars: int, space: str | PolicySpace = "paper") -> np.ndarray:
+    """Column indices (N, dim) of the scaled thetas of the first ``n_cars`` slots of
     :func:`potential_features` (the field's cars in progress order)."""
     if not 1 <= n_cars <= N_MAX:
         raise ValueError(f"n_cars must be in 1..{N_MAX}, got {n_cars}")
-    return (np.arange(n_cars)[:, None] * SLOT_DIM + (SLOT_DIM - N_THETA)
-            + np.arange(N_THETA))
+    d, slot = theta_dim(space), dims(space)["slot"]
+    return np.arange(n_cars)[:, None] * slot + (slot - d) + np.arange(d)
 
 
 def progress_order(states: np.ndarray, thetas: np.ndarray | None = None) -> np.ndarray:
@@ -170,14 +191,17 @@ def progress_order(states: np.ndarray, thetas: np.ndarray | None = None) -> np.n
 
 
 def value_features(states: np.ndarray, thetas: np.ndarray, track: Track | TrackSet, ego: int,
-                   track_id: int | np.ndarray | None = None) -> np.ndarray:
-    """Features of car ``ego`` (int or int array broadcast over the batch), (..., VALUE_DIM).
+                   track_id: int | np.ndarray | None = None,
+                   space: str | PolicySpace | None = None) -> np.ndarray:
+    """Features of car ``ego`` (int or int array broadcast over the batch), (..., VALUE_DIM)
+    (the paper's space; ``value_dim(space=...)`` in general).
 
-    ``states`` (..., N, 6) with s unwrapped [m], ``thetas`` (..., N, 5); ``track`` a Track
-    (or name), or a :class:`TrackSet` with ``track_id`` (broadcast over the batch) naming
-    each sample's track.
+    ``states`` (..., N, 6) with s unwrapped [m], ``thetas`` (..., N, dim) of one policy space
+    (``space``, default: read from the last dimension); ``track`` a Track (or name), or a
+    :class:`TrackSet` with ``track_id`` (broadcast over the batch) naming each sample's track.
     """
-    states, thetas = check_joint(states, thetas, N_MAX)
+    states, thetas = check_joint(states, thetas, N_MAX, space)
+    other_dim = dims(theta_space(thetas))["other"]
     N = states.shape[-2]
     batch = states.shape[:-2]
     tracks, ids = _tracks(track, track_id, batch)
@@ -186,21 +210,23 @@ def value_features(states: np.ndarray, thetas: np.ndarray, track: Track | TrackS
         raise ValueError(f"ego must be in 0..{N - 1}, got {int(ego.min())}..{int(ego.max())}")
     e_state, e_theta, rel, key = relative_to_ego(states, thetas, ego)
     order = _sort(key, states, thetas)[..., :N - 1]                 # the ego (last) dropped
-    o_rel, o_state, o_theta = others_in_order(states, thetas, rel, order)
-    others = np.zeros(batch + (N_MAX - 1, OTHER_DIM))
+    o_rel, o_state, o_theta = others_in_order(states, thetas, rel, order, space)
+    others = np.zeros(batch + (N_MAX - 1, other_dim))
     others[..., :N - 1, :] = np.concatenate([np.ones_like(o_rel), o_rel, o_state, o_theta],
                                             axis=-1)
     ego_part = np.concatenate([e_state[..., 1:], local_track(tracks, e_state[..., 0], ids),
-                               scale_theta(e_theta)], axis=-1)
+                               scale_theta(e_theta, space)], axis=-1)
     return np.concatenate([ego_part, others.reshape(batch + (-1,))], axis=-1)
 
 
 def potential_features(states: np.ndarray, thetas: np.ndarray, track: Track | TrackSet,
-                       order: np.ndarray | None = None, track_id: int | np.ndarray | None = None) -> np.ndarray:
-    """Joint features (..., POTENTIAL_DIM) with the cars in ``order`` (default
-    :func:`progress_order` of states and thetas) in the first N slots; ``track`` and
-    ``track_id`` as for :func:`value_features`."""
-    states, thetas = check_joint(states, thetas, N_MAX)
+                       order: np.ndarray | None = None, track_id: int | np.ndarray | None = None,
+                       space: str | PolicySpace | None = None) -> np.ndarray:
+    """Joint features (..., POTENTIAL_DIM) (the paper's space; ``potential_dim(space=...)`` in
+    general) with the cars in ``order`` (default :func:`progress_order` of states and thetas)
+    in the first N slots; ``track``, ``track_id`` and ``space`` as for :func:`value_features`."""
+    states, thetas = check_joint(states, thetas, N_MAX, space)
+    slot_dim = dims(theta_space(thetas))["slot"]
     N = states.shape[-2]
     batch = states.shape[:-2]
     tracks, ids = _tracks(track, track_id, batch)
@@ -209,7 +235,7 @@ def potential_features(states: np.ndarray, thetas: np.ndarray, track: Track | Tr
     th = np.take_along_axis(thetas, order[..., None], axis=-2)
     rel = st[..., 0] - st[..., 0].mean(axis=-1, keepdims=True)
     local = local_track(tracks, st[..., 0], ids[..., None])
-    slots = np.zeros(batch + (N_MAX, SLOT_DIM))
+    slots = np.zeros(batch + (N_MAX, slot_dim))
     slots[..., :N, :] = np.concatenate([np.ones_like(rel[..., None]), rel[..., None],
                                         st[..., 1:], local, scale_theta(th)], axis=-1)
     return slots.reshape(batch + (-1,))
