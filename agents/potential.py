@@ -5,7 +5,10 @@ maximisation of Phi over the joint theta that the alpha agent runs at every step
 ``agents/models/MODEL_CARD.md``); any path to a ``model.npz`` written by ``alpha-racer train``
 works too. A model records its feature set (``fixed``, the paper's single-track models, or
 ``general``, any track and any field size up to 8 cars; see :func:`agents.feature_sets.feature_set`)
-and that set's version; a model of another version is refused.
+and that set's version; a model of another version is refused. It also records the policy space
+its thetas live in (``space``: ``paper``, the paper's five parameters, or ``extended``, with
+``b``; :data:`agents.theta.SPACES`) and that space's box; a model without a recorded space
+(trained before spaces existed) is the paper's.
 """
 from __future__ import annotations
 
@@ -19,7 +22,7 @@ import numpy as np
 from .feature_sets import feature_set
 from .features import scale_theta, unscale_theta
 from .mlp import MLP
-from .reference import THETA_HIGH, THETA_LOW
+from .theta import PolicySpace, policy_space
 from .threads import single_blas_thread
 
 if TYPE_CHECKING:
@@ -44,10 +47,12 @@ HOW_TO_TRAIN = {
 class PotentialModel:
     """V (ego-centric value, one network shared by all cars) and Phi (joint potential).
 
-    ``meta`` holds the training config, the data it saw, gamma, the feature version, the theta
-    box the features were normalised with (``theta_low``, ``theta_high``) and the validation
-    metrics. A model of another feature version or theta box is refused: its inputs would
-    silently mean other thetas.
+    ``meta`` holds the training config, the data it saw, gamma, the feature version, the policy
+    space (``space``, default ``"paper"``: :attr:`space`) and the theta box the features were
+    normalised with (``theta_low``, ``theta_high``) and the validation metrics. A model of
+    another feature version, or whose box is not its space's, is refused: its inputs would
+    silently mean other thetas. Its thetas (inputs, warm starts, maximisers) are
+    ``(..., N, space.dim)``.
     """
 
     def __init__(self, value: MLP, potential: MLP, meta: dict):
@@ -56,14 +61,19 @@ class PotentialModel:
             raise ValueError(f"model built with feature version {meta.get('feature_version')} "
                              f"of the {self.features.name!r} features, this code computes version "
                              f"{self.features.version}; retrain it")
+        #: the policy space of the model's thetas (a model without one is the paper's)
+        self.space: PolicySpace = policy_space(meta.get("space", "paper"))
+        sp = self.space
         box = (meta.get("theta_low"), meta.get("theta_high"))
         if box[0] is None or box[1] is None:
             warnings.warn("model metadata has no theta box (trained before it was recorded); "
-                          f"assuming this package's box {THETA_LOW.tolist()}..{THETA_HIGH.tolist()}",
-                          stacklevel=2)
-        elif not (np.allclose(box[0], THETA_LOW) and np.allclose(box[1], THETA_HIGH)):
+                          f"assuming this package's box of the {sp.name!r} policy space "
+                          f"{sp.low.tolist()}..{sp.high.tolist()}", stacklevel=2)
+        elif not (len(box[0]) == len(box[1]) == sp.dim and np.allclose(box[0], sp.low)
+                  and np.allclose(box[1], sp.high)):
             raise ValueError(f"model trained on the theta box {box[0]}..{box[1]}, this package's "
-                             f"box is {THETA_LOW.tolist()}..{THETA_HIGH.tolist()}; retrain it")
+                             f"box of the {sp.name!r} policy space is {sp.low.tolist()}.."
+                             f"{sp.high.tolist()}; retrain it")
         self.value_net = value
         self.potential_net = potential
         self.meta = meta
@@ -112,15 +122,17 @@ class PotentialModel:
     def value(self, states: np.ndarray, thetas: np.ndarray, track: Track, ego: int) -> np.ndarray:
         """V_ego(x, theta) [m of discounted relative progress], shape of the batch."""
         self._check_cars(states)
-        return self.value_net(self.features.value_features(states, thetas, track, ego))
+        return self.value_net(self.features.value_features(states, thetas, track, ego,
+                                                           space=self.space))
 
     def potential(self, states: np.ndarray, thetas: np.ndarray, track: Track) -> np.ndarray:
         """Phi(x, theta), shape of the batch."""
         self._check_cars(states)
-        return self.potential_net(self.features.potential_features(states, thetas, track))
+        return self.potential_net(self.features.potential_features(states, thetas, track,
+                                                                   space=self.space))
 
     def _ascent_setup(self, state, track, restarts: int, iterations: int, rng):
-        """Shared by the ascents: checks, ``(rng, slots (N, 5), base features (D,))`` where
+        """Shared by the ascents: checks, ``(rng, slots (N, dim), base features (D,))`` where
         ``slots[c]`` are the potential-feature columns of car c's theta (cars sorted by
         progress) and ``base`` the features at theta = 0 (their theta columns get overwritten)."""
         n = self._check_cars(np.asarray(state)[None])
@@ -130,8 +142,9 @@ class PotentialModel:
         state = np.asarray(state, dtype=float)
         f = self.features
         order = f.progress_order(state)
-        slots = f.potential_theta_slots(n)[np.argsort(order)]          # row c: car c's columns
-        base = f.potential_features(state, np.zeros((n, 5)), track, order)
+        slots = f.potential_theta_slots(n, self.space)[np.argsort(order)]   # row c: car c's columns
+        base = f.potential_features(state, np.zeros((n, self.space.dim)), track, order,
+                                    space=self.space)
         return rng or np.random.default_rng(0), slots, base
 
     def maximise(self, state: np.ndarray, track: Track, theta0: np.ndarray | None = None, restarts: int | None = None,
@@ -139,13 +152,15 @@ class PotentialModel:
                  step: float = 0.5, warm_step: float = 0.15, decay: float = 0.8,
                  high: np.ndarray | None = None) -> tuple[np.ndarray, float]:
         """Projected gradient ascent (Adam steps) of Phi(x, .) over the joint theta within its
-        bounds; returns ``(theta* (N, 5), Phi*)``, the best iterate seen.
+        bounds (the box of the model's policy space, :attr:`space`, of ``dim`` parameters:
+        5 in the paper's space, 6 in the extended one); returns ``(theta* (N, dim), Phi*)``,
+        the best iterate seen.
 
-        ``high`` (N, 5), optional: per-car upper bounds within the box (e.g. a car's zeta
+        ``high`` (N, dim), optional: per-car upper bounds within the box (e.g. a car's zeta
         ceiling); every start and iterate is projected onto the lowered box. Without it the
         ascent is the same, bit for bit.
 
-        ``state`` (N, 6) joint state; ``theta0`` (N, 5) warm start (e.g. the last step's
+        ``state`` (N, 6) joint state; ``theta0`` (N, dim) warm start (e.g. the last step's
         maximiser), else the box centre; the other ``restarts - 1`` starts are uniform random
         draws from ``rng``. All starts ascend together (one matrix product per layer and
         step) on theta scaled to [-1, 1]: ``iterations`` Adam steps (moment decays 0.2 and 0.9:
@@ -153,7 +168,7 @@ class PotentialModel:
         length ``warm_step`` for the warm start (usually close to the maximum: short steps
         refine it) and ``step`` for the others (they explore), both shrinking by ``decay`` per
         step. The network's first layer is multiplied with the state's features once per call
-        (:meth:`agents.mlp.MLP.restricted`); only the 5 N theta columns change during the
+        (:meth:`agents.mlp.MLP.restricted`); only the dim N theta columns change during the
         ascent.
 
         ``restarts`` and ``iterations`` default to 4 and 3 with a warm start (the agent's
@@ -171,21 +186,23 @@ class PotentialModel:
         if iterations is None:
             iterations = 12 if theta0 is None else 3
         N = np.shape(state)[0]
+        sp = self.space
+        d = sp.dim
         rng, slots, base = self._ascent_setup(state, track, restarts, iterations, rng)
         slots = slots.ravel()                                            # car-major columns
         top = 1.0
         if high is not None:
             high = np.asarray(high, dtype=float)
-            if high.shape != (N, 5) or not (np.all(high >= THETA_LOW) and
-                                            np.all(high <= THETA_HIGH)):
-                raise ValueError(f"high must be (N, 5) = ({N}, 5) upper bounds within the theta "
-                                 f"box {THETA_LOW.tolist()}..{THETA_HIGH.tolist()}, got "
+            if high.shape != (N, d) or not (np.all(high >= sp.low) and np.all(high <= sp.high)):
+                raise ValueError(f"high must be (N, {d}) = ({N}, {d}) upper bounds within the "
+                                 f"theta box of the {sp.name!r} policy space {sp.low.tolist()}.."
+                                 f"{sp.high.tolist()}, got "
                                  f"{high.tolist() if high.size <= 40 else high.shape}")
-            top = scale_theta(high).ravel()
-        Z = np.empty((restarts, N * 5))
-        Z[0] = 0.0 if theta0 is None else scale_theta(theta0).ravel()
+            top = scale_theta(high, sp).ravel()
+        Z = np.empty((restarts, N * d))
+        Z[0] = 0.0 if theta0 is None else scale_theta(theta0, sp).ravel()
         for k in range(1, restarts):                  # the draws of maximise_reference
-            Z[k] = rng.uniform(-1.0, 1.0, (N, 5)).ravel()
+            Z[k] = rng.uniform(-1.0, 1.0, (N, d)).ravel()
         if high is not None:
             Z = np.minimum(Z, top)
         lr = np.full((restarts, 1), step)
@@ -212,7 +229,7 @@ class PotentialModel:
                 v_hat = v / (1.0 - 0.9 ** (it + 1))
                 Z = np.clip(Z + lr * m_hat / (np.sqrt(v_hat) + 1e-12), -1.0, top)
                 lr *= decay
-        return unscale_theta(best_z.reshape(N, 5)), best_val
+        return unscale_theta(best_z.reshape(N, d), sp), best_val
 
     def maximise_reference(self, state: np.ndarray, track: Track, theta0: np.ndarray | None = None,
                            restarts: int = 4, iterations: int = 8,
@@ -223,26 +240,27 @@ class PotentialModel:
 
         Projected gradient ascent of Phi(x, .) over the joint theta within its bounds.
 
-        ``state`` (N, 6) joint state; ``theta0`` (N, 5) warm start (e.g. the last step's
+        ``state`` (N, 6) joint state; ``theta0`` (N, dim) warm start (e.g. the last step's
         maximiser); the other ``restarts - 1`` starts are uniform random draws from ``rng``
         (plus the box centre when there is no warm start). Steps are taken on theta scaled
         to [-1, 1], normalised by the gradient's RMS, starting at ``step`` and shrinking by
         ``decay`` per iteration; every iterate is projected onto the box and the best one
-        seen is returned as ``(theta* (N, 5), Phi*)``. With ``per_coordinate`` every coordinate
+        seen is returned as ``(theta* (N, dim), Phi*)``. With ``per_coordinate`` every coordinate
         steps by ``step`` in the direction of its own gradient (sign steps), so parameters of
         small gradient move as far as those of large gradient (slower to settle; used for
         careful offline maximisation).
         """
         N = np.shape(state)[0]
+        sp = self.space
         rng, slots, base = self._ascent_setup(state, track, restarts, iterations, rng)
         starts = []
         if theta0 is not None:
-            starts.append(scale_theta(theta0))
+            starts.append(scale_theta(theta0, sp))
         else:
-            starts.append(np.zeros((N, 5)))
+            starts.append(np.zeros((N, sp.dim)))
         while len(starts) < restarts:
-            starts.append(rng.uniform(-1.0, 1.0, (N, 5)))
-        Z = np.stack(starts)                                            # (B, N, 5) scaled
+            starts.append(rng.uniform(-1.0, 1.0, (N, sp.dim)))
+        Z = np.stack(starts)                                            # (B, N, dim) scaled
         X = np.repeat(base[None], len(Z), axis=0)
         best_val, best_z = -np.inf, Z[0]
         lr = step
@@ -257,14 +275,14 @@ class PotentialModel:
                 best_val, best_z = float(val[k]), Z[k].copy()
             if it == iterations:
                 break
-            g = grad[:, slots]                                          # (B, N, 5)
+            g = grad[:, slots]                                          # (B, N, dim)
             if per_coordinate:
                 Z = np.clip(Z + lr * np.sign(g), -1.0, 1.0)
             else:
                 rms = np.sqrt(np.mean(g ** 2, axis=(1, 2), keepdims=True)) + 1e-12
                 Z = np.clip(Z + lr * g / rms, -1.0, 1.0)
             lr *= decay
-        return unscale_theta(best_z), best_val
+        return unscale_theta(best_z, sp), best_val
 
 
 def cached_model(name_or_path: str | os.PathLike = "default") -> PotentialModel:

@@ -48,7 +48,6 @@ def main() -> None:
     from agents import make_agent_spec
     from agents.alpha_agent import AlphaAgent
     from agents.mpc_agent import joint_state_from_observation
-    from agents.reference import THETA_HIGH, THETA_LOW
 
     env = racing_env.parallel_env(n_cars=3, max_cycles=args.steps)
     obs, _ = env.reset(seed=args.seed, options={"order": [1, 0, 2]})
@@ -104,7 +103,8 @@ def main() -> None:
     spread = []
     for k in sample:
         x, w = joints[k], warm[k]
-        th = rng.uniform(THETA_LOW, THETA_HIGH, (4096, 3, 5))
+        sp = model.space
+        th = rng.uniform(sp.low, sp.high, (4096, 3, sp.dim))
         phi_rand = model.potential(np.repeat(x[None], 4096, 0), th, track)
         dense = max(phi_rand.max(),
                     model.maximise(x, track, w, restarts=32, iterations=40, decay=0.9,

@@ -33,8 +33,6 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.reference import THETA_NAMES as PARAMS
-
 from .artifacts import append_jsonl, claim, read_jsonl, write_json, write_npz, write_text
 from .parallel import check_backend, run_tasks_with_progress
 
@@ -132,7 +130,7 @@ def plot_gap(gap: dict, path: Path) -> None:
 
 # ---------------------------------------------------------------------------- Figure 2b
 def maximiser(model, state, track, seed: int):
-    """theta* (N, 5): a careful maximisation of Phi(x, .): 16 starts x 40 per-coordinate
+    """theta* (N, dim) of the model's policy space: a careful maximisation of Phi(x, .): 16 starts x 40 per-coordinate
     steps of the first release's ascent (the agent's online ascent relies on its warm start
     instead; from a cold start it stops short of the maximum)."""
     return model.maximise_reference(state, track, restarts=16, iterations=40, step=0.3,
@@ -167,16 +165,17 @@ def regret_task(model_name: str, track_name: str, k: int, state, theta_star, car
 
     def score(z):                       # z: car's theta scaled to [-1, 1]
         th = theta_star.copy()
-        th[car] = unscale_theta(np.clip(z, -1, 1)[None])[0]
+        th[car] = unscale_theta(np.clip(z, -1, 1)[None], model.space)[0]
         return simulated_value(model, track, state, th, car, cfg.regret_horizon), th[car]
 
-    z_star = scale_theta(theta_star[car][None])[0]
+    sp = model.space
+    z_star = scale_theta(theta_star[car][None], sp)[0]
     g_star, _ = score(z_star)
     tried = [(g_star, theta_star[car].tolist())]
-    mean, std = np.zeros(5), np.ones(5)
+    mean, std = np.zeros(sp.dim), np.ones(sp.dim)
     for it in range(cfg.cem_iterations):
-        Z = (rng.uniform(-1, 1, (cfg.cem_samples, 5)) if it == 0
-             else np.clip(rng.normal(mean, std, (cfg.cem_samples, 5)), -1, 1))
+        Z = (rng.uniform(-1, 1, (cfg.cem_samples, sp.dim)) if it == 0
+             else np.clip(rng.normal(mean, std, (cfg.cem_samples, sp.dim)), -1, 1))
         scores = []
         for z in Z:
             g, th = score(z)
@@ -188,7 +187,7 @@ def regret_task(model_name: str, track_name: str, k: int, state, theta_star, car
 
     # the paper's learned-value estimate: max over theta_i of V_i(x, theta_i, theta*_-i)
     th = np.repeat(theta_star[None], cfg.value_search + 1, axis=0)
-    th[1:, car] = unscale_theta(rng.uniform(-1, 1, (cfg.value_search, 5)))
+    th[1:, car] = unscale_theta(rng.uniform(-1, 1, (cfg.value_search, sp.dim)), sp)
     v = model.value(np.repeat(state[None], len(th), axis=0), th, track,
                     np.full(len(th), car))
     vr = _value_range(model)
@@ -288,12 +287,12 @@ def slice_state(X: np.ndarray) -> tuple[int, int]:
 def potential_slices(model, track, state, ego: int, theta_star, cfg: AnalyzeConfig) -> dict:
     """Phi and V_ego along each of the ego's parameters (others at theta*), and the ego's
     trajectories (x, y) over ``slice_steps`` for ``slice_rollouts`` values per parameter."""
-    from agents.reference import THETA_HIGH, THETA_LOW
     from experiments.collect import rollout_from_state
 
+    sp = model.space
     out = {"ego": int(ego), "theta_star": np.asarray(theta_star).tolist(), "params": {}}
-    for p, name in enumerate(PARAMS):
-        grid = np.linspace(THETA_LOW[p], THETA_HIGH[p], cfg.slice_points)
+    for p, name in enumerate(sp.names):
+        grid = np.linspace(sp.low[p], sp.high[p], cfg.slice_points)
         th = np.repeat(np.asarray(theta_star)[None], len(grid), axis=0)
         th[:, ego, p] = grid
         X = np.repeat(state[None], len(grid), axis=0)
@@ -322,11 +321,12 @@ def potential_slices(model, track, state, ego: int, theta_star, cfg: AnalyzeConf
 
 def plot_slices(track, state, sl: dict, path: Path) -> None:
     from matplotlib import cm
-    fig, axes = _figure((20, 7.5), rows=2, cols=5)
+    names = list(sl["params"])                  # the model's policy space's parameters
+    fig, axes = _figure((4 * len(names), 7.5), rows=2, cols=len(names))
     ego = sl["ego"]
     (xl, yl), (xr, yr) = track.edges()
     xs, ys = track.to_cartesian(state[:, 0], state[:, 1])
-    for p, name in enumerate(PARAMS):
+    for p, name in enumerate(names):
         d = sl["params"][name]
         ax = axes[0][p]
         ax.plot(d["grid"], d["phi"], color="tab:blue", label="Phi")
