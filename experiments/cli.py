@@ -129,7 +129,7 @@ def _cmd_train(args) -> int:
     if args.potential_hidden:
         kw["potential_hidden"] = tuple(args.potential_hidden)
     train(args.data, args.out, TrainConfig(**kw),
-          command="alpha-racer " + " ".join(args.argv))
+          command="alpha-racer " + " ".join(args.argv), space=args.space)
     print(f"model: {Path(args.out) / 'model.npz'}")
     return 0
 
@@ -496,6 +496,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--seed", type=int, default=None, help=f"seed of the split and the training (default {TrainConfig.seed})")  # noqa: E501
     tr.add_argument("--threads", type=int, default=None,
                     help=f"torch threads and rollout workers (default {TrainConfig.threads})")
+    tr.add_argument("--space", choices=sorted(SPACES), default=None,
+                    help="policy space the collection must be of (default: the collection's, "
+                         "from its manifest; a mismatch is an error naming both)")
     tr.set_defaults(fn=_cmd_train)
 
     S = SelfPlayConfig

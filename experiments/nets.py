@@ -2,9 +2,12 @@
 field size) and :mod:`experiments.train_general` (a family of tracks and field sizes): the
 :class:`TrainConfig`, the discounted-return targets, the value and potential stages (each
 checkpointed every epoch / ``save_every`` steps and resumed from its checkpoint), the numpy
-model they turn into, and the gap statistics and summary both report."""
+model they turn into, the policy space of a collection and of a training run
+(:func:`collection_space`, :func:`check_run_space`), and the gap statistics and summary both
+report."""
 from __future__ import annotations
 
+import json
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -16,6 +19,7 @@ from tqdm import tqdm
 
 from agents.mlp import MLP
 from agents.potential import PotentialModel
+from agents.theta import PolicySpace, policy_space
 
 from racing_env.files import atomic_path
 
@@ -82,6 +86,36 @@ class TrainConfig:
                 raise ValueError(f"TrainConfig.{name} must be a tuple of positive layer widths, "
                                  f"got {h!r}")
             object.__setattr__(self, name, tuple(int(k) for k in h))
+
+
+def collection_space(data_dir, manifest: dict, theta_dim: int | None = None,
+                     asked: str | None = None) -> PolicySpace:
+    """The policy space of the collection at ``data_dir``: its manifest's ``space`` (a
+    collection made before spaces existed, or a family collection, is the paper's). A
+    ``ValueError`` naming both when the thetas' last dimension ``theta_dim`` (given once the
+    data are loaded) is not that space's, or when ``asked`` (``alpha-racer train --space``)
+    is another space."""
+    space = policy_space(manifest.get("config", {}).get("space", "paper"))
+    if theta_dim is not None and theta_dim != space.dim:
+        raise ValueError(f"{data_dir}: the manifest says the {space.name!r} policy space "
+                         f"({space.dim} parameters), the thetas have {theta_dim}")
+    if asked is not None and policy_space(asked).name != space.name:
+        raise ValueError(f"{data_dir} holds races of the {space.name!r} policy space, "
+                         f"--space {policy_space(asked).name} was asked for")
+    return space
+
+
+def check_run_space(out: Path, space: PolicySpace, data_dir) -> None:
+    """Refuse to continue the training run in ``out`` on data of another policy space than
+    it started on (a ``ValueError`` naming both, before anything is loaded)."""
+    path = Path(out) / "train_config.json"
+    if not path.exists():
+        return
+    stored = json.loads(path.read_text())
+    have = stored.get("space", stored.get("data", {}).get("config", {}).get("space", "paper"))
+    if have != space.name:
+        raise ValueError(f"{out} holds a training run on the {have!r} policy space; the races "
+                         f"in {data_dir} are of the {space.name!r} space. Use another --out")
 
 
 def discounted_partial_returns(rewards: np.ndarray, gamma: float):
@@ -358,8 +392,8 @@ def gap_statistics(dphi, dv, vr: float) -> dict:
 
 def discounted_rollout(track: str, x, thetas, car: int, steps: int, gamma: float):
     """``(G, x_end)``: car ``car``'s gamma-discounted return over ``steps`` of MPC cars with
-    ``thetas`` (N, 5) from the joint state ``x`` (N, 6) on ``track`` (a name), and the joint
-    state after them (N, 6) for a bootstrap with V."""
+    ``thetas`` (N, dim) of one policy space from the joint state ``x`` (N, 6) on ``track`` (a
+    name), and the joint state after them (N, 6) for a bootstrap with V."""
     from experiments.collect import rollout_from_state
     states, rewards = rollout_from_state(track, x, thetas, steps)
     disc = gamma ** np.arange(len(rewards))
@@ -369,7 +403,10 @@ def discounted_rollout(track: str, x, thetas, car: int, steps: int, gamma: float
 def paired_rollouts(jobs: list[tuple], threads: int, progress_bar: bool) -> list[tuple]:
     """:func:`discounted_rollout` of every job ``(track, x, thetas, car, steps, gamma)`` on a
     pool of ``threads`` worker processes, each pinned to one thread per library; the
-    ``(G, x_end)`` of each job, in the jobs' order."""
+    ``(G, x_end)`` of each job, in the jobs' order. The thetas (N, dim) are the caller's
+    deviations, drawn in the box of the data's policy space (by
+    :func:`experiments.train.sample_deviations` or
+    :class:`experiments.train_general.FamilyDeviations`)."""
     with ProcessPoolExecutor(max_workers=threads, initializer=pin_worker) as pool:
         return list(tqdm(pool.map(discounted_rollout, *zip(*jobs)), total=len(jobs),
                          desc="paired rollouts", disable=not progress_bar))

@@ -22,6 +22,12 @@ collection written by ``alpha-racer collect``:
    and against simulated values: paired rollouts from held-out states that differ only in
    car i's theta (``rollout_pairs`` of them).
 
+The collection's policy space (``alpha-racer collect --space``: the paper's five parameters or
+the extended space's six) is read from its manifest and checked against its thetas' last
+dimension; features, deviations and the model's theta box are that space's, and the model
+records it (``space``). Continuing a run in the same ``--out`` on races of another space is
+refused, naming both.
+
 Each stage checkpoints (``value_ckpt.pt``, ``potential_ckpt.pt``, every epoch / ``save_every``
 steps); a killed run resumes from its last checkpoint. The output ``model.npz``
 (:class:`agents.potential.PotentialModel`) carries the config, the feature version, the data
@@ -36,14 +42,15 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.features import FEATURE_VERSION, potential_dim, potential_features, value_dim, value_features
+from agents.features import (FEATURE_VERSION, potential_dim, potential_features, theta_space,
+                             value_dim, value_features)
 from agents.potential import PotentialModel
-from agents.reference import THETA_HIGH, THETA_LOW
 
 from .artifacts import claim
-from .nets import (TrainConfig, ValueData, discounted_partial_returns, gap_statistics,
-                   numpy_model, paired_rollouts, rollout_statistics, save_model, split_races,
-                   summary_text, train_potential, train_value, value_samples)
+from .nets import (TrainConfig, ValueData, check_run_space, collection_space,
+                   discounted_partial_returns, gap_statistics, numpy_model, paired_rollouts,
+                   rollout_statistics, save_model, split_races, summary_text, train_potential,
+                   train_value, value_samples)
 
 
 # ---------------------------------------------------------------------------- data
@@ -51,8 +58,10 @@ from .nets import (TrainConfig, ValueData, discounted_partial_returns, gap_stati
 
 # ---------------------------------------------------------------------------- training
 def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bool = True,
-          log=print, command: str | None = None) -> dict:
-    """Run (or resume) the three stages; returns the metrics dict (also in ``metrics.json``)."""
+          log=print, command: str | None = None, space: str | None = None) -> dict:
+    """Run (or resume) the three stages; returns the metrics dict (also in ``metrics.json``).
+    The policy space is the collection's; ``space``, when given, must be it (``ValueError``
+    naming both otherwise)."""
     from racing_env.extras import require
     torch = require("torch", "training the value and alpha-potential networks (alpha-racer train)")
     from experiments.collect import load_races
@@ -61,20 +70,25 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
     cfg = config or TrainConfig()
     if _is_family(data_dir):                 # many tracks and field sizes: the general model
         from .train_general import train_general
-        return train_general(data_dir, out_dir, cfg, progress_bar, log, command)
+        return train_general(data_dir, out_dir, cfg, progress_bar, log, command, space)
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)              # the networks' initial weights: same data, same model
     out = Path(out_dir)
+    manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
+    sp = collection_space(data_dir, manifest, asked=space)
+    check_run_space(out, sp, data_dir)
     out.mkdir(parents=True, exist_ok=True)
     _write_or_check_config(out, cfg, data_dir)
     t_start = time.perf_counter()
     data = load_races(data_dir)
     track = make_track(data["config"]["track"])
     states, thetas, rewards = data["states"], data["thetas"], data["rewards"]
+    collection_space(data_dir, manifest, thetas.shape[-1])
     R, T, N = rewards.shape
     train_idx, val_idx = split_races(R, cfg.val_fraction, cfg.seed)
     log(f"data: {R} races x {T} steps x {N} cars from {data_dir} "
-        f"({len(train_idx)} training, {len(val_idx)} held out)")
+        f"({len(train_idx)} training, {len(val_idx)} held out)"
+        + ("" if sp.name == "paper" else f", policy space {sp.name!r} {sp.names}"))
 
     value = train_value(_value_data(states, thetas, rewards, train_idx, val_idx, track, cfg),
                         cfg, out, torch, progress_bar, log)
@@ -83,7 +97,7 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
                                 cfg, value, out, torch, progress_bar, log)
     t_train = time.perf_counter() - t_start
     meta = {"feature_version": FEATURE_VERSION, "n_cars": N, "track": data["config"]["track"],
-            "theta_low": THETA_LOW.tolist(), "theta_high": THETA_HIGH.tolist(),
+            "space": sp.name, "theta_low": sp.low.tolist(), "theta_high": sp.high.tolist(),
             "gamma": cfg.gamma, "config": asdict(cfg),
             "data": {"dir": str(data_dir), "races": R, "steps": T, "collect": data["config"]},
             "train_seconds": t_train}
@@ -115,11 +129,14 @@ def _write_or_check_config(out: Path, cfg: TrainConfig, data_dir) -> None:
     config.pop("threads")                      # how fast, not what: may change on a resume
     manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
     meta = {"feature_version": FEATURE_VERSION, "config": config, "data": manifest}
+    space = manifest.get("config", {}).get("space", "paper")
+    if space != "paper":                       # recorded when not the paper's (as collections do)
+        meta["space"] = space
     claim(out / "train_config.json", meta, "a training run (config or data)")
 
 
 def _features_in_chunks(states, thetas, r, t, c, track, chunk=200_000):
-    out = np.empty((len(r), value_dim(states.shape[2])), dtype=np.float32)
+    out = np.empty((len(r), value_dim(states.shape[2], theta_space(thetas))), dtype=np.float32)
     for lo in range(0, len(r), chunk):
         sl = slice(lo, lo + chunk)
         out[sl] = value_features(states[r[sl], t[sl]], thetas[r[sl]], track, c[sl])
@@ -144,18 +161,20 @@ def _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg) -> Valu
 
 
 def sample_deviations(states, thetas, races, n: int, rng, own_theta_fraction: float = 0.5):
-    """``n`` unilateral deviations at states of ``races``: (x (n, N, 6), theta (n, N, 5),
-    theta' (n, N, 5), car i (n,)); theta' differs from theta only in car i's row (uniform)."""
+    """``n`` unilateral deviations at states of ``races``: (x (n, N, 6), theta (n, N, dim),
+    theta' (n, N, dim), car i (n,)); theta' differs from theta only in car i's row (uniform in
+    the box of the thetas' policy space, read from their last dimension ``dim``)."""
     R, T1, N, _ = states.shape
+    sp = theta_space(thetas)
     r = rng.choice(races, n)
     t = rng.integers(0, T1 - 1, n)
     x = states[r, t].astype(np.float64)
-    th = rng.uniform(THETA_LOW, THETA_HIGH, (n, N, 5))
+    th = rng.uniform(sp.low, sp.high, (n, N, sp.dim))
     own = rng.random(n) < own_theta_fraction
     th[own] = thetas[r[own]]
     i = rng.integers(0, N, n)
     th2 = th.copy()
-    th2[np.arange(n), i] = rng.uniform(THETA_LOW, THETA_HIGH, (n, 5))
+    th2[np.arange(n), i] = rng.uniform(sp.low, sp.high, (n, sp.dim))
     return x, th, th2, i
 
 
@@ -171,7 +190,7 @@ class _Deviations:
     def __init__(self, states, thetas, races, track, own_theta_fraction):
         self.states, self.thetas, self.races, self.track = states, thetas, races, track
         self.own = own_theta_fraction
-        self.potential_dim = potential_dim(states.shape[2])
+        self.potential_dim = potential_dim(states.shape[2], theta_space(thetas))
 
     def draw(self, n, rng):
         return sample_deviations(self.states, self.thetas, self.races, n, rng, self.own)
@@ -239,6 +258,11 @@ def _box_text(meta: dict) -> str:
     return ", ".join(f"{lo:g}..{hi:g}" for lo, hi in zip(meta["theta_low"], meta["theta_high"]))
 
 
+def _space(meta: dict):
+    from agents.theta import policy_space
+    return policy_space(meta.get("space", "paper"))
+
+
 def model_card_text(meta: dict) -> str:
     """A short Markdown model card from a model's metadata."""
     m, c, d = meta["metrics"], meta["config"], meta["data"]
@@ -247,10 +271,13 @@ def model_card_text(meta: dict) -> str:
         f"# alpha-potential model (feature version {meta['feature_version']})", "",
         f"* **Data:** {d['races']} races x {d['steps']} steps x {meta['n_cars']} cars on "
         f"`{meta['track']}` (`alpha-racer collect --races {col.get('races', d['races'])} "
-        f"--seed {col.get('seed', 0)}`; every car an MPC with theta uniform in its bounds); "
+        f"--seed {col.get('seed', 0)}"
+        + (f" --space {col['space']}" if col.get("space", "paper") != "paper" else "")
+        + "`; every car an MPC with theta uniform in its bounds); "
         f"{100 * c['val_fraction']:.0f}% of the races held out.",
-        *([f"* **Theta box** (q, zeta, s1, s2, s3): {_box_text(meta)}."]
-          if "theta_low" in meta else []),
+        *([f"* **Theta box** ({', '.join(_space(meta).names)}"
+           + ("" if _space(meta).name == "paper" else f"; the {_space(meta).name} policy space")
+           + f"): {_box_text(meta)}."] if "theta_low" in meta else []),
         f"* **Discount:** gamma = {meta['gamma']}.",
         f"* **Networks:** value {list(c['value_hidden'])} ({c['value_epochs']} epochs), potential "
         f"{list(c['potential_hidden'])} ({c['potential_steps']} steps of {c['potential_batch']} "

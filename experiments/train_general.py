@@ -15,6 +15,10 @@ objectives and checkpoints) on the ``general`` features (:mod:`agents.general_fe
    gap relative to the range of V, overall and per field size (``by_cars``), and paired
    rollouts on each race's own track.
 
+The thetas are those of the collection's policy space (read from its manifest and checked
+against the thetas as in :mod:`experiments.train`; family collections race the paper's), and
+the model records it.
+
 Torch is seeded with the config's seed, so the same data and config give the same model.
 The model's metadata records the feature set (``general``), the tracks, the field sizes and
 the collection it came from.
@@ -30,21 +34,23 @@ import numpy as np
 
 from agents import general_features as gf
 from agents.general_features import TrackSet
+from agents.features import theta_space
 from agents.potential import PotentialModel
-from agents.reference import THETA_HIGH, THETA_LOW
 
 from .artifacts import claim
 from .family import RaceGroup, load_family
-from .nets import (TrainConfig, ValueData, discounted_partial_returns, gap_statistics,
-                   numpy_model, paired_rollouts, rollout_statistics, save_model, split_races,
-                   summary_text, train_potential, train_value, value_samples)
+from .nets import (TrainConfig, ValueData, check_run_space, collection_space,
+                   discounted_partial_returns, gap_statistics, numpy_model, paired_rollouts,
+                   rollout_statistics, save_model, split_races, summary_text, train_potential,
+                   train_value, value_samples)
 
 
 class FamilyData:
     """The races of a family collection, numbered 0..R-1 in the order of
     :func:`experiments.family.load_family`'s groups, stored by field size N (one bucket per N:
-    ``states`` (R_N, T + 1, N, 6), ``thetas`` (R_N, N, 5), ``rewards`` (R_N, T, N),
-    ``track_id`` (R_N,) into :attr:`tracks`, ``race`` (R_N,) the global numbers)."""
+    ``states`` (R_N, T + 1, N, 6), ``thetas`` (R_N, N, dim), ``rewards`` (R_N, T, N),
+    ``track_id`` (R_N,) into :attr:`tracks`, ``race`` (R_N,) the global numbers); ``space``
+    the thetas' policy space (one for every group)."""
 
     def __init__(self, groups: list[RaceGroup]):
         if not groups:
@@ -53,6 +59,10 @@ class FamilyData:
         if len(steps) != 1:
             raise ValueError(f"races of different lengths {sorted(steps)} in one collection")
         self.T = steps.pop()
+        dims = {g.thetas.shape[-1] for g in groups}
+        if len(dims) != 1:
+            raise ValueError(f"thetas of {sorted(dims)} parameters in one collection")
+        self.space = theta_space(groups[0].thetas)
         specs = list(dict.fromkeys(g.track for g in groups))
         self.tracks = TrackSet(specs)
         index = {spec: k for k, spec in enumerate(specs)}
@@ -89,30 +99,33 @@ class FamilyDeviations:
     """Unilateral deviations at states of ``races`` (global numbers) of a :class:`FamilyData`:
     the family counterpart of :class:`experiments.train._Deviations` (same interface).
 
-    A batch holds per sample the race ``r``, the step ``t``, theta and theta' (n, N_MAX, 5)
+    A batch holds per sample the race ``r``, the step ``t``, theta and theta' (n, N_MAX, dim)
     (rows beyond the race's field unused) and the deviating car ``i`` (in 0..N_r - 1)."""
 
     general = True
-    potential_dim = gf.POTENTIAL_DIM
 
     def __init__(self, data: FamilyData, races, own_theta_fraction: float):
         self.data, self.races, self.own = data, np.asarray(races), own_theta_fraction
         if not len(self.races):
             raise ValueError("no races to draw deviations from")
+        self.space = data.space
+        self.dims = gf.dims(data.space)
+        self.potential_dim = self.dims["potential"]
 
     def draw(self, n: int, rng) -> dict:
         d = self.data
         r = rng.choice(self.races, n)
         t = rng.integers(0, d.T, n)
         cars = d.race_n[r]
-        th = rng.uniform(THETA_LOW, THETA_HIGH, (n, gf.N_MAX, 5))
+        sp = self.space
+        th = rng.uniform(sp.low, sp.high, (n, gf.N_MAX, sp.dim))
         own = rng.random(n) < self.own
         for N in np.unique(cars[own]):
             idx = np.flatnonzero(own & (cars == N))
             th[idx, :N] = d.buckets[N]["thetas"][d.race_local[r[idx]]]
         i = rng.integers(0, cars)
         th2 = th.copy()
-        th2[np.arange(n), i] = rng.uniform(THETA_LOW, THETA_HIGH, (n, 5))
+        th2[np.arange(n), i] = rng.uniform(sp.low, sp.high, (n, sp.dim))
         return {"r": r, "t": t, "cars": cars, "theta": (th, th2), "i": i}
 
     def _per_field(self, batch, dim, fn) -> np.ndarray:
@@ -136,12 +149,12 @@ class FamilyDeviations:
 
     def value_features(self, batch, k) -> np.ndarray:
         th = batch["theta"][k - 1]
-        return self._per_field(batch, gf.VALUE_DIM, lambda x, rows, N, ids: gf.value_features(
+        return self._per_field(batch, self.dims["value"], lambda x, rows, N, ids: gf.value_features(
             x, th[rows, :N], self.data.tracks, batch["i"][rows], track_id=ids))
 
     def potential_features(self, batch, k) -> np.ndarray:
         th = batch["theta"][k - 1]
-        return self._per_field(batch, gf.POTENTIAL_DIM, lambda x, rows, N, ids:
+        return self._per_field(batch, self.potential_dim, lambda x, rows, N, ids:
                                gf.potential_features(x, th[rows, :N], self.data.tracks,
                                                      track_id=ids))
 
@@ -160,7 +173,7 @@ def _value_data(data: FamilyData, train_idx, val_idx, cfg, chunk: int = 100_000)
                                     ("va", val_set, max(cfg.value_stride, 5))):
             local = np.array([k for k, g in enumerate(b["race"]) if g in chosen], dtype=np.int64)
             r, t, c = value_samples(None, None, local, stride, data.T, N)
-            X = np.empty((len(r), gf.VALUE_DIM), dtype=np.float32)
+            X = np.empty((len(r), gf.value_dim(space=data.space)), dtype=np.float32)
             for lo in range(0, len(r), chunk):
                 sl = slice(lo, lo + chunk)
                 X[sl] = gf.value_features(b["states"][r[sl], t[sl]], b["thetas"][r[sl]],
@@ -237,26 +250,31 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
 
 # ---------------------------------------------------------------------------- training
 def train_general(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bool = True,
-                  log=print, command: str | None = None) -> dict:
+                  log=print, command: str | None = None, space: str | None = None) -> dict:
     """Run (or resume) the three stages on a family collection; returns the metrics (also in
-    ``metrics.json``); writes ``model.npz`` and ``model_card.md`` beside them."""
+    ``metrics.json``); writes ``model.npz`` and ``model_card.md`` beside them. ``space`` as
+    for :func:`experiments.train.train`."""
     from racing_env.extras import require
     torch = require("torch", "training the value and alpha-potential networks (alpha-racer train)")
     cfg = config or TrainConfig()
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     out = Path(out_dir)
+    manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
+    sp = collection_space(data_dir, manifest, asked=space)
+    check_run_space(out, sp, data_dir)
     out.mkdir(parents=True, exist_ok=True)
     config_meta = json.loads(json.dumps(asdict(cfg)))
     config_meta.pop("threads")                  # how fast, not what: may change on a resume
-    manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
-    claim(out / "train_config.json", {"feature_set": "general",
-                                      "feature_version": gf.FEATURE_VERSION,
-                                      "config": config_meta, "data": manifest},
-          "a training run (config or data)")
+    run = {"feature_set": "general", "feature_version": gf.FEATURE_VERSION,
+           "config": config_meta, "data": manifest}
+    if sp.name != "paper":                      # recorded when not the paper's
+        run["space"] = sp.name
+    claim(out / "train_config.json", run, "a training run (config or data)")
     t_start = time.perf_counter()
     groups, _ = load_family(data_dir)
     data = FamilyData(groups)
+    collection_space(data_dir, manifest, data.space.dim)
     train_idx, val_idx = split_races(data.n_races, cfg.val_fraction, cfg.seed)
     log(f"data: {data.n_races} races x {data.T} steps on {len(data.tracks)} tracks with "
         f"{', '.join(map(str, data.cars))} cars from {data_dir} ({len(train_idx)} training, "
@@ -270,7 +288,7 @@ def train_general(data_dir, out_dir, config: TrainConfig | None = None, progress
             "n_max": gf.N_MAX, "n_cars_range": [min(data.cars), max(data.cars)],
             "n_cars_trained": data.cars, "tracks": data.tracks.specs,
             "track_specs": manifest["config"]["tracks"],
-            "theta_low": THETA_LOW.tolist(), "theta_high": THETA_HIGH.tolist(),
+            "space": sp.name, "theta_low": sp.low.tolist(), "theta_high": sp.high.tolist(),
             "gamma": cfg.gamma, "config": asdict(cfg),
             "data": {"dir": str(data_dir), "races": data.n_races, "steps": data.T,
                      "collect": manifest["config"]},
