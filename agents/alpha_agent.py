@@ -4,7 +4,9 @@ At every step the agent rebuilds the joint state from its observation, maximises
 potential Phi(x_t, .) over the joint theta of all cars within the bounds (projected gradient
 ascent warm-started from the last step's maximiser, plus random restarts; see
 :meth:`agents.potential.PotentialModel.maximise`), and drives its MPC with its own part
-theta*_ego. ``stats`` reports the maximisation and MPC times, the potential value and the
+theta*_ego. The joint theta lives in the model's policy space (the paper's five parameters,
+or the extended space's six with ``b``, the blend of the lap-time line; see
+:data:`agents.theta.SPACES`). ``stats`` reports the maximisation and MPC times, the potential value and the
 theta chosen. A decision runs numpy's BLAS on one thread
 (:func:`agents.threads.single_blas_thread`, ~10 us): the same race gives the same states
 bit for bit whatever the process's thread count.
@@ -21,7 +23,7 @@ import numpy as np
 from .base import median_p99, register_agent
 from .mpc_agent import MPCAgent, split_observation
 from .potential import PotentialModel, cached_model
-from .reference import THETA_HIGH, THETA_LOW, THETA_NAMES, Theta
+from .reference import Theta, policy_space
 from .threads import single_blas_thread
 
 if TYPE_CHECKING:
@@ -59,30 +61,48 @@ class AlphaAgent(MPCAgent):
     :class:`MPCAgent` keyword) the maximisation runs in the box with the agent's own zeta
     capped there (the others' thetas keep the full box): the best theta the potential finds
     under the ceiling, not the unconstrained one clipped afterwards.
+
+    ``space``: the policy space maximised over and driven in (``"paper"`` or ``"extended"``,
+    :data:`agents.theta.SPACES`); by default the model's (:attr:`PotentialModel.space
+    <agents.potential.PotentialModel.space>`). A model of another space than the one asked
+    for is a ``ValueError`` naming both. The shipped models (and so ``model="auto"``) are
+    the paper's; ``space="extended"`` races a model trained on an extended collection
+    (``alpha-racer collect --space extended``, then ``alpha-racer train``), maximising over
+    the six-dimensional box (``b`` in [0, 1]) with its MPC built for the extended space.
     """
 
+    param_notes = {**MPCAgent.param_notes,
+                   "space": "policy space maximised over: 'paper' or 'extended'; default: "
+                            "the model's"}
+
     def __init__(self, model=AUTO, restarts: int = 4, iterations: int = 3,
-                 cold_restarts: int = 32, cold_iterations: int = 12, **mpc_kwargs):
+                 cold_restarts: int = 32, cold_iterations: int = 12, space: str | None = None,
+                 **mpc_kwargs):
         if mpc_kwargs.get("theta") is not None:
             raise ValueError(f"alpha chooses its theta online by maximising the potential; "
                              f"theta={mpc_kwargs['theta']!r} is for the mpc agent")
-        if mpc_kwargs.get("space", "paper") != "paper":
-            raise ValueError(f"alpha maximises a potential learned on the paper's policy space; "
-                             f"space={mpc_kwargs['space']!r} needs a model trained on it "
-                             f"(none is shipped yet)")
-        super().__init__(**mpc_kwargs)
-        for name, v in (("restarts", restarts), ("cold_restarts", cold_restarts)):
-            if not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
-        for name, v in (("iterations", iterations), ("cold_iterations", cold_iterations)):
-            if not (isinstance(v, int) and v >= 0):
-                raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
         self.model_name = model
         self.auto = isinstance(model, str) and model == AUTO
         if self.auto:
             self.model = None                    # chosen at a race's first decision
         else:
             self.model = model if isinstance(model, PotentialModel) else cached_model(model)
+        if space is None:                        # the model's (the shipped ones: the paper's)
+            space = "paper" if self.auto else self.model.space.name
+        space = policy_space(space).name         # names the choices if unknown
+        if self.auto and space != "paper":
+            raise ValueError(f"model='auto' races the shipped models, of the 'paper' policy "
+                             f"space; space={space!r} needs model=<the model.npz of a model "
+                             f"trained on races of the {space!r} space>")
+        if not self.auto:
+            self._check_space(space)
+        super().__init__(space=space, **mpc_kwargs)
+        for name, v in (("restarts", restarts), ("cold_restarts", cold_restarts)):
+            if not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+        for name, v in (("iterations", iterations), ("cold_iterations", cold_iterations)):
+            if not (isinstance(v, int) and v >= 0):
+                raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
         self.restarts, self.iterations = restarts, iterations
         self.cold_restarts, self.cold_iterations = cold_restarts, cold_iterations
         self._theta_joint = None
@@ -97,6 +117,17 @@ class AlphaAgent(MPCAgent):
         self._rng = np.random.default_rng(seed)
         self._theta_joint = None
         self.last_potential = float("nan")
+
+    def _check_space(self, space: str) -> None:
+        """Refuse a model of another policy space than ``space`` (naming both)."""
+        have = self.model.space.name
+        if have != space:
+            name = self.model_name if isinstance(self.model_name, str) else "given"
+            raise ValueError(f"alpha-potential model {name!r} was trained on the {have!r} "
+                             f"policy space ({self.model.space.dim} parameters), space={space!r} "
+                             f"was asked for; train a model on races of the {space!r} space "
+                             f"(alpha-racer collect --space {space}) or drop space (alpha then "
+                             f"takes its model's)")
 
     def _check_track(self) -> None:
         trained_on = self.model.meta.get("track")
@@ -127,8 +158,8 @@ class AlphaAgent(MPCAgent):
         med, p99 = median_p99(self._max_ms)
         st.update({"maximise_ms_median": med, "maximise_ms_p99": p99,
                    "potential": self.last_potential,
-                   "theta": dict(zip(THETA_NAMES,
-                                     map(float, self.theta.as_array())))})
+                   "theta": dict(zip(policy_space(self.space).names,
+                                     map(float, self.theta.as_array(self.space))))})
         return st
 
     def act(self, observation: np.ndarray) -> np.ndarray:
@@ -145,18 +176,20 @@ class AlphaAgent(MPCAgent):
         if cold:
             if self.model is None:                               # model="auto"
                 self.model = cached_model(auto_model(self.track.name, len(joint)))
+                self._check_space(self.space)
                 self._check_track()
             self._check_field(len(joint))
+        box = self.model.space
         high = None
         if self.zeta_max is not None:                            # the ego's zeta ceiling
-            high = np.tile(THETA_HIGH, (len(joint), 1))
+            high = np.tile(box.high, (len(joint), 1))
             high[0, 1] = self.zeta_max
         theta, phi = self.model.maximise(
             joint, self.track, self._theta_joint, rng=self._rng,
             restarts=self.cold_restarts if cold else self.restarts,
             iterations=self.cold_iterations if cold else self.iterations, high=high)
         self._theta_joint = theta
-        self.theta = Theta.from_array(np.clip(theta[0], THETA_LOW, THETA_HIGH))
+        self.theta = Theta.from_array(np.clip(theta[0], box.low, box.high))
         self.last_potential = phi
         self._max_ms.append(1e3 * (time.perf_counter() - t0))
         return super().act(observation)
