@@ -11,6 +11,7 @@ theta chosen. A decision runs numpy's BLAS on one thread
 (:func:`agents.threads.single_blas_thread`, ~10 us): the same race gives the same states
 bit for bit whatever the process's thread count.
 """
+
 from __future__ import annotations
 
 import time
@@ -38,6 +39,7 @@ def auto_model(track_name: str, n_cars: int) -> str:
     where specialisation is possible; the track-general ``general`` model everywhere else
     (``default`` again if ``general`` is not installed, which then refuses or warns)."""
     from .potential import MODEL_DIR, SHIPPED
+
     single = cached_model("default")
     if track_name == single.meta.get("track") and n_cars == single.n_cars:
         return "default"
@@ -71,29 +73,41 @@ class AlphaAgent(MPCAgent):
     the six-dimensional box (``b`` in [0, 1]) with its MPC built for the extended space.
     """
 
-    param_notes = {**MPCAgent.param_notes,
-                   "space": "policy space maximised over: 'paper' or 'extended'; default: "
-                            "the model's"}
+    param_notes = {
+        **MPCAgent.param_notes,
+        "space": "policy space maximised over: 'paper' or 'extended'; default: the model's",
+    }
 
-    def __init__(self, model=AUTO, restarts: int = 4, iterations: int = 3,
-                 cold_restarts: int = 32, cold_iterations: int = 12, space: str | None = None,
-                 **mpc_kwargs):
+    def __init__(
+        self,
+        model=AUTO,
+        restarts: int = 4,
+        iterations: int = 3,
+        cold_restarts: int = 32,
+        cold_iterations: int = 12,
+        space: str | None = None,
+        **mpc_kwargs,
+    ):
         if mpc_kwargs.get("theta") is not None:
-            raise ValueError(f"alpha chooses its theta online by maximising the potential; "
-                             f"theta={mpc_kwargs['theta']!r} is for the mpc agent")
+            raise ValueError(
+                f"alpha chooses its theta online by maximising the potential; "
+                f"theta={mpc_kwargs['theta']!r} is for the mpc agent"
+            )
         self.model_name = model
         self.auto = isinstance(model, str) and model == AUTO
         if self.auto:
-            self.model = None                    # chosen at a race's first decision
+            self.model = None  # chosen at a race's first decision
         else:
             self.model = model if isinstance(model, PotentialModel) else cached_model(model)
-        if space is None:                        # the model's (the shipped ones: the paper's)
+        if space is None:  # the model's (the shipped ones: the paper's)
             space = "paper" if self.auto else self.model.space.name
-        space = policy_space(space).name         # names the choices if unknown
+        space = policy_space(space).name  # names the choices if unknown
         if self.auto and space != "paper":
-            raise ValueError(f"model='auto' races the shipped models, of the 'paper' policy "
-                             f"space; space={space!r} needs model=<the model.npz of a model "
-                             f"trained on races of the {space!r} space>")
+            raise ValueError(
+                f"model='auto' races the shipped models, of the 'paper' policy "
+                f"space; space={space!r} needs model=<the model.npz of a model "
+                f"trained on races of the {space!r} space>"
+            )
         if not self.auto:
             self._check_space(space)
         super().__init__(space=space, **mpc_kwargs)
@@ -123,17 +137,22 @@ class AlphaAgent(MPCAgent):
         have = self.model.space.name
         if have != space:
             name = self.model_name if isinstance(self.model_name, str) else "given"
-            raise ValueError(f"alpha-potential model {name!r} was trained on the {have!r} "
-                             f"policy space ({self.model.space.dim} parameters), space={space!r} "
-                             f"was asked for; train a model on races of the {space!r} space "
-                             f"(alpha-racer collect --space {space}) or drop space (alpha then "
-                             f"takes its model's)")
+            raise ValueError(
+                f"alpha-potential model {name!r} was trained on the {have!r} "
+                f"policy space ({self.model.space.dim} parameters), space={space!r} "
+                f"was asked for; train a model on races of the {space!r} space "
+                f"(alpha-racer collect --space {space}) or drop space (alpha then "
+                f"takes its model's)"
+            )
 
     def _check_track(self) -> None:
         trained_on = self.model.meta.get("track")
         if not self.model.general and trained_on and trained_on != self.track.name:
-            warnings.warn(f"alpha-potential model trained on track {trained_on!r}, racing on "
-                          f"{self.track.name!r}", stacklevel=3)
+            warnings.warn(
+                f"alpha-potential model trained on track {trained_on!r}, racing on "
+                f"{self.track.name!r}",
+                stacklevel=3,
+            )
 
     def _check_field(self, n: int) -> None:
         """Refuse a field a single-track model was not trained for; warn when a general
@@ -141,25 +160,36 @@ class AlphaAgent(MPCAgent):
         m = self.model
         if not m.general:
             if n != m.n_cars:
-                raise ValueError(f"alpha-potential model trained for {m.n_cars} cars, the "
-                                 f"race has {n}")
+                raise ValueError(
+                    f"alpha-potential model trained for {m.n_cars} cars, the race has {n}"
+                )
             return
         lo, hi = m.trained_cars
         if not 2 <= n <= m.features.max_cars:
-            raise ValueError(f"the general alpha-potential model takes 2..{m.features.max_cars} "
-                             f"cars, the race has {n}")
+            raise ValueError(
+                f"the general alpha-potential model takes 2..{m.features.max_cars} "
+                f"cars, the race has {n}"
+            )
         if not lo <= n <= hi:
-            warnings.warn(f"general alpha-potential model trained on fields of {lo}..{hi} cars, "
-                          f"racing {n}", stacklevel=3)
+            warnings.warn(
+                f"general alpha-potential model trained on fields of {lo}..{hi} cars, racing {n}",
+                stacklevel=3,
+            )
 
     @property
     def stats(self) -> dict:
         st = super().stats
         med, p99 = median_p99(self._max_ms)
-        st.update({"maximise_ms_median": med, "maximise_ms_p99": p99,
-                   "potential": self.last_potential,
-                   "theta": dict(zip(policy_space(self.space).names,
-                                     map(float, self.theta.as_array(self.space))))})
+        st.update(
+            {
+                "maximise_ms_median": med,
+                "maximise_ms_p99": p99,
+                "potential": self.last_potential,
+                "theta": dict(
+                    zip(policy_space(self.space).names, map(float, self.theta.as_array(self.space)))
+                ),
+            }
+        )
         return st
 
     def act(self, observation: np.ndarray) -> np.ndarray:
@@ -171,23 +201,28 @@ class AlphaAgent(MPCAgent):
     def _act(self, observation) -> np.ndarray:
         t0 = time.perf_counter()
         ego, others = split_observation(observation, self.n_preview)
-        joint = np.vstack([ego[None], others])                  # ego first, then the others
+        joint = np.vstack([ego[None], others])  # ego first, then the others
         cold = self._theta_joint is None
         if cold:
-            if self.model is None:                               # model="auto"
+            if self.model is None:  # model="auto"
                 self.model = cached_model(auto_model(self.track.name, len(joint)))
                 self._check_space(self.space)
                 self._check_track()
             self._check_field(len(joint))
         box = self.model.space
         high = None
-        if self.zeta_max is not None:                            # the ego's zeta ceiling
+        if self.zeta_max is not None:  # the ego's zeta ceiling
             high = np.tile(box.high, (len(joint), 1))
             high[0, 1] = self.zeta_max
         theta, phi = self.model.maximise(
-            joint, self.track, self._theta_joint, rng=self._rng,
+            joint,
+            self.track,
+            self._theta_joint,
+            rng=self._rng,
             restarts=self.cold_restarts if cold else self.restarts,
-            iterations=self.cold_iterations if cold else self.iterations, high=high)
+            iterations=self.cold_iterations if cold else self.iterations,
+            high=high,
+        )
         self._theta_joint = theta
         self.theta = Theta.from_array(np.clip(theta[0], box.low, box.high))
         self.last_potential = phi

@@ -1,15 +1,17 @@
 """The agent interface every driver implements, and the registry that builds agents by name."""
+
 from __future__ import annotations
 
 import inspect
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
-from collections.abc import Callable
 
 import numpy as np
 
 if TYPE_CHECKING:
     from collections.abc import Iterable, Sequence
+
     from racing_env.track import Track
 
 
@@ -60,11 +62,13 @@ def register_agent(name: str, factory: Callable[..., Agent] | None = None) -> An
     can register agents without being imported first through the :data:`ENTRY_POINT_GROUP`
     entry points, loaded when their name is first asked for.
     """
+
     def _do(f):
         if not name or not isinstance(name, str):
             raise ValueError(f"agent name must be a non-empty string, got {name!r}")
         _REGISTRY[name] = f
         return f
+
     return _do(factory) if factory is not None else _do
 
 
@@ -72,6 +76,7 @@ def _entry_points() -> dict:
     """The installed :data:`ENTRY_POINT_GROUP` entry points by name (metadata only, nothing
     imported)."""
     from importlib.metadata import entry_points
+
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
@@ -82,12 +87,16 @@ def _load_entry_point(name: str) -> bool:
         return False
     try:
         factory = ep.load()
-    except Exception as exc:       # a broken plugin: one line naming it, not its traceback
-        raise ValueError(f"agent plugin {name!r} (entry point {ep.value!r} in group "
-                         f"{ENTRY_POINT_GROUP!r}) failed to load: {type(exc).__name__}: {exc}") from None
+    except Exception as exc:  # a broken plugin: one line naming it, not its traceback
+        raise ValueError(
+            f"agent plugin {name!r} (entry point {ep.value!r} in group "
+            f"{ENTRY_POINT_GROUP!r}) failed to load: {type(exc).__name__}: {exc}"
+        ) from None
     if not callable(factory):
-        raise ValueError(f"agent plugin {name!r} (entry point {ep.value!r}) is "
-                         f"{type(factory).__name__}, not a class or function returning an agent")
+        raise ValueError(
+            f"agent plugin {name!r} (entry point {ep.value!r}) is "
+            f"{type(factory).__name__}, not a class or function returning an agent"
+        )
     register_agent(name, factory)
     return True
 
@@ -109,8 +118,10 @@ def make_agent(name: str, **kwargs: Any) -> Agent:
     """Build a registered agent by name (``kwargs`` go to its factory)."""
     agent = get_factory(name)(**kwargs)
     if not isinstance(agent, Agent):
-        raise TypeError(f"agent factory {name!r} returned {type(agent).__name__}, which lacks "
-                        f"reset(track, agent_id, seed) / act(observation)")
+        raise TypeError(
+            f"agent factory {name!r} returned {type(agent).__name__}, which lacks "
+            f"reset(track, agent_id, seed) / act(observation)"
+        )
     return agent
 
 
@@ -151,11 +162,15 @@ def agent_parameters(name: str) -> tuple[list[AgentParameter], bool]:
     def param(p) -> AgentParameter:
         default = shown.get(p.name, p.default) if p.default is None else p.default
         return AgentParameter(p.name, default, bounds.get(p.name), notes.get(p.name, ""))
+
     params: dict[str, AgentParameter] = {}
     sources = [factory]
     if inspect.isclass(factory):
-        sources += [base.__init__ for base in factory.__mro__[1:] if "__init__" in vars(base)
-                    and base is not object]
+        sources += [
+            base.__init__
+            for base in factory.__mro__[1:]
+            if "__init__" in vars(base) and base is not object
+        ]
     extra = getattr(factory, "spec_keywords_from", None)
     open_kwargs = False
     for fn in sources:
@@ -166,7 +181,10 @@ def agent_parameters(name: str) -> tuple[list[AgentParameter], bool]:
             break
         open_kwargs = False
         for p in sig.parameters.values():
-            if (fn is not factory and p.name == "self") or p.kind in (p.VAR_POSITIONAL, p.POSITIONAL_ONLY):
+            if (fn is not factory and p.name == "self") or p.kind in (
+                p.VAR_POSITIONAL,
+                p.POSITIONAL_ONLY,
+            ):
                 continue
             if p.kind == p.VAR_KEYWORD:
                 open_kwargs = True
@@ -208,8 +226,10 @@ def make_agent_spec(spec: str) -> Agent:
     known, open_kwargs = agent_parameters(name)
     unknown = sorted(set(kwargs) - {p.name for p in known})
     if unknown and not open_kwargs:
-        raise ValueError(f"agent {spec!r}: unknown parameter(s) {', '.join(unknown)}; "
-                         f"{name!r} takes {', '.join(p.name for p in known) or 'no parameters'}")
+        raise ValueError(
+            f"agent {spec!r}: unknown parameter(s) {', '.join(unknown)}; "
+            f"{name!r} takes {', '.join(p.name for p in known) or 'no parameters'}"
+        )
     try:
         return make_agent(name, **kwargs)
     except (TypeError, ValueError, FileNotFoundError) as exc:
@@ -242,5 +262,7 @@ def import_agent_modules(modules: Iterable[str]) -> None:
             else:
                 importlib.import_module(module)
         except Exception as exc:
-            raise ValueError(f"cannot import {module!r}: {type(exc).__name__}: {exc} "
-                             f"(expected an importable module name or a .py file)") from None
+            raise ValueError(
+                f"cannot import {module!r}: {type(exc).__name__}: {exc} "
+                f"(expected an importable module name or a .py file)"
+            ) from None

@@ -17,6 +17,7 @@ chosen under other physics is not the best under these). The table is
 :data:`DEFAULT_TABLE` (package data), or the file named by the environment variable
 :data:`TABLE_ENV_VAR` when it is set.
 """
+
 from __future__ import annotations
 
 import json
@@ -26,6 +27,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from racing_env.track import Track
+
     from .reference import Theta
 
 SCHEMA_VERSION = 1
@@ -46,6 +48,7 @@ def table_path() -> Path:
 def env_name() -> str:
     """The racing env's version name (``RacingParallelEnv.metadata["name"]``)."""
     from racing_env import RacingParallelEnv
+
     return RacingParallelEnv.metadata["name"]
 
 
@@ -63,11 +66,16 @@ def read_table(path: str | os.PathLike | None = None) -> dict:
         table = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise ValueError(f"best-theta table {path} is not valid JSON: {exc}") from None
-    if not isinstance(table, dict) or table.get("schema_version") != SCHEMA_VERSION or \
-            not isinstance(table.get("tracks"), dict):
-        raise ValueError(f"best-theta table {path} is not a table of schema version "
-                         f"{SCHEMA_VERSION} (got schema_version "
-                         f"{table.get('schema_version') if isinstance(table, dict) else None!r})")
+    if (
+        not isinstance(table, dict)
+        or table.get("schema_version") != SCHEMA_VERSION
+        or not isinstance(table.get("tracks"), dict)
+    ):
+        raise ValueError(
+            f"best-theta table {path} is not a table of schema version "
+            f"{SCHEMA_VERSION} (got schema_version "
+            f"{table.get('schema_version') if isinstance(table, dict) else None!r})"
+        )
     for spec, entry in table["tracks"].items():
         missing = [k for k in ENTRY_KEYS if k not in entry]
         if missing:
@@ -85,6 +93,7 @@ def lookup(track: str | Track, path: str | os.PathLike | None = None) -> dict:
     adds it when there is no entry, when the entry's geometry differs, or when the entry was
     chosen on another env version."""
     from racing_env.tracks import make_track
+
     spec = track if isinstance(track, str) else track.name
     track = make_track(track)
     path = Path(path) if path is not None else table_path()
@@ -94,23 +103,30 @@ def lookup(track: str | Track, path: str | os.PathLike | None = None) -> dict:
     if not found:
         same = [s for s, e in entries.items() if s == spec or e["name"] == track.name]
         if same:
-            raise ValueError(f"the best fixed theta of track {spec!r} in {path} was chosen on "
-                             f"another geometry (fingerprint {entries[same[0]]['fingerprint']}, "
-                             f"this track's {fp}); run `{_command(same[0])}` to choose it again")
-        raise ValueError(f"no best fixed theta for track {spec!r} in {path} (it has: "
-                         f"{', '.join(sorted(entries)) or 'no tracks'}); run `{_command(spec)}` "
-                         f"to choose and install it")
+            raise ValueError(
+                f"the best fixed theta of track {spec!r} in {path} was chosen on "
+                f"another geometry (fingerprint {entries[same[0]]['fingerprint']}, "
+                f"this track's {fp}); run `{_command(same[0])}` to choose it again"
+            )
+        raise ValueError(
+            f"no best fixed theta for track {spec!r} in {path} (it has: "
+            f"{', '.join(sorted(entries)) or 'no tracks'}); run `{_command(spec)}` "
+            f"to choose and install it"
+        )
     key, entry = found[0]
     current = env_name()
     if entry["env"] != current:
-        raise ValueError(f"the best fixed theta of track {key!r} in {path} was chosen on env "
-                         f"{entry['env']!r}, this is {current!r}; run `{_command(key)}` to "
-                         f"choose it again")
+        raise ValueError(
+            f"the best fixed theta of track {key!r} in {path} was chosen on env "
+            f"{entry['env']!r}, this is {current!r}; run `{_command(key)}` to "
+            f"choose it again"
+        )
     return entry
 
 
 def best_theta(track: str | Track, path: str | os.PathLike | None = None) -> Theta:
     """The :class:`agents.reference.Theta` of ``track``'s entry (see :func:`lookup`)."""
     from .reference import THETA_NAMES, Theta
+
     entry = lookup(track, path)
     return Theta(**{k: float(entry["theta"][k]) for k in THETA_NAMES})

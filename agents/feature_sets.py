@@ -2,10 +2,11 @@
 (:mod:`agents.features`, the paper's: one track, a fixed number of cars) and ``general``
 (:mod:`agents.general_features`: any track, any N up to 8). This module imports both; neither
 imports it, so the two feature modules do not import each other."""
+
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from . import features as f
 from . import general_features
@@ -36,9 +37,18 @@ class FeatureSet:
     progress_order: Callable
 
 
-FIXED = FeatureSet("fixed", f.FEATURE_VERSION, False, None, f.value_features,
-                   f.potential_features, f.value_dim, f.potential_dim, f.potential_theta_slots,
-                   f.progress_order)
+FIXED = FeatureSet(
+    "fixed",
+    f.FEATURE_VERSION,
+    False,
+    None,
+    f.value_features,
+    f.potential_features,
+    f.value_dim,
+    f.potential_dim,
+    f.potential_theta_slots,
+    f.progress_order,
+)
 FEATURE_SETS = ("fixed", "general")
 
 
@@ -49,7 +59,16 @@ def feature_set(name: str = "fixed") -> FeatureSet:
         return FIXED
     if name == "general":
         g = general_features
-        return FeatureSet("general", g.FEATURE_VERSION, True, g.N_MAX, g.value_features,
-                          g.potential_features, g.value_dim, g.potential_dim,
-                          g.potential_theta_slots, g.progress_order)
+        return FeatureSet(
+            "general",
+            g.FEATURE_VERSION,
+            True,
+            g.N_MAX,
+            g.value_features,
+            g.potential_features,
+            g.value_dim,
+            g.potential_dim,
+            g.potential_theta_slots,
+            g.progress_order,
+        )
     raise ValueError(f"unknown feature set {name!r}; expected one of {FEATURE_SETS}")

@@ -30,6 +30,7 @@ The ``general`` set (:mod:`agents.general_features`: any track, any N up to 8, s
 padded) is a second feature set; a model records its set's name and version in its metadata and
 :func:`agents.feature_sets.feature_set` gives the functions it was trained with.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -40,12 +41,13 @@ from .theta import SPACES, PolicySpace, policy_space
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
+
     from racing_env.track import Track
 
 FEATURE_VERSION = 1
-PREVIEW = np.array([0.0, 0.5, 1.0, 2.0])    # curvature look-ahead distances [m]
-N_STATE = 5                                 # n, mu, vx, vy, omega
-N_THETA = 5                                 # the paper's space; theta_dim(space) in general
+PREVIEW = np.array([0.0, 0.5, 1.0, 2.0])  # curvature look-ahead distances [m]
+N_STATE = 5  # n, mu, vx, vy, omega
+N_THETA = 5  # the paper's space; theta_dim(space) in general
 
 
 def theta_dim(space: str | PolicySpace = "paper") -> int:
@@ -53,8 +55,9 @@ def theta_dim(space: str | PolicySpace = "paper") -> int:
     return policy_space(space).dim
 
 
-def theta_space(thetas: np.ndarray | Sequence[float],
-                space: str | PolicySpace | None = None) -> PolicySpace:
+def theta_space(
+    thetas: np.ndarray | Sequence[float], space: str | PolicySpace | None = None
+) -> PolicySpace:
     """The policy space of ``thetas`` (..., dim): ``space`` when given (``ValueError`` naming
     both when the thetas' last dimension is not its dim), else the space of that dimension
     (:func:`agents.theta.space_of`)."""
@@ -62,28 +65,34 @@ def theta_space(thetas: np.ndarray | Sequence[float],
     if space is not None:
         sp = policy_space(space)
         if dim != sp.dim:
-            raise ValueError(f"thetas of the {sp.name!r} policy space have {sp.dim} parameters "
-                             f"{sp.names}, got thetas of shape {np.shape(thetas)}")
+            raise ValueError(
+                f"thetas of the {sp.name!r} policy space have {sp.dim} parameters "
+                f"{sp.names}, got thetas of shape {np.shape(thetas)}"
+            )
         return sp
     for sp in SPACES.values():
         if sp.dim == dim:
             return sp
-    raise ValueError(f"thetas must have {' or '.join(str(sp.dim) for sp in SPACES.values())} "
-                     f"parameters in the last dimension ("
-                     f"{', '.join(f'{sp.name!r}: {sp.names}' for sp in SPACES.values())}), got "
-                     f"shape {np.shape(thetas)}")
+    raise ValueError(
+        f"thetas must have {' or '.join(str(sp.dim) for sp in SPACES.values())} "
+        f"parameters in the last dimension ("
+        f"{', '.join(f'{sp.name!r}: {sp.names}' for sp in SPACES.values())}), got "
+        f"shape {np.shape(thetas)}"
+    )
 
 
-def scale_theta(theta: np.ndarray | Sequence[float],
-                space: str | PolicySpace | None = None) -> np.ndarray:
+def scale_theta(
+    theta: np.ndarray | Sequence[float], space: str | PolicySpace | None = None
+) -> np.ndarray:
     """Theta (..., dim) -> [-1, 1] (..., dim) by the bounds of its policy space (``space``, or
     the space of the last dimension: 5 the paper's, 6 the extended one)."""
     sp = theta_space(theta, space)
     return 2.0 * (np.asarray(theta, dtype=float) - sp.low) / (sp.high - sp.low) - 1.0
 
 
-def unscale_theta(z: np.ndarray | Sequence[float],
-                  space: str | PolicySpace | None = None) -> np.ndarray:
+def unscale_theta(
+    z: np.ndarray | Sequence[float], space: str | PolicySpace | None = None
+) -> np.ndarray:
     """Inverse of :func:`scale_theta`."""
     sp = theta_space(z, space)
     return sp.low + 0.5 * (np.asarray(z, dtype=float) + 1.0) * (sp.high - sp.low)
@@ -95,8 +104,12 @@ def curvature_preview(track: Track, s: float | np.ndarray) -> np.ndarray:
     return track.interp(track.kappa, s)
 
 
-def check_joint(states: np.ndarray, thetas: np.ndarray, max_cars: int | None = None,
-                space: str | PolicySpace | None = None) -> tuple[np.ndarray, np.ndarray]:
+def check_joint(
+    states: np.ndarray,
+    thetas: np.ndarray,
+    max_cars: int | None = None,
+    space: str | PolicySpace | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """``states`` (..., N, 6) and ``thetas`` (..., N, dim) as float arrays, checked: matching
     shapes, thetas of a policy space (``space`` when given, see :func:`theta_space`) and
     2 <= N (<= ``max_cars`` when given)."""
@@ -106,8 +119,10 @@ def check_joint(states: np.ndarray, thetas: np.ndarray, max_cars: int | None = N
         raise ValueError(f"states must have shape (..., N, 6), got {states.shape}")
     dim = theta_space(thetas, space).dim
     if thetas.shape != states.shape[:-1] + (dim,):
-        raise ValueError(f"thetas must have shape {states.shape[:-1] + (dim,)} to match states "
-                         f"{states.shape}, got {thetas.shape}")
+        raise ValueError(
+            f"thetas must have shape {states.shape[:-1] + (dim,)} to match states "
+            f"{states.shape}, got {thetas.shape}"
+        )
     n = states.shape[-2]
     if max_cars is not None and not 2 <= n <= max_cars:
         raise ValueError(f"these features take 2..{max_cars} cars, got {n}")
@@ -135,8 +150,9 @@ def potential_theta_slots(n_cars: int, space: str | PolicySpace = "paper") -> np
     return np.arange(n_cars)[:, None] * per + (per - d) + np.arange(d)
 
 
-def relative_to_ego(states: np.ndarray, thetas: np.ndarray, ego: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def relative_to_ego(
+    states: np.ndarray, thetas: np.ndarray, ego: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The field as car ``ego`` sees it, the start of both feature sets' value features.
 
     Parameters
@@ -167,9 +183,13 @@ def relative_to_ego(states: np.ndarray, thetas: np.ndarray, ego: np.ndarray
     return e_state, e_theta, rel, key
 
 
-def others_in_order(states: np.ndarray, thetas: np.ndarray, rel: np.ndarray, order: np.ndarray,
-                    space: str | PolicySpace | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def others_in_order(
+    states: np.ndarray,
+    thetas: np.ndarray,
+    rel: np.ndarray,
+    order: np.ndarray,
+    space: str | PolicySpace | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The other cars, in ``order`` (..., M) (indices of cars), as the value features hold them:
     progress relative to the ego (..., M, 1) [m] (from ``rel`` of :func:`relative_to_ego`),
     state without s (..., M, 5) and theta (..., M, dim) scaled by the box of its policy space
@@ -180,19 +200,31 @@ def others_in_order(states: np.ndarray, thetas: np.ndarray, rel: np.ndarray, ord
     return o_rel, o_state, o_theta
 
 
-def value_features(states: np.ndarray, thetas: np.ndarray, track: Track, ego: int,
-                   space: str | PolicySpace | None = None) -> np.ndarray:
+def value_features(
+    states: np.ndarray,
+    thetas: np.ndarray,
+    track: Track,
+    ego: int,
+    space: str | PolicySpace | None = None,
+) -> np.ndarray:
     """Features of car ``ego`` (int or int array broadcast over the batch): (..., value_dim)."""
     states, thetas = check_joint(states, thetas, space=space)
     N = states.shape[-2]
     batch = states.shape[:-2]
     ego = np.broadcast_to(np.asarray(ego, dtype=np.int64), batch)
     e_state, e_theta, rel, key = relative_to_ego(states, thetas, ego)
-    order = np.argsort(key, axis=-1, kind="stable")[..., :N - 1]     # the ego (last) dropped
+    order = np.argsort(key, axis=-1, kind="stable")[..., : N - 1]  # the ego (last) dropped
     o_rel, o_state, o_theta = others_in_order(states, thetas, rel, order, space)
     others = np.concatenate([o_rel, o_state, o_theta], axis=-1).reshape(batch + (-1,))
-    return np.concatenate([e_state[..., 1:], curvature_preview(track, e_state[..., 0]),
-                           scale_theta(e_theta, space), others], axis=-1)
+    return np.concatenate(
+        [
+            e_state[..., 1:],
+            curvature_preview(track, e_state[..., 0]),
+            scale_theta(e_theta, space),
+            others,
+        ],
+        axis=-1,
+    )
 
 
 def progress_order(states: np.ndarray) -> np.ndarray:
@@ -200,9 +232,13 @@ def progress_order(states: np.ndarray) -> np.ndarray:
     return np.argsort(-np.asarray(states)[..., 0], axis=-1, kind="stable")
 
 
-def potential_features(states: np.ndarray, thetas: np.ndarray, track: Track,
-                       order: np.ndarray | None = None,
-                       space: str | PolicySpace | None = None) -> np.ndarray:
+def potential_features(
+    states: np.ndarray,
+    thetas: np.ndarray,
+    track: Track,
+    order: np.ndarray | None = None,
+    space: str | PolicySpace | None = None,
+) -> np.ndarray:
     """Joint features (..., potential_dim) with cars in ``order`` (default progress order)."""
     states, thetas = check_joint(states, thetas, space=space)
     batch = states.shape[:-2]
@@ -210,8 +246,10 @@ def potential_features(states: np.ndarray, thetas: np.ndarray, track: Track,
     st = np.take_along_axis(states, order[..., None], axis=-2)
     th = np.take_along_axis(thetas, order[..., None], axis=-2)
     rel = st[..., 0] - st[..., 0].mean(axis=-1, keepdims=True)
-    per_car = np.concatenate([rel[..., None], st[..., 1:], curvature_preview(track, st[..., 0]),
-                              scale_theta(th)], axis=-1)
+    per_car = np.concatenate(
+        [rel[..., None], st[..., 1:], curvature_preview(track, st[..., 0]), scale_theta(th)],
+        axis=-1,
+    )
     return per_car.reshape(batch + (-1,))
 
 
@@ -221,5 +259,6 @@ def __getattr__(name: str):
     they are still found here, imported on first use, for code that imports them from here."""
     if name in ("feature_set", "FeatureSet", "FIXED", "FEATURE_SETS"):
         from . import feature_sets
+
         return getattr(feature_sets, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

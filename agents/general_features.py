@@ -33,6 +33,7 @@ on the track's grid).
 
 Bump :data:`FEATURE_VERSION` whenever the output changes; models record it.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -41,8 +42,16 @@ import numpy as np
 
 from racing_env.interp import periodic_interp
 
-from .features import (N_STATE, N_THETA, check_joint, others_in_order, relative_to_ego,
-                       scale_theta, theta_dim, theta_space)
+from .features import (
+    N_STATE,
+    N_THETA,
+    check_joint,
+    others_in_order,
+    relative_to_ego,
+    scale_theta,
+    theta_dim,
+    theta_space,
+)
 
 if TYPE_CHECKING:
     from racing_env.track import Track
@@ -50,9 +59,9 @@ if TYPE_CHECKING:
     from .theta import PolicySpace
 
 FEATURE_VERSION = 1
-N_MAX = 8                                                  # slots: the env's largest field
-PREVIEW = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 3.0])       # curvature look-ahead distances [m]
-N_LOCAL = len(PREVIEW) + 2                                 # preview + half widths (left, right)
+N_MAX = 8  # slots: the env's largest field
+PREVIEW = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 3.0])  # curvature look-ahead distances [m]
+N_LOCAL = len(PREVIEW) + 2  # preview + half widths (left, right)
 
 
 def dims(space: str | PolicySpace = "paper") -> dict:
@@ -61,14 +70,19 @@ def dims(space: str | PolicySpace = "paper") -> dict:
     and ``potential``."""
     d = theta_dim(space)
     ego, other, slot = N_STATE + N_LOCAL + d, 2 + N_STATE + d, 2 + N_STATE + N_LOCAL + d
-    return {"ego": ego, "other": other, "slot": slot, "value": ego + (N_MAX - 1) * other,
-            "potential": N_MAX * slot}
+    return {
+        "ego": ego,
+        "other": other,
+        "slot": slot,
+        "value": ego + (N_MAX - 1) * other,
+        "potential": N_MAX * slot,
+    }
 
 
 # the paper space's sizes (N_THETA = 5)
 EGO_DIM = N_STATE + N_LOCAL + N_THETA
-OTHER_DIM = 2 + N_STATE + N_THETA                          # presence, s_j - s_i, state, theta
-SLOT_DIM = 2 + N_STATE + N_LOCAL + N_THETA                 # presence, s - mean s, state, local, theta
+OTHER_DIM = 2 + N_STATE + N_THETA  # presence, s_j - s_i, state, theta
+SLOT_DIM = 2 + N_STATE + N_LOCAL + N_THETA  # presence, s - mean s, state, local, theta
 VALUE_DIM = EGO_DIM + (N_MAX - 1) * OTHER_DIM
 POTENTIAL_DIM = N_MAX * SLOT_DIM
 
@@ -85,6 +99,7 @@ class TrackSet:
 
     def __init__(self, tracks):
         from racing_env.tracks import make_track
+
         self.tracks = [make_track(t) for t in tracks]
         if not self.tracks:
             raise ValueError("a TrackSet needs at least one track")
@@ -97,8 +112,10 @@ class TrackSet:
         self._offset = np.concatenate([[0], np.cumsum(sizes)[:-1]])
         self._length = np.array([t.length for t in self.tracks], dtype=float)
         self._ds = np.array([t.ds for t in self.tracks], dtype=float)
-        self._tables = {name: np.concatenate([getattr(t, name) for t in self.tracks])
-                        for name in ("kappa", "w_left", "w_right")}
+        self._tables = {
+            name: np.concatenate([getattr(t, name) for t in self.tracks])
+            for name in ("kappa", "w_left", "w_right")
+        }
 
     def __len__(self) -> int:
         return len(self.tracks)
@@ -106,8 +123,14 @@ class TrackSet:
     def lookup(self, name: str, s: float | np.ndarray, track_id: int | np.ndarray) -> np.ndarray:
         s = np.asarray(s, dtype=float)
         k = np.broadcast_to(np.asarray(track_id, dtype=np.int64), s.shape)
-        return periodic_interp(self._tables[name], s, self._length[k], self._ds[k],
-                               size=self._size[k], offset=self._offset[k])
+        return periodic_interp(
+            self._tables[name],
+            s,
+            self._length[k],
+            self._ds[k],
+            size=self._size[k],
+            offset=self._offset[k],
+        )
 
 
 _SINGLE: dict = {}
@@ -116,6 +139,7 @@ _SINGLE: dict = {}
 def track_set(track: Track | str) -> TrackSet:
     """A one-track :class:`TrackSet` of ``track`` (a Track or a name), memoised per track."""
     from racing_env.tracks import make_track
+
     track = make_track(track)
     hit = _SINGLE.get(id(track))
     if hit is None or hit[0] is not track:
@@ -132,8 +156,9 @@ def _tracks(track, track_id, batch):
             track_id = 0
         ids = np.broadcast_to(np.asarray(track_id, dtype=np.int64), batch)
         if ids.size and (ids.min() < 0 or ids.max() >= len(track)):
-            raise ValueError(f"track_id must be in 0..{len(track) - 1}, got "
-                             f"{int(ids.min())}..{int(ids.max())}")
+            raise ValueError(
+                f"track_id must be in 0..{len(track) - 1}, got {int(ids.min())}..{int(ids.max())}"
+            )
         return track, ids
     if track_id is not None:
         raise ValueError("track_id goes with a TrackSet, not with a single track")
@@ -146,8 +171,14 @@ def local_track(tracks: TrackSet, s: float | np.ndarray, track_id: int | np.ndar
     s = np.asarray(s, dtype=float)
     ids = np.broadcast_to(np.asarray(track_id, dtype=np.int64), s.shape)
     kappa = tracks.lookup("kappa", s[..., None] + PREVIEW, ids[..., None])
-    return np.concatenate([kappa, tracks.lookup("w_left", s, ids)[..., None],
-                           tracks.lookup("w_right", s, ids)[..., None]], axis=-1)
+    return np.concatenate(
+        [
+            kappa,
+            tracks.lookup("w_left", s, ids)[..., None],
+            tracks.lookup("w_right", s, ids)[..., None],
+        ],
+        axis=-1,
+    )
 
 
 def _sort(primary, states, thetas=None) -> np.ndarray:
@@ -190,9 +221,14 @@ def progress_order(states: np.ndarray, thetas: np.ndarray | None = None) -> np.n
     return _sort(-states[..., 0], states, thetas)
 
 
-def value_features(states: np.ndarray, thetas: np.ndarray, track: Track | TrackSet, ego: int,
-                   track_id: int | np.ndarray | None = None,
-                   space: str | PolicySpace | None = None) -> np.ndarray:
+def value_features(
+    states: np.ndarray,
+    thetas: np.ndarray,
+    track: Track | TrackSet,
+    ego: int,
+    track_id: int | np.ndarray | None = None,
+    space: str | PolicySpace | None = None,
+) -> np.ndarray:
     """Features of car ``ego`` (int or int array broadcast over the batch), (..., VALUE_DIM)
     (the paper's space; ``value_dim(space=...)`` in general).
 
@@ -209,19 +245,27 @@ def value_features(states: np.ndarray, thetas: np.ndarray, track: Track | TrackS
     if ego.size and (ego.min() < 0 or ego.max() >= N):
         raise ValueError(f"ego must be in 0..{N - 1}, got {int(ego.min())}..{int(ego.max())}")
     e_state, e_theta, rel, key = relative_to_ego(states, thetas, ego)
-    order = _sort(key, states, thetas)[..., :N - 1]                 # the ego (last) dropped
+    order = _sort(key, states, thetas)[..., : N - 1]  # the ego (last) dropped
     o_rel, o_state, o_theta = others_in_order(states, thetas, rel, order, space)
     others = np.zeros(batch + (N_MAX - 1, other_dim))
-    others[..., :N - 1, :] = np.concatenate([np.ones_like(o_rel), o_rel, o_state, o_theta],
-                                            axis=-1)
-    ego_part = np.concatenate([e_state[..., 1:], local_track(tracks, e_state[..., 0], ids),
-                               scale_theta(e_theta, space)], axis=-1)
+    others[..., : N - 1, :] = np.concatenate(
+        [np.ones_like(o_rel), o_rel, o_state, o_theta], axis=-1
+    )
+    ego_part = np.concatenate(
+        [e_state[..., 1:], local_track(tracks, e_state[..., 0], ids), scale_theta(e_theta, space)],
+        axis=-1,
+    )
     return np.concatenate([ego_part, others.reshape(batch + (-1,))], axis=-1)
 
 
-def potential_features(states: np.ndarray, thetas: np.ndarray, track: Track | TrackSet,
-                       order: np.ndarray | None = None, track_id: int | np.ndarray | None = None,
-                       space: str | PolicySpace | None = None) -> np.ndarray:
+def potential_features(
+    states: np.ndarray,
+    thetas: np.ndarray,
+    track: Track | TrackSet,
+    order: np.ndarray | None = None,
+    track_id: int | np.ndarray | None = None,
+    space: str | PolicySpace | None = None,
+) -> np.ndarray:
     """Joint features (..., POTENTIAL_DIM) (the paper's space; ``potential_dim(space=...)`` in
     general) with the cars in ``order`` (default :func:`progress_order` of states and thetas)
     in the first N slots; ``track``, ``track_id`` and ``space`` as for :func:`value_features`."""
@@ -236,6 +280,7 @@ def potential_features(states: np.ndarray, thetas: np.ndarray, track: Track | Tr
     rel = st[..., 0] - st[..., 0].mean(axis=-1, keepdims=True)
     local = local_track(tracks, st[..., 0], ids[..., None])
     slots = np.zeros(batch + (N_MAX, slot_dim))
-    slots[..., :N, :] = np.concatenate([np.ones_like(rel[..., None]), rel[..., None],
-                                        st[..., 1:], local, scale_theta(th)], axis=-1)
+    slots[..., :N, :] = np.concatenate(
+        [np.ones_like(rel[..., None]), rel[..., None], st[..., 1:], local, scale_theta(th)], axis=-1
+    )
     return slots.reshape(batch + (-1,))

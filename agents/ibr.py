@@ -6,6 +6,7 @@ it returns.
 The settings :class:`IBRConfig` (from :mod:`agents.ibr_data`) and the solver :class:`IBR` are
 re-exported here, so ``from agents.ibr import IBR, IBRConfig`` keeps working.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -39,18 +40,26 @@ class IBRAgent:
     and ``br_ms_median``/``_p99`` (wall times). ``ibr.last`` holds the last decision's record.
     """
 
-    spec_keywords_from = IBRConfig     # what ``**config_fields`` takes (agents.base.agent_parameters)
+    spec_keywords_from = IBRConfig  # what ``**config_fields`` takes (agents.base.agent_parameters)
 
-    def __init__(self, config: IBRConfig | None = None, vehicle: VehicleParams | None = None,
-                 n_preview: int = 10, **config_fields):
+    def __init__(
+        self,
+        config: IBRConfig | None = None,
+        vehicle: VehicleParams | None = None,
+        n_preview: int = 10,
+        **config_fields,
+    ):
         if config is not None and config_fields:
-            raise ValueError(f"give either config or IBRConfig fields, not both "
-                             f"(got {sorted(config_fields)})")
+            raise ValueError(
+                f"give either config or IBRConfig fields, not both (got {sorted(config_fields)})"
+            )
         known = set(IBRConfig.__dataclass_fields__)
         unknown = set(config_fields) - known
         if unknown:
-            raise ValueError(f"unknown IBR parameter(s) {sorted(unknown)}; expected IBRConfig "
-                             f"fields: {', '.join(sorted(known))}")
+            raise ValueError(
+                f"unknown IBR parameter(s) {sorted(unknown)}; expected IBRConfig "
+                f"fields: {', '.join(sorted(known))}"
+            )
         if not (isinstance(n_preview, (int, np.integer)) and n_preview >= 0):
             raise ValueError(f"n_preview must be a non-negative integer, got {n_preview!r}")
         self.config = config or IBRConfig(**config_fields)
@@ -76,20 +85,27 @@ class IBRAgent:
         med, p99 = median_p99(st["decision_ms"])
         br_med, br_p99 = median_p99(st["br_ms"])
         rounds = np.asarray(st["rounds"], dtype=float)
-        return {"solves": st["decisions"], "fallbacks": st["fallbacks"],
-                "restarts": st["restarts"], "br_solves": st["br_solves"],
-                "br_failures": st["br_failures"], "br_rejected": st["br_rejected"],
-                "rounds_mean": float(rounds.mean()) if rounds.size else float("nan"),
-                "rounds_max": int(rounds.max()) if rounds.size else 0,
-                "unconverged": st["unconverged"],
-                "decision_ms_median": med, "decision_ms_p99": p99,
-                "br_ms_median": br_med, "br_ms_p99": br_p99}
+        return {
+            "solves": st["decisions"],
+            "fallbacks": st["fallbacks"],
+            "restarts": st["restarts"],
+            "br_solves": st["br_solves"],
+            "br_failures": st["br_failures"],
+            "br_rejected": st["br_rejected"],
+            "rounds_mean": float(rounds.mean()) if rounds.size else float("nan"),
+            "rounds_max": int(rounds.max()) if rounds.size else 0,
+            "unconverged": st["unconverged"],
+            "decision_ms_median": med,
+            "decision_ms_p99": p99,
+            "br_ms_median": br_med,
+            "br_ms_p99": br_p99,
+        }
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         if self.ibr is None:
             raise RuntimeError("IBRAgent.act() before reset(track, ...)")
         ego, others = split_observation(observation, self.n_preview)
-        with single_blas_thread():       # results independent of the BLAS thread count
+        with single_blas_thread():  # results independent of the BLAS thread count
             u = self.ibr.solve(np.vstack([ego[None, :], others]), self._u_prev)
         self._u_prev = u
         return u.astype(np.float32)

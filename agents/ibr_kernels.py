@@ -2,6 +2,7 @@
 (:meth:`agents.ibr_solver.IBR._best_response`): a plan's separation pairs against the other
 cars' trajectories, the QP in DAQP's form, a plan's cost on its nonlinear prediction (the
 merit check) and the cars a decision must solve."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -39,7 +40,9 @@ def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window, lengt
             dn = n[k] - N[j, k]
             if side[j] != 0.0:
                 # a kept side: beside each other (|ds| < sep_s) always laterally, on that side
-                lat = abs(ds) < sep_s or (side[j] * dn >= 0.0 and abs(dn) / sep_n >= abs(ds) / sep_s)
+                lat = abs(ds) < sep_s or (
+                    side[j] * dn >= 0.0 and abs(dn) / sep_n >= abs(ds) / sep_s
+                )
                 gap = dn if lat else ds
                 sg = side[j] if lat else (1.0 if gap >= 0.0 else -1.0)
             else:
@@ -55,8 +58,28 @@ def _separation_pairs(s, n, S, N, cap, ok, owner, c, sep_s, sep_n, window, lengt
 
 
 @njit(cache=True)
-def _assemble(X, x0, u, Gx, lo, hi, stage, lateral, sign, margin, H0, DtD, w_p, w_r, w_n, w_vy,
-              trust, rate, u_prev, has_prev):
+def _assemble(
+    X,
+    x0,
+    u,
+    Gx,
+    lo,
+    hi,
+    stage,
+    lateral,
+    sign,
+    margin,
+    H0,
+    DtD,
+    w_p,
+    w_r,
+    w_n,
+    w_vy,
+    trust,
+    rate,
+    u_prev,
+    has_prev,
+):
     """The best-response QP of :meth:`agents.ibr_solver.IBR._best_response` in DAQP's form:
     ``(H, f, A, bu, bl, sense, w_lat)``: the first 2K bounds are the input box, then K hard
     steering-rate rows, K soft edge rows and one soft row per separation pair."""
@@ -85,7 +108,7 @@ def _assemble(X, x0, u, Gx, lo, hi, stage, lateral, sign, margin, H0, DtD, w_p, 
     f = M.T @ r + 2.0 * w_r * (DtD @ u)
     for i in range(nv):
         f[i] -= w_p * Gx[K - 1, 0, i]
-    if has_prev:                                        # the rate cost includes u^0 - u_applied
+    if has_prev:  # the rate cost includes u^0 - u_applied
         for i in range(2):
             H[i, i] += 2.0 * w_r
             f[i] += 2.0 * w_r * (u[i] - u_prev[i])
@@ -97,7 +120,7 @@ def _assemble(X, x0, u, Gx, lo, hi, stage, lateral, sign, margin, H0, DtD, w_p, 
     for i in range(nv):
         bu[i] = 1.0 - u[i]
         bl[i] = -1.0 - u[i]
-    for k in range(K):                                  # steering rate (hard)
+    for k in range(K):  # steering rate (hard)
         A[k, 2 * k + 1] = 1.0
         if k > 0:
             A[k, 2 * k - 1] = -1.0
@@ -109,13 +132,13 @@ def _assemble(X, x0, u, Gx, lo, hi, stage, lateral, sign, margin, H0, DtD, w_p, 
         free = k == 0 and not has_prev
         bu[nv + k] = 1e30 if free else rate - d
         bl[nv + k] = -1e30 if free else -rate - d
-    for k in range(K):                                  # track edges (soft)
+    for k in range(K):  # track edges (soft)
         for i in range(nv):
             A[K + k, i] = Gx[k, 1, i]
         bu[nv + K + k] = hi[k] - X[1, k]
         bl[nv + K + k] = lo[k] - X[1, k]
         sense[nv + K + k] = 8
-    for q in range(m):                                  # separation (soft)
+    for q in range(m):  # separation (soft)
         k = stage[q]
         row = 1 if lateral[q] else 0
         for i in range(nv):
@@ -172,4 +195,3 @@ def _merit(s, n, vy, n0, u, DtD, lo, hi, margin, w_p, w_r, w_lat, w_vy, w_soft):
         if margin[i] < 0.0:
             pen += margin[i] * margin[i]
     return cost + w_soft * pen
-

@@ -64,6 +64,7 @@ This module is the solve (:class:`IBR`); its settings and the data of a decision
 :mod:`agents.ibr_data`, the compiled kernels of a best response in :mod:`agents.ibr_kernels`,
 the agent that races with it in :mod:`agents.ibr`.
 """
+
 from __future__ import annotations
 
 import time
@@ -76,10 +77,17 @@ from racing_env.vehicle import VehicleParams
 
 from .ibr_data import IBRConfig, _Decision, _Plan
 from .ibr_kernels import _assemble, _merit, _reach, _separation_pairs
-from .mpc import (EdgeBounds, condense_states, trajectory_function, follower_rollout,
-                  input_rate_matrix, kappa_at_substeps, make_follower, stage_nodes)
+from .mpc import (
+    EdgeBounds,
+    condense_states,
+    follower_rollout,
+    input_rate_matrix,
+    kappa_at_substeps,
+    make_follower,
+    stage_nodes,
+    trajectory_function,
+)
 from .mpc_agent import progress_rate
-
 
 # what a best response may raise on a bad solve (counted as a failed QP): a solver's own error
 # (RuntimeError) and numerical errors. Anything else (a TypeError, NameError, ...) is a bug
@@ -105,9 +113,11 @@ class IBR:
     final predicted states at stages 1..K and ``inputs`` (N, 2, K) their normalised inputs.
     """
 
-    def __init__(self, track: Track, vehicle: VehicleParams | None = None,
-                 config: IBRConfig | None = None):
+    def __init__(
+        self, track: Track, vehicle: VehicleParams | None = None, config: IBRConfig | None = None
+    ):
         import daqp  # noqa: F401  (fail early with an ImportError naming the package)
+
         self.track = track
         self.vehicle = vehicle or VehicleParams()
         self.cfg = config or IBRConfig()
@@ -119,16 +129,24 @@ class IBR:
         self._bounds_n = EdgeBounds(track, self.vehicle, self._mcfg)
         self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max
         self._follower = None
-        self.stats = {"decisions": 0, "fallbacks": 0, "restarts": 0, "br_solves": 0,
-                      "br_failures": 0, "br_rejected": 0, "unconverged": 0,
-                      "decision_ms": deque(maxlen=100_000), "br_ms": deque(maxlen=100_000),
-                      "rounds": deque(maxlen=100_000)}
+        self.stats = {
+            "decisions": 0,
+            "fallbacks": 0,
+            "restarts": 0,
+            "br_solves": 0,
+            "br_failures": 0,
+            "br_rejected": 0,
+            "unconverged": 0,
+            "decision_ms": deque(maxlen=100_000),
+            "br_ms": deque(maxlen=100_000),
+            "rounds": deque(maxlen=100_000),
+        }
         self.last = {}
         self.reset()
 
     def reset(self) -> None:
         """Forget the warm starts (call at the start of every race)."""
-        self._prev = None            # per car: (U (2, K), stage progress (K + 1,) or None)
+        self._prev = None  # per car: (U (2, K), stage progress (K + 1,) or None)
 
     # ------------------------------------------------------------------ plans
     def _evaluate(self, plan: _Plan) -> None:
@@ -151,10 +169,12 @@ class IBR:
         if self._follower is None:
             self._follower = make_follower(self.track, self.vehicle)
         cfg = self.cfg
-        plan.U = follower_rollout(self.track, self.vehicle, self._follower, plan.x0,
-                                  cfg.horizon, cfg.dt)
-        plan.kap = kappa_at_substeps(self.track, stage_nodes(None, plan.x0, cfg.horizon, cfg.dt),
-                                     cfg.substeps)
+        plan.U = follower_rollout(
+            self.track, self.vehicle, self._follower, plan.x0, cfg.horizon, cfg.dt
+        )
+        plan.kap = kappa_at_substeps(
+            self.track, stage_nodes(None, plan.x0, cfg.horizon, cfg.dt), cfg.substeps
+        )
         self._evaluate(plan)
         self.stats["restarts"] += 1
 
@@ -167,7 +187,7 @@ class IBR:
         prev = self._prev[c] if self._prev is not None else None
         if prev is None:
             self._restart(plan)
-            self.stats["restarts"] -= 1            # a first plan is not a restart
+            self.stats["restarts"] -= 1  # a first plan is not a restart
             return plan
         U, nodes = prev
         plan.U = np.concatenate([U[:, 1:], U[:, -1:]], axis=1)
@@ -183,10 +203,25 @@ class IBR:
     # ------------------------------------------------------------------ one best response
     def _plan_merit(self, plan: _Plan, margin, w_lat, u_prev) -> float:
         cfg = self.cfg
-        first = 0.0 if u_prev is None else cfg.rate_weight * float(np.sum((plan.U[:, 0] - u_prev) ** 2))
-        return first + _merit(plan.X[0], plan.X[1], plan.X[4], plan.x0[1], plan.U.T.reshape(-1),
-                      self._DtD, plan.lo, plan.hi, margin, cfg.progress_weight,
-                      cfg.rate_weight, w_lat, cfg.slip_weight, 0.5 / cfg.soft_rho)
+        first = (
+            0.0 if u_prev is None else cfg.rate_weight * float(np.sum((plan.U[:, 0] - u_prev) ** 2))
+        )
+        return first + _merit(
+            plan.X[0],
+            plan.X[1],
+            plan.X[4],
+            plan.x0[1],
+            plan.U.T.reshape(-1),
+            self._DtD,
+            plan.lo,
+            plan.hi,
+            margin,
+            cfg.progress_weight,
+            cfg.rate_weight,
+            w_lat,
+            cfg.slip_weight,
+            0.5 / cfg.soft_rho,
+        )
 
     def _best_response(self, c: int, plans: list, dec: _Decision, u_prev, trust: float):
         """One SQP iteration of car ``c``'s best response to the other plans (the obstacles of
@@ -207,6 +242,7 @@ class IBR:
         ``trust``.
         """
         import daqp
+
         cfg, K = self.cfg, self.cfg.horizon
         p = plans[c]
         S, N, cap, ok, owner = dec.S, dec.N, dec.s_cap, dec.ok, dec.owner
@@ -217,11 +253,30 @@ class IBR:
             return None, np.inf
         u_vec = p.U.T.reshape(-1)
         H, f, A, bu, bl, sense, w_lat = _assemble(
-            p.X, p.x0, u_vec, Gx, p.lo, p.hi, stage, lat, sign, margin, self._H0, self._DtD,
-            cfg.progress_weight, cfg.rate_weight, cfg.lateral_weight, cfg.slip_weight, trust,
-            self._rate, np.zeros(2) if u_prev is None else u_prev, u_prev is not None)
-        du, _, exitflag, _ = daqp.solve(H, f, A, bu, bl, sense, rho_soft=cfg.soft_rho,
-                                         iter_limit=int(cfg.qp_iter_limit))
+            p.X,
+            p.x0,
+            u_vec,
+            Gx,
+            p.lo,
+            p.hi,
+            stage,
+            lat,
+            sign,
+            margin,
+            self._H0,
+            self._DtD,
+            cfg.progress_weight,
+            cfg.rate_weight,
+            cfg.lateral_weight,
+            cfg.slip_weight,
+            trust,
+            self._rate,
+            np.zeros(2) if u_prev is None else u_prev,
+            u_prev is not None,
+        )
+        du, _, exitflag, _ = daqp.solve(
+            H, f, A, bu, bl, sense, rho_soft=cfg.soft_rho, iter_limit=int(cfg.qp_iter_limit)
+        )
         if exitflag < 0 or not np.isfinite(du.sum()):
             return None, np.inf
         new = _Plan()
@@ -233,8 +288,9 @@ class IBR:
             return None, np.inf
         change = float(np.abs(new.X[:2] - p.X[:2]).max())
         new_margin = _separation_pairs(new.X[0], new.X[1], S, N, cap, ok, owner, c, *sep)[3]
-        if (self._plan_merit(new, new_margin, w_lat, u_prev)
-                > self._plan_merit(p, margin, w_lat, u_prev)):
+        if self._plan_merit(new, new_margin, w_lat, u_prev) > self._plan_merit(
+            p, margin, w_lat, u_prev
+        ):
             return None, change
         return new, change
 
@@ -257,10 +313,10 @@ class IBR:
                 gap = states[a, 0] - states[b, 0]
                 gap -= L * np.floor(gap / L + 0.5)
                 if gap < 0.0:
-                    continue                                    # b is not behind a
+                    continue  # b is not behind a
                 ahead = gap + (s_const[a] - states[a, 0]) - (s_const[b] - states[b, 0])
                 if ahead.min() >= cfg.sep_s:
-                    continue                                    # b does not reach a
+                    continue  # b does not reach a
                 dn = states[a, 1] - states[b, 1]
                 if abs(dn) >= 0.5 * cfg.sep_n:
                     side[a, b] = 1.0 if dn > 0.0 else -1.0
@@ -277,7 +333,7 @@ class IBR:
             raise ValueError("states must be finite")
         n = len(states)
         if self._prev is not None and len(self._prev) != n:
-            self._prev = None                               # the number of cars changed
+            self._prev = None  # the number of cars changed
         u_prev = None if u_prev is None else np.asarray(u_prev, dtype=float)
         plans = [self._warm_start(c, states[c].copy()) for c in range(n)]
         # cautious separation: each car's progress at stage k is taken as at most its constant-
@@ -289,12 +345,20 @@ class IBR:
         # rate and lateral offset, and the plans' progress capped by the same extrapolation
         # (a rival that is not the predicted best responder neither speeds up nor swerves
         # into a gap the IBR car leaves it)
-        s_const = states[:, :1] + (np.maximum(progress_rate(states, self.track), 0.0)[:, None]
-                                   * cfg.dt * np.arange(1, K + 1))
+        s_const = states[:, :1] + (
+            np.maximum(progress_rate(states, self.track), 0.0)[:, None]
+            * cfg.dt
+            * np.arange(1, K + 1)
+        )
         rows = 2 * n if cfg.cautious else n
-        dec = _Decision(S=np.zeros((rows, K)), N=np.zeros((rows, K)),
-                        ok=np.zeros(rows, dtype=bool), owner=np.arange(rows) % n,
-                        s_cap=np.full((rows, K), np.inf), side=np.zeros((n, rows)))
+        dec = _Decision(
+            S=np.zeros((rows, K)),
+            N=np.zeros((rows, K)),
+            ok=np.zeros(rows, dtype=bool),
+            owner=np.arange(rows) % n,
+            s_cap=np.full((rows, K), np.inf),
+            side=np.zeros((n, rows)),
+        )
         if cfg.cautious:
             dec.s_cap[:n] = s_const
             dec.S[n:] = s_const
@@ -318,9 +382,11 @@ class IBR:
         for r in range(cfg.rounds):
             rounds = r + 1
             change = 0.0
-            active = (_reach(dec.S[:n], dec.ok[:n], cfg.sep_window,
-                             float(self.track.length))
-                      if cfg.skip_independent else np.ones(n, bool))
+            active = (
+                _reach(dec.S[:n], dec.ok[:n], cfg.sep_window, float(self.track.length))
+                if cfg.skip_independent
+                else np.ones(n, bool)
+            )
             for c in order:
                 if not active[c]:
                     continue
@@ -332,19 +398,20 @@ class IBR:
                         continue
                 tb = time.perf_counter()
                 try:
-                    new, step = self._best_response(c, plans, dec, u_prev if c == 0 else None,
-                                                    trust[c])
-                except _SOLVE_ERRORS:                       # a bad solve, not a bug: a failure
+                    new, step = self._best_response(
+                        c, plans, dec, u_prev if c == 0 else None, trust[c]
+                    )
+                except _SOLVE_ERRORS:  # a bad solve, not a bug: a failure
                     new, step = None, np.inf
                 br_ms.append(1e3 * (time.perf_counter() - tb))
-                if not np.isfinite(step):                   # the QP failed: keep the plan
+                if not np.isfinite(step):  # the QP failed: keep the plan
                     failures += 1
                     change = np.inf
                     continue
                 change = max(change, step)
                 if c == 0:
-                    ego_ok = True                           # the IBR car's own QP worked
-                if new is None:                             # no better: a shorter step next
+                    ego_ok = True  # the IBR car's own QP worked
+                if new is None:  # no better: a shorter step next
                     rejected += 1
                     trust[c] = min(4.0 * trust[c], 1e6)
                     continue
@@ -372,8 +439,16 @@ class IBR:
         st["decision_ms"].append(ms)
         st["br_ms"].extend(br_ms)
         st["rounds"].append(rounds)
-        self.last = {"rounds": rounds, "converged": converged, "changes": changes, "ms": ms,
-                     "br_ms": br_ms, "br_failures": failures, "br_rejected": rejected,
-                     "fallback": fallback, "plans": np.stack([p.X for p in plans]),
-                     "inputs": np.stack([p.U for p in plans])}
+        self.last = {
+            "rounds": rounds,
+            "converged": converged,
+            "changes": changes,
+            "ms": ms,
+            "br_ms": br_ms,
+            "br_failures": failures,
+            "br_rejected": rejected,
+            "fallback": fallback,
+            "plans": np.stack([p.X for p in plans]),
+            "inputs": np.stack([p.U for p in plans]),
+        }
         return u0

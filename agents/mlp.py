@@ -6,6 +6,7 @@ normalisation ``(x - mean) / std`` and followed by an output scale ``y * y_scale
 :meth:`MLP.value_and_input_grad` gives the output and its gradient with respect to the input,
 which the alpha agent's gradient ascent over theta needs.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -29,8 +30,10 @@ class MLP:
     """``y = MLP(x)`` for x (..., in) -> y (...,)."""
 
     def __init__(self, layers, mean, std, y_scale: float = 1.0, y_shift: float = 0.0):
-        self.layers = [(np.ascontiguousarray(W, dtype=_F), np.ascontiguousarray(b, dtype=_F))
-                       for W, b in layers]
+        self.layers = [
+            (np.ascontiguousarray(W, dtype=_F), np.ascontiguousarray(b, dtype=_F))
+            for W, b in layers
+        ]
         self._WT = [np.ascontiguousarray(W.T) for W, _ in self.layers]
         self.mean = np.asarray(mean, dtype=_F)
         self.inv_std = (1.0 / np.asarray(std, dtype=np.float64)).astype(_F)
@@ -73,7 +76,7 @@ class MLP:
             g = (g * d) @ WT
         if self._normalise:
             g = g * self.inv_std
-        if g.shape != h.shape[:-1] + (self.in_dim,):          # no hidden layer: g is constant
+        if g.shape != h.shape[:-1] + (self.in_dim,):  # no hidden layer: g is constant
             g = np.broadcast_to(g, h.shape[:-1] + (self.in_dim,))
         return y, g.astype(np.float64)
 
@@ -90,7 +93,7 @@ class MLP:
         W0, b0 = self.layers[0]
         xn = (x - self.mean) * self.inv_std
         xn[free] = 0.0
-        W0f = self.inv_std[free, None] * W0[free]                     # (F, out0)
+        W0f = self.inv_std[free, None] * W0[free]  # (F, out0)
         b0f = xn @ W0 + b0 - (self.mean[free] * self.inv_std[free]) @ W0[free]
         out = MLP.__new__(MLP)
         out.layers = [(W0f, b0f.astype(_F))] + self.layers[1:]
@@ -101,9 +104,12 @@ class MLP:
         return out
 
     def to_arrays(self, prefix: str) -> dict:
-        out = {f"{prefix}mean": self.mean, f"{prefix}std": 1.0 / self.inv_std.astype(np.float64),
-               f"{prefix}y": np.array([self.y_scale, self.y_shift]),
-               f"{prefix}n_layers": np.array(len(self.layers))}
+        out = {
+            f"{prefix}mean": self.mean,
+            f"{prefix}std": 1.0 / self.inv_std.astype(np.float64),
+            f"{prefix}y": np.array([self.y_scale, self.y_shift]),
+            f"{prefix}n_layers": np.array(len(self.layers)),
+        }
         for i, (W, b) in enumerate(self.layers):
             out[f"{prefix}W{i}"] = W.astype(np.float32)
             out[f"{prefix}b{i}"] = b.astype(np.float32)

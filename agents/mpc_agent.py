@@ -1,4 +1,5 @@
 """The fixed-parameter MPC agent: the paper's policy pi(x; theta) for one fixed theta."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -12,8 +13,16 @@ from racing_env.vehicle import VehicleParams
 from .base import median_p99, register_agent
 from .best_theta import best_theta
 from .mpc import MPC, MPCConfig
-from .reference import (EXTENDED_HIGH, EXTENDED_LOW, EXTENDED_NAMES, THETA_HIGH, THETA_LOW, Theta,
-                        policy_space, reference_trajectory)
+from .reference import (
+    EXTENDED_HIGH,
+    EXTENDED_LOW,
+    EXTENDED_NAMES,
+    THETA_HIGH,
+    THETA_LOW,
+    Theta,
+    policy_space,
+    reference_trajectory,
+)
 from .threads import single_blas_thread
 
 
@@ -24,7 +33,7 @@ def joint_state_from_observation(obs: np.ndarray, n_cars: int) -> tuple[np.ndarr
     progress difference, so every longitudinal difference stays on unwrapped progress.
     """
     ego = np.asarray(obs[:6], dtype=float)
-    rel = np.asarray(obs[6:6 * n_cars], dtype=float).reshape(n_cars - 1, 6)
+    rel = np.asarray(obs[6 : 6 * n_cars], dtype=float).reshape(n_cars - 1, 6)
     others = rel + ego[None, :]
     others[:, 2] = np.angle(np.exp(1j * others[:, 2]))
     return ego, others
@@ -36,14 +45,17 @@ def split_observation(observation: np.ndarray, n_preview: int) -> tuple[np.ndarr
     obs = np.asarray(observation, dtype=float)
     n_cars, rest = divmod(len(obs) - n_preview, 6)
     if rest or n_cars < 1:
-        raise ValueError(f"observation of length {len(obs)} does not fit 6 N + n_preview "
-                         f"with n_preview = {n_preview}")
+        raise ValueError(
+            f"observation of length {len(obs)} does not fit 6 N + n_preview "
+            f"with n_preview = {n_preview}"
+        )
     return joint_state_from_observation(obs, n_cars)
 
 
 def progress_rate(state: np.ndarray, track: Track) -> np.ndarray:
     """Frenet progress rate ``s_dot`` [m/s] of states (..., 6)."""
     from .mpc import _grid_interp
+
     state = np.asarray(state, dtype=float)
     s, n, mu, vx, vy = (state[..., i] for i in range(5))
     kappa = _grid_interp(track.kappa, np.ascontiguousarray(s), track.ds, track.length)
@@ -82,44 +94,67 @@ class MPCAgent:
     """
 
     #: theta's bounds (:data:`agents.reference.THETA_LOW` / ``THETA_HIGH``), for ``alpha-racer agents``
-    param_bounds = {k: (float(lo), float(hi))
-                    for k, lo, hi in zip(EXTENDED_NAMES, EXTENDED_LOW, EXTENDED_HIGH)}
+    param_bounds = {
+        k: (float(lo), float(hi)) for k, lo, hi in zip(EXTENDED_NAMES, EXTENDED_LOW, EXTENDED_HIGH)
+    }
     #: what ``alpha-racer agents`` shows for the theta keywords (their signature default is None)
     param_defaults = {k: getattr(DEFAULT_THETA, k) for k in EXTENDED_NAMES}
     param_notes = {"theta": "'best': the track's best fixed theta, chosen by alpha-racer control"}
 
-    def __init__(self, q: float | None = None, zeta: float | None = None,
-                 s1: float | None = None, s2: float | None = None, s3: float | None = None,
-                 b: float | None = None, theta: str | None = None, space: str = "paper",
-                 config: MPCConfig | None = None,
-                 vehicle: VehicleParams | None = None, n_preview: int = 10,
-                 line: str = "curvature", zeta_max: float | None = None):
+    def __init__(
+        self,
+        q: float | None = None,
+        zeta: float | None = None,
+        s1: float | None = None,
+        s2: float | None = None,
+        s3: float | None = None,
+        b: float | None = None,
+        theta: str | None = None,
+        space: str = "paper",
+        config: MPCConfig | None = None,
+        vehicle: VehicleParams | None = None,
+        n_preview: int = 10,
+        line: str = "curvature",
+        zeta_max: float | None = None,
+    ):
         from racing_env.raceline import RacelineConfig
+
         given = {k: v for k, v in zip(EXTENDED_NAMES, (q, zeta, s1, s2, s3, b)) if v is not None}
         if theta is not None and theta != BEST:
-            raise ValueError(f"theta must be {BEST!r} (the track's best fixed theta) or left "
-                             f"out, got {theta!r}")
+            raise ValueError(
+                f"theta must be {BEST!r} (the track's best fixed theta) or left out, got {theta!r}"
+            )
         if theta == BEST and given:
-            raise ValueError(f"theta='best' takes the whole theta from the best-theta table; "
-                             f"drop {', '.join(f'{k}={v!r}' for k, v in given.items())}")
+            raise ValueError(
+                f"theta='best' takes the whole theta from the best-theta table; "
+                f"drop {', '.join(f'{k}={v!r}' for k, v in given.items())}"
+            )
         self.best = theta == BEST
         self.theta = Theta(**{**{k: getattr(DEFAULT_THETA, k) for k in EXTENDED_NAMES}, **given})
         lo, hi = THETA_LOW[1], THETA_HIGH[1]
-        if zeta_max is not None and (isinstance(zeta_max, bool) or
-                                     not isinstance(zeta_max, (int, float)) or
-                                     not lo <= zeta_max <= hi):
-            raise ValueError(f"zeta_max must be a number in the theta box's zeta range "
-                             f"[{lo:g}, {hi:g}], got {zeta_max!r}")
+        if zeta_max is not None and (
+            isinstance(zeta_max, bool)
+            or not isinstance(zeta_max, (int, float))
+            or not lo <= zeta_max <= hi
+        ):
+            raise ValueError(
+                f"zeta_max must be a number in the theta box's zeta range "
+                f"[{lo:g}, {hi:g}], got {zeta_max!r}"
+            )
         self.zeta_max = None if zeta_max is None else float(zeta_max)
         self.space = policy_space(space).name
         if self.space == "paper" and self.theta.b != 0:
-            raise ValueError(f"b = {self.theta.b!r} is a parameter of the extended policy "
-                             f"space; add space='extended'")
-        self.raceline_config = RacelineConfig(objective=line)     # names line and choices if bad
+            raise ValueError(
+                f"b = {self.theta.b!r} is a parameter of the extended policy "
+                f"space; add space='extended'"
+            )
+        self.raceline_config = RacelineConfig(objective=line)  # names line and choices if bad
         if line != "curvature" and self.theta.b > 0:
-            raise ValueError(f"b = {self.theta.b!r} blends the lap-time line into the "
-                             f"minimum-curvature line; it needs line='curvature', got {line!r}")
-        self.n_preview = n_preview      # the env's RaceConfig.n_preview (observation layout)
+            raise ValueError(
+                f"b = {self.theta.b!r} blends the lap-time line into the "
+                f"minimum-curvature line; it needs line='curvature', got {line!r}"
+            )
+        self.n_preview = n_preview  # the env's RaceConfig.n_preview (observation layout)
         self.config = config or MPCConfig()
         self.vehicle = vehicle or VehicleParams()
         self.mpc: MPC | None = None
@@ -127,14 +162,15 @@ class MPCAgent:
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         from racing_env.raceline import get_raceline
+
         track = make_track(track)
-        if self.best:                   # before anything is built: a missing entry fails fast
+        if self.best:  # before anything is built: a missing entry fails fast
             self.theta = best_theta(track)
         if self.mpc is None or self.track is not track:
             self.mpc = MPC(track, self.vehicle, self.config, line=self.line)
         self.track = track
         self.raceline = get_raceline(track, self.vehicle, self.raceline_config)
-        self.blend_line = None                 # the lap-time line, built at the first b > 0
+        self.blend_line = None  # the lap-time line, built at the first b > 0
         self.mpc.reset()
         self.agent_id = agent_id
         self._u_prev = np.zeros(2)
@@ -159,8 +195,10 @@ class MPCAgent:
             return None
         if self.blend_line is None:
             from racing_env.raceline import RacelineConfig, get_raceline
-            self.blend_line = get_raceline(self.track, self.vehicle,
-                                           RacelineConfig(objective="lap_time"))
+
+            self.blend_line = get_raceline(
+                self.track, self.vehicle, RacelineConfig(objective="lap_time")
+            )
         return self.blend_line
 
     @property
@@ -179,20 +217,31 @@ class MPCAgent:
     def stats(self) -> dict:
         st = self.mpc.stats if self.mpc is not None else {}
         med, p99 = median_p99(st.get("solve_ms", []))
-        return {"solves": st.get("solves", 0), "fallbacks": st.get("fallbacks", 0),
-                "restarts": st.get("restarts", 0),
-                "solve_ms_median": med, "solve_ms_p99": p99}
+        return {
+            "solves": st.get("solves", 0),
+            "fallbacks": st.get("fallbacks", 0),
+            "restarts": st.get("restarts", 0),
+            "solve_ms_median": med,
+            "solve_ms_p99": p99,
+        }
 
     def act(self, observation: np.ndarray) -> np.ndarray:
         if self.mpc is None:
             raise RuntimeError("MPCAgent.act() before reset(track, ...)")
-        with single_blas_thread():       # results independent of the BLAS thread count
+        with single_blas_thread():  # results independent of the BLAS thread count
             ego, others = split_observation(observation, self.n_preview)
             theta = self.driven_theta
-            ref = reference_trajectory(theta, ego, others if len(others) else None,
-                                       self.raceline, self.track, K=self.config.horizon,
-                                       dt=self.config.dt, blend=self._blend_line(theta),
-                                       side=self._pass_side())
+            ref = reference_trajectory(
+                theta,
+                ego,
+                others if len(others) else None,
+                self.raceline,
+                self.track,
+                K=self.config.horizon,
+                dt=self.config.dt,
+                blend=self._blend_line(theta),
+                side=self._pass_side(),
+            )
             neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
             opp = None
             if neighbours:

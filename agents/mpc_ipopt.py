@@ -6,6 +6,7 @@ with ``Q = q I`` on stages 1..K, input-rate cost with ``R = I``), the same input
 and (soft, quadratically penalised slack) track and separation constraints, warm-started
 from the previous solution. It takes the same arguments and returns the same action.
 """
+
 from __future__ import annotations
 
 import time
@@ -22,9 +23,16 @@ from .mpc import EdgeBounds, MPCConfig, kappa_at_substeps, separation_choice, st
 class IpoptMPC:
     """IPOPT solve of the MPC; ``solve(x0, s_ref, n_ref, q, opponents, u_prev)`` like :class:`MPC`."""
 
-    def __init__(self, track: Track, vehicle: VehicleParams | None = None,
-                 config: MPCConfig | None = None, max_opponents: int = 2, tol: float = 1e-8):
+    def __init__(
+        self,
+        track: Track,
+        vehicle: VehicleParams | None = None,
+        config: MPCConfig | None = None,
+        max_opponents: int = 2,
+        tol: float = 1e-8,
+    ):
         import casadi as ca
+
         self.track = track
         self.vehicle = v = vehicle or VehicleParams()
         self.cfg = cfg = config or MPCConfig()
@@ -65,28 +73,45 @@ class IpoptMPC:
         for r in range(max_opponents):
             for k in range(K):
                 col = r * K + k
-                g.append(P_sep[0, col] * s_pred[k] + P_sep[1, col] * n_pred[k] - P_sep[2, col]
-                         + S_sep[col])
+                g.append(
+                    P_sep[0, col] * s_pred[k]
+                    + P_sep[1, col] * n_pred[k]
+                    - P_sep[2, col]
+                    + S_sep[col]
+                )
                 lbg.append(np.zeros(1))
                 ubg.append(np.full(1, np.inf))
         err = X[:2, 1:] - P_ref
         du = U[:, 1:] - U[:, :-1]
         # DAQP's quadratic penalty of soft rows, 1 / (2 rho) with rho = cfg.soft_rho_at(q)
         w_soft = 0.5 / cfg.soft_rho * ca.fmax(1.0, P_q / cfg.soft_q_ref)
-        cost = (P_q * ca.sumsqr(err) + ca.sumsqr(du)
-                + w_soft * (ca.sumsqr(S_track) + ca.sumsqr(S_sep)))
+        cost = (
+            P_q * ca.sumsqr(err) + ca.sumsqr(du) + w_soft * (ca.sumsqr(S_track) + ca.sumsqr(S_sep))
+        )
         w = ca.vertcat(ca.vec(X), ca.vec(U), S_track, S_sep)
-        p = ca.vertcat(P_x0, ca.vec(P_ref), ca.vec(P_kap), P_q, P_uprev, P_nlo, P_nhi, ca.vec(P_sep))
+        p = ca.vertcat(
+            P_x0, ca.vec(P_ref), ca.vec(P_kap), P_q, P_uprev, P_nlo, P_nhi, ca.vec(P_sep)
+        )
         nlp = {"x": w, "p": p, "f": cost, "g": ca.vertcat(*g)}
-        opts = {"expand": True, "ipopt.print_level": 0, "print_time": False, "ipopt.tol": tol,
-                "ipopt.sb": "yes",
-                "ipopt.warm_start_init_point": "yes", "ipopt.max_iter": 500}
+        opts = {
+            "expand": True,
+            "ipopt.print_level": 0,
+            "print_time": False,
+            "ipopt.tol": tol,
+            "ipopt.sb": "yes",
+            "ipopt.warm_start_init_point": "yes",
+            "ipopt.max_iter": 500,
+        }
         self._solver = ca.nlpsol("mpc_ipopt", "ipopt", nlp, opts)
         self._lbg = np.concatenate([np.atleast_1d(a) for a in lbg])
         self._ubg = np.concatenate([np.atleast_1d(a) for a in ubg])
         nx, nu = 6 * (K + 1), 2 * K
-        self._lbw = np.concatenate([np.full(nx, -np.inf), np.full(nu, -1.0), np.zeros(K + max_opponents * K)])
-        self._ubw = np.concatenate([np.full(nx, np.inf), np.full(nu, 1.0), np.full(K + max_opponents * K, np.inf)])
+        self._lbw = np.concatenate(
+            [np.full(nx, -np.inf), np.full(nu, -1.0), np.zeros(K + max_opponents * K)]
+        )
+        self._ubw = np.concatenate(
+            [np.full(nx, np.inf), np.full(nu, 1.0), np.full(K + max_opponents * K, np.inf)]
+        )
         self._nx, self._nu, self._m = nx, nu, max_opponents
         self._bounds_n = EdgeBounds(track, v, cfg)
         self.stats = {"solves": 0, "fallbacks": 0, "solve_ms": deque(maxlen=100_000)}
@@ -96,9 +121,16 @@ class IpoptMPC:
         self._w0 = None
         self.last_U = None
 
-    def solve(self, x0: np.ndarray, s_ref: np.ndarray, n_ref: np.ndarray, q: float,
-              opponents: np.ndarray | None = None, u_prev: np.ndarray | None = None,
-              init: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    def solve(
+        self,
+        x0: np.ndarray,
+        s_ref: np.ndarray,
+        n_ref: np.ndarray,
+        q: float,
+        opponents: np.ndarray | None = None,
+        u_prev: np.ndarray | None = None,
+        init: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
         """Like :meth:`MPC.solve`; ``init = (X (6, K + 1), U (2, K))`` replaces the warm start
         by an explicit initial guess (states from ``x0`` on). ``last_U`` (2, K) holds the plan,
         ``None`` after a failed solve."""
@@ -113,25 +145,36 @@ class IpoptMPC:
             X0 = np.tile(x0[:, None], (1, K + 1))
             X0[0] = x0[0] + max(x0[3], 0.5) * cfg.dt * np.arange(K + 1)
         else:
-            Xp = self._w0[:self._nx].reshape(K + 1, 6).T
-            Up = self._w0[self._nx:self._nx + self._nu].reshape(K, 2).T
+            Xp = self._w0[: self._nx].reshape(K + 1, 6).T
+            Up = self._w0[self._nx : self._nx + self._nu].reshape(K, 2).T
             X0 = np.concatenate([Xp[:, 1:], Xp[:, -1:]], axis=1)
             X0[:, 0] = x0
             U0 = np.concatenate([Up[:, 1:], Up[:, -1:]], axis=1)
-        kap = kappa_at_substeps(self.track, X0[0], cfg.substeps)   # X0 is already shifted to now
+        kap = kappa_at_substeps(self.track, X0[0], cfg.substeps)  # X0 is already shifted to now
         nlo, nhi = self._bounds_n(X0[0, 1:])
         sep = np.zeros((3, self._m * K))
-        sep[2] = -1e3                                       # inactive rows
+        sep[2] = -1e3  # inactive rows
         if opponents is not None:
-            for r, opp in enumerate(np.asarray(opponents, dtype=float)[:self._m]):
+            for r, opp in enumerate(np.asarray(opponents, dtype=float)[: self._m]):
                 near, lat, sign, s_jk = separation_choice(X0[0, 1:], X0[1, 1:], opp, cfg)
                 cols = slice(r * K, (r + 1) * K)
                 sep[0, cols] = np.where(near & ~lat, sign, 0.0)
                 sep[1, cols] = np.where(near & lat, sign, 0.0)
-                sep[2, cols] = np.where(near, np.where(lat, cfg.sep_n + sign * opp[1],
-                                                       cfg.sep_s + sign * s_jk), -1e3)
-        p = np.concatenate([x0, np.column_stack([s_ref, n_ref]).ravel(), kap.T.ravel(), [q], u_prev,
-                            nlo, nhi, sep.T.ravel()])
+                sep[2, cols] = np.where(
+                    near, np.where(lat, cfg.sep_n + sign * opp[1], cfg.sep_s + sign * s_jk), -1e3
+                )
+        p = np.concatenate(
+            [
+                x0,
+                np.column_stack([s_ref, n_ref]).ravel(),
+                kap.T.ravel(),
+                [q],
+                u_prev,
+                nlo,
+                nhi,
+                sep.T.ravel(),
+            ]
+        )
         w0 = np.concatenate([X0.T.ravel(), U0.T.ravel(), np.zeros(K + self._m * K)])
         sol = self._solver(x0=w0, p=p, lbx=self._lbw, ubx=self._ubw, lbg=self._lbg, ubg=self._ubg)
         ok = self._solver.stats()["success"]
@@ -144,5 +187,5 @@ class IpoptMPC:
             self.last_U = None
             return np.array([0.0, u_prev[1]])
         self._w0 = w
-        self.last_U = w[self._nx:self._nx + self._nu].reshape(K, 2).T.copy()
-        return w[self._nx:self._nx + 2].copy()
+        self.last_U = w[self._nx : self._nx + self._nu].reshape(K, 2).T.copy()
+        return w[self._nx : self._nx + 2].copy()

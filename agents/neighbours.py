@@ -1,5 +1,6 @@
 """The cars just ahead and just behind a car, in race order (the paper's ``j^*`` and ``j_*``):
 :func:`opponent_neighbours`. :mod:`agents.reference` re-exports it."""
+
 from __future__ import annotations
 
 import math

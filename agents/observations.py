@@ -8,6 +8,7 @@ taken to race in any field. Races check the declaration before the start
 naming it and its car, not with ``operands could not be broadcast together``. An agent that
 reads a fixed layout can instead accept any field by :func:`adapt_observation`.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -20,7 +21,9 @@ if TYPE_CHECKING:
     from typing import Any
 
 
-def adapt_observation(obs: np.ndarray, n_cars: int, n_preview: int, track_length: float) -> np.ndarray:
+def adapt_observation(
+    obs: np.ndarray, n_cars: int, n_preview: int, track_length: float
+) -> np.ndarray:
     """Observations of races with M cars in the layout of ``n_cars`` cars.
 
     Parameters
@@ -51,18 +54,22 @@ def adapt_observation(obs: np.ndarray, n_cars: int, n_preview: int, track_length
     obs = np.asarray(obs, dtype=np.float32)
     m, rest = divmod(obs.shape[-1] - n_preview, 6)
     if rest or m < 1:
-        raise ValueError(f"observation of length {obs.shape[-1]} does not fit 6 N + n_preview "
-                         f"with n_preview = {n_preview}")
+        raise ValueError(
+            f"observation of length {obs.shape[-1]} does not fit 6 N + n_preview "
+            f"with n_preview = {n_preview}"
+        )
     if m == n_cars:
         return obs
-    own, preview = obs[..., :6], obs[..., 6 * m:]
-    others = obs[..., 6:6 * m].reshape(obs.shape[:-1] + (m - 1, 6))
+    own, preview = obs[..., :6], obs[..., 6 * m :]
+    others = obs[..., 6 : 6 * m].reshape(obs.shape[:-1] + (m - 1, 6))
     if m < n_cars:
         phantom = np.zeros(obs.shape[:-1] + (n_cars - m, 6), dtype=np.float32)
         phantom[..., 0] = -0.5 * track_length
         others = np.concatenate([others, phantom], axis=-2)
     else:
-        near = np.sort(np.argsort(np.abs(others[..., 0]), axis=-1, kind="stable")[..., :n_cars - 1], axis=-1)
+        near = np.sort(
+            np.argsort(np.abs(others[..., 0]), axis=-1, kind="stable")[..., : n_cars - 1], axis=-1
+        )
         others = np.take_along_axis(others, near[..., None], axis=-2)
     return np.concatenate([own, others.reshape(obs.shape[:-1] + (-1,)), preview], axis=-1)
 
@@ -80,10 +87,17 @@ def check_field_size(agent: Any, n_cars: int, car: str, spec: str | None = None)
     try:
         ok = n_cars in sizes
     except TypeError:
-        raise ValueError(f"agent {agent_label(agent, spec)}: field_sizes must be a container of "
-                         f"car counts (e.g. range(2, 9)), got {sizes!r}") from None
+        raise ValueError(
+            f"agent {agent_label(agent, spec)}: field_sizes must be a container of "
+            f"car counts (e.g. range(2, 9)), got {sizes!r}"
+        ) from None
     if not ok:
-        shown = (f"{sizes.start}..{sizes.stop - 1}" if isinstance(sizes, range) and sizes.step == 1
-                 else ", ".join(map(str, sorted(sizes))))
-        raise ValueError(f"agent {agent_label(agent, spec)} driving {car} cannot race in a field of "
-                         f"{n_cars} cars: it supports {shown} cars (its field_sizes)")
+        shown = (
+            f"{sizes.start}..{sizes.stop - 1}"
+            if isinstance(sizes, range) and sizes.step == 1
+            else ", ".join(map(str, sorted(sizes)))
+        )
+        raise ValueError(
+            f"agent {agent_label(agent, spec)} driving {car} cannot race in a field of "
+            f"{n_cars} cars: it supports {shown} cars (its field_sizes)"
+        )

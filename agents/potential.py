@@ -10,12 +10,13 @@ its thetas live in (``space``: ``paper``, the paper's five parameters, or ``exte
 ``b``; :data:`agents.theta.SPACES`) and that space's box; a model without a recorded space
 (trained before spaces existed) is the paper's.
 """
+
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,16 +32,20 @@ if TYPE_CHECKING:
     from racing_env.track import Track
 
 MODEL_DIR = Path(__file__).parent / "models"
-SHIPPED = {"default": "alpha_default.npz", "gamma0.98": "alpha_gamma098.npz",
-           "gamma0.995": "alpha_gamma0995.npz", "races400": "alpha_races400.npz",
-           "general": "alpha_general.npz"}
+SHIPPED = {
+    "default": "alpha_default.npz",
+    "gamma0.98": "alpha_gamma098.npz",
+    "gamma0.995": "alpha_gamma0995.npz",
+    "races400": "alpha_races400.npz",
+    "general": "alpha_general.npz",
+}
 #: How to make a shipped model that is missing (the general model is trained by the user).
 HOW_TO_TRAIN = {
     "general": "collect races over a family of tracks and field sizes and train on them, e.g. "
-               "`alpha-racer collect --tracks default oval random:0-299 --cars 2-6 --races 7000 "
-               "--out data/family && alpha-racer train --data data/family --out "
-               "data/model_general`, then copy data/model_general/model.npz to {path} (the "
-               "README's section on the general model has the full plan and its compute)",
+    "`alpha-racer collect --tracks default oval random:0-299 --cars 2-6 --races 7000 "
+    "--out data/family && alpha-racer train --data data/family --out "
+    "data/model_general`, then copy data/model_general/model.npz to {path} (the "
+    "README's section on the general model has the full plan and its compute)",
 }
 
 
@@ -58,22 +63,32 @@ class PotentialModel:
     def __init__(self, value: MLP, potential: MLP, meta: dict):
         self.features = feature_set(meta.get("feature_set", "fixed"))
         if meta.get("feature_version") != self.features.version:
-            raise ValueError(f"model built with feature version {meta.get('feature_version')} "
-                             f"of the {self.features.name!r} features, this code computes version "
-                             f"{self.features.version}; retrain it")
+            raise ValueError(
+                f"model built with feature version {meta.get('feature_version')} "
+                f"of the {self.features.name!r} features, this code computes version "
+                f"{self.features.version}; retrain it"
+            )
         #: the policy space of the model's thetas (a model without one is the paper's)
         self.space: PolicySpace = policy_space(meta.get("space", "paper"))
         sp = self.space
         box = (meta.get("theta_low"), meta.get("theta_high"))
         if box[0] is None or box[1] is None:
-            warnings.warn("model metadata has no theta box (trained before it was recorded); "
-                          f"assuming this package's box of the {sp.name!r} policy space "
-                          f"{sp.low.tolist()}..{sp.high.tolist()}", stacklevel=2)
-        elif not (len(box[0]) == len(box[1]) == sp.dim and np.allclose(box[0], sp.low)
-                  and np.allclose(box[1], sp.high)):
-            raise ValueError(f"model trained on the theta box {box[0]}..{box[1]}, this package's "
-                             f"box of the {sp.name!r} policy space is {sp.low.tolist()}.."
-                             f"{sp.high.tolist()}; retrain it")
+            warnings.warn(
+                "model metadata has no theta box (trained before it was recorded); "
+                f"assuming this package's box of the {sp.name!r} policy space "
+                f"{sp.low.tolist()}..{sp.high.tolist()}",
+                stacklevel=2,
+            )
+        elif not (
+            len(box[0]) == len(box[1]) == sp.dim
+            and np.allclose(box[0], sp.low)
+            and np.allclose(box[1], sp.high)
+        ):
+            raise ValueError(
+                f"model trained on the theta box {box[0]}..{box[1]}, this package's "
+                f"box of the {sp.name!r} policy space is {sp.low.tolist()}.."
+                f"{sp.high.tolist()}; retrain it"
+            )
         self.value_net = value
         self.potential_net = potential
         self.meta = meta
@@ -113,8 +128,9 @@ class PotentialModel:
         n = np.shape(states)[-2]
         if self.general:
             if not 2 <= n <= self.features.max_cars:
-                raise ValueError(f"this general model takes 2..{self.features.max_cars} cars, "
-                                 f"got states of {n}")
+                raise ValueError(
+                    f"this general model takes 2..{self.features.max_cars} cars, got states of {n}"
+                )
         elif n != self.n_cars:
             raise ValueError(f"this model was trained for {self.n_cars} cars, got states of {n}")
         return n
@@ -122,14 +138,16 @@ class PotentialModel:
     def value(self, states: np.ndarray, thetas: np.ndarray, track: Track, ego: int) -> np.ndarray:
         """V_ego(x, theta) [m of discounted relative progress], shape of the batch."""
         self._check_cars(states)
-        return self.value_net(self.features.value_features(states, thetas, track, ego,
-                                                           space=self.space))
+        return self.value_net(
+            self.features.value_features(states, thetas, track, ego, space=self.space)
+        )
 
     def potential(self, states: np.ndarray, thetas: np.ndarray, track: Track) -> np.ndarray:
         """Phi(x, theta), shape of the batch."""
         self._check_cars(states)
-        return self.potential_net(self.features.potential_features(states, thetas, track,
-                                                                   space=self.space))
+        return self.potential_net(
+            self.features.potential_features(states, thetas, track, space=self.space)
+        )
 
     def _ascent_setup(self, state, track, restarts: int, iterations: int, rng):
         """Shared by the ascents: checks, ``(rng, slots (N, dim), base features (D,))`` where
@@ -137,20 +155,31 @@ class PotentialModel:
         progress) and ``base`` the features at theta = 0 (their theta columns get overwritten)."""
         n = self._check_cars(np.asarray(state)[None])
         if restarts < 1 or iterations < 0:
-            raise ValueError(f"maximise needs restarts >= 1 and iterations >= 0, got "
-                             f"{restarts}, {iterations}")
+            raise ValueError(
+                f"maximise needs restarts >= 1 and iterations >= 0, got {restarts}, {iterations}"
+            )
         state = np.asarray(state, dtype=float)
         f = self.features
         order = f.progress_order(state)
-        slots = f.potential_theta_slots(n, self.space)[np.argsort(order)]   # row c: car c's columns
-        base = f.potential_features(state, np.zeros((n, self.space.dim)), track, order,
-                                    space=self.space)
+        slots = f.potential_theta_slots(n, self.space)[np.argsort(order)]  # row c: car c's columns
+        base = f.potential_features(
+            state, np.zeros((n, self.space.dim)), track, order, space=self.space
+        )
         return rng or np.random.default_rng(0), slots, base
 
-    def maximise(self, state: np.ndarray, track: Track, theta0: np.ndarray | None = None, restarts: int | None = None,
-                 iterations: int | None = None, rng: np.random.Generator | None = None,
-                 step: float = 0.5, warm_step: float = 0.15, decay: float = 0.8,
-                 high: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    def maximise(
+        self,
+        state: np.ndarray,
+        track: Track,
+        theta0: np.ndarray | None = None,
+        restarts: int | None = None,
+        iterations: int | None = None,
+        rng: np.random.Generator | None = None,
+        step: float = 0.5,
+        warm_step: float = 0.15,
+        decay: float = 0.8,
+        high: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, float]:
         """Projected gradient ascent (Adam steps) of Phi(x, .) over the joint theta within its
         bounds (the box of the model's policy space, :attr:`space`, of ``dim`` parameters:
         5 in the paper's space, 6 in the extended one); returns ``(theta* (N, dim), Phi*)``,
@@ -189,19 +218,21 @@ class PotentialModel:
         sp = self.space
         d = sp.dim
         rng, slots, base = self._ascent_setup(state, track, restarts, iterations, rng)
-        slots = slots.ravel()                                            # car-major columns
+        slots = slots.ravel()  # car-major columns
         top = 1.0
         if high is not None:
             high = np.asarray(high, dtype=float)
             if high.shape != (N, d) or not (np.all(high >= sp.low) and np.all(high <= sp.high)):
-                raise ValueError(f"high must be (N, {d}) = ({N}, {d}) upper bounds within the "
-                                 f"theta box of the {sp.name!r} policy space {sp.low.tolist()}.."
-                                 f"{sp.high.tolist()}, got "
-                                 f"{high.tolist() if high.size <= 40 else high.shape}")
+                raise ValueError(
+                    f"high must be (N, {d}) = ({N}, {d}) upper bounds within the "
+                    f"theta box of the {sp.name!r} policy space {sp.low.tolist()}.."
+                    f"{sp.high.tolist()}, got "
+                    f"{high.tolist() if high.size <= 40 else high.shape}"
+                )
             top = scale_theta(high, sp).ravel()
         Z = np.empty((restarts, N * d))
         Z[0] = 0.0 if theta0 is None else scale_theta(theta0, sp).ravel()
-        for k in range(1, restarts):                  # the draws of maximise_reference
+        for k in range(1, restarts):  # the draws of maximise_reference
             Z[k] = rng.uniform(-1.0, 1.0, (N, d)).ravel()
         if high is not None:
             Z = np.minimum(Z, top)
@@ -231,10 +262,18 @@ class PotentialModel:
                 lr *= decay
         return unscale_theta(best_z.reshape(N, d), sp), best_val
 
-    def maximise_reference(self, state: np.ndarray, track: Track, theta0: np.ndarray | None = None,
-                           restarts: int = 4, iterations: int = 8,
-                 rng: np.random.Generator | None = None, step: float = 0.4, decay: float = 0.7,
-                 per_coordinate: bool = False) -> tuple[np.ndarray, float]:
+    def maximise_reference(
+        self,
+        state: np.ndarray,
+        track: Track,
+        theta0: np.ndarray | None = None,
+        restarts: int = 4,
+        iterations: int = 8,
+        rng: np.random.Generator | None = None,
+        step: float = 0.4,
+        decay: float = 0.7,
+        per_coordinate: bool = False,
+    ) -> tuple[np.ndarray, float]:
         """The maximisation of the first release (6 RMS-normalised steps from 4 starts), kept as
         the baseline that ``benchmarks/alpha_speed.py`` compares :meth:`maximise` with.
 
@@ -260,7 +299,7 @@ class PotentialModel:
             starts.append(np.zeros((N, sp.dim)))
         while len(starts) < restarts:
             starts.append(rng.uniform(-1.0, 1.0, (N, sp.dim)))
-        Z = np.stack(starts)                                            # (B, N, dim) scaled
+        Z = np.stack(starts)  # (B, N, dim) scaled
         X = np.repeat(base[None], len(Z), axis=0)
         best_val, best_z = -np.inf, Z[0]
         lr = step
@@ -275,11 +314,11 @@ class PotentialModel:
                 best_val, best_z = float(val[k]), Z[k].copy()
             if it == iterations:
                 break
-            g = grad[:, slots]                                          # (B, N, dim)
+            g = grad[:, slots]  # (B, N, dim)
             if per_coordinate:
                 Z = np.clip(Z + lr * np.sign(g), -1.0, 1.0)
             else:
-                rms = np.sqrt(np.mean(g ** 2, axis=(1, 2), keepdims=True)) + 1e-12
+                rms = np.sqrt(np.mean(g**2, axis=(1, 2), keepdims=True)) + 1e-12
                 Z = np.clip(Z + lr * g / rms, -1.0, 1.0)
             lr *= decay
         return unscale_theta(best_z, sp), best_val
@@ -304,12 +343,16 @@ def load_model(name_or_path: str | os.PathLike = "default") -> PotentialModel:
         path = MODEL_DIR / SHIPPED[str(name_or_path)]
         if not path.exists():
             how = HOW_TO_TRAIN.get(str(name_or_path), "train one with `alpha-racer train`")
-            raise FileNotFoundError(f"shipped alpha-potential model {name_or_path!r} is missing "
-                                    f"({path}); " + how.format(path=path))
+            raise FileNotFoundError(
+                f"shipped alpha-potential model {name_or_path!r} is missing "
+                f"({path}); " + how.format(path=path)
+            )
     else:
         path = Path(name_or_path)
         if not path.exists():
-            raise FileNotFoundError(f"model {str(name_or_path)!r} is neither a shipped "
-                                    f"alpha-potential model ({', '.join(sorted(SHIPPED))}) nor "
-                                    f"the path of a model.npz")
+            raise FileNotFoundError(
+                f"model {str(name_or_path)!r} is neither a shipped "
+                f"alpha-potential model ({', '.join(sorted(SHIPPED))}) nor "
+                f"the path of a model.npz"
+            )
     return PotentialModel.load(path)

@@ -16,14 +16,15 @@ reads ``n_cars - 1`` other cars. In a race with fewer cars the missing ones are 
 neither touch nor be the leader); in a race with more cars the policy sees the ``n_cars - 1``
 nearest others (by progress difference), in index order.
 """
+
 from __future__ import annotations
 
 import json
 import pickle
-from typing import TYPE_CHECKING
 import zipfile
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -60,11 +61,13 @@ def save_checkpoint(model: Any, vec_normalize: Any, path: str | os.PathLike, met
     (the training config, step counts). The file races as ``ppo:checkpoint=PATH``."""
     missing = {"n_cars", "n_preview"} - set(meta)
     if missing:
-        raise ValueError(f"save_checkpoint meta must give the observation layout; missing "
-                         f"{sorted(missing)} (e.g. {{'n_cars': 3, 'n_preview': 10}})")
+        raise ValueError(
+            f"save_checkpoint meta must give the observation layout; missing "
+            f"{sorted(missing)} (e.g. {{'n_cars': 3, 'n_preview': 10}})"
+        )
     path = Path(path)
     with atomic_path(path, ".zip") as tmp:
-        with open(tmp, "wb") as f:          # a file object: SB3 would append ".zip" to a name
+        with open(tmp, "wb") as f:  # a file object: SB3 would append ".zip" to a name
             model.save(f)
         meta = {"schema_version": CHECKPOINT_SCHEMA, "kind": "alpha_racer.ppo", **meta}
         with zipfile.ZipFile(tmp, "a") as z:
@@ -84,8 +87,10 @@ def _jsonable(o):
     raise TypeError(f"{type(o).__name__} is not JSON serialisable")
 
 
-SAVE_HINT = ("write one with agents.ppo_agent.save_checkpoint(model, vec_normalize, path, meta), "
-             "or race a plain SB3 zip with ppo:checkpoint=PATH,vecnormalize=PATH_OR_none")
+SAVE_HINT = (
+    "write one with agents.ppo_agent.save_checkpoint(model, vec_normalize, path, meta), "
+    "or race a plain SB3 zip with ppo:checkpoint=PATH,vecnormalize=PATH_OR_none"
+)
 
 
 def is_sb3_zip(path: str | os.PathLike) -> bool:
@@ -110,11 +115,14 @@ def read_checkpoint_meta(path: str | os.PathLike) -> dict:
         what = "a plain SB3 model zip" if is_sb3_zip(path) else "an alpha-racer PPO checkpoint"
         raise ValueError(f"{str(path)!r} is {what} without {META_NAME}: {SAVE_HINT}") from None
     except (zipfile.BadZipFile, json.JSONDecodeError) as exc:
-        raise ValueError(f"{str(path)!r} is not an alpha-racer PPO checkpoint ({exc}); "
-                         f"{SAVE_HINT}") from None
+        raise ValueError(
+            f"{str(path)!r} is not an alpha-racer PPO checkpoint ({exc}); {SAVE_HINT}"
+        ) from None
     if meta.get("schema_version") != CHECKPOINT_SCHEMA:
-        raise ValueError(f"PPO checkpoint {str(path)!r} has schema version "
-                         f"{meta.get('schema_version')!r}; this code reads {CHECKPOINT_SCHEMA}")
+        raise ValueError(
+            f"PPO checkpoint {str(path)!r} has schema version "
+            f"{meta.get('schema_version')!r}; this code reads {CHECKPOINT_SCHEMA}"
+        )
     return meta
 
 
@@ -130,9 +138,10 @@ def load_ppo(path: str | os.PathLike, env: Any = None, **kwargs) -> Any:
     """``PPO.load`` of a checkpoint on the CPU (schedules replaced by constants, so a model
     saved by another SB3 version loads); ``kwargs`` go to ``PPO.load``."""
     from racing_env.extras import require
+
     PPO = require("stable_baselines3", "the 'ppo' agent").PPO
     if not is_sb3_zip(path):
-        read_checkpoint_meta(path)              # the clear error for what is not a checkpoint
+        read_checkpoint_meta(path)  # the clear error for what is not a checkpoint
     custom = {"lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.0}
     custom.update(kwargs.pop("custom_objects", {}))
     return PPO.load(path, env=env, device="cpu", custom_objects=custom, **kwargs)
@@ -152,22 +161,32 @@ class FrozenPolicy:
     for :class:`racing_env.vec_env.HeadToHeadVecEnv`.
     """
 
-    def __init__(self, policy, vec_normalize=None, n_cars: int | None = None,
-                 n_preview: int = 10, name: str = "ppo"):
+    def __init__(
+        self,
+        policy,
+        vec_normalize=None,
+        n_cars: int | None = None,
+        n_preview: int = 10,
+        name: str = "ppo",
+    ):
         self.policy = policy
         self.name = name
         self.n_preview = n_preview
         dim = int(np.prod(policy.observation_space.shape))
         self.n_cars = n_cars if n_cars is not None else (dim - n_preview) // 6
         if 6 * self.n_cars + n_preview != dim:
-            raise ValueError(f"policy observation size {dim} does not fit n_cars = {self.n_cars}, "
-                             f"n_preview = {n_preview}")
+            raise ValueError(
+                f"policy observation size {dim} does not fit n_cars = {self.n_cars}, "
+                f"n_preview = {n_preview}"
+            )
         self.norm = None
         if vec_normalize is not None and getattr(vec_normalize, "norm_obs", False):
             rms = vec_normalize.obs_rms
-            self.norm = (rms.mean.astype(np.float32),
-                         (1.0 / np.sqrt(rms.var + vec_normalize.epsilon)).astype(np.float32),
-                         np.float32(vec_normalize.clip_obs))
+            self.norm = (
+                rms.mean.astype(np.float32),
+                (1.0 / np.sqrt(rms.var + vec_normalize.epsilon)).astype(np.float32),
+                np.float32(vec_normalize.clip_obs),
+            )
         self.layers = _numpy_actor(policy)
         self.track_length = None
         self.agent_id = None
@@ -180,11 +199,12 @@ class FrozenPolicy:
     def __getstate__(self):
         state = self.__dict__.copy()
         if self.layers is not None:
-            state["policy"] = None        # the numpy actor suffices: light to copy to workers
+            state["policy"] = None  # the numpy actor suffices: light to copy to workers
         return state
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         from racing_env.tracks import make_track
+
         self.track_length = make_track(track).length
         self.agent_id = agent_id
 
@@ -205,11 +225,14 @@ class FrozenPolicy:
         observations = np.asarray(observations)
         if observations.shape[-1] != self.obs_dim:
             if self.track_length is None:
-                raise ValueError(f"agent {self.name!r}: observations of {observations.shape[-1]} "
-                                 f"values, its policy reads {self.obs_dim} ({self.n_cars} cars); "
-                                 f"call reset(track, ...) first to adapt other field sizes")
-            observations = adapt_observation(observations, self.n_cars, self.n_preview,
-                                             self.track_length)
+                raise ValueError(
+                    f"agent {self.name!r}: observations of {observations.shape[-1]} "
+                    f"values, its policy reads {self.obs_dim} ({self.n_cars} cars); "
+                    f"call reset(track, ...) first to adapt other field sizes"
+                )
+            observations = adapt_observation(
+                observations, self.n_cars, self.n_preview, self.track_length
+            )
         h = self.normalize(observations)
         if self.layers is None:
             a, _ = self.policy.predict(h, deterministic=True)
@@ -240,14 +263,22 @@ def _numpy_actor(policy):
     from stable_baselines3.common.torch_layers import FlattenExtractor
 
     fe = getattr(policy, "pi_features_extractor", policy.features_extractor)
-    if not (isinstance(fe, FlattenExtractor) and isinstance(policy.action_dist, DiagGaussianDistribution)
-            and not getattr(policy, "squash_output", False)):
+    if not (
+        isinstance(fe, FlattenExtractor)
+        and isinstance(policy.action_dist, DiagGaussianDistribution)
+        and not getattr(policy, "squash_output", False)
+    ):
         return None
     layers = []
     for mod in list(policy.mlp_extractor.policy_net) + [policy.action_net]:
         if isinstance(mod, nn.Linear):
-            layers.append(("linear", mod.weight.detach().cpu().numpy().T.astype(np.float32).copy(),
-                           mod.bias.detach().cpu().numpy().astype(np.float32).copy()))
+            layers.append(
+                (
+                    "linear",
+                    mod.weight.detach().cpu().numpy().T.astype(np.float32).copy(),
+                    mod.bias.detach().cpu().numpy().astype(np.float32).copy(),
+                )
+            )
         elif isinstance(mod, nn.Tanh):
             layers.append(("tanh", None, None))
         elif isinstance(mod, nn.ReLU):
@@ -272,17 +303,23 @@ class PPOAgent(FrozenPolicy):
     observation size (``n_preview`` curvature values, 10 as the env's default).
     """
 
-    def __init__(self, checkpoint: str | Path | None = None, vecnormalize: str | Path | None = None,
-                 n_preview: int = 10):
+    def __init__(
+        self,
+        checkpoint: str | Path | None = None,
+        vecnormalize: str | Path | None = None,
+        n_preview: int = 10,
+    ):
         path = Path(checkpoint) if checkpoint else default_checkpoint()
         self.checkpoint = path
         self.vecnormalize = None
         if path.is_file() and is_sb3_zip(path) and not _has_meta(path):
             if vecnormalize is None:
-                raise ValueError(f"{str(path)!r} is a plain SB3 zip: give its observation "
-                                 f"normalisation, ppo:checkpoint={path},vecnormalize=PATH (the file "
-                                 f"of VecNormalize.save) or vecnormalize=none if it was trained "
-                                 f"without VecNormalize; or {SAVE_HINT.split(', or')[0]}")
+                raise ValueError(
+                    f"{str(path)!r} is a plain SB3 zip: give its observation "
+                    f"normalisation, ppo:checkpoint={path},vecnormalize=PATH (the file "
+                    f"of VecNormalize.save) or vecnormalize=none if it was trained "
+                    f"without VecNormalize; or {SAVE_HINT.split(', or')[0]}"
+                )
             norm = None
             if str(vecnormalize).lower() != "none":
                 self.vecnormalize = Path(vecnormalize)
@@ -291,18 +328,26 @@ class PPOAgent(FrozenPolicy):
             dim = int(np.prod(model.observation_space.shape))
             n_cars, rest = divmod(dim - int(n_preview), 6)
             if rest or n_cars < 1:
-                raise ValueError(f"{str(path)!r}: observation size {dim} is not 6 N + n_preview "
-                                 f"with n_preview = {n_preview}; pass ppo:...,n_preview=K")
+                raise ValueError(
+                    f"{str(path)!r}: observation size {dim} is not 6 N + n_preview "
+                    f"with n_preview = {n_preview}; pass ppo:...,n_preview=K"
+                )
             self.meta = {"kind": "sb3", "n_cars": n_cars, "n_preview": int(n_preview)}
         else:
             if vecnormalize is not None:
-                raise ValueError(f"vecnormalize={vecnormalize!r} is for plain SB3 zips; "
-                                 f"{str(path)!r} carries its own normalisation")
+                raise ValueError(
+                    f"vecnormalize={vecnormalize!r} is for plain SB3 zips; "
+                    f"{str(path)!r} carries its own normalisation"
+                )
             self.meta = read_checkpoint_meta(path)
             model = load_ppo(path)
             norm = load_vecnormalize(path)
-        super().__init__(model.policy, norm, n_cars=int(self.meta["n_cars"]),
-                         n_preview=int(self.meta["n_preview"]))
+        super().__init__(
+            model.policy,
+            norm,
+            n_cars=int(self.meta["n_cars"]),
+            n_preview=int(self.meta["n_preview"]),
+        )
         self.policy.set_training_mode(False)
 
     def model_files(self) -> list[Path]:
@@ -323,7 +368,9 @@ def _load_vecnormalize_file(path: Path):
         with open(path, "rb") as fh:
             norm = pickle.load(fh)
     except Exception as exc:
-        raise ValueError(f"{str(path)!r} is not a VecNormalize.save file ({type(exc).__name__}: {exc})") from None
+        raise ValueError(
+            f"{str(path)!r} is not a VecNormalize.save file ({type(exc).__name__}: {exc})"
+        ) from None
     if not hasattr(norm, "obs_rms"):
         raise ValueError(f"{str(path)!r} holds a {type(norm).__name__}, not an SB3 VecNormalize")
     return norm

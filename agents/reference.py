@@ -24,6 +24,7 @@ per-(race line, track) tables are computed once and cached. Measured on a shared
 about 26 us per call without opponents and 70 us with both neighbours inside the shift range
 (K = 15), 15-20 us more when theta is passed as an array instead of a :class:`Theta`.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,10 +34,21 @@ import numpy as np
 
 from racing_env.vehicle import VehicleParams
 
-from .theta import (EXTENDED_HIGH, EXTENDED_LOW, EXTENDED_NAMES, SPACES,  # noqa: F401 (re-exported)
-                    THETA_BOUNDS_DOC, THETA_HIGH, THETA_LOW, THETA_NAMES, THETA_UNITS,
-                    PolicySpace, Theta, policy_space)
 from .neighbours import _neighbours_list, opponent_neighbours  # noqa: F401 (re-exported)
+from .theta import (
+    EXTENDED_HIGH,  # noqa: F401 (re-exported)
+    EXTENDED_LOW,  # noqa: F401 (re-exported)
+    EXTENDED_NAMES,  # noqa: F401 (re-exported)
+    SPACES,  # noqa: F401 (re-exported)
+    THETA_BOUNDS_DOC,  # noqa: F401 (re-exported)
+    THETA_HIGH,
+    THETA_LOW,
+    THETA_NAMES,
+    THETA_UNITS,
+    PolicySpace,
+    Theta,
+    policy_space,
+)
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -44,9 +56,21 @@ if TYPE_CHECKING:
     from racing_env.raceline.result import Raceline
     from racing_env.track import Track
 
-__all__ = ["THETA_NAMES", "THETA_LOW", "THETA_HIGH", "THETA_UNITS", "Theta", "PolicySpace",
-           "SPACES", "policy_space", "Reference", "opponent_neighbours", "reference_trajectory",
-           "clear_cache"]
+__all__ = [
+    "THETA_NAMES",
+    "THETA_LOW",
+    "THETA_HIGH",
+    "THETA_UNITS",
+    "Theta",
+    "PolicySpace",
+    "SPACES",
+    "policy_space",
+    "Reference",
+    "opponent_neighbours",
+    "reference_trajectory",
+    "clear_cache",
+]
+
 
 # ====================================================================== tables
 class _Tables:
@@ -55,15 +79,38 @@ class _Tables:
     interpolates without wrapping (``st2``, ``tt2``, ``sdot2``, ``ndot2``, ``wl2``, ``wr2``); single-lap
     tables plus one point (``nrl``, ``kap``, ``wl``, ``wr``) for scalar look-ups."""
 
-    __slots__ = ("L", "T", "M", "inv_ds", "st", "tt", "st2", "tt2", "sdot2", "ndot2", "wl2",
-                 "wr2", "nrl", "nrl2", "kap", "wl", "wr", "w_const", "refs", "run_t", "run_v",
-                 "run_x")
+    __slots__ = (
+        "L",
+        "T",
+        "M",
+        "inv_ds",
+        "st",
+        "tt",
+        "st2",
+        "tt2",
+        "sdot2",
+        "ndot2",
+        "wl2",
+        "wr2",
+        "nrl",
+        "nrl2",
+        "kap",
+        "wl",
+        "wr",
+        "w_const",
+        "refs",
+        "run_t",
+        "run_v",
+        "run_x",
+    )
 
     def __init__(self, raceline, track, friction):
         L = float(track.length)
         if abs(float(raceline.track_length) - L) > 1e-6 * max(L, 1.0):
-            raise ValueError(f"raceline is for a track of length {raceline.track_length} m, "
-                             f"but the track is {L} m long")
+            raise ValueError(
+                f"raceline is for a track of length {raceline.track_length} m, "
+                f"but the track is {L} m long"
+            )
         st = np.asarray(raceline.s_track, dtype=float)
         M = len(st)
         if M < 2 or np.max(np.abs(st - np.arange(M) * (L / M))) > 1e-6 * L:
@@ -91,7 +138,7 @@ class _Tables:
         self.L, self.M = L, M
         self.inv_ds = M / L
         grid = np.arange(2 * M + 1) * (L / M)
-        self.st = grid[:M + 1]
+        self.st = grid[: M + 1]
         self.st2 = grid
         tt = np.concatenate([[0.0], np.cumsum(dt_seg)])
         self.tt = tt
@@ -102,10 +149,11 @@ class _Tables:
         self.nrl, self.kap, self.wl, self.wr = ext(n), ext(kap_c), ext(wl), ext(wr)
         const = np.ptp(wl) == 0 and np.ptp(wr) == 0
         self.w_const = (float(wl[0]), float(wr[0])) if const else None
-        self.run_t, self.run_v, self.run_x = _run_up(friction if friction is not None
-                                                     else float(raceline.mu_nominal))
+        self.run_t, self.run_v, self.run_x = _run_up(
+            friction if friction is not None else float(raceline.mu_nominal)
+        )
         # (not set read-only: np.interp copies read-only tables on every call)
-        self.refs = (raceline, track)   # keep them alive so their ids stay unique
+        self.refs = (raceline, track)  # keep them alive so their ids stay unique
 
 
 def _run_up(mu: float, dt: float = 0.005, t_max: float = 60.0):
@@ -114,13 +162,14 @@ def _run_up(mu: float, dt: float = 0.005, t_max: float = 60.0):
     each shape (P,). The drive limit depends on speed only, so the run from any speed ``v0``
     is this one's tail from the time it passes ``v0``."""
     from racing_env.envelope import ggv
+
     env = ggv()
     v_grid = np.linspace(0.0, env.top_speed, 400)
     a_grid = np.maximum(env.longitudinal_limits(v_grid, 0.0, mu)[0], 0.0)
     t, v, x = [0.0], [0.0], [0.0]
     while t[-1] < t_max:
         a = float(np.interp(v[-1], v_grid, a_grid))
-        if a < 1e-3:                                       # at the top speed
+        if a < 1e-3:  # at the top speed
             break
         v_new = v[-1] + a * dt
         x.append(x[-1] + 0.5 * (v[-1] + v_new) * dt)
@@ -163,8 +212,7 @@ class Reference:
       :func:`reference_trajectory` chose it (``side`` given), 0 where no shift applies.
     """
 
-    __slots__ = ("s_ref", "n_ref", "n_pert", "n_ot", "n_bl", "v_pert", "ahead", "behind",
-                 "side")
+    __slots__ = ("s_ref", "n_ref", "n_pert", "n_ot", "n_bl", "v_pert", "ahead", "behind", "side")
 
     def __init__(self, s_ref, n_ref, n_pert, n_ot, n_bl, v_pert, ahead, behind, side=0.0):
         self.s_ref, self.n_ref, self.n_pert = s_ref, n_ref, n_pert
@@ -177,10 +225,12 @@ class Reference:
         return self.s_ref
 
     def __repr__(self) -> str:
-        return (f"Reference(K={len(self.s_ref)}, s {self.s_ref[0]:.3f}..{self.s_ref[-1]:.3f} m, "
-                f"ahead={self.ahead}, behind={self.behind}, "
-                f"max|n_ot|={np.max(np.abs(self.n_ot)):.3g} m, "
-                f"max|n_bl|={np.max(np.abs(self.n_bl)):.3g} m)")
+        return (
+            f"Reference(K={len(self.s_ref)}, s {self.s_ref[0]:.3f}..{self.s_ref[-1]:.3f} m, "
+            f"ahead={self.ahead}, behind={self.behind}, "
+            f"max|n_ot|={np.max(np.abs(self.n_ot)):.3g} m, "
+            f"max|n_bl|={np.max(np.abs(self.n_bl)):.3g} m)"
+        )
 
 
 _STATE_NAMES = ("s", "n", "mu", "vx", "vy", "omega")
@@ -193,12 +243,21 @@ def _bad_state(name: str, arr: np.ndarray) -> None:
     raise ValueError(f"{where} state {_STATE_NAMES[c]} is not finite: {float(flat[r, c])!r}")
 
 
-def reference_trajectory(theta: Theta | Sequence[float] | np.ndarray, ego: np.ndarray,
-                         opponents: np.ndarray | None, raceline: Raceline, track: Track,
-                         K: int = 15, dt: float = 0.1,
-                         vehicle_width: float | None = None, friction: float | None = None,
-                         integration: str = "exact", reachable: bool = True,
-                         blend: float | None = None, side: float | None = None) -> Reference:
+def reference_trajectory(
+    theta: Theta | Sequence[float] | np.ndarray,
+    ego: np.ndarray,
+    opponents: np.ndarray | None,
+    raceline: Raceline,
+    track: Track,
+    K: int = 15,
+    dt: float = 0.1,
+    vehicle_width: float | None = None,
+    friction: float | None = None,
+    integration: str = "exact",
+    reachable: bool = True,
+    blend: float | None = None,
+    side: float | None = None,
+) -> Reference:
     """The MPC reference of the paper for one car.
 
     Parameters
@@ -312,33 +371,39 @@ def reference_trajectory(theta: Theta | Sequence[float] | np.ndarray, ego: np.nd
     else:
         w_half = 0.5 * float(vehicle_width)
         if not (math.isfinite(w_half) and w_half >= 0):
-            raise ValueError(f"vehicle_width must be a finite width >= 0 [m], got {vehicle_width!r}")
+            raise ValueError(
+                f"vehicle_width must be a finite width >= 0 [m], got {vehicle_width!r}"
+            )
     tab = _tables(raceline, track, friction)
     L, inv_ds = tab.L, tab.inv_ds
-    steps, steps1 = _steps(K, dt)                          # dt*(0..K), dt*(1..K)
+    steps, steps1 = _steps(K, dt)  # dt*(0..K), dt*(1..K)
     s_e, n_e = float(x[0]), float(x[1])
-    base = math.floor(s_e / L) * L                         # start of the ego's lap [m]
-    s_e_w = s_e - base                                     # in [0, L)
+    base = math.floor(s_e / L) * L  # start of the ego's lap [m]
+    s_e_w = s_e - base  # in [0, L)
 
     # ---- 1. perturbed race line, sampled in time from the ego's s
-    s_pert, n_pert, n_pert0, v_pert = _perturbed_line(tab, th.zeta, s_e, s_e_w, steps, K, dt,
-                                                      exact)
-    if th.b > 0.0:                                         # extended space: blend the lines
+    s_pert, n_pert, n_pert0, v_pert = _perturbed_line(tab, th.zeta, s_e, s_e_w, steps, K, dt, exact)
+    if th.b > 0.0:  # extended space: blend the lines
         if blend is None:
-            raise ValueError(f"theta b = {th.b!r} blends in a second race line; pass it as "
-                             f"blend= (the track's lap-time line)")
-        s_b, n_b, n_b0, v_b = _perturbed_line(_tables(blend, track, friction), th.zeta, s_e,
-                                              s_e_w, steps, K, dt, exact)
+            raise ValueError(
+                f"theta b = {th.b!r} blends in a second race line; pass it as "
+                f"blend= (the track's lap-time line)"
+            )
+        s_b, n_b, n_b0, v_b = _perturbed_line(
+            _tables(blend, track, friction), th.zeta, s_e, s_e_w, steps, K, dt, exact
+        )
         a = 1.0 - th.b
         s_pert = a * s_pert + th.b * s_b
         n_pert = a * n_pert + th.b * n_b
         n_pert0 = a * n_pert0 + th.b * n_b0
         v_pert = a * v_pert + th.b * v_b
-    if reachable:                                          # ---- 1b. cap at the run-up
+    if reachable:  # ---- 1b. cap at the run-up
         den_e = 1.0 - n_e * _interp1(tab.kap, s_e_w, inv_ds)
         if den_e <= 0:
-            raise ValueError(f"ego at n = {n_e!r} lies beyond the centre line's radius of "
-                             f"curvature (1 - n kappa = {den_e:.3g} <= 0)")
+            raise ValueError(
+                f"ego at n = {n_e!r} lies beyond the centre line's radius of "
+                f"curvature (1 - n kappa = {den_e:.3g} <= 0)"
+            )
         v0 = max((x[3] * math.cos(x[2]) - x[4] * math.sin(x[2])) / den_e, 0.0)
         run_t, run_v, run_x = tab.run_t, tab.run_v, tab.run_x
         if v0 < run_v[-1]:
@@ -346,24 +411,27 @@ def reference_trajectory(theta: Theta | Sequence[float] | np.ndarray, ego: np.nd
             tr = steps1 + t0
             reach = np.interp(tr, run_t, run_x)
             reach -= float(np.interp(t0, run_t, run_x))
-            beyond = tr > run_t[-1]                        # past the run's end: at top speed
+            beyond = tr > run_t[-1]  # past the run's end: at top speed
             if beyond.any():
                 reach[beyond] += (tr[beyond] - run_t[-1]) * run_v[-1]
             v_run = np.interp(tr, run_t, run_v)
-        else:                                              # at (or above) the top speed
+        else:  # at (or above) the top speed
             reach = steps1 * v0
             v_run = np.full(K, v0)
         reach *= REACH_SLACK
         capped = s_pert - s_e > reach
         if capped.any():
             # same path, later: n as a function of progress along the uncapped reference
-            n_pert = np.where(capped, np.interp(s_e + reach, np.append(s_e, s_pert),
-                                                np.append(n_pert0, n_pert)), n_pert)
+            n_pert = np.where(
+                capped,
+                np.interp(s_e + reach, np.append(s_e, s_pert), np.append(n_pert0, n_pert)),
+                n_pert,
+            )
             s_pert = np.where(capped, s_e + reach, s_pert)
             v_pert = np.where(capped, np.minimum(v_pert, v_run), v_pert)
 
     n_ref = n_pert.copy()
-    n_ot = n_bl = None                                     # stay None while no shift applies
+    n_ot = n_bl = None  # stay None while no shift applies
     ahead = behind = -1
     pass_side = 0.0
     if m:
@@ -371,28 +439,30 @@ def reference_trajectory(theta: Theta | Sequence[float] | np.ndarray, ego: np.nd
         ahead, behind = _neighbours_list([r[0] - s_e for r in rows])
         s1, s2, s3 = th.s1, th.s2, th.s3
         v_min = float(v_pert.min()) if s3 > 0 else math.inf
-        for j in (ahead, behind):                          # at most 2; vectorised over K
+        for j in (ahead, behind):  # at most 2; vectorised over K
             if j < 0:
                 continue
             sj, nj, muj, vxj, vyj, _ = rows[j]
             sj_w = sj - math.floor(sj / L) * L
             den = 1.0 - nj * _interp1(tab.kap, sj_w, inv_ds)
             if den <= 0:
-                raise ValueError(f"opponents[{j}] at n = {nj!r} lies beyond the centre line's "
-                                 f"radius of curvature (1 - n kappa = {den:.3g} <= 0)")
-            vj = (vxj * math.cos(muj) - vyj * math.sin(muj)) / den    # Frenet progress rate
+                raise ValueError(
+                    f"opponents[{j}] at n = {nj!r} lies beyond the centre line's "
+                    f"radius of curvature (1 - n kappa = {den:.3g} <= 0)"
+                )
+            vj = (vxj * math.cos(muj) - vyj * math.sin(muj)) / den  # Frenet progress rate
             gap = steps1 * -vj
             gap -= sj
-            gap += s_pert                                  # (K,) s_pert^k - s_j^k, unwrapped
+            gap += s_pert  # (K,) s_pert^k - s_j^k, unwrapped
             decay = gap * gap
             decay *= -s2
-            np.exp(decay, out=decay)                       # (K,) exp(-s2 gap^2)
+            np.exp(decay, out=decay)  # (K,) exp(-s2 gap^2)
             # ---- 3. overtake: sign(dn) max((s1 - |dn|) decay, 0); decay > 0 leaves the max
             #      to the scalar (s1 - |dn|)
             dn = n_e - nj
-            if side is not None and j == ahead:            # extended: chosen / held side
+            if side is not None and j == ahead:  # extended: chosen / held side
                 sgn = _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half)
-                c = s1 - sgn * dn                          # to s1 beside j on that side
+                c = s1 - sgn * dn  # to s1 beside j on that side
                 pass_side = sgn if decay.max() > PASS_HOLD_DECAY else 0.0
             else:
                 c = s1 - abs(dn)
@@ -400,7 +470,7 @@ def reference_trajectory(theta: Theta | Sequence[float] | np.ndarray, ego: np.nd
                     sgn = 1.0
                 elif dn < 0:
                     sgn = -1.0
-                else:                                      # level: side with more room
+                else:  # level: side with more room
                     room_l, room_r = _room(tab, sj_w, inv_ds, nj)
                     sgn = 1.0 if room_l >= room_r else -1.0
             if c > 0:
@@ -414,14 +484,14 @@ def reference_trajectory(theta: Theta | Sequence[float] | np.ndarray, ego: np.nd
             # The speed indicator is implicit: 1 - exp(-s3 max(v_j - v_pert, 0)) is 0 where
             # the ego reference is at least as fast.
             if s3 > 0 and vj >= v_min:
-                behind_ref = gap >= 0                      # (K,) 1(s_pert^k >= s_j^k)
+                behind_ref = gap >= 0  # (K,) 1(s_pert^k >= s_j^k)
                 if behind_ref.any():
-                    dv = v_pert - vj                       # (K,) < 0 where j is faster
+                    dv = v_pert - vj  # (K,) < 0 where j is faster
                     dv *= s3
                     np.minimum(dv, 0.0, out=dv)
-                    np.expm1(dv, out=dv)                   # -(1 - exp(-s3 max(v_j - v_pert, 0)))
+                    np.expm1(dv, out=dv)  # -(1 - exp(-s3 max(v_j - v_pert, 0)))
                     dv *= decay
-                    decay_c = n_pert - nj                  # (n_pert - n_j) flips the sign back
+                    decay_c = n_pert - nj  # (n_pert - n_j) flips the sign back
                     dv *= decay_c
                     dv *= behind_ref
                     if n_bl is None:
@@ -438,11 +508,11 @@ def reference_trajectory(theta: Theta | Sequence[float] | np.ndarray, ego: np.nd
         n_bl = np.zeros(K)
 
     # ---- 5. clip to the track at s_ref
-    if tab.w_const is not None:                            # constant widths: scalar bounds
+    if tab.w_const is not None:  # constant widths: scalar bounds
         np.minimum(n_ref, tab.w_const[0] - w_half, out=n_ref)
         np.maximum(n_ref, w_half - tab.w_const[1], out=n_ref)
     else:
-        s_w = s_pert - base                                # [0, 2L) unless the horizon is long
+        s_w = s_pert - base  # [0, 2L) unless the horizon is long
         if s_w[-1] >= 2.0 * L:
             s_w = s_w - np.floor(s_w / L) * L
         hi = np.interp(s_w, tab.st2, tab.wl2)
@@ -492,19 +562,19 @@ def _perturbed_line(tab, zeta, s_e, s_e_w, steps, K, dt, exact):
     """Step 1 of :func:`reference_trajectory` on one race line's tables: ``(s_pert, n_pert,
     n_pert0, v_pert)``, shapes (K,), (K,), scalar, (K,)."""
     L, T, inv_ds = tab.L, tab.T, tab.inv_ds
-    tk = steps + _interp1(tab.tt, s_e_w, inv_ds)           # (K+1,) race-line times [s]
+    tk = steps + _interp1(tab.tt, s_e_w, inv_ds)  # (K+1,) race-line times [s]
     if tk[-1] < 2.0 * T:
-        skw = np.interp(tk, tab.tt2, tab.st2)              # race-line s at tk, 0..2L [m]
-        sk = skw                                           # ... already unwrapped from base
-    else:                                                  # horizon longer than a lap
+        skw = np.interp(tk, tab.tt2, tab.st2)  # race-line s at tk, 0..2L [m]
+        sk = skw  # ... already unwrapped from base
+    else:  # horizon longer than a lap
         lapk = np.floor(tk / T)
-        skw = np.interp(tk - lapk * T, tab.tt2, tab.st2)   # wrapped, [0, L]
-        sk = skw + lapk * L                                # unwrapped from base
-    sd = np.interp(skw, tab.st2, tab.sdot2)                # (K+1,) race-line s_dot [m/s]
+        skw = np.interp(tk - lapk * T, tab.tt2, tab.st2)  # wrapped, [0, L]
+        sk = skw + lapk * L  # unwrapped from base
+    sd = np.interp(skw, tab.st2, tab.sdot2)  # (K+1,) race-line s_dot [m/s]
     if exact:
         # step velocity = race-line displacement over the step / dt (exact time average of the
         # Frenet velocity), so p_pert^k = p^0 + zeta (p_rl(t_k) - p_rl(t_0))
-        nk = np.interp(skw, tab.st2, tab.nrl2)             # (K+1,) race-line n at t_k
+        nk = np.interp(skw, tab.st2, tab.nrl2)  # (K+1,) race-line n at t_k
         s_pert = sk[1:] - sk[0]
         s_pert *= zeta
         s_pert += s_e
@@ -514,7 +584,7 @@ def _perturbed_line(tab, zeta, s_e, s_e_w, steps, K, dt, exact):
         n_pert += nk[0]
     else:
         # explicit Euler on the point velocities at t_{k-1}, literally as printed
-        nd = np.interp(skw, tab.st2, tab.ndot2)            # (K+1,) race-line n_dot [m/s]
+        nd = np.interp(skw, tab.st2, tab.ndot2)  # (K+1,) race-line n_dot [m/s]
         zdt = zeta * dt
         s_pert = sd[:K].cumsum()
         s_pert *= zdt
@@ -524,7 +594,7 @@ def _perturbed_line(tab, zeta, s_e, s_e_w, steps, K, dt, exact):
         n_pert *= zdt
         n_pert += n_pert0
     v_pert = sd[1:]
-    v_pert *= zeta                                      # (K,) zeta * s_dot_rl(t_k)
+    v_pert *= zeta  # (K,) zeta * s_dot_rl(t_k)
     return s_pert, n_pert, n_pert0, v_pert
 
 

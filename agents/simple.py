@@ -1,4 +1,5 @@
 """Simple agents: the raceline follower, and random / constant drivers for tests and benchmarks."""
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -37,7 +38,9 @@ class ConstantAgent:
 
     def __init__(self, throttle: float = 0.5, steering: float = 0.0):
         if not (-1 <= throttle <= 1 and -1 <= steering <= 1):
-            raise ValueError(f"throttle and steering must be in [-1, 1], got {throttle}, {steering}")
+            raise ValueError(
+                f"throttle and steering must be in [-1, 1], got {throttle}, {steering}"
+            )
         self.action = np.array([throttle, steering], dtype=np.float32)
 
     def reset(self, track: Track | str, agent_id: str, seed: int | None = None) -> None:

@@ -2,6 +2,7 @@
 extended space's ``b``, with their bounds, units and validation (:class:`Theta`,
 :class:`PolicySpace`). :mod:`agents.reference` builds the MPC reference from a theta and
 re-exports these names."""
+
 from __future__ import annotations
 
 import math
@@ -13,9 +14,21 @@ import numpy as np
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ["THETA_NAMES", "THETA_LOW", "THETA_HIGH", "THETA_UNITS", "THETA_BOUNDS_DOC", "Theta",
-           "EXTENDED_NAMES", "EXTENDED_LOW", "EXTENDED_HIGH", "PolicySpace", "SPACES",
-           "policy_space", "space_of"]
+__all__ = [
+    "THETA_NAMES",
+    "THETA_LOW",
+    "THETA_HIGH",
+    "THETA_UNITS",
+    "THETA_BOUNDS_DOC",
+    "Theta",
+    "EXTENDED_NAMES",
+    "EXTENDED_LOW",
+    "EXTENDED_HIGH",
+    "PolicySpace",
+    "SPACES",
+    "policy_space",
+    "space_of",
+]
 
 # ====================================================================== theta
 THETA_NAMES = ("q", "zeta", "s1", "s2", "s3")
@@ -96,8 +109,10 @@ class Theta:
         ``"extended"``). A theta with ``b > 0`` is not in the paper's space (``ValueError``)."""
         if policy_space(space).dim == 5:
             if self.b != 0.0:
-                raise ValueError(f"theta with b = {self.b!r} is outside the paper's space "
-                                 f"(its race line is the minimum-curvature line, b = 0)")
+                raise ValueError(
+                    f"theta with b = {self.b!r} is outside the paper's space "
+                    f"(its race line is the minimum-curvature line, b = 0)"
+                )
             return np.array([self.q, self.zeta, self.s1, self.s2, self.s3], dtype=float)
         return np.array([self.q, self.zeta, self.s1, self.s2, self.s3, self.b], dtype=float)
 
@@ -110,8 +125,10 @@ class Theta:
             return a
         arr = np.asarray(a, dtype=float)
         if arr.shape not in ((5,), (6,)):
-            raise ValueError(f"theta must have shape (5,) {THETA_NAMES} or (6,) "
-                             f"{EXTENDED_NAMES}, got shape {arr.shape}")
+            raise ValueError(
+                f"theta must have shape (5,) {THETA_NAMES} or (6,) "
+                f"{EXTENDED_NAMES}, got shape {arr.shape}"
+            )
         return cls(*(float(x) for x in arr))
 
     @classmethod
@@ -161,8 +178,10 @@ class PolicySpace:
         """The :class:`Theta` of an array-like of shape (dim,) (``ValueError`` otherwise)."""
         arr = np.asarray(a, dtype=float)
         if arr.shape != (self.dim,):
-            raise ValueError(f"a theta of the {self.name!r} space has shape ({self.dim},) "
-                             f"{self.names}, got shape {arr.shape}")
+            raise ValueError(
+                f"a theta of the {self.name!r} space has shape ({self.dim},) "
+                f"{self.names}, got shape {arr.shape}"
+            )
         return Theta.from_array(arr)
 
     def array(self, theta: Theta) -> np.ndarray:
@@ -177,8 +196,9 @@ class PolicySpace:
 
 SPACES = {
     "paper": PolicySpace("paper", THETA_NAMES, THETA_LOW, THETA_HIGH, THETA_UNITS),
-    "extended": PolicySpace("extended", EXTENDED_NAMES, EXTENDED_LOW, EXTENDED_HIGH,
-                            THETA_UNITS + ("-",)),
+    "extended": PolicySpace(
+        "extended", EXTENDED_NAMES, EXTENDED_LOW, EXTENDED_HIGH, THETA_UNITS + ("-",)
+    ),
 }
 """The policy spaces by name."""
 

@@ -13,6 +13,7 @@ hangs on a last bit must not change with ``OPENBLAS_NUM_THREADS``.
 * :func:`single_blas_thread`: a cheap (~10 us) block limiting only the BLAS pool, for every
   decision of an agent (the alpha agent's potential maximisation and MPC).
 """
+
 from __future__ import annotations
 
 import os
@@ -55,6 +56,7 @@ def pin_threads(n: int = 1) -> None:
     already loaded (threadpoolctl), the variables for pools started later, torch and numba.
     Meant for worker processes (a pool initialiser, a Ray task's first call)."""
     from threadpoolctl import threadpool_limits
+
     for var in THREAD_VARIABLES:
         os.environ[var] = str(n)
     threadpool_limits(n)
@@ -66,6 +68,7 @@ def limited_threads(n: int = 1) -> Iterator[None]:
     """Every native thread pool at ``n`` threads inside the block, the previous limits after
     it. Costs about a millisecond (it scans the loaded libraries): once per task, not per step."""
     from threadpoolctl import threadpool_limits
+
     with threadpool_limits(n):
         old_torch, old_numba = _set_torch_numba(n)
         try:
@@ -101,12 +104,13 @@ def single_blas_thread() -> Iterator[None]:
         return
     if _controller is None:
         from threadpoolctl import ThreadpoolController
+
         _controller = ThreadpoolController()
         _blas = _controller.select(user_api="blas").lib_controllers
     _depth = 1
     try:
-        if all(lib.num_threads == 1 for lib in _blas):   # a pinned worker: nothing to switch
-            yield                                         # (3 us against 21 us for the switch)
+        if all(lib.num_threads == 1 for lib in _blas):  # a pinned worker: nothing to switch
+            yield  # (3 us against 21 us for the switch)
         else:
             with _controller.limit(limits=1, user_api="blas"):
                 yield

@@ -19,6 +19,7 @@ Prints
   median, 95th percentile and maximum, in units of Phi and relative to the spread of Phi
   (Phi_dense - the median of the random thetas).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -38,10 +39,18 @@ def main() -> None:
     ap.add_argument("--model", default="default")
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--iterations", type=int, default=None,
-                    help="the agent's ascent steps per decision (default: the agent's default)")
-    ap.add_argument("--quality-states", type=int, default=200,
-                    help="recorded states for the quality comparison (0: skip it)")
+    ap.add_argument(
+        "--iterations",
+        type=int,
+        default=None,
+        help="the agent's ascent steps per decision (default: the agent's default)",
+    )
+    ap.add_argument(
+        "--quality-states",
+        type=int,
+        default=200,
+        help="recorded states for the quality comparison (0: skip it)",
+    )
     args = ap.parse_args()
     warnings.simplefilter("ignore")
     import racing_env
@@ -51,8 +60,9 @@ def main() -> None:
 
     env = racing_env.parallel_env(n_cars=3, max_cycles=args.steps)
     obs, _ = env.reset(seed=args.seed, options={"order": [1, 0, 2]})
-    alpha = AlphaAgent(model=args.model, **({} if args.iterations is None
-                                            else {"iterations": args.iterations}))
+    alpha = AlphaAgent(
+        model=args.model, **({} if args.iterations is None else {"iterations": args.iterations})
+    )
     cars = [alpha, make_agent_spec("mpc:zeta=0.85"), make_agent_spec("mpc:zeta=0.8")]
     for agent, aid in zip(cars, env.possible_agents):
         agent.reset(env.track, aid, args.seed)
@@ -64,41 +74,58 @@ def main() -> None:
         t0 = time.perf_counter()
         a0 = alpha.act(obs["car_0"])
         decision_ms.append(1e3 * (time.perf_counter() - t0))
-        actions = {"car_0": a0, **{a: c.act(obs[a]) for a, c in zip(env.possible_agents[1:], cars[1:])}}
+        actions = {
+            "car_0": a0,
+            **{a: c.act(obs[a]) for a, c in zip(env.possible_agents[1:], cars[1:])},
+        }
         obs, *_ = env.step(actions)
     st = alpha.stats
     dm = np.asarray(decision_ms)
     print(f"alpha agent, {len(dm)} decisions in a 3-car race on 'default' (model {args.model!r})")
-    print(f"  maximisation of Phi: median {st['maximise_ms_median']:.2f} ms, p99 "
-          f"{st['maximise_ms_p99']:.2f} ms   (goal: median <= 2 ms; restarts {alpha.restarts}, "
-          f"iterations {alpha.iterations}; first decision {alpha.cold_restarts} x "
-          f"{alpha.cold_iterations})")
-    print(f"  MPC solve:           median {st['solve_ms_median']:.2f} ms, p99 {st['solve_ms_p99']:.2f} ms")
-    print(f"  whole decision:      median {np.median(dm):.2f} ms, p99 {np.percentile(dm, 99):.2f} ms")
+    print(
+        f"  maximisation of Phi: median {st['maximise_ms_median']:.2f} ms, p99 "
+        f"{st['maximise_ms_p99']:.2f} ms   (goal: median <= 2 ms; restarts {alpha.restarts}, "
+        f"iterations {alpha.iterations}; first decision {alpha.cold_restarts} x "
+        f"{alpha.cold_iterations})"
+    )
+    print(
+        f"  MPC solve:           median {st['solve_ms_median']:.2f} ms, p99 {st['solve_ms_p99']:.2f} ms"
+    )
+    print(
+        f"  whole decision:      median {np.median(dm):.2f} ms, p99 {np.percentile(dm, 99):.2f} ms"
+    )
 
     model, track = alpha.model, env.track
-    new = lambda x, w, rng: model.maximise(x, track, w, rng=rng, restarts=alpha.restarts,
-                                           iterations=alpha.iterations)
+    new = lambda x, w, rng: model.maximise(
+        x, track, w, rng=rng, restarts=alpha.restarts, iterations=alpha.iterations
+    )
     old = lambda x, w, rng: model.maximise_reference(x, track, w, rng=rng, restarts=4, iterations=6)
     t_new, t_old = [], []
-    for rep in range(2):                                   # interleaved, warm starts of the race
+    for rep in range(2):  # interleaved, warm starts of the race
         for k in range(1, len(joints)):
-            for f, out in ((new, t_new), (old, t_old)) if (k + rep) % 2 else ((old, t_old), (new, t_new)):
+            for f, out in (
+                ((new, t_new), (old, t_old)) if (k + rep) % 2 else ((old, t_old), (new, t_new))
+            ):
                 t0 = time.perf_counter()
                 f(joints[k], warm[k], np.random.default_rng(k))
                 out.append(1e3 * (time.perf_counter() - t0))
     mn, mo = np.median(t_new), np.median(t_old)
     print(f"  maximisation on the race's {len(joints) - 1} warm-started states, interleaved:")
     print(f"    maximise:           median {mn:.3f} ms, p99 {np.percentile(t_new, 99):.3f} ms")
-    print(f"    maximise_reference: median {mo:.3f} ms, p99 {np.percentile(t_old, 99):.3f} ms"
-          f"   (first release: restarts 4, iterations 6)")
+    print(
+        f"    maximise_reference: median {mo:.3f} ms, p99 {np.percentile(t_old, 99):.3f} ms"
+        f"   (first release: restarts 4, iterations 6)"
+    )
     print(f"    ratio of medians:   {mn / mo:.2f} (new / reference), {mo / mn:.2f}x faster")
     if args.quality_states <= 0:
         return
 
     rng = np.random.default_rng(1)
-    sample = np.sort(rng.choice(np.arange(1, len(joints)),
-                                size=min(args.quality_states, len(joints) - 1), replace=False))
+    sample = np.sort(
+        rng.choice(
+            np.arange(1, len(joints)), size=min(args.quality_states, len(joints) - 1), replace=False
+        )
+    )
     short = {key: [] for key in ("new", "old", "new_cold", "old_cold")}
     spread = []
     for k in sample:
@@ -106,25 +133,55 @@ def main() -> None:
         sp = model.space
         th = rng.uniform(sp.low, sp.high, (4096, 3, sp.dim))
         phi_rand = model.potential(np.repeat(x[None], 4096, 0), th, track)
-        dense = max(phi_rand.max(),
-                    model.maximise(x, track, w, restarts=32, iterations=40, decay=0.9,
-                                   rng=np.random.default_rng(10 * k))[1],
-                    model.maximise_reference(x, track, w, restarts=32, iterations=40, step=0.3,
-                                             decay=0.9, rng=np.random.default_rng(10 * k + 1))[1])
+        dense = max(
+            phi_rand.max(),
+            model.maximise(
+                x,
+                track,
+                w,
+                restarts=32,
+                iterations=40,
+                decay=0.9,
+                rng=np.random.default_rng(10 * k),
+            )[1],
+            model.maximise_reference(
+                x,
+                track,
+                w,
+                restarts=32,
+                iterations=40,
+                step=0.3,
+                decay=0.9,
+                rng=np.random.default_rng(10 * k + 1),
+            )[1],
+        )
         g = np.random.default_rng(k)
         short["new"].append(dense - new(x, w, g)[1])
         short["old"].append(dense - old(x, w, np.random.default_rng(k))[1])
-        short["new_cold"].append(dense - model.maximise(
-            x, track, None, restarts=alpha.cold_restarts, iterations=alpha.cold_iterations,
-            rng=np.random.default_rng(k))[1])
+        short["new_cold"].append(
+            dense
+            - model.maximise(
+                x,
+                track,
+                None,
+                restarts=alpha.cold_restarts,
+                iterations=alpha.cold_iterations,
+                rng=np.random.default_rng(k),
+            )[1]
+        )
         short["old_cold"].append(dense - old(x, None, np.random.default_rng(k))[1])
         spread.append(dense - np.median(phi_rand))
     spread = np.asarray(spread)
-    print(f"  shortfall Phi_dense - Phi* on {len(sample)} states of the race (spread of Phi: "
-          f"median {np.median(spread):.2f}); in Phi | relative to the spread:")
-    for key, label in (("new", "maximise, warm start"), ("old", "reference, warm start"),
-                       ("new_cold", f"maximise, cold {alpha.cold_restarts} x {alpha.cold_iterations}"),
-                       ("old_cold", "reference, cold 4 x 6")):
+    print(
+        f"  shortfall Phi_dense - Phi* on {len(sample)} states of the race (spread of Phi: "
+        f"median {np.median(spread):.2f}); in Phi | relative to the spread:"
+    )
+    for key, label in (
+        ("new", "maximise, warm start"),
+        ("old", "reference, warm start"),
+        ("new_cold", f"maximise, cold {alpha.cold_restarts} x {alpha.cold_iterations}"),
+        ("old_cold", "reference, cold 4 x 6"),
+    ):
         s = np.asarray(short[key])
         print(f"    {label:<26} {_stats(s)} | {_stats(s / spread)}")
 

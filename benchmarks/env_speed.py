@@ -9,6 +9,7 @@ parking against a wall. Two figures per N: the throughput of ``env.step`` alone 
 environment's cost) and of the whole loop including the agents. Baseline: f1tenth_gym,
 measured on this machine class at under 900 env steps/s with 2 cars and about 200/s with 4.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,7 +37,7 @@ def bench_pettingzoo(n_cars: int, steps: int) -> tuple[float, float]:
     env = RacingParallelEnv(n_cars=n_cars, max_cycles=steps + 10, start="grid")
     obs, _ = env.reset(seed=0)
     col = 6 * n_cars
-    for _ in range(20):   # warm-up (JIT, caches)
+    for _ in range(20):  # warm-up (JIT, caches)
         obs, *_ = env.step({a: lane_keeper(o, col) for a, o in obs.items()})
     env.reset(seed=0)
     t_env = 0.0
@@ -53,7 +54,9 @@ def bench_pettingzoo(n_cars: int, steps: int) -> tuple[float, float]:
 def bench_batched(n_races: int, n_cars: int, steps: int, threads: int) -> tuple[float, float]:
     """(car-steps per second of BatchedRaces.step, mean RK4 sub-steps)."""
     numba.set_num_threads(threads)
-    races = BatchedRaces("default", RaceConfig(n_cars=n_cars, max_cycles=10 ** 6), n_races=n_races, seed=0)
+    races = BatchedRaces(
+        "default", RaceConfig(n_cars=n_cars, max_cycles=10**6), n_races=n_races, seed=0
+    )
     obs = races.reset()
     col = 6 * n_cars
     for _ in range(5):

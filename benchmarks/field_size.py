@@ -19,6 +19,7 @@ track, contact car-steps, fallbacks summed over the agents' ``stats``, and an ex
 the experiments' workers. The machine's load average is printed: other work on it inflates
 every wall-clock figure, not the CPU times as much.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -61,9 +62,10 @@ def field_race(spec: str, n: int, steps: int, seed: int = 0) -> dict:
                 actions[aid] = action
             obs, _, _, _, _ = env.step(actions)
             out["steps"] += 1
-        out["fallbacks"] = sum(int((getattr(a, "stats", {}) or {}).get("fallbacks", 0))
-                               for a in agents)
-    except Exception as exc:          # reported in the table, not raised: the others go on
+        out["fallbacks"] = sum(
+            int((getattr(a, "stats", {}) or {}).get("fallbacks", 0)) for a in agents
+        )
+    except Exception as exc:  # reported in the table, not raised: the others go on
         out["error"] = f"{type(exc).__name__}: {exc}"
     if env is not None and env.core.state is not None:
         core = env.core
@@ -77,15 +79,20 @@ def field_race(spec: str, n: int, steps: int, seed: int = 0) -> dict:
 
 def _row(spec: str, n: int, r: dict) -> str:
     w, c = r["wall_ms"], r["cpu_ms"]
-    times = (f"{np.median(w):8.3f} {np.percentile(w, 99):8.3f} {w.max():8.3f} "
-             f"{np.median(c):8.3f} {100 * np.mean(w > CONTROL_PERIOD_MS):6.1f}%"
-             if w.size else f"{'-':>8} {'-':>8} {'-':>8} {'-':>8} {'-':>7}")
-    if not r["steps"]:                 # no step was taken: nothing to say about the race
+    times = (
+        f"{np.median(w):8.3f} {np.percentile(w, 99):8.3f} {w.max():8.3f} "
+        f"{np.median(c):8.3f} {100 * np.mean(w > CONTROL_PERIOD_MS):6.1f}%"
+        if w.size
+        else f"{'-':>8} {'-':>8} {'-':>8} {'-':>8} {'-':>7}"
+    )
+    if not r["steps"]:  # no step was taken: nothing to say about the race
         health = f"{'-':>4} {'-':>6} {'-':>11} {'-':>7} {'-':>5}"
     else:
-        health = (f"{r['nan_actions']:>4} {'yes' if r.get('finite_states') else 'NO':>6} "
-                  f"{r.get('off_track_steps', '-'):>6}/{r.get('cars_off_track', '-'):<4} "
-                  f"{r.get('contact_steps', '-'):>7} {r.get('fallbacks', '-'):>5}")
+        health = (
+            f"{r['nan_actions']:>4} {'yes' if r.get('finite_states') else 'NO':>6} "
+            f"{r.get('off_track_steps', '-'):>6}/{r.get('cars_off_track', '-'):<4} "
+            f"{r.get('contact_steps', '-'):>7} {r.get('fallbacks', '-'):>5}"
+        )
     line = f"{spec:<10} {n:>2} {r['steps']:>5} {w.size:>6} {times} {health}"
     return line + (f"  {r['error']}" if r["error"] else "")
 
@@ -100,29 +107,38 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     from agents.threads import pin_threads
+
     pin_threads(1)
     steps = args.steps or (40 if args.quick else 300)
 
-    print(f"Decision time per act() against field size: default track, start regions, every "
-          f"car driven by the agent, {steps} steps per race; one native thread per library")
-    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores "
-          f"(wall-clock figures grow with the load)")
-    print(f"\n{'agent':<10} {'N':>2} {'steps':>5} {'acts':>6} {'med ms':>8} {'p99 ms':>8} "
-          f"{'max ms':>8} {'cpu med':>8} {'>100ms':>7} {'NaN':>4} {'finite':>6} "
-          f"{'offtrk/cars':>11} {'contact':>7} {'fallb':>5}")
+    print(
+        f"Decision time per act() against field size: default track, start regions, every "
+        f"car driven by the agent, {steps} steps per race; one native thread per library"
+    )
+    print(
+        f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores "
+        f"(wall-clock figures grow with the load)"
+    )
+    print(
+        f"\n{'agent':<10} {'N':>2} {'steps':>5} {'acts':>6} {'med ms':>8} {'p99 ms':>8} "
+        f"{'max ms':>8} {'cpu med':>8} {'>100ms':>7} {'NaN':>4} {'finite':>6} "
+        f"{'offtrk/cars':>11} {'contact':>7} {'fallb':>5}"
+    )
     t0 = time.perf_counter()
     for spec in args.agents:
         for n in args.cars:
             warm = field_race(spec, n, WARMUP_STEPS, args.seed + 1)
-            if warm["error"]:                      # it would fail again: report it once
+            if warm["error"]:  # it would fail again: report it once
                 print(_row(spec, n, warm) + "  (in the warm-up race)", flush=True)
                 continue
             print(_row(spec, n, field_race(spec, n, steps, args.seed)), flush=True)
-    print(f"\nwall time {time.perf_counter() - t0:.0f} s; columns: acts = timed act() calls "
-          f"(N x steps); cpu med = median process CPU time per act(); >100ms = share of acts "
-          f"over the {CONTROL_PERIOD_MS:.0f} ms control period; NaN = non-finite actions; "
-          f"offtrk/cars = off-track car-steps / cars that left the track; contact = contact "
-          f"car-steps; fallb = fallbacks summed over the cars")
+    print(
+        f"\nwall time {time.perf_counter() - t0:.0f} s; columns: acts = timed act() calls "
+        f"(N x steps); cpu med = median process CPU time per act(); >100ms = share of acts "
+        f"over the {CONTROL_PERIOD_MS:.0f} ms control period; NaN = non-finite actions; "
+        f"offtrk/cars = off-track car-steps / cars that left the track; contact = contact "
+        f"car-steps; fallb = fallbacks summed over the cars"
+    )
 
 
 if __name__ == "__main__":

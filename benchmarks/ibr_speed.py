@@ -13,6 +13,7 @@ per IBR decision (3 cars, 6 rounds; paper, appendix "IBR hyperparameters"). One 
 threads = 1); the machine's load average is printed because other work on the machine
 slows every wall-clock number here; the process CPU time per decision is printed beside it.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -65,7 +66,7 @@ def main(argv=None):
             return [IBRAgent(rounds=args.rounds) for _ in range(3)]
         return [IBRAgent(rounds=args.rounds), MPCAgent(zeta=0.9), MPCAgent(zeta=0.85)]
 
-    race(make(), 20)                                     # warm-up: JIT, compiled stage function
+    race(make(), 20)  # warm-up: JIT, compiled stage function
     agents = make()
     t0 = time.perf_counter()
     env, cpu = race(agents, steps)
@@ -77,25 +78,45 @@ def main(argv=None):
     st = [a.stats for a in ibrs]
     med, p99 = np.median(ms), np.percentile(ms, 99)
     names = ["ibr" if isinstance(a, IBRAgent) else "mpc" for a in agents]
-    print(f"IBR: 3 cars ({', '.join(names)}), {args.rounds} rounds, K = {ibrs[0].config.horizon} "
-          f"stages of {ibrs[0].config.dt} s, default track, {steps} steps from the start regions")
-    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; race wall time {wall:.1f} s")
-    print(f"decision ms (wall): median {med:.2f}  p99 {p99:.2f}  max {ms.max():.2f}  "
-          f"({len(ms)} decisions)")
-    print(f"decision ms (CPU):  median {np.median(cpu):.2f}  p99 {np.percentile(cpu, 99):.2f}  "
-          f"(the cost on an unshared core)")
-    print(f"best response ms: median {np.median(br):.3f}  p99 {np.percentile(br, 99):.3f}  "
-          f"({len(br)} QPs, {len(br) / len(ms):.1f} per decision)")
-    print(f"rounds: mean {rounds.mean():.2f}, converged within the rounds in "
-          f"{100 * (1 - sum(s['unconverged'] for s in st) / len(ms)):.0f}% of decisions; "
-          f"fallbacks {sum(s['fallbacks'] for s in st)}, QP failures "
-          f"{sum(s['br_failures'] for s in st)}, restarts {sum(s['restarts'] for s in st)}")
+    print(
+        f"IBR: 3 cars ({', '.join(names)}), {args.rounds} rounds, K = {ibrs[0].config.horizon} "
+        f"stages of {ibrs[0].config.dt} s, default track, {steps} steps from the start regions"
+    )
+    print(
+        f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; race wall time {wall:.1f} s"
+    )
+    print(
+        f"decision ms (wall): median {med:.2f}  p99 {p99:.2f}  max {ms.max():.2f}  "
+        f"({len(ms)} decisions)"
+    )
+    print(
+        f"decision ms (CPU):  median {np.median(cpu):.2f}  p99 {np.percentile(cpu, 99):.2f}  "
+        f"(the cost on an unshared core)"
+    )
+    print(
+        f"best response ms: median {np.median(br):.3f}  p99 {np.percentile(br, 99):.3f}  "
+        f"({len(br)} QPs, {len(br) / len(ms):.1f} per decision)"
+    )
+    print(
+        f"rounds: mean {rounds.mean():.2f}, converged within the rounds in "
+        f"{100 * (1 - sum(s['unconverged'] for s in st) / len(ms)):.0f}% of decisions; "
+        f"fallbacks {sum(s['fallbacks'] for s in st)}, QP failures "
+        f"{sum(s['br_failures'] for s in st)}, restarts {sum(s['restarts'] for s in st)}"
+    )
     prog = env.core.state[0, :, 0] - env.core.s_line[0]
-    print("race: " + ", ".join(f"car_{i} ({n}) {p:.1f} m, {c} contacts, {o} off-track"
-                               for i, (n, p, c, o) in enumerate(zip(names, prog, env.core.contacts[0],
-                                                                   env.core.offtracks[0]))))
-    print(f"\nmedian decision {med:.1f} ms = {med / PAPER_BUDGET_MS:.2f} x the paper's "
-          f"{PAPER_BUDGET_MS:.0f} ms budget (p99 {p99 / PAPER_BUDGET_MS:.2f} x)")
+    print(
+        "race: "
+        + ", ".join(
+            f"car_{i} ({n}) {p:.1f} m, {c} contacts, {o} off-track"
+            for i, (n, p, c, o) in enumerate(
+                zip(names, prog, env.core.contacts[0], env.core.offtracks[0])
+            )
+        )
+    )
+    print(
+        f"\nmedian decision {med:.1f} ms = {med / PAPER_BUDGET_MS:.2f} x the paper's "
+        f"{PAPER_BUDGET_MS:.0f} ms budget (p99 {p99 / PAPER_BUDGET_MS:.2f} x)"
+    )
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ Settings: the paper's collection (``--space paper --start paper``), close starts
 (``--start close``), the extended space (``--space extended``) and both. The same race indices
 and seed for every setting (the draws then differ only by what the setting changes).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -23,6 +24,7 @@ SETTINGS = (("paper", "paper"), ("paper", "close"), ("extended", "paper"), ("ext
 def one_race(args):
     from experiments.collect import CollectConfig, simulate_race
     from experiments.metrics import interaction_share, race_metrics
+
     space, start, seed, i, races = args
     warnings.simplefilter("ignore")
     race = simulate_race(CollectConfig(races=races, space=space, start=start, seed=seed), i)
@@ -43,8 +45,11 @@ def main(argv=None) -> None:
         share = np.array([r[0] for r in res])
         passes = np.array([r[1] for r in res])
         half = 1.96 * share.std(ddof=1) / np.sqrt(len(share)) if len(share) > 1 else float("nan")
-        print(f"{space:9s} {start:6s} {share.mean():.3f} +- {half:.3f} (95% CI, {len(share)} races)"
-              f"      {passes.mean():.2f}", flush=True)
+        print(
+            f"{space:9s} {start:6s} {share.mean():.3f} +- {half:.3f} (95% CI, {len(share)} races)"
+            f"      {passes.mean():.2f}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

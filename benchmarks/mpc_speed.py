@@ -31,6 +31,7 @@ closed loop on the default track, warm-started from their previous solution:
 
 Also prints the env step time beside the MPC time. One core (numba threads = 1).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -89,8 +90,16 @@ def rollout_cost(rti: MPC, x0, U, s_ref, n_ref, q: float, opp) -> float:
     return rti._merit(X, np.asarray(U, dtype=float), s_ref, n_ref, q, opp)
 
 
-def plan_quality(track, steps: int, every: int, thetas, config: MPCConfig | None = None,
-                 line: str = "curvature", seed: int = 0, start: str = "grid"):
+def plan_quality(
+    track,
+    steps: int,
+    every: int,
+    thetas,
+    config: MPCConfig | None = None,
+    line: str = "curvature",
+    seed: int = 0,
+    start: str = "grid",
+):
     """``(gaps, solve_ms)``: the relative excess cost RTI / IPOPT - 1 (array) of every car's plan at every
     ``every``-th state of a race of ``len(thetas)`` cars, car i driven by the RTI (``config``,
     default :class:`MPCConfig`) with ``thetas[i]`` along racing line ``line``. IPOPT solves the
@@ -99,9 +108,11 @@ def plan_quality(track, steps: int, every: int, thetas, config: MPCConfig | None
     costed by :func:`rollout_cost`; and the RTI's solve times [ms] (all cars, after the first
     three solves of each)."""
     from racing_env.raceline import RacelineConfig
+
     n_cars = len(thetas)
-    env = RacingParallelEnv(track=track, n_cars=n_cars, max_cycles=steps,
-                            start=StartConfig(mode=start))
+    env = RacingParallelEnv(
+        track=track, n_cars=n_cars, max_cycles=steps, start=StartConfig(mode=start)
+    )
     obs, _ = env.reset(seed=seed)
     rl = get_raceline(env.track, config=RacelineConfig(objective=line))
     rtis = [MPC(env.track, config=config, line=line) for _ in range(n_cars)]
@@ -115,29 +126,37 @@ def plan_quality(track, steps: int, every: int, thetas, config: MPCConfig | None
         for i, agent in enumerate(env.possible_agents):
             theta, rti = thetas[i], rtis[i]
             ego, others = joint_state_from_observation(obs[agent], n_cars)
-            ref = reference_trajectory(theta, ego, others if len(others) else None, rl,
-                                       env.track)
+            ref = reference_trajectory(theta, ego, others if len(others) else None, rl, env.track)
             opp = np.zeros((0, 3))
             nb = [j for j in (ref.ahead, ref.behind) if j >= 0]
             if nb:
                 o = others[nb]
                 opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, env.track)])
-            u = rti.solve(ego, ref.s_ref, ref.n_ref, theta.q, opp if len(opp) else None,
-                          u_prev[i])
+            u = rti.solve(ego, ref.s_ref, ref.n_ref, theta.q, opp if len(opp) else None, u_prev[i])
             if k % every == 0 and k > 0 and rti.last_status == "ok":
                 U_rti = rti.last_plan[0]
                 J_rti = rollout_cost(rti, ego, U_rti, ref.s_ref, ref.n_ref, theta.q, opp)
                 costs = []
                 for U0 in (U_rti, rti._follower_warm_start(ego)):
                     nodes = ego[0] + max(float(ego[3]), 0.5) * rti.cfg.dt * np.arange(
-                        rti.cfg.horizon + 1)
-                    X0 = np.column_stack([ego, rti._plan(ego, U0, s_prev=nodes, jacobians=False,
-                                                         passes=3)[0]])
-                    ipopt.solve(ego, ref.s_ref, ref.n_ref, theta.q, opp if len(opp) else None,
-                                u_prev[i], init=(X0, U0))
+                        rti.cfg.horizon + 1
+                    )
+                    X0 = np.column_stack(
+                        [ego, rti._plan(ego, U0, s_prev=nodes, jacobians=False, passes=3)[0]]
+                    )
+                    ipopt.solve(
+                        ego,
+                        ref.s_ref,
+                        ref.n_ref,
+                        theta.q,
+                        opp if len(opp) else None,
+                        u_prev[i],
+                        init=(X0, U0),
+                    )
                     if ipopt.last_U is not None:
-                        costs.append(rollout_cost(rti, ego, ipopt.last_U, ref.s_ref, ref.n_ref,
-                                                  theta.q, opp))
+                        costs.append(
+                            rollout_cost(rti, ego, ipopt.last_U, ref.s_ref, ref.n_ref, theta.q, opp)
+                        )
                 if costs and np.isfinite(J_rti):
                     gaps.append(J_rti / max(min(costs), 1e-12) - 1.0)
             u_prev[i] = u
@@ -150,12 +169,22 @@ def plan_quality(track, steps: int, every: int, thetas, config: MPCConfig | None
 SOLO_THETA = Theta(q=THETA.q, zeta=1.0, s1=THETA.s1, s2=THETA.s2, s3=THETA.s3)
 """The solo plan-quality race's theta: the default agent's at the limit (zeta = 1)."""
 TRAFFIC_RACES = (
-    (0, (Theta(q=5.0, zeta=1.05, s1=0.3, s2=0.5, s3=0.0),
-         Theta(q=10.0, zeta=1.0, s1=0.3, s2=1.0, s3=5.0),
-         Theta(q=20.0, zeta=1.05, s1=0.3, s2=0.75, s3=2.5))),
-    (1, (Theta(q=20.0, zeta=1.0, s1=0.3, s2=1.0, s3=0.0),
-         Theta(q=5.0, zeta=1.05, s1=0.3, s2=0.75, s3=5.0),
-         Theta(q=10.0, zeta=1.05, s1=0.3, s2=0.5, s3=2.5))),
+    (
+        0,
+        (
+            Theta(q=5.0, zeta=1.05, s1=0.3, s2=0.5, s3=0.0),
+            Theta(q=10.0, zeta=1.0, s1=0.3, s2=1.0, s3=5.0),
+            Theta(q=20.0, zeta=1.05, s1=0.3, s2=0.75, s3=2.5),
+        ),
+    ),
+    (
+        1,
+        (
+            Theta(q=20.0, zeta=1.0, s1=0.3, s2=1.0, s3=0.0),
+            Theta(q=5.0, zeta=1.05, s1=0.3, s2=0.75, s3=5.0),
+            Theta(q=10.0, zeta=1.05, s1=0.3, s2=0.5, s3=2.5),
+        ),
+    ),
 )
 """(seed, thetas) of the 3-car plan-quality races: the top of the policy box (zeta 1-1.05,
 s1 0.3, small s2), from the paper's start regions, so that the cars race close together."""
@@ -170,14 +199,18 @@ def parse_config(pairs) -> MPCConfig:
     """An :class:`MPCConfig` from ``KEY=VALUE`` strings, KEY a numeric field (value parsed as
     the field's type)."""
     default = MPCConfig()
-    numeric = {f.name: type(getattr(default, f.name)) for f in fields(MPCConfig)
-               if type(getattr(default, f.name)) in (int, float)}
+    numeric = {
+        f.name: type(getattr(default, f.name))
+        for f in fields(MPCConfig)
+        if type(getattr(default, f.name)) in (int, float)
+    }
     kw = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or key not in numeric:
-            raise SystemExit(f"--config takes KEY=VALUE with KEY one of {sorted(numeric)}, "
-                             f"got {pair!r}")
+            raise SystemExit(
+                f"--config takes KEY=VALUE with KEY one of {sorted(numeric)}, got {pair!r}"
+            )
         kw[key] = numeric[key](value)
     return MPCConfig(**kw)
 
@@ -185,14 +218,29 @@ def parse_config(pairs) -> MPCConfig:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--quality-only", action="store_true",
-                    help="only part 3, the plan quality against IPOPT")
-    ap.add_argument("--config", nargs="*", default=[], metavar="KEY=VALUE",
-                    help="MPCConfig fields of both solvers in the plan-quality part")
-    ap.add_argument("--line", choices=("curvature", "lap_time", "both"), default="both",
-                    help="racing line(s) of the plan-quality races (default both)")
-    ap.add_argument("--quality-steps", type=int, default=None, metavar="N",
-                    help="steps of every plan-quality race (default 500 solo, 300 traffic)")
+    ap.add_argument(
+        "--quality-only", action="store_true", help="only part 3, the plan quality against IPOPT"
+    )
+    ap.add_argument(
+        "--config",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE",
+        help="MPCConfig fields of both solvers in the plan-quality part",
+    )
+    ap.add_argument(
+        "--line",
+        choices=("curvature", "lap_time", "both"),
+        default="both",
+        help="racing line(s) of the plan-quality races (default both)",
+    )
+    ap.add_argument(
+        "--quality-steps",
+        type=int,
+        default=None,
+        metavar="N",
+        help="steps of every plan-quality race (default 500 solo, 300 traffic)",
+    )
     args = ap.parse_args(argv)
     lines = ("curvature", "lap_time") if args.line == "both" else (args.line,)
     config = parse_config(args.config)
@@ -202,9 +250,15 @@ def main(argv=None):
     if args.quality_only:
         return report_quality(track, args.quick, config, lines, args.quality_steps)
     solo_steps, race_steps = (120, 60) if args.quick else (250, 300)
-    print(f"MPC: K = 15, dt = 0.1 s, default track; solo {solo_steps} steps, race {race_steps} steps")
-    print(f"{'solver':<8} {'scenario':<8} {'median ms':>9} {'p99 ms':>7} {'laps s':<18} {'off-track':>9} {'fallbacks':>9}")  # noqa: E501
-    closed_loop([MPC(track) for _ in range(3)], 3, 30, StartConfig(mode="regions"))   # warm-up (JIT, caches)
+    print(
+        f"MPC: K = 15, dt = 0.1 s, default track; solo {solo_steps} steps, race {race_steps} steps"
+    )
+    print(
+        f"{'solver':<8} {'scenario':<8} {'median ms':>9} {'p99 ms':>7} {'laps s':<18} {'off-track':>9} {'fallbacks':>9}"
+    )  # noqa: E501
+    closed_loop(
+        [MPC(track) for _ in range(3)], 3, 30, StartConfig(mode="regions")
+    )  # warm-up (JIT, caches)
     med = {}
     laps = {}
     for name, make in (("RTI", lambda: MPC(track)), ("IPOPT", lambda: IpoptMPC(track))):
@@ -213,51 +267,71 @@ def main(argv=None):
         m, p = summary(list(solver.stats["solve_ms"])[3:])
         lt = np.diff([0.0] + env.core.lap_times[0][0])
         laps[name] = lt
-        print(f"{name:<8} {'solo':<8} {m:>9.3f} {p:>7.3f} {str(np.round(lt, 3)):<18} "
-              f"{info['car_0']['off_tracks']:>9} {solver.stats['fallbacks']:>9}")
+        print(
+            f"{name:<8} {'solo':<8} {m:>9.3f} {p:>7.3f} {str(np.round(lt, 3)):<18} "
+            f"{info['car_0']['off_tracks']:>9} {solver.stats['fallbacks']:>9}"
+        )
         solvers = [make(), make(), make()]
         env, env_s, info = closed_loop(solvers, 3, race_steps, StartConfig(mode="regions"))
         m, p = summary(np.concatenate([list(s.stats["solve_ms"])[3:] for s in solvers]))
         med[name] = m
-        print(f"{name:<8} {'race':<8} {m:>9.3f} {p:>7.3f} {'-':<18} "
-              f"{int(env.core.offtracks[0].sum()):>9} {sum(s.stats['fallbacks'] for s in solvers):>9}")
+        print(
+            f"{name:<8} {'race':<8} {m:>9.3f} {p:>7.3f} {'-':<18} "
+            f"{int(env.core.offtracks[0].sum()):>9} {sum(s.stats['fallbacks'] for s in solvers):>9}"
+        )
         if name == "RTI":
             print(f"{'':<8} env step with 3 MPC cars: {1e3 * np.median(env_s):.3f} ms median")
     print(f"\nRTI is {med['IPOPT'] / med['RTI']:.0f}x faster than IPOPT (median, race scenario)")
     report_quality(track, args.quick, config, lines, args.quality_steps)
     if len(laps["RTI"]) > 1 and len(laps["IPOPT"]) > 1:
         gap = laps["RTI"][1] / laps["IPOPT"][1] - 1.0
-        print(f"flying lap: RTI {laps['RTI'][1]:.3f} s vs converged IPOPT {laps['IPOPT'][1]:.3f} s "
-              f"({100 * gap:+.2f} %)")
+        print(
+            f"flying lap: RTI {laps['RTI'][1]:.3f} s vs converged IPOPT {laps['IPOPT'][1]:.3f} s "
+            f"({100 * gap:+.2f} %)"
+        )
 
 
-def report_quality(track, quick: bool, config: MPCConfig, lines=("curvature", "lap_time"),
-                   steps: int | None = None) -> None:
+def report_quality(
+    track, quick: bool, config: MPCConfig, lines=("curvature", "lap_time"), steps: int | None = None
+) -> None:
     """Print part 3: the RTI's plan cost against IPOPT's, alone at zeta = 1 and in 3-car
     races at the top of the box, along each racing line of ``lines``."""
-    changed = {f.name: getattr(config, f.name) for f in fields(MPCConfig)
-               if getattr(config, f.name) != getattr(MPCConfig(), f.name)}
+    changed = {
+        f.name: getattr(config, f.name)
+        for f in fields(MPCConfig)
+        if getattr(config, f.name) != getattr(MPCConfig(), f.name)
+    }
     solo_steps = steps or (150 if quick else 500)
     race_steps = steps or (100 if quick else 300)
-    print(f"\nplan cost, RTI {changed or '(default MPCConfig)'} against IPOPT on the same "
-          f"problem, both costed on the same rollout: every 5th state; solo {solo_steps} "
-          f"steps at zeta = 1, traffic {len(TRAFFIC_RACES)} races of 3 cars x {race_steps} "
-          f"steps at the top of the box")
-    print(f"{'line':<10} {'scenario':<8} {'states':>6} {'within 5%':>9} {'median':>8} "
-          f"{'p90':>8} {'solve median ms':>15} {'p99 ms':>7}")
+    print(
+        f"\nplan cost, RTI {changed or '(default MPCConfig)'} against IPOPT on the same "
+        f"problem, both costed on the same rollout: every 5th state; solo {solo_steps} "
+        f"steps at zeta = 1, traffic {len(TRAFFIC_RACES)} races of 3 cars x {race_steps} "
+        f"steps at the top of the box"
+    )
+    print(
+        f"{'line':<10} {'scenario':<8} {'states':>6} {'within 5%':>9} {'median':>8} "
+        f"{'p90':>8} {'solve median ms':>15} {'p99 ms':>7}"
+    )
     for line in lines:
-        runs = {"solo": [plan_quality(track, solo_steps, 5, (SOLO_THETA,), config, line)],
-                "traffic": [plan_quality(track, race_steps, 5, thetas, config, line, seed,
-                                         "regions") for seed, thetas in TRAFFIC_RACES]}
+        runs = {
+            "solo": [plan_quality(track, solo_steps, 5, (SOLO_THETA,), config, line)],
+            "traffic": [
+                plan_quality(track, race_steps, 5, thetas, config, line, seed, "regions")
+                for seed, thetas in TRAFFIC_RACES
+            ],
+        }
         for scenario, results in runs.items():
             gaps = np.concatenate([g for g, _ in results])
             ms = np.concatenate([t for _, t in results])
             if not gaps.size:
                 continue
             m, p = summary(ms)
-            print(f"{line:<10} {scenario:<8} {gaps.size:>6} {100 * np.mean(gaps <= 0.05):>8.0f}% "
-                  f"{100 * np.median(gaps):>+7.2f}% {100 * np.percentile(gaps, 90):>+7.1f}% "
-                  f"{m:>15.3f} {p:>7.3f}")
+            print(
+                f"{line:<10} {scenario:<8} {gaps.size:>6} {100 * np.mean(gaps <= 0.05):>8.0f}% "
+                f"{100 * np.median(gaps):>+7.2f}% {100 * np.percentile(gaps, 90):>+7.1f}% "
+                f"{m:>15.3f} {p:>7.3f}"
+            )
 
 
 if __name__ == "__main__":

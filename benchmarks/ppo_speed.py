@@ -26,6 +26,7 @@ env alone 649 (dummy+predict), 4,032 (dummy+numpy), 16,246 (batched) steps; ``PP
 than the same DummyVecEnv with numpy opponents. SubprocVecEnv (2 workers) reached 1,348
 ``PPO.learn`` steps per wall second on the busy machine, below the single-process backends.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,6 +59,7 @@ def make_opponent_policy():
     from stable_baselines3.common.vec_env import VecNormalize
 
     from racing_env.vec_env import HeadToHeadVecEnv
+
     venv = VecNormalize(HeadToHeadVecEnv(1))
     model = PPO("MlpPolicy", venv, device="cpu", seed=0)
     venv.obs_rms.var[:] = 4.0
@@ -107,10 +109,20 @@ def bench_env(venv, steps: int) -> tuple[float, float]:
 def bench_learn(venv, rollouts: int) -> float:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+
     env = VecNormalize(VecMonitor(venv))
-    model = PPO("MlpPolicy", env, learning_rate=5e-4, n_steps=2048, batch_size=1024, n_epochs=5,
-                gamma=0.99, device="cpu", seed=0)
-    model.learn(2048 * N_ENVS)                     # warm-up rollout + update
+    model = PPO(
+        "MlpPolicy",
+        env,
+        learning_rate=5e-4,
+        n_steps=2048,
+        batch_size=1024,
+        n_epochs=5,
+        gamma=0.99,
+        device="cpu",
+        seed=0,
+    )
+    model.learn(2048 * N_ENVS)  # warm-up rollout + update
     t0, c0 = time.perf_counter(), time.process_time()
     model.learn(rollouts * 2048 * N_ENVS, reset_num_timesteps=False)
     n = rollouts * 2048 * N_ENVS
@@ -118,29 +130,41 @@ def bench_learn(venv, rollouts: int) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--backends", nargs="+", default=["dummy+predict", "dummy+numpy", "subproc+numpy", "batched"])
+    ap.add_argument(
+        "--backends",
+        nargs="+",
+        default=["dummy+predict", "dummy+numpy", "subproc+numpy", "batched"],
+    )
     args = ap.parse_args()
     torch.set_num_threads(1)
     env_steps, rollouts = (300, 1) if args.quick else (1500, 3)
     policy, vecnorm = make_opponent_policy()
     rows = []
-    print(f"{'backend':<15} {'env steps/s':>12} {'per CPU s':>10}   {'PPO.learn steps/s':>17} {'per CPU s':>10}")
+    print(
+        f"{'backend':<15} {'env steps/s':>12} {'per CPU s':>10}   {'PPO.learn steps/s':>17} {'per CPU s':>10}"
+    )
     for backend in args.backends:
         venv = make_venv(backend, policy, vecnorm)
         env_rate = bench_env(venv, env_steps)
         learn_rate = bench_learn(venv, rollouts)
         venv.close()
         rows.append((backend, env_rate, learn_rate))
-        cpu_ok = not backend.startswith("subproc")      # workers' CPU time is not this process's
+        cpu_ok = not backend.startswith("subproc")  # workers' CPU time is not this process's
         fmt = lambda r: f"{r:10.0f}" if cpu_ok else f"{'-':>10}"  # noqa: B023
-        print(f"{backend:<15} {env_rate[0]:12.0f} {fmt(env_rate[1])}   {learn_rate[0]:17.0f} {fmt(learn_rate[1])}",
-              flush=True)
+        print(
+            f"{backend:<15} {env_rate[0]:12.0f} {fmt(env_rate[1])}   {learn_rate[0]:17.0f} {fmt(learn_rate[1])}",
+            flush=True,
+        )
     base = {r[0]: r for r in rows}.get("dummy+predict")
     if base:
-        print("\nspeed-up over dummy+predict (SB3 DummyVecEnv over the Gymnasium env), by CPU time "
-              "(subproc: by wall time):")
+        print(
+            "\nspeed-up over dummy+predict (SB3 DummyVecEnv over the Gymnasium env), by CPU time "
+            "(subproc: by wall time):"
+        )
         for name, e, l in rows:
             k = 0 if name.startswith("subproc") else 1
             print(f"{name:<15} env x{e[k] / base[1][k]:5.1f}   PPO.learn x{l[k] / base[2][k]:5.1f}")

@@ -14,6 +14,7 @@ alone, or by the interior-point method and the active-set polish (see
 under 20 s (issue 31: 150-180 s before the interior-point fallback, when the dense DAQP
 fallback took about 30 s per QP).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,16 +23,19 @@ import time
 from racing_env.raceline import boxqp, compute_raceline
 from racing_env.tracks import make_track
 
-
 TARGETS = {"default": 10.0, "tumftm:Monza": 15.0, "tumftm:Monza@1": 20.0}
 """Wall-time targets [s] of the racing line (on a machine that is not shared)."""
 
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--tracks", nargs="+", default=list(TARGETS),
-                    help="track names, NAME@SCALE for a TUMFTM circuit at another scale "
-                         f"(default: {' '.join(TARGETS)})")
+    ap.add_argument(
+        "--tracks",
+        nargs="+",
+        default=list(TARGETS),
+        help="track names, NAME@SCALE for a TUMFTM circuit at another scale "
+        f"(default: {' '.join(TARGETS)})",
+    )
     args = ap.parse_args(argv)
     counts = {"qps": 0, "active_set": 0, "interior_point": 0}
     solve = boxqp.BoxQP.solve
@@ -52,11 +56,14 @@ def main(argv=None) -> None:
 
     def counted_interior_point(*a, **k):
         counts["interior_point"] += 1
-        fallback[0] = True                  # the next active-set call is its polish
+        fallback[0] = True  # the next active-set call is its polish
         return interior_point(*a, **k)
 
-    compute_raceline(make_track("oval"))     # warm-up, not timed: numba's compile or cache load
-    boxqp.box_qp_active_set, boxqp.box_qp_interior_point = counted_active_set, counted_interior_point
+    compute_raceline(make_track("oval"))  # warm-up, not timed: numba's compile or cache load
+    boxqp.box_qp_active_set, boxqp.box_qp_interior_point = (
+        counted_active_set,
+        counted_interior_point,
+    )
     boxqp.BoxQP.solve = counted_solve
     try:
         for spec in args.tracks:
@@ -65,8 +72,9 @@ def main(argv=None) -> None:
                 try:
                     scale = float(scale)
                 except ValueError:
-                    raise SystemExit(f"bad scale in {spec!r}: expected NAME@SCALE, e.g. "
-                                     f"tumftm:Monza@1") from None
+                    raise SystemExit(
+                        f"bad scale in {spec!r}: expected NAME@SCALE, e.g. tumftm:Monza@1"
+                    ) from None
             counts.update(qps=0, active_set=0, interior_point=0)
             t0 = time.perf_counter()
             track = make_track(name, scale=scale or None)
@@ -74,15 +82,16 @@ def main(argv=None) -> None:
             rl = compute_raceline(track)
             t2, c2 = time.perf_counter(), time.process_time()
             target = TARGETS.get(spec)
-            print(f"{spec}: {len(track.s_grid)} stations, "
-                  f"{track.length:.0f} m; track {t1 - t0:.1f} s, racing line {t2 - t1:.1f} s "
-                  f"(CPU {c2 - c1:.1f} s) "
-                  f"({rl.iterations} linearisations, converged {rl.converged}; {counts['qps']} QPs: "
-                  f"{counts['active_set']} by the active-set method, "
-                  f"{counts['interior_point']} by interior point + polish, the others by "
-                  f"OSQP / DAQP); "
-                  f"lap estimate {rl.lap_time:.2f} s"
-                  + (f"; target < {target:g} s" if target else ""))
+            print(
+                f"{spec}: {len(track.s_grid)} stations, "
+                f"{track.length:.0f} m; track {t1 - t0:.1f} s, racing line {t2 - t1:.1f} s "
+                f"(CPU {c2 - c1:.1f} s) "
+                f"({rl.iterations} linearisations, converged {rl.converged}; {counts['qps']} QPs: "
+                f"{counts['active_set']} by the active-set method, "
+                f"{counts['interior_point']} by interior point + polish, the others by "
+                f"OSQP / DAQP); "
+                f"lap estimate {rl.lap_time:.2f} s" + (f"; target < {target:g} s" if target else "")
+            )
     finally:
         boxqp.box_qp_active_set, boxqp.box_qp_interior_point = active_set, interior_point
         boxqp.BoxQP.solve = solve

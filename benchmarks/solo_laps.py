@@ -8,6 +8,7 @@ lap estimate (its speed profile at the nominal envelope scale) is printed beside
 so the closed-loop laps can be compared with it, and the lap-time line's too when a driver
 races it (``mpc:line=lap_time``, ``raceline:line=lap_time``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,9 +22,17 @@ from experiments.policy_map import DEFAULT_TRACKS
 from racing_env import RacingParallelEnv
 from racing_env.raceline import RacelineConfig, get_raceline
 
-AGENTS = ["mpc:zeta=1.0", "mpc:zeta=1.02", "mpc:zeta=1.05", "mpc:zeta=1.02,q=60", "mpc", "ibr", "ppo",
-          "raceline"]
-TRACKS = list(DEFAULT_TRACKS)      # the policy map's, so its best thetas compare with these drivers
+AGENTS = [
+    "mpc:zeta=1.0",
+    "mpc:zeta=1.02",
+    "mpc:zeta=1.05",
+    "mpc:zeta=1.02,q=60",
+    "mpc",
+    "ibr",
+    "ppo",
+    "raceline",
+]
+TRACKS = list(DEFAULT_TRACKS)  # the policy map's, so its best thetas compare with these drivers
 
 
 def solo(spec: str, track: str, steps: int, seed: int = 0) -> dict:
@@ -41,10 +50,13 @@ def solo(spec: str, track: str, steps: int, seed: int = 0) -> dict:
     core = env.core
     laps = np.diff([0.0] + core.lap_times[0][0])
     stats = getattr(agent, "stats", {}) or {}
-    return {"progress": float(core.state[0, 0, 0] - core.s_line[0]),
-            "best_lap": float(laps[1:].min()) if len(laps) > 1 else float("nan"),
-            "off_track": int(core.offtracks[0][0]), "restarts": stats.get("restarts", "-"),
-            "ms": 1e3 * t_act / steps}
+    return {
+        "progress": float(core.state[0, 0, 0] - core.s_line[0]),
+        "best_lap": float(laps[1:].min()) if len(laps) > 1 else float("nan"),
+        "off_track": int(core.offtracks[0][0]),
+        "restarts": stats.get("restarts", "-"),
+        "ms": 1e3 * t_act / steps,
+    }
 
 
 def main(argv=None) -> None:
@@ -60,12 +72,17 @@ def main(argv=None) -> None:
             fast = get_raceline(track, config=RacelineConfig(objective="lap_time"))
             extra = f", lap-time line {fast.lap_time:.2f} s"
         print(f"{track}: racing-line lap estimate {get_raceline(track).lap_time:.2f} s{extra}")
-        print(f"  {'driver':<18} {'progress m':>10} {'best lap s':>10} {'off-track':>9} "
-              f"{'restarts':>8} {'ms/decision':>11}")
+        print(
+            f"  {'driver':<18} {'progress m':>10} {'best lap s':>10} {'off-track':>9} "
+            f"{'restarts':>8} {'ms/decision':>11}"
+        )
         for spec in args.agents:
             r = solo(spec, track, args.steps)
-            print(f"  {spec:<18} {r['progress']:>10.2f} {r['best_lap']:>10.2f} "
-                  f"{r['off_track']:>9} {r['restarts']!s:>8} {r['ms']:>11.2f}", flush=True)
+            print(
+                f"  {spec:<18} {r['progress']:>10.2f} {r['best_lap']:>10.2f} "
+                f"{r['off_track']:>9} {r['restarts']!s:>8} {r['ms']:>11.2f}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

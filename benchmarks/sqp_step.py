@@ -14,6 +14,7 @@ collection A/B in the changelog is the figure. Prints the time per race and per 
 both, their ratio, and whether the two races' data are identical (they must be: the two do
 the same arithmetic). One process, native threads pinned to one.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,26 +43,36 @@ def main(argv=None) -> None:
     ap.add_argument("--steps", type=int, default=300)
     args = ap.parse_args(argv)
     from threadpoolctl import threadpool_limits
+
     threadpool_limits(1)
     warnings.simplefilter("ignore")
     config = CollectConfig(races=args.races, steps=args.steps)
-    simulate_race(CollectConfig(races=1, steps=5), 0)   # build the agents, load the kernels
+    simulate_race(CollectConfig(races=1, steps=5), 0)  # build the agents, load the kernels
     times = {False: 0.0, True: 0.0}
     same = True
     for k in range(args.races):
         runs = {}
-        for python_step in (False, True):   # alternate, so that load hits both alike
+        for python_step in (False, True):  # alternate, so that load hits both alike
             runs[python_step], seconds = race(config, k, python_step)
             times[python_step] += seconds
         same &= all(np.array_equal(runs[False][key], runs[True][key]) for key in runs[False])
     decisions = args.races * args.steps * config.n_cars
-    print(f"{args.races} races of the collection ({config.n_cars} MPC cars, {args.steps} steps, "
-          f"thetas from the box, seed {config.seed})")
-    for python_step, name in ((False, "compiled step (sqp_step)"), (True, "Python step (baseline)")):
-        print(f"  {name:26s} {times[python_step] / args.races:7.3f} s per race, "
-              f"{1e3 * times[python_step] / decisions:6.3f} ms per decision")
-    print(f"  ratio: {times[False] / times[True]:.2f} of the baseline's time "
-          f"({times[True] / times[False]:.2f}x faster); races identical: {same}")
+    print(
+        f"{args.races} races of the collection ({config.n_cars} MPC cars, {args.steps} steps, "
+        f"thetas from the box, seed {config.seed})"
+    )
+    for python_step, name in (
+        (False, "compiled step (sqp_step)"),
+        (True, "Python step (baseline)"),
+    ):
+        print(
+            f"  {name:26s} {times[python_step] / args.races:7.3f} s per race, "
+            f"{1e3 * times[python_step] / decisions:6.3f} ms per decision"
+        )
+    print(
+        f"  ratio: {times[False] / times[True]:.2f} of the baseline's time "
+        f"({times[True] / times[False]:.2f}x faster); races identical: {same}"
+    )
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ literal text. After griffe has loaded a package, every role in every docstring b
 
 The package's source files are not changed.
 """
+
 from __future__ import annotations
 
 import html
@@ -23,7 +24,9 @@ from typing import Any
 
 import griffe
 
-ROLE_RE = re.compile(r":(?:py:)?(?P<role>class|func|meth|data|mod|attr|exc|obj|const|type):`(?P<body>[^`]+)`")
+ROLE_RE = re.compile(
+    r":(?:py:)?(?P<role>class|func|meth|data|mod|attr|exc|obj|const|type):`(?P<body>[^`]+)`"
+)
 
 
 def _target_and_title(body: str) -> tuple[str, str]:
@@ -49,7 +52,7 @@ def _resolve(obj: griffe.Object, target: str) -> str:
     for scope in scopes:
         try:
             full = scope.resolve(head)
-        except Exception:           # griffe.NameResolutionError, or an alias that cannot resolve
+        except Exception:  # griffe.NameResolutionError, or an alias that cannot resolve
             continue
         return f"{full}.{rest}" if rest else full
     return name
@@ -57,11 +60,15 @@ def _resolve(obj: griffe.Object, target: str) -> str:
 
 def replace_roles(text: str, obj: griffe.Object) -> str:
     """``text`` with every Sphinx role turned into an optional autorefs reference."""
+
     def sub(match: re.Match) -> str:
         target, title = _target_and_title(match["body"])
         identifier = _resolve(obj, target)
-        return (f'<autoref identifier="{html.escape(identifier, quote=True)}" optional>'
-                f"<code>{html.escape(title)}</code></autoref>")
+        return (
+            f'<autoref identifier="{html.escape(identifier, quote=True)}" optional>'
+            f"<code>{html.escape(title)}</code></autoref>"
+        )
+
     return ROLE_RE.sub(sub, text)
 
 

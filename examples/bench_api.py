@@ -3,6 +3,7 @@ run, with tiny settings (a 2 s race, a benchmark of 3 races of 2 s).
 
     python examples/bench_api.py [OUT]        # OUT defaults to results/example
 """
+
 import sys
 from pathlib import Path
 
@@ -12,8 +13,14 @@ from experiments.race import run_race, write_outputs
 
 def main(out: Path) -> dict:
     # One race: agent specs as on the command line, one per car.
-    result, frames = run_race(["mpc:zeta=0.95", "raceline", "raceline:grip=0.7"], track="default",
-                              seed=0, max_cycles=20, render=True, progress_bar=False)
+    result, frames = run_race(
+        ["mpc:zeta=0.95", "raceline", "raceline:grip=0.7"],
+        track="default",
+        seed=0,
+        max_cycles=20,
+        render=True,
+        progress_bar=False,
+    )
     print(result.table())
     print("winner:", result.agents[result.order[0]], "| progress [m]:", result.progress.round(2))
     paths = write_outputs(result, frames, out / "race", animation="gif")
@@ -24,8 +31,10 @@ def main(out: Path) -> dict:
     config = BenchConfig(ego="mpc", opponents="raceline", races=3, steps=20, seed=0)
     summary = bench(config, out / "bench", workers=1, progress_bar=False)
     wins = summary["wins"]
-    print(f"ego wins {wins['ego']['wins']}/{summary['races']}, O1 {wins['O1']['wins']}, "
-          f"O2 {wins['O2']['wins']}; margin {summary['margin_m']['mean']:+.2f} m")
+    print(
+        f"ego wins {wins['ego']['wins']}/{summary['races']}, O1 {wins['O1']['wins']}, "
+        f"O2 {wins['O2']['wins']}; margin {summary['margin_m']['mean']:+.2f} m"
+    )
     print((out / "bench" / "summary.md").read_text())
     return summary
 

@@ -7,6 +7,7 @@ Needs torch (the ``learn`` extra).
 
     python examples/cleanrl_ppo.py --total-steps 20000
 """
+
 import argparse
 from dataclasses import dataclass
 
@@ -21,11 +22,11 @@ import racing_env
 # ---------------------------------------------------------------------- arguments
 @dataclass
 class Args:
-    total_steps: int = 20_000       # race steps (each gives n_cars samples)
+    total_steps: int = 20_000  # race steps (each gives n_cars samples)
     n_cars: int = 3
     track: str = "default"
     max_cycles: int = 500
-    rollout: int = 256              # race steps per update
+    rollout: int = 256  # race steps per update
     epochs: int = 4
     minibatch: int = 256
     lr: float = 3e-4
@@ -48,10 +49,18 @@ def parse_args(argv=None) -> Args:
 class Agent(nn.Module):
     def __init__(self, n_obs: int, n_act: int):
         super().__init__()
+
         def mlp(out, std):
-            layers = [nn.Linear(n_obs, 64), nn.Tanh(), nn.Linear(64, 64), nn.Tanh(), nn.Linear(64, out)]
+            layers = [
+                nn.Linear(n_obs, 64),
+                nn.Tanh(),
+                nn.Linear(64, 64),
+                nn.Tanh(),
+                nn.Linear(64, out),
+            ]
             nn.init.orthogonal_(layers[-1].weight, std)
             return nn.Sequential(*layers)
+
         self.critic, self.actor_mean = mlp(1, 1.0), mlp(n_act, 0.01)
         self.actor_logstd = nn.Parameter(torch.full((n_act,), -0.5))
 
@@ -74,7 +83,7 @@ class RunningNorm:
             m, v, n = x.mean(0), x.var(0), len(x)
             delta, total = m - self.mean, self.count + n
             self.mean = self.mean + delta * n / total
-            self.var = (self.var * self.count + v * n + delta ** 2 * self.count * n / total) / total
+            self.var = (self.var * self.count + v * n + delta**2 * self.count * n / total) / total
             self.count = total
         return np.clip((x - self.mean) / np.sqrt(self.var + 1e-8), -10, 10).astype(np.float32)
 
@@ -107,7 +116,9 @@ def main(argv=None) -> list[float]:
                 action, logp, _, value = agent.act(buf_obs[t])
             buf_act[t], buf_logp[t], buf_val[t] = action, logp, value
             clipped = action.clamp(-1, 1).numpy()
-            obs_dict, rewards, terms, truncs, infos = env.step({a: clipped[i] for i, a in enumerate(cars)})
+            obs_dict, rewards, terms, truncs, infos = env.step(
+                {a: clipped[i] for i, a in enumerate(cars)}
+            )
             buf_rew[t] = torch.tensor([rewards[a] for a in cars], dtype=torch.float32)
             done = any(terms.values()) or any(truncs.values())
             buf_done[t] = float(done)
@@ -131,14 +142,20 @@ def main(argv=None) -> list[float]:
             returns = adv + buf_val
 
         # PPO update on T * N samples
-        b_obs, b_act, b_logp = buf_obs.reshape(-1, n_obs), buf_act.reshape(-1, n_act), buf_logp.reshape(-1)
+        b_obs, b_act, b_logp = (
+            buf_obs.reshape(-1, n_obs),
+            buf_act.reshape(-1, n_act),
+            buf_logp.reshape(-1),
+        )
         b_adv, b_ret = adv.reshape(-1), returns.reshape(-1)
         for _ in range(args.epochs):
             for idx in torch.randperm(T * N).split(args.minibatch):
                 _, logp, entropy, value = agent.act(b_obs[idx], b_act[idx])
                 ratio = (logp - b_logp[idx]).exp()
                 a = (b_adv[idx] - b_adv[idx].mean()) / (b_adv[idx].std() + 1e-8)
-                pg_loss = torch.max(-a * ratio, -a * ratio.clamp(1 - args.clip, 1 + args.clip)).mean()
+                pg_loss = torch.max(
+                    -a * ratio, -a * ratio.clamp(1 - args.clip, 1 + args.clip)
+                ).mean()
                 v_loss = 0.5 * ((value - b_ret[idx]) ** 2).mean()
                 loss = pg_loss + args.vf_coef * v_loss - args.ent_coef * entropy.mean()
                 optim.zero_grad()
@@ -148,8 +165,10 @@ def main(argv=None) -> list[float]:
 
         # ------------------------------------------------------------------ logging
         recent = np.mean(episode_progress[-5:]) if episode_progress else float("nan")
-        print(f"steps {steps:7d}  races {races:4d}  mean progress of the last races {recent:7.2f} m  "
-              f"loss {loss.item():+.4f}")
+        print(
+            f"steps {steps:7d}  races {races:4d}  mean progress of the last races {recent:7.2f} m  "
+            f"loss {loss.item():+.4f}"
+        )
     env.close()
     return episode_progress
 

@@ -1,4 +1,5 @@
 """Plug in your own agent: register it by name, then race it against the built-in follower."""
+
 import numpy as np
 
 from agents import register_agent
@@ -13,7 +14,7 @@ class Wiggle:
         self.track = track
 
     def act(self, observation):
-        n, mu = observation[1], observation[2]           # own lateral offset [m] and heading [rad]
+        n, mu = observation[1], observation[2]  # own lateral offset [m] and heading [rad]
         return np.array([1.0, np.clip(-4 * n - 2 * mu, -1, 1)], dtype=np.float32)
 
 

@@ -7,6 +7,7 @@ environment of its own (``pip install "ray[rllib]"`` next to this package).
 
     python examples/rl_rllib.py [ITERATIONS]
 """
+
 import sys
 
 import ray
@@ -20,8 +21,13 @@ N_CARS = 3
 
 
 def make_env(config: dict):
-    return ParallelPettingZooEnv(racing_env.parallel_env(n_cars=N_CARS, track=config.get("track", "default"),
-                                                         max_cycles=config.get("max_cycles", 200)))
+    return ParallelPettingZooEnv(
+        racing_env.parallel_env(
+            n_cars=N_CARS,
+            track=config.get("track", "default"),
+            max_cycles=config.get("max_cycles", 200),
+        )
+    )
 
 
 def main(iterations: int = 1) -> dict:
@@ -30,7 +36,9 @@ def main(iterations: int = 1) -> dict:
     config = (
         PPOConfig()
         .environment("alpha_racer", env_config={"track": "default", "max_cycles": 200})
-        .multi_agent(policies=set(agents), policy_mapping_fn=lambda agent_id, episode, **kw: agent_id)
+        .multi_agent(
+            policies=set(agents), policy_mapping_fn=lambda agent_id, episode, **kw: agent_id
+        )
         .env_runners(num_env_runners=0, rollout_fragment_length=200)
         .training(train_batch_size_per_learner=400, minibatch_size=200, num_epochs=2, lr=5e-4)
         .debugging(seed=0)
@@ -41,8 +49,10 @@ def main(iterations: int = 1) -> dict:
         for i in range(iterations):
             result = algo.train()
             returns = result["env_runners"].get("agent_episode_returns_mean", {})
-            print(f"iteration {i + 1}: env steps {result['env_runners']['num_env_steps_sampled_lifetime']}, "
-                  f"returns per car {returns}")
+            print(
+                f"iteration {i + 1}: env steps {result['env_runners']['num_env_steps_sampled_lifetime']}, "
+                f"returns per car {returns}"
+            )
         algo.stop()
         return result
     finally:

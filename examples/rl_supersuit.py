@@ -7,6 +7,7 @@ SuperSuit turns the ``ParallelEnv`` into a vector env with one slot per car
 
     python examples/rl_supersuit.py [STEPS]
 """
+
 import sys
 
 import supersuit as ss
@@ -18,12 +19,20 @@ import racing_env
 
 def main(steps: int = 2048) -> PPO:
     env = racing_env.parallel_env(n_cars=3, track="default", max_cycles=500)
-    venv = ss.pettingzoo_env_to_vec_env_v1(env)                 # 3 slots: car_0, car_1, car_2
+    venv = ss.pettingzoo_env_to_vec_env_v1(env)  # 3 slots: car_0, car_1, car_2
     venv = ss.concat_vec_envs_v1(venv, 2, num_cpus=0, base_class="stable_baselines3")  # 2 races
     venv = VecNormalize(VecMonitor(venv), norm_obs=True, norm_reward=True)
     # no seed= here: SB3 would call venv.seed(), which SuperSuit's vector env lacks
-    model = PPO("MlpPolicy", venv, n_steps=256, batch_size=256, n_epochs=5, learning_rate=5e-4,
-                device="cpu", verbose=0)
+    model = PPO(
+        "MlpPolicy",
+        venv,
+        n_steps=256,
+        batch_size=256,
+        n_epochs=5,
+        learning_rate=5e-4,
+        device="cpu",
+        verbose=0,
+    )
     model.learn(total_timesteps=steps)
     print(f"trained {model.num_timesteps} car-steps over {venv.num_envs} cars")
     return model

@@ -7,12 +7,14 @@ head, a ``MultiAgentMLP`` critic that sees every car (``centralised=True``), GAE
 
     python examples/rl_torchrl.py [ITERATIONS]
 """
+
 import sys
 
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule
+
 try:
-    from torchrl.collectors import Collector                      # torchrl >= 0.14
+    from torchrl.collectors import Collector  # torchrl >= 0.14
 except ImportError:
     from torchrl.collectors import SyncDataCollector as Collector  # older releases
 from torchrl.envs import RewardSum, TransformedEnv
@@ -28,39 +30,81 @@ N_CARS, FRAMES = 3, 400
 
 def main(iterations: int = 2) -> list[float]:
     torch.manual_seed(0)
-    env = PettingZooWrapper(env=racing_env.parallel_env(n_cars=N_CARS, max_cycles=200),
-                            use_mask=False, return_state=False, seed=0)
-    env = TransformedEnv(env, RewardSum(in_keys=[("car", "reward")], out_keys=[("car", "episode_reward")]))
+    env = PettingZooWrapper(
+        env=racing_env.parallel_env(n_cars=N_CARS, max_cycles=200),
+        use_mask=False,
+        return_state=False,
+        seed=0,
+    )
+    env = TransformedEnv(
+        env, RewardSum(in_keys=[("car", "reward")], out_keys=[("car", "episode_reward")])
+    )
     check_env_specs(env)
     n_obs = env.observation_spec["car", "observation"].shape[-1]
     n_act = env.full_action_spec["car", "action"].shape[-1]
 
     actor_net = torch.nn.Sequential(
-        MultiAgentMLP(n_agent_inputs=n_obs, n_agent_outputs=2 * n_act, n_agents=N_CARS,
-                      centralised=False, share_params=True, depth=2, num_cells=64, activation_class=torch.nn.Tanh),
-        NormalParamExtractor())
+        MultiAgentMLP(
+            n_agent_inputs=n_obs,
+            n_agent_outputs=2 * n_act,
+            n_agents=N_CARS,
+            centralised=False,
+            share_params=True,
+            depth=2,
+            num_cells=64,
+            activation_class=torch.nn.Tanh,
+        ),
+        NormalParamExtractor(),
+    )
     actor = ProbabilisticActor(
-        TensorDictModule(actor_net, in_keys=[("car", "observation")], out_keys=[("car", "loc"), ("car", "scale")]),
-        spec=env.full_action_spec["car", "action"], in_keys=[("car", "loc"), ("car", "scale")],
-        out_keys=[("car", "action")], distribution_class=TanhNormal,
-        distribution_kwargs={"low": -1.0, "high": 1.0}, return_log_prob=True)
+        TensorDictModule(
+            actor_net, in_keys=[("car", "observation")], out_keys=[("car", "loc"), ("car", "scale")]
+        ),
+        spec=env.full_action_spec["car", "action"],
+        in_keys=[("car", "loc"), ("car", "scale")],
+        out_keys=[("car", "action")],
+        distribution_class=TanhNormal,
+        distribution_kwargs={"low": -1.0, "high": 1.0},
+        return_log_prob=True,
+    )
     critic = TensorDictModule(
-        MultiAgentMLP(n_agent_inputs=n_obs, n_agent_outputs=1, n_agents=N_CARS, centralised=True,
-                      share_params=True, depth=2, num_cells=64, activation_class=torch.nn.Tanh),
-        in_keys=[("car", "observation")], out_keys=[("car", "state_value")])
+        MultiAgentMLP(
+            n_agent_inputs=n_obs,
+            n_agent_outputs=1,
+            n_agents=N_CARS,
+            centralised=True,
+            share_params=True,
+            depth=2,
+            num_cells=64,
+            activation_class=torch.nn.Tanh,
+        ),
+        in_keys=[("car", "observation")],
+        out_keys=[("car", "state_value")],
+    )
 
     collector = Collector(env, actor, frames_per_batch=FRAMES, total_frames=FRAMES * iterations)
-    loss = ClipPPOLoss(actor_network=actor, critic_network=critic, clip_epsilon=0.2, entropy_coeff=1e-3)
-    loss.set_keys(reward=("car", "reward"), action=("car", "action"), value=("car", "state_value"),
-                  done=("car", "done"), terminated=("car", "terminated"))
+    loss = ClipPPOLoss(
+        actor_network=actor, critic_network=critic, clip_epsilon=0.2, entropy_coeff=1e-3
+    )
+    loss.set_keys(
+        reward=("car", "reward"),
+        action=("car", "action"),
+        value=("car", "state_value"),
+        done=("car", "done"),
+        terminated=("car", "terminated"),
+    )
     loss.make_value_estimator(ValueEstimators.GAE, gamma=0.99, lmbda=0.95)
     optim = torch.optim.Adam(loss.parameters(), lr=3e-4)
 
     mean_rewards = []
     for i, batch in enumerate(collector):
         with torch.no_grad():
-            loss.value_estimator(batch, params=loss.critic_network_params, target_params=loss.target_critic_network_params)  # noqa: E501
-        for _ in range(4):                        # epochs over the batch
+            loss.value_estimator(
+                batch,
+                params=loss.critic_network_params,
+                target_params=loss.target_critic_network_params,
+            )  # noqa: E501
+        for _ in range(4):  # epochs over the batch
             terms = loss(batch)
             total = terms["loss_objective"] + terms["loss_critic"] + terms["loss_entropy"]
             optim.zero_grad()
@@ -69,7 +113,9 @@ def main(iterations: int = 2) -> list[float]:
             optim.step()
         collector.update_policy_weights_()
         mean_rewards.append(float(batch.get(("next", "car", "reward")).mean()))
-        print(f"iteration {i + 1}: {batch.numel()} steps, mean reward per car-step {mean_rewards[-1]:+.4f}")
+        print(
+            f"iteration {i + 1}: {batch.numel()} steps, mean reward per car-step {mean_rewards[-1]:+.4f}"
+        )
     collector.shutdown()
     return mean_rewards
 

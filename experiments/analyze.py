@@ -23,6 +23,7 @@ output exists (``--force`` redoes it), so a killed run resumes.
 * **Overtake animation** of a benchmark race (``--bench``): the ego starting behind, passing
   a car. ``overtake.gif``, ``overtake.json``.
 """
+
 from __future__ import annotations
 
 import json
@@ -36,51 +37,66 @@ import numpy as np
 from .artifacts import append_jsonl, claim, read_jsonl, write_json, write_npz, write_text
 from .parallel import check_backend, run_tasks_with_progress
 
-DT = 0.1                            # control period of the races [s]
+DT = 0.1  # control period of the races [s]
 
 
 @dataclass(frozen=True)
 class AnalyzeConfig:
     """Sizes of the analyses (the defaults are the paper-scale run; the tests use tiny ones)."""
 
-    model: str = "default"          # shipped model name or path to a model.npz
-    heldout_races: int = 40         # fresh races for the approximation gap
-    heldout_seed: int = 1           # the shipped models were trained on seed 0
+    model: str = "default"  # shipped model name or path to a model.npz
+    heldout_races: int = 40  # fresh races for the approximation gap
+    heldout_seed: int = 1  # the shipped models were trained on seed 0
     gap_pairs: int = 20000
-    regret_states: int = 20         # states of the alpha race
-    regret_horizon: int = 100       # rollout steps before bootstrapping with V (10 s)
+    regret_states: int = 20  # states of the alpha race
+    regret_horizon: int = 100  # rollout steps before bootstrapping with V (10 s)
     cem_iterations: int = 3
-    cem_samples: int = 10           # candidates per CEM iteration (theta*_i is added once)
-    value_search: int = 4096        # random theta_i for the learned-value regret
-    slice_points: int = 41          # values per parameter of the Figure 3 sweep
-    slice_rollouts: int = 5         # trajectories per parameter
-    slice_steps: int = 50           # 5 s
+    cem_samples: int = 10  # candidates per CEM iteration (theta*_i is added once)
+    value_search: int = 4096  # random theta_i for the learned-value regret
+    slice_points: int = 41  # values per parameter of the Figure 3 sweep
+    slice_rollouts: int = 5  # trajectories per parameter
+    slice_steps: int = 50  # 5 s
     race_seed: int = 0
     steps: int = 500
     seed: int = 0
 
     def __post_init__(self):
-        for name in ("heldout_races", "gap_pairs", "regret_states", "regret_horizon",
-                     "cem_iterations", "cem_samples", "value_search", "slice_points",
-                     "slice_rollouts", "slice_steps", "steps"):
+        for name in (
+            "heldout_races",
+            "gap_pairs",
+            "regret_states",
+            "regret_horizon",
+            "cem_iterations",
+            "cem_samples",
+            "value_search",
+            "slice_points",
+            "slice_rollouts",
+            "slice_steps",
+            "steps",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise ValueError(f"AnalyzeConfig.{name} must be a positive integer, got {v!r}")
         if self.slice_rollouts > self.slice_points:
-            raise ValueError(f"slice_rollouts ({self.slice_rollouts}) must not exceed "
-                             f"slice_points ({self.slice_points})")
+            raise ValueError(
+                f"slice_rollouts ({self.slice_rollouts}) must not exceed "
+                f"slice_points ({self.slice_points})"
+            )
 
 
 def _model(name):
     from agents.potential import cached_model
+
     return cached_model(name)
 
 
 def _value_range(model) -> float:
     vr = model.meta.get("metrics", {}).get("value_range")
     if not vr or not np.isfinite(vr) or vr <= 0:
-        raise ValueError(f"model has no positive value_range in its metrics ({vr!r}); "
-                         f"retrain it with `alpha-racer train`")
+        raise ValueError(
+            f"model has no positive value_range in its metrics ({vr!r}); "
+            f"retrain it with `alpha-racer train`"
+        )
     return float(vr)
 
 
@@ -96,17 +112,26 @@ def approximation_gap(model, heldout_dir, pairs: int, seed: int) -> dict:
     track = make_track(data["config"]["track"])
     vr = _value_range(model)
     rng = np.random.default_rng(seed)
-    x, th1, th2, i = sample_deviations(data["states"], data["thetas"],
-                                       np.arange(len(data["states"])), pairs, rng)
+    x, th1, th2, i = sample_deviations(
+        data["states"], data["thetas"], np.arange(len(data["states"])), pairs, rng
+    )
     rel, const, _, _ = relative_gaps(model, x, th1, th2, i, track, vr)
     if not (np.isfinite(rel).all() and np.isfinite(const).all()):
         raise FloatingPointError("non-finite approximation gaps")
     q = lambda a, p: float(np.percentile(a, p))
-    return {"pairs": int(pairs), "races": int(len(data["states"])), "value_range": vr,
-            "median": q(rel, 50), "p95": q(rel, 95), "max": float(rel.max()),
-            "within_10pct": float(np.mean(rel <= 0.10)),
-            "const_median": q(const, 50), "const_p95": q(const, 95),
-            "rel": rel.tolist(), "const_rel": const.tolist()}
+    return {
+        "pairs": int(pairs),
+        "races": int(len(data["states"])),
+        "value_range": vr,
+        "median": q(rel, 50),
+        "p95": q(rel, 95),
+        "max": float(rel.max()),
+        "within_10pct": float(np.mean(rel <= 0.10)),
+        "const_median": q(const, 50),
+        "const_p95": q(const, 95),
+        "rel": rel.tolist(),
+        "const_rel": const.tolist(),
+    }
 
 
 def plot_gap(gap: dict, path: Path) -> None:
@@ -115,15 +140,28 @@ def plot_gap(gap: dict, path: Path) -> None:
     const = 100 * np.asarray(gap["const_rel"])
     hi = max(20.0, float(np.percentile(const, 99)))
     bins = np.linspace(0, hi, 41)
-    ax.hist(np.clip(const, 0, hi), bins=bins, histtype="step", color="0.5", lw=1.2,
-            label=f"constant potential (median {100 * gap['const_median']:.1f}%)")
-    ax.hist(np.clip(rel, 0, hi), bins=bins, color="tab:blue", alpha=0.8,
-            label=f"learned Phi (median {100 * gap['median']:.1f}%, 95th {100 * gap['p95']:.1f}%)")
+    ax.hist(
+        np.clip(const, 0, hi),
+        bins=bins,
+        histtype="step",
+        color="0.5",
+        lw=1.2,
+        label=f"constant potential (median {100 * gap['const_median']:.1f}%)",
+    )
+    ax.hist(
+        np.clip(rel, 0, hi),
+        bins=bins,
+        color="tab:blue",
+        alpha=0.8,
+        label=f"learned Phi (median {100 * gap['median']:.1f}%, 95th {100 * gap['p95']:.1f}%)",
+    )
     ax.axvline(100 * gap["median"], color="k", ls="--", lw=1)
     ax.set_xlabel("|dPhi - dV_i| / range(V)  [%]")
     ax.set_ylabel("unilateral deviations")
-    ax.set_title(f"Approximation gap on {gap['races']} held-out races "
-                 f"({100 * gap['within_10pct']:.1f}% within 10%)")
+    ax.set_title(
+        f"Approximation gap on {gap['races']} held-out races "
+        f"({100 * gap['within_10pct']:.1f}% within 10%)"
+    )
     ax.legend(fontsize=8)
     _save(fig, path)
 
@@ -133,24 +171,33 @@ def maximiser(model, state, track, seed: int):
     """theta* (N, dim) of the model's policy space: a careful maximisation of Phi(x, .): 16 starts x 40 per-coordinate
     steps of the first release's ascent (the agent's online ascent relies on its warm start
     instead; from a cold start it stops short of the maximum)."""
-    return model.maximise_reference(state, track, restarts=16, iterations=40, step=0.3,
-                                    decay=0.9, per_coordinate=True,
-                                    rng=np.random.default_rng(seed))[0]
+    return model.maximise_reference(
+        state,
+        track,
+        restarts=16,
+        iterations=40,
+        step=0.3,
+        decay=0.9,
+        per_coordinate=True,
+        rng=np.random.default_rng(seed),
+    )[0]
 
 
 def simulated_value(model, track, state, thetas, car: int, horizon: int) -> float:
     """G_car = discounted rollout return over ``horizon`` steps + gamma^H V_car(x_H, thetas)."""
     from experiments.nets import discounted_rollout
+
     gamma = float(model.meta["gamma"])
     g, x_end = discounted_rollout(track.name, state, thetas, car, horizon, gamma)
-    g += gamma ** horizon * float(model.value(x_end[None], thetas[None], track, np.array([car]))[0])
+    g += gamma**horizon * float(model.value(x_end[None], thetas[None], track, np.array([car]))[0])
     if not np.isfinite(g):
         raise FloatingPointError(f"non-finite simulated value for car {car}")
     return g
 
 
-def regret_task(model_name: str, track_name: str, k: int, state, theta_star, car: int,
-                cfg: AnalyzeConfig) -> dict:
+def regret_task(
+    model_name: str, track_name: str, k: int, state, theta_star, car: int, cfg: AnalyzeConfig
+) -> dict:
     """Cross-entropy search of car ``car``'s theta by rollouts at ``state`` (others at
     theta*); pure, runs in a worker."""
     from agents.features import scale_theta, unscale_theta
@@ -163,7 +210,7 @@ def regret_task(model_name: str, track_name: str, k: int, state, theta_star, car
     state = np.asarray(state, dtype=float)
     theta_star = np.asarray(theta_star, dtype=float)
 
-    def score(z):                       # z: car's theta scaled to [-1, 1]
+    def score(z):  # z: car's theta scaled to [-1, 1]
         th = theta_star.copy()
         th[car] = unscale_theta(np.clip(z, -1, 1)[None], model.space)[0]
         return simulated_value(model, track, state, th, car, cfg.regret_horizon), th[car]
@@ -174,45 +221,62 @@ def regret_task(model_name: str, track_name: str, k: int, state, theta_star, car
     tried = [(g_star, theta_star[car].tolist())]
     mean, std = np.zeros(sp.dim), np.ones(sp.dim)
     for it in range(cfg.cem_iterations):
-        Z = (rng.uniform(-1, 1, (cfg.cem_samples, sp.dim)) if it == 0
-             else np.clip(rng.normal(mean, std, (cfg.cem_samples, sp.dim)), -1, 1))
+        Z = (
+            rng.uniform(-1, 1, (cfg.cem_samples, sp.dim))
+            if it == 0
+            else np.clip(rng.normal(mean, std, (cfg.cem_samples, sp.dim)), -1, 1)
+        )
         scores = []
         for z in Z:
             g, th = score(z)
             scores.append(g)
             tried.append((g, th.tolist()))
-        elite = Z[np.argsort(scores)[-max(2, cfg.cem_samples // 4):]]
+        elite = Z[np.argsort(scores)[-max(2, cfg.cem_samples // 4) :]]
         mean, std = elite.mean(axis=0), np.maximum(elite.std(axis=0), 0.05)
     g_best, th_best = max(tried, key=lambda t: t[0])
 
     # the paper's learned-value estimate: max over theta_i of V_i(x, theta_i, theta*_-i)
     th = np.repeat(theta_star[None], cfg.value_search + 1, axis=0)
     th[1:, car] = unscale_theta(rng.uniform(-1, 1, (cfg.value_search, sp.dim)), sp)
-    v = model.value(np.repeat(state[None], len(th), axis=0), th, track,
-                    np.full(len(th), car))
+    v = model.value(np.repeat(state[None], len(th), axis=0), th, track, np.full(len(th), car))
     vr = _value_range(model)
-    return {"state": k, "car": car, "regret_rel": (g_best - g_star) / vr,
-            "value_regret_rel": float(v.max() - v[0]) / vr, "g_star": g_star, "g_best": g_best,
-            "theta_star": theta_star[car].tolist(), "theta_best": th_best,
-            "rollouts": len(tried)}
+    return {
+        "state": k,
+        "car": car,
+        "regret_rel": (g_best - g_star) / vr,
+        "value_regret_rel": float(v.max() - v[0]) / vr,
+        "g_star": g_star,
+        "g_best": g_best,
+        "theta_star": theta_star[car].tolist(),
+        "theta_best": th_best,
+        "rollouts": len(tried),
+    }
 
 
 def race_states(model_name: str, track: str, n_states: int, seed: int, steps: int):
     """States (n_states, N, 6) sampled evenly from a race of ``alpha`` cars (the model's
     number of cars) from the start regions."""
     from .race import run_race
+
     n = _model(model_name).n_cars
-    result, _ = run_race([f"alpha:model={model_name}"] * n, track=track, seed=seed,
-                         max_cycles=steps, progress_bar=False)
+    result, _ = run_race(
+        [f"alpha:model={model_name}"] * n,
+        track=track,
+        seed=seed,
+        max_cycles=steps,
+        progress_bar=False,
+    )
     t = np.linspace(10, steps - 10, n_states).round().astype(int)
     return result.states[t], t, result
 
 
-def nash_regret(cfg: AnalyzeConfig, out: Path, workers: int, backend: str, address,
-                progress_bar: bool) -> dict:
+def nash_regret(
+    cfg: AnalyzeConfig, out: Path, workers: int, backend: str, address, progress_bar: bool
+) -> dict:
     model = _model(cfg.model)
     track_name = model.meta["track"]
     from racing_env.tracks import make_track
+
     track = make_track(track_name)
     states_path = out / "regret_states.npz"
     if states_path.exists():
@@ -224,31 +288,56 @@ def nash_regret(cfg: AnalyzeConfig, out: Path, workers: int, backend: str, addre
         write_npz(states_path, states=X, t=T, theta_star=theta_star)
     lines_path = out / "regret.jsonl"
     done = {(r["state"], r["car"]): r for r in read_jsonl(lines_path)}
-    tasks = [((k, c), (cfg.model, track_name, k, X[k], theta_star[k], c, cfg))
-             for k in range(len(X)) for c in range(X.shape[1]) if (k, c) not in done]
+    tasks = [
+        ((k, c), (cfg.model, track_name, k, X[k], theta_star[k], c, cfg))
+        for k in range(len(X))
+        for c in range(X.shape[1])
+        if (k, c) not in done
+    ]
 
     def finished(key, rec):
         done[key] = rec
         append_jsonl(lines_path, rec)
 
-    run_tasks_with_progress(regret_task, tasks, finished, workers, backend, address,
-                            total=len(X) * X.shape[1], done=len(done), desc="nash regret",
-                            unit="car", progress_bar=progress_bar)
+    run_tasks_with_progress(
+        regret_task,
+        tasks,
+        finished,
+        workers,
+        backend,
+        address,
+        total=len(X) * X.shape[1],
+        done=len(done),
+        desc="nash regret",
+        unit="car",
+        progress_bar=progress_bar,
+    )
     recs = [done[k] for k in sorted(done)]
     reg = np.array([r["regret_rel"] for r in recs])
     vreg = np.array([r["value_regret_rel"] for r in recs])
-    per_state = np.array([max(r["regret_rel"] for r in recs if r["state"] == k)
-                          for k in range(len(X))])
+    per_state = np.array(
+        [max(r["regret_rel"] for r in recs if r["state"] == k) for k in range(len(X))]
+    )
     q = lambda a, p: float(np.percentile(a, p))
-    return {"states": int(len(X)), "cars": int(X.shape[1]), "steps": T.tolist(),
-            "horizon": cfg.regret_horizon, "rollouts_per_car": recs[0]["rollouts"],
-            "value_range": _value_range(model),
-            "regret_median": q(reg, 50), "regret_p95": q(reg, 95), "regret_max": float(reg.max()),
-            "regret_within_3pct": float(np.mean(reg <= 0.03)),
-            "state_regret_median": q(per_state, 50), "state_regret_max": float(per_state.max()),
-            "value_regret_median": q(vreg, 50), "value_regret_max": float(vreg.max()),
-            "regret_rel": reg.tolist(), "value_regret_rel": vreg.tolist(),
-            "state_regret_rel": per_state.tolist()}
+    return {
+        "states": int(len(X)),
+        "cars": int(X.shape[1]),
+        "steps": T.tolist(),
+        "horizon": cfg.regret_horizon,
+        "rollouts_per_car": recs[0]["rollouts"],
+        "value_range": _value_range(model),
+        "regret_median": q(reg, 50),
+        "regret_p95": q(reg, 95),
+        "regret_max": float(reg.max()),
+        "regret_within_3pct": float(np.mean(reg <= 0.03)),
+        "state_regret_median": q(per_state, 50),
+        "state_regret_max": float(per_state.max()),
+        "value_regret_median": q(vreg, 50),
+        "value_regret_max": float(vreg.max()),
+        "regret_rel": reg.tolist(),
+        "value_regret_rel": vreg.tolist(),
+        "state_regret_rel": per_state.tolist(),
+    }
 
 
 def plot_regret(reg: dict, path: Path) -> None:
@@ -257,11 +346,22 @@ def plot_regret(reg: dict, path: Path) -> None:
     v = 100 * np.asarray(reg["value_regret_rel"])
     hi = max(5.0, float(max(a.max(), v.max())) * 1.05)
     bins = np.linspace(0, hi, 31)
-    ax.hist(a, bins=bins, color="tab:orange", alpha=0.85,
-            label=f"simulated (median {100 * reg['regret_median']:.2f}%, max "
-                  f"{100 * reg['regret_max']:.2f}%)")
-    ax.hist(v, bins=bins, histtype="step", color="k", lw=1.2,
-            label=f"learned V (median {100 * reg['value_regret_median']:.2f}%)")
+    ax.hist(
+        a,
+        bins=bins,
+        color="tab:orange",
+        alpha=0.85,
+        label=f"simulated (median {100 * reg['regret_median']:.2f}%, max "
+        f"{100 * reg['regret_max']:.2f}%)",
+    )
+    ax.hist(
+        v,
+        bins=bins,
+        histtype="step",
+        color="k",
+        lw=1.2,
+        label=f"learned V (median {100 * reg['value_regret_median']:.2f}%)",
+    )
     ax.axvline(3.0, color="0.4", ls=":", lw=1, label="paper: within 3%")
     ax.set_xlabel("Nash regret / range(V)  [%]")
     ax.set_ylabel("(state, car) pairs")
@@ -309,19 +409,26 @@ def potential_slices(model, track, state, ego: int, theta_star, cfg: AnalyzeConf
             trajs.append([np.asarray(x).tolist(), np.asarray(y).tolist()])
             progress.append(float(st[-1, ego, 0] - st[0, ego, 0]))
         out["params"][name] = {
-            "grid": grid.tolist(), "phi": phi.tolist(), "value": v.tolist(),
-            "theta_star": float(theta_star[ego][p]), "argmax_grid": float(grid[np.argmax(phi)]),
-            "rollout_values": [float(v_) for v_ in values], "rollout_progress_m": progress,
+            "grid": grid.tolist(),
+            "phi": phi.tolist(),
+            "value": v.tolist(),
+            "theta_star": float(theta_star[ego][p]),
+            "argmax_grid": float(grid[np.argmax(phi)]),
+            "rollout_values": [float(v_) for v_ in values],
+            "rollout_progress_m": progress,
             "trajectories": trajs,
             # does theta*'s trajectory make at least as much progress as the sampled others?
-            "maximiser_progress_rank": int(1 + np.sum(np.array(progress[:-1]) > progress[-1] + 1e-9)),
+            "maximiser_progress_rank": int(
+                1 + np.sum(np.array(progress[:-1]) > progress[-1] + 1e-9)
+            ),
         }
     return out
 
 
 def plot_slices(track, state, sl: dict, path: Path) -> None:
     from matplotlib import cm
-    names = list(sl["params"])                  # the model's policy space's parameters
+
+    names = list(sl["params"])  # the model's policy space's parameters
     fig, axes = _figure((4 * len(names), 7.5), rows=2, cols=len(names))
     ego = sl["ego"]
     (xl, yl), (xr, yr) = track.edges()
@@ -332,8 +439,16 @@ def plot_slices(track, state, sl: dict, path: Path) -> None:
         ax.plot(d["grid"], d["phi"], color="tab:blue", label="Phi")
         i_star = d["theta_star"]
         phi_star = np.interp(i_star, d["grid"], d["phi"])
-        ax.plot([i_star], [phi_star], marker="D", color="gold", mec="k", ms=9, ls="",
-                label="maximiser theta*")
+        ax.plot(
+            [i_star],
+            [phi_star],
+            marker="D",
+            color="gold",
+            mec="k",
+            ms=9,
+            ls="",
+            label="maximiser theta*",
+        )
         ax.set_xlabel(f"ego {name}")
         if p == 0:
             ax.set_ylabel("potential Phi(x, theta)")
@@ -345,13 +460,21 @@ def plot_slices(track, state, sl: dict, path: Path) -> None:
         vals = np.asarray(d["rollout_values"][:-1])
         norm = (vals - min(d["grid"])) / max(max(d["grid"]) - min(d["grid"]), 1e-9)
         all_x, all_y = [], []
-        for (tx, ty), c, val, prog in zip(d["trajectories"][:-1], norm, vals, d["rollout_progress_m"]):
+        for (tx, ty), c, val, prog in zip(
+            d["trajectories"][:-1], norm, vals, d["rollout_progress_m"]
+        ):
             ax2.plot(tx, ty, color=cm.viridis(c), lw=1.2, label=f"{name}={val:.2f}: {prog:.2f} m")
             all_x += tx
             all_y += ty
         tx, ty = d["trajectories"][-1]
-        ax2.plot(tx, ty, color="gold", lw=2.5, ls="--",
-                 label=f"theta*: {d['rollout_progress_m'][-1]:.2f} m")
+        ax2.plot(
+            tx,
+            ty,
+            color="gold",
+            lw=2.5,
+            ls="--",
+            label=f"theta*: {d['rollout_progress_m'][-1]:.2f} m",
+        )
         for i in range(len(state)):
             ax2.plot(xs[i], ys[i], "o", color="r" if i == ego else "k", ms=5)
         pad = 0.6
@@ -360,8 +483,10 @@ def plot_slices(track, state, sl: dict, path: Path) -> None:
         ax2.set_aspect("equal")
         ax2.legend(fontsize=6, loc="best")
         ax2.set_title(f"ego path over {DT * (len(tx) - 1):.0f} s (progress)", fontsize=9)
-    fig.suptitle(f"Potential against each of the ego's parameters (car_{ego}, others at theta*); "
-                 f"gold: the maximiser")
+    fig.suptitle(
+        f"Potential against each of the ego's parameters (car_{ego}, others at theta*); "
+        f"gold: the maximiser"
+    )
     _save(fig, path)
 
 
@@ -369,6 +494,7 @@ def plot_slices(track, state, sl: dict, path: Path) -> None:
 def plot_track(track, path: Path) -> None:
     """Edges, racing line coloured by speed, and the start regions R1-R3 (default StartConfig)."""
     from matplotlib.collections import LineCollection
+
     from racing_env.config import StartConfig
     from racing_env.raceline import get_raceline
 
@@ -391,12 +517,20 @@ def plot_track(track, path: Path) -> None:
         poly = np.concatenate([np.column_stack([ax_, ay_]), np.column_stack([bx_, by_])[::-1]])
         ax.fill(poly[:, 0], poly[:, 1], color=("tab:red", "tab:orange", "tab:green")[r], alpha=0.5)
         cx, cy = track.to_cartesian(np.array([front - sc.region_length / 2]), np.array([0.0]))
-        ax.annotate(f"R{r + 1}", (float(np.ravel(cx)[0]), float(np.ravel(cy)[0])),
-                    xytext=(0, 14), textcoords="offset points", ha="center", fontsize=10,
-                    fontweight="bold")
+        ax.annotate(
+            f"R{r + 1}",
+            (float(np.ravel(cx)[0]), float(np.ravel(cy)[0])),
+            xytext=(0, 14),
+            textcoords="offset points",
+            ha="center",
+            fontsize=10,
+            fontweight="bold",
+        )
     ax.set_aspect("equal")
-    ax.set_title(f"Track '{track.name}' ({track.length:.1f} m): racing line and start regions "
-                 f"(R1 front-most)")
+    ax.set_title(
+        f"Track '{track.name}' ({track.length:.1f} m): racing line and start regions "
+        f"(R1 front-most)"
+    )
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     _save(fig, path)
@@ -407,23 +541,32 @@ def find_overtake(bench_dirs) -> dict | None:
     median margin among such races, preferring the first directory that has one; the window
     is around the ego's first gain of a position."""
     from .bench import BenchConfig, BenchRun
+
     for d in bench_dirs:
         d = Path(d)
         if not (d / "manifest.json").exists():
             continue
         cfg = BenchConfig(**json.loads((d / "manifest.json").read_text())["config"])
         run = BenchRun(d, cfg)
-        recs = [r for r in run.records().values() if r["ego_region"] != "R1" and r["winner"] == "ego"]
+        recs = [
+            r for r in run.records().values() if r["ego_region"] != "R1" and r["winner"] == "ego"
+        ]
         if not recs:
             continue
         recs.sort(key=lambda r: r["margin_m"])
         rec = recs[len(recs) // 2]
         states = run.states(rec["race"])
-        rank = (states[:, 1:, 0] > states[:, :1, 0]).sum(axis=1)     # cars ahead of the ego
+        rank = (states[:, 1:, 0] > states[:, :1, 0]).sum(axis=1)  # cars ahead of the ego
         gained = np.flatnonzero(np.diff(rank) < 0)
         t = int(gained[0]) if gained.size else 0
-        return {"dir": str(d), "race": rec["race"], "record": rec, "t_overtake": t,
-                "states": states, "config": asdict(cfg)}
+        return {
+            "dir": str(d),
+            "race": rec["race"],
+            "record": rec,
+            "t_overtake": t,
+            "states": states,
+            "config": asdict(cfg),
+        }
     return None
 
 
@@ -445,14 +588,20 @@ def overtake_animation(found: dict, path: Path, before: int = 30, after: int = 5
         hud = [f"t = {DT * t:5.1f} s"] + [f"P{k + 1} {names[i]}" for k, i in enumerate(order)]
         frames.append(r.frame(st[t], labels=["ego", "O1", "O2"], hud=hud))
     save_animation(frames, path, fps=10)
-    return {"dir": found["dir"], "race": found["race"], "t_overtake_s": DT * found["t_overtake"],
-            "window_s": [DT * t0, DT * t1], "record": found["record"]}
+    return {
+        "dir": found["dir"],
+        "race": found["race"],
+        "t_overtake_s": DT * found["t_overtake"],
+        "window_s": [DT * t0, DT * t1],
+        "record": found["record"],
+    }
 
 
 # ---------------------------------------------------------------------------- plumbing
 def _figure(size, rows=1, cols=1):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+
     fig = Figure(figsize=size)
     FigureCanvasAgg(fig)
     axes = fig.subplots(rows, cols, squeeze=False)
@@ -466,9 +615,16 @@ def _save(fig, path: Path) -> None:
     tmp.replace(path)
 
 
-def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
-            backend: str = "local", address: str | None = None, progress_bar: bool = True,
-            force: bool = False) -> dict:
+def analyze(
+    cfg: AnalyzeConfig,
+    out_dir,
+    bench_dirs=(),
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+    progress_bar: bool = True,
+    force: bool = False,
+) -> dict:
     """Run every analysis into ``out_dir`` (skipping parts whose outputs exist unless
     ``force``); returns ``summary.json``'s content."""
     from experiments.collect import CollectConfig, collect
@@ -477,8 +633,10 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
     check_backend(backend, workers)
     model = _model(cfg.model)
     if model.general:
-        raise ValueError(f"analyze studies a single-track model on its own track; {cfg.model!r} "
-                         f"is a general model: use `alpha-racer general-report` for it")
+        raise ValueError(
+            f"analyze studies a single-track model on its own track; {cfg.model!r} "
+            f"is a general model: use `alpha-racer general-report` for it"
+        )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     claim(out / "config.json", asdict(cfg), "analyses", overwrite=force)
@@ -492,11 +650,22 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
 
     # Figure 2a: approximation gap on fresh held-out races
     if force or not (out / "gap.json").exists():
-        ccfg = CollectConfig(races=cfg.heldout_races, n_cars=model.n_cars, steps=cfg.steps,
-                             track=model.meta["track"], seed=cfg.heldout_seed,
-                             races_per_shard=max(1, min(10, cfg.heldout_races // max(workers, 1))))
-        collect(ccfg, out / "heldout", workers=workers, backend=backend, address=address,
-                progress_bar=progress_bar)
+        ccfg = CollectConfig(
+            races=cfg.heldout_races,
+            n_cars=model.n_cars,
+            steps=cfg.steps,
+            track=model.meta["track"],
+            seed=cfg.heldout_seed,
+            races_per_shard=max(1, min(10, cfg.heldout_races // max(workers, 1))),
+        )
+        collect(
+            ccfg,
+            out / "heldout",
+            workers=workers,
+            backend=backend,
+            address=address,
+            progress_bar=progress_bar,
+        )
         gap = approximation_gap(model, out / "heldout", cfg.gap_pairs, cfg.seed)
         gap["seconds"] = time.perf_counter() - t0
         write_json(out / "gap.json", gap)
@@ -510,7 +679,7 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
             for f in ("regret.jsonl", "regret_states.npz"):
                 (out / f).unlink(missing_ok=True)
         reg = nash_regret(cfg, out, workers, backend, address, progress_bar)
-        reg["seconds_last_run"] = time.perf_counter() - t1    # a resumed run counts its own part
+        reg["seconds_last_run"] = time.perf_counter() - t1  # a resumed run counts its own part
         write_json(out / "regret.json", reg)
         plot_regret(reg, out / "fig2b_nash_regret.png")
     reg = json.loads((out / "regret.json").read_text())
@@ -532,11 +701,19 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
         if found is not None:
             write_json(out / "overtake.json", overtake_animation(found, out / "overtake.gif"))
     summary["gap"] = {k: v for k, v in gap.items() if k not in ("rel", "const_rel")}
-    summary["regret"] = {k: v for k, v in reg.items()
-                         if k not in ("regret_rel", "value_regret_rel", "state_regret_rel")}
-    summary["slices"] = {name: {"theta_star": d["theta_star"], "argmax_grid": d["argmax_grid"],
-                                "maximiser_progress_rank": d["maximiser_progress_rank"]}
-                         for name, d in sl["params"].items()}
+    summary["regret"] = {
+        k: v
+        for k, v in reg.items()
+        if k not in ("regret_rel", "value_regret_rel", "state_regret_rel")
+    }
+    summary["slices"] = {
+        name: {
+            "theta_star": d["theta_star"],
+            "argmax_grid": d["argmax_grid"],
+            "maximiser_progress_rank": d["maximiser_progress_rank"],
+        }
+        for name, d in sl["params"].items()
+    }
     if (out / "overtake.json").exists():
         summary["overtake"] = json.loads((out / "overtake.json").read_text())
     write_json(out / "summary.json", summary)
@@ -546,28 +723,34 @@ def analyze(cfg: AnalyzeConfig, out_dir, bench_dirs=(), workers: int = 2,
 
 def summary_markdown(s: dict) -> str:
     g, r = s["gap"], s["regret"]
-    lines = ["# Nash analyses", "",
-             f"Model `{s['config']['model']}`.", "",
-             f"* **Approximation gap** (Figure 2a) on {g['races']} held-out races, {g['pairs']} "
-             f"unilateral deviations: median {100 * g['median']:.2f}%, 95th percentile "
-             f"{100 * g['p95']:.2f}%, max {100 * g['max']:.1f}% of the value range "
-             f"({g['value_range']:.1f} m); {100 * g['within_10pct']:.1f}% within 10% "
-             f"(paper: all within 10%, median about 2%). A constant potential: median "
-             f"{100 * g['const_median']:.2f}%, 95th {100 * g['const_p95']:.2f}%.",
-             f"* **Nash regret by simulation** (Figure 2b) at {r['states']} race states x "
-             f"{r['cars']} cars, {r['rollouts_per_car']} rollouts of {r['horizon']} steps per "
-             f"car: median {100 * r['regret_median']:.2f}%, 95th {100 * r['regret_p95']:.2f}%, "
-             f"max {100 * r['regret_max']:.2f}% of the value range; "
-             f"{100 * r['regret_within_3pct']:.0f}% within 3% (paper: within 3%, learned-value "
-             f"estimate). Learned-value regret: median {100 * r['value_regret_median']:.2f}%, "
-             f"max {100 * r['value_regret_max']:.2f}%.",
-             "* **Potential slices** (Figure 3): rank of theta*'s 5 s progress among the "
-             "sampled values of each parameter (1 = best): "
-             + ", ".join(f"{k} {v['maximiser_progress_rank']}" for k, v in s["slices"].items())
-             + "."]
+    lines = [
+        "# Nash analyses",
+        "",
+        f"Model `{s['config']['model']}`.",
+        "",
+        f"* **Approximation gap** (Figure 2a) on {g['races']} held-out races, {g['pairs']} "
+        f"unilateral deviations: median {100 * g['median']:.2f}%, 95th percentile "
+        f"{100 * g['p95']:.2f}%, max {100 * g['max']:.1f}% of the value range "
+        f"({g['value_range']:.1f} m); {100 * g['within_10pct']:.1f}% within 10% "
+        f"(paper: all within 10%, median about 2%). A constant potential: median "
+        f"{100 * g['const_median']:.2f}%, 95th {100 * g['const_p95']:.2f}%.",
+        f"* **Nash regret by simulation** (Figure 2b) at {r['states']} race states x "
+        f"{r['cars']} cars, {r['rollouts_per_car']} rollouts of {r['horizon']} steps per "
+        f"car: median {100 * r['regret_median']:.2f}%, 95th {100 * r['regret_p95']:.2f}%, "
+        f"max {100 * r['regret_max']:.2f}% of the value range; "
+        f"{100 * r['regret_within_3pct']:.0f}% within 3% (paper: within 3%, learned-value "
+        f"estimate). Learned-value regret: median {100 * r['value_regret_median']:.2f}%, "
+        f"max {100 * r['value_regret_max']:.2f}%.",
+        "* **Potential slices** (Figure 3): rank of theta*'s 5 s progress among the "
+        "sampled values of each parameter (1 = best): "
+        + ", ".join(f"{k} {v['maximiser_progress_rank']}" for k, v in s["slices"].items())
+        + ".",
+    ]
     if "overtake" in s:
         o = s["overtake"]
-        lines.append(f"* **Overtake animation**: race {o['race']} of `{o['dir']}`, ego from "
-                     f"{o['record']['ego_region']}, first position gained at "
-                     f"{o['t_overtake_s']:.1f} s, won by {o['record']['margin_m']:.2f} m.")
+        lines.append(
+            f"* **Overtake animation**: race {o['race']} of `{o['dir']}`, ego from "
+            f"{o['record']['ego_region']}, first position gained at "
+            f"{o['t_overtake_s']:.1f} s, won by {o['record']['margin_m']:.2f} m."
+        )
     return "\n".join(lines) + "\n"

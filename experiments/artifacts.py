@@ -8,6 +8,7 @@ output folder of such a job (bench, league, policy map, the strategy suite's pac
 claim, the records file, the missing tasks, their running and the adding of a finished one, in
 one place.
 """
+
 from __future__ import annotations
 
 import functools
@@ -33,6 +34,7 @@ def env_version() -> str:
     """The env version races run on (PettingZoo ``metadata["name"]``, e.g. ``alpha_racer_v2``).
     Race folders store it in their manifest, so races of two env versions never mix."""
     from racing_env.parallel_env import RacingParallelEnv
+
     return RacingParallelEnv.metadata["name"]
 
 
@@ -60,10 +62,13 @@ def manifest_config(config, added: dict) -> dict:
     defaults to) is left out while it has that value, so that a folder written before the
     field existed keeps its manifest and resumes."""
     from dataclasses import asdict
+
     return {k: v for k, v in asdict(config).items() if not (k in added and v == added[k])}
 
 
-def claim(path, meta: dict, what: str, overwrite: bool = False, provenance: dict | None = None) -> None:
+def claim(
+    path, meta: dict, what: str, overwrite: bool = False, provenance: dict | None = None
+) -> None:
     """Tie the folder of manifest ``path`` to ``meta``: write it if missing (or ``overwrite``),
     else raise a ValueError naming both configs when the stored one differs (compared as
     stored, :func:`as_stored`: a config's tuples equal the stored lists). ``what`` names
@@ -78,14 +83,18 @@ def claim(path, meta: dict, what: str, overwrite: bool = False, provenance: dict
     if path.exists() and not overwrite:
         old = json.loads(path.read_text())
         stored_prov = old.pop("provenance", None)
-        if "env" in meta and "env" not in old:     # made before manifests named the env
+        if "env" in meta and "env" not in old:  # made before manifests named the env
             old = {**old, "env": "alpha_racer_v1 or older"}
         if old != meta:
-            diff = "; ".join(f"{k}: stored {old.get(k)!r}, this run {meta.get(k)!r}"
-                             for k in sorted(set(old) | set(meta), key=str)
-                             if old.get(k) != meta.get(k))
-            raise ValueError(f"{path.parent} holds {what} of another configuration ({diff}). "
-                             f"Use another --out or the same settings to resume")
+            diff = "; ".join(
+                f"{k}: stored {old.get(k)!r}, this run {meta.get(k)!r}"
+                for k in sorted(set(old) | set(meta), key=str)
+                if old.get(k) != meta.get(k)
+            )
+            raise ValueError(
+                f"{path.parent} holds {what} of another configuration ({diff}). "
+                f"Use another --out or the same settings to resume"
+            )
         if provenance is not None:
             merged = check_provenance(stored_prov, provenance, path.parent, what)
             if merged != stored_prov:
@@ -110,15 +119,25 @@ def git_commit() -> str | None:
     ``+dirty`` when its tracked files have uncommitted changes), or None (an installed wheel,
     no git)."""
     import subprocess
+
     import racing_env
+
     root = Path(racing_env.__file__).resolve().parent.parent
     try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,
-                              text=True, timeout=10)
+        head = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
         if head.returncode:
             return None
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=30)
+        dirty = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
@@ -130,6 +149,7 @@ def agent_model_files(spec: str, agent=None) -> list[Path]:
     model its ``model`` names (both candidates of ``model=auto``) or the path; and any spec
     parameter value that is an existing file (a plugin's ``weights=...``)."""
     from agents import make_agent_spec
+
     agent = make_agent_spec(spec) if agent is None else agent
     files: list[Path] = []
     if callable(getattr(agent, "model_files", None)):
@@ -137,6 +157,7 @@ def agent_model_files(spec: str, agent=None) -> list[Path]:
     name = getattr(agent, "model_name", None)
     if spec.partition(":")[0] == "alpha" and isinstance(name, str):
         from agents.potential import MODEL_DIR, SHIPPED
+
         names = ["default", "general"] if name == "auto" else [name]
         files += [MODEL_DIR / SHIPPED[n] if n in SHIPPED else Path(n) for n in names]
     for item in filter(None, spec.partition(":")[2].split(",")):
@@ -156,6 +177,7 @@ def provenance(specs=(), agents=None) -> dict:
     checkpoint file it loads (:func:`agent_model_files`). ``agents``: already built agents of
     ``specs`` (same order), to avoid building them twice."""
     from racing_env import __version__
+
     files = {}
     for spec in dict.fromkeys(specs):
         agent = None if agents is None else agents[list(specs).index(spec)]
@@ -172,6 +194,7 @@ def check_provenance(stored: dict | None, current: dict, folder, what: str) -> d
     warned about (naming both) and recorded under ``resumed_with``. Returns the provenance to
     store (the stored one, with the files of agents new to the run added)."""
     import warnings
+
     if not stored:
         return current
     changed = []
@@ -180,20 +203,27 @@ def check_provenance(stored: dict | None, current: dict, folder, what: str) -> d
         old = merged_files.setdefault(spec, {})
         for path, digest in files.items():
             if path in old and old[path] != digest:
-                changed.append(f"agent {spec!r}: {path} was sha256 {old[path][:12]}..., "
-                               f"now {digest[:12]}...")
+                changed.append(
+                    f"agent {spec!r}: {path} was sha256 {old[path][:12]}..., now {digest[:12]}..."
+                )
             old.setdefault(path, digest)
     if changed:
-        raise ValueError(f"{folder} holds {what} raced with other weights, so resuming would mix "
-                         f"two different agents: {'; '.join(changed)}. Use another --out, or "
-                         f"restore the files")
+        raise ValueError(
+            f"{folder} holds {what} raced with other weights, so resuming would mix "
+            f"two different agents: {'; '.join(changed)}. Use another --out, or "
+            f"restore the files"
+        )
     merged = {**stored, "model_files": merged_files}
     code = ("package_version", "git_commit")
     if any(stored.get(k) != current.get(k) for k in code):
-        warnings.warn(f"{folder}: resuming {what} made by alpha-racer {stored.get('package_version')} "
-                      f"(commit {stored.get('git_commit')}) with alpha-racer "
-                      f"{current.get('package_version')} (commit {current.get('git_commit')}); "
-                      f"its summary will hold races of both", RuntimeWarning, stacklevel=3)
+        warnings.warn(
+            f"{folder}: resuming {what} made by alpha-racer {stored.get('package_version')} "
+            f"(commit {stored.get('git_commit')}) with alpha-racer "
+            f"{current.get('package_version')} (commit {current.get('git_commit')}); "
+            f"its summary will hold races of both",
+            RuntimeWarning,
+            stacklevel=3,
+        )
         seen = [{k: r.get(k) for k in code} for r in merged.get("resumed_with", [])]
         now = {k: current.get(k) for k in code}
         if now not in seen:
@@ -204,8 +234,12 @@ def check_provenance(stored: dict | None, current: dict, folder, what: str) -> d
 def write_npz(path, compressed: bool = False, **arrays) -> Path:
     """Save ``arrays`` to the ``.npz`` file ``path`` atomically."""
     import numpy as np
+
     path = Path(path)
-    with atomic_path(path, ".npz") as tmp, open(tmp, "wb") as f:   # savez would append ".npz" to a name
+    with (
+        atomic_path(path, ".npz") as tmp,
+        open(tmp, "wb") as f,
+    ):  # savez would append ".npz" to a name
         (np.savez_compressed if compressed else np.savez)(f, **arrays)
     return path
 
@@ -250,11 +284,14 @@ def claim_best_thetas(folder, tracks, table=None) -> dict:
     holds for ``tracks``: ``folder/best_fixed_theta.json`` records them, and a later run after
     the table changed is refused (its races would mix two controls). Returns the entries."""
     from agents.best_theta import lookup
+
     entries = {t: lookup(t, table) for t in dict.fromkeys(tracks)}
     Path(folder).mkdir(parents=True, exist_ok=True)
-    claim(Path(folder) / "best_fixed_theta.json",
-          {"config": {t: {"theta": e["theta"], "env": e["env"]} for t, e in entries.items()}},
-          "races of a best fixed theta")
+    claim(
+        Path(folder) / "best_fixed_theta.json",
+        {"config": {t: {"theta": e["theta"], "env": e["env"]} for t, e in entries.items()}},
+        "races of a best fixed theta",
+    )
     return entries
 
 
@@ -302,7 +339,7 @@ class ResumableRun:
             claim(self.manifest_path, stored, self.what, provenance=prov)
             merged = json.loads(self.manifest_path.read_text()).get("provenance")
             write_json(self.manifest_path, meta if prov is None else {**meta, "provenance": merged})
-        if agents is not None and uses_best_theta(agents):   # a changed table never mixes in
+        if agents is not None and uses_best_theta(agents):  # a changed table never mixes in
             claim_best_thetas(self.out, tracks)
 
     def tasks(self) -> list:
@@ -323,8 +360,11 @@ class ResumableRun:
 
     def records(self) -> dict:
         """Finished records by key; a torn (partly written) last line is ignored."""
-        return {self.record_key(rec): rec for rec in read_jsonl(self.records_path)
-                if self.check_record(rec)}
+        return {
+            self.record_key(rec): rec
+            for rec in read_jsonl(self.records_path)
+            if self.check_record(rec)
+        }
 
     def missing(self) -> list:
         """The tasks without a finished record, in order."""
@@ -335,10 +375,19 @@ class ResumableRun:
         """Store one finished record (one JSON line, flushed and fsynced)."""
         append_jsonl(self.records_path, record)
 
-    def run_missing(self, fn: Callable[..., dict], args: Callable[[Any], tuple], workers: int,
-                    backend: str, address: str | None, *, desc: str, unit: str,
-                    progress_bar: bool,
-                    postfix: Callable[[Hashable, dict], str] | None = None) -> int:
+    def run_missing(
+        self,
+        fn: Callable[..., dict],
+        args: Callable[[Any], tuple],
+        workers: int,
+        backend: str,
+        address: str | None,
+        *,
+        desc: str,
+        unit: str,
+        progress_bar: bool,
+        postfix: Callable[[Hashable, dict], str] | None = None,
+    ) -> int:
         """Run the :meth:`missing` tasks, ``fn(*args(task))`` each, on ``workers`` local
         processes or Ray (:func:`experiments.parallel.run_tasks`), storing each record
         (:meth:`add`) as it arrives, behind a progress bar over all the run's tasks (``desc``,
@@ -346,8 +395,18 @@ class ResumableRun:
         one). Returns the number of tasks run."""
         tasks = [(self.task_key(task), args(task)) for task in self.missing()]
         total = len(self.tasks())
-        run_tasks_with_progress(fn, tasks, lambda key, record: self.add(record), workers,
-                                backend, address, total=total, done=total - len(tasks),
-                                desc=desc, unit=unit, progress_bar=progress_bar,
-                                postfix=postfix)
+        run_tasks_with_progress(
+            fn,
+            tasks,
+            lambda key, record: self.add(record),
+            workers,
+            backend,
+            address,
+            total=total,
+            done=total - len(tasks),
+            desc=desc,
+            unit=unit,
+            progress_bar=progress_bar,
+            postfix=postfix,
+        )
         return len(tasks)

@@ -33,6 +33,7 @@ the rotation: race k puts the ego in ``ego_regions[k mod len]``.
 ``alpha-racer bench --paper-table`` runs the paper's five cases (:data:`PAPER_CASES`) with one
 pool over all their races and writes ``paper_table.md`` beside the paper's numbers.
 """
+
 from __future__ import annotations
 
 import time
@@ -44,8 +45,15 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics as race_metrics
-from .artifacts import (ResumableRun, append_jsonl, env_version, read_jsonl, write_json,
-                        write_npz, write_text)
+from .artifacts import (
+    ResumableRun,
+    append_jsonl,
+    env_version,
+    read_jsonl,
+    write_json,
+    write_npz,
+    write_text,
+)
 from .parallel import check_backend, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
@@ -67,14 +75,20 @@ def regions(n_cars: int = 3) -> tuple[str, ...]:
 class PaperCase:
     opponents: str
     title: str
-    paper_wins: tuple[int, int, int]     # the paper's Table 1: ego, O1, O2 wins of 99
+    paper_wins: tuple[int, int, int]  # the paper's Table 1: ego, O1, O2 wins of 99
 
 
 #: The paper's Table 1, ego = ``alpha`` (gamma 0.99, 4000 races) in every case.
 PAPER_CASES = {
-    "I": PaperCase("alpha:model=gamma0.98", "Opponents with low gamma (alpha, gamma 0.98)", (61, 28, 10)),
-    "II": PaperCase("alpha:model=gamma0.995", "Opponents with high gamma (alpha, gamma 0.995)", (52, 40, 7)),
-    "III": PaperCase("alpha:model=races400", "Opponents trained with less data (alpha, 400 races)", (76, 16, 7)),
+    "I": PaperCase(
+        "alpha:model=gamma0.98", "Opponents with low gamma (alpha, gamma 0.98)", (61, 28, 10)
+    ),
+    "II": PaperCase(
+        "alpha:model=gamma0.995", "Opponents with high gamma (alpha, gamma 0.995)", (52, 40, 7)
+    ),
+    "III": PaperCase(
+        "alpha:model=races400", "Opponents trained with less data (alpha, 400 races)", (76, 16, 7)
+    ),
     "IV": PaperCase("ibr", "Opponents using IBR (6 rounds, 2 s horizon)", (73, 22, 4)),
     "V": PaperCase("ppo", "Opponents trained by self-play RL (PPO)", (91, 7, 1)),
 }
@@ -104,19 +118,24 @@ class BenchConfig:
             v = getattr(self, name)
             if not (isinstance(v, int) and v >= 1):
                 raise ValueError(f"BenchConfig.{name} must be a positive integer, got {v!r}")
-        if isinstance(self.n_cars, bool) or not (isinstance(self.n_cars, int)
-                                                  and 2 <= self.n_cars <= 8):
+        if isinstance(self.n_cars, bool) or not (
+            isinstance(self.n_cars, int) and 2 <= self.n_cars <= 8
+        ):
             raise ValueError(f"BenchConfig.n_cars must be an integer in 2..8, got {self.n_cars!r}")
         if self.ego_regions is not None:
             object.__setattr__(self, "ego_regions", tuple(self.ego_regions))
             bad = [r for r in self.ego_regions if r not in self.regions]
             if not self.ego_regions or bad:
-                raise ValueError(f"BenchConfig.ego_regions must be a non-empty sequence of "
-                                 f"start regions of {', '.join(self.regions)}, got "
-                                 f"{list(self.ego_regions)}")
+                raise ValueError(
+                    f"BenchConfig.ego_regions must be a non-empty sequence of "
+                    f"start regions of {', '.join(self.regions)}, got "
+                    f"{list(self.ego_regions)}"
+                )
         elif self.n_cars != 3 and self.races % self.n_cars:
-            raise ValueError(f"BenchConfig.races must be a multiple of n_cars = {self.n_cars} "
-                             f"(every start region equally often), got {self.races}")
+            raise ValueError(
+                f"BenchConfig.races must be a multiple of n_cars = {self.n_cars} "
+                f"(every start region equally often), got {self.races}"
+            )
         check_spec_fields(self, ("ego", "opponents"))
 
     @property
@@ -168,8 +187,10 @@ def check_spec_fields(config: object, names: Sequence[str]) -> None:
     an agent spec string (a non-empty ``str``)."""
     for name in names:
         if not isinstance(getattr(config, name), str) or not getattr(config, name):
-            raise ValueError(f"{type(config).__name__}.{name} must be an agent spec string, "
-                             f"got {getattr(config, name)!r}")
+            raise ValueError(
+                f"{type(config).__name__}.{name} must be an agent spec string, "
+                f"got {getattr(config, name)!r}"
+            )
 
 
 def check_agent_specs(specs, tracks=()) -> None:
@@ -177,6 +198,7 @@ def check_agent_specs(specs, tracks=()) -> None:
     ``check_track(track)`` method (``mpc:theta=best``: the track's entry in the best-theta
     table) checks each of ``tracks`` too."""
     from agents import make_agent_spec
+
     for spec in dict.fromkeys(specs):
         agent = make_agent_spec(spec)
         check = getattr(agent, "check_track", None)
@@ -190,11 +212,19 @@ def check_agent_specs(specs, tracks=()) -> None:
 def bench_race(config: BenchConfig, k: int) -> dict:
     """Race k of the benchmark (pure: no file access); returns its record and states."""
     from .race import run_race
+
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
     seed, order = config.race_seed(k), config.order(k)
-    result, _ = run_race(config.agents, track=config.track, seed=seed, max_cycles=config.steps,
-                         start="regions", order=order, progress_bar=False)
+    result, _ = run_race(
+        config.agents,
+        track=config.track,
+        seed=seed,
+        max_cycles=config.steps,
+        start="regions",
+        order=order,
+        progress_bar=False,
+    )
     if not np.isfinite(result.states).all():
         raise FloatingPointError(f"benchmark race {k} produced non-finite states")
     p = result.progress
@@ -202,13 +232,17 @@ def bench_race(config: BenchConfig, k: int) -> dict:
     states = result.states.astype(np.float32)
     reg = config.regions
     record = {
-        "race": k, "seed": seed, "ego_region": reg[order[0]],
+        "race": k,
+        "seed": seed,
+        "ego_region": reg[order[0]],
         "start_regions": [reg[r] for r in order],
-        "agents": config.agents, "winner": config.roles[winner],
+        "agents": config.agents,
+        "winner": config.roles[winner],
         "progress_m": [round(float(v), 4) for v in p],
         "margin_m": round(float(p[0] - max(p[1:])), 4),
         "ranks": [int(r) for r in np.argsort(np.argsort(-p, kind="stable"), kind="stable") + 1],
-        "contacts": result.contacts.tolist(), "off_tracks": result.off_tracks.tolist(),
+        "contacts": result.contacts.tolist(),
+        "off_tracks": result.off_tracks.tolist(),
         "decision_ms": [round(float(v), 4) for v in result.decision_ms],
         "fallbacks": [int(st.get("fallbacks", 0)) for st in result.agent_stats],
         # from the states as stored, so a summary recomputing them finds the same numbers
@@ -228,8 +262,11 @@ class BenchRun(ResumableRun):
     def __init__(self, out_dir, config: BenchConfig):
         super().__init__(out_dir, config)
         (self.out / "states").mkdir(exist_ok=True)
-        self.claim({"schema_version": SCHEMA_VERSION, "config": config.to_dict(),
-                    "env": env_version()}, config.agents, [config.track])
+        self.claim(
+            {"schema_version": SCHEMA_VERSION, "config": config.to_dict(), "env": env_version()},
+            config.agents,
+            [config.track],
+        )
 
     def tasks(self) -> list[int]:
         return list(range(self.config.races))
@@ -281,7 +318,7 @@ def wilson_interval(wins: int, n: int, z: float = 1.959964) -> tuple[float, floa
     denom = 1.0 + z * z / n
     centre = (p + z * z / (2 * n)) / denom
     half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    lo = 0.0 if wins == 0 else max(0.0, min(p, centre - half))   # exact ends (no 1 - 1e-16)
+    lo = 0.0 if wins == 0 else max(0.0, min(p, centre - half))  # exact ends (no 1 - 1e-16)
     hi = 1.0 if wins == n else min(1.0, max(p, centre + half))
     return float(lo), float(hi)
 
@@ -295,6 +332,7 @@ def win_share(wins: int, races: int) -> dict:
 def _race_dt_dn() -> tuple[float, float]:
     """(dt [s], contact_dn [m]) of the default race config."""
     from racing_env.config import RaceConfig
+
     c = RaceConfig()
     return c.dt, c.rules.contact_dn
 
@@ -311,19 +349,26 @@ def summarise(records: list[dict], config: BenchConfig) -> dict:
         raise ValueError("no finished races to summarise")
     records = sorted(records, key=lambda r: r["race"])
     n = len(records)
-    arr = lambda key: np.array([r[key] for r in records], dtype=float)      # (n, N)
+    arr = lambda key: np.array([r[key] for r in records], dtype=float)  # (n, N)
     margin = arr("margin_m")
     names = config.roles
-    out = {"config": config.to_dict(), "races": n, "complete": n == config.races,
-           "wins": {role: _wins(records, role) for role in names},
-           "by_region": {}}
+    out = {
+        "config": config.to_dict(),
+        "races": n,
+        "complete": n == config.races,
+        "wins": {role: _wins(records, role) for role in names},
+        "by_region": {},
+    }
     for reg in config.regions:
         sub = [r for r in records if r["ego_region"] == reg]
         if sub:
             out["by_region"][reg] = {role: _wins(sub, role) for role in names}
             out["by_region"][reg]["margin_m_mean"] = float(np.mean([r["margin_m"] for r in sub]))
-    out["margin_m"] = {"mean": float(margin.mean()), "median": float(np.median(margin)),
-                       "std": float(margin.std())}
+    out["margin_m"] = {
+        "mean": float(margin.mean()),
+        "median": float(np.median(margin)),
+        "std": float(margin.std()),
+    }
     for key in ("progress_m", "contacts", "off_tracks", "decision_ms", "fallbacks"):
         a = arr(key)
         out[key] = dict(zip(names, map(float, a.mean(axis=0))))
@@ -343,10 +388,22 @@ def strategy_summary(records: list[dict], names, region_names) -> dict:
     them and ``missing`` the others (recorded before the metrics existed, without states):
     with none, every figure is ``None``, never a zero."""
     have = [r for r in records if all(k in r for k in race_metrics.RECORD_KEYS)]
-    out = {"definition": race_metrics.definition(*_race_dt_dn()), "races": len(have),
-           "missing": len(records) - len(have)}
-    keys = ("passes", "passes_per_race", "passes_contact", "passes_contact_per_race",
-            "fell_back", "wins_from_behind", "behind_1m_s", "wins_by_start_region", "by_region")
+    out = {
+        "definition": race_metrics.definition(*_race_dt_dn()),
+        "races": len(have),
+        "missing": len(records) - len(have),
+    }
+    keys = (
+        "passes",
+        "passes_per_race",
+        "passes_contact",
+        "passes_contact_per_race",
+        "fell_back",
+        "wins_from_behind",
+        "behind_1m_s",
+        "wins_by_start_region",
+        "by_region",
+    )
     if not have:
         return {**out, **dict.fromkeys(keys)}
     n = len(have)
@@ -356,8 +413,10 @@ def strategy_summary(records: list[dict], names, region_names) -> dict:
         return np.array([r[key] for r in sub], dtype=float).sum(axis=0)
 
     def wfb(sub):
-        return {role: int(sum(r["won_from_behind"] and r["winner"] == role for r in sub))
-                for role in names}
+        return {
+            role: int(sum(r["won_from_behind"] and r["winner"] == role for r in sub))
+            for role in names
+        }
 
     for key in ("passes", "passes_contact", "fell_back"):
         tot = per_car(key, have)
@@ -368,14 +427,17 @@ def strategy_summary(records: list[dict], names, region_names) -> dict:
     out["behind_1m_s"] = dict(zip(names, map(float, per_car("behind_1m_s", have) / n)))
     out["wins_by_start_region"] = {
         reg: int(sum(r["start_regions"][names.index(r["winner"])] == reg for r in have))
-        for reg in region_names}
+        for reg in region_names
+    }
     out["by_region"] = {}
     for reg in region_names:
         sub = [r for r in have if r["ego_region"] == reg]
         if sub:
-            out["by_region"][reg] = {"races": len(sub),
-                                     "passes": dict(zip(names, map(int, per_car("passes", sub)))),
-                                     "wins_from_behind": wfb(sub)}
+            out["by_region"][reg] = {
+                "races": len(sub),
+                "passes": dict(zip(names, map(int, per_car("passes", sub)))),
+                "wins_from_behind": wfb(sub),
+            }
     return out
 
 
@@ -388,25 +450,33 @@ def summary_markdown(s: dict) -> str:
     N = c.get("n_cars", 3)
     names = roles(N)
     many = "two" if N == 3 else str(N - 1)
-    lines = [f"# Benchmark: `{c['ego']}` vs {many} `{c['opponents']}`",
-             "",
-             f"{s['races']} of {c['races']} races, {c['steps']} steps each on `{c['track']}`, "
-             f"seed {c['seed']}. Wins with Wilson 95% intervals.",
-             "",
-             "| | " + " | ".join(names) + " |", "|---" * (N + 1) + "|",
-             "| wins (all) | " + " | ".join(_pct(s["wins"][r]) for r in names) + " |"]
+    lines = [
+        f"# Benchmark: `{c['ego']}` vs {many} `{c['opponents']}`",
+        "",
+        f"{s['races']} of {c['races']} races, {c['steps']} steps each on `{c['track']}`, "
+        f"seed {c['seed']}. Wins with Wilson 95% intervals.",
+        "",
+        "| | " + " | ".join(names) + " |",
+        "|---" * (N + 1) + "|",
+        "| wins (all) | " + " | ".join(_pct(s["wins"][r]) for r in names) + " |",
+    ]
     for reg, w in s["by_region"].items():
         lines.append(f"| wins, ego from {reg} | " + " | ".join(_pct(w[r]) for r in names) + " |")
-    for key, label, fmt in (("progress_m", "progress per race [m]", "{:.2f}"),
-                            ("contacts", "contact steps per race", "{:.2f}"),
-                            ("off_tracks", "off-track steps per race", "{:.2f}"),
-                            ("fallbacks", "fallbacks per race", "{:.2f}"),
-                            ("decision_ms", "mean decision time [ms]", "{:.2f}")):
+    for key, label, fmt in (
+        ("progress_m", "progress per race [m]", "{:.2f}"),
+        ("contacts", "contact steps per race", "{:.2f}"),
+        ("off_tracks", "off-track steps per race", "{:.2f}"),
+        ("fallbacks", "fallbacks per race", "{:.2f}"),
+        ("decision_ms", "mean decision time [ms]", "{:.2f}"),
+    ):
         lines.append(f"| {label} | " + " | ".join(fmt.format(s[key][r]) for r in names) + " |")
     lines += strategy_rows(s.get("strategy"), names)
     m = s["margin_m"]
-    lines += ["", f"Ego margin over the best opponent: mean {m['mean']:.2f} m, median "
-                  f"{m['median']:.2f} m, std {m['std']:.2f} m."]
+    lines += [
+        "",
+        f"Ego margin over the best opponent: mean {m['mean']:.2f} m, median "
+        f"{m['median']:.2f} m, std {m['std']:.2f} m.",
+    ]
     lines += strategy_note(s.get("strategy"), s["races"])
     return "\n".join(lines) + "\n"
 
@@ -415,12 +485,12 @@ def strategy_rows(st: dict | None, names) -> list[str]:
     """Rows of the summary table for :func:`strategy_summary` (``-`` where missing)."""
     have = st is not None and st.get("passes") is not None
     rows = []
-    for key, label, fmt in (("passes_per_race", "passes per race (held 1 s, clear sideways)",
-                             "{:.2f}"),
-                            ("passes_contact_per_race", "passes through contact per race",
-                             "{:.2f}"),
-                            ("wins_from_behind", "wins from behind", "{}"),
-                            ("behind_1m_s", "time within 1 m behind [s per race]", "{:.1f}")):
+    for key, label, fmt in (
+        ("passes_per_race", "passes per race (held 1 s, clear sideways)", "{:.2f}"),
+        ("passes_contact_per_race", "passes through contact per race", "{:.2f}"),
+        ("wins_from_behind", "wins from behind", "{}"),
+        ("behind_1m_s", "time within 1 m behind [s per race]", "{:.1f}"),
+    ):
         cells = [fmt.format(st[key][r]) if have else "-" for r in names]
         rows.append(f"| {label} | " + " | ".join(cells) + " |")
     return rows
@@ -430,14 +500,22 @@ def strategy_note(st: dict | None, races: int) -> list[str]:
     """A line saying over which races the strategy metrics were taken, or that they are
     missing (old records without states)."""
     if st is None or not st.get("races"):
-        return ["", f"Strategy metrics missing for all {races} races (recorded before they "
-                    f"existed, and no stored states to compute them from)."]
-    lines = ["", "Wins by the winner's start region: " + ", ".join(
-        f"{reg} {w}" for reg, w in st["wins_by_start_region"].items())
-        + " (from R2 and behind: wins from behind)."]
+        return [
+            "",
+            f"Strategy metrics missing for all {races} races (recorded before they "
+            f"existed, and no stored states to compute them from).",
+        ]
+    lines = [
+        "",
+        "Wins by the winner's start region: "
+        + ", ".join(f"{reg} {w}" for reg, w in st["wins_by_start_region"].items())
+        + " (from R2 and behind: wins from behind).",
+    ]
     if st["missing"]:
-        lines.append(f"Strategy metrics over {st['races']} of {races} races; "
-                     f"{st['missing']} lack them (recorded before they existed, no states).")
+        lines.append(
+            f"Strategy metrics over {st['races']} of {races} races; "
+            f"{st['missing']} lack them (recorded before they existed, no states)."
+        )
     return lines
 
 
@@ -446,14 +524,30 @@ def _run_many(runs: dict, workers: int, backend: str, address, progress_bar: boo
     """Run the missing races of every :class:`BenchRun` in ``runs`` (name -> run) in one pool."""
     tasks = [((name, k), (run.config, k)) for name, run in runs.items() for k in run.missing()]
     total = sum(run.config.races for run in runs.values())
-    run_tasks_with_progress(bench_race, tasks, lambda key, result: runs[key[0]].add(result),
-                            workers, backend, address, total=total, done=total - len(tasks),
-                            desc="bench", unit="race", progress_bar=progress_bar,
-                            postfix=lambda key, result: f"{key[0]}:{result['record']['winner']}")
+    run_tasks_with_progress(
+        bench_race,
+        tasks,
+        lambda key, result: runs[key[0]].add(result),
+        workers,
+        backend,
+        address,
+        total=total,
+        done=total - len(tasks),
+        desc="bench",
+        unit="race",
+        progress_bar=progress_bar,
+        postfix=lambda key, result: f"{key[0]}:{result['record']['winner']}",
+    )
 
 
-def bench(config: BenchConfig, out_dir, workers: int = 2, backend: str = "local",
-          address: str | None = None, progress_bar: bool = True) -> dict:
+def bench(
+    config: BenchConfig,
+    out_dir,
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+    progress_bar: bool = True,
+) -> dict:
     """Run (or resume) one benchmark into ``out_dir``; returns its summary."""
     check_backend(backend, workers)
     check_agent_specs(config.agents, [config.track])
@@ -462,10 +556,19 @@ def bench(config: BenchConfig, out_dir, workers: int = 2, backend: str = "local"
     return run.write_summary()
 
 
-def paper_table(out_dir, ego: str = "alpha", races: int = 99, steps: int = 500,
-                track: str = "default", seed: int = 0, cases=None, workers: int = 2,
-                backend: str = "local", address: str | None = None,
-                progress_bar: bool = True) -> dict:
+def paper_table(
+    out_dir,
+    ego: str = "alpha",
+    races: int = 99,
+    steps: int = 500,
+    track: str = "default",
+    seed: int = 0,
+    cases=None,
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+    progress_bar: bool = True,
+) -> dict:
     """The paper's five cases (or ``cases``, names of :data:`PAPER_CASES`) in
     ``out_dir/case_<name>``, all races in one pool; writes ``out_dir/paper_table.md`` and
     ``paper_table.json`` and returns the latter's content."""
@@ -475,8 +578,17 @@ def paper_table(out_dir, ego: str = "alpha", races: int = 99, steps: int = 500,
     if unknown:
         raise ValueError(f"unknown paper cases {unknown}; choose from {list(PAPER_CASES)}")
     out = Path(out_dir)
-    configs = {c: BenchConfig(ego=ego, opponents=PAPER_CASES[c].opponents, races=races,
-                              steps=steps, track=track, seed=seed) for c in cases}
+    configs = {
+        c: BenchConfig(
+            ego=ego,
+            opponents=PAPER_CASES[c].opponents,
+            races=races,
+            steps=steps,
+            track=track,
+            seed=seed,
+        )
+        for c in cases
+    }
     check_agent_specs([ego] + [cfg.opponents for cfg in configs.values()], [track])
     runs = {c: BenchRun(out / f"case_{c}", cfg) for c, cfg in configs.items()}
     todo = sum(len(run.missing()) for run in runs.values())
@@ -484,56 +596,85 @@ def paper_table(out_dir, ego: str = "alpha", races: int = 99, steps: int = 500,
     _run_many(runs, workers, backend, address, progress_bar)
     wall = time.perf_counter() - t0
     history = out / "runs.jsonl"
-    if todo:                       # every invocation that raced: the table's total wall time
-        append_jsonl(history, {"cases": cases, "races_simulated": todo, "wall_seconds": wall,
-                               "workers": workers, "backend": backend,
-                               "finished": time.strftime("%Y-%m-%dT%H:%M:%S")})
+    if todo:  # every invocation that raced: the table's total wall time
+        append_jsonl(
+            history,
+            {
+                "cases": cases,
+                "races_simulated": todo,
+                "wall_seconds": wall,
+                "workers": workers,
+                "backend": backend,
+                "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
+            },
+        )
     past = read_jsonl(history)
-    table = {"ego": ego, "races": races, "steps": steps, "track": track, "seed": seed,
-             "workers": workers, "backend": backend, "wall_seconds_this_run": wall,
-             "runs": past,
-             "cases": {c: {"opponents": PAPER_CASES[c].opponents, "title": PAPER_CASES[c].title,
-                           "paper_wins": list(PAPER_CASES[c].paper_wins),
-                           "summary": runs[c].write_summary()} for c in cases}}
+    table = {
+        "ego": ego,
+        "races": races,
+        "steps": steps,
+        "track": track,
+        "seed": seed,
+        "workers": workers,
+        "backend": backend,
+        "wall_seconds_this_run": wall,
+        "runs": past,
+        "cases": {
+            c: {
+                "opponents": PAPER_CASES[c].opponents,
+                "title": PAPER_CASES[c].title,
+                "paper_wins": list(PAPER_CASES[c].paper_wins),
+                "summary": runs[c].write_summary(),
+            }
+            for c in cases
+        },
+    }
     write_json(out / "paper_table.json", table)
     write_text(out / "paper_table.md", paper_table_markdown(table))
     return table
 
 
 def paper_table_markdown(table: dict) -> str:
-    lines = ["# Head-to-head benchmark: the paper's Table 1",
-             "",
-             f"Ego `{table['ego']}` against two opponents of one kind; {table['races']} races per "
-             f"case of {table['steps']} steps ({table['steps'] / 10:.0f} s), the ego starting "
-             f"from R1, R2, R3 in turn (race k from R(k mod 3 + 1)), O1 always ahead of O2; "
-             f"won by the largest "
-             f"total progress. Wins with Wilson 95% intervals; `paper` is the paper's Table 1.",
-             "",
-             "| case | opponents | ego wins | O1 wins | O2 wins | paper (ego/O1/O2) "
-             "| ego wins from R1 / R2 / R3 | ego margin m | contacts ego/opp | off-track ego/opp "
-             "| ms/decision ego/opp |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Head-to-head benchmark: the paper's Table 1",
+        "",
+        f"Ego `{table['ego']}` against two opponents of one kind; {table['races']} races per "
+        f"case of {table['steps']} steps ({table['steps'] / 10:.0f} s), the ego starting "
+        f"from R1, R2, R3 in turn (race k from R(k mod 3 + 1)), O1 always ahead of O2; "
+        f"won by the largest "
+        f"total progress. Wins with Wilson 95% intervals; `paper` is the paper's Table 1.",
+        "",
+        "| case | opponents | ego wins | O1 wins | O2 wins | paper (ego/O1/O2) "
+        "| ego wins from R1 / R2 / R3 | ego margin m | contacts ego/opp | off-track ego/opp "
+        "| ms/decision ego/opp |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for c, case in table["cases"].items():
         s = case["summary"]
         w = s["wins"]
-        reg = " / ".join(str(s["by_region"][r]["ego"]["wins"]) if r in s["by_region"] else "-"
-                         for r in REGIONS)
+        reg = " / ".join(
+            str(s["by_region"][r]["ego"]["wins"]) if r in s["by_region"] else "-" for r in REGIONS
+        )
         opp = lambda key: 0.5 * (s[key]["O1"] + s[key]["O2"])  # noqa: B023
         lines.append(
             f"| {c} | `{case['opponents']}` | {_pct(w['ego'])} | {w['O1']['wins']} | "
             f"{w['O2']['wins']} | {'/'.join(map(str, case['paper_wins']))} | {reg} | "
             f"{s['margin_m']['mean']:+.2f} | {s['contacts']['ego']:.1f}/{opp('contacts'):.1f} | "
             f"{s['off_tracks']['ego']:.1f}/{opp('off_tracks'):.1f} | "
-            f"{s['decision_ms']['ego']:.1f}/{opp('decision_ms'):.1f} |")
+            f"{s['decision_ms']['ego']:.1f}/{opp('decision_ms'):.1f} |"
+        )
         if not s["complete"]:
             lines[-1] += f" (partial: {s['races']} of {s['config']['races']} races)"
     runs = table.get("runs", [])
     total = sum(r["wall_seconds"] for r in runs)
     simulated = sum(r["races_simulated"] for r in runs)
     race_cpu = sum(c["summary"]["race_seconds_total"] for c in table["cases"].values())
-    lines += ["", f"Wall time: {total / 60:.1f} min for the {simulated} races simulated over "
-                  f"{len(runs)} invocation(s) (`runs.jsonl`); the races themselves took "
-                  f"{race_cpu / 60:.1f} worker-minutes."]
+    lines += [
+        "",
+        f"Wall time: {total / 60:.1f} min for the {simulated} races simulated over "
+        f"{len(runs)} invocation(s) (`runs.jsonl`); the races themselves took "
+        f"{race_cpu / 60:.1f} worker-minutes.",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -546,16 +687,23 @@ def comparison_markdown(tables: dict, note: str = "") -> str:
     if not labels:
         raise ValueError("no paper tables to compare")
     first = tables[labels[0]]
-    lines = ["# The same races with other egos: what maximising the potential adds", "",
-             f"Every ego races the same {first['races']} races per case ({first['steps']} "
-             f"steps, seed {first['seed']}, same start orders and opponents): "
-             + ", ".join(f"{label} = `{t['ego']}`" for label, t in tables.items())
-             + ". Wins of the races, then by the ego's start region R1 / R2 / R3 (R1 the "
-               "front); margin: ego minus the best opponent, mean over the races [m]."
-             + (f" {note}" if note else ""), "",
-             "| case | opponents | " + " | ".join(f"{label} wins (R1/R2/R3)" for label in labels)
-             + " | margin m (" + " / ".join(labels) + ") |",
-             "|---|---|" + "---|" * (len(labels) + 1)]
+    lines = [
+        "# The same races with other egos: what maximising the potential adds",
+        "",
+        f"Every ego races the same {first['races']} races per case ({first['steps']} "
+        f"steps, seed {first['seed']}, same start orders and opponents): "
+        + ", ".join(f"{label} = `{t['ego']}`" for label, t in tables.items())
+        + ". Wins of the races, then by the ego's start region R1 / R2 / R3 (R1 the "
+        "front); margin: ego minus the best opponent, mean over the races [m]."
+        + (f" {note}" if note else ""),
+        "",
+        "| case | opponents | "
+        + " | ".join(f"{label} wins (R1/R2/R3)" for label in labels)
+        + " | margin m ("
+        + " / ".join(labels)
+        + ") |",
+        "|---|---|" + "---|" * (len(labels) + 1),
+    ]
     for c, case in first["cases"].items():
         cells, margins = [], []
         for label in labels:
@@ -564,10 +712,13 @@ def comparison_markdown(tables: dict, note: str = "") -> str:
                 cells.append("-")
                 margins.append("-")
                 continue
-            reg = "/".join(str(s["by_region"][r]["ego"]["wins"]) if r in s["by_region"] else "-"
-                           for r in REGIONS)
+            reg = "/".join(
+                str(s["by_region"][r]["ego"]["wins"]) if r in s["by_region"] else "-"
+                for r in REGIONS
+            )
             cells.append(f"{s['wins']['ego']['wins']}/{s['races']} ({reg})")
             margins.append(f"{s['margin_m']['mean']:+.2f}")
-        lines.append(f"| {c} | `{case['opponents']}` | " + " | ".join(cells)
-                     + f" | {' / '.join(margins)} |")
+        lines.append(
+            f"| {c} | `{case['opponents']}` | " + " | ".join(cells) + f" | {' / '.join(margins)} |"
+        )
     return "\n".join(lines) + "\n"

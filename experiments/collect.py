@@ -17,6 +17,7 @@ the extended one, ``CollectConfig.space``); ``rewards`` (R, T, N) float32;
 ``race_index`` (R,) int64; ``start_order`` (R, N) int64 (start region of each car);
 ``fallbacks`` (R, N) int32 (MPC fallbacks, to spot bad races).
 """
+
 from __future__ import annotations
 
 import json
@@ -64,17 +65,19 @@ class CollectConfig(ShardedRaces):
     track: str = "default"
     seed: int = 0
     races_per_shard: int = 25
-    start_jitter: float = 0.8      # lateral jitter of the start positions (fraction of the room)
-    space: str = "paper"           # policy space the thetas are drawn from (agents.reference)
-    start: str = "paper"           # start regions: "paper" (0.4 m long, 0.6 m apart) or
-                                   # "close" (0.2 m long, 0.1 m apart: pass and block at once)
+    start_jitter: float = 0.8  # lateral jitter of the start positions (fraction of the room)
+    space: str = "paper"  # policy space the thetas are drawn from (agents.reference)
+    start: str = "paper"  # start regions: "paper" (0.4 m long, 0.6 m apart) or
+    # "close" (0.2 m long, 0.1 m apart: pass and block at once)
 
     def __post_init__(self):
         from agents.reference import policy_space
-        policy_space(self.space)                         # names the choices if unknown
+
+        policy_space(self.space)  # names the choices if unknown
         if self.start not in START_REGIONS:
-            raise ValueError(f"CollectConfig.start must be one of {sorted(START_REGIONS)}, got "
-                             f"{self.start!r}")
+            raise ValueError(
+                f"CollectConfig.start must be one of {sorted(START_REGIONS)}, got {self.start!r}"
+            )
         for name in ("races", "n_cars", "steps", "races_per_shard"):
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 1):
@@ -87,11 +90,15 @@ def _mpc_agents(track, thetas, rng=None, agent_ids=None, space: str = "paper") -
     """This process's MPC agents of policy space ``space`` set to ``thetas`` (N, dim) and
     reset on ``track``."""
     from agents.reference import Theta
+
     agents = _agents(len(thetas), space)
     for k, (agent, theta) in enumerate(zip(agents, thetas)):
         agent.theta = Theta.from_array(theta)
-        agent.reset(track, agent_ids[k] if agent_ids else f"car_{k}",
-                    None if rng is None else int(rng.integers(2 ** 31)))
+        agent.reset(
+            track,
+            agent_ids[k] if agent_ids else f"car_{k}",
+            None if rng is None else int(rng.integers(2**31)),
+        )
     return agents
 
 
@@ -100,14 +107,21 @@ def simulate_race(config: CollectConfig, race_index: int) -> dict:
     from agents.reference import policy_space
     from racing_env import RacingParallelEnv, StartConfig
 
-    rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(race_index + 1)[race_index])
+    rng = np.random.default_rng(
+        np.random.SeedSequence(config.seed).spawn(race_index + 1)[race_index]
+    )
     length, gap = START_REGIONS[config.start]
-    env = RacingParallelEnv(track=config.track, n_cars=config.n_cars, max_cycles=config.steps,
-                            start=StartConfig(mode="regions", lateral_jitter=config.start_jitter,
-                                              region_length=length, region_gap=gap))
+    env = RacingParallelEnv(
+        track=config.track,
+        n_cars=config.n_cars,
+        max_cycles=config.steps,
+        start=StartConfig(
+            mode="regions", lateral_jitter=config.start_jitter, region_length=length, region_gap=gap
+        ),
+    )
     order = rng.permutation(config.n_cars)
-    obs, _ = env.reset(seed=int(rng.integers(2 ** 31)), options={"order": order.tolist()})
-    space = policy_space(config.space)       # the paper's draws are Theta.sample's, bit for bit
+    obs, _ = env.reset(seed=int(rng.integers(2**31)), options={"order": order.tolist()})
+    space = policy_space(config.space)  # the paper's draws are Theta.sample's, bit for bit
     thetas = np.array([space.sample(rng) for _ in range(config.n_cars)])
     agents = _mpc_agents(env.track, thetas, rng, env.possible_agents, config.space)
     fallbacks0 = [a.stats["fallbacks"] for a in agents]
@@ -123,10 +137,16 @@ def simulate_race(config: CollectConfig, race_index: int) -> dict:
         states[t] = env.core.state[0]
     if not (np.isfinite(states).all() and np.isfinite(rewards).all()):
         raise FloatingPointError(f"race {race_index} produced non-finite data")
-    return {"states": states, "thetas": thetas.astype(np.float32), "rewards": rewards,
-            "race_index": race_index, "start_order": order,
-            "fallbacks": np.array([a.stats["fallbacks"] - f0 for a, f0 in zip(agents, fallbacks0)],
-                                  dtype=np.int32)}
+    return {
+        "states": states,
+        "thetas": thetas.astype(np.float32),
+        "rewards": rewards,
+        "race_index": race_index,
+        "start_order": order,
+        "fallbacks": np.array(
+            [a.stats["fallbacks"] - f0 for a, f0 in zip(agents, fallbacks0)], dtype=np.int32
+        ),
+    }
 
 
 def rollout_from_state(track, state, thetas, steps: int):
@@ -149,6 +169,7 @@ def rollout_from_state(track, state, thetas, steps: int):
     core.s_line[0] = state[:, 0].max()
     thetas = np.asarray(thetas, dtype=float)
     from agents.theta import space_of
+
     agents = _mpc_agents(core.track, thetas, space=space_of(thetas[0]).name)
     obs = core.observe()[0]
     states = np.empty((steps + 1, N, 6))
@@ -170,6 +191,7 @@ def _agents(n: int, space: str = "paper") -> list:
     """MPC agents of policy space ``space`` reused across races in this process (building one
     compiles and loads code)."""
     from agents.mpc_agent import MPCAgent
+
     pool = _AGENTS.setdefault(space, [])
     while len(pool) < n:
         pool.append(MPCAgent(space=space))
@@ -189,21 +211,29 @@ def simulate_shard(config: CollectConfig, shard: int) -> dict:
 
 def write_shard(arrays: dict, shard: int, out_dir) -> str:
     """Write a shard atomically (temporary file, then rename); returns its path."""
-    return str(write_npz(Path(out_dir) / f"shard_{shard:05d}.npz",
-                         schema_version=SCHEMA_VERSION, **arrays))
+    return str(
+        write_npz(Path(out_dir) / f"shard_{shard:05d}.npz", schema_version=SCHEMA_VERSION, **arrays)
+    )
 
 
 def shard_is_complete(path: Path, config: CollectConfig, shard: int) -> bool:
     try:
         with np.load(path) as z:
-            return (int(z["schema_version"]) == SCHEMA_VERSION
-                    and z["race_index"].tolist() == list(config.shard_races(shard)))
+            return int(z["schema_version"]) == SCHEMA_VERSION and z["race_index"].tolist() == list(
+                config.shard_races(shard)
+            )
     except Exception:  # truncated, corrupt or foreign file: redo it
         return False
 
 
-def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool = True,
-            backend: str = "local", address: str | None = None) -> dict:
+def collect(
+    config: CollectConfig,
+    out_dir,
+    workers: int = 2,
+    progress_bar: bool = True,
+    backend: str = "local",
+    address: str | None = None,
+) -> dict:
     """Simulate every missing shard; returns a summary.
 
     ``backend="local"``: a process pool of ``workers`` (``workers = 1`` runs in this process).
@@ -214,21 +244,43 @@ def collect(config: CollectConfig, out_dir, workers: int = 2, progress_bar: bool
     check_backend(backend, workers)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    claim(out / "manifest.json", {"schema_version": SCHEMA_VERSION, "config": manifest_config(config, ADDED_FIELDS)},
-          "race data", provenance=provenance())
-    todo = [k for k in range(config.n_shards)
-            if not shard_is_complete(out / f"shard_{k:05d}.npz", config, k)]
+    claim(
+        out / "manifest.json",
+        {"schema_version": SCHEMA_VERSION, "config": manifest_config(config, ADDED_FIELDS)},
+        "race data",
+        provenance=provenance(),
+    )
+    todo = [
+        k
+        for k in range(config.n_shards)
+        if not shard_is_complete(out / f"shard_{k:05d}.npz", config, k)
+    ]
     done_races = config.races - sum(len(config.shard_races(k)) for k in todo)
     t0 = time.perf_counter()
-    run_tasks_with_progress(simulate_shard, [(k, (config, k)) for k in todo],
-                            lambda k, arrays: write_shard(arrays, k, out), workers, backend,
-                            address, total=config.races, done=done_races, desc="collect",
-                            unit="race", progress_bar=progress_bar,
-                            count=lambda k: len(config.shard_races(k)))
+    run_tasks_with_progress(
+        simulate_shard,
+        [(k, (config, k)) for k in todo],
+        lambda k, arrays: write_shard(arrays, k, out),
+        workers,
+        backend,
+        address,
+        total=config.races,
+        done=done_races,
+        desc="collect",
+        unit="race",
+        progress_bar=progress_bar,
+        count=lambda k: len(config.shard_races(k)),
+    )
     seconds = time.perf_counter() - t0
     new = config.races - done_races
-    return {"races": config.races, "simulated": new, "resumed": done_races, "seconds": seconds,
-            "races_per_s": new / seconds if seconds > 0 else float("nan"), "out": str(out)}
+    return {
+        "races": config.races,
+        "simulated": new,
+        "resumed": done_races,
+        "seconds": seconds,
+        "races_per_s": new / seconds if seconds > 0 else float("nan"),
+        "out": str(out),
+    }
 
 
 def load_races(out_dir) -> dict:
@@ -236,7 +288,9 @@ def load_races(out_dir) -> dict:
     out = Path(out_dir)
     meta = json.loads((out / "manifest.json").read_text())
     if meta["schema_version"] != SCHEMA_VERSION:
-        raise ValueError(f"{out}: schema {meta['schema_version']}, this code reads {SCHEMA_VERSION}")
+        raise ValueError(
+            f"{out}: schema {meta['schema_version']}, this code reads {SCHEMA_VERSION}"
+        )
     parts = []
     for path in sorted(out.glob("shard_*.npz")):
         with np.load(path) as z:

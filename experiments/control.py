@@ -46,6 +46,7 @@ Output folder (resumable; run the same command again, also with more tracks):
 * ``<track>/selection.json`` and ``summary.md``, ``summary.json`` (every track);
   ``runs.jsonl``: the wall time of every invocation that ran something.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -59,20 +60,21 @@ import numpy as np
 from .artifacts import append_jsonl, claim, read_jsonl, slug, write_json, write_text
 from .bench import REGIONS, BenchConfig, BenchRun, _run_many, check_agent_specs
 from .parallel import check_backend, run_tasks_with_progress
-from .policy_map import (MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, map_row,
-                         theta_spec)
+from .policy_map import MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, map_row, theta_spec
 
 SCHEMA_VERSION = 1
 BEST_FIXED_SPEC = "mpc:theta=best"
 """The control's agent spec: the ``mpc`` agent with the track's best fixed theta."""
-RULE = ("map: Sobol thetas of the box, solo and as car_0 against two opponents (race); "
-        f"candidates: thetas with at most {100 * OFF_TRACK_LIMIT:g}% of the steps off track in both modes, the top "
-        "K by rank of race progress among the thetas from the same start region, then by race "
-        "progress minus that region's median, then by the lower Sobol index, plus the best "
-        "solo theta by progress; playoff: each candidate as ego in the "
-        "same seeded races from every start region against two opponents, ranked by wins, then "
-        "mean margin over the best opponent, then the lower Sobol index; the winner is the "
-        "first")
+RULE = (
+    "map: Sobol thetas of the box, solo and as car_0 against two opponents (race); "
+    f"candidates: thetas with at most {100 * OFF_TRACK_LIMIT:g}% of the steps off track in both modes, the top "
+    "K by rank of race progress among the thetas from the same start region, then by race "
+    "progress minus that region's median, then by the lower Sobol index, plus the best "
+    "solo theta by progress; playoff: each candidate as ego in the "
+    "same seeded races from every start region against two opponents, ranked by wins, then "
+    "mean margin over the best opponent, then the lower Sobol index; the winner is the "
+    "first"
+)
 """The selection rule in one sentence (stored in every ``selection.json``)."""
 
 
@@ -101,27 +103,46 @@ class ControlConfig:
             if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
                 raise ValueError(f"ControlConfig.{name} must be a positive integer, got {v!r}")
         if self.races % len(REGIONS):
-            raise ValueError(f"ControlConfig.races must be a multiple of {len(REGIONS)} (every "
-                             f"start region equally often), got {self.races}")
+            raise ValueError(
+                f"ControlConfig.races must be a multiple of {len(REGIONS)} (every "
+                f"start region equally often), got {self.races}"
+            )
         if isinstance(self.seed, bool) or not (isinstance(self.seed, int) and self.seed >= 0):
-            raise ValueError(f"ControlConfig.seed must be a non-negative integer, got {self.seed!r}")
+            raise ValueError(
+                f"ControlConfig.seed must be a non-negative integer, got {self.seed!r}"
+            )
         if self.seed == BenchConfig.seed:
-            raise ValueError(f"ControlConfig.seed {self.seed} is the benchmarks' seed; the "
-                             f"selection must not race the races it is compared on")
+            raise ValueError(
+                f"ControlConfig.seed {self.seed} is the benchmarks' seed; the "
+                f"selection must not race the races it is compared on"
+            )
         if not isinstance(self.opponents, str) or not self.opponents:
-            raise ValueError(f"ControlConfig.opponents must be an agent spec, got "
-                             f"{self.opponents!r}")
+            raise ValueError(
+                f"ControlConfig.opponents must be an agent spec, got {self.opponents!r}"
+            )
 
     def map_config(self, track: str) -> PolicyMapConfig:
         """The policy map of ``track``: both modes, this config's thetas, steps, seed and
         opponents."""
-        return PolicyMapConfig(thetas=self.thetas, tracks=(track,), modes=MODES,
-                               steps=self.steps, seed=self.seed, opponents=self.opponents)
+        return PolicyMapConfig(
+            thetas=self.thetas,
+            tracks=(track,),
+            modes=MODES,
+            steps=self.steps,
+            seed=self.seed,
+            opponents=self.opponents,
+        )
 
     def playoff_config(self, track: str, theta) -> BenchConfig:
         """The playoff races of the candidate ``theta`` (5,) on ``track``."""
-        return BenchConfig(ego=theta_spec(theta), opponents=self.opponents, races=self.races,
-                           steps=self.steps, track=track, seed=self.seed)
+        return BenchConfig(
+            ego=theta_spec(theta),
+            opponents=self.opponents,
+            races=self.races,
+            steps=self.steps,
+            track=track,
+            seed=self.seed,
+        )
 
 
 # ---------------------------------------------------------------------------- the rule
@@ -157,28 +178,39 @@ def choose_candidates(rows, k: int) -> list[dict]:
     solo = {r["index"]: r for r in rows if r["mode"] == "solo"}
     race = {r["index"]: r for r in rows if r["mode"] == "race"}
     finished = [r for r in race.values() if "error" not in r]
-    median = {reg: float(np.median([r["progress_m"] for r in finished
-                                    if r["start_region"] == reg]))
-              for reg in {r["start_region"] for r in finished}}
+    median = {
+        reg: float(np.median([r["progress_m"] for r in finished if r["start_region"] == reg]))
+        for reg in {r["start_region"] for r in finished}
+    }
     eligible = eligible_indices(rows)
     if not eligible:
         tracks = sorted({r["track"] for r in rows})
-        raise ValueError(f"no theta of the map on {tracks} stays on track in both modes "
-                         f"({len(solo)} solo and {len(race)} race rows); map more thetas")
+        raise ValueError(
+            f"no theta of the map on {tracks} stays on track in both modes "
+            f"({len(solo)} solo and {len(race)} race rows); map more thetas"
+        )
 
     adjusted = {i: race[i]["progress_m"] - median[race[i]["start_region"]] for i in eligible}
     rank = {}
     for reg in {race[i]["start_region"] for i in eligible}:
-        mine = sorted((i for i in eligible if race[i]["start_region"] == reg),
-                      key=lambda i: (-adjusted[i], i))
+        mine = sorted(
+            (i for i in eligible if race[i]["start_region"] == reg), key=lambda i: (-adjusted[i], i)
+        )
         rank.update({i: r for r, i in enumerate(mine, 1)})
 
     def record(i, reason):
         s, r = solo[i], race[i]
-        return {"index": i, "theta": r["theta"], "reasons": [reason],
-                "solo_progress_m": s["progress_m"], "race_progress_m": r["progress_m"],
-                "race_adjusted_m": round(adjusted[i], 4), "region_rank": rank[i],
-                "start_region": r["start_region"], "race_margin_m": r["margin_m"]}
+        return {
+            "index": i,
+            "theta": r["theta"],
+            "reasons": [reason],
+            "solo_progress_m": s["progress_m"],
+            "race_progress_m": r["progress_m"],
+            "race_adjusted_m": round(adjusted[i], 4),
+            "region_rank": rank[i],
+            "start_region": r["start_region"],
+            "race_margin_m": r["margin_m"],
+        }
 
     by_race = sorted(eligible, key=lambda i: (rank[i], -adjusted[i], i))
     out = [record(i, "race") for i in by_race[:k]]
@@ -210,15 +242,24 @@ def rank_playoff(scores) -> list[dict]:
 
 def _playoff_score(summary: dict) -> dict:
     """A candidate's playoff score from its benchmark summary."""
-    return {"wins": summary["wins"]["ego"]["wins"], "races": summary["races"],
-            "wins_by_region": {reg: summary["by_region"][reg]["ego"]["wins"]
-                               for reg in REGIONS if reg in summary["by_region"]},
-            "margin_m_mean": summary["margin_m"]["mean"],
-            "margin_m_by_region": {reg: summary["by_region"][reg]["margin_m_mean"]
-                                   for reg in REGIONS if reg in summary["by_region"]},
-            "progress_m_mean": summary["progress_m"]["ego"],
-            "off_track_steps_mean": summary["off_tracks"]["ego"],
-            "contacts_mean": summary["contacts"]["ego"]}
+    return {
+        "wins": summary["wins"]["ego"]["wins"],
+        "races": summary["races"],
+        "wins_by_region": {
+            reg: summary["by_region"][reg]["ego"]["wins"]
+            for reg in REGIONS
+            if reg in summary["by_region"]
+        },
+        "margin_m_mean": summary["margin_m"]["mean"],
+        "margin_m_by_region": {
+            reg: summary["by_region"][reg]["margin_m_mean"]
+            for reg in REGIONS
+            if reg in summary["by_region"]
+        },
+        "progress_m_mean": summary["progress_m"]["ego"],
+        "off_track_steps_mean": summary["off_tracks"]["ego"],
+        "contacts_mean": summary["contacts"]["ego"],
+    }
 
 
 # ---------------------------------------------------------------------------- storage
@@ -229,6 +270,7 @@ def track_dir(out_dir, track: str) -> Path:
 
 def _theta_array(theta: dict) -> np.ndarray:
     from agents.reference import THETA_NAMES
+
     return np.array([theta[n] for n in THETA_NAMES], dtype=float)
 
 
@@ -239,18 +281,22 @@ def _run_key(track: str, index: int) -> str:
 
 def _playoff_runs(cfg: ControlConfig, out: Path, track: str, cands) -> dict:
     folder = track_dir(out, track) / "playoff"
-    return {_run_key(track, c["index"]): BenchRun(folder / f"theta_{c['index']:04d}",
-                                                  cfg.playoff_config(track, _theta_array(c["theta"])))
-            for c in cands}
+    return {
+        _run_key(track, c["index"]): BenchRun(
+            folder / f"theta_{c['index']:04d}", cfg.playoff_config(track, _theta_array(c["theta"]))
+        )
+        for c in cands
+    }
 
 
 def _selection(cfg: ControlConfig, track: str, map_run: PolicyMapRun, cands, runs) -> dict:
     """The content of ``selection.json`` (a function of the stored rows only, so a resume
     that runs nothing writes the same bytes)."""
+    from agents.best_theta import env_name
     from racing_env.tracks import make_track
 
-    from agents.best_theta import env_name
     from . import __version__
+
     t = make_track(track)
     scores = []
     for c in cands:
@@ -259,14 +305,28 @@ def _selection(cfg: ControlConfig, track: str, map_run: PolicyMapRun, cands, run
     ranked = rank_playoff(scores)
     rows = list(map_run.rows().values())
     seconds = sum(r.get("seconds", 0.0) for r in rows) + sum(
-        rec["seconds"] for c in cands for rec in runs[_run_key(track, c["index"])].records().values())
-    return {"schema_version": SCHEMA_VERSION, "track": track, "name": t.name,
-            "fingerprint": t.fingerprint(), "env": env_name(), "package_version": __version__,
-            "rule": RULE, "config": asdict(cfg),
-            "map": {"rows": len(rows), "errors": sum("error" in r for r in rows),
-                    "eligible_thetas": len(eligible_indices(rows))},
-            "candidates": ranked, "winner": ranked[0],
-            "worker_seconds": round(float(seconds), 3)}
+        rec["seconds"]
+        for c in cands
+        for rec in runs[_run_key(track, c["index"])].records().values()
+    )
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "track": track,
+        "name": t.name,
+        "fingerprint": t.fingerprint(),
+        "env": env_name(),
+        "package_version": __version__,
+        "rule": RULE,
+        "config": asdict(cfg),
+        "map": {
+            "rows": len(rows),
+            "errors": sum("error" in r for r in rows),
+            "eligible_thetas": len(eligible_indices(rows)),
+        },
+        "candidates": ranked,
+        "winner": ranked[0],
+        "worker_seconds": round(float(seconds), 3),
+    }
 
 
 def selection_sha256(path) -> str:
@@ -279,20 +339,36 @@ def install(selection_path, table=None) -> dict:
     ``table`` (default :func:`agents.best_theta.table_path`), replacing the track's entry
     (and any entry of the same geometry under another spec); returns the new entry."""
     from agents.best_theta import read_table, table_path
+
     selection_path = Path(selection_path)
     sel = json.loads(selection_path.read_text())
     path = Path(table) if table is not None else table_path()
     current = read_table(path)
     w = sel["winner"]
-    entry = {"track": sel["track"], "name": sel["name"], "fingerprint": sel["fingerprint"],
-             "env": sel["env"], "theta": w["theta"], "package_version": sel["package_version"],
-             "selection": {"file": str(selection_path), "sha256": selection_sha256(selection_path),
-                           "rule": sel["rule"], "config": sel["config"], "index": w["index"],
-                           "wins": w["wins"], "races": w["races"],
-                           "margin_m_mean": w["margin_m_mean"],
-                           "candidates": len(sel["candidates"])}}
-    tracks = {k: e for k, e in current["tracks"].items()
-              if k != sel["track"] and e["fingerprint"] != sel["fingerprint"]}
+    entry = {
+        "track": sel["track"],
+        "name": sel["name"],
+        "fingerprint": sel["fingerprint"],
+        "env": sel["env"],
+        "theta": w["theta"],
+        "package_version": sel["package_version"],
+        "selection": {
+            "file": str(selection_path),
+            "sha256": selection_sha256(selection_path),
+            "rule": sel["rule"],
+            "config": sel["config"],
+            "index": w["index"],
+            "wins": w["wins"],
+            "races": w["races"],
+            "margin_m_mean": w["margin_m_mean"],
+            "candidates": len(sel["candidates"]),
+        },
+    }
+    tracks = {
+        k: e
+        for k, e in current["tracks"].items()
+        if k != sel["track"] and e["fingerprint"] != sel["fingerprint"]
+    }
     tracks[sel["track"]] = entry
     current["tracks"] = dict(sorted(tracks.items()))
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -301,39 +377,61 @@ def install(selection_path, table=None) -> dict:
 
 
 # ---------------------------------------------------------------------------- drivers
-def select_best_thetas(cfg: ControlConfig, tracks, out_dir="results/control", workers: int = 2,
-                       backend: str = "local", address: str | None = None,
-                       install_table: bool = True, table=None,
-                       progress_bar: bool = True) -> dict:
+def select_best_thetas(
+    cfg: ControlConfig,
+    tracks,
+    out_dir="results/control",
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+    install_table: bool = True,
+    table=None,
+    progress_bar: bool = True,
+) -> dict:
     """Run (or resume) the selection ``cfg`` on every track of ``tracks`` into ``out_dir``
     (maps of all tracks in one pool, then all playoffs in one pool), write every track's
     ``selection.json`` and, with ``install_table``, put the winners into the best-theta table
     ``table`` (default: the one ``mpc:theta=best`` reads). Returns ``summary.json``'s content
     with ``new_map_runs``, ``new_races`` and ``wall_seconds_this_run``."""
+    from agents.best_theta import env_name
     from racing_env.tracks import make_track
 
-    from agents.best_theta import env_name
     check_backend(backend, workers)
     tracks = list(dict.fromkeys(tracks))
     if not tracks or not all(isinstance(t, str) and t for t in tracks):
         raise ValueError(f"tracks must be non-empty track specs, got {tracks!r}")
-    for track in tracks:                 # a typo fails before any run starts
+    for track in tracks:  # a typo fails before any run starts
         make_track(track)
     check_agent_specs([cfg.opponents], tracks)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    claim(out / "manifest.json",
-          {"schema_version": SCHEMA_VERSION, "config": asdict(cfg), "env": env_name()},
-          "a best-fixed-theta selection")
+    claim(
+        out / "manifest.json",
+        {"schema_version": SCHEMA_VERSION, "config": asdict(cfg), "env": env_name()},
+        "a best-fixed-theta selection",
+    )
     t0 = time.perf_counter()
     maps = {t: PolicyMapRun(track_dir(out, t) / "map", cfg.map_config(t)) for t in tracks}
-    tasks = [((t, *key), (run.config, *key, run.thetas[key[2]]))
-             for t, run in maps.items() for key in run.missing()]
+    tasks = [
+        ((t, *key), (run.config, *key, run.thetas[key[2]]))
+        for t, run in maps.items()
+        for key in run.missing()
+    ]
     total = sum(len(run.keys()) for run in maps.values())
-    run_tasks_with_progress(map_row, tasks, lambda key, row: maps[key[0]].add(row), workers,
-                            backend, address, total=total, done=total - len(tasks),
-                            desc="control: map", unit="run", progress_bar=progress_bar,
-                            postfix=lambda key, row: f"{key[1]}:{key[0]}:{key[3]}")
+    run_tasks_with_progress(
+        map_row,
+        tasks,
+        lambda key, row: maps[key[0]].add(row),
+        workers,
+        backend,
+        address,
+        total=total,
+        done=total - len(tasks),
+        desc="control: map",
+        unit="run",
+        progress_bar=progress_bar,
+        postfix=lambda key, row: f"{key[1]}:{key[0]}:{key[3]}",
+    )
     for run in maps.values():
         run.write_outputs()
     cands = {t: choose_candidates(maps[t].rows().values(), cfg.candidates) for t in tracks}
@@ -349,13 +447,20 @@ def select_best_thetas(cfg: ControlConfig, tracks, out_dir="results/control", wo
             install(path, table)
     wall = time.perf_counter() - t0
     if tasks or todo:
-        append_jsonl(out / "runs.jsonl", {"tracks": tracks, "map_runs": len(tasks),
-                                          "playoff_races": todo, "wall_seconds": wall,
-                                          "workers": workers, "backend": backend,
-                                          "finished": time.strftime("%Y-%m-%dT%H:%M:%S")})
+        append_jsonl(
+            out / "runs.jsonl",
+            {
+                "tracks": tracks,
+                "map_runs": len(tasks),
+                "playoff_races": todo,
+                "wall_seconds": wall,
+                "workers": workers,
+                "backend": backend,
+                "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
+            },
+        )
     summary = write_summary(out)
-    return {**summary, "new_map_runs": len(tasks), "new_races": todo,
-            "wall_seconds_this_run": wall}
+    return {**summary, "new_map_runs": len(tasks), "new_races": todo, "wall_seconds_this_run": wall}
 
 
 def write_summary(out_dir) -> dict:
@@ -364,16 +469,26 @@ def write_summary(out_dir) -> dict:
     out = Path(out_dir)
     sels = [json.loads(p.read_text()) for p in sorted(out.glob("*/selection.json"))]
     manifest = json.loads((out / "manifest.json").read_text())
-    summary = {"config": manifest["config"], "env": manifest["env"], "rule": RULE,
-               "runs": read_jsonl(out / "runs.jsonl"),
-               "tracks": {s["track"]: {"theta": s["winner"]["theta"], "index": s["winner"]["index"],
-                                       "wins": s["winner"]["wins"], "races": s["winner"]["races"],
-                                       "margin_m_mean": s["winner"]["margin_m_mean"],
-                                       "candidates": len(s["candidates"]),
-                                       "eligible_thetas": s["map"]["eligible_thetas"],
-                                       "worker_seconds": s["worker_seconds"],
-                                       "selection": str(track_dir(out, s["track"]) / "selection.json")}
-                          for s in sels}}
+    summary = {
+        "config": manifest["config"],
+        "env": manifest["env"],
+        "rule": RULE,
+        "runs": read_jsonl(out / "runs.jsonl"),
+        "tracks": {
+            s["track"]: {
+                "theta": s["winner"]["theta"],
+                "index": s["winner"]["index"],
+                "wins": s["winner"]["wins"],
+                "races": s["winner"]["races"],
+                "margin_m_mean": s["winner"]["margin_m_mean"],
+                "candidates": len(s["candidates"]),
+                "eligible_thetas": s["map"]["eligible_thetas"],
+                "worker_seconds": s["worker_seconds"],
+                "selection": str(track_dir(out, s["track"]) / "selection.json"),
+            }
+            for s in sels
+        },
+    }
     write_json(out / "summary.json", summary)
     write_text(out / "summary.md", summary_markdown(summary, sels))
     return summary
@@ -381,44 +496,69 @@ def write_summary(out_dir) -> dict:
 
 def summary_markdown(summary: dict, selections) -> str:
     from agents.reference import THETA_NAMES
+
     c = summary["config"]
-    lines = ["# The best fixed theta per track (the control)", "",
-             f"Env `{summary['env']}`. Rule: {summary['rule']}. Map: {c['thetas']} thetas "
-             f"(seed {c['seed']}), {c['steps']} steps per run; K = {c['candidates']}; playoff: "
-             f"{c['races']} races per candidate against two `{c['opponents']}`.", "",
-             "| track | winner (q, zeta, s1, s2, s3) | wins | margin m | candidates | eligible "
-             "thetas | worker min |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "# The best fixed theta per track (the control)",
+        "",
+        f"Env `{summary['env']}`. Rule: {summary['rule']}. Map: {c['thetas']} thetas "
+        f"(seed {c['seed']}), {c['steps']} steps per run; K = {c['candidates']}; playoff: "
+        f"{c['races']} races per candidate against two `{c['opponents']}`.",
+        "",
+        "| track | winner (q, zeta, s1, s2, s3) | wins | margin m | candidates | eligible "
+        "thetas | worker min |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for t, r in summary["tracks"].items():
         th = ", ".join(f"{r['theta'][n]:.3g}" for n in THETA_NAMES)
-        lines.append(f"| `{t}` | {th} | {r['wins']}/{r['races']} | {r['margin_m_mean']:+.2f} "
-                     f"| {r['candidates']} | {r['eligible_thetas']} "
-                     f"| {r['worker_seconds'] / 60:.1f} |")
+        lines.append(
+            f"| `{t}` | {th} | {r['wins']}/{r['races']} | {r['margin_m_mean']:+.2f} "
+            f"| {r['candidates']} | {r['eligible_thetas']} "
+            f"| {r['worker_seconds'] / 60:.1f} |"
+        )
     for s in selections:
-        lines += ["", f"## Playoff on `{s['track']}`", "",
-                  "| rank | index | " + " | ".join(THETA_NAMES) + " | why | map: race adj. m "
-                  "| wins (R1/R2/R3) | margin m | progress m |",
-                  "|" + "---|" * (len(THETA_NAMES) + 7)]
+        lines += [
+            "",
+            f"## Playoff on `{s['track']}`",
+            "",
+            "| rank | index | " + " | ".join(THETA_NAMES) + " | why | map: race adj. m "
+            "| wins (R1/R2/R3) | margin m | progress m |",
+            "|" + "---|" * (len(THETA_NAMES) + 7),
+        ]
         for cand in s["candidates"]:
             reg = "/".join(str(cand["wins_by_region"].get(r, "-")) for r in REGIONS)
-            lines.append(f"| {cand['rank']} | {cand['index']} | "
-                         + " | ".join(f"{cand['theta'][n]:.3g}" for n in THETA_NAMES)
-                         + f" | {'+'.join(cand['reasons'])} | {cand['race_adjusted_m']:+.2f} "
-                           f"| {cand['wins']} ({reg}) | {cand['margin_m_mean']:+.2f} "
-                           f"| {cand['progress_m_mean']:.2f} |")
+            lines.append(
+                f"| {cand['rank']} | {cand['index']} | "
+                + " | ".join(f"{cand['theta'][n]:.3g}" for n in THETA_NAMES)
+                + f" | {'+'.join(cand['reasons'])} | {cand['race_adjusted_m']:+.2f} "
+                f"| {cand['wins']} ({reg}) | {cand['margin_m_mean']:+.2f} "
+                f"| {cand['progress_m_mean']:.2f} |"
+            )
     runs = summary["runs"]
     if runs:
-        lines += ["", f"Wall time: {sum(r['wall_seconds'] for r in runs) / 60:.1f} min over "
-                      f"{len(runs)} invocation(s) (`runs.jsonl`)."]
+        lines += [
+            "",
+            f"Wall time: {sum(r['wall_seconds'] for r in runs) / 60:.1f} min over "
+            f"{len(runs)} invocation(s) (`runs.jsonl`).",
+        ]
     return "\n".join(lines) + "\n"
 
 
-def ensure_best_thetas(tracks, cfg: ControlConfig, out_dir="results/control", workers: int = 2,
-                       backend: str = "local", address: str | None = None, table=None,
-                       progress_bar: bool = True) -> dict:
+def ensure_best_thetas(
+    tracks,
+    cfg: ControlConfig,
+    out_dir="results/control",
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+    table=None,
+    progress_bar: bool = True,
+) -> dict:
     """The best-theta table entry of every track of ``tracks``; tracks the table lacks (or
     holds for another env version or geometry) are selected first with ``cfg`` into
     ``out_dir`` (resumable) and installed. Returns ``{track: entry}``."""
     from agents.best_theta import lookup
+
     missing = []
     for t in dict.fromkeys(tracks):
         try:
@@ -426,6 +566,7 @@ def ensure_best_thetas(tracks, cfg: ControlConfig, out_dir="results/control", wo
         except ValueError:
             missing.append(t)
     if missing:
-        select_best_thetas(cfg, missing, out_dir, workers, backend, address, True, table,
-                           progress_bar)
+        select_best_thetas(
+            cfg, missing, out_dir, workers, backend, address, True, table, progress_bar
+        )
     return {t: lookup(t, table) for t in dict.fromkeys(tracks)}

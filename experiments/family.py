@@ -19,6 +19,7 @@ Shard arrays (R races, T steps, N cars of the shard): those of :mod:`experiments
 plus ``track`` (a string) and ``n_cars``; the schema is :data:`SCHEMA_VERSION` (2). A
 single-track collection (schema 1) loads here too, as a family of one track and one N.
 """
+
 from __future__ import annotations
 
 import json
@@ -48,11 +49,13 @@ def expand_tracks(specs) -> list[str]:
     for spec in specs:
         if not isinstance(spec, str) or not spec:
             raise ValueError(f"a track spec must be a non-empty string, got {spec!r}")
-        if spec.startswith("random:") and "-" in spec[len("random:"):]:
-            lo, _, hi = spec[len("random:"):].partition("-")
+        if spec.startswith("random:") and "-" in spec[len("random:") :]:
+            lo, _, hi = spec[len("random:") :].partition("-")
             if not (lo.isdigit() and hi.isdigit()) or int(lo) > int(hi):
-                raise ValueError(f"track range {spec!r}: expected random:A-B with integer seeds "
-                                 f"0 <= A <= B, e.g. random:0-299")
+                raise ValueError(
+                    f"track range {spec!r}: expected random:A-B with integer seeds "
+                    f"0 <= A <= B, e.g. random:0-299"
+                )
             out += [f"random:{k}" for k in range(int(lo), int(hi) + 1)]
         else:
             out.append(spec)
@@ -68,12 +71,14 @@ def check_tracks(names) -> None:
     """Build every track once, so an unknown or broken track spec fails before any race:
     a ValueError naming the spec and what is expected."""
     from racing_env.tracks import make_track
+
     for name in names:
         try:
             make_track(name)
         except ValueError as exc:
-            raise ValueError(f"track spec {name!r}: {exc} (or random:A-B for the seeds "
-                             f"A..B)") from None
+            raise ValueError(
+                f"track spec {name!r}: {exc} (or random:A-B for the seeds A..B)"
+            ) from None
 
 
 def parse_cars(text) -> tuple[int, ...]:
@@ -89,8 +94,10 @@ def parse_cars(text) -> tuple[int, ...]:
                 lo, dash, hi = p.partition("-")
                 cars += list(range(int(lo), int(hi) + 1)) if dash else [int(p)]
         except ValueError:
-            raise ValueError(f"cars {text!r}: expected a number, a range A-B or a list A,B,C of "
-                             f"field sizes in {MIN_CARS}..{MAX_CARS}") from None
+            raise ValueError(
+                f"cars {text!r}: expected a number, a range A-B or a list A,B,C of "
+                f"field sizes in {MIN_CARS}..{MAX_CARS}"
+            ) from None
         if parts and not cars:
             raise ValueError(f"cars {text!r}: the range is empty (A must not exceed B)")
     else:
@@ -103,8 +110,10 @@ def parse_cars(text) -> tuple[int, ...]:
         raise ValueError(f"cars {text!r}: no field size given")
     bad = [c for c in cars if not MIN_CARS <= c <= MAX_CARS]
     if bad:
-        raise ValueError(f"cars {text!r}: every field size must be in {MIN_CARS}..{MAX_CARS}, "
-                         f"got {', '.join(map(str, bad))}")
+        raise ValueError(
+            f"cars {text!r}: every field size must be in {MIN_CARS}..{MAX_CARS}, "
+            f"got {', '.join(map(str, bad))}"
+        )
     if len(set(cars)) != len(cars):
         raise ValueError(f"cars {text!r}: a field size is listed twice")
     return tuple(sorted(cars))
@@ -130,7 +139,7 @@ class FamilyConfig(ShardedRaces):
                 raise ValueError(f"FamilyConfig.{name} must be a positive integer, got {v!r}")
         object.__setattr__(self, "tracks", tuple(self.tracks))
         object.__setattr__(self, "cars", parse_cars(self.cars))
-        expand_tracks(self.tracks)                      # syntax and repeats
+        expand_tracks(self.tracks)  # syntax and repeats
 
     @property
     def track_list(self) -> list[str]:
@@ -156,16 +165,32 @@ class FamilyConfig(ShardedRaces):
         """The single-track config that simulates this shard's races (same seed, so race i
         draws what race i of any collection with this seed draws)."""
         track, n = self.assignment(shard)
-        return CollectConfig(races=self.races, n_cars=n, steps=self.steps, track=track,
-                             seed=self.seed, races_per_shard=self.races_per_shard,
-                             start_jitter=self.start_jitter)
+        return CollectConfig(
+            races=self.races,
+            n_cars=n,
+            steps=self.steps,
+            track=track,
+            seed=self.seed,
+            races_per_shard=self.races_per_shard,
+            start_jitter=self.start_jitter,
+        )
 
     def manifest(self) -> dict:
-        shards = [{"shard": k, "track": t, "n_cars": n,
-                   "races": [self.shard_races(k).start, self.shard_races(k).stop]}
-                  for k, (t, n) in enumerate(self.assignments())]
-        return {"schema_version": SCHEMA_VERSION, "kind": "family",
-                "config": json.loads(json.dumps(asdict(self))), "shards": shards}
+        shards = [
+            {
+                "shard": k,
+                "track": t,
+                "n_cars": n,
+                "races": [self.shard_races(k).start, self.shard_races(k).stop],
+            }
+            for k, (t, n) in enumerate(self.assignments())
+        ]
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "kind": "family",
+            "config": json.loads(json.dumps(asdict(self))),
+            "shards": shards,
+        }
 
 
 def simulate_family_shard(config: FamilyConfig, shard: int) -> dict:
@@ -187,15 +212,24 @@ def shard_is_complete(path: Path, config: FamilyConfig, shard: int) -> bool:
     track, n = config.assignment(shard)
     try:
         with np.load(path) as z:
-            return (int(z["schema_version"]) == SCHEMA_VERSION and str(z["track"]) == track
-                    and int(z["n_cars"]) == n
-                    and z["race_index"].tolist() == list(config.shard_races(shard)))
+            return (
+                int(z["schema_version"]) == SCHEMA_VERSION
+                and str(z["track"]) == track
+                and int(z["n_cars"]) == n
+                and z["race_index"].tolist() == list(config.shard_races(shard))
+            )
     except Exception:  # truncated, corrupt or foreign file: redo it
         return False
 
 
-def collect_family(config: FamilyConfig, out_dir, workers: int = 2, progress_bar: bool = True,
-                   backend: str = "local", address: str | None = None) -> dict:
+def collect_family(
+    config: FamilyConfig,
+    out_dir,
+    workers: int = 2,
+    progress_bar: bool = True,
+    backend: str = "local",
+    address: str | None = None,
+) -> dict:
     """Simulate every missing shard of the family; returns a summary (as
     :func:`experiments.collect.collect`). Every track is built first, so a bad spec fails
     before any race."""
@@ -204,19 +238,35 @@ def collect_family(config: FamilyConfig, out_dir, workers: int = 2, progress_bar
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     claim(out / "manifest.json", config.manifest(), "race data")
-    todo = [k for k in range(config.n_shards)
-            if not shard_is_complete(_shard_path(out, k), config, k)]
+    todo = [
+        k for k in range(config.n_shards) if not shard_is_complete(_shard_path(out, k), config, k)
+    ]
     done_races = config.races - sum(len(config.shard_races(k)) for k in todo)
     t0 = time.perf_counter()
     run_tasks_with_progress(
-        simulate_family_shard, [(k, (config, k)) for k in todo],
+        simulate_family_shard,
+        [(k, (config, k)) for k in todo],
         lambda k, arrays: write_npz(_shard_path(out, k), schema_version=SCHEMA_VERSION, **arrays),
-        workers, backend, address, total=config.races, done=done_races, desc="collect family",
-        unit="race", progress_bar=progress_bar, count=lambda k: len(config.shard_races(k)))
+        workers,
+        backend,
+        address,
+        total=config.races,
+        done=done_races,
+        desc="collect family",
+        unit="race",
+        progress_bar=progress_bar,
+        count=lambda k: len(config.shard_races(k)),
+    )
     seconds = time.perf_counter() - t0
     new = config.races - done_races
-    return {"races": config.races, "simulated": new, "resumed": done_races, "seconds": seconds,
-            "races_per_s": new / seconds if seconds > 0 else float("nan"), "out": str(out)}
+    return {
+        "races": config.races,
+        "simulated": new,
+        "resumed": done_races,
+        "seconds": seconds,
+        "races_per_s": new / seconds if seconds > 0 else float("nan"),
+        "out": str(out),
+    }
 
 
 @dataclass
@@ -244,33 +294,59 @@ def load_family(out_dir) -> tuple[list[RaceGroup], dict]:
     meta = json.loads(path.read_text())
     version = meta.get("schema_version")
     if version not in (SINGLE_SCHEMA_VERSION, SCHEMA_VERSION):
-        raise ValueError(f"{out}: race data of schema {version}, this code reads "
-                         f"{SINGLE_SCHEMA_VERSION} (one track) and {SCHEMA_VERSION} (a family)")
+        raise ValueError(
+            f"{out}: race data of schema {version}, this code reads "
+            f"{SINGLE_SCHEMA_VERSION} (one track) and {SCHEMA_VERSION} (a family)"
+        )
     if version == SINGLE_SCHEMA_VERSION:
         from .collect import load_races
+
         d = load_races(out)
         c = d["config"]
-        return [RaceGroup(c["track"], int(c["n_cars"]), d["states"], d["thetas"], d["rewards"],
-                          d["race_index"])], meta
+        return [
+            RaceGroup(
+                c["track"],
+                int(c["n_cars"]),
+                d["states"],
+                d["thetas"],
+                d["rewards"],
+                d["race_index"],
+            )
+        ], meta
     missing = [e["shard"] for e in meta["shards"] if not _shard_path(out, e["shard"]).exists()]
     if missing:
-        raise ValueError(f"{out}: {len(missing)} of {len(meta['shards'])} shards missing (first: "
-                         f"{missing[0]}); run the same alpha-racer collect command to finish it")
+        raise ValueError(
+            f"{out}: {len(missing)} of {len(meta['shards'])} shards missing (first: "
+            f"{missing[0]}); run the same alpha-racer collect command to finish it"
+        )
     parts: dict[tuple[str, int], list[dict]] = {}
     for entry in meta["shards"]:
         p = _shard_path(out, entry["shard"])
         with np.load(p) as z:
             if int(z["schema_version"]) != SCHEMA_VERSION:
-                raise ValueError(f"{p}: schema {int(z['schema_version'])}, expected {SCHEMA_VERSION}")
+                raise ValueError(
+                    f"{p}: schema {int(z['schema_version'])}, expected {SCHEMA_VERSION}"
+                )
             key = (str(z["track"]), int(z["n_cars"]))
             if key != (entry["track"], entry["n_cars"]):
-                raise ValueError(f"{p} holds {key[1]} cars on {key[0]!r}, the manifest lists "
-                                 f"{entry['n_cars']} on {entry['track']!r}")
-            parts.setdefault(key, []).append({k: z[k] for k in ("states", "thetas", "rewards",
-                                                                "race_index")})
+                raise ValueError(
+                    f"{p} holds {key[1]} cars on {key[0]!r}, the manifest lists "
+                    f"{entry['n_cars']} on {entry['track']!r}"
+                )
+            parts.setdefault(key, []).append(
+                {k: z[k] for k in ("states", "thetas", "rewards", "race_index")}
+            )
     if not parts:
         raise ValueError(f"{out}: no shards")
-    groups = [RaceGroup(t, n, *(np.concatenate([p[k] for p in ps])
-                                for k in ("states", "thetas", "rewards", "race_index")))
-              for (t, n), ps in parts.items()]
+    groups = [
+        RaceGroup(
+            t,
+            n,
+            *(
+                np.concatenate([p[k] for p in ps])
+                for k in ("states", "thetas", "rewards", "race_index")
+            ),
+        )
+        for (t, n), ps in parts.items()
+    ]
     return groups, meta

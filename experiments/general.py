@@ -26,6 +26,7 @@ a held-out track among them is refused), except the last part, which is about ``
 (``manifest.json``); every part resumes (the collection by shards, the races by race), so a
 killed run loses no finished race.
 """
+
 from __future__ import annotations
 
 import json
@@ -49,12 +50,14 @@ def default_heldout_tracks(training_tracks) -> list[str]:
     """:data:`HELDOUT_RANDOM` and every TUMFTM circuit of the local folder (if any) that is not
     among ``training_tracks``."""
     from racing_env.tracks import tumftm_dir
+
     tracks = expand_tracks([HELDOUT_RANDOM])
     d = tumftm_dir()
     if d is not None:
         trained = set(training_tracks)
-        tracks += [f"tumftm:{p.stem}" for p in sorted(d.glob("*.csv"))
-                   if f"tumftm:{p.stem}" not in trained]
+        tracks += [
+            f"tumftm:{p.stem}" for p in sorted(d.glob("*.csv")) if f"tumftm:{p.stem}" not in trained
+        ]
     return [t for t in tracks if t not in set(training_tracks)]
 
 
@@ -85,29 +88,32 @@ class GeneralReportConfig:
     control_races: int = ControlConfig.races
 
     def __post_init__(self):
-        self.control_config()                # names a bad control_thetas / control_races
+        self.control_config()  # names a bad control_thetas / control_races
         for name in ("gap_races", "gap_pairs", "bench_rounds", "steps"):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"GeneralReportConfig.{name} must be a positive integer, "
-                                 f"got {v!r}")
-        if isinstance(self.default_races, bool) or not (isinstance(self.default_races, int)
-                                                         and self.default_races >= 0):
-            raise ValueError(f"GeneralReportConfig.default_races must be an integer >= 0, got "
-                             f"{self.default_races!r}")
+                raise ValueError(
+                    f"GeneralReportConfig.{name} must be a positive integer, got {v!r}"
+                )
+        if isinstance(self.default_races, bool) or not (
+            isinstance(self.default_races, int) and self.default_races >= 0
+        ):
+            raise ValueError(
+                f"GeneralReportConfig.default_races must be an integer >= 0, got "
+                f"{self.default_races!r}"
+            )
         for name in ("gap_cars", "bench_cars"):
             object.__setattr__(self, name, parse_cars(getattr(self, name)))
-        object.__setattr__(self, "tracks", tuple(expand_tracks(self.tracks)) if self.tracks
-                           else ())
+        object.__setattr__(self, "tracks", tuple(expand_tracks(self.tracks)) if self.tracks else ())
         if any(ch in str(self.model) for ch in ",="):
-            raise ValueError(f"model {self.model!r}: a name or path without ',' or '=' "
-                             f"(it goes into an agent spec)")
-
+            raise ValueError(
+                f"model {self.model!r}: a name or path without ',' or '=' "
+                f"(it goes into an agent spec)"
+            )
 
     def control_config(self) -> ControlConfig:
         """The selection of the best fixed theta on a held-out track (this report's steps)."""
-        return ControlConfig(thetas=self.control_thetas, races=self.control_races,
-                             steps=self.steps)
+        return ControlConfig(thetas=self.control_thetas, races=self.control_races, steps=self.steps)
 
 
 ROLES = ("alpha", "control", "mpc_default")
@@ -117,14 +123,17 @@ ROLES = ("alpha", "control", "mpc_default")
 
 def _model(name):
     from agents.potential import cached_model
+
     try:
         model = cached_model(name)
     except FileNotFoundError as exc:
         raise ValueError(str(exc)) from None
     if not model.general:
-        raise ValueError(f"model {name!r} is a single-track model (trained on "
-                         f"{model.meta.get('track')!r} with {model.n_cars} cars); the report "
-                         f"needs a general one (trained on a family collection)")
+        raise ValueError(
+            f"model {name!r} is a single-track model (trained on "
+            f"{model.meta.get('track')!r} with {model.n_cars} cars); the report "
+            f"needs a general one (trained on a family collection)"
+        )
     return model
 
 
@@ -134,8 +143,10 @@ def heldout_tracks(cfg: GeneralReportConfig, model) -> list[str]:
     tracks = list(cfg.tracks) or default_heldout_tracks(training)
     seen = sorted(set(tracks) & set(training))
     if seen:
-        raise ValueError(f"held-out tracks {seen} were used to train the model; the report "
-                         f"measures on tracks the model never saw")
+        raise ValueError(
+            f"held-out tracks {seen} were used to train the model; the report "
+            f"measures on tracks the model never saw"
+        )
     if not tracks:
         raise ValueError("no held-out tracks: give --tracks")
     return tracks
@@ -146,6 +157,7 @@ def gap_by_cars(model, heldout_dir, cfg: GeneralReportConfig) -> dict:
     """Per field size of the held-out collection: gap statistics relative to the model's
     value range (:func:`experiments.train_general.family_gaps`)."""
     from .train_general import FamilyData, family_gaps
+
     groups, _ = load_family(heldout_dir)
     data = FamilyData(groups)
     vr = model.meta.get("metrics", {}).get("value_range")
@@ -156,12 +168,23 @@ def gap_by_cars(model, heldout_dir, cfg: GeneralReportConfig) -> dict:
         races = np.flatnonzero(data.race_n == N)
         g = family_gaps(model, data, races, cfg.gap_pairs, cfg.seed + N, value_range=vr)
         out["by_cars"][str(N)] = {
-            "races": int(len(races)), "pairs": g["val_pairs"],
+            "races": int(len(races)),
+            "pairs": g["val_pairs"],
             "tracks": sorted({data.track_spec(int(r)) for r in races}),
             "value_range_heldout": g["value_range_measured"],
-            **{k: g[k] for k in ("gap_rel_median", "gap_rel_p95", "gap_rel_max",
-                                 "gap_rel_within_10pct", "const_rel_median", "const_rel_p95",
-                                 "sign_agreement")}}
+            **{
+                k: g[k]
+                for k in (
+                    "gap_rel_median",
+                    "gap_rel_p95",
+                    "gap_rel_max",
+                    "gap_rel_within_10pct",
+                    "const_rel_median",
+                    "const_rel_p95",
+                    "sign_agreement",
+                )
+            },
+        }
     return out
 
 
@@ -173,14 +196,28 @@ def _bench_runs(cfg: GeneralReportConfig, tracks, out: Path) -> dict:
     for track in tracks:
         for N in cfg.bench_cars:
             for role, who in zip(ROLES, (ego, BEST_FIXED_SPEC, "mpc")):
-                bc = BenchConfig(ego=who, opponents="mpc", races=N * cfg.bench_rounds,
-                                 steps=cfg.steps, track=track, seed=cfg.seed, n_cars=N)
+                bc = BenchConfig(
+                    ego=who,
+                    opponents="mpc",
+                    races=N * cfg.bench_rounds,
+                    steps=cfg.steps,
+                    track=track,
+                    seed=cfg.seed,
+                    n_cars=N,
+                )
                 runs[("field", track, N, role)] = BenchRun(
-                    out / "bench" / f"{slug(track)}_{N}cars" / role, bc)
+                    out / "bench" / f"{slug(track)}_{N}cars" / role, bc
+                )
     if cfg.default_races:
         for role, who in (("general", ego), ("control", "alpha:model=default")):
-            bc = BenchConfig(ego=who, opponents="alpha:model=default", races=cfg.default_races,
-                             steps=cfg.steps, track="default", seed=cfg.seed)
+            bc = BenchConfig(
+                ego=who,
+                opponents="alpha:model=default",
+                races=cfg.default_races,
+                steps=cfg.steps,
+                track="default",
+                seed=cfg.seed,
+            )
             runs[("default", role)] = BenchRun(out / "default" / role, bc)
     return runs
 
@@ -199,13 +236,18 @@ def field_results(runs: dict, cfg: GeneralReportConfig, tracks) -> dict:
     and per track."""
     out = {}
     for N in cfg.bench_cars:
-        per = {role: {t: runs[("field", t, N, role)].write_summary() for t in tracks}
-               for role in ROLES}
-        out[str(N)] = {"chance": 1.0 / N,
-                       **{role: _ego_wins(per[role].values()) for role in per},
-                       "by_track": {t: {role: per[role][t]["wins"]["ego"]["wins"]
-                                        for role in per} | {"races": per["alpha"][t]["races"]}
-                                    for t in tracks}}
+        per = {
+            role: {t: runs[("field", t, N, role)].write_summary() for t in tracks} for role in ROLES
+        }
+        out[str(N)] = {
+            "chance": 1.0 / N,
+            **{role: _ego_wins(per[role].values()) for role in per},
+            "by_track": {
+                t: {role: per[role][t]["wins"]["ego"]["wins"] for role in per}
+                | {"races": per["alpha"][t]["races"]}
+                for t in tracks
+            },
+        }
     return out
 
 
@@ -214,16 +256,27 @@ def default_results(runs: dict) -> dict:
     out = {}
     for role in ("general", "control"):
         s = runs[("default", role)].write_summary()
-        out[role] = {"wins": s["wins"], "races": s["races"], "margin_m": s["margin_m"],
-                     "ego": s["config"]["ego"], "opponents": s["config"]["opponents"]}
+        out[role] = {
+            "wins": s["wins"],
+            "races": s["races"],
+            "margin_m": s["margin_m"],
+            "ego": s["config"]["ego"],
+            "opponents": s["config"]["opponents"],
+        }
     return out
 
 
 # ---------------------------------------------------------------------------- driver
-def general_report(cfg: GeneralReportConfig, out_dir="results/general", workers: int = 2,
-                   backend: str = "local", address: str | None = None,
-                   progress_bar: bool = True, command: str | None = None,
-                   control_dir=None) -> dict:
+def general_report(
+    cfg: GeneralReportConfig,
+    out_dir="results/general",
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+    progress_bar: bool = True,
+    command: str | None = None,
+    control_dir=None,
+) -> dict:
     """Run (or resume) the three parts into ``out_dir``; returns ``summary.json``'s content.
     ``command`` (the command line that made it) goes into the summary. The best fixed theta
     of a held-out track the best-theta table lacks is selected into ``control_dir`` (default
@@ -231,37 +284,69 @@ def general_report(cfg: GeneralReportConfig, out_dir="results/general", workers:
     check_backend(backend, workers)
     model = _model(cfg.model)
     tracks = heldout_tracks(cfg, model)
-    check_agent_specs([f"alpha:model={cfg.model}", "mpc", "alpha:model=default"]
-                      if cfg.default_races else [f"alpha:model={cfg.model}", "mpc"])
+    check_agent_specs(
+        [f"alpha:model={cfg.model}", "mpc", "alpha:model=default"]
+        if cfg.default_races
+        else [f"alpha:model={cfg.model}", "mpc"]
+    )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    claim(out / "manifest.json", {"config": asdict(cfg),
-                                  "heldout_tracks": tracks}, "a general-model report")
+    claim(
+        out / "manifest.json",
+        {"config": asdict(cfg), "heldout_tracks": tracks},
+        "a general-model report",
+    )
     t0 = time.perf_counter()
     # the control on every held-out track: selected first where the table lacks it
     control_dir = Path(control_dir) if control_dir is not None else out / "control"
-    best = ensure_best_thetas(tracks, cfg.control_config(), control_dir, workers, backend,
-                              address, progress_bar=progress_bar)
-    fam = FamilyConfig(races=cfg.gap_races * len(cfg.gap_cars), tracks=tuple(tracks),
-                       cars=cfg.gap_cars, steps=cfg.steps, seed=cfg.heldout_seed,
-                       races_per_shard=1)
-    collect_family(fam, out / "heldout", workers=workers, backend=backend, address=address,
-                   progress_bar=progress_bar)
+    best = ensure_best_thetas(
+        tracks,
+        cfg.control_config(),
+        control_dir,
+        workers,
+        backend,
+        address,
+        progress_bar=progress_bar,
+    )
+    fam = FamilyConfig(
+        races=cfg.gap_races * len(cfg.gap_cars),
+        tracks=tuple(tracks),
+        cars=cfg.gap_cars,
+        steps=cfg.steps,
+        seed=cfg.heldout_seed,
+        races_per_shard=1,
+    )
+    collect_family(
+        fam,
+        out / "heldout",
+        workers=workers,
+        backend=backend,
+        address=address,
+        progress_bar=progress_bar,
+    )
     gap = gap_by_cars(model, out / "heldout", cfg)
     write_json(out / "gap.json", gap)
     runs = _bench_runs(cfg, tracks, out)
     _run_many(runs, workers, backend, address, progress_bar)
-    summary = {"config": json.loads(json.dumps(asdict(cfg))), "model": _model_info(model),
-               "heldout_tracks": tracks, "gap": gap,
-               "best_fixed_theta": {t: {"theta": e["theta"], "env": e["env"],
-                                        "selection": e["selection"]["file"],
-                                        "sha256": e["selection"]["sha256"]}
-                                    for t, e in best.items()},
-               "field": field_results(runs, cfg, tracks),
-               "default": default_results(runs) if cfg.default_races else None,
-               "command": command or f"alpha-racer general-report --model {cfg.model} "
-                                     f"--out {out_dir}",
-               "seconds_this_run": time.perf_counter() - t0}
+    summary = {
+        "config": json.loads(json.dumps(asdict(cfg))),
+        "model": _model_info(model),
+        "heldout_tracks": tracks,
+        "gap": gap,
+        "best_fixed_theta": {
+            t: {
+                "theta": e["theta"],
+                "env": e["env"],
+                "selection": e["selection"]["file"],
+                "sha256": e["selection"]["sha256"],
+            }
+            for t, e in best.items()
+        },
+        "field": field_results(runs, cfg, tracks),
+        "default": default_results(runs) if cfg.default_races else None,
+        "command": command or f"alpha-racer general-report --model {cfg.model} --out {out_dir}",
+        "seconds_this_run": time.perf_counter() - t0,
+    }
     write_json(out / "summary.json", summary)
     write_text(out / "summary.md", summary_markdown(summary))
     return summary
@@ -269,71 +354,111 @@ def general_report(cfg: GeneralReportConfig, out_dir="results/general", workers:
 
 def _model_info(model) -> dict:
     m = model.meta
-    return {"feature_set": m["feature_set"], "feature_version": m["feature_version"],
-            "tracks": len(m["tracks"]), "track_specs": m.get("track_specs"),
-            "n_cars_range": m["n_cars_range"], "races": m["data"]["races"],
-            "command": m.get("command")}
+    return {
+        "feature_set": m["feature_set"],
+        "feature_version": m["feature_version"],
+        "tracks": len(m["tracks"]),
+        "track_specs": m.get("track_specs"),
+        "n_cars_range": m["n_cars_range"],
+        "races": m["data"]["races"],
+        "command": m.get("command"),
+    }
 
 
 def _pct(w: dict) -> str:
-    return (f"{w['wins']}/{w['races']} ({100 * w['fraction']:.0f}%, "
-            f"{100 * w['ci95'][0]:.0f}-{100 * w['ci95'][1]:.0f}%)")
+    return (
+        f"{w['wins']}/{w['races']} ({100 * w['fraction']:.0f}%, "
+        f"{100 * w['ci95'][0]:.0f}-{100 * w['ci95'][1]:.0f}%)"
+    )
 
 
 def summary_markdown(s: dict) -> str:
     c, m, g = s["config"], s["model"], s["gap"]
     tracks = s["heldout_tracks"]
     lines = [
-        f"# General alpha-potential on held-out tracks (`{c['model']}`)", "",
+        f"# General alpha-potential on held-out tracks (`{c['model']}`)",
+        "",
         f"Model: trained on {m['races']} races on {m['tracks']} tracks "
         f"({' '.join(m['track_specs'] or [])}) with {m['n_cars_range'][0]}.."
         f"{m['n_cars_range'][1]} cars. Held out (never used in training or tuning): "
-        f"{len(tracks)} tracks: {', '.join(tracks)}.", "",
-        "## Approximation gap", "",
+        f"{len(tracks)} tracks: {', '.join(tracks)}.",
+        "",
+        "## Approximation gap",
+        "",
         f"|dPhi - dV_i| relative to the model's value range ({g['value_range_model']:.3f} m), "
         f"{c['gap_pairs']} unilateral deviations per field size at states of fresh races "
-        f"({c['steps']} steps, seed {c['heldout_seed']}) on the held-out tracks.", "",
+        f"({c['steps']} steps, seed {c['heldout_seed']}) on the held-out tracks.",
+        "",
         "| cars | races | gap median | gap p95 | constant median | constant p95 "
-        "| range of V on these races [m] |", "|---|---|---|---|---|---|---|"]
+        "| range of V on these races [m] |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for N, r in g["by_cars"].items():
-        lines.append(f"| {N} | {r['races']} | {100 * r['gap_rel_median']:.2f}% | "
-                     f"{100 * r['gap_rel_p95']:.2f}% | {100 * r['const_rel_median']:.2f}% | "
-                     f"{100 * r['const_rel_p95']:.2f}% | {r['value_range_heldout']:.3f} |")
-    lines += ["", "## alpha (general) against the best fixed theta, N cars", "",
-              f"On every held-out track, {c['bench_rounds']} round(s) of N races of "
-              f"{c['steps']} steps: the ego from each of the N start regions once per round, "
-              f"N - 1 `mpc` opponents (fixed default theta, zeta 0.9) in the other regions "
-              f"front to back. The control races the same races with the best fixed theta on "
-              f"that track as ego (`{BEST_FIXED_SPEC}`, chosen by `alpha-racer control`); the "
-              f"extra row with an `mpc` ego at its default theta (zeta 0.9). Ego wins with "
-              f"Wilson 95% intervals; margin = ego minus the best opponent.", "",
-              "| cars | alpha (general) ego wins | margin m | best fixed theta ego wins (control) "
-              "| margin m | `mpc` (zeta 0.9) ego wins | margin m | chance |",
-              "|---|---|---|---|---|---|---|---|"]
+        lines.append(
+            f"| {N} | {r['races']} | {100 * r['gap_rel_median']:.2f}% | "
+            f"{100 * r['gap_rel_p95']:.2f}% | {100 * r['const_rel_median']:.2f}% | "
+            f"{100 * r['const_rel_p95']:.2f}% | {r['value_range_heldout']:.3f} |"
+        )
+    lines += [
+        "",
+        "## alpha (general) against the best fixed theta, N cars",
+        "",
+        f"On every held-out track, {c['bench_rounds']} round(s) of N races of "
+        f"{c['steps']} steps: the ego from each of the N start regions once per round, "
+        f"N - 1 `mpc` opponents (fixed default theta, zeta 0.9) in the other regions "
+        f"front to back. The control races the same races with the best fixed theta on "
+        f"that track as ego (`{BEST_FIXED_SPEC}`, chosen by `alpha-racer control`); the "
+        f"extra row with an `mpc` ego at its default theta (zeta 0.9). Ego wins with "
+        f"Wilson 95% intervals; margin = ego minus the best opponent.",
+        "",
+        "| cars | alpha (general) ego wins | margin m | best fixed theta ego wins (control) "
+        "| margin m | `mpc` (zeta 0.9) ego wins | margin m | chance |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for N, r in s["field"].items():
-        lines.append(f"| {N} | " + " | ".join(f"{_pct(r[role])} | {r[role]['margin_m_mean']:+.2f}"
-                                              for role in ROLES)
-                     + f" | {100 * r['chance']:.0f}% |")
-    lines += ["", "Ego wins per track (alpha / best fixed theta / `mpc` at zeta 0.9, of the races "
-                  "per track), and the best fixed theta (q, zeta, s1, s2, s3):", "",
-              "| track | " + " | ".join(f"{N} cars" for N in s["field"]) + " | best fixed theta |",
-              "|---" * (len(s["field"]) + 2) + "|"]
+        lines.append(
+            f"| {N} | "
+            + " | ".join(f"{_pct(r[role])} | {r[role]['margin_m_mean']:+.2f}" for role in ROLES)
+            + f" | {100 * r['chance']:.0f}% |"
+        )
+    lines += [
+        "",
+        "Ego wins per track (alpha / best fixed theta / `mpc` at zeta 0.9, of the races "
+        "per track), and the best fixed theta (q, zeta, s1, s2, s3):",
+        "",
+        "| track | " + " | ".join(f"{N} cars" for N in s["field"]) + " | best fixed theta |",
+        "|---" * (len(s["field"]) + 2) + "|",
+    ]
     for t in tracks:
         th = s.get("best_fixed_theta", {}).get(t)
         th = ", ".join(f"{v:.3g}" for v in th["theta"].values()) if th else "-"
-        lines.append(f"| `{t}` | " + " | ".join(
-            " / ".join(str(r['by_track'][t][role]) for role in ROLES)
-            + f" of {r['by_track'][t]['races']}" for r in s["field"].values()) + f" | {th} |")
+        lines.append(
+            f"| `{t}` | "
+            + " | ".join(
+                " / ".join(str(r["by_track"][t][role]) for role in ROLES)
+                + f" of {r['by_track'][t]['races']}"
+                for r in s["field"].values()
+            )
+            + f" | {th} |"
+        )
     d = s["default"]
     if d:
-        lines += ["", "## alpha (general) against the single-track default model on `default`",
-                  "", f"The paper's 3-car protocol ({c['default_races']} races of {c['steps']} "
-                      f"steps): the ego against two `alpha:model=default` cars; the control "
-                      f"races the same races with the default model as ego.", "",
-                  "| ego | ego wins | O1 wins | O2 wins | ego margin m |", "|---|---|---|---|---|"]
+        lines += [
+            "",
+            "## alpha (general) against the single-track default model on `default`",
+            "",
+            f"The paper's 3-car protocol ({c['default_races']} races of {c['steps']} "
+            f"steps): the ego against two `alpha:model=default` cars; the control "
+            f"races the same races with the default model as ego.",
+            "",
+            "| ego | ego wins | O1 wins | O2 wins | ego margin m |",
+            "|---|---|---|---|---|",
+        ]
         for role in ("general", "control"):
             r = d[role]
-            lines.append(f"| `{r['ego']}` | {_pct(r['wins']['ego'])} | {r['wins']['O1']['wins']} "
-                         f"| {r['wins']['O2']['wins']} | {r['margin_m']['mean']:+.2f} |")
+            lines.append(
+                f"| `{r['ego']}` | {_pct(r['wins']['ego'])} | {r['wins']['O1']['wins']} "
+                f"| {r['wins']['O2']['wins']} | {r['margin_m']['mean']:+.2f} |"
+            )
     lines += ["", f"Command: `{s['command']}` (this run: {s['seconds_this_run'] / 60:.1f} min)."]
     return "\n".join(lines) + "\n"

@@ -1,5 +1,6 @@
 """Behaviour cloning (DAgger) of the raceline follower into a PPO actor: the ``init="bc"``
 start of a self-play run (:mod:`experiments.selfplay`)."""
+
 from __future__ import annotations
 
 import math
@@ -8,14 +9,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:                      # annotations only: selfplay imports this module
+if TYPE_CHECKING:  # annotations only: selfplay imports this module
     from racing_env import RaceConfig
 
     from .selfplay import SelfPlayConfig
 
 
-def behaviour_cloning(model, cfg: SelfPlayConfig, seed: int, race_config: RaceConfig,
-                      opponent_mus: Sequence[float]) -> dict:
+def behaviour_cloning(
+    model, cfg: SelfPlayConfig, seed: int, race_config: RaceConfig, opponent_mus: Sequence[float]
+) -> dict:
     """``init="bc"``: pretrain the PPO actor to imitate the raceline follower (DAgger).
 
     ``model`` an SB3 ``PPO`` with a ``VecNormalize`` env, ``cfg`` the run's
@@ -35,31 +37,42 @@ def behaviour_cloning(model, cfg: SelfPlayConfig, seed: int, race_config: RaceCo
     to ``bc_log_std``. Returns the number of samples and the final fit error.
     """
     import torch
+
     from agents.ppo_agent import FrozenPolicy
     from racing_env.controllers import RacelineFollower
     from racing_env.vec_env import HeadToHeadVecEnv
 
     rng = np.random.default_rng(seed)
-    opps = [RacelineFollower(grip=opponent_mus[k % len(opponent_mus)]) for k in range(cfg.n_cars - 1)]
+    opps = [
+        RacelineFollower(grip=opponent_mus[k % len(opponent_mus)]) for k in range(cfg.n_cars - 1)
+    ]
     env = HeadToHeadVecEnv(cfg.n_envs, opponents=opps, track=cfg.track, config=race_config)
-    env.seed(int(rng.integers(2 ** 31)))
+    env.seed(int(rng.integers(2**31)))
     expert = RacelineFollower(grip=0.85)
     expert.reset(env.track, "car_0")
     vecnorm = model.get_vec_normalize_env()
     policy = model.policy
-    params = list(policy.mlp_extractor.policy_net.parameters()) + list(policy.action_net.parameters())
+    params = list(policy.mlp_extractor.policy_net.parameters()) + list(
+        policy.action_net.parameters()
+    )
     opt = torch.optim.Adam(params, lr=1e-3)
     gen = torch.Generator().manual_seed(seed)
 
     def actor(xb):
-        return policy.action_net(policy.mlp_extractor.forward_actor(
-            policy.extract_features(xb, policy.pi_features_extractor)))
+        return policy.action_net(
+            policy.mlp_extractor.forward_actor(
+                policy.extract_features(xb, policy.pi_features_extractor)
+            )
+        )
 
     xs, ys = [], []
     obs = env.reset()
     for rnd in range(cfg.bc_rounds):
-        driver = None if rnd == 0 else FrozenPolicy(policy, vecnorm, n_cars=cfg.n_cars,
-                                                    n_preview=race_config.n_preview)
+        driver = (
+            None
+            if rnd == 0
+            else FrozenPolicy(policy, vecnorm, n_cars=cfg.n_cars, n_preview=race_config.n_preview)
+        )
         for _ in range(math.ceil(cfg.bc_steps / cfg.n_envs)):
             target = np.array([expert.act(o) for o in obs], dtype=np.float32)
             xs.append(obs)
@@ -68,14 +81,14 @@ def behaviour_cloning(model, cfg: SelfPlayConfig, seed: int, race_config: RaceCo
             act = np.clip(act + rng.normal(0.0, cfg.bc_noise, act.shape), -1.0, 1.0)
             obs, _, _, _ = env.step(act.astype(np.float32))
         x, y = np.concatenate(xs), np.concatenate(ys)
-        vecnorm.obs_rms.update(np.concatenate(xs[-math.ceil(cfg.bc_steps / cfg.n_envs):]))
+        vecnorm.obs_rms.update(np.concatenate(xs[-math.ceil(cfg.bc_steps / cfg.n_envs) :]))
         xn = torch.as_tensor(vecnorm.normalize_obs(x), dtype=torch.float32)
         yt = torch.as_tensor(y)
         policy.set_training_mode(True)
         for _ in range(cfg.bc_epochs):
             perm = torch.randperm(len(xn), generator=gen)
             for i in range(0, len(xn), cfg.batch_size):
-                idx = perm[i:i + cfg.batch_size]
+                idx = perm[i : i + cfg.batch_size]
                 loss = torch.mean((actor(xn[idx]) - yt[idx]) ** 2)
                 opt.zero_grad()
                 loss.backward()

@@ -35,6 +35,7 @@ Output directory:
   before the strategy metrics existed lack them, and the leaderboard says so.
 * ``ratings.png`` (:func:`plot_ratings`) and ``pairwise.png`` (:func:`plot_pairwise`).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -55,8 +56,13 @@ from .parallel import check_backend
 SCHEMA_VERSION = 1
 #: openskill Plackett-Luce parameters: the package's defaults (mu 25, sigma 25/3, beta 25/6)
 #: with no dynamics (tau 0; see the module docstring).
-RATING_MODEL = {"model": "PlackettLuce", "mu": 25.0, "sigma": 25.0 / 3.0, "beta": 25.0 / 6.0,
-                "tau": 0.0}
+RATING_MODEL = {
+    "model": "PlackettLuce",
+    "mu": 25.0,
+    "sigma": 25.0 / 3.0,
+    "beta": 25.0 / 6.0,
+    "tau": 0.0,
+}
 ORDINAL_Z = 3.0
 """The leaderboard's ordinal is ``mu - ORDINAL_Z * sigma``."""
 TIMING_KEYS = ("decision_ms", "seconds")
@@ -81,6 +87,7 @@ class LeagueConfig:
 
     def __post_init__(self):
         from racing_env.config import MAX_CARS
+
         object.__setattr__(self, "agents", tuple(self.agents))
         object.__setattr__(self, "tracks", tuple(self.tracks))
         for name in ("rounds", "steps", "max_groups"):
@@ -90,18 +97,27 @@ class LeagueConfig:
         if not (isinstance(self.seed, int) and self.seed >= 0):
             raise ValueError(f"LeagueConfig.seed must be a non-negative integer, got {self.seed!r}")
         if not (isinstance(self.cars, int) and 2 <= self.cars <= MAX_CARS):
-            raise ValueError(f"cars per race must be an integer in 2..{MAX_CARS}, got {self.cars!r}")
+            raise ValueError(
+                f"cars per race must be an integer in 2..{MAX_CARS}, got {self.cars!r}"
+            )
         if not all(isinstance(a, str) and a for a in self.agents):
             raise ValueError(f"agents must be agent spec strings, got {list(self.agents)}")
         twice = sorted({a for a in self.agents if self.agents.count(a) > 1})
         if twice:
-            raise ValueError(f"agent specs must be distinct (each is one player of the rating); "
-                             f"given more than once: {', '.join(twice)}")
+            raise ValueError(
+                f"agent specs must be distinct (each is one player of the rating); "
+                f"given more than once: {', '.join(twice)}"
+            )
         if len(self.agents) < self.cars:
-            raise ValueError(f"{self.cars} cars per race need at least {self.cars} agent specs, "
-                             f"got {len(self.agents)}: {', '.join(self.agents) or 'none'}")
-        if not self.tracks or len(set(self.tracks)) != len(self.tracks) or \
-                not all(isinstance(t, str) and t for t in self.tracks):
+            raise ValueError(
+                f"{self.cars} cars per race need at least {self.cars} agent specs, "
+                f"got {len(self.agents)}: {', '.join(self.agents) or 'none'}"
+            )
+        if (
+            not self.tracks
+            or len(set(self.tracks)) != len(self.tracks)
+            or not all(isinstance(t, str) and t for t in self.tracks)
+        ):
             raise ValueError(f"tracks must be distinct track specs, got {list(self.tracks)}")
 
     def race_seed(self, k: int) -> int:
@@ -124,8 +140,9 @@ class ScheduledRace:
 
 
 # ---------------------------------------------------------------------------- schedule
-def balanced_groups(n_agents: int, cars: int, max_groups: int,
-                    rng: np.random.Generator) -> list[tuple[int, ...]]:
+def balanced_groups(
+    n_agents: int, cars: int, max_groups: int, rng: np.random.Generator
+) -> list[tuple[int, ...]]:
     """Groups of ``cars`` distinct agent indices (sorted tuples) in which every agent of
     ``range(n_agents)`` appears equally often.
 
@@ -167,13 +184,18 @@ def schedule(config: LeagueConfig, stages=None) -> list[ScheduledRace]:
     from the seed), with the same rounds, rotations and tracks, numbered on from the races
     before them."""
     stages = [len(config.agents)] if stages is None else list(stages)
-    if stages[-1] != len(config.agents) or any(b <= a for a, b in zip(stages, stages[1:])) \
-            or stages[0] < config.cars:
-        raise ValueError(f"league stages must grow from at least {config.cars} to "
-                         f"{len(config.agents)} agents, got {stages}")
+    if (
+        stages[-1] != len(config.agents)
+        or any(b <= a for a, b in zip(stages, stages[1:]))
+        or stages[0] < config.cars
+    ):
+        raise ValueError(
+            f"league stages must grow from at least {config.cars} to "
+            f"{len(config.agents)} agents, got {stages}"
+        )
     races = []
     n = config.cars
-    first = replace(config, agents=config.agents[:stages[0]])
+    first = replace(config, agents=config.agents[: stages[0]])
     for rnd in range(config.rounds):
         _add_round(races, config, rnd, round_groups(first, rnd), (config.seed, rnd, 2))
     for before, now in zip(stages, stages[1:]):
@@ -181,8 +203,10 @@ def schedule(config: LeagueConfig, stages=None) -> list[ScheduledRace]:
             groups = [g for g in itertools.combinations(range(now), n) if g[-1] >= before]
             if len(groups) > config.max_groups:
                 rng = np.random.default_rng(np.random.SeedSequence([config.seed, rnd, 3, before]))
-                groups = [groups[i] for i in sorted(rng.choice(len(groups), config.max_groups,
-                                                               replace=False))]
+                groups = [
+                    groups[i]
+                    for i in sorted(rng.choice(len(groups), config.max_groups, replace=False))
+                ]
             _add_round(races, config, rnd, groups, (config.seed, rnd, 2, before))
     return races
 
@@ -196,10 +220,17 @@ def _add_round(races: list, config: LeagueConfig, rnd: int, groups, shuffle_key)
     for i in shuffle.permutation(len(slots)):
         rot, track, g = slots[i]
         k = len(races)
-        races.append(ScheduledRace(
-            index=k, round=rnd, rotation=rot, track=track,
-            agents=tuple(config.agents[a] for a in g),
-            order=tuple((j + rot) % n for j in range(n)), seed=config.race_seed(k)))
+        races.append(
+            ScheduledRace(
+                index=k,
+                round=rnd,
+                rotation=rot,
+                track=track,
+                agents=tuple(config.agents[a] for a in g),
+                order=tuple((j + rot) % n for j in range(n)),
+                seed=config.race_seed(k),
+            )
+        )
 
 
 # ---------------------------------------------------------------------------- one race
@@ -207,10 +238,11 @@ def _import_once(imports) -> None:
     """Import those of the user's agent modules (names, or ``.py`` paths) that this process
     has not imported: a forked worker has them from the driver, a spawned or Ray one not."""
     import sys
-    todo = [m for m in imports
-            if (Path(m).stem if m.endswith(".py") else m) not in sys.modules]
+
+    todo = [m for m in imports if (Path(m).stem if m.endswith(".py") else m) not in sys.modules]
     if todo:
         from agents import import_agent_modules
+
         import_agent_modules(todo)
 
 
@@ -224,28 +256,45 @@ def finish_ranks(progress) -> list[int]:
 def league_race(race: ScheduledRace, steps: int, imports=()) -> dict:
     """Run one scheduled race (pure: no file access) and return its record."""
     from .race import run_race
+
     warnings.simplefilter("ignore")
     _import_once(imports)
     t0 = time.perf_counter()
     try:
-        result, _ = run_race(list(race.agents), track=race.track, seed=race.seed,
-                             max_cycles=steps, start="regions", order=list(race.order),
-                             progress_bar=False)
-    except Exception as exc:      # name the race: the traceback of a worker does not
-        raise RuntimeError(f"league race {race.index} ({', '.join(race.agents)} on "
-                           f"{race.track!r}, seed {race.seed}) failed: "
-                           f"{type(exc).__name__}: {exc}") from exc
+        result, _ = run_race(
+            list(race.agents),
+            track=race.track,
+            seed=race.seed,
+            max_cycles=steps,
+            start="regions",
+            order=list(race.order),
+            progress_bar=False,
+        )
+    except Exception as exc:  # name the race: the traceback of a worker does not
+        raise RuntimeError(
+            f"league race {race.index} ({', '.join(race.agents)} on "
+            f"{race.track!r}, seed {race.seed}) failed: "
+            f"{type(exc).__name__}: {exc}"
+        ) from exc
     if not np.isfinite(result.states).all():
-        raise FloatingPointError(f"league race {race.index} ({', '.join(race.agents)} on "
-                                 f"{race.track!r}) produced non-finite states")
+        raise FloatingPointError(
+            f"league race {race.index} ({', '.join(race.agents)} on "
+            f"{race.track!r}) produced non-finite states"
+        )
     ranks = finish_ranks(result.progress)
     return {
-        "race": race.index, "round": race.round, "rotation": race.rotation,
-        "track": race.track, "seed": race.seed, "agents": list(race.agents),
+        "race": race.index,
+        "round": race.round,
+        "rotation": race.rotation,
+        "track": race.track,
+        "seed": race.seed,
+        "agents": list(race.agents),
         "start_regions": [f"R{r + 1}" for r in race.order],
-        "ranks": ranks, "winner": race.agents[ranks.index(1)],
+        "ranks": ranks,
+        "winner": race.agents[ranks.index(1)],
         "progress_m": [round(float(v), 4) for v in result.progress],
-        "contacts": result.contacts.tolist(), "off_tracks": result.off_tracks.tolist(),
+        "contacts": result.contacts.tolist(),
+        "off_tracks": result.off_tracks.tolist(),
         "decision_ms": [round(float(v), 4) for v in result.decision_ms],
         "fallbacks": [int(st.get("fallbacks", 0)) for st in result.agent_stats],
         **race_metrics.record_metrics(result.states, result.dt, result.contact_dn),
@@ -259,14 +308,16 @@ def rate(records: list[dict], agents) -> dict[str, tuple[float, float]]:
     openskill's Plackett-Luce model (:data:`RATING_MODEL`), each car a team of one ranked by
     its record's ``ranks``. Agents without races keep the prior."""
     from openskill.models import PlackettLuce
+
     p = RATING_MODEL
     model = PlackettLuce(mu=p["mu"], sigma=p["sigma"], beta=p["beta"], tau=p["tau"])
     ratings = {a: model.rating(name=a) for a in agents}
     for rec in sorted(records, key=lambda r: r["race"]):
         unknown = [a for a in rec["agents"] if a not in ratings]
         if unknown:
-            raise ValueError(f"race {rec['race']} has agents {unknown} outside the league "
-                             f"{list(ratings)}")
+            raise ValueError(
+                f"race {rec['race']} has agents {unknown} outside the league {list(ratings)}"
+            )
         new = model.rate([[ratings[a]] for a in rec["agents"]], ranks=list(rec["ranks"]))
         for a, (r,) in zip(rec["agents"], new):
             ratings[a] = r
@@ -305,27 +356,45 @@ def leaderboard(records: list[dict], config: LeagueConfig) -> dict:
     for a in config.agents:
         cars = [(r, r["agents"].index(a)) for r in records if a in r["agents"]]
         mu, sigma = ratings[a]
-        row = {"agent": a, "mu": mu, "sigma": sigma, "ordinal": mu - ORDINAL_Z * sigma,
-               "races": len(cars)}
+        row = {
+            "agent": a,
+            "mu": mu,
+            "sigma": sigma,
+            "ordinal": mu - ORDINAL_Z * sigma,
+            "races": len(cars),
+        }
         if cars:
             wins = sum(r["ranks"][i] == 1 for r, i in cars)
             lo, hi = wilson_interval(wins, len(cars))
             mean = lambda key: float(np.mean([r[key][i] for r, i in cars]))  # noqa: B023
-            row.update({"wins": int(wins), "win_rate": wins / len(cars), "win_ci95": [lo, hi],
-                        "mean_finish": mean("ranks"), "progress_m": mean("progress_m"),
-                        "off_tracks": mean("off_tracks"),
-                        # the median: a worker's first race carries the JIT and solver builds
-                        "decision_ms": float(np.median([r["decision_ms"][i] for r, i in cars]))})
+            row.update(
+                {
+                    "wins": int(wins),
+                    "win_rate": wins / len(cars),
+                    "win_ci95": [lo, hi],
+                    "mean_finish": mean("ranks"),
+                    "progress_m": mean("progress_m"),
+                    "off_tracks": mean("off_tracks"),
+                    # the median: a worker's first race carries the JIT and solver builds
+                    "decision_ms": float(np.median([r["decision_ms"][i] for r, i in cars])),
+                }
+            )
         row.update(_strategy_row(cars))
         rows.append(row)
     rows.sort(key=lambda r: (-r["ordinal"], r["agent"]))
     for i, row in enumerate(rows, 1):
         row["rank"] = i
     expected = len(schedule(config))
-    return {"config": asdict(config), "rating_model": dict(RATING_MODEL), "ordinal_z": ORDINAL_Z,
-            "races": len(records), "races_scheduled": expected,
-            "complete": len(records) == expected,
-            "standings": rows, "pairwise": pairwise(records, [r["agent"] for r in rows])}
+    return {
+        "config": asdict(config),
+        "rating_model": dict(RATING_MODEL),
+        "ordinal_z": ORDINAL_Z,
+        "races": len(records),
+        "races_scheduled": expected,
+        "complete": len(records) == expected,
+        "standings": rows,
+        "pairwise": pairwise(records, [r["agent"] for r in rows]),
+    }
 
 
 def _strategy_row(cars) -> dict:
@@ -334,14 +403,23 @@ def _strategy_row(cars) -> dict:
     have = [(r, i) for r, i in cars if all(k in r for k in race_metrics.RECORD_KEYS)]
     row = {"strategy_races": len(have)}
     if not have:
-        return {**row, **dict.fromkeys(("passes", "passes_per_race", "passes_contact",
-                                        "passes_contact_per_race", "wins_from_behind",
-                                        "behind_1m_s"))}
+        return {
+            **row,
+            **dict.fromkeys(
+                (
+                    "passes",
+                    "passes_per_race",
+                    "passes_contact",
+                    "passes_contact_per_race",
+                    "wins_from_behind",
+                    "behind_1m_s",
+                )
+            ),
+        }
     for key in ("passes", "passes_contact"):
         tot = int(sum(r[key][i] for r, i in have))
         row[key], row[key + "_per_race"] = tot, tot / len(have)
-    row["wins_from_behind"] = int(sum(r["won_from_behind"] and r["ranks"][i] == 1
-                                      for r, i in have))
+    row["wins_from_behind"] = int(sum(r["won_from_behind"] and r["ranks"][i] == 1 for r, i in have))
     row["behind_1m_s"] = float(np.mean([r["behind_1m_s"][i] for r, i in have]))
     return row
 
@@ -353,55 +431,78 @@ def _f(v, fmt: str) -> str:
 def leaderboard_markdown(board: dict) -> str:
     c = board["config"]
     n = c["cars"]
-    lines = ["# League", "",
-             f"{len(c['agents'])} agents, {n} cars per race from the start regions R1-R{n} "
-             f"(rotated so each agent starts from each region equally often), "
-             f"{c['steps']} steps ({c['steps'] / 10:g} s) per race on "
-             f"{', '.join('`' + t + '`' for t in c['tracks'])}; {c['rounds']} round(s), "
-             f"seed {c['seed']}. {board['races']} of {board['races_scheduled']} races"
-             + ("" if board["complete"] else " (partial)") + ".", "",
-             f"Rating: openskill Plackett-Luce (mu0 {board['rating_model']['mu']:g}, sigma0 "
-             f"{board['rating_model']['sigma']:.3g}, beta {board['rating_model']['beta']:.3g}, "
-             f"tau {board['rating_model']['tau']:g}) over the finishing orders by total "
-             f"progress, replayed in schedule order; ranked by the ordinal mu - "
-             f"{board['ordinal_z']:g} sigma. Wins with Wilson 95% intervals (chance: 1/{n}).",
-             "",
-             "| rank | agent | ordinal | mu | sigma | races | wins | win rate | mean finish "
-             "| progress m | off-track steps | ms/decision (median) | passes/race "
-             "| via contact/race | wins from behind | <= 1 m behind s/race |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# League",
+        "",
+        f"{len(c['agents'])} agents, {n} cars per race from the start regions R1-R{n} "
+        f"(rotated so each agent starts from each region equally often), "
+        f"{c['steps']} steps ({c['steps'] / 10:g} s) per race on "
+        f"{', '.join('`' + t + '`' for t in c['tracks'])}; {c['rounds']} round(s), "
+        f"seed {c['seed']}. {board['races']} of {board['races_scheduled']} races"
+        + ("" if board["complete"] else " (partial)")
+        + ".",
+        "",
+        f"Rating: openskill Plackett-Luce (mu0 {board['rating_model']['mu']:g}, sigma0 "
+        f"{board['rating_model']['sigma']:.3g}, beta {board['rating_model']['beta']:.3g}, "
+        f"tau {board['rating_model']['tau']:g}) over the finishing orders by total "
+        f"progress, replayed in schedule order; ranked by the ordinal mu - "
+        f"{board['ordinal_z']:g} sigma. Wins with Wilson 95% intervals (chance: 1/{n}).",
+        "",
+        "| rank | agent | ordinal | mu | sigma | races | wins | win rate | mean finish "
+        "| progress m | off-track steps | ms/decision (median) | passes/race "
+        "| via contact/race | wins from behind | <= 1 m behind s/race |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in board["standings"]:
         if not r["races"]:
-            lines.append(f"| {r['rank']} | `{r['agent']}` | {r['ordinal']:.2f} | {r['mu']:.2f} "
-                         f"| {r['sigma']:.2f} | 0 | - | - | - | - | - | - | - | - | - | - |")
+            lines.append(
+                f"| {r['rank']} | `{r['agent']}` | {r['ordinal']:.2f} | {r['mu']:.2f} "
+                f"| {r['sigma']:.2f} | 0 | - | - | - | - | - | - | - | - | - | - |"
+            )
             continue
         lo, hi = r["win_ci95"]
-        lines.append(f"| {r['rank']} | `{r['agent']}` | {r['ordinal']:.2f} | {r['mu']:.2f} "
-                     f"| {r['sigma']:.2f} | {r['races']} | {r['wins']} "
-                     f"| {100 * r['win_rate']:.0f}% ({100 * lo:.0f}-{100 * hi:.0f}%) "
-                     f"| {r['mean_finish']:.2f} | {r['progress_m']:.2f} | {r['off_tracks']:.1f} "
-                     f"| {r['decision_ms']:.2f} | {_f(r.get('passes_per_race'), '{:.2f}')} "
-                     f"| {_f(r.get('passes_contact_per_race'), '{:.2f}')} "
-                     f"| {_f(r.get('wins_from_behind'), '{}')} "
-                     f"| {_f(r.get('behind_1m_s'), '{:.1f}')} |")
-    partial = [r for r in board["standings"] if r["races"] and
-               r.get("strategy_races", 0) < r["races"]]
+        lines.append(
+            f"| {r['rank']} | `{r['agent']}` | {r['ordinal']:.2f} | {r['mu']:.2f} "
+            f"| {r['sigma']:.2f} | {r['races']} | {r['wins']} "
+            f"| {100 * r['win_rate']:.0f}% ({100 * lo:.0f}-{100 * hi:.0f}%) "
+            f"| {r['mean_finish']:.2f} | {r['progress_m']:.2f} | {r['off_tracks']:.1f} "
+            f"| {r['decision_ms']:.2f} | {_f(r.get('passes_per_race'), '{:.2f}')} "
+            f"| {_f(r.get('passes_contact_per_race'), '{:.2f}')} "
+            f"| {_f(r.get('wins_from_behind'), '{}')} "
+            f"| {_f(r.get('behind_1m_s'), '{:.1f}')} |"
+        )
+    partial = [
+        r for r in board["standings"] if r["races"] and r.get("strategy_races", 0) < r["races"]
+    ]
     if partial:
-        lines += ["", "Strategy metrics (passes held 1 s and clear sideways; wins from behind; "
-                      "time within 1 m behind) missing for some races, recorded before they "
-                      "existed (a league stores no states to recompute them): "
-                  + ", ".join(f"`{r['agent']}` over {r.get('strategy_races', 0)} of "
-                              f"{r['races']} races" for r in partial) + "."]
+        lines += [
+            "",
+            "Strategy metrics (passes held 1 s and clear sideways; wins from behind; "
+            "time within 1 m behind) missing for some races, recorded before they "
+            "existed (a league stores no states to recompute them): "
+            + ", ".join(
+                f"`{r['agent']}` over {r.get('strategy_races', 0)} of {r['races']} races"
+                for r in partial
+            )
+            + ".",
+        ]
     pw = board["pairwise"]
     names = [r["agent"] for r in board["standings"]]
-    lines += ["", "## Pairwise", "",
-              "Row a, column b: the share of the races with both in which a finished ahead of "
-              "b (races together in brackets).", "",
-              "| a \\ b | " + " | ".join(f"`{b}`" for b in names) + " |",
-              "|---|" + "---|" * len(names)]
+    lines += [
+        "",
+        "## Pairwise",
+        "",
+        "Row a, column b: the share of the races with both in which a finished ahead of "
+        "b (races together in brackets).",
+        "",
+        "| a \\ b | " + " | ".join(f"`{b}`" for b in names) + " |",
+        "|---|" + "---|" * len(names),
+    ]
     for a in names:
-        cells = ["" if a == b else
-                 f"{_f(pw['ahead'][a][b], '{:.2f}')} ({pw['races'][a][b]})" for b in names]
+        cells = [
+            "" if a == b else f"{_f(pw['ahead'][a][b], '{:.2f}')} ({pw['races'][a][b]})"
+            for b in names
+        ]
         lines.append(f"| `{a}` | " + " | ".join(cells) + " |")
     lines += ["", "![ratings](ratings.png)", "", "![pairwise](pairwise.png)"]
     return "\n".join(lines) + "\n"
@@ -411,8 +512,9 @@ def leaderboard_markdown(board: dict) -> str:
 def _figure(size):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+
     fig = Figure(figsize=size)
-    FigureCanvasAgg(fig)          # the Agg canvas directly: the global backend is left alone
+    FigureCanvasAgg(fig)  # the Agg canvas directly: the global backend is left alone
     return fig
 
 
@@ -426,8 +528,13 @@ def plot_ratings(board: dict, path, dpi: int = 120) -> Path:
     fig = _figure((7, 1.2 + 0.45 * len(rows)))
     ax = fig.subplots()
     ax.errorbar(mu, y, xerr=2 * sigma, fmt="o", capsize=4, label="mu +- 2 sigma")
-    ax.plot(mu - board["ordinal_z"] * sigma, y, "x", color="0.4",
-            label=f"ordinal mu - {board['ordinal_z']:g} sigma")
+    ax.plot(
+        mu - board["ordinal_z"] * sigma,
+        y,
+        "x",
+        color="0.4",
+        label=f"ordinal mu - {board['ordinal_z']:g} sigma",
+    )
     ax.set_yticks(y, [r["agent"] for r in rows])
     ax.set_xlabel("openskill Plackett-Luce rating")
     ax.grid(axis="x", alpha=0.3)
@@ -443,8 +550,9 @@ def plot_pairwise(board: dict, path, dpi: int = 120) -> Path:
     a finished ahead of b (blank where they never met), in leaderboard order."""
     names = [r["agent"] for r in board["standings"]]
     ahead = board["pairwise"]["ahead"]
-    m = np.array([[np.nan if a == b or ahead[a][b] is None else ahead[a][b] for b in names]
-                  for a in names])
+    m = np.array(
+        [[np.nan if a == b or ahead[a][b] is None else ahead[a][b] for b in names] for a in names]
+    )
     k = len(names)
     fig = _figure((2.5 + 0.8 * k, 2 + 0.7 * k))
     ax = fig.subplots()
@@ -452,8 +560,15 @@ def plot_pairwise(board: dict, path, dpi: int = 120) -> Path:
     for i in range(k):
         for j in range(k):
             if np.isfinite(m[i, j]):
-                ax.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize="small",
-                        color="white" if abs(m[i, j] - 0.5) > 0.3 else "black")
+                ax.text(
+                    j,
+                    i,
+                    f"{m[i, j]:.2f}",
+                    ha="center",
+                    va="center",
+                    fontsize="small",
+                    color="white" if abs(m[i, j] - 0.5) > 0.3 else "black",
+                )
     ax.set_xticks(range(k), names, rotation=45, ha="right")
     ax.set_yticks(range(k), names)
     ax.set_xlabel("b")
@@ -482,8 +597,11 @@ class LeagueRun(ResumableRun):
         # agents join: the stored manifest is of the league before them
         stored = None
         if joining:
-            stored = {k: v for k, v in json.loads(self.manifest_path.read_text()).items()
-                      if k != "provenance"}
+            stored = {
+                k: v
+                for k, v in json.loads(self.manifest_path.read_text()).items()
+                if k != "provenance"
+            }
         self.claim(meta, config.agents, config.tracks, stored=stored)
 
     @staticmethod
@@ -499,9 +617,14 @@ class LeagueRun(ResumableRun):
         stages = list(stored.get("stages") or [len(old.get("agents", []))])
         now = as_stored(asdict(config))
         old_agents, new_agents = old.get("agents", []), now["agents"]
-        same_rest = {k: v for k, v in old.items() if k != "agents"} == \
-            {k: v for k, v in now.items() if k != "agents"}
-        if same_rest and len(new_agents) > len(old_agents) and new_agents[:len(old_agents)] == old_agents:
+        same_rest = {k: v for k, v in old.items() if k != "agents"} == {
+            k: v for k, v in now.items() if k != "agents"
+        }
+        if (
+            same_rest
+            and len(new_agents) > len(old_agents)
+            and new_agents[: len(old_agents)] == old_agents
+        ):
             return stages + [len(new_agents)], True
         return (stages if old_agents == new_agents else [len(config.agents)]), False
 
@@ -519,11 +642,16 @@ class LeagueRun(ResumableRun):
         error: the schedule has changed since it was written."""
         k = record.get("race")
         race = self.races[k] if isinstance(k, int) and 0 <= k < len(self.races) else None
-        if race is None or (record["agents"], record["track"], record["seed"]) != \
-                (list(race.agents), race.track, race.seed):
-            raise ValueError(f"{self.records_path}: race {k} is not the race this league "
-                             f"schedules there (written by another version?); use "
-                             f"another --out")
+        if race is None or (record["agents"], record["track"], record["seed"]) != (
+            list(race.agents),
+            race.track,
+            race.seed,
+        ):
+            raise ValueError(
+                f"{self.records_path}: race {k} is not the race this league "
+                f"schedules there (written by another version?); use "
+                f"another --out"
+            )
         return True
 
     def write_outputs(self) -> dict:
@@ -541,10 +669,16 @@ def check_tracks(tracks, cars: int) -> None:
     from racing_env.config import StartConfig, VehicleParams
     from racing_env.core import start_states
     from racing_env.tracks import make_track
+
     for spec in tracks:
         try:
-            start_states(make_track(spec), cars, StartConfig(mode="regions"),
-                         VehicleParams().width, np.random.default_rng(0))
+            start_states(
+                make_track(spec),
+                cars,
+                StartConfig(mode="regions"),
+                VehicleParams().width,
+                np.random.default_rng(0),
+            )
         except (ValueError, FileNotFoundError, KeyError) as exc:
             msg = str(exc)
             raise ValueError(msg if repr(spec) in msg else f"track {spec!r}: {msg}") from None
@@ -555,20 +689,36 @@ def check_field(agents, cars: int, track: str) -> None:
     raceline followers), so an agent that cannot race that many cars (an alpha-potential model
     trained for another number) fails before any race of the league starts."""
     from .race import run_race
+
     for spec in agents:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                run_race([spec] + ["raceline"] * (cars - 1), track=track, max_cycles=1,
-                         start="regions", order=list(range(cars)), progress_bar=False)
+                run_race(
+                    [spec] + ["raceline"] * (cars - 1),
+                    track=track,
+                    max_cycles=1,
+                    start="regions",
+                    order=list(range(cars)),
+                    progress_bar=False,
+                )
         except Exception as exc:
-            exc = getattr(exc, "agent_error", exc)        # this message names the agent already
-            raise ValueError(f"agent {spec!r} cannot race in a field of {cars} cars on "
-                             f"{track!r}: {type(exc).__name__}: {exc}") from None
+            exc = getattr(exc, "agent_error", exc)  # this message names the agent already
+            raise ValueError(
+                f"agent {spec!r} cannot race in a field of {cars} cars on "
+                f"{track!r}: {type(exc).__name__}: {exc}"
+            ) from None
 
 
-def league(config: LeagueConfig, out_dir, workers: int = 2, backend: str = "local",
-           address: str | None = None, imports=(), progress_bar: bool = True) -> dict:
+def league(
+    config: LeagueConfig,
+    out_dir,
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+    imports=(),
+    progress_bar: bool = True,
+) -> dict:
     """Run (or resume) the league ``config`` into ``out_dir``; returns its leaderboard with
     ``new_races``, the number of races run by this call. ``imports`` (module names or ``.py``
     paths, as ``--import``) are imported in every worker before its first race."""
@@ -579,10 +729,17 @@ def league(config: LeagueConfig, out_dir, workers: int = 2, backend: str = "loca
     check_tracks(config.tracks, config.cars)
     check_field(config.agents, config.cars, config.tracks[0])
     run = LeagueRun(out_dir, config)
-    new = run.run_missing(league_race, lambda race: (race, config.steps, imports), workers,
-                          backend, address, desc="league", unit="race",
-                          progress_bar=progress_bar,
-                          postfix=lambda k, rec: f"{k}:{rec['winner']}")
+    new = run.run_missing(
+        league_race,
+        lambda race: (race, config.steps, imports),
+        workers,
+        backend,
+        address,
+        desc="league",
+        unit="race",
+        progress_bar=progress_bar,
+        postfix=lambda k, rec: f"{k}:{rec['winner']}",
+    )
     board = run.write_outputs()
     board["new_races"] = new
     return board

@@ -27,6 +27,7 @@ step 0, ties likewise).
 (steps 1..T) in which some other car is ahead of it by at most ``gap_m`` (1 m):
 ``0 < s_j - s_i <= gap_m``.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -69,13 +70,15 @@ class PassEvent:
 def _check(states, dt: float, contact_dn: float, hold_s: float) -> np.ndarray:
     states = np.asarray(states, dtype=float)
     if states.ndim != 3 or states.shape[2] < 2 or states.shape[0] < 1:
-        raise ValueError(f"states must have shape (T + 1, N, 6) (at least s and n per car), "
-                         f"got {states.shape}")
+        raise ValueError(
+            f"states must have shape (T + 1, N, 6) (at least s and n per car), got {states.shape}"
+        )
     if not np.isfinite(states[:, :, :2]).all():
         raise ValueError("states hold non-finite s or n values; race metrics need finite states")
     for name, v in (("dt", dt), ("contact_dn", contact_dn), ("hold_s", hold_s)):
-        if isinstance(v, bool) or not (isinstance(v, (int, float, np.floating)) and
-                                       np.isfinite(v) and v > 0):
+        if isinstance(v, bool) or not (
+            isinstance(v, (int, float, np.floating)) and np.isfinite(v) and v > 0
+        ):
             raise ValueError(f"{name} must be a positive number, got {v!r}")
     return states
 
@@ -96,12 +99,13 @@ def _filled_sign(d: np.ndarray) -> np.ndarray:
     idx = np.where(sgn != 0, np.arange(len(sgn)), 0)
     np.maximum.accumulate(idx, out=idx)
     filled = sgn[idx]
-    filled[:nz[0]] = sgn[nz[0]]
+    filled[: nz[0]] = sgn[nz[0]]
     return filled
 
 
-def pass_events(states, dt: float = 0.1, contact_dn: float = 0.06,
-                hold_s: float = PASS_HOLD_S) -> list[PassEvent]:
+def pass_events(
+    states, dt: float = 0.1, contact_dn: float = 0.06, hold_s: float = PASS_HOLD_S
+) -> list[PassEvent]:
     """Every crossing against a pair's established order (module docstring), in time order.
 
     ``states`` (T + 1, N, 6): per step and car the Frenet state ``(s, n, mu, vx, vy, omega)``
@@ -119,19 +123,19 @@ def pass_events(states, dt: float = 0.1, contact_dn: float = 0.06,
         for j in range(i + 1, N):
             d = s[:, i] - s[:, j]
             sgn = _filled_sign(d)
-            change = np.flatnonzero(sgn[1:] != sgn[:-1]) + 1     # first step of the new order
+            change = np.flatnonzero(sgn[1:] != sgn[:-1]) + 1  # first step of the new order
             established = sgn[0]
             for c, b in enumerate(change):
                 new = sgn[b]
-                if new == established:          # the established order restored: no event
+                if new == established:  # the established order restored: no event
                     continue
                 # the crossing lies between the last step strictly on the old side and b
                 a = b - 1
                 while d[a] == 0:
                     a -= 1
-                frac = d[a] / (d[a] - d[b])                     # in (0, 1]
+                frac = d[a] / (d[a] - d[b])  # in (0, 1]
                 dn = abs((1 - frac) * (n[a, i] - n[a, j]) + frac * (n[b, i] - n[b, j]))
-                end = change[c + 1] if c + 1 < len(change) else T + 1    # first step lost
+                end = change[c + 1] if c + 1 < len(change) else T + 1  # first step lost
                 if end - b >= hold:
                     kind = "contact" if dn < contact_dn else "pass"
                     established = new
@@ -140,8 +144,16 @@ def pass_events(states, dt: float = 0.1, contact_dn: float = 0.06,
                 else:
                     kind = "race_end"
                 passer, passed = (i, j) if new > 0 else (j, i)
-                events.append(PassEvent(step=int(b), time_s=float((a + frac * (b - a)) * dt),
-                                        passer=passer, passed=passed, dn_m=float(dn), kind=kind))
+                events.append(
+                    PassEvent(
+                        step=int(b),
+                        time_s=float((a + frac * (b - a)) * dt),
+                        passer=passer,
+                        passed=passed,
+                        dn_m=float(dn),
+                        kind=kind,
+                    )
+                )
     events.sort(key=lambda e: (e.time_s, e.passer, e.passed))
     return events
 
@@ -159,9 +171,9 @@ def behind_time(states, dt: float = 0.1, gap_m: float = BEHIND_GAP_M) -> np.ndar
     states = _check(states, dt, 1.0, 1.0)
     if not (np.isfinite(gap_m) and gap_m > 0):
         raise ValueError(f"gap_m must be a positive number, got {gap_m!r}")
-    s = states[1:, :, 0]                                         # (T, N)
-    ahead = s[:, None, :] - s[:, :, None]                        # [t, i, j] = s_j - s_i
-    close = ((ahead > 0) & (ahead <= gap_m)).any(axis=2)         # (T, N)
+    s = states[1:, :, 0]  # (T, N)
+    ahead = s[:, None, :] - s[:, :, None]  # [t, i, j] = s_j - s_i
+    close = ((ahead > 0) & (ahead <= gap_m)).any(axis=2)  # (T, N)
     return close.sum(axis=0) * float(dt)
 
 
@@ -175,19 +187,26 @@ def interaction_share(states, gap_m: float = BEHIND_GAP_M) -> float:
     if st.ndim == 3:
         st = st[None]
     if st.ndim != 4 or st.shape[-1] != 6 or st.shape[1] < 2 or st.shape[2] < 2:
-        raise ValueError(f"states must have shape (T + 1, N, 6) or (R, T + 1, N, 6) with "
-                         f"T >= 1 and N >= 2, got {np.shape(states)}")
+        raise ValueError(
+            f"states must have shape (T + 1, N, 6) or (R, T + 1, N, 6) with "
+            f"T >= 1 and N >= 2, got {np.shape(states)}"
+        )
     if not (np.isfinite(gap_m) and gap_m > 0):
         raise ValueError(f"gap_m must be a positive number, got {gap_m!r}")
-    s = st[:, 1:, :, 0]                                          # (R, T, N)
-    d = np.abs(s[..., :, None] - s[..., None, :])                # (R, T, N, N)
+    s = st[:, 1:, :, 0]  # (R, T, N)
+    d = np.abs(s[..., :, None] - s[..., None, :])  # (R, T, N, N)
     n = s.shape[-1]
     d[..., np.arange(n), np.arange(n)] = np.inf
     return float((d <= gap_m).any(axis=(-1, -2)).mean())
 
 
-def race_metrics(states, dt: float = 0.1, contact_dn: float = 0.06,
-                 hold_s: float = PASS_HOLD_S, gap_m: float = BEHIND_GAP_M) -> dict:
+def race_metrics(
+    states,
+    dt: float = 0.1,
+    contact_dn: float = 0.06,
+    hold_s: float = PASS_HOLD_S,
+    gap_m: float = BEHIND_GAP_M,
+) -> dict:
     """The strategy metrics of one race, as a JSON-ready dict (lists indexed by car):
 
     * ``passes`` (N,): clean passes credited to each car; ``passes_contact`` (N,): passes
@@ -207,16 +226,29 @@ def race_metrics(states, dt: float = 0.1, contact_dn: float = 0.06,
     for e in events:
         count[e.kind][e.passer] += 1
     winner, front = winner_and_front(states)
-    return {"passes": count["pass"], "passes_contact": count["contact"],
-            "fell_back": count["fell_back"], "passes_race_end": count["race_end"],
-            "pass_events": [e.to_dict() for e in events],
-            "winner": winner, "front": front, "won_from_behind": winner != front,
-            "behind_1m_s": [round(float(v), 4) for v in behind_time(states, dt, gap_m)]}
+    return {
+        "passes": count["pass"],
+        "passes_contact": count["contact"],
+        "fell_back": count["fell_back"],
+        "passes_race_end": count["race_end"],
+        "pass_events": [e.to_dict() for e in events],
+        "winner": winner,
+        "front": front,
+        "won_from_behind": winner != front,
+        "behind_1m_s": [round(float(v), 4) for v in behind_time(states, dt, gap_m)],
+    }
 
 
 #: The record fields :func:`race_metrics` adds to a benchmark or league record.
-RECORD_KEYS = ("passes", "passes_contact", "fell_back", "passes_race_end", "pass_events",
-               "won_from_behind", "behind_1m_s")
+RECORD_KEYS = (
+    "passes",
+    "passes_contact",
+    "fell_back",
+    "passes_race_end",
+    "pass_events",
+    "won_from_behind",
+    "behind_1m_s",
+)
 
 
 def record_metrics(states, dt: float = 0.1, contact_dn: float = 0.06) -> dict:
@@ -227,5 +259,10 @@ def record_metrics(states, dt: float = 0.1, contact_dn: float = 0.06) -> dict:
 
 def definition(dt: float = 0.1, contact_dn: float = 0.06) -> dict:
     """The metrics' parameters, for summaries: what a number there means."""
-    return {"pass_hold_s": PASS_HOLD_S, "hold_steps": hold_steps(dt), "contact_dn_m": contact_dn,
-            "behind_gap_m": BEHIND_GAP_M, "dt_s": dt}
+    return {
+        "pass_hold_s": PASS_HOLD_S,
+        "hold_steps": hold_steps(dt),
+        "contact_dn_m": contact_dn,
+        "behind_gap_m": BEHIND_GAP_M,
+        "dt_s": dt,
+    }

@@ -6,6 +6,7 @@ Each shipped ``.npz`` carries its training config, data, command and held-out me
 (written by ``alpha-racer train``); this file only lays them out, so the card cannot drift
 from the models.
 """
+
 from __future__ import annotations
 
 from agents.potential import MODEL_DIR, SHIPPED, PotentialModel

@@ -5,6 +5,7 @@ checkpointed every epoch / ``save_every`` steps and resumed from its checkpoint)
 model they turn into, the policy space of a collection and of a training run
 (:func:`collection_space`, :func:`check_run_space`), and the gap statistics and summary both
 report."""
+
 from __future__ import annotations
 
 import json
@@ -20,7 +21,6 @@ from tqdm import tqdm
 from agents.mlp import MLP
 from agents.potential import PotentialModel
 from agents.theta import PolicySpace, policy_space
-
 from racing_env.files import atomic_path
 
 from .artifacts import write_json, write_text
@@ -38,14 +38,14 @@ class TrainConfig:
     """Everything that shapes a model. Defaults: the paper's sizes, gamma 0.99."""
 
     gamma: float = 0.99
-    val_fraction: float = 0.1          # share of races held out (whole races)
+    val_fraction: float = 0.1  # share of races held out (whole races)
     seed: int = 0
     # value network
     value_hidden: tuple = (128, 128, 64)
     value_epochs: int = 8
     value_batch: int = 4096
     value_lr: float = 2e-3
-    value_stride: int = 2              # use every k-th step of a race (neighbours are near-copies)
+    value_stride: int = 2  # use every k-th step of a race (neighbours are near-copies)
     # potential network
     potential_hidden: tuple = (384, 384, 192)
     potential_steps: int = 4000
@@ -53,9 +53,9 @@ class TrainConfig:
     potential_lr: float = 1e-3
     objective: str = "tail"
     tail_fraction: float = 0.2
-    smoothmax_tau: float = 0.05        # in units of the normalised gap
-    warmup_fraction: float = 0.3       # MSE warm-up share of the steps for min-max objectives
-    own_theta_fraction: float = 0.5    # pairs whose base theta is the race's own
+    smoothmax_tau: float = 0.05  # in units of the normalised gap
+    warmup_fraction: float = 0.3  # MSE warm-up share of the steps for min-max objectives
+    own_theta_fraction: float = 0.5  # pairs whose base theta is the race's own
     save_every: int = 500
     # validation
     val_pairs: int = 20000
@@ -70,26 +70,38 @@ class TrainConfig:
             raise ValueError(f"val_fraction must be in (0, 1), got {self.val_fraction!r}")
         if self.objective not in OBJECTIVES:
             raise ValueError(f"objective must be one of {OBJECTIVES}, got {self.objective!r}")
-        for name in ("value_epochs", "value_batch", "value_stride", "potential_steps",
-                     "potential_batch", "save_every", "val_pairs", "rollout_steps", "threads"):
+        for name in (
+            "value_epochs",
+            "value_batch",
+            "value_stride",
+            "potential_steps",
+            "potential_batch",
+            "save_every",
+            "val_pairs",
+            "rollout_steps",
+            "threads",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 1):
                 raise ValueError(f"TrainConfig.{name} must be a positive integer, got {v!r}")
         if not (isinstance(self.rollout_pairs, int) and self.rollout_pairs >= 0):
-            raise ValueError(f"TrainConfig.rollout_pairs must be an integer >= 0, got "
-                             f"{self.rollout_pairs!r}")
+            raise ValueError(
+                f"TrainConfig.rollout_pairs must be an integer >= 0, got {self.rollout_pairs!r}"
+            )
         if not 0.0 < self.tail_fraction <= 1.0:
             raise ValueError(f"tail_fraction must be in (0, 1], got {self.tail_fraction!r}")
         for name in ("value_hidden", "potential_hidden"):
             h = getattr(self, name)
             if not (len(h) >= 1 and all(isinstance(k, (int, np.integer)) and k >= 1 for k in h)):
-                raise ValueError(f"TrainConfig.{name} must be a tuple of positive layer widths, "
-                                 f"got {h!r}")
+                raise ValueError(
+                    f"TrainConfig.{name} must be a tuple of positive layer widths, got {h!r}"
+                )
             object.__setattr__(self, name, tuple(int(k) for k in h))
 
 
-def collection_space(data_dir, manifest: dict, theta_dim: int | None = None,
-                     asked: str | None = None) -> PolicySpace:
+def collection_space(
+    data_dir, manifest: dict, theta_dim: int | None = None, asked: str | None = None
+) -> PolicySpace:
     """The policy space of the collection at ``data_dir``: its manifest's ``space`` (a
     collection made before spaces existed, or a family collection, is the paper's). A
     ``ValueError`` naming both when the thetas' last dimension ``theta_dim`` (given once the
@@ -97,11 +109,15 @@ def collection_space(data_dir, manifest: dict, theta_dim: int | None = None,
     is another space."""
     space = policy_space(manifest.get("config", {}).get("space", "paper"))
     if theta_dim is not None and theta_dim != space.dim:
-        raise ValueError(f"{data_dir}: the manifest says the {space.name!r} policy space "
-                         f"({space.dim} parameters), the thetas have {theta_dim}")
+        raise ValueError(
+            f"{data_dir}: the manifest says the {space.name!r} policy space "
+            f"({space.dim} parameters), the thetas have {theta_dim}"
+        )
     if asked is not None and policy_space(asked).name != space.name:
-        raise ValueError(f"{data_dir} holds races of the {space.name!r} policy space, "
-                         f"--space {policy_space(asked).name} was asked for")
+        raise ValueError(
+            f"{data_dir} holds races of the {space.name!r} policy space, "
+            f"--space {policy_space(asked).name} was asked for"
+        )
     return space
 
 
@@ -114,8 +130,10 @@ def check_run_space(out: Path, space: PolicySpace, data_dir) -> None:
     stored = json.loads(path.read_text())
     have = stored.get("space", stored.get("data", {}).get("config", {}).get("space", "paper"))
     if have != space.name:
-        raise ValueError(f"{out} holds a training run on the {have!r} policy space; the races "
-                         f"in {data_dir} are of the {space.name!r} space. Use another --out")
+        raise ValueError(
+            f"{out} holds a training run on the {have!r} policy space; the races "
+            f"in {data_dir} are of the {space.name!r} space. Use another --out"
+        )
 
 
 def discounted_partial_returns(rewards: np.ndarray, gamma: float):
@@ -135,8 +153,10 @@ def split_races(n_races: int, val_fraction: float, seed: int):
     perm = np.random.default_rng(seed).permutation(n_races)
     n_val = max(1, int(round(val_fraction * n_races)))
     if n_val >= n_races:
-        raise ValueError(f"{n_races} races cannot be split into training and validation "
-                         f"(val_fraction {val_fraction}); collect more races")
+        raise ValueError(
+            f"{n_races} races cannot be split into training and validation "
+            f"(val_fraction {val_fraction}); collect more races"
+        )
     return np.sort(perm[n_val:]), np.sort(perm[:n_val])
 
 
@@ -151,14 +171,24 @@ def torch_mlp(in_dim: int, hidden, torch):
 
 def to_numpy_mlp(net, mean, std, y_scale, y_shift) -> MLP:
     lin = [m for m in net if hasattr(m, "weight")]
-    return MLP([(m.weight.detach().numpy().T, m.bias.detach().numpy()) for m in lin], mean, std,
-               y_scale, y_shift)
+    return MLP(
+        [(m.weight.detach().numpy().T, m.bias.detach().numpy()) for m in lin],
+        mean,
+        std,
+        y_scale,
+        y_shift,
+    )
 
 
 def numpy_model(value, potential, meta: dict) -> PotentialModel:
     """The numpy :class:`PotentialModel` of the trained (normalised) torch networks."""
-    return PotentialModel(*(to_numpy_mlp(n.net, n.mean.numpy(), n.std.numpy(), n.y_scale,
-                                         n.y_shift) for n in (value, potential)), meta)
+    return PotentialModel(
+        *(
+            to_numpy_mlp(n.net, n.mean.numpy(), n.std.numpy(), n.y_scale, n.y_shift)
+            for n in (value, potential)
+        ),
+        meta,
+    )
 
 
 def save_model(model: PotentialModel, metrics: dict, out: Path, card_text, command: str) -> None:
@@ -253,8 +283,9 @@ def train_value(data: ValueData, cfg, out, torch, progress_bar, log):
     model = Normalised(net, mean, std, y_scale, y_shift, torch)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.value_lr)
     steps_per_epoch = -(-len(X_tr) // cfg.value_batch)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.value_lr, pct_start=0.1,
-                                                total_steps=cfg.value_epochs * steps_per_epoch)
+    sched = torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=cfg.value_lr, pct_start=0.1, total_steps=cfg.value_epochs * steps_per_epoch
+    )
     ckpt = out / "value_ckpt.pt"
     epoch0, history = 0, []
     st = _resume(ckpt, net, opt, sched, torch)
@@ -277,10 +308,15 @@ def train_value(data: ValueData, cfg, out, torch, progress_bar, log):
         perm = torch.from_numpy(rng.permutation(len(X_tr)))
         net.train()
         total = 0.0
-        bar = tqdm(range(steps_per_epoch), desc=f"value epoch {epoch + 1}/{cfg.value_epochs}",
-                   disable=not progress_bar, leave=False, mininterval=_BAR_INTERVAL)
+        bar = tqdm(
+            range(steps_per_epoch),
+            desc=f"value epoch {epoch + 1}/{cfg.value_epochs}",
+            disable=not progress_bar,
+            leave=False,
+            mininterval=_BAR_INTERVAL,
+        )
         for b in bar:
-            idx = perm[b * cfg.value_batch:(b + 1) * cfg.value_batch]
+            idx = perm[b * cfg.value_batch : (b + 1) * cfg.value_batch]
             loss = torch.nn.functional.mse_loss(model.raw(Xt[idx]), y[idx])
             opt.zero_grad()
             loss.backward()
@@ -291,20 +327,34 @@ def train_value(data: ValueData, cfg, out, torch, progress_bar, log):
         with torch.no_grad():
             pv = model(Xv).numpy()
         r2 = 1.0 - np.mean((pv - yv) ** 2) / np.var(yv)
-        history.append({"epoch": epoch + 1, "train_mse_normalised": total / len(X_tr),
-                        "val_r2": float(r2)})
-        log(f"value epoch {epoch + 1}: train mse {total / len(X_tr):.4f} (normalised), "
-            f"held-out R^2 {r2:.4f}")
-        _save_atomic_torch({"net": net.state_dict(), "opt": opt.state_dict(),
-                            "sched": sched.state_dict(), "epoch": epoch + 1,
-                            "history": history}, ckpt, torch)
+        history.append(
+            {"epoch": epoch + 1, "train_mse_normalised": total / len(X_tr), "val_r2": float(r2)}
+        )
+        log(
+            f"value epoch {epoch + 1}: train mse {total / len(X_tr):.4f} (normalised), "
+            f"held-out R^2 {r2:.4f}"
+        )
+        _save_atomic_torch(
+            {
+                "net": net.state_dict(),
+                "opt": opt.state_dict(),
+                "sched": sched.state_dict(),
+                "epoch": epoch + 1,
+                "history": history,
+            },
+            ckpt,
+            torch,
+        )
     yv = targets(va)
     with torch.no_grad():
         pv = model(Xv).numpy()
-    model.metrics = {"value_val_r2": float(1.0 - np.mean((pv - yv) ** 2) / np.var(yv)),
-                     "value_val_rmse": float(np.sqrt(np.mean((pv - yv) ** 2))),
-                     "value_target_std": float(np.std(yv)), "value_history": history,
-                     "value_seconds_this_run": time.perf_counter() - t0}
+    model.metrics = {
+        "value_val_r2": float(1.0 - np.mean((pv - yv) ** 2) / np.var(yv)),
+        "value_val_rmse": float(np.sqrt(np.mean((pv - yv) ** 2))),
+        "value_target_std": float(np.std(yv)),
+        "value_history": history,
+        "value_seconds_this_run": time.perf_counter() - t0,
+    }
     net.eval()
     return model
 
@@ -320,12 +370,13 @@ def train_potential(data, cfg, value, out, torch, progress_bar, log):
     f32 = lambda a: torch.from_numpy(a.astype(np.float32))
     with torch.no_grad():
         dv = value(f32(data.value_features(batch, 2))) - value(f32(data.value_features(batch, 1)))
-    y_scale = float(dv.std() + 1e-9)             # gaps are learned in units of std(dV)
+    y_scale = float(dv.std() + 1e-9)  # gaps are learned in units of std(dV)
     net = torch_mlp(data.potential_dim, cfg.potential_hidden, torch)
     phi = Normalised(net, mean, std, y_scale, 0.0, torch)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.potential_lr)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.potential_lr, pct_start=0.1,
-                                                total_steps=cfg.potential_steps)
+    sched = torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=cfg.potential_lr, pct_start=0.1, total_steps=cfg.potential_steps
+    )
     ckpt = out / "potential_ckpt.pt"
     step0, history = 0, []
     st = _resume(ckpt, net, opt, sched, torch)
@@ -333,10 +384,20 @@ def train_potential(data, cfg, value, out, torch, progress_bar, log):
         step0, history = st["step"], st["history"]
         rng = np.random.default_rng([cfg.seed + 1, step0])
         log(f"potential: resuming after step {step0}")
-    warm = int(cfg.warmup_fraction * cfg.potential_steps) if cfg.objective != "mse" else cfg.potential_steps
+    warm = (
+        int(cfg.warmup_fraction * cfg.potential_steps)
+        if cfg.objective != "mse"
+        else cfg.potential_steps
+    )
     t0 = time.perf_counter()
-    bar = tqdm(range(step0, cfg.potential_steps), desc="potential", disable=not progress_bar,
-               initial=step0, total=cfg.potential_steps, mininterval=_BAR_INTERVAL)
+    bar = tqdm(
+        range(step0, cfg.potential_steps),
+        desc="potential",
+        disable=not progress_bar,
+        initial=step0,
+        total=cfg.potential_steps,
+        mininterval=_BAR_INTERVAL,
+    )
     window = []
     for step in bar:
         batch = data.draw(cfg.potential_batch, rng)
@@ -346,7 +407,7 @@ def train_potential(data, cfg, value, out, torch, progress_bar, log):
             dv = (value(fv2) - value(fv1)) / y_scale
         gap = (phi.raw(fp2) - phi.raw(fp1)) - dv
         if step < warm or cfg.objective == "mse":
-            loss = (gap ** 2).mean()
+            loss = (gap**2).mean()
         elif cfg.objective == "tail":
             k = max(1, int(cfg.tail_fraction * len(gap)))
             loss = torch.topk(gap.abs(), k).values.pow(2).mean()
@@ -363,9 +424,17 @@ def train_potential(data, cfg, value, out, torch, progress_bar, log):
             history.append({"step": step + 1, "median_abs_gap_std_units": float(np.mean(window))})
             window = []
         if (step + 1) % cfg.save_every == 0 or step + 1 == cfg.potential_steps:
-            _save_atomic_torch({"net": net.state_dict(), "opt": opt.state_dict(),
-                                "sched": sched.state_dict(), "step": step + 1,
-                                "history": history}, ckpt, torch)
+            _save_atomic_torch(
+                {
+                    "net": net.state_dict(),
+                    "opt": opt.state_dict(),
+                    "sched": sched.state_dict(),
+                    "step": step + 1,
+                    "history": history,
+                },
+                ckpt,
+                torch,
+            )
     bar.close()
     net.eval()
     value.metrics["potential_history"] = history
@@ -381,13 +450,17 @@ def gap_statistics(dphi, dv, vr: float) -> dict:
     agreement of dPhi and dV."""
     rel, base = np.abs(dphi - dv) / vr, np.abs(dv) / vr
     q = lambda a, p: float(np.percentile(a, p))
-    return {"gap_rel_median": q(rel, 50), "gap_rel_p95": q(rel, 95),
-            "gap_rel_max": float(rel.max()),
-            "alpha": float(np.abs(dphi - dv).max()),
-            "gap_rel_within_10pct": float(np.mean(rel <= 0.10)),
-            "const_rel_median": q(base, 50), "const_rel_p95": q(base, 95),
-            "gap_rel_histogram": np.histogram(rel, bins=20, range=(0, 0.2))[0].tolist(),
-            "sign_agreement": float(np.mean(np.sign(dphi) == np.sign(dv)))}
+    return {
+        "gap_rel_median": q(rel, 50),
+        "gap_rel_p95": q(rel, 95),
+        "gap_rel_max": float(rel.max()),
+        "alpha": float(np.abs(dphi - dv).max()),
+        "gap_rel_within_10pct": float(np.mean(rel <= 0.10)),
+        "const_rel_median": q(base, 50),
+        "const_rel_p95": q(base, 95),
+        "gap_rel_histogram": np.histogram(rel, bins=20, range=(0, 0.2))[0].tolist(),
+        "sign_agreement": float(np.mean(np.sign(dphi) == np.sign(dv))),
+    }
 
 
 def discounted_rollout(track: str, x, thetas, car: int, steps: int, gamma: float):
@@ -395,6 +468,7 @@ def discounted_rollout(track: str, x, thetas, car: int, steps: int, gamma: float
     ``thetas`` (N, dim) of one policy space from the joint state ``x`` (N, 6) on ``track`` (a
     name), and the joint state after them (N, 6) for a bootstrap with V."""
     from experiments.collect import rollout_from_state
+
     states, rewards = rollout_from_state(track, x, thetas, steps)
     disc = gamma ** np.arange(len(rewards))
     return float(disc @ rewards[:, car]), states[-1]
@@ -408,8 +482,14 @@ def paired_rollouts(jobs: list[tuple], threads: int, progress_bar: bool) -> list
     :func:`experiments.train.sample_deviations` or
     :class:`experiments.train_general.FamilyDeviations`)."""
     with ProcessPoolExecutor(max_workers=threads, initializer=pin_worker) as pool:
-        return list(tqdm(pool.map(discounted_rollout, *zip(*jobs)), total=len(jobs),
-                         desc="paired rollouts", disable=not progress_bar))
+        return list(
+            tqdm(
+                pool.map(discounted_rollout, *zip(*jobs)),
+                total=len(jobs),
+                desc="paired rollouts",
+                disable=not progress_bar,
+            )
+        )
 
 
 def rollout_statistics(dphi, dv, dG, vr: float, steps: int) -> dict:
@@ -418,26 +498,33 @@ def rollout_statistics(dphi, dv, dG, vr: float, steps: int) -> dict:
     relative to the value range ``vr`` [m]: median and 95th percentile of
     ``|dPhi - dG| / vr``, the medians of ``|dV - dG| / vr`` and of a constant potential
     (``|dG| / vr``), and the sign agreement of dPhi and dG."""
-    return {"rollout_pairs": len(dG), "rollout_steps": steps,
-            "rollout_phi_rel_median": float(np.median(np.abs(dphi - dG)) / vr),
-            "rollout_phi_rel_p95": float(np.percentile(np.abs(dphi - dG), 95) / vr),
-            "rollout_value_rel_median": float(np.median(np.abs(dv - dG)) / vr),
-            "rollout_const_rel_median": float(np.median(np.abs(dG)) / vr),
-            "rollout_sign_agreement_phi": float(np.mean(np.sign(dphi) == np.sign(dG)))}
+    return {
+        "rollout_pairs": len(dG),
+        "rollout_steps": steps,
+        "rollout_phi_rel_median": float(np.median(np.abs(dphi - dG)) / vr),
+        "rollout_phi_rel_p95": float(np.percentile(np.abs(dphi - dG), 95) / vr),
+        "rollout_value_rel_median": float(np.median(np.abs(dv - dG)) / vr),
+        "rollout_const_rel_median": float(np.median(np.abs(dG)) / vr),
+        "rollout_sign_agreement_phi": float(np.mean(np.sign(dphi) == np.sign(dG))),
+    }
 
 
 def summary_text(m: dict) -> str:
-    lines = [f"value network: held-out R^2 {m['value_val_r2']:.3f}",
-             f"approximation gap |dPhi - dV_i| / range(V) on {m['val_pairs']} held-out deviations: "
-             f"median {100 * m['gap_rel_median']:.2f}%, 95th pct {100 * m['gap_rel_p95']:.2f}%, "
-             f"max {100 * m['gap_rel_max']:.1f}% (alpha = {m['alpha']:.4f}); "
-             f"{100 * m['gap_rel_within_10pct']:.1f}% within 10%",
-             f"constant potential: median {100 * m['const_rel_median']:.2f}%, "
-             f"95th pct {100 * m['const_rel_p95']:.2f}%"]
+    lines = [
+        f"value network: held-out R^2 {m['value_val_r2']:.3f}",
+        f"approximation gap |dPhi - dV_i| / range(V) on {m['val_pairs']} held-out deviations: "
+        f"median {100 * m['gap_rel_median']:.2f}%, 95th pct {100 * m['gap_rel_p95']:.2f}%, "
+        f"max {100 * m['gap_rel_max']:.1f}% (alpha = {m['alpha']:.4f}); "
+        f"{100 * m['gap_rel_within_10pct']:.1f}% within 10%",
+        f"constant potential: median {100 * m['const_rel_median']:.2f}%, "
+        f"95th pct {100 * m['const_rel_p95']:.2f}%",
+    ]
     if "rollout_pairs" in m:
-        lines.append(f"paired rollouts ({m['rollout_pairs']}): |dPhi - dG_sim| / range median "
-                     f"{100 * m['rollout_phi_rel_median']:.2f}% (|dV - dG_sim| "
-                     f"{100 * m['rollout_value_rel_median']:.2f}%, constant "
-                     f"{100 * m['rollout_const_rel_median']:.2f}%)")
+        lines.append(
+            f"paired rollouts ({m['rollout_pairs']}): |dPhi - dG_sim| / range median "
+            f"{100 * m['rollout_phi_rel_median']:.2f}% (|dV - dG_sim| "
+            f"{100 * m['rollout_value_rel_median']:.2f}%, constant "
+            f"{100 * m['rollout_const_rel_median']:.2f}%)"
+        )
     lines.append(f"training {m['train_seconds']:.0f} s, total {m['total_seconds']:.0f} s")
     return "\n".join(lines)

@@ -12,10 +12,11 @@ slower), for the task's duration when ``workers = 1`` runs it in the driver. So 
 result does not hang on the worker count, backend or thread variables (the tests compare
 bench and collect runs with 1 and 2 workers bit for bit).
 """
+
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from collections.abc import Callable, Hashable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 
 BACKENDS = ("local", "ray")
 
@@ -31,6 +32,7 @@ def check_backend(backend: str, workers) -> None:
 def pin_worker() -> None:
     """Pool initialiser: one native thread per library in this worker, for good."""
     from agents.threads import pin_threads
+
     pin_threads(1)
 
 
@@ -46,9 +48,14 @@ def _pinned_call(fn, *args):
     return fn(*args)
 
 
-def run_tasks(fn: Callable, tasks: Sequence[tuple[Hashable, tuple]],
-              finished: Callable[[Hashable, object], None], workers: int = 2,
-              backend: str = "local", address: str | None = None) -> None:
+def run_tasks(
+    fn: Callable,
+    tasks: Sequence[tuple[Hashable, tuple]],
+    finished: Callable[[Hashable, object], None],
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+) -> None:
     """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks``; call ``finished(key, result)``
     in this process as results arrive (completion order).
 
@@ -63,6 +70,7 @@ def run_tasks(fn: Callable, tasks: Sequence[tuple[Hashable, tuple]],
         _run_ray(fn, tasks, finished, workers, address)
     elif workers <= 1:
         from agents.threads import limited_threads
+
         for key, args in tasks:
             with limited_threads(1):
                 result = fn(*args)
@@ -74,19 +82,31 @@ def run_tasks(fn: Callable, tasks: Sequence[tuple[Hashable, tuple]],
                 finished(futures[f], f.result())
 
 
-def run_tasks_with_progress(fn: Callable, tasks: Sequence[tuple[Hashable, tuple]],
-                            finished: Callable[[Hashable, object], None], workers: int = 2,
-                            backend: str = "local", address: str | None = None, *,
-                            total: int, done: int = 0, desc: str, unit: str,
-                            progress_bar: bool = True,
-                            count: Callable[[Hashable], int] | None = None,
-                            postfix: Callable[[Hashable, object], str] | None = None) -> None:
+def run_tasks_with_progress(
+    fn: Callable,
+    tasks: Sequence[tuple[Hashable, tuple]],
+    finished: Callable[[Hashable, object], None],
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+    *,
+    total: int,
+    done: int = 0,
+    desc: str,
+    unit: str,
+    progress_bar: bool = True,
+    count: Callable[[Hashable], int] | None = None,
+    postfix: Callable[[Hashable, object], str] | None = None,
+) -> None:
     """:func:`run_tasks` behind a tqdm bar of ``total`` units (``done`` of them finished
     before): after ``finished(key, result)`` the bar advances by ``count(key)`` (default 1)
     and shows ``postfix(key, result)`` as ``last=``. The bar closes even when a task raises."""
     from tqdm import tqdm
-    with tqdm(total=total, initial=done, unit=unit, desc=desc, disable=not progress_bar,
-              smoothing=0.05) as bar:
+
+    with tqdm(
+        total=total, initial=done, unit=unit, desc=desc, disable=not progress_bar, smoothing=0.05
+    ) as bar:
+
         def on_result(key, result):
             finished(key, result)
             bar.update(1 if count is None else count(key))

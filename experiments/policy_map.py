@@ -24,6 +24,7 @@ Output directory:
 * ``heatmap_<mode>_<track>.png``: binned means of progress and off-track fraction over
   (zeta, q) and (zeta, s1), :func:`plot_heatmaps`.
 """
+
 from __future__ import annotations
 
 import time
@@ -67,7 +68,8 @@ class PolicyMapConfig:
 
     def __post_init__(self):
         from agents.reference import policy_space
-        policy_space(self.space)                     # names the choices if unknown
+
+        policy_space(self.space)  # names the choices if unknown
         object.__setattr__(self, "tracks", tuple(self.tracks))
         object.__setattr__(self, "modes", tuple(self.modes))
         for name in ("thetas", "steps"):
@@ -75,12 +77,17 @@ class PolicyMapConfig:
             if not (isinstance(v, int) and v >= 1):
                 raise ValueError(f"PolicyMapConfig.{name} must be a positive integer, got {v!r}")
         if not isinstance(self.seed, int) or self.seed < 0:
-            raise ValueError(f"PolicyMapConfig.seed must be a non-negative integer, got {self.seed!r}")
+            raise ValueError(
+                f"PolicyMapConfig.seed must be a non-negative integer, got {self.seed!r}"
+            )
         bad = [m for m in self.modes if m not in MODES]
         if bad or not self.modes or len(set(self.modes)) != len(self.modes):
             raise ValueError(f"modes must be distinct values of {MODES}, got {list(self.modes)}")
-        if not self.tracks or len(set(self.tracks)) != len(self.tracks) or \
-                not all(isinstance(t, str) and t for t in self.tracks):
+        if (
+            not self.tracks
+            or len(set(self.tracks)) != len(self.tracks)
+            or not all(isinstance(t, str) and t for t in self.tracks)
+        ):
             raise ValueError(f"tracks must be distinct track specs, got {list(self.tracks)}")
 
     def row_seed(self, k: int) -> int:
@@ -92,8 +99,11 @@ def theta_box(space: str = "paper") -> tuple[np.ndarray, np.ndarray]:
     """The current box ``(low, high)`` of policy space ``space`` (for the paper's space
     ``THETA_LOW, THETA_HIGH``, looked up at call time, never copied)."""
     from agents import reference
+
     if space == "paper":
-        return np.array(reference.THETA_LOW, dtype=float), np.array(reference.THETA_HIGH, dtype=float)
+        return np.array(reference.THETA_LOW, dtype=float), np.array(
+            reference.THETA_HIGH, dtype=float
+        )
     sp = reference.policy_space(space)
     return np.array(sp.low, dtype=float), np.array(sp.high, dtype=float)
 
@@ -101,6 +111,7 @@ def theta_box(space: str = "paper") -> tuple[np.ndarray, np.ndarray]:
 def theta_names(space: str = "paper") -> tuple:
     """Parameter names of policy space ``space``, in array order."""
     from agents.reference import policy_space
+
     return policy_space(space).names
 
 
@@ -109,12 +120,13 @@ def sample_thetas(n: int, seed: int, low=None, high=None) -> np.ndarray:
     ``numpy.random.default_rng(seed)``) scaled to ``[low, high)`` (default: the current theta
     box). The first ``n`` points of the sequence: a power of two keeps Sobol's balance."""
     from scipy.stats import qmc
+
     if not (isinstance(n, int) and n >= 1):
         raise ValueError(f"number of thetas must be a positive integer, got {n!r}")
     if low is None or high is None:
         low, high = theta_box()
     sobol = qmc.Sobol(d=len(low), scramble=True, seed=np.random.default_rng(seed))
-    with warnings.catch_warnings():          # "balance properties ... n = 2^m": documented above
+    with warnings.catch_warnings():  # "balance properties ... n = 2^m": documented above
         warnings.simplefilter("ignore", UserWarning)
         u = sobol.random(n)
     return qmc.scale(u, low, high)
@@ -124,6 +136,7 @@ def theta_spec(theta) -> str:
     """The ``mpc`` agent spec of a theta, exact (floats in ``repr`` form): shape (5,) of the
     paper's space, or (6,) of the extended space (the spec then says ``space=extended``)."""
     from agents.theta import space_of
+
     space = space_of(theta)
     head = "mpc:" if space.name == "paper" else f"mpc:space={space.name},"
     return head + ",".join(f"{name}={float(v)!r}" for name, v in zip(space.names, theta))
@@ -131,6 +144,7 @@ def theta_spec(theta) -> str:
 
 def _theta_dict(theta) -> dict:
     from agents.theta import space_of
+
     return {name: float(v) for name, v in zip(space_of(theta).names, theta)}
 
 
@@ -146,6 +160,7 @@ def best_flying_lap(lap_times) -> float | None:
 def map_row(config: PolicyMapConfig, mode: str, track: str, k: int, theta) -> dict:
     """Run theta k on ``track`` in ``mode`` (pure: no file access) and return its row."""
     from .race import run_race
+
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
     spec, seed = theta_spec(theta), config.row_seed(k)
@@ -157,9 +172,10 @@ def map_row(config: PolicyMapConfig, mode: str, track: str, k: int, theta) -> di
     else:
         agents, kw = [spec], dict(start="grid")
     try:
-        res, _ = run_race(agents, track=track, seed=seed, max_cycles=config.steps,
-                          progress_bar=False, **kw)
-    except Exception as exc:            # one failing theta must not end a map of thousands
+        res, _ = run_race(
+            agents, track=track, seed=seed, max_cycles=config.steps, progress_bar=False, **kw
+        )
+    except Exception as exc:  # one failing theta must not end a map of thousands
         row["error"] = f"{type(exc).__name__}: {exc}"
         row["seconds"] = round(time.perf_counter() - t0, 3)
         return row
@@ -170,19 +186,21 @@ def map_row(config: PolicyMapConfig, mode: str, track: str, k: int, theta) -> di
     steps = len(res.states) - 1
     st = res.agent_stats[0]
     p = res.progress
-    row.update({
-        "steps": steps,
-        "progress_m": round(float(p[0]), 4),
-        "laps": len(res.lap_times[0]),
-        "lap_times_s": [round(float(t), 4) for t in res.lap_times[0]],
-        "best_lap_s": best_flying_lap(res.lap_times[0]),
-        "off_track_steps": int(res.off_tracks[0]),
-        "off_track_frac": float(res.off_tracks[0]) / max(steps, 1),
-        "contacts": int(res.contacts[0]),
-        "fallbacks": int(st.get("fallbacks", 0)),
-        "restarts": int(st.get("restarts", 0)),
-        "decision_ms": round(float(res.decision_ms[0]), 4),
-    })
+    row.update(
+        {
+            "steps": steps,
+            "progress_m": round(float(p[0]), 4),
+            "laps": len(res.lap_times[0]),
+            "lap_times_s": [round(float(t), 4) for t in res.lap_times[0]],
+            "best_lap_s": best_flying_lap(res.lap_times[0]),
+            "off_track_steps": int(res.off_tracks[0]),
+            "off_track_frac": float(res.off_tracks[0]) / max(steps, 1),
+            "contacts": int(res.contacts[0]),
+            "fallbacks": int(st.get("fallbacks", 0)),
+            "restarts": int(st.get("restarts", 0)),
+            "decision_ms": round(float(res.decision_ms[0]), 4),
+        }
+    )
     if mode == "race":
         row["opponents_progress_m"] = [round(float(v), 4) for v in p[1:]]
         row["rank"] = int(1 + np.sum(p[1:] > p[0]))
@@ -203,11 +221,20 @@ class PolicyMapRun(ResumableRun):
         self.thetas = sample_thetas(config.thetas, config.seed, low, high)
         super().__init__(out_dir, config)
         # the box goes into "config", so a refusal after a change of the box names it
-        self.claim({"schema_version": SCHEMA_VERSION,
-                    "config": {**manifest_config(config, {"space": "paper"}), "theta_box": {
-                        "names": list(theta_names(config.space)), "low": low.tolist(),
-                        "high": high.tolist()}},
-                    "env": env_version()})
+        self.claim(
+            {
+                "schema_version": SCHEMA_VERSION,
+                "config": {
+                    **manifest_config(config, {"space": "paper"}),
+                    "theta_box": {
+                        "names": list(theta_names(config.space)),
+                        "low": low.tolist(),
+                        "high": high.tolist(),
+                    },
+                },
+                "env": env_version(),
+            }
+        )
 
     @property
     def rows_path(self) -> Path:
@@ -235,9 +262,13 @@ class PolicyMapRun(ResumableRun):
             for track in self.config.tracks:
                 sub = [r for r in rows if r["mode"] == mode and r["track"] == track]
                 if any("error" not in r for r in sub):
-                    plot_heatmaps(sub, self.out / heatmap_name(mode, track),
-                                  title=f"{mode} on {track}", low=summary["theta_low"],
-                                  high=summary["theta_high"])
+                    plot_heatmaps(
+                        sub,
+                        self.out / heatmap_name(mode, track),
+                        title=f"{mode} on {track}",
+                        low=summary["theta_low"],
+                        high=summary["theta_high"],
+                    )
         return summary
 
 
@@ -257,8 +288,11 @@ def _clean(x: float):
 
 def _group_summary(rows: list[dict], zeta_edges: np.ndarray) -> dict:
     ok = [r for r in rows if "error" not in r]
-    out = {"thetas": len(rows), "errors": len(rows) - len(ok),
-           "error_indices": sorted(r["index"] for r in rows if "error" in r)}
+    out = {
+        "thetas": len(rows),
+        "errors": len(rows) - len(ok),
+        "error_indices": sorted(r["index"] for r in rows if "error" in r),
+    }
     if not ok:
         return out
     prog = np.array([r["progress_m"] for r in ok])
@@ -266,39 +300,61 @@ def _group_summary(rows: list[dict], zeta_edges: np.ndarray) -> dict:
     lap = np.array([_nan(r["best_lap_s"]) for r in ok])
     zeta = np.array([r["theta"]["zeta"] for r in ok])
     bad = off > OFF_TRACK_LIMIT
-    out.update({
-        "off_track_share": float(bad.mean()),
-        "off_track_frac_mean": float(off.mean()),
-        "progress_m_mean": float(prog.mean()),
-        "progress_m_quantiles": {f"p{int(round(100 * q))}": float(v)
-                                 for q, v in zip(QUANTILES, np.quantile(prog, QUANTILES))},
-        "best_lap_s_median": _clean(np.nanmedian(lap)) if np.isfinite(lap).any() else None,
-        "fallbacks_mean": float(np.mean([r["fallbacks"] for r in ok])),
-        "restarts_mean": float(np.mean([r["restarts"] for r in ok])),
-        "decision_ms_mean": float(np.mean([r["decision_ms"] for r in ok])),
-    })
+    out.update(
+        {
+            "off_track_share": float(bad.mean()),
+            "off_track_frac_mean": float(off.mean()),
+            "progress_m_mean": float(prog.mean()),
+            "progress_m_quantiles": {
+                f"p{int(round(100 * q))}": float(v)
+                for q, v in zip(QUANTILES, np.quantile(prog, QUANTILES))
+            },
+            "best_lap_s_median": _clean(np.nanmedian(lap)) if np.isfinite(lap).any() else None,
+            "fallbacks_mean": float(np.mean([r["fallbacks"] for r in ok])),
+            "restarts_mean": float(np.mean([r["restarts"] for r in ok])),
+            "decision_ms_mean": float(np.mean([r["decision_ms"] for r in ok])),
+        }
+    )
     if "rank" in ok[0]:
         out["win_share"] = float(np.mean([r["rank"] == 1 for r in ok]))
         out["margin_m_mean"] = float(np.mean([r["margin_m"] for r in ok]))
     clean = [r for r in ok if r["off_track_frac"] <= OFF_TRACK_LIMIT]
     top = sorted(clean, key=lambda r: (-r["progress_m"], r["index"]))[:10]
-    keep = ("index", "theta", "progress_m", "best_lap_s", "off_track_frac", "fallbacks",
-            "restarts", "rank", "margin_m", "start_region")
+    keep = (
+        "index",
+        "theta",
+        "progress_m",
+        "best_lap_s",
+        "off_track_frac",
+        "fallbacks",
+        "restarts",
+        "rank",
+        "margin_m",
+        "start_region",
+    )
     out["top10"] = [{k: r[k] for k in keep if k in r} for r in top]
     out["best"] = out["top10"][0] if top else None
     bins = []
     idx = np.clip(np.searchsorted(zeta_edges, zeta, side="right") - 1, 0, len(zeta_edges) - 2)
     for b in range(len(zeta_edges) - 1):
         m = idx == b
-        entry = {"zeta_lo": float(zeta_edges[b]), "zeta_hi": float(zeta_edges[b + 1]),
-                 "thetas": int(m.sum())}
+        entry = {
+            "zeta_lo": float(zeta_edges[b]),
+            "zeta_hi": float(zeta_edges[b + 1]),
+            "thetas": int(m.sum()),
+        }
         if m.any():
-            entry.update({"progress_m_mean": float(prog[m].mean()),
-                          "best_lap_s_median": _clean(np.nanmedian(lap[m]))
-                          if np.isfinite(lap[m]).any() else None,
-                          "laps_mean": float(np.mean([r["laps"] for r, mm in zip(ok, m) if mm])),
-                          "off_track_frac_mean": float(off[m].mean()),
-                          "off_track_share": float(bad[m].mean())})
+            entry.update(
+                {
+                    "progress_m_mean": float(prog[m].mean()),
+                    "best_lap_s_median": _clean(np.nanmedian(lap[m]))
+                    if np.isfinite(lap[m]).any()
+                    else None,
+                    "laps_mean": float(np.mean([r["laps"] for r, mm in zip(ok, m) if mm])),
+                    "off_track_frac_mean": float(off[m].mean()),
+                    "off_track_share": float(bad[m].mean()),
+                }
+            )
         bins.append(entry)
     out["by_zeta"] = bins
     return out
@@ -316,10 +372,17 @@ def summarise(rows: list[dict], config: PolicyMapConfig) -> dict:
     iz = THETA_NAMES.index("zeta")
     zeta_edges = np.linspace(low[iz], high[iz], ZETA_BINS + 1)
     expected = config.thetas * len(config.tracks) * len(config.modes)
-    out = {"config": asdict(config), "theta_names": list(THETA_NAMES),
-           "theta_low": low.tolist(), "theta_high": high.tolist(),
-           "off_track_limit": OFF_TRACK_LIMIT, "goal_share": GOAL_SHARE,
-           "rows": len(rows), "complete": len(rows) == expected, "maps": {}}
+    out = {
+        "config": asdict(config),
+        "theta_names": list(THETA_NAMES),
+        "theta_low": low.tolist(),
+        "theta_high": high.tolist(),
+        "off_track_limit": OFF_TRACK_LIMIT,
+        "goal_share": GOAL_SHARE,
+        "rows": len(rows),
+        "complete": len(rows) == expected,
+        "maps": {},
+    }
     for mode in config.modes:
         per = {}
         for track in config.tracks:
@@ -330,13 +393,17 @@ def summarise(rows: list[dict], config: PolicyMapConfig) -> dict:
         if ok:
             bad_any = {}
             for r in ok:
-                bad_any[r["index"]] = bad_any.get(r["index"], False) or \
-                    r["off_track_frac"] > OFF_TRACK_LIMIT
-            per["all"] = {"rows": len(ok),
-                          "off_track_share": float(np.mean([r["off_track_frac"] > OFF_TRACK_LIMIT
-                                                            for r in ok])),
-                          "thetas": len(bad_any),
-                          "off_track_any_track_share": float(np.mean(list(bad_any.values())))}
+                bad_any[r["index"]] = (
+                    bad_any.get(r["index"], False) or r["off_track_frac"] > OFF_TRACK_LIMIT
+                )
+            per["all"] = {
+                "rows": len(ok),
+                "off_track_share": float(
+                    np.mean([r["off_track_frac"] > OFF_TRACK_LIMIT for r in ok])
+                ),
+                "thetas": len(bad_any),
+                "off_track_any_track_share": float(np.mean(list(bad_any.values()))),
+            }
         out["maps"][mode] = per
     return out
 
@@ -348,73 +415,108 @@ def _f(v, fmt="{:.2f}") -> str:
 def summary_markdown(s: dict) -> str:
     c = s["config"]
     names = s["theta_names"]
-    box = ", ".join(f"{n} {lo:g}..{hi:g}" for n, lo, hi in zip(names, s["theta_low"], s["theta_high"]))
+    box = ", ".join(
+        f"{n} {lo:g}..{hi:g}" for n, lo, hi in zip(names, s["theta_low"], s["theta_high"])
+    )
     lim = 100 * s["off_track_limit"]
-    lines = ["# Policy map", "",
-             f"{c['thetas']} thetas (scrambled Sobol, seed {c['seed']}) over the box {box}; "
-             f"{c['steps']} steps of 0.1 s per run; modes {', '.join(c['modes'])} on "
-             f"{', '.join('`' + t + '`' for t in c['tracks'])}; race opponents: two "
-             f"`{c['opponents']}`. {s['rows']} rows"
-             + ("" if s["complete"] else " (partial)") + ".", "",
-             f"Off track: more than {lim:g}% of a run's steps off track (goal for the race map: "
-             f"at most {100 * s['goal_share']:g}% of the box). Best and top 10 are among the "
-             f"thetas on track, by progress. Best lap: fastest lap after the first.", "",
-             "| mode | track | thetas | off-track share | progress p5 / p50 / p95 [m] "
-             "| best theta (q, zeta, s1, s2, s3) | its progress [m] | errors |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Policy map",
+        "",
+        f"{c['thetas']} thetas (scrambled Sobol, seed {c['seed']}) over the box {box}; "
+        f"{c['steps']} steps of 0.1 s per run; modes {', '.join(c['modes'])} on "
+        f"{', '.join('`' + t + '`' for t in c['tracks'])}; race opponents: two "
+        f"`{c['opponents']}`. {s['rows']} rows" + ("" if s["complete"] else " (partial)") + ".",
+        "",
+        f"Off track: more than {lim:g}% of a run's steps off track (goal for the race map: "
+        f"at most {100 * s['goal_share']:g}% of the box). Best and top 10 are among the "
+        f"thetas on track, by progress. Best lap: fastest lap after the first.",
+        "",
+        "| mode | track | thetas | off-track share | progress p5 / p50 / p95 [m] "
+        "| best theta (q, zeta, s1, s2, s3) | its progress [m] | errors |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for mode, per in s["maps"].items():
         for track, g in per.items():
             if track == "all":
                 continue
             if "progress_m_quantiles" not in g:
-                lines.append(f"| {mode} | `{track}` | {g['thetas']} | - | - | - | - | {g['errors']} |")
+                lines.append(
+                    f"| {mode} | `{track}` | {g['thetas']} | - | - | - | - | {g['errors']} |"
+                )
                 continue
             q = g["progress_m_quantiles"]
             b = g["best"]
             bt = ", ".join(f"{b['theta'][n]:.3g}" for n in names) if b else "-"
-            lines.append(f"| {mode} | `{track}` | {g['thetas']} | {100 * g['off_track_share']:.1f}% "
-                         f"| {q['p5']:.1f} / {q['p50']:.1f} / {q['p95']:.1f} | {bt} "
-                         f"| {_f(b['progress_m'] if b else None, '{:.1f}')} | {g['errors']} |")
+            lines.append(
+                f"| {mode} | `{track}` | {g['thetas']} | {100 * g['off_track_share']:.1f}% "
+                f"| {q['p5']:.1f} / {q['p50']:.1f} / {q['p95']:.1f} | {bt} "
+                f"| {_f(b['progress_m'] if b else None, '{:.1f}')} | {g['errors']} |"
+            )
         if "all" in per:
             a = per["all"]
-            lines.append(f"| {mode} | all tracks | {a['thetas']} | {100 * a['off_track_share']:.1f}% "
-                         f"of runs, {100 * a['off_track_any_track_share']:.1f}% of thetas on "
-                         f"some track | | | | |")
+            lines.append(
+                f"| {mode} | all tracks | {a['thetas']} | {100 * a['off_track_share']:.1f}% "
+                f"of runs, {100 * a['off_track_any_track_share']:.1f}% of thetas on "
+                f"some track | | | | |"
+            )
     for mode, per in s["maps"].items():
         for track, g in per.items():
             if track == "all" or "progress_m_quantiles" not in g:
                 continue
             q = g["progress_m_quantiles"]
-            lines += ["", f"## {mode} on `{track}`", "",
-                      "Progress quantiles [m]: " + ", ".join(f"{k} {v:.1f}" for k, v in q.items())
-                      + f". Mean fallbacks {g['fallbacks_mean']:.2f}, restarts "
-                        f"{g['restarts_mean']:.1f}, decision {g['decision_ms_mean']:.2f} ms per run."]
+            lines += [
+                "",
+                f"## {mode} on `{track}`",
+                "",
+                "Progress quantiles [m]: "
+                + ", ".join(f"{k} {v:.1f}" for k, v in q.items())
+                + f". Mean fallbacks {g['fallbacks_mean']:.2f}, restarts "
+                f"{g['restarts_mean']:.1f}, decision {g['decision_ms_mean']:.2f} ms per run.",
+            ]
             if "win_share" in g:
-                lines[-1] += (f" Theta car wins {100 * g['win_share']:.0f}% of the races, mean "
-                              f"margin {g['margin_m_mean']:+.2f} m.")
+                lines[-1] += (
+                    f" Theta car wins {100 * g['win_share']:.0f}% of the races, mean "
+                    f"margin {g['margin_m_mean']:+.2f} m."
+                )
             if g["error_indices"]:
                 lines[-1] += f" Errors at theta indices {g['error_indices']}."
             race = "win_share" in g
-            lines += ["", "| # | index | " + " | ".join(names) + " | progress m | best lap s "
-                      "| off-track % | fallbacks" + (" | start | rank | margin m" if race else "") + " |",
-                      "|" + "---|" * (len(names) + 6 + (3 if race else 0))]
+            lines += [
+                "",
+                "| # | index | " + " | ".join(names) + " | progress m | best lap s "
+                "| off-track % | fallbacks" + (" | start | rank | margin m" if race else "") + " |",
+                "|" + "---|" * (len(names) + 6 + (3 if race else 0)),
+            ]
             for i, r in enumerate(g["top10"], 1):
-                lines.append(f"| {i} | {r['index']} | " + " | ".join(f"{r['theta'][n]:.3g}" for n in names)
-                             + f" | {r['progress_m']:.2f} | {_f(r['best_lap_s'])} "
-                               f"| {100 * r['off_track_frac']:.1f} | {r['fallbacks']}"
-                             + (f" | {r['start_region']} | {r['rank']} | {r['margin_m']:+.2f}"
-                                if race else "") + " |")
-            lines += ["", "| zeta | thetas | progress m (mean) | best lap s (median) | laps (mean) "
-                          "| off-track % (mean) | off-track share |", "|---|---|---|---|---|---|---|"]
+                lines.append(
+                    f"| {i} | {r['index']} | "
+                    + " | ".join(f"{r['theta'][n]:.3g}" for n in names)
+                    + f" | {r['progress_m']:.2f} | {_f(r['best_lap_s'])} "
+                    f"| {100 * r['off_track_frac']:.1f} | {r['fallbacks']}"
+                    + (
+                        f" | {r['start_region']} | {r['rank']} | {r['margin_m']:+.2f}"
+                        if race
+                        else ""
+                    )
+                    + " |"
+                )
+            lines += [
+                "",
+                "| zeta | thetas | progress m (mean) | best lap s (median) | laps (mean) "
+                "| off-track % (mean) | off-track share |",
+                "|---|---|---|---|---|---|---|",
+            ]
             for b in g["by_zeta"]:
                 rng = f"{b['zeta_lo']:.3f}-{b['zeta_hi']:.3f}"
                 if not b["thetas"]:
                     lines.append(f"| {rng} | 0 | - | - | - | - | - |")
                     continue
-                lines.append(f"| {rng} | {b['thetas']} | {b['progress_m_mean']:.2f} "
-                             f"| {_f(b['best_lap_s_median'])} | {b['laps_mean']:.1f} "
-                             f"| {100 * b['off_track_frac_mean']:.2f} "
-                             f"| {100 * b['off_track_share']:.0f}% |")
+                lines.append(
+                    f"| {rng} | {b['thetas']} | {b['progress_m_mean']:.2f} "
+                    f"| {_f(b['best_lap_s_median'])} | {b['laps_mean']:.1f} "
+                    f"| {100 * b['off_track_frac_mean']:.2f} "
+                    f"| {100 * b['off_track_share']:.0f}% |"
+                )
             lines += ["", f"![{mode} on {track}]({heatmap_name(mode, track)})"]
     return "\n".join(lines) + "\n"
 
@@ -451,29 +553,41 @@ def plot_heatmaps(rows: list[dict], path, title: str, low, high, dpi: int = 120)
     from matplotlib.figure import Figure
 
     from agents.reference import THETA_NAMES
+
     ok = [r for r in rows if "error" not in r]
     if not ok:
         raise ValueError(f"no finished rows to plot for {title}")
     rng = {n: (lo, hi) for n, lo, hi in zip(THETA_NAMES, low, high)}
     th = {n: np.array([r["theta"][n] for r in ok]) for n in THETA_NAMES}
-    metrics = (("progress_m", "progress [m]", "viridis"),
-               ("off_track_frac", "off-track fraction", "magma_r"))
+    metrics = (
+        ("progress_m", "progress [m]", "viridis"),
+        ("off_track_frac", "off-track fraction", "magma_r"),
+    )
     bins = heat_bins(len(ok))
     fig = Figure(figsize=(10, 8))
     FigureCanvasAgg(fig)
     axes = fig.subplots(2, 2)
     for row, (key, label, cmap) in enumerate(metrics):
         v = np.array([r[key] for r in ok], dtype=float)
-        grids = {other: binned_means(th["zeta"], th[other], v, rng["zeta"], rng[other], bins)
-                 for other in ("q", "s1")}
+        grids = {
+            other: binned_means(th["zeta"], th[other], v, rng["zeta"], rng[other], bins)
+            for other in ("q", "s1")
+        }
         both = np.concatenate([g[2].ravel() for g in grids.values()])
-        vmin, vmax = float(np.nanmin(both)), float(np.nanmax(both))   # one scale per row
-        if key == "off_track_frac":          # 0 = on track; the scale shows the 1% limit
+        vmin, vmax = float(np.nanmin(both)), float(np.nanmax(both))  # one scale per row
+        if key == "off_track_frac":  # 0 = on track; the scale shows the 1% limit
             vmin, vmax = 0.0, max(vmax, 2 * OFF_TRACK_LIMIT)
         for col, (other, (xe, ye, m)) in enumerate(grids.items()):
             ax = axes[row, col]
-            mesh = ax.pcolormesh(xe, ye, np.ma.masked_invalid(m), cmap=cmap, shading="flat",
-                                 vmin=vmin, vmax=vmax if vmax > vmin else vmin + 1e-9)
+            mesh = ax.pcolormesh(
+                xe,
+                ye,
+                np.ma.masked_invalid(m),
+                cmap=cmap,
+                shading="flat",
+                vmin=vmin,
+                vmax=vmax if vmax > vmin else vmin + 1e-9,
+            )
             ax.plot(th["zeta"], th[other], ".", color="0.5", ms=2)
             fig.colorbar(mesh, ax=ax, label=f"{label} (bin mean)")
             ax.set_xlabel("zeta")
@@ -486,21 +600,35 @@ def plot_heatmaps(rows: list[dict], path, title: str, low, high, dpi: int = 120)
 
 
 # ---------------------------------------------------------------------------- driver
-def policy_map(config: PolicyMapConfig, out_dir, workers: int = 2, backend: str = "local",
-               address: str | None = None, progress_bar: bool = True) -> dict:
+def policy_map(
+    config: PolicyMapConfig,
+    out_dir,
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+    progress_bar: bool = True,
+) -> dict:
     """Run (or resume) the policy map ``config`` into ``out_dir``; returns its summary with
     ``new_rows``, the number of rows computed by this call."""
     from racing_env.tracks import make_track
+
     check_backend(backend, workers)
-    for track in config.tracks:            # a typo fails before any run starts
+    for track in config.tracks:  # a typo fails before any run starts
         make_track(track)
     if "race" in config.modes:
         check_agent_specs([config.opponents], config.tracks)
     run = PolicyMapRun(out_dir, config)
-    new = run.run_missing(map_row, lambda key: (config, *key, run.thetas[key[2]]), workers,
-                          backend, address, desc="policy map", unit="run",
-                          progress_bar=progress_bar,
-                          postfix=lambda key, row: f"{key[0]}:{key[1]}:{key[2]}")
+    new = run.run_missing(
+        map_row,
+        lambda key: (config, *key, run.thetas[key[2]]),
+        workers,
+        backend,
+        address,
+        desc="policy map",
+        unit="run",
+        progress_bar=progress_bar,
+        postfix=lambda key, row: f"{key[0]}:{key[1]}:{key[2]}",
+    )
     summary = run.write_outputs()
     summary["new_rows"] = new
     return summary

@@ -1,4 +1,5 @@
 """Run one race between agents and summarise it (the ``alpha-racer race`` command)."""
+
 from __future__ import annotations
 
 import time
@@ -22,18 +23,18 @@ class RaceResult:
     """What happened in a race. ``states`` (T + 1, N, 6) holds every car's Frenet state."""
 
     agents: list[str]
-    track: str                    # track spec, as given to make_track
+    track: str  # track spec, as given to make_track
     seed: int
     dt: float
     states: np.ndarray
-    progress: np.ndarray          # (N,) final unwrapped s minus the race's start line [m]
+    progress: np.ndarray  # (N,) final unwrapped s minus the race's start line [m]
     lap_times: list[list[float]]  # per car, s per completed lap
-    contacts: np.ndarray          # (N,) steps with contact
-    off_tracks: np.ndarray        # (N,) steps off track
-    decision_ms: np.ndarray       # (N,) mean wall time per act() [ms]
-    env_step_ms: float            # mean env.step wall time [ms]
+    contacts: np.ndarray  # (N,) steps with contact
+    off_tracks: np.ndarray  # (N,) steps off track
+    decision_ms: np.ndarray  # (N,) mean wall time per act() [ms]
+    env_step_ms: float  # mean env.step wall time [ms]
     agent_stats: list[dict] = field(default_factory=list)
-    contact_dn: float = RulesConfig().contact_dn   # [m] the race's lateral contact box
+    contact_dn: float = RulesConfig().contact_dn  # [m] the race's lateral contact box
 
     @property
     def metrics(self) -> dict:
@@ -51,43 +52,71 @@ class RaceResult:
         lead = self.progress.max()
         speed = lead / max(len(self.states) - 1, 1) / self.dt
         m = self.metrics
-        rows = [f"Race on '{self.track}' (seed {self.seed}), {len(self.states) - 1} steps "
-                f"= {(len(self.states) - 1) * self.dt:.1f} s",
-                f"{'pos':>3}  {'car':<6} {'agent':<18} {'progress m':>10} {'gap m':>7} {'gap s':>6} "
-                f"{'laps':>4} {'best lap s':>10} {'contacts':>8} {'off-track':>9} {'fallbacks':>9} "
-                f"{'ms/decision':>11} {'passes':>6} {'via contact':>11} {'<1m behind s':>12}"]
+        rows = [
+            f"Race on '{self.track}' (seed {self.seed}), {len(self.states) - 1} steps "
+            f"= {(len(self.states) - 1) * self.dt:.1f} s",
+            f"{'pos':>3}  {'car':<6} {'agent':<18} {'progress m':>10} {'gap m':>7} {'gap s':>6} "
+            f"{'laps':>4} {'best lap s':>10} {'contacts':>8} {'off-track':>9} {'fallbacks':>9} "
+            f"{'ms/decision':>11} {'passes':>6} {'via contact':>11} {'<1m behind s':>12}",
+        ]
         for pos, i in enumerate(self.order, 1):
             laps = self.lap_times[i]
             lap_durations = np.diff([0.0] + laps)
             best = f"{lap_durations[1:].min():.2f}" if len(laps) > 1 else "-"
             gap = lead - self.progress[i]
             fb = self.agent_stats[i].get("fallbacks", "-") if self.agent_stats else "-"
-            rows.append(f"{pos:>3}  car_{i:<2} {self.agents[i]:<18} {self.progress[i]:>10.2f} "
-                        f"{gap:>7.2f} {gap / max(speed, 1e-9):>6.2f} {len(laps):>4} {best:>10} "
-                        f"{self.contacts[i]:>8} {self.off_tracks[i]:>9} {fb:>9} {self.decision_ms[i]:>11.3f} "
-                        f"{m['passes'][i]:>6} {m['passes_contact'][i]:>11} {m['behind_1m_s'][i]:>12.1f}")
-        rows.append(f"winner car_{m['winner']} started "
-                    + ("from behind" if m["won_from_behind"] else "at the front")
-                    + f" (front: car_{m['front']}); passes (held >= 1 s, body clear sideways): "
-                    + (", ".join(f"car_{e['passer']} past car_{e['passed']} at {e['time_s']:.1f} s"
-                                 + (" (through contact)" if e["kind"] == "contact" else "")
-                                 for e in m["pass_events"] if e["kind"] in ("pass", "contact"))
-                       or "none"))
+            rows.append(
+                f"{pos:>3}  car_{i:<2} {self.agents[i]:<18} {self.progress[i]:>10.2f} "
+                f"{gap:>7.2f} {gap / max(speed, 1e-9):>6.2f} {len(laps):>4} {best:>10} "
+                f"{self.contacts[i]:>8} {self.off_tracks[i]:>9} {fb:>9} {self.decision_ms[i]:>11.3f} "
+                f"{m['passes'][i]:>6} {m['passes_contact'][i]:>11} {m['behind_1m_s'][i]:>12.1f}"
+            )
+        rows.append(
+            f"winner car_{m['winner']} started "
+            + ("from behind" if m["won_from_behind"] else "at the front")
+            + f" (front: car_{m['front']}); passes (held >= 1 s, body clear sideways): "
+            + (
+                ", ".join(
+                    f"car_{e['passer']} past car_{e['passed']} at {e['time_s']:.1f} s"
+                    + (" (through contact)" if e["kind"] == "contact" else "")
+                    for e in m["pass_events"]
+                    if e["kind"] in ("pass", "contact")
+                )
+                or "none"
+            )
+        )
         rows.append(f"env step: {self.env_step_ms:.3f} ms mean")
         return "\n".join(rows)
 
     def summary(self) -> dict:
-        return {"agents": self.agents, "track": self.track, "seed": self.seed,
-                "steps": len(self.states) - 1, "order": [f"car_{i}" for i in self.order],
-                "progress_m": self.progress.round(4).tolist(), "lap_times_s": self.lap_times,
-                "contacts": self.contacts.tolist(), "off_tracks": self.off_tracks.tolist(),
-                "decision_ms": self.decision_ms.round(4).tolist(), "env_step_ms": round(self.env_step_ms, 4),
-                "agent_stats": self.agent_stats, "metrics": self.metrics}
+        return {
+            "agents": self.agents,
+            "track": self.track,
+            "seed": self.seed,
+            "steps": len(self.states) - 1,
+            "order": [f"car_{i}" for i in self.order],
+            "progress_m": self.progress.round(4).tolist(),
+            "lap_times_s": self.lap_times,
+            "contacts": self.contacts.tolist(),
+            "off_tracks": self.off_tracks.tolist(),
+            "decision_ms": self.decision_ms.round(4).tolist(),
+            "env_step_ms": round(self.env_step_ms, 4),
+            "agent_stats": self.agent_stats,
+            "metrics": self.metrics,
+        }
 
 
-def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_cycles: int = 500,
-             start: str = "regions", laps: int | None = None, render: bool = False,
-             progress_bar: bool = True, order=None):
+def run_race(
+    agent_names: list[str],
+    track: str = "default",
+    seed: int = 0,
+    max_cycles: int = 500,
+    start: str = "regions",
+    laps: int | None = None,
+    render: bool = False,
+    progress_bar: bool = True,
+    order=None,
+):
     """Race ``agent_names`` (agent specs, one per car: a registry name with optional
     parameters, ``"raceline:grip=0.75"``) and return ``(RaceResult, frames)``.
 
@@ -97,8 +126,9 @@ def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_
     """
     if not agent_names:
         raise ValueError("a race needs at least one agent")
-    env = RacingParallelEnv(track=track, n_cars=len(agent_names), max_cycles=max_cycles,
-                            laps=laps, start=start)
+    env = RacingParallelEnv(
+        track=track, n_cars=len(agent_names), max_cycles=max_cycles, laps=laps, start=start
+    )
     agents = [make_agent_spec(spec) for spec in agent_names]
     for agent, spec, agent_id in zip(agents, agent_names, env.possible_agents):
         check_field_size(agent, len(agents), agent_id, spec)
@@ -111,7 +141,9 @@ def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_
     decide = np.zeros(n)
     env_time = 0.0
     steps = 0
-    with tqdm(total=max_cycles, desc="race", unit="step", delay=3.0, disable=not progress_bar) as bar:
+    with tqdm(
+        total=max_cycles, desc="race", unit="step", delay=3.0, disable=not progress_bar
+    ) as bar:
         while env.agents:
             actions = {}
             for k, agent_id in enumerate(env.possible_agents):
@@ -128,13 +160,20 @@ def run_race(agent_names: list[str], track: str = "default", seed: int = 0, max_
             bar.update(1)
     core = env.core
     result = RaceResult(
-        agents=list(agent_names), track=track if isinstance(track, str) else env.track.name, seed=seed, dt=env.config.dt,  # noqa: E501
-        states=np.array(states), progress=core.state[0, :, 0] - core.s_line[0],
-        lap_times=[list(t) for t in core.lap_times[0]], contacts=core.contacts[0].copy(),
-        off_tracks=core.offtracks[0].copy(), decision_ms=1e3 * decide / max(steps, 1),
+        agents=list(agent_names),
+        track=track if isinstance(track, str) else env.track.name,
+        seed=seed,
+        dt=env.config.dt,  # noqa: E501
+        states=np.array(states),
+        progress=core.state[0, :, 0] - core.s_line[0],
+        lap_times=[list(t) for t in core.lap_times[0]],
+        contacts=core.contacts[0].copy(),
+        off_tracks=core.offtracks[0].copy(),
+        decision_ms=1e3 * decide / max(steps, 1),
         env_step_ms=1e3 * env_time / max(steps, 1),
         agent_stats=[dict(getattr(a, "stats", {}) or {}) for a in agents],
-        contact_dn=env.config.rules.contact_dn)
+        contact_dn=env.config.rules.contact_dn,
+    )
     env.close()
     return result, frames
 
@@ -150,8 +189,13 @@ def write_outputs(result: RaceResult, frames: list, out: Path, animation: str = 
     write_json(paths["summary"], result.summary())
     track = make_track(result.track)
     rl = get_raceline(track)
-    plot_trajectories(track, result.states, paths["trajectories"], raceline_xy=(rl.x, rl.y),
-                      labels=[f"car_{i} ({a})" for i, a in enumerate(result.agents)])
+    plot_trajectories(
+        track,
+        result.states,
+        paths["trajectories"],
+        raceline_xy=(rl.x, rl.y),
+        labels=[f"car_{i} ({a})" for i, a in enumerate(result.agents)],
+    )
     if frames:
         paths["animation"] = out / f"race.{animation}"
         save_animation(frames, paths["animation"], fps=int(round(1.0 / result.dt)))
@@ -162,8 +206,11 @@ def check_animation_format(animation: str) -> None:
     """Raise a ``ValueError`` before a race if its animation could not be written: an unknown
     format, or ``mp4`` without ffmpeg."""
     from racing_env.render import ffmpeg_available
+
     if animation not in ("gif", "mp4"):
         raise ValueError(f"unknown animation format {animation!r}; expected gif or mp4")
     if animation == "mp4" and not ffmpeg_available():
-        raise ValueError("--format mp4 needs ffmpeg, which is missing (not on PATH, and "
-                         "imageio-ffmpeg is not installed); install ffmpeg or use --format gif")
+        raise ValueError(
+            "--format mp4 needs ffmpeg, which is missing (not on PATH, and "
+            "imageio-ffmpeg is not installed); install ffmpeg or use --format gif"
+        )

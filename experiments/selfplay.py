@@ -44,6 +44,7 @@ VecNormalize statistics and this config. A killed run resumes from its latest ch
 (``alpha-racer selfplay --out DIR`` again, same settings): finished turns are kept and an
 unfinished turn continues from its last in-turn checkpoint.
 """
+
 from __future__ import annotations
 
 import csv
@@ -68,7 +69,7 @@ VEC_ENVS = ("batched", "dummy", "subproc")
 WARMUP_OPPONENTS = ("raceline", "initial")
 INITS = ("random", "bc")
 RACELINE_GRIP = (0.75, 0.8, 0.85, 0.7, 0.9, 0.65, 0.95)
-RACELINE_MU = RACELINE_GRIP   # the old name (mu names the heading in the state)
+RACELINE_MU = RACELINE_GRIP  # the old name (mu names the heading in the state)
 """Friction of the raceline followers standing in for untrained cars, by opponent slot."""
 OFFTRACK_BAR = 0.05
 
@@ -109,40 +110,72 @@ class SelfPlayConfig:
 
     def __post_init__(self):
         object.__setattr__(self, "net_arch", tuple(self.net_arch))
-        for name in ("cycles", "steps_per_turn", "n_envs", "batch_size", "n_epochs", "n_steps",
-                     "max_cycles", "checkpoint_every", "eval_races", "bc_steps", "bc_rounds",
-                     "bc_epochs"):
+        for name in (
+            "cycles",
+            "steps_per_turn",
+            "n_envs",
+            "batch_size",
+            "n_epochs",
+            "n_steps",
+            "max_cycles",
+            "checkpoint_every",
+            "eval_races",
+            "bc_steps",
+            "bc_rounds",
+            "bc_epochs",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1):
                 raise ValueError(f"SelfPlayConfig.{name} must be a positive integer, got {v!r}")
         if not (isinstance(self.n_cars, (int, np.integer)) and 2 <= self.n_cars <= 8):
-            raise ValueError(f"SelfPlayConfig.n_cars must be an integer in 2..8, got {self.n_cars!r}")
-        for name, lo, hi in (("learning_rate", 0.0, 1.0), ("gamma", 0.0, 1.0),
-                             ("gae_lambda", 0.0, 1.0), ("clip_range", 0.0, 10.0)):
+            raise ValueError(
+                f"SelfPlayConfig.n_cars must be an integer in 2..8, got {self.n_cars!r}"
+            )
+        for name, lo, hi in (
+            ("learning_rate", 0.0, 1.0),
+            ("gamma", 0.0, 1.0),
+            ("gae_lambda", 0.0, 1.0),
+            ("clip_range", 0.0, 10.0),
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and lo < v <= hi):
                 raise ValueError(f"SelfPlayConfig.{name} must be in ({lo}, {hi}], got {v!r}")
         if not (isinstance(self.ent_coef, (int, float)) and self.ent_coef >= 0):
             raise ValueError(f"SelfPlayConfig.ent_coef must be >= 0, got {self.ent_coef!r}")
         if self.batch_size > self.n_steps * self.n_envs:
-            raise ValueError(f"SelfPlayConfig.batch_size {self.batch_size} exceeds a rollout of "
-                             f"n_steps * n_envs = {self.n_steps * self.n_envs} steps")
-        if not self.net_arch or not all(isinstance(h, (int, np.integer)) and h >= 1 for h in self.net_arch):
-            raise ValueError(f"SelfPlayConfig.net_arch must be positive layer widths, got {self.net_arch!r}")
+            raise ValueError(
+                f"SelfPlayConfig.batch_size {self.batch_size} exceeds a rollout of "
+                f"n_steps * n_envs = {self.n_steps * self.n_envs} steps"
+            )
+        if not self.net_arch or not all(
+            isinstance(h, (int, np.integer)) and h >= 1 for h in self.net_arch
+        ):
+            raise ValueError(
+                f"SelfPlayConfig.net_arch must be positive layer widths, got {self.net_arch!r}"
+            )
         if self.vec_env not in VEC_ENVS:
-            raise ValueError(f"SelfPlayConfig.vec_env must be one of {VEC_ENVS}, got {self.vec_env!r}")
+            raise ValueError(
+                f"SelfPlayConfig.vec_env must be one of {VEC_ENVS}, got {self.vec_env!r}"
+            )
         if self.warmup_opponent not in WARMUP_OPPONENTS:
-            raise ValueError(f"SelfPlayConfig.warmup_opponent must be one of {WARMUP_OPPONENTS}, "
-                             f"got {self.warmup_opponent!r}")
+            raise ValueError(
+                f"SelfPlayConfig.warmup_opponent must be one of {WARMUP_OPPONENTS}, "
+                f"got {self.warmup_opponent!r}"
+            )
         if self.init not in INITS:
             raise ValueError(f"SelfPlayConfig.init must be one of {INITS}, got {self.init!r}")
         if not (isinstance(self.bc_noise, (int, float)) and 0 <= self.bc_noise <= 2):
             raise ValueError(f"SelfPlayConfig.bc_noise must be in [0, 2], got {self.bc_noise!r}")
         if not (isinstance(self.bc_log_std, (int, float)) and -5 <= self.bc_log_std <= 1):
-            raise ValueError(f"SelfPlayConfig.bc_log_std must be in [-5, 1], got {self.bc_log_std!r}")
+            raise ValueError(
+                f"SelfPlayConfig.bc_log_std must be in [-5, 1], got {self.bc_log_std!r}"
+            )
         from racing_env.config import START_MODES
+
         if self.start not in START_MODES:
-            raise ValueError(f"SelfPlayConfig.start must be one of {START_MODES}, got {self.start!r}")
+            raise ValueError(
+                f"SelfPlayConfig.start must be one of {START_MODES}, got {self.start!r}"
+            )
 
     @property
     def turns(self) -> int:
@@ -220,14 +253,18 @@ class SelfPlayState:
         known = {f.name for f in fields(cls)}
         unknown = set(d) - known
         if unknown:
-            raise ValueError(f"unknown self-play state fields {sorted(unknown)}; expected some of "
-                             f"{sorted(known)}")
+            raise ValueError(
+                f"unknown self-play state fields {sorted(unknown)}; expected some of "
+                f"{sorted(known)}"
+            )
         state = cls(**d)
         if cfg is not None:
             if len(state.cars) != cfg.n_cars or len(state.trained_turns) != cfg.n_cars:
-                raise ValueError(f"self-play state has {len(state.cars)} cars and "
-                                 f"{len(state.trained_turns)} turn counts, expected "
-                                 f"n_cars={cfg.n_cars} of each")
+                raise ValueError(
+                    f"self-play state has {len(state.cars)} cars and "
+                    f"{len(state.trained_turns)} turn counts, expected "
+                    f"n_cars={cfg.n_cars} of each"
+                )
         return state
 
     @classmethod
@@ -246,16 +283,22 @@ class SelfPlayState:
 # ---------------------------------------------------------------------- envs and opponents
 def race_config(cfg: SelfPlayConfig):
     from racing_env import RaceConfig, StartConfig
-    return RaceConfig(n_cars=cfg.n_cars, max_cycles=cfg.max_cycles, start=StartConfig(mode=cfg.start))
+
+    return RaceConfig(
+        n_cars=cfg.n_cars, max_cycles=cfg.max_cycles, start=StartConfig(mode=cfg.start)
+    )
 
 
 def make_learning_env(cfg: SelfPlayConfig, opponents: list, seed: int):
     """The learner's vectorised env (before VecMonitor / VecNormalize), seeded."""
     import copy
+
     if cfg.vec_env == "batched":
         from racing_env.vec_env import HeadToHeadVecEnv
-        venv = HeadToHeadVecEnv(cfg.n_envs, opponents=opponents, track=cfg.track,
-                                config=race_config(cfg))
+
+        venv = HeadToHeadVecEnv(
+            cfg.n_envs, opponents=opponents, track=cfg.track, config=race_config(cfg)
+        )
     else:
         import gymnasium as gym
         from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
@@ -265,10 +308,18 @@ def make_learning_env(cfg: SelfPlayConfig, opponents: list, seed: int):
 
         def make():
             opps = [copy.deepcopy(o) for o in opponents]
-            return lambda: gym.make(ENV_ID, max_episode_steps=cfg.max_cycles, opponents=opps,
-                                    track=cfg.track, config=race_config(cfg))
+            return lambda: gym.make(
+                ENV_ID,
+                max_episode_steps=cfg.max_cycles,
+                opponents=opps,
+                track=cfg.track,
+                config=race_config(cfg),
+            )
+
         fns = [make() for _ in range(cfg.n_envs)]
-        venv = DummyVecEnv(fns) if cfg.vec_env == "dummy" else SubprocVecEnv(fns, start_method="fork")
+        venv = (
+            DummyVecEnv(fns) if cfg.vec_env == "dummy" else SubprocVecEnv(fns, start_method="fork")
+        )
     venv.seed(seed)
     return venv
 
@@ -276,6 +327,7 @@ def make_learning_env(cfg: SelfPlayConfig, opponents: list, seed: int):
 def frozen_policy(path):
     """The policy of a checkpoint as a batched agent (:class:`agents.ppo_agent.FrozenPolicy`)."""
     from agents.ppo_agent import PPOAgent
+
     return PPOAgent(checkpoint=path)
 
 
@@ -283,12 +335,20 @@ def live_policy(model, cfg: SelfPlayConfig):
     """The policy being trained, as a :class:`agents.ppo_agent.FrozenPolicy` with its current
     weights and observation statistics (what a checkpoint saved now would race)."""
     from agents.ppo_agent import FrozenPolicy
-    return FrozenPolicy(model.policy, model.get_vec_normalize_env(), n_cars=cfg.n_cars,
-                        n_preview=race_config(cfg).n_preview)
+
+    return FrozenPolicy(
+        model.policy,
+        model.get_vec_normalize_env(),
+        n_cars=cfg.n_cars,
+        n_preview=race_config(cfg).n_preview,
+    )
 
 
-def _opponents(cfg: SelfPlayConfig, out: Path, state: SelfPlayState, car: int) -> tuple[list, list[str]]:
+def _opponents(
+    cfg: SelfPlayConfig, out: Path, state: SelfPlayState, car: int
+) -> tuple[list, list[str]]:
     from racing_env.controllers import RacelineFollower
+
     opps, names = [], []
     for slot, k in enumerate(j for j in range(cfg.n_cars) if j != car):
         if state.trained_turns[k] == 0 and cfg.warmup_opponent == "raceline":
@@ -306,6 +366,7 @@ def evaluate_solo(agent, cfg: SelfPlayConfig, races: int | None = None) -> dict:
     """The agent alone on the track for ``max_cycles`` steps from ``races`` fixed starts
     (seeds 0..races-1): mean distance [m] and fraction of steps off track."""
     from racing_env import RacingParallelEnv
+
     races = races or cfg.eval_races
     env = RacingParallelEnv(track=cfg.track, n_cars=1, max_cycles=cfg.max_cycles, start=cfg.start)
     dist, off = [], []
@@ -316,13 +377,17 @@ def evaluate_solo(agent, cfg: SelfPlayConfig, races: int | None = None) -> dict:
             obs, *_ = env.step({"car_0": agent.act(obs["car_0"])})
         dist.append(float(env.core.progress()[0, 0]))
         off.append(float(env.core.offtracks[0, 0]) / cfg.max_cycles)
-    return {"distance_m": float(np.mean(dist)), "off_track_frac": float(np.mean(off)),
-            "distance_per_race": dist}
+    return {
+        "distance_m": float(np.mean(dist)),
+        "off_track_frac": float(np.mean(off)),
+        "distance_per_race": dist,
+    }
 
 
 def mpc_reference(cfg: SelfPlayConfig) -> dict:
     """The fixed-parameter MPC agent (``mpc``) alone, as :func:`evaluate_solo` measures."""
     from agents.mpc_agent import MPCAgent
+
     return evaluate_solo(MPCAgent(), cfg)
 
 
@@ -341,7 +406,9 @@ class _Clock:
         self.wall, self.cpu = wall, cpu
 
 
-def _callbacks(cfg, out: Path, state: SelfPlayState, turn: int, car: int, bar, turn_start_steps: int, clock):
+def _callbacks(
+    cfg, out: Path, state: SelfPlayState, turn: int, car: int, bar, turn_start_steps: int, clock
+):
     from stable_baselines3.common.callbacks import BaseCallback
 
     class SelfPlayCheckpoint(BaseCallback):
@@ -360,15 +427,22 @@ def _callbacks(cfg, out: Path, state: SelfPlayState, turn: int, car: int, bar, t
             state.current = str(path.relative_to(out))
             state.save(out / "state.json")
             if old and old != state.current:
-                (out / old).unlink(missing_ok=True)     # superseded in-turn checkpoint
+                (out / old).unlink(missing_ok=True)  # superseded in-turn checkpoint
 
         def _on_rollout_end(self) -> None:
             buf = self.model.ep_info_buffer
             if buf:
-                state.train_curve.append({
-                    "turn": turn, "car": car, "total_steps": state.total_steps
-                    + self.model.num_timesteps - turn_start_steps - state.turn_steps,
-                    "ep_rew_mean": float(np.mean([e["r"] for e in buf]))})
+                state.train_curve.append(
+                    {
+                        "turn": turn,
+                        "car": car,
+                        "total_steps": state.total_steps
+                        + self.model.num_timesteps
+                        - turn_start_steps
+                        - state.turn_steps,
+                        "ep_rew_mean": float(np.mean([e["r"] for e in buf])),
+                    }
+                )
 
         def _on_step(self) -> bool:
             bar.update(self.training_env.num_envs)
@@ -385,19 +459,40 @@ def _advance_state(state: SelfPlayState, turn_steps: int) -> None:
 
 def _save(model, cfg, state, path: Path, car: int, turn: int, turn_steps: int, evaluation=None):
     from agents.ppo_agent import save_checkpoint
-    meta = {"n_cars": cfg.n_cars, "n_preview": race_config(cfg).n_preview, "track": cfg.track,
-            "car": car, "turn": turn, "cycle": turn // cfg.n_cars if turn >= 0 else -1,
-            "turn_steps": turn_steps, "car_timesteps": int(model.num_timesteps),
-            "trained_turns": state.trained_turns[car] if car >= 0 else 0,
-            "selfplay_config": cfg.to_dict(), "race_config": race_config(cfg).to_dict(),
-            "evaluation": evaluation, "saved": time.strftime("%Y-%m-%d %H:%M:%S")}
+
+    meta = {
+        "n_cars": cfg.n_cars,
+        "n_preview": race_config(cfg).n_preview,
+        "track": cfg.track,
+        "car": car,
+        "turn": turn,
+        "cycle": turn // cfg.n_cars if turn >= 0 else -1,
+        "turn_steps": turn_steps,
+        "car_timesteps": int(model.num_timesteps),
+        "trained_turns": state.trained_turns[car] if car >= 0 else 0,
+        "selfplay_config": cfg.to_dict(),
+        "race_config": race_config(cfg).to_dict(),
+        "evaluation": evaluation,
+        "saved": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
     return save_checkpoint(model, model.get_vec_normalize_env(), path, meta)
 
 
 # ---------------------------------------------------------------------- outputs
 def write_evals_csv(out: Path, state: SelfPlayState) -> None:
-    keys = ["phase", "turn", "cycle", "car", "total_steps", "train_seconds", "train_cpu_seconds",
-            "distance_m", "off_track_frac", "train_ep_return_m", "distance_vs_mpc"]
+    keys = [
+        "phase",
+        "turn",
+        "cycle",
+        "car",
+        "total_steps",
+        "train_seconds",
+        "train_cpu_seconds",
+        "distance_m",
+        "off_track_frac",
+        "train_ep_return_m",
+        "distance_vs_mpc",
+    ]
     buf = io.StringIO(newline="")
     w = csv.DictWriter(buf, keys, extrasaction="ignore")
     w.writeheader()
@@ -407,6 +502,7 @@ def write_evals_csv(out: Path, state: SelfPlayState) -> None:
 
 def plot_learning_curve(out: Path, state: SelfPlayState, cfg: SelfPlayConfig) -> Path:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -420,12 +516,19 @@ def plot_learning_curve(out: Path, state: SelfPlayState, cfg: SelfPlayConfig) ->
             axes[0].plot(x, [e["distance_m"] for e in ev], "o-", label=f"car {car}")
             axes[1].plot(x, [100 * e["off_track_frac"] for e in ev], "o-", label=f"car {car}")
         if tc:
-            axes[2].plot([e["total_steps"] for e in tc], [e["ep_rew_mean"] for e in tc], ".-",
-                         lw=0.8, label=f"car {car} (learning)")
+            axes[2].plot(
+                [e["total_steps"] for e in tc],
+                [e["ep_rew_mean"] for e in tc],
+                ".-",
+                lw=0.8,
+                label=f"car {car} (learning)",
+            )
     bc = [e for e in state.evals if e["phase"] == "bc"]
     if bc:
         axes[0].plot([0], [bc[-1]["distance_m"]], "k*", ms=10, label="behaviour-cloned start")
-        axes[1].plot([0], [100 * bc[-1]["off_track_frac"]], "k*", ms=10, label="behaviour-cloned start")
+        axes[1].plot(
+            [0], [100 * bc[-1]["off_track_frac"]], "k*", ms=10, label="behaviour-cloned start"
+        )
     if ref:
         axes[0].axhline(ref["distance_m"], color="k", ls="--", lw=1, label="MPC alone")
         axes[0].axhline(0.8 * ref["distance_m"], color="k", ls=":", lw=1, label="80% of MPC")
@@ -438,8 +541,10 @@ def plot_learning_curve(out: Path, state: SelfPlayState, cfg: SelfPlayConfig) ->
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, loc="best")
-    axes[0].set_title(f"PPO self-play: {cfg.n_cars} cars, {cfg.cycles} cycles x "
-                      f"{cfg.steps_per_turn_actual} steps per turn")
+    axes[0].set_title(
+        f"PPO self-play: {cfg.n_cars} cars, {cfg.cycles} cycles x "
+        f"{cfg.steps_per_turn_actual} steps per turn"
+    )
     fig.tight_layout()
     path = out / "learning_curve.png"
     with atomic_path(path, ".png") as tmp:
@@ -451,10 +556,23 @@ def plot_learning_curve(out: Path, state: SelfPlayState, cfg: SelfPlayConfig) ->
 # ---------------------------------------------------------------------- the pipeline
 def _new_model(cfg: SelfPlayConfig, env, seed: int):
     from stable_baselines3 import PPO
-    return PPO("MlpPolicy", env, learning_rate=cfg.learning_rate, n_steps=cfg.n_steps,
-               batch_size=cfg.batch_size, n_epochs=cfg.n_epochs, gamma=cfg.gamma,
-               gae_lambda=cfg.gae_lambda, clip_range=cfg.clip_range, ent_coef=cfg.ent_coef,
-               policy_kwargs={"net_arch": list(cfg.net_arch)}, seed=seed, device="cpu", verbose=0)
+
+    return PPO(
+        "MlpPolicy",
+        env,
+        learning_rate=cfg.learning_rate,
+        n_steps=cfg.n_steps,
+        batch_size=cfg.batch_size,
+        n_epochs=cfg.n_epochs,
+        gamma=cfg.gamma,
+        gae_lambda=cfg.gae_lambda,
+        clip_range=cfg.clip_range,
+        ent_coef=cfg.ent_coef,
+        policy_kwargs={"net_arch": list(cfg.net_arch)},
+        seed=seed,
+        device="cpu",
+        verbose=0,
+    )
 
 
 def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: SelfPlayState, bar) -> str:
@@ -463,10 +581,20 @@ def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: SelfPlayState,
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
     from racing_env.vec_env import HeadToHeadVecEnv
-    venv = VecNormalize(VecMonitor(HeadToHeadVecEnv(cfg.n_envs, n_cars=cfg.n_cars, track=cfg.track,
-                                                    config=race_config(cfg),
-                                                    opponents=[_Idle()] * (cfg.n_cars - 1))),
-                        gamma=cfg.gamma, norm_reward=cfg.norm_reward)
+
+    venv = VecNormalize(
+        VecMonitor(
+            HeadToHeadVecEnv(
+                cfg.n_envs,
+                n_cars=cfg.n_cars,
+                track=cfg.track,
+                config=race_config(cfg),
+                opponents=[_Idle()] * (cfg.n_cars - 1),
+            )
+        ),
+        gamma=cfg.gamma,
+        norm_reward=cfg.norm_reward,
+    )
     model = _new_model(cfg, venv, cfg.seed)
     c0 = time.process_time()
     fit = behaviour_cloning(model, cfg, cfg.seed, race_config(cfg), RACELINE_GRIP)
@@ -476,8 +604,10 @@ def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: SelfPlayState,
     _save(model, cfg, state, path, -1, -1, 0, {**ev, "bc": fit})
     state.evals = [e for e in state.evals if e["phase"] != "bc"]
     state.evals.append(_eval_row(cfg, state, -1, -1, ev, None, phase="bc"))
-    bar.write(f"behaviour cloning (every car's start): {fit['samples']} samples, mse {fit['mse']:.4f}, "
-              f"alone {ev['distance_m']:.1f} m, off track {100 * ev['off_track_frac']:.1f}%")
+    bar.write(
+        f"behaviour cloning (every car's start): {fit['samples']} samples, mse {fit['mse']:.4f}, "
+        f"alone {ev['distance_m']:.1f} m, off track {100 * ev['off_track_frac']:.1f}%"
+    )
     return str(path.relative_to(out))
 
 
@@ -491,12 +621,15 @@ class _Idle:
         return np.zeros(2, np.float32)
 
 
-def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns: int | None = None) -> dict:
+def selfplay(
+    cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns: int | None = None
+) -> dict:
     """Train (or resume) the self-play run in ``out_dir``; returns the summary.
 
     ``max_turns`` stops after that many turns in this call (the run stays resumable).
     """
     from racing_env.extras import require
+
     for module in ("torch", "stable_baselines3", "tensorboard"):
         require(module, "self-play training (alpha-racer selfplay)")
     import torch
@@ -511,24 +644,38 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
     out.mkdir(parents=True, exist_ok=True)
     for sub in ("checkpoints/partial", "logs", "final"):
         (out / sub).mkdir(parents=True, exist_ok=True)
-    claim(out / "config.json", {"schema_version": SCHEMA_VERSION, "config": cfg.to_dict()},
-          "a self-play run")
+    claim(
+        out / "config.json",
+        {"schema_version": SCHEMA_VERSION, "config": cfg.to_dict()},
+        "a self-play run",
+    )
     state_path = out / "state.json"
     state = SelfPlayState.load(state_path, cfg)
     if cfg.mpc_reference and state.mpc_reference is None:
         state.mpc_reference = mpc_reference(cfg)
         state.save(state_path)
-    eval_logger = Logger(str(out / "logs" / "eval"), [make_output_format("tensorboard", str(out / "logs" / "eval"))])
+    eval_logger = Logger(
+        str(out / "logs" / "eval"), [make_output_format("tensorboard", str(out / "logs" / "eval"))]
+    )
 
     total = cfg.turns * cfg.steps_per_turn_actual
-    bar = tqdm(total=total, initial=state.total_steps, unit="step", desc="selfplay",
-               disable=not progress_bar, smoothing=0.05, dynamic_ncols=True)
+    bar = tqdm(
+        total=total,
+        initial=state.total_steps,
+        unit="step",
+        desc="selfplay",
+        disable=not progress_bar,
+        smoothing=0.05,
+        dynamic_ncols=True,
+    )
     turns_run = 0
     while state.turn < cfg.turns and (max_turns is None or turns_run < max_turns):
         turn = state.turn
         car = turn % cfg.n_cars
         opponents, names = _opponents(cfg, out, state, car)
-        seed = int(np.random.SeedSequence([cfg.seed, turn, state.turn_steps]).generate_state(1)[0] % 2 ** 31)
+        seed = int(
+            np.random.SeedSequence([cfg.seed, turn, state.turn_steps]).generate_state(1)[0] % 2**31
+        )
         venv = VecMonitor(make_learning_env(cfg, opponents, seed))
         resume_from = state.current or state.cars[car]
         if not resume_from and cfg.init == "bc":
@@ -545,13 +692,21 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
         else:
             vecnorm = VecNormalize(venv, gamma=cfg.gamma, norm_reward=cfg.norm_reward)
             model = _new_model(cfg, vecnorm, cfg.seed + car)
-        model.set_random_seed(seed)                      # seeds the venv too
-        model.ep_info_buffer = None                      # episode stats of this turn only
+        model.set_random_seed(seed)  # seeds the venv too
+        model.ep_info_buffer = None  # episode stats of this turn only
         log_dir = out / "logs" / f"car_{car}"
         log_dir.mkdir(parents=True, exist_ok=True)
-        model.set_logger(Logger(str(log_dir), [
-            make_output_format("tensorboard", str(log_dir)),
-            CSVOutputFormat(str(log_dir / f"progress_turn{turn:03d}_{state.turn_steps:09d}.csv"))]))
+        model.set_logger(
+            Logger(
+                str(log_dir),
+                [
+                    make_output_format("tensorboard", str(log_dir)),
+                    CSVOutputFormat(
+                        str(log_dir / f"progress_turn{turn:03d}_{state.turn_steps:09d}.csv")
+                    ),
+                ],
+            )
+        )
         turn_start = model.num_timesteps - state.turn_steps
         bar.set_postfix_str(f"turn {turn + 1}/{cfg.turns} car {car} vs {', '.join(names)}")
         clock = _Clock(state)
@@ -585,11 +740,13 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
         eval_logger.dump(step=state.total_steps)
         write_evals_csv(out, state)
         plot_learning_curve(out, state, cfg)
-        bar.write(f"turn {turn + 1}/{cfg.turns} car {car}: {state.total_steps} steps, "
-                  f"alone {row['distance_m']:.1f} m"
-                  + (f" ({100 * row['distance_vs_mpc']:.0f}% of MPC)" if ref else "")
-                  + f", off track {100 * row['off_track_frac']:.1f}%"
-                  + (f", training return {row['train_ep_return_m']:.2f} m" if ep else ""))
+        bar.write(
+            f"turn {turn + 1}/{cfg.turns} car {car}: {state.total_steps} steps, "
+            f"alone {row['distance_m']:.1f} m"
+            + (f" ({100 * row['distance_vs_mpc']:.0f}% of MPC)" if ref else "")
+            + f", off track {100 * row['off_track_frac']:.1f}%"
+            + (f", training return {row['train_ep_return_m']:.2f} m" if ep else "")
+        )
         turns_run += 1
     bar.close()
     eval_logger.close()
@@ -598,21 +755,41 @@ def selfplay(cfg: SelfPlayConfig, out_dir, progress_bar: bool = True, max_turns:
 
 def _eval_row(cfg, state, turn, car, evaluation, ep_return, phase="ppo") -> dict:
     ref = state.mpc_reference
-    return {"phase": phase, "turn": turn, "cycle": turn // cfg.n_cars if turn >= 0 else -1, "car": car,
-            "total_steps": state.total_steps, "train_seconds": round(state.train_seconds, 1),
-            "train_cpu_seconds": round(state.train_cpu_seconds, 1),
-            "distance_m": round(evaluation["distance_m"], 3),
-            "off_track_frac": round(evaluation["off_track_frac"], 4),
-            "train_ep_return_m": None if ep_return is None else round(ep_return, 3),
-            "distance_vs_mpc": round(evaluation["distance_m"] / ref["distance_m"], 4) if ref else None}
+    return {
+        "phase": phase,
+        "turn": turn,
+        "cycle": turn // cfg.n_cars if turn >= 0 else -1,
+        "car": car,
+        "total_steps": state.total_steps,
+        "train_seconds": round(state.train_seconds, 1),
+        "train_cpu_seconds": round(state.train_cpu_seconds, 1),
+        "distance_m": round(evaluation["distance_m"], 3),
+        "off_track_frac": round(evaluation["off_track_frac"], 4),
+        "train_ep_return_m": None if ep_return is None else round(ep_return, 3),
+        "distance_vs_mpc": round(evaluation["distance_m"] / ref["distance_m"], 4) if ref else None,
+    }
 
 
-CLI_FLAGS = {"n_cars": "--cars", "cycles": "--cycles", "steps_per_turn": "--steps-per-turn",
-             "n_envs": "--envs", "batch_size": "--batch-size", "n_epochs": "--epochs",
-             "learning_rate": "--lr", "gamma": "--gamma", "n_steps": "--n-steps", "track": "--track",
-             "max_cycles": "--race-steps", "seed": "--seed", "vec_env": "--vec-env",
-             "warmup_opponent": "--warmup-opponent", "checkpoint_every": "--checkpoint-every",
-             "eval_races": "--eval-races", "init": "--init", "bc_steps": "--bc-steps"}
+CLI_FLAGS = {
+    "n_cars": "--cars",
+    "cycles": "--cycles",
+    "steps_per_turn": "--steps-per-turn",
+    "n_envs": "--envs",
+    "batch_size": "--batch-size",
+    "n_epochs": "--epochs",
+    "learning_rate": "--lr",
+    "gamma": "--gamma",
+    "n_steps": "--n-steps",
+    "track": "--track",
+    "max_cycles": "--race-steps",
+    "seed": "--seed",
+    "vec_env": "--vec-env",
+    "warmup_opponent": "--warmup-opponent",
+    "checkpoint_every": "--checkpoint-every",
+    "eval_races": "--eval-races",
+    "init": "--init",
+    "bc_steps": "--bc-steps",
+}
 
 
 def command_line(cfg: SelfPlayConfig, out: str) -> str:
@@ -635,45 +812,69 @@ def command_line(cfg: SelfPlayConfig, out: str) -> str:
 def model_card(cfg: SelfPlayConfig, summary: dict, state: SelfPlayState) -> str:
     """Markdown description of the run's ``best.zip``: command, schedule, time, figures."""
     b, ref = summary["best"], summary["mpc_reference"]
-    lines = [f"# PPO self-play checkpoint (car {b['car']} of a {cfg.n_cars}-car run)", "",
-             "Trained by", "", "```bash",
-             command_line(cfg, "runs/ppo_default")
-             + ("" if summary["done"] else f" --max-turns {summary['turns']}"),
-             "```", "",
-             "(then `best.zip` of that folder is this checkpoint; `--max-turns` stops the run after "
-             "that many turns, so the schedule below was cut short there)" if not summary["done"]
-             else "(`best.zip` of that folder is this checkpoint)", "",
-             f"* schedule: {cfg.n_cars} cars x {cfg.cycles} cycles x {cfg.steps_per_turn_actual} "
-             f"env steps per turn ({cfg.steps_per_turn} rounded up to whole rollouts of "
-             f"{cfg.n_steps} x {cfg.n_envs}); the paper's is 33 cycles x 100k"
-             + (" (this is a reduced schedule)" if cfg.cycles < 33 else ""),
-             f"* PPO: batch {cfg.batch_size}, {cfg.n_epochs} epochs, lr {cfg.learning_rate}, "
-             f"gamma {cfg.gamma}, {cfg.n_envs} parallel races, net {list(cfg.net_arch)}; "
-             f"start: {cfg.init}" + (" (behaviour cloning of the raceline follower, "
-                                     f"{cfg.bc_rounds} DAgger rounds of {cfg.bc_steps} steps)"
-                                     if cfg.init == "bc" else ""),
-             f"* {summary['turns']}/{cfg.turns} turns, {summary['total_steps']} PPO env steps, "
-             f"{summary['train_seconds']:.0f} s of training wall time ({summary['steps_per_s']} "
-             f"steps/s), {summary['train_cpu_seconds']:.0f} CPU s ({summary['steps_per_cpu_s']} steps per CPU s)"
-             + (f"; behaviour cloning {summary['bc_cpu_seconds']:.0f} CPU s" if summary.get("bc_cpu_seconds") else ""),
-             "",
-             f"Alone on `{cfg.track}` for {cfg.max_cycles / 10:.0f} s ({cfg.eval_races} fixed starts):",
-             ""]
+    lines = [
+        f"# PPO self-play checkpoint (car {b['car']} of a {cfg.n_cars}-car run)",
+        "",
+        "Trained by",
+        "",
+        "```bash",
+        command_line(cfg, "runs/ppo_default")
+        + ("" if summary["done"] else f" --max-turns {summary['turns']}"),
+        "```",
+        "",
+        "(then `best.zip` of that folder is this checkpoint; `--max-turns` stops the run after "
+        "that many turns, so the schedule below was cut short there)"
+        if not summary["done"]
+        else "(`best.zip` of that folder is this checkpoint)",
+        "",
+        f"* schedule: {cfg.n_cars} cars x {cfg.cycles} cycles x {cfg.steps_per_turn_actual} "
+        f"env steps per turn ({cfg.steps_per_turn} rounded up to whole rollouts of "
+        f"{cfg.n_steps} x {cfg.n_envs}); the paper's is 33 cycles x 100k"
+        + (" (this is a reduced schedule)" if cfg.cycles < 33 else ""),
+        f"* PPO: batch {cfg.batch_size}, {cfg.n_epochs} epochs, lr {cfg.learning_rate}, "
+        f"gamma {cfg.gamma}, {cfg.n_envs} parallel races, net {list(cfg.net_arch)}; "
+        f"start: {cfg.init}"
+        + (
+            " (behaviour cloning of the raceline follower, "
+            f"{cfg.bc_rounds} DAgger rounds of {cfg.bc_steps} steps)"
+            if cfg.init == "bc"
+            else ""
+        ),
+        f"* {summary['turns']}/{cfg.turns} turns, {summary['total_steps']} PPO env steps, "
+        f"{summary['train_seconds']:.0f} s of training wall time ({summary['steps_per_s']} "
+        f"steps/s), {summary['train_cpu_seconds']:.0f} CPU s ({summary['steps_per_cpu_s']} steps per CPU s)"
+        + (
+            f"; behaviour cloning {summary['bc_cpu_seconds']:.0f} CPU s"
+            if summary.get("bc_cpu_seconds")
+            else ""
+        ),
+        "",
+        f"Alone on `{cfg.track}` for {cfg.max_cycles / 10:.0f} s ({cfg.eval_races} fixed starts):",
+        "",
+    ]
     if ref:
-        lines.append(f"* fixed-parameter MPC (`mpc`): {ref['distance_m']:.1f} m, "
-                     f"off track {100 * ref['off_track_frac']:.1f}% of steps")
-    lines += [f"* this checkpoint: {b['distance_m']:.1f} m"
-              + (f" ({100 * b['distance_vs_mpc']:.0f}% of the MPC)" if b.get("distance_vs_mpc") else "")
-              + f", off track {100 * b['off_track_frac']:.1f}% of steps", "",
-              "Over training (each car after each of its turns; `bc` = the shared start):", "",
-              "| phase | turn | car | total steps | distance m | vs MPC | off track % | training return m |",
-              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines.append(
+            f"* fixed-parameter MPC (`mpc`): {ref['distance_m']:.1f} m, "
+            f"off track {100 * ref['off_track_frac']:.1f}% of steps"
+        )
+    lines += [
+        f"* this checkpoint: {b['distance_m']:.1f} m"
+        + (f" ({100 * b['distance_vs_mpc']:.0f}% of the MPC)" if b.get("distance_vs_mpc") else "")
+        + f", off track {100 * b['off_track_frac']:.1f}% of steps",
+        "",
+        "Over training (each car after each of its turns; `bc` = the shared start):",
+        "",
+        "| phase | turn | car | total steps | distance m | vs MPC | off track % | training return m |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for e in state.evals:
         vs = f"{100 * e['distance_vs_mpc']:.0f}%" if e.get("distance_vs_mpc") else "-"
         tr = "-" if e.get("train_ep_return_m") is None else f"{e['train_ep_return_m']:.1f}"
-        lines.append(f"| {e['phase']} | {e['turn'] + 1 if e['turn'] >= 0 else '-'} | "
-                     f"{e['car'] if e['car'] >= 0 else 'all'} | {e['total_steps']} | "
-                     f"{e['distance_m']:.1f} | {vs} | {100 * e['off_track_frac']:.1f} | {tr} |")
+        lines.append(
+            f"| {e['phase']} | {e['turn'] + 1 if e['turn'] >= 0 else '-'} | "
+            f"{e['car'] if e['car'] >= 0 else 'all'} | {e['total_steps']} | "
+            f"{e['distance_m']:.1f} | {vs} | {100 * e['off_track_frac']:.1f} | {tr} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -689,15 +890,20 @@ def summarize(cfg: SelfPlayConfig, state: SelfPlayState, out) -> dict:
         ok = [e for e in last.values() if e["off_track_frac"] < OFFTRACK_BAR] or list(last.values())
         best = max(ok, key=lambda e: e["distance_m"])
     wall, cpu = state.train_seconds, state.train_cpu_seconds
-    return {"done": state.turn >= cfg.turns, "turns": state.turn, "total_steps": state.total_steps,
-            "train_seconds": round(wall, 1),
-            "steps_per_s": round(state.total_steps / wall, 1) if wall else None,
-            "train_cpu_seconds": round(cpu, 1),
-            "steps_per_cpu_s": round(state.total_steps / cpu, 1) if cpu else None,
-            "bc_cpu_seconds": state.bc_cpu_seconds,
-            "mpc_reference": state.mpc_reference, "final": last,
-            "best": None if best is None else {"path": state.cars[best["car"]], **best},
-            "out": str(out)}
+    return {
+        "done": state.turn >= cfg.turns,
+        "turns": state.turn,
+        "total_steps": state.total_steps,
+        "train_seconds": round(wall, 1),
+        "steps_per_s": round(state.total_steps / wall, 1) if wall else None,
+        "train_cpu_seconds": round(cpu, 1),
+        "steps_per_cpu_s": round(state.total_steps / cpu, 1) if cpu else None,
+        "bc_cpu_seconds": state.bc_cpu_seconds,
+        "mpc_reference": state.mpc_reference,
+        "final": last,
+        "best": None if best is None else {"path": state.cars[best["car"]], **best},
+        "out": str(out),
+    }
 
 
 def finish(cfg: SelfPlayConfig, out: Path, state: SelfPlayState) -> dict:

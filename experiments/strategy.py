@@ -37,6 +37,7 @@ Output folder (``out``, default ``results/strategy``; run again to resume):
 
 The pass and contact metrics are :mod:`experiments.metrics`'.
 """
+
 from __future__ import annotations
 
 import time
@@ -111,23 +112,35 @@ class StrategyConfig:
             if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
                 raise ValueError(f"StrategyConfig.{name} must be a positive integer, got {v!r}")
         if isinstance(self.seed, bool) or not (isinstance(self.seed, int) and self.seed >= 0):
-            raise ValueError(f"StrategyConfig.seed must be a non-negative integer, got "
-                             f"{self.seed!r}")
+            raise ValueError(
+                f"StrategyConfig.seed must be a non-negative integer, got {self.seed!r}"
+            )
         check_spec_fields(self, ("ego", "control", "pass_opponents"))
         if self.ego == self.control:
-            raise ValueError(f"the ego and the control are the same spec {self.ego!r}; "
-                             f"the suite compares two agents")
+            raise ValueError(
+                f"the ego and the control are the same spec {self.ego!r}; "
+                f"the suite compares two agents"
+            )
         bad = [s for s in self.scenarios if s not in SCENARIOS]
         if not self.scenarios or bad or len(set(self.scenarios)) != len(self.scenarios):
-            raise ValueError(f"scenarios must be distinct names of {', '.join(SCENARIOS)}, got "
-                             f"{list(self.scenarios)}")
-        if not self.tracks or len(set(self.tracks)) != len(self.tracks) or \
-                not all(isinstance(t, str) and t for t in self.tracks):
+            raise ValueError(
+                f"scenarios must be distinct names of {', '.join(SCENARIOS)}, got "
+                f"{list(self.scenarios)}"
+            )
+        if (
+            not self.tracks
+            or len(set(self.tracks)) != len(self.tracks)
+            or not all(isinstance(t, str) and t for t in self.tracks)
+        ):
             raise ValueError(f"tracks must be distinct track specs, got {list(self.tracks)}")
-        if isinstance(self.zeta_max, bool) or not isinstance(self.zeta_max, (int, float)) \
-                or not 0.8 <= self.zeta_max <= 1.05:
-            raise ValueError(f"zeta_max must be in the theta box's zeta range [0.8, 1.05], "
-                             f"got {self.zeta_max!r}")
+        if (
+            isinstance(self.zeta_max, bool)
+            or not isinstance(self.zeta_max, (int, float))
+            or not 0.8 <= self.zeta_max <= 1.05
+        ):
+            raise ValueError(
+                f"zeta_max must be in the theta box's zeta range [0.8, 1.05], got {self.zeta_max!r}"
+            )
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -169,14 +182,16 @@ def cells(config: StrategyConfig) -> list[Cell]:
             for role, spec in (("ego", config.ego), ("control", config.control)):
                 kw = dict(races=config.races, steps=config.steps, track=track, seed=config.seed)
                 if bench == "pass":
-                    cfg = BenchConfig(ego=spec, opponents=config.pass_opponents,
-                                      ego_regions=("R2", "R3"), **kw)
+                    cfg = BenchConfig(
+                        ego=spec, opponents=config.pass_opponents, ego_regions=("R2", "R3"), **kw
+                    )
                 elif bench == "equal":
                     cfg = BenchConfig(ego=spec, opponents=config.control, **kw)
                 elif bench == "defend":
-                    cfg = BenchConfig(ego=config.capped(spec), opponents=config.control,
-                                      ego_regions=("R1",), **kw)
-                else:   # the scenario's races shared among its opponents (33 each of 99)
+                    cfg = BenchConfig(
+                        ego=config.capped(spec), opponents=config.control, ego_regions=("R1",), **kw
+                    )
+                else:  # the scenario's races shared among its opponents (33 each of 99)
                     kw["races"] = max(1, config.races // len(TABLE1_OPPONENTS))
                     cfg = BenchConfig(ego=spec, opponents=bench.removeprefix("table1_"), **kw)
                 out.append(Cell(bench, track, role, cfg))
@@ -188,11 +203,13 @@ def solo_pace(spec: str, track: str, steps: int, seed: int) -> dict:
     """Progress [m] of ``spec`` alone from the grid in ``steps`` control periods (pure: no
     file access); ``progress_m`` None and ``reason`` when the agent cannot race alone."""
     from .race import run_race
+
     warnings.simplefilter("ignore")
     rec = {"spec": spec, "track": track, "steps": steps, "seed": seed}
     try:
-        result, _ = run_race([spec], track=track, seed=seed, max_cycles=steps, start="grid",
-                             progress_bar=False)
+        result, _ = run_race(
+            [spec], track=track, seed=seed, max_cycles=steps, start="grid", progress_bar=False
+        )
     except ValueError as exc:
         return {**rec, "progress_m": None, "reason": f"cannot race alone: {exc}"}
     return {**rec, "progress_m": round(float(result.progress[0]), 4)}
@@ -220,35 +237,54 @@ class PaceRun(ResumableRun):
         return (record["spec"], record["track"], record["steps"], record["seed"])
 
 
-def measure_pace(config: StrategyConfig, out, workers: int, backend: str, address,
-                 progress_bar: bool) -> dict:
+def measure_pace(
+    config: StrategyConfig, out, workers: int, backend: str, address, progress_bar: bool
+) -> dict:
     """The defend scenario's solo races (missing ones raced, ``pace.jsonl`` resumed);
     returns per track ``{"progress_m": {spec: m or None}, "reasons": {spec: text},
     "gaps": {capped spec: opponent / capped - 1}, "ok": every measured gap >= PACE_GAP and at
     least one measured}``."""
     run = PaceRun(out, config)
     specs = pace_specs(config)
-    run.run_missing(solo_pace, lambda task: task, workers, backend, address, desc="solo pace",
-                    unit="race", progress_bar=progress_bar)
+    run.run_missing(
+        solo_pace,
+        lambda task: task,
+        workers,
+        backend,
+        address,
+        desc="solo pace",
+        unit="race",
+        progress_bar=progress_bar,
+    )
     done = run.records()
     out_pace = {}
     for track in config.tracks:
         recs = {spec: done[(spec, track, config.steps, config.seed)] for spec in specs}
         progress = {spec: r["progress_m"] for spec, r in recs.items()}
         opp = progress[config.control]
-        gaps = {spec: (None if progress[spec] is None or opp is None
-                       else opp / progress[spec] - 1.0) for spec in specs[:2]}
+        gaps = {
+            spec: (None if progress[spec] is None or opp is None else opp / progress[spec] - 1.0)
+            for spec in specs[:2]
+        }
         measured = [g for g in gaps.values() if g is not None]
-        out_pace[track] = {"progress_m": progress,
-                           "reasons": {s: r["reason"] for s, r in recs.items() if "reason" in r},
-                           "gaps": gaps, "ok": bool(measured) and min(measured) >= PACE_GAP}
+        out_pace[track] = {
+            "progress_m": progress,
+            "reasons": {s: r["reason"] for s, r in recs.items() if "reason" in r},
+            "gaps": gaps,
+            "ok": bool(measured) and min(measured) >= PACE_GAP,
+        }
     return out_pace
 
 
 # ---------------------------------------------------------------------------- driver
-def strategy(config: StrategyConfig, out_dir="results/strategy", workers: int = 2,
-             backend: str = "local", address: str | None = None,
-             progress_bar: bool = True) -> dict:
+def strategy(
+    config: StrategyConfig,
+    out_dir="results/strategy",
+    workers: int = 2,
+    backend: str = "local",
+    address: str | None = None,
+    progress_bar: bool = True,
+) -> dict:
     """Run (or resume) the suite ``config`` into ``out_dir`` (module docstring): the defend
     scenario's solo pace races, then every bench's missing races in one pool; writes
     ``strategy.json`` and ``strategy.md`` and returns the former's content with
@@ -269,17 +305,40 @@ def strategy(config: StrategyConfig, out_dir="results/strategy", workers: int = 
     wall = time.perf_counter() - t0
     history = out / "runs.jsonl"
     if new:
-        append_jsonl(history, {"config": config.to_dict(), "races_simulated": new,
-                               "wall_seconds": wall, "workers": workers, "backend": backend,
-                               "finished": time.strftime("%Y-%m-%dT%H:%M:%S")})
+        append_jsonl(
+            history,
+            {
+                "config": config.to_dict(),
+                "races_simulated": new,
+                "wall_seconds": wall,
+                "workers": workers,
+                "backend": backend,
+                "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
+            },
+        )
     summaries = {k: run.write_summary() for k, run in runs.items()}
-    table = {"schema_version": SCHEMA_VERSION, "config": config.to_dict(),
-             "pace_gap_required": PACE_GAP, "pace": pace,
-             "flags": pace_flags(config, pace),
-             "rows": [table_row(b, t, summaries[(b, t, "ego")], summaries[(b, t, "control")],
-                                runs[(b, t, "ego")].out, runs[(b, t, "control")].out, out)
-                      for b in bench_names(config.scenarios) for t in config.tracks],
-             "runs": read_jsonl(history), "wall_seconds_this_run": wall}
+    table = {
+        "schema_version": SCHEMA_VERSION,
+        "config": config.to_dict(),
+        "pace_gap_required": PACE_GAP,
+        "pace": pace,
+        "flags": pace_flags(config, pace),
+        "rows": [
+            table_row(
+                b,
+                t,
+                summaries[(b, t, "ego")],
+                summaries[(b, t, "control")],
+                runs[(b, t, "ego")].out,
+                runs[(b, t, "control")].out,
+                out,
+            )
+            for b in bench_names(config.scenarios)
+            for t in config.tracks
+        ],
+        "runs": read_jsonl(history),
+        "wall_seconds_this_run": wall,
+    }
     write_json(out / "strategy.json", table)
     write_text(out / "strategy.md", strategy_markdown(table))
     return {**table, "new_races": new}
@@ -294,46 +353,56 @@ def pace_flags(config: StrategyConfig, pace: dict | None) -> list[str]:
             continue
         measured = {s: g for s, g in p["gaps"].items() if g is not None}
         if not measured:
-            flags.append(f"defend on {track}: no capped ego could be measured alone, the pace "
-                         f"gap is unknown")
+            flags.append(
+                f"defend on {track}: no capped ego could be measured alone, the pace gap is unknown"
+            )
         else:
-            flags.append(f"defend on {track}: the opponents ({config.control}) are not "
-                         f"{100 * PACE_GAP:g}% faster alone than "
-                         + ", ".join(f"{s} ({100 * g:+.1f}%)" for s, g in measured.items()
-                                     if g < PACE_GAP)
-                         + "; this defend row does not measure defending against a faster car")
+            flags.append(
+                f"defend on {track}: the opponents ({config.control}) are not "
+                f"{100 * PACE_GAP:g}% faster alone than "
+                + ", ".join(f"{s} ({100 * g:+.1f}%)" for s, g in measured.items() if g < PACE_GAP)
+                + "; this defend row does not measure defending against a faster car"
+            )
     return flags
 
 
 def _side(s: dict) -> dict:
     st = s["strategy"]
-    return {"races": s["races"], "wins": s["wins"]["ego"]["wins"],
-            "wins_by_region": {reg: w["ego"]["wins"] for reg, w in s["by_region"].items()},
-            "races_by_region": {reg: w["ego"]["races"] for reg, w in s["by_region"].items()},
-            "passes": st["passes"] and st["passes"]["ego"],
-            "passes_contact": st["passes_contact"] and st["passes_contact"]["ego"],
-            "opponent_passes": st["passes"] and sum(v for r, v in st["passes"].items()
-                                                    if r != "ego"),
-            "wins_from_behind": st["wins_from_behind"] and st["wins_from_behind"]["ego"],
-            "margin_m_mean": s["margin_m"]["mean"],
-            "behind_1m_s": st["behind_1m_s"] and st["behind_1m_s"]["ego"],
-            "complete": s["complete"]}
+    return {
+        "races": s["races"],
+        "wins": s["wins"]["ego"]["wins"],
+        "wins_by_region": {reg: w["ego"]["wins"] for reg, w in s["by_region"].items()},
+        "races_by_region": {reg: w["ego"]["races"] for reg, w in s["by_region"].items()},
+        "passes": st["passes"] and st["passes"]["ego"],
+        "passes_contact": st["passes_contact"] and st["passes_contact"]["ego"],
+        "opponent_passes": st["passes"] and sum(v for r, v in st["passes"].items() if r != "ego"),
+        "wins_from_behind": st["wins_from_behind"] and st["wins_from_behind"]["ego"],
+        "margin_m_mean": s["margin_m"]["mean"],
+        "behind_1m_s": st["behind_1m_s"] and st["behind_1m_s"]["ego"],
+        "complete": s["complete"],
+    }
 
 
-def table_row(bench: str, track: str, ego: dict, control: dict, ego_dir, control_dir,
-              out) -> dict:
+def table_row(bench: str, track: str, ego: dict, control: dict, ego_dir, control_dir, out) -> dict:
     """One row of the suite's table from the ego's and the control's bench summaries."""
-    return {"bench": bench, "track": track, "ego_spec": ego["config"]["ego"],
-            "control_spec": control["config"]["ego"], "opponents": ego["config"]["opponents"],
-            "ego": _side(ego), "control": _side(control),
-            "ego_dir": str(Path(ego_dir).relative_to(out)),
-            "control_dir": str(Path(control_dir).relative_to(out))}
+    return {
+        "bench": bench,
+        "track": track,
+        "ego_spec": ego["config"]["ego"],
+        "control_spec": control["config"]["ego"],
+        "opponents": ego["config"]["opponents"],
+        "ego": _side(ego),
+        "control": _side(control),
+        "ego_dir": str(Path(ego_dir).relative_to(out)),
+        "control_dir": str(Path(control_dir).relative_to(out)),
+    }
 
 
 def _wins(side: dict) -> str:
     split = " / ".join(f"{reg} {w}" for reg, w in side["wins_by_region"].items())
-    return f"{side['wins']}/{side['races']}" + (f" ({split})" if len(side["wins_by_region"]) > 1
-                                                else "")
+    return f"{side['wins']}/{side['races']}" + (
+        f" ({split})" if len(side["wins_by_region"]) > 1 else ""
+    )
 
 
 def _pair(a, b, fmt: str = "{}") -> str:
@@ -343,22 +412,26 @@ def _pair(a, b, fmt: str = "{}") -> str:
 
 def strategy_markdown(table: dict) -> str:
     c = table["config"]
-    lines = ["# Strategy benchmark", "",
-             f"Ego `{c['ego']}` and control `{c['control']}` in the same seats and races: "
-             f"{c['races']} races per bench of {c['steps']} steps ({c['steps'] / 10:g} s), three "
-             f"cars, seed {c['seed']}. `pass`: behind two "
-             f"`{c.get('pass_opponents', PASS_OPPONENTS)}` cars from R2 and R3 "
-             f"in turn; `equal`: against two control cars from R1, R2, R3 in turn; `defend`: "
-             f"from R1 with a zeta ceiling of {c['zeta_max']:g} against two control cars "
-             f"without it; `table1_*`: against two cars of the paper's opponents from R1, R2, "
-             f"R3 in turn. Passes: held 1 s, clear sideways at the crossing (totals over the "
-             f"races); wins from behind: the winner did not start at the front; margin: the "
-             f"ego's progress minus the best opponent's; time within 1 m behind another car: "
-             f"mean seconds per race. Cells: ego / control.", "",
-             "| scenario | track | opponents | ego wins | control wins | passes | passes "
-             "through contact | opponents' passes | wins from behind | mean margin m "
-             "| within 1 m behind s |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Strategy benchmark",
+        "",
+        f"Ego `{c['ego']}` and control `{c['control']}` in the same seats and races: "
+        f"{c['races']} races per bench of {c['steps']} steps ({c['steps'] / 10:g} s), three "
+        f"cars, seed {c['seed']}. `pass`: behind two "
+        f"`{c.get('pass_opponents', PASS_OPPONENTS)}` cars from R2 and R3 "
+        f"in turn; `equal`: against two control cars from R1, R2, R3 in turn; `defend`: "
+        f"from R1 with a zeta ceiling of {c['zeta_max']:g} against two control cars "
+        f"without it; `table1_*`: against two cars of the paper's opponents from R1, R2, "
+        f"R3 in turn. Passes: held 1 s, clear sideways at the crossing (totals over the "
+        f"races); wins from behind: the winner did not start at the front; margin: the "
+        f"ego's progress minus the best opponent's; time within 1 m behind another car: "
+        f"mean seconds per race. Cells: ego / control.",
+        "",
+        "| scenario | track | opponents | ego wins | control wins | passes | passes "
+        "through contact | opponents' passes | wins from behind | mean margin m "
+        "| within 1 m behind s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in table["rows"]:
         e, k = r["ego"], r["control"]
         partial = "" if e["complete"] and k["complete"] else " (partial)"
@@ -369,17 +442,29 @@ def strategy_markdown(table: dict) -> str:
             f"| {_pair(e['opponent_passes'], k['opponent_passes'])} "
             f"| {_pair(e['wins_from_behind'], k['wins_from_behind'])} "
             f"| {_pair(e['margin_m_mean'], k['margin_m_mean'], '{:+.2f}')} "
-            f"| {_pair(e['behind_1m_s'], k['behind_1m_s'], '{:.1f}')} |")
+            f"| {_pair(e['behind_1m_s'], k['behind_1m_s'], '{:.1f}')} |"
+        )
     if table["pace"]:
-        lines += ["", f"## Defend: measured pace (alone from the grid, {c['steps']} steps)", "",
-                  f"The opponents must be at least {100 * table['pace_gap_required']:g}% faster "
-                  f"alone than the capped ego.", "",
-                  "| track | agent | progress m | opponents faster by |", "|---|---|---|---|"]
+        lines += [
+            "",
+            f"## Defend: measured pace (alone from the grid, {c['steps']} steps)",
+            "",
+            f"The opponents must be at least {100 * table['pace_gap_required']:g}% faster "
+            f"alone than the capped ego.",
+            "",
+            "| track | agent | progress m | opponents faster by |",
+            "|---|---|---|---|",
+        ]
         for track, p in table["pace"].items():
             for spec, m in p["progress_m"].items():
                 gap = p["gaps"].get(spec)
-                what = ("(the opponent)" if spec == c["control"] else
-                        "-" if gap is None else f"{100 * gap:+.1f}%")
+                what = (
+                    "(the opponent)"
+                    if spec == c["control"]
+                    else "-"
+                    if gap is None
+                    else f"{100 * gap:+.1f}%"
+                )
                 shown = "-" if m is None else f"{m:.2f}"
                 if spec in p["reasons"]:
                     what = "not measured: " + p["reasons"][spec].split(";")[0]
@@ -387,10 +472,13 @@ def strategy_markdown(table: dict) -> str:
     if table["flags"]:
         lines += ["", "**Flags:**", ""] + [f"- {f}" for f in table["flags"]]
     runs = table.get("runs", [])
-    lines += ["", f"Wall time: {sum(r['wall_seconds'] for r in runs) / 60:.1f} min for the "
-                  f"{sum(r['races_simulated'] for r in runs)} races simulated over {len(runs)} "
-                  f"invocation(s) (`runs.jsonl`). Each bench's folder: "
-                  f"`SCENARIO/TRACK/EGO/summary.md`."]
+    lines += [
+        "",
+        f"Wall time: {sum(r['wall_seconds'] for r in runs) / 60:.1f} min for the "
+        f"{sum(r['races_simulated'] for r in runs)} races simulated over {len(runs)} "
+        f"invocation(s) (`runs.jsonl`). Each bench's folder: "
+        f"`SCENARIO/TRACK/EGO/summary.md`.",
+    ]
     return "\n".join(lines) + "\n"
 
 

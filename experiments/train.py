@@ -33,6 +33,7 @@ steps); a killed run resumes from its last checkpoint. The output ``model.npz``
 (:class:`agents.potential.PotentialModel`) carries the config, the feature version, the data
 it came from and the metrics; ``metrics.json`` and ``model_card.md`` sit beside it.
 """
+
 from __future__ import annotations
 
 import json
@@ -42,37 +43,64 @@ from pathlib import Path
 
 import numpy as np
 
-from agents.features import (FEATURE_VERSION, potential_dim, potential_features, theta_space,
-                             value_dim, value_features)
+from agents.features import (
+    FEATURE_VERSION,
+    potential_dim,
+    potential_features,
+    theta_space,
+    value_dim,
+    value_features,
+)
 from agents.potential import PotentialModel
 
 from .artifacts import claim
-from .nets import (TrainConfig, ValueData, check_run_space, collection_space,
-                   discounted_partial_returns, gap_statistics, numpy_model, paired_rollouts,
-                   rollout_statistics, save_model, split_races, summary_text, train_potential,
-                   train_value, value_samples)
-
+from .nets import (
+    TrainConfig,
+    ValueData,
+    check_run_space,
+    collection_space,
+    discounted_partial_returns,
+    gap_statistics,
+    numpy_model,
+    paired_rollouts,
+    rollout_statistics,
+    save_model,
+    split_races,
+    summary_text,
+    train_potential,
+    train_value,
+    value_samples,
+)
 
 # ---------------------------------------------------------------------------- data
 
 
 # ---------------------------------------------------------------------------- training
-def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bool = True,
-          log=print, command: str | None = None, space: str | None = None) -> dict:
+def train(
+    data_dir,
+    out_dir,
+    config: TrainConfig | None = None,
+    progress_bar: bool = True,
+    log=print,
+    command: str | None = None,
+    space: str | None = None,
+) -> dict:
     """Run (or resume) the three stages; returns the metrics dict (also in ``metrics.json``).
     The policy space is the collection's; ``space``, when given, must be it (``ValueError``
     naming both otherwise)."""
     from racing_env.extras import require
+
     torch = require("torch", "training the value and alpha-potential networks (alpha-racer train)")
     from experiments.collect import load_races
     from racing_env.tracks import make_track
 
     cfg = config or TrainConfig()
-    if _is_family(data_dir):                 # many tracks and field sizes: the general model
+    if _is_family(data_dir):  # many tracks and field sizes: the general model
         from .train_general import train_general
+
         return train_general(data_dir, out_dir, cfg, progress_bar, log, command, space)
     torch.set_num_threads(cfg.threads)
-    torch.manual_seed(cfg.seed)              # the networks' initial weights: same data, same model
+    torch.manual_seed(cfg.seed)  # the networks' initial weights: same data, same model
     out = Path(out_dir)
     manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
     sp = collection_space(data_dir, manifest, asked=space)
@@ -86,31 +114,63 @@ def train(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bo
     collection_space(data_dir, manifest, thetas.shape[-1])
     R, T, N = rewards.shape
     train_idx, val_idx = split_races(R, cfg.val_fraction, cfg.seed)
-    log(f"data: {R} races x {T} steps x {N} cars from {data_dir} "
+    log(
+        f"data: {R} races x {T} steps x {N} cars from {data_dir} "
         f"({len(train_idx)} training, {len(val_idx)} held out)"
-        + ("" if sp.name == "paper" else f", policy space {sp.name!r} {sp.names}"))
+        + ("" if sp.name == "paper" else f", policy space {sp.name!r} {sp.names}")
+    )
 
-    value = train_value(_value_data(states, thetas, rewards, train_idx, val_idx, track, cfg),
-                        cfg, out, torch, progress_bar, log)
-    potential = train_potential(_Deviations(states, thetas, train_idx, track,
-                                            cfg.own_theta_fraction),
-                                cfg, value, out, torch, progress_bar, log)
+    value = train_value(
+        _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg),
+        cfg,
+        out,
+        torch,
+        progress_bar,
+        log,
+    )
+    potential = train_potential(
+        _Deviations(states, thetas, train_idx, track, cfg.own_theta_fraction),
+        cfg,
+        value,
+        out,
+        torch,
+        progress_bar,
+        log,
+    )
     t_train = time.perf_counter() - t_start
-    meta = {"feature_version": FEATURE_VERSION, "n_cars": N, "track": data["config"]["track"],
-            "space": sp.name, "theta_low": sp.low.tolist(), "theta_high": sp.high.tolist(),
-            "gamma": cfg.gamma, "config": asdict(cfg),
-            "data": {"dir": str(data_dir), "races": R, "steps": T, "collect": data["config"]},
-            "train_seconds": t_train}
+    meta = {
+        "feature_version": FEATURE_VERSION,
+        "n_cars": N,
+        "track": data["config"]["track"],
+        "space": sp.name,
+        "theta_low": sp.low.tolist(),
+        "theta_high": sp.high.tolist(),
+        "gamma": cfg.gamma,
+        "config": asdict(cfg),
+        "data": {"dir": str(data_dir), "races": R, "steps": T, "collect": data["config"]},
+        "train_seconds": t_train,
+    }
     model = numpy_model(value, potential, meta)
     log("validation on held-out races ...")
-    metrics = {"train_seconds": t_train, **value.metrics,
-               **validate_gaps(model, states, thetas, val_idx, track, cfg)}
+    metrics = {
+        "train_seconds": t_train,
+        **value.metrics,
+        **validate_gaps(model, states, thetas, val_idx, track, cfg),
+    }
     if cfg.rollout_pairs:
-        metrics.update(validate_rollouts(model, metrics["value_range"], states, thetas, val_idx,
-                                         track, cfg, progress_bar))
+        metrics.update(
+            validate_rollouts(
+                model, metrics["value_range"], states, thetas, val_idx, track, cfg, progress_bar
+            )
+        )
     metrics["total_seconds"] = time.perf_counter() - t_start
-    save_model(model, metrics, out, model_card_text,
-               command or f"alpha-racer train --data {data_dir} --out {out_dir}")
+    save_model(
+        model,
+        metrics,
+        out,
+        model_card_text,
+        command or f"alpha-racer train --data {data_dir} --out {out_dir}",
+    )
     log(summary_text(metrics))
     return metrics
 
@@ -119,18 +179,19 @@ def _is_family(data_dir) -> bool:
     """Whether ``data_dir`` holds a family collection (many tracks / field sizes)."""
     path = Path(data_dir) / "manifest.json"
     if not path.exists():
-        raise ValueError(f"{data_dir}: no manifest.json; expected a folder written by "
-                         f"`alpha-racer collect`")
+        raise ValueError(
+            f"{data_dir}: no manifest.json; expected a folder written by `alpha-racer collect`"
+        )
     return json.loads(path.read_text()).get("kind") == "family"
 
 
 def _write_or_check_config(out: Path, cfg: TrainConfig, data_dir) -> None:
     config = json.loads(json.dumps(asdict(cfg)))
-    config.pop("threads")                      # how fast, not what: may change on a resume
+    config.pop("threads")  # how fast, not what: may change on a resume
     manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
     meta = {"feature_version": FEATURE_VERSION, "config": config, "data": manifest}
     space = manifest.get("config", {}).get("space", "paper")
-    if space != "paper":                       # recorded when not the paper's (as collections do)
+    if space != "paper":  # recorded when not the paper's (as collections do)
         meta["space"] = space
     claim(out / "train_config.json", meta, "a training run (config or data)")
 
@@ -154,8 +215,9 @@ def _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg) -> Valu
     X_va = _features_in_chunks(states, thetas, *va, track)
     # features of every race's final state, for the truncation bootstrap
     rr, cc = np.meshgrid(np.arange(R), np.arange(N), indexing="ij")
-    X_end = value_features(states[rr.ravel(), T], thetas[rr.ravel()], track, cc.ravel()
-                           ).astype(np.float32)
+    X_end = value_features(states[rr.ravel(), T], thetas[rr.ravel()], track, cc.ravel()).astype(
+        np.float32
+    )
     parts = lambda smp: (P[smp[0], smp[1], smp[2]], tail[smp[1]], smp[0] * N + smp[2])
     return ValueData(X_tr, X_va, X_end, *parts(tr), *parts(va))
 
@@ -230,8 +292,9 @@ def value_range(model: PotentialModel, states, thetas, races, track, rng, n=2000
 def validate_gaps(model, states, thetas, val_idx, track, cfg) -> dict:
     rng = np.random.default_rng(cfg.seed + 2)
     vr = value_range(model, states, thetas, val_idx, track, rng)
-    x, th1, th2, i = sample_deviations(states, thetas, val_idx, cfg.val_pairs, rng,
-                                       cfg.own_theta_fraction)
+    x, th1, th2, i = sample_deviations(
+        states, thetas, val_idx, cfg.val_pairs, rng, cfg.own_theta_fraction
+    )
     _, _, dphi, dv = relative_gaps(model, x, th1, th2, i, track, vr)
     return {"value_range": vr, "val_pairs": int(cfg.val_pairs), **gap_statistics(dphi, dv, vr)}
 
@@ -242,12 +305,15 @@ def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_b
     rng = np.random.default_rng(cfg.seed + 3)
     n = cfg.rollout_pairs
     x, th1, th2, i = sample_deviations(states, thetas, val_idx, n, rng, own_theta_fraction=1.0)
-    jobs = [(model.meta["track"], x[k], th, int(i[k]), cfg.rollout_steps, cfg.gamma)
-            for k in range(n) for th in (th1[k], th2[k])]
+    jobs = [
+        (model.meta["track"], x[k], th, int(i[k]), cfg.rollout_steps, cfg.gamma)
+        for k in range(n)
+        for th in (th1[k], th2[k])
+    ]
     res = paired_rollouts(jobs, cfg.threads, progress_bar)
     G = np.array([r[0] for r in res]).reshape(n, 2)
     x_end = np.array([r[1] for r in res]).reshape(n, 2, *x.shape[1:])
-    boot = cfg.gamma ** cfg.rollout_steps
+    boot = cfg.gamma**cfg.rollout_steps
     v_end = np.stack([model.value(x_end[:, k], (th1, th2)[k], track, i) for k in range(2)], axis=1)
     dG = (G[:, 1] + boot * v_end[:, 1]) - (G[:, 0] + boot * v_end[:, 0])
     dphi, dv = approximation_gaps(model, x, th1, th2, i, track)
@@ -260,6 +326,7 @@ def _box_text(meta: dict) -> str:
 
 def _space(meta: dict):
     from agents.theta import policy_space
+
     return policy_space(meta.get("space", "paper"))
 
 
@@ -267,39 +334,58 @@ def model_card_text(meta: dict) -> str:
     """A short Markdown model card from a model's metadata."""
     m, c, d = meta["metrics"], meta["config"], meta["data"]
     col = d.get("collect", {})
-    return "\n".join([
-        f"# alpha-potential model (feature version {meta['feature_version']})", "",
-        f"* **Data:** {d['races']} races x {d['steps']} steps x {meta['n_cars']} cars on "
-        f"`{meta['track']}` (`alpha-racer collect --races {col.get('races', d['races'])} "
-        f"--seed {col.get('seed', 0)}"
-        + (f" --space {col['space']}" if col.get("space", "paper") != "paper" else "")
-        + "`; every car an MPC with theta uniform in its bounds); "
-        f"{100 * c['val_fraction']:.0f}% of the races held out.",
-        *([f"* **Theta box** ({', '.join(_space(meta).names)}"
-           + ("" if _space(meta).name == "paper" else f"; the {_space(meta).name} policy space")
-           + f"): {_box_text(meta)}."] if "theta_low" in meta else []),
-        f"* **Discount:** gamma = {meta['gamma']}.",
-        f"* **Networks:** value {list(c['value_hidden'])} ({c['value_epochs']} epochs), potential "
-        f"{list(c['potential_hidden'])} ({c['potential_steps']} steps of {c['potential_batch']} "
-        f"deviations, objective `{c['objective']}`), SiLU.",
-        f"* **Command:** `{meta.get('command', '')}`",
-        f"* **Training time:** {m['train_seconds'] / 60:.1f} min on this 2-core machine "
-        f"({m['total_seconds'] / 60:.1f} min with validation)."
-        + (f" {meta['note']}" if meta.get("note") else ""), "",
-        "## Held-out validation", "",
-        f"* Value network R^2 on held-out discounted returns: {m['value_val_r2']:.3f}.",
-        f"* Approximation gap |dPhi - dV_i| / range(V) over {m['val_pairs']} held-out unilateral "
-        f"deviations: median {100 * m['gap_rel_median']:.2f}%, 95th percentile "
-        f"{100 * m['gap_rel_p95']:.2f}%, max {100 * m['gap_rel_max']:.1f}%; "
-        f"{100 * m['gap_rel_within_10pct']:.1f}% within 10%; alpha = {m['alpha']:.4f} "
-        f"(range of V {m['value_range']:.3f} m).",
-        f"* A constant potential (dPhi = 0) would have median {100 * m['const_rel_median']:.2f}% "
-        f"and 95th percentile {100 * m['const_rel_p95']:.2f}%.",
-        *([f"* Paired rollouts ({m['rollout_pairs']} held-out states, {m['rollout_steps']} steps "
-           f"then V): |dPhi - dG_sim| / range median {100 * m['rollout_phi_rel_median']:.2f}%, "
-           f"95th percentile {100 * m['rollout_phi_rel_p95']:.2f}%; |dV - dG_sim| median "
-           f"{100 * m['rollout_value_rel_median']:.2f}%; constant {100 * m['rollout_const_rel_median']:.2f}%."]
-          if "rollout_pairs" in m else []),
-        ""])
-
-
+    return "\n".join(
+        [
+            f"# alpha-potential model (feature version {meta['feature_version']})",
+            "",
+            f"* **Data:** {d['races']} races x {d['steps']} steps x {meta['n_cars']} cars on "
+            f"`{meta['track']}` (`alpha-racer collect --races {col.get('races', d['races'])} "
+            f"--seed {col.get('seed', 0)}"
+            + (f" --space {col['space']}" if col.get("space", "paper") != "paper" else "")
+            + "`; every car an MPC with theta uniform in its bounds); "
+            f"{100 * c['val_fraction']:.0f}% of the races held out.",
+            *(
+                [
+                    f"* **Theta box** ({', '.join(_space(meta).names)}"
+                    + (
+                        ""
+                        if _space(meta).name == "paper"
+                        else f"; the {_space(meta).name} policy space"
+                    )
+                    + f"): {_box_text(meta)}."
+                ]
+                if "theta_low" in meta
+                else []
+            ),
+            f"* **Discount:** gamma = {meta['gamma']}.",
+            f"* **Networks:** value {list(c['value_hidden'])} ({c['value_epochs']} epochs), potential "
+            f"{list(c['potential_hidden'])} ({c['potential_steps']} steps of {c['potential_batch']} "
+            f"deviations, objective `{c['objective']}`), SiLU.",
+            f"* **Command:** `{meta.get('command', '')}`",
+            f"* **Training time:** {m['train_seconds'] / 60:.1f} min on this 2-core machine "
+            f"({m['total_seconds'] / 60:.1f} min with validation)."
+            + (f" {meta['note']}" if meta.get("note") else ""),
+            "",
+            "## Held-out validation",
+            "",
+            f"* Value network R^2 on held-out discounted returns: {m['value_val_r2']:.3f}.",
+            f"* Approximation gap |dPhi - dV_i| / range(V) over {m['val_pairs']} held-out unilateral "
+            f"deviations: median {100 * m['gap_rel_median']:.2f}%, 95th percentile "
+            f"{100 * m['gap_rel_p95']:.2f}%, max {100 * m['gap_rel_max']:.1f}%; "
+            f"{100 * m['gap_rel_within_10pct']:.1f}% within 10%; alpha = {m['alpha']:.4f} "
+            f"(range of V {m['value_range']:.3f} m).",
+            f"* A constant potential (dPhi = 0) would have median {100 * m['const_rel_median']:.2f}% "
+            f"and 95th percentile {100 * m['const_rel_p95']:.2f}%.",
+            *(
+                [
+                    f"* Paired rollouts ({m['rollout_pairs']} held-out states, {m['rollout_steps']} steps "
+                    f"then V): |dPhi - dG_sim| / range median {100 * m['rollout_phi_rel_median']:.2f}%, "
+                    f"95th percentile {100 * m['rollout_phi_rel_p95']:.2f}%; |dV - dG_sim| median "
+                    f"{100 * m['rollout_value_rel_median']:.2f}%; constant {100 * m['rollout_const_rel_median']:.2f}%."
+                ]
+                if "rollout_pairs" in m
+                else []
+            ),
+            "",
+        ]
+    )

@@ -23,6 +23,7 @@ Torch is seeded with the config's seed, so the same data and config give the sam
 The model's metadata records the feature set (``general``), the tracks, the field sizes and
 the collection it came from.
 """
+
 from __future__ import annotations
 
 import json
@@ -33,16 +34,29 @@ from pathlib import Path
 import numpy as np
 
 from agents import general_features as gf
-from agents.general_features import TrackSet
 from agents.features import theta_space
+from agents.general_features import TrackSet
 from agents.potential import PotentialModel
 
 from .artifacts import claim
 from .family import RaceGroup, load_family
-from .nets import (TrainConfig, ValueData, check_run_space, collection_space,
-                   discounted_partial_returns, gap_statistics, numpy_model, paired_rollouts,
-                   rollout_statistics, save_model, split_races, summary_text, train_potential,
-                   train_value, value_samples)
+from .nets import (
+    TrainConfig,
+    ValueData,
+    check_run_space,
+    collection_space,
+    discounted_partial_returns,
+    gap_statistics,
+    numpy_model,
+    paired_rollouts,
+    rollout_statistics,
+    save_model,
+    split_races,
+    summary_text,
+    train_potential,
+    train_value,
+    value_samples,
+)
 
 
 class FamilyData:
@@ -81,9 +95,11 @@ class FamilyData:
                 "states": np.concatenate([g.states for _, g in members]),
                 "thetas": np.concatenate([g.thetas for _, g in members]),
                 "rewards": np.concatenate([g.rewards for _, g in members]),
-                "track_id": np.concatenate([np.full(len(g.states), index[g.track])
-                                            for _, g in members]),
-                "race": race}
+                "track_id": np.concatenate(
+                    [np.full(len(g.states), index[g.track]) for _, g in members]
+                ),
+                "race": race,
+            }
 
     @property
     def cars(self) -> list[int]:
@@ -144,19 +160,30 @@ class FamilyDeviations:
     def states(self, batch) -> list[np.ndarray]:
         """Each sample's joint state (N_r, 6) as float64."""
         d = self.data
-        return [d.buckets[int(N)]["states"][d.race_local[r], t].astype(np.float64)
-                for r, t, N in zip(batch["r"], batch["t"], batch["cars"])]
+        return [
+            d.buckets[int(N)]["states"][d.race_local[r], t].astype(np.float64)
+            for r, t, N in zip(batch["r"], batch["t"], batch["cars"])
+        ]
 
     def value_features(self, batch, k) -> np.ndarray:
         th = batch["theta"][k - 1]
-        return self._per_field(batch, self.dims["value"], lambda x, rows, N, ids: gf.value_features(
-            x, th[rows, :N], self.data.tracks, batch["i"][rows], track_id=ids))
+        return self._per_field(
+            batch,
+            self.dims["value"],
+            lambda x, rows, N, ids: gf.value_features(
+                x, th[rows, :N], self.data.tracks, batch["i"][rows], track_id=ids
+            ),
+        )
 
     def potential_features(self, batch, k) -> np.ndarray:
         th = batch["theta"][k - 1]
-        return self._per_field(batch, self.potential_dim, lambda x, rows, N, ids:
-                               gf.potential_features(x, th[rows, :N], self.data.tracks,
-                                                     track_id=ids))
+        return self._per_field(
+            batch,
+            self.potential_dim,
+            lambda x, rows, N, ids: gf.potential_features(
+                x, th[rows, :N], self.data.tracks, track_id=ids
+            ),
+        )
 
 
 def _value_data(data: FamilyData, train_idx, val_idx, cfg, chunk: int = 100_000) -> ValueData:
@@ -169,30 +196,60 @@ def _value_data(data: FamilyData, train_idx, val_idx, cfg, chunk: int = 100_000)
         b = data.buckets[N]
         R = len(b["race"])
         P, tail = discounted_partial_returns(b["rewards"], cfg.gamma)
-        for key, chosen, stride in (("tr", train_set, cfg.value_stride),
-                                    ("va", val_set, max(cfg.value_stride, 5))):
+        for key, chosen, stride in (
+            ("tr", train_set, cfg.value_stride),
+            ("va", val_set, max(cfg.value_stride, 5)),
+        ):
             local = np.array([k for k, g in enumerate(b["race"]) if g in chosen], dtype=np.int64)
             r, t, c = value_samples(None, None, local, stride, data.T, N)
             X = np.empty((len(r), gf.value_dim(space=data.space)), dtype=np.float32)
             for lo in range(0, len(r), chunk):
                 sl = slice(lo, lo + chunk)
-                X[sl] = gf.value_features(b["states"][r[sl], t[sl]], b["thetas"][r[sl]],
-                                          data.tracks, c[sl], track_id=b["track_id"][r[sl]])
+                X[sl] = gf.value_features(
+                    b["states"][r[sl], t[sl]],
+                    b["thetas"][r[sl]],
+                    data.tracks,
+                    c[sl],
+                    track_id=b["track_id"][r[sl]],
+                )
             parts[key].append((X, P[r, t, c], tail[t], offset + r * N + c))
         rr, cc = np.meshgrid(np.arange(R), np.arange(N), indexing="ij")
         rr, cc = rr.ravel(), cc.ravel()
-        ends.append(gf.value_features(b["states"][rr, data.T], b["thetas"][rr], data.tracks, cc,
-                                      track_id=b["track_id"][rr]).astype(np.float32))
+        ends.append(
+            gf.value_features(
+                b["states"][rr, data.T],
+                b["thetas"][rr],
+                data.tracks,
+                cc,
+                track_id=b["track_id"][rr],
+            ).astype(np.float32)
+        )
         offset += R * N
     cat = lambda key, j: np.concatenate([p[j] for p in parts[key]])
-    return ValueData(cat("tr", 0), cat("va", 0), np.concatenate(ends),
-                     cat("tr", 1), cat("tr", 2), cat("tr", 3),
-                     cat("va", 1), cat("va", 2), cat("va", 3), general=True)
+    return ValueData(
+        cat("tr", 0),
+        cat("va", 0),
+        np.concatenate(ends),
+        cat("tr", 1),
+        cat("tr", 2),
+        cat("tr", 3),
+        cat("va", 1),
+        cat("va", 2),
+        cat("va", 3),
+        general=True,
+    )
 
 
 # ---------------------------------------------------------------------------- validation
-def family_gaps(model: PotentialModel, data: FamilyData, races, pairs: int, seed: int,
-                own_theta_fraction: float = 0.5, value_range: float | None = None) -> dict:
+def family_gaps(
+    model: PotentialModel,
+    data: FamilyData,
+    races,
+    pairs: int,
+    seed: int,
+    own_theta_fraction: float = 0.5,
+    value_range: float | None = None,
+) -> dict:
     """Approximation gaps of ``pairs`` unilateral deviations at states of ``races``:
     :func:`experiments.nets.gap_statistics` relative to ``value_range`` (default: the range
     of V over 20000 states of these races with uniform thetas, as for one track), overall and
@@ -207,18 +264,34 @@ def family_gaps(model: PotentialModel, data: FamilyData, races, pairs: int, seed
     dev.own = own_theta_fraction
     b = dev.draw(pairs, rng)
     dv = model.value_net(dev.value_features(b, 2)) - model.value_net(dev.value_features(b, 1))
-    dphi = (model.potential_net(dev.potential_features(b, 2))
-            - model.potential_net(dev.potential_features(b, 1)))
+    dphi = model.potential_net(dev.potential_features(b, 2)) - model.potential_net(
+        dev.potential_features(b, 1)
+    )
     if not (np.isfinite(dv).all() and np.isfinite(dphi).all()):
         raise FloatingPointError("non-finite value or potential differences")
-    out = {"value_range": vr, "value_range_measured": measured, "val_pairs": int(pairs),
-           **gap_statistics(dphi, dv, vr), "by_cars": {}}
+    out = {
+        "value_range": vr,
+        "value_range_measured": measured,
+        "val_pairs": int(pairs),
+        **gap_statistics(dphi, dv, vr),
+        "by_cars": {},
+    }
     for N in np.unique(b["cars"]):
         m = b["cars"] == N
         s = gap_statistics(dphi[m], dv[m], vr)
-        out["by_cars"][str(int(N))] = {"pairs": int(m.sum()), **{
-            k: s[k] for k in ("gap_rel_median", "gap_rel_p95", "gap_rel_max",
-                              "const_rel_median", "const_rel_p95")}}
+        out["by_cars"][str(int(N))] = {
+            "pairs": int(m.sum()),
+            **{
+                k: s[k]
+                for k in (
+                    "gap_rel_median",
+                    "gap_rel_p95",
+                    "gap_rel_max",
+                    "const_rel_median",
+                    "const_rel_p95",
+                )
+            },
+        }
     return out
 
 
@@ -231,17 +304,22 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
     b = dev.draw(n, rng)
     xs = dev.states(b)
     specs = [data.track_spec(int(r)) for r in b["r"]]
-    thetas = [(b["theta"][0][k, :len(x)], b["theta"][1][k, :len(x)]) for k, x in enumerate(xs)]
-    jobs = [(specs[k], xs[k], th, int(b["i"][k]), cfg.rollout_steps, cfg.gamma)
-            for k in range(n) for th in thetas[k]]
+    thetas = [(b["theta"][0][k, : len(x)], b["theta"][1][k, : len(x)]) for k, x in enumerate(xs)]
+    jobs = [
+        (specs[k], xs[k], th, int(b["i"][k]), cfg.rollout_steps, cfg.gamma)
+        for k in range(n)
+        for th in thetas[k]
+    ]
     res = paired_rollouts(jobs, cfg.threads, progress_bar)
-    boot = cfg.gamma ** cfg.rollout_steps
+    boot = cfg.gamma**cfg.rollout_steps
     dG, dphi, dv = np.empty(n), np.empty(n), np.empty(n)
     for k in range(n):
         x, i, tr = xs[k][None], np.array([b["i"][k]]), specs[k]
         th1, th2 = (th[None] for th in thetas[k])
-        g = [res[2 * k + j][0] + boot * float(model.value(res[2 * k + j][1][None], th, tr, i)[0])
-             for j, th in enumerate((th1, th2))]
+        g = [
+            res[2 * k + j][0] + boot * float(model.value(res[2 * k + j][1][None], th, tr, i)[0])
+            for j, th in enumerate((th1, th2))
+        ]
         dG[k] = g[1] - g[0]
         dv[k] = float(model.value(x, th2, tr, i)[0] - model.value(x, th1, tr, i)[0])
         dphi[k] = float(model.potential(x, th2, tr)[0] - model.potential(x, th1, tr)[0])
@@ -249,12 +327,20 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
 
 
 # ---------------------------------------------------------------------------- training
-def train_general(data_dir, out_dir, config: TrainConfig | None = None, progress_bar: bool = True,
-                  log=print, command: str | None = None, space: str | None = None) -> dict:
+def train_general(
+    data_dir,
+    out_dir,
+    config: TrainConfig | None = None,
+    progress_bar: bool = True,
+    log=print,
+    command: str | None = None,
+    space: str | None = None,
+) -> dict:
     """Run (or resume) the three stages on a family collection; returns the metrics (also in
     ``metrics.json``); writes ``model.npz`` and ``model_card.md`` beside them. ``space`` as
     for :func:`experiments.train.train`."""
     from racing_env.extras import require
+
     torch = require("torch", "training the value and alpha-potential networks (alpha-racer train)")
     cfg = config or TrainConfig()
     torch.set_num_threads(cfg.threads)
@@ -265,10 +351,14 @@ def train_general(data_dir, out_dir, config: TrainConfig | None = None, progress
     check_run_space(out, sp, data_dir)
     out.mkdir(parents=True, exist_ok=True)
     config_meta = json.loads(json.dumps(asdict(cfg)))
-    config_meta.pop("threads")                  # how fast, not what: may change on a resume
-    run = {"feature_set": "general", "feature_version": gf.FEATURE_VERSION,
-           "config": config_meta, "data": manifest}
-    if sp.name != "paper":                      # recorded when not the paper's
+    config_meta.pop("threads")  # how fast, not what: may change on a resume
+    run = {
+        "feature_set": "general",
+        "feature_version": gf.FEATURE_VERSION,
+        "config": config_meta,
+        "data": manifest,
+    }
+    if sp.name != "paper":  # recorded when not the paper's
         run["space"] = sp.name
     claim(out / "train_config.json", run, "a training run (config or data)")
     t_start = time.perf_counter()
@@ -276,39 +366,71 @@ def train_general(data_dir, out_dir, config: TrainConfig | None = None, progress
     data = FamilyData(groups)
     collection_space(data_dir, manifest, data.space.dim)
     train_idx, val_idx = split_races(data.n_races, cfg.val_fraction, cfg.seed)
-    log(f"data: {data.n_races} races x {data.T} steps on {len(data.tracks)} tracks with "
+    log(
+        f"data: {data.n_races} races x {data.T} steps on {len(data.tracks)} tracks with "
         f"{', '.join(map(str, data.cars))} cars from {data_dir} ({len(train_idx)} training, "
-        f"{len(val_idx)} held out)")
-    value = train_value(_value_data(data, train_idx, val_idx, cfg), cfg, out, torch,
-                        progress_bar, log)
-    potential = train_potential(FamilyDeviations(data, train_idx, cfg.own_theta_fraction),
-                                cfg, value, out, torch, progress_bar, log)
+        f"{len(val_idx)} held out)"
+    )
+    value = train_value(
+        _value_data(data, train_idx, val_idx, cfg), cfg, out, torch, progress_bar, log
+    )
+    potential = train_potential(
+        FamilyDeviations(data, train_idx, cfg.own_theta_fraction),
+        cfg,
+        value,
+        out,
+        torch,
+        progress_bar,
+        log,
+    )
     t_train = time.perf_counter() - t_start
-    meta = {"feature_set": "general", "feature_version": gf.FEATURE_VERSION,
-            "n_max": gf.N_MAX, "n_cars_range": [min(data.cars), max(data.cars)],
-            "n_cars_trained": data.cars, "tracks": data.tracks.specs,
-            "track_specs": manifest["config"]["tracks"],
-            "space": sp.name, "theta_low": sp.low.tolist(), "theta_high": sp.high.tolist(),
-            "gamma": cfg.gamma, "config": asdict(cfg),
-            "data": {"dir": str(data_dir), "races": data.n_races, "steps": data.T,
-                     "collect": manifest["config"]},
-            "train_seconds": t_train}
+    meta = {
+        "feature_set": "general",
+        "feature_version": gf.FEATURE_VERSION,
+        "n_max": gf.N_MAX,
+        "n_cars_range": [min(data.cars), max(data.cars)],
+        "n_cars_trained": data.cars,
+        "tracks": data.tracks.specs,
+        "track_specs": manifest["config"]["tracks"],
+        "space": sp.name,
+        "theta_low": sp.low.tolist(),
+        "theta_high": sp.high.tolist(),
+        "gamma": cfg.gamma,
+        "config": asdict(cfg),
+        "data": {
+            "dir": str(data_dir),
+            "races": data.n_races,
+            "steps": data.T,
+            "collect": manifest["config"],
+        },
+        "train_seconds": t_train,
+    }
     model = numpy_model(value, potential, meta)
     log("validation on held-out races ...")
-    metrics = {"train_seconds": t_train, **value.metrics,
-               **family_gaps(model, data, val_idx, cfg.val_pairs, cfg.seed + 2,
-                             cfg.own_theta_fraction)}
+    metrics = {
+        "train_seconds": t_train,
+        **value.metrics,
+        **family_gaps(model, data, val_idx, cfg.val_pairs, cfg.seed + 2, cfg.own_theta_fraction),
+    }
     if cfg.rollout_pairs:
-        metrics.update(family_rollouts(model, metrics["value_range"], data, val_idx, cfg,
-                                       progress_bar))
+        metrics.update(
+            family_rollouts(model, metrics["value_range"], data, val_idx, cfg, progress_bar)
+        )
     metrics["total_seconds"] = time.perf_counter() - t_start
-    save_model(model, metrics, out, general_model_card_text,
-               command or f"alpha-racer train --data {data_dir} --out {out_dir}")
+    save_model(
+        model,
+        metrics,
+        out,
+        general_model_card_text,
+        command or f"alpha-racer train --data {data_dir} --out {out_dir}",
+    )
     log(summary_text(metrics))
     for N, s in metrics["by_cars"].items():
-        log(f"  {N} cars: gap median {100 * s['gap_rel_median']:.2f}%, 95th pct "
+        log(
+            f"  {N} cars: gap median {100 * s['gap_rel_median']:.2f}%, 95th pct "
             f"{100 * s['gap_rel_p95']:.2f}% (constant potential {100 * s['const_rel_median']:.2f}%, "
-            f"{100 * s['const_rel_p95']:.2f}%)")
+            f"{100 * s['const_rel_p95']:.2f}%)"
+        )
     return metrics
 
 
@@ -317,32 +439,44 @@ def general_model_card_text(meta: dict) -> str:
     m, c, d = meta["metrics"], meta["config"], meta["data"]
     col = d["collect"]
     lo, hi = meta["n_cars_range"]
-    rows = [f"| {N} | {s['pairs']} | {100 * s['gap_rel_median']:.2f}% | "
-            f"{100 * s['gap_rel_p95']:.2f}% | {100 * s['const_rel_median']:.2f}% | "
-            f"{100 * s['const_rel_p95']:.2f}% |" for N, s in m["by_cars"].items()]
-    return "\n".join([
-        f"# General alpha-potential model (general features, version {meta['feature_version']})",
-        "",
-        f"* **Data:** {d['races']} races x {d['steps']} steps on {len(meta['tracks'])} tracks "
-        f"({' '.join(meta['track_specs'])}) with {lo}..{hi} cars (`alpha-racer collect --races "
-        f"{col['races']} --tracks {' '.join(col['tracks'])} --cars "
-        f"{','.join(map(str, col['cars']))} --seed {col['seed']}`); "
-        f"{100 * c['val_fraction']:.0f}% of the races held out.",
-        f"* **Features:** cars sorted by progress and padded to {meta['n_max']} slots with a "
-        f"presence flag; curvature preview and half widths at each car (`agents/general_features.py`).",
-        f"* **Discount:** gamma = {meta['gamma']}.",
-        f"* **Networks:** value {list(c['value_hidden'])} ({c['value_epochs']} epochs), potential "
-        f"{list(c['potential_hidden'])} ({c['potential_steps']} steps of {c['potential_batch']} "
-        f"deviations, objective `{c['objective']}`), SiLU.",
-        f"* **Command:** `{meta.get('command', '')}`",
-        f"* **Training time:** {m['train_seconds'] / 60:.1f} min ({m['total_seconds'] / 60:.1f} "
-        f"min with validation).", "",
-        "## Held-out validation (races of the training tracks held out)", "",
-        f"* Value network R^2 on held-out discounted returns: {m['value_val_r2']:.3f}.",
-        f"* Approximation gap |dPhi - dV_i| / range(V) over {m['val_pairs']} deviations: median "
-        f"{100 * m['gap_rel_median']:.2f}%, 95th percentile {100 * m['gap_rel_p95']:.2f}% "
-        f"(constant potential {100 * m['const_rel_median']:.2f}%, "
-        f"{100 * m['const_rel_p95']:.2f}%); range of V {m['value_range']:.3f} m.", "",
-        "| cars | deviations | gap median | gap p95 | constant median | constant p95 |",
-        "|---|---|---|---|---|---|", *rows,
-        "", "Held-out tracks: `alpha-racer general-report` (never used in training).", ""])
+    rows = [
+        f"| {N} | {s['pairs']} | {100 * s['gap_rel_median']:.2f}% | "
+        f"{100 * s['gap_rel_p95']:.2f}% | {100 * s['const_rel_median']:.2f}% | "
+        f"{100 * s['const_rel_p95']:.2f}% |"
+        for N, s in m["by_cars"].items()
+    ]
+    return "\n".join(
+        [
+            f"# General alpha-potential model (general features, version {meta['feature_version']})",
+            "",
+            f"* **Data:** {d['races']} races x {d['steps']} steps on {len(meta['tracks'])} tracks "
+            f"({' '.join(meta['track_specs'])}) with {lo}..{hi} cars (`alpha-racer collect --races "
+            f"{col['races']} --tracks {' '.join(col['tracks'])} --cars "
+            f"{','.join(map(str, col['cars']))} --seed {col['seed']}`); "
+            f"{100 * c['val_fraction']:.0f}% of the races held out.",
+            f"* **Features:** cars sorted by progress and padded to {meta['n_max']} slots with a "
+            f"presence flag; curvature preview and half widths at each car (`agents/general_features.py`).",
+            f"* **Discount:** gamma = {meta['gamma']}.",
+            f"* **Networks:** value {list(c['value_hidden'])} ({c['value_epochs']} epochs), potential "
+            f"{list(c['potential_hidden'])} ({c['potential_steps']} steps of {c['potential_batch']} "
+            f"deviations, objective `{c['objective']}`), SiLU.",
+            f"* **Command:** `{meta.get('command', '')}`",
+            f"* **Training time:** {m['train_seconds'] / 60:.1f} min ({m['total_seconds'] / 60:.1f} "
+            f"min with validation).",
+            "",
+            "## Held-out validation (races of the training tracks held out)",
+            "",
+            f"* Value network R^2 on held-out discounted returns: {m['value_val_r2']:.3f}.",
+            f"* Approximation gap |dPhi - dV_i| / range(V) over {m['val_pairs']} deviations: median "
+            f"{100 * m['gap_rel_median']:.2f}%, 95th percentile {100 * m['gap_rel_p95']:.2f}% "
+            f"(constant potential {100 * m['const_rel_median']:.2f}%, "
+            f"{100 * m['const_rel_p95']:.2f}%); range of V {m['value_range']:.3f} m.",
+            "",
+            "| cars | deviations | gap median | gap p95 | constant median | constant p95 |",
+            "|---|---|---|---|---|---|",
+            *rows,
+            "",
+            "Held-out tracks: `alpha-racer general-report` (never used in training).",
+            "",
+        ]
+    )

@@ -1,6 +1,7 @@
 """Animations of races: :func:`save_animation` writes frames to an animated ``.gif`` (PIL) or
 ``.mp4`` (ffmpeg), atomically; :func:`ffmpeg_available` tells beforehand whether ``.mp4`` can be
 written here."""
+
 from __future__ import annotations
 
 import math
@@ -26,7 +27,9 @@ def _check_frames(frames) -> list[np.ndarray]:
     elif isinstance(frames, Iterable) and not isinstance(frames, (str, bytes)):
         frames = list(frames)
     else:
-        raise ValueError(f"frames must be a sequence of (H, W, 3) uint8 arrays, got {type(frames).__name__}")
+        raise ValueError(
+            f"frames must be a sequence of (H, W, 3) uint8 arrays, got {type(frames).__name__}"
+        )
     if not frames:
         raise ValueError("frames is empty: nothing to save")
     shape0 = None
@@ -45,7 +48,12 @@ def _check_frames(frames) -> list[np.ndarray]:
 
 
 def _check_fps(fps) -> float:
-    if isinstance(fps, bool) or not isinstance(fps, numbers.Real) or not math.isfinite(fps) or fps <= 0:
+    if (
+        isinstance(fps, bool)
+        or not isinstance(fps, numbers.Real)
+        or not math.isfinite(fps)
+        or fps <= 0
+    ):
         raise ValueError(f"fps must be a positive finite number, got {fps!r}")
     return float(fps)
 
@@ -62,6 +70,7 @@ def _find_ffmpeg() -> str | None:
         return exe
     try:  # imageio's bundled ffmpeg, if installed
         import imageio_ffmpeg
+
         return imageio_ffmpeg.get_ffmpeg_exe()
     except Exception:
         return None
@@ -74,22 +83,52 @@ def _write_gif(frames: list[np.ndarray], tmp: str, fps: float) -> None:
     pal = sample.quantize(colors=256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
     images = [Image.fromarray(f).quantize(palette=pal, dither=Image.Dither.NONE) for f in frames]
     duration = max(int(round(1000.0 / fps)), 10)  # ms; GIF stores centiseconds
-    images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
-                   duration=duration, loop=0, optimize=False, disposal=1)
+    images[0].save(
+        tmp,
+        format="GIF",
+        save_all=True,
+        append_images=images[1:],
+        duration=duration,
+        loop=0,
+        optimize=False,
+        disposal=1,
+    )
 
 
 def _write_mp4(frames: list[np.ndarray], tmp: str, fps: float, ffmpeg: str) -> None:
     h, w = frames[0].shape[:2]
-    base = [ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
-            "-s", f"{w}x{h}", "-r", f"{fps:g}", "-i", "-", "-an",
-            "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2"]
-    codecs = (["-c:v", "libx264", "-pix_fmt", "yuv420p", "-movflags", "+faststart"],
-              ["-c:v", "mpeg4", "-q:v", "3", "-pix_fmt", "yuv420p"])
+    base = [
+        ffmpeg,
+        "-y",
+        "-loglevel",
+        "error",
+        "-f",
+        "rawvideo",
+        "-pix_fmt",
+        "rgb24",
+        "-s",
+        f"{w}x{h}",
+        "-r",
+        f"{fps:g}",
+        "-i",
+        "-",
+        "-an",
+        "-vf",
+        "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+    ]
+    codecs = (
+        ["-c:v", "libx264", "-pix_fmt", "yuv420p", "-movflags", "+faststart"],
+        ["-c:v", "mpeg4", "-q:v", "3", "-pix_fmt", "yuv420p"],
+    )
     errors = []
     for codec in codecs:
         with tempfile.TemporaryFile() as err:
-            proc = subprocess.Popen(base + codec + ["-f", "mp4", tmp], stdin=subprocess.PIPE,
-                                    stdout=subprocess.DEVNULL, stderr=err)
+            proc = subprocess.Popen(
+                base + codec + ["-f", "mp4", tmp],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+            )
             try:
                 for f in frames:
                     proc.stdin.write(np.ascontiguousarray(f).tobytes())
@@ -100,7 +139,9 @@ def _write_mp4(frames: list[np.ndarray], tmp: str, fps: float, ffmpeg: str) -> N
             if rc == 0:
                 return
             err.seek(0)
-            errors.append(f"{codec[1]}: exit {rc}: {err.read().decode(errors='replace').strip()[-500:]}")
+            errors.append(
+                f"{codec[1]}: exit {rc}: {err.read().decode(errors='replace').strip()[-500:]}"
+            )
     raise RuntimeError("ffmpeg failed to write the mp4: " + " | ".join(errors))
 
 
@@ -130,15 +171,19 @@ def save_animation(frames: Sequence[np.ndarray], path: str | os.PathLike, fps: f
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):
-        raise ValueError(f"unknown animation suffix {path.suffix!r} in {str(path)!r}; use .gif or .mp4")
+        raise ValueError(
+            f"unknown animation suffix {path.suffix!r} in {str(path)!r}; use .gif or .mp4"
+        )
     fps = _check_fps(fps)
     frames = _check_frames(frames)
     ffmpeg = None
     if suffix == ".mp4":
         ffmpeg = _find_ffmpeg()
         if ffmpeg is None:
-            raise RuntimeError(f"cannot write {str(path)!r}: ffmpeg is missing (not on PATH and "
-                               f"imageio-ffmpeg not installed); install ffmpeg or save as .gif")
+            raise RuntimeError(
+                f"cannot write {str(path)!r}: ffmpeg is missing (not on PATH and "
+                f"imageio-ffmpeg not installed); install ffmpeg or save as .gif"
+            )
     with atomic_path(path, suffix) as tmp:
         if suffix == ".gif":
             _write_gif(frames, str(tmp), fps)

@@ -7,6 +7,7 @@ core install only) and the stable-baselines3 ``VecEnv``
 :class:`racing_env.BatchedRaces` core, the spaces and the opponents, and resets one race at a
 time exactly as :class:`racing_env.gym_env.HeadToHeadEnv` resets its race.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -32,8 +33,14 @@ class HeadToHeadBatch:
     ``terminate_off_track`` (see ``HeadToHeadEnv``).
     """
 
-    def __init__(self, n_envs: int = 8, opponents: Sequence | None = None,
-                 track: str | Track = "default", config: RaceConfig | None = None, **kwargs):
+    def __init__(
+        self,
+        n_envs: int = 8,
+        opponents: Sequence | None = None,
+        track: str | Track = "default",
+        config: RaceConfig | None = None,
+        **kwargs,
+    ):
         if not (isinstance(n_envs, (int, np.integer)) and n_envs >= 1):
             raise ValueError(f"n_envs must be a positive integer, got {n_envs!r}")
         if opponents is None:
@@ -43,8 +50,10 @@ class HeadToHeadBatch:
         changes = {}
         n_cars = kwargs.pop("n_cars", 1 + len(opponents))
         if n_cars != 1 + len(opponents):
-            raise ValueError(f"n_cars = {n_cars} but {len(opponents)} opponents were given; "
-                             f"n_cars must be 1 + number of opponents")
+            raise ValueError(
+                f"n_cars = {n_cars} but {len(opponents)} opponents were given; "
+                f"n_cars must be 1 + number of opponents"
+            )
         changes["n_cars"] = n_cars
         for key in ("max_cycles", "laps", "vehicle", "rules"):
             if kwargs.get(key) is not None:
@@ -53,7 +62,8 @@ class HeadToHeadBatch:
             changes["start"] = _start_config(kwargs.pop("start"), cfg.start)
         kwargs.pop("start", None)
         self.offtrack_penalty, self.terminate_off_track = check_reward_options(
-            kwargs.pop("offtrack_penalty", 0.0), kwargs.pop("terminate_off_track", False))
+            kwargs.pop("offtrack_penalty", 0.0), kwargs.pop("terminate_off_track", False)
+        )
         if kwargs:
             raise ValueError(f"unknown arguments {sorted(kwargs)}")
         cfg = cfg.with_(**changes)
@@ -64,7 +74,7 @@ class HeadToHeadBatch:
         self.observation_space = spaces.Box(lo, hi, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
         self._install(opponents)
-        self._rngs = [None] * self.num_envs          # per-race generators, as HeadToHeadEnv.np_random
+        self._rngs = [None] * self.num_envs  # per-race generators, as HeadToHeadEnv.np_random
         self._actions = np.zeros((self.num_envs, n_cars, 2))
         self.agent_ids = [f"car_{i}" for i in range(n_cars)]
 
@@ -82,7 +92,7 @@ class HeadToHeadBatch:
         start = _start_config(options["start"], self.config.start) if "start" in options else None
         if seed is not None or self._rngs[b] is None:
             self._rngs[b], _ = seeding.np_random(seed)
-        race_seed = int(self._rngs[b].integers(2 ** 31))
+        race_seed = int(self._rngs[b].integers(2**31))
         self.core.reset(seed=race_seed, races=[b], order=options.get("order"), start=start)
         for k, opp in enumerate(self.opponents):
             agent_id = self.agent_ids[k + 1]

@@ -35,6 +35,7 @@ after an edit of ``simulator.py`` a stale ``agents/mpc/`` kernel would silently 
 (different races from the same seed). Any edit of either package starts a new folder. With
 ``NUMBA_CACHE_DIR`` set, that folder is used as it is (clear it after editing the sources).
 """
+
 from __future__ import annotations
 
 import getpass
@@ -43,10 +44,10 @@ import importlib.util
 import os
 import stat
 import tempfile
-from typing import TYPE_CHECKING
 import uuid
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -54,18 +55,19 @@ if TYPE_CHECKING:
 ENV_VAR = "ALPHA_RACER_CACHE"
 APP_NAME = "alpha-racer"
 
-_resolved: dict[str, Path] = {}     # requested location -> folder in use (warn once per request)
+_resolved: dict[str, Path] = {}  # requested location -> folder in use (warn once per request)
 
 
 def default_cache_root() -> Path:
     """The per-user cache folder, ``platformdirs.user_cache_dir("alpha-racer")``."""
     from platformdirs import user_cache_dir
+
     return Path(user_cache_dir(APP_NAME, appauthor=False))
 
 
 def _writable(folder: Path) -> str | None:
     """None if ``folder`` exists (or can be made) and a file can be written in it, else why not."""
-    if not folder.is_absolute():      # e.g. "~/.cache" when no home directory can be found
+    if not folder.is_absolute():  # e.g. "~/.cache" when no home directory can be found
         return f"{str(folder)!r} is not an absolute path (no home directory?)"
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -87,7 +89,9 @@ def _private_temp_root() -> Path:
     try:
         folder.mkdir(mode=0o700, exist_ok=True)
         st = folder.lstat()
-        safe = stat.S_ISDIR(st.st_mode) and (uid is None or (st.st_uid == uid and not st.st_mode & 0o077))
+        safe = stat.S_ISDIR(st.st_mode) and (
+            uid is None or (st.st_uid == uid and not st.st_mode & 0o077)
+        )
     except OSError:
         safe = False
     return folder if safe else Path(tempfile.mkdtemp(prefix=f"{APP_NAME}-"))
@@ -104,7 +108,7 @@ def cache_root(defer_warning: bool = False) -> Path:
         return _resolved[requested]
     if requested:
         root, what = Path(requested).expanduser(), f"{ENV_VAR}={requested!r}"
-        if not str(root).startswith("~"):          # relative to the working directory
+        if not str(root).startswith("~"):  # relative to the working directory
             root = root.absolute()
     else:
         root = default_cache_root()
@@ -114,12 +118,16 @@ def cache_root(defer_warning: bool = False) -> Path:
         fallback = _private_temp_root()
         why_tmp = _writable(fallback)
         if why_tmp is not None:
-            raise OSError(f"alpha-racer has no writable cache folder: {what}: {why}; temporary "
-                          f"folder: {why_tmp}. Set {ENV_VAR} to a writable folder.")
+            raise OSError(
+                f"alpha-racer has no writable cache folder: {what}: {why}; temporary "
+                f"folder: {why_tmp}. Set {ENV_VAR} to a writable folder."
+            )
         why = why.replace(f" ({str(root)!r})", "")
-        _pending.append(f"alpha-racer cannot write to {what} ({why}): its compiled code and racing "
-                        f"lines go to the temporary folder {str(fallback)!r} instead. Set "
-                        f"{ENV_VAR} to a writable folder to keep them.")
+        _pending.append(
+            f"alpha-racer cannot write to {what} ({why}): its compiled code and racing "
+            f"lines go to the temporary folder {str(fallback)!r} instead. Set "
+            f"{ENV_VAR} to a writable folder to keep them."
+        )
         if not defer_warning:
             notice()
         root = fallback
@@ -127,7 +135,7 @@ def cache_root(defer_warning: bool = False) -> Path:
     return root
 
 
-_pending: list[str] = []            # the fallback warning, until the cache is first used
+_pending: list[str] = []  # the fallback warning, until the cache is first used
 
 
 def notice() -> None:
@@ -135,8 +143,9 @@ def notice() -> None:
     :func:`cache_root`): one line, ``alpha-racer cache: RuntimeWarning: ...``, with no source
     line under it. Called when the cache is first used: :func:`cache_dir`, a new race core."""
     while _pending:
-        warnings.warn_explicit(_pending.pop(0), RuntimeWarning, "alpha-racer cache", 0,
-                               module="racing_env.cache")
+        warnings.warn_explicit(
+            _pending.pop(0), RuntimeWarning, "alpha-racer cache", 0, module="racing_env.cache"
+        )
 
 
 def cache_dir(sub: str | None = None, quiet: bool = False) -> Path:
@@ -183,6 +192,7 @@ def matplotlib_config_dir() -> Path:
     ``$XDG_CONFIG_HOME/matplotlib`` or ``~/.config/matplotlib`` on Linux and the BSDs,
     ``~/.matplotlib`` elsewhere (as ``matplotlib.get_configdir`` finds it, without importing it)."""
     import sys
+
     if sys.platform.startswith(("linux", "freebsd")):
         xdg = os.environ.get("XDG_CONFIG_HOME")
         return Path(xdg or Path.home() / ".config") / "matplotlib"
@@ -197,7 +207,7 @@ def _configure_matplotlib() -> None:
         return
     try:
         default = matplotlib_config_dir()
-    except (RuntimeError, KeyError):        # no home directory at all
+    except (RuntimeError, KeyError):  # no home directory at all
         default = Path("~")
     if not _could_write(default):
         os.environ["MPLCONFIGDIR"] = str(cache_dir("matplotlib", quiet=True))
@@ -222,6 +232,7 @@ def _configure() -> None:
     _configure_matplotlib()
     if not os.environ.get("NUMBA_CACHE_DIR"):
         import numba
+
         numba.config.CACHE_DIR = str(cache_dir("numba", quiet=True) / kernel_sources_hash())
 
 

@@ -1,4 +1,5 @@
 """Typed configuration of a race: rules, start positions, episode and observation settings."""
+
 from __future__ import annotations
 
 import math
@@ -46,15 +47,15 @@ class RulesConfig:
     """
 
     contact: bool = True
-    contact_ds: float = 0.12      # [m] default: one car length
-    contact_dn: float = 0.06      # [m] default: one car width
+    contact_ds: float = 0.12  # [m] default: one car length
+    contact_dn: float = 0.06  # [m] default: one car width
     front_factor: float = 0.5
     rear_factor: float = 1.0 / 3.0
     offtrack: bool = True
     offtrack_factor: float = 0.5
-    wall_margin: float = 0.15     # [m]
-    max_substeps: int = 100       # cap of RK4 sub-steps per control period
-    substep_gain: float = 1.0     # >1 takes more sub-steps than stability needs
+    wall_margin: float = 0.15  # [m]
+    max_substeps: int = 100  # cap of RK4 sub-steps per control period
+    substep_gain: float = 1.0  # >1 takes more sub-steps than stability needs
 
     def __post_init__(self):
         _positive(self, "contact_ds", "contact_dn", "wall_margin", "max_substeps", "substep_gain")
@@ -65,9 +66,19 @@ class RulesConfig:
 
     def pack(self) -> np.ndarray:
         """Vector for the compiled step (layout: ``simulator.R_*``)."""
-        return np.array([float(self.contact), self.contact_ds, self.contact_dn, self.front_factor,
-                         self.rear_factor, float(self.offtrack), self.offtrack_factor,
-                         float(self.max_substeps), self.substep_gain])
+        return np.array(
+            [
+                float(self.contact),
+                self.contact_ds,
+                self.contact_dn,
+                self.front_factor,
+                self.rear_factor,
+                float(self.offtrack),
+                self.offtrack_factor,
+                float(self.max_substeps),
+                self.substep_gain,
+            ]
+        )
 
 
 @dataclass(frozen=True)
@@ -87,22 +98,24 @@ class StartConfig:
     """
 
     mode: str = "regions"
-    s0: float = 3.0               # [m] front of the grid / of R1 (on the default track's main straight)
+    s0: float = 3.0  # [m] front of the grid / of R1 (on the default track's main straight)
     grid_gap: float = 0.3
     region_length: float = 0.4
     region_gap: float = 0.6
     lateral_jitter: float = 0.8
     min_gap: float = 0.3
-    speed: float = 0.0            # initial vx [m/s]
+    speed: float = 0.0  # initial vx [m/s]
 
     def __post_init__(self):
         if self.mode not in START_MODES:
             raise ValueError(f"start mode must be one of {START_MODES}, got {self.mode!r}")
         _positive(self, "grid_gap", "region_length", "min_gap")
         if self.region_gap < 0 or not (0 <= self.lateral_jitter <= 1) or self.speed < 0:
-            raise ValueError(f"invalid StartConfig: region_gap {self.region_gap} (>= 0), "
-                             f"lateral_jitter {self.lateral_jitter} (in [0, 1]), "
-                             f"speed {self.speed} (>= 0)")
+            raise ValueError(
+                f"invalid StartConfig: region_gap {self.region_gap} (>= 0), "
+                f"lateral_jitter {self.lateral_jitter} (in [0, 1]), "
+                f"speed {self.speed} (>= 0)"
+            )
 
 
 @dataclass(frozen=True)

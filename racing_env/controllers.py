@@ -4,6 +4,7 @@ It follows the agent protocol of :mod:`agents` (``reset(track, agent_id, seed)``
 ``act(observation) -> action``) so it can drive opponents inside the Gymnasium env without
 ``racing_env`` importing ``agents``.
 """
+
 from __future__ import annotations
 
 import math
@@ -48,22 +49,35 @@ class RacelineFollower:
     #: shown by ``alpha-racer agents`` beside the deprecated keyword
     param_notes = {"mu": "deprecated name of grip"}
 
-    def __init__(self, vehicle: VehicleParams | None = None, grip: float = 1.0,
-                 speed_scale: float = 1.0, line_fraction: float = 0.9, preview_min: float = 0.5,
-                 preview_time: float = 0.2, speed_preview: float = 0.3, k_speed: float = 2.0,
-                 line: str = "curvature", *, mu: float | None = None):
+    def __init__(
+        self,
+        vehicle: VehicleParams | None = None,
+        grip: float = 1.0,
+        speed_scale: float = 1.0,
+        line_fraction: float = 0.9,
+        preview_min: float = 0.5,
+        preview_time: float = 0.2,
+        speed_preview: float = 0.3,
+        k_speed: float = 2.0,
+        line: str = "curvature",
+        *,
+        mu: float | None = None,
+    ):
         from .envelope import grip_arg
         from .raceline import RacelineConfig
+
         grip = grip_arg(grip, mu, "RacelineFollower (agent spec raceline)", 1.0)
-        self.raceline_config = RacelineConfig(objective=line)     # names line and choices if bad
+        self.raceline_config = RacelineConfig(objective=line)  # names line and choices if bad
         if not (0.0 < speed_scale <= 1.5):
             raise ValueError(f"speed_scale must be in (0, 1.5], got {speed_scale}")
         if not (0.0 <= line_fraction <= 1.0):
             raise ValueError(f"line_fraction must be in [0, 1], got {line_fraction}")
         if preview_min <= 0 or preview_time < 0 or speed_preview < 0 or k_speed <= 0:
-            raise ValueError("preview_min and k_speed must be positive, preview_time and "
-                             f"speed_preview non-negative; got {preview_min}, {k_speed}, "
-                             f"{preview_time}, {speed_preview}")
+            raise ValueError(
+                "preview_min and k_speed must be positive, preview_time and "
+                f"speed_preview non-negative; got {preview_min}, {k_speed}, "
+                f"{preview_time}, {speed_preview}"
+            )
         self.vehicle = vehicle or VehicleParams()
         self.grip = grip
         self.speed_scale = speed_scale
@@ -81,8 +95,12 @@ class RacelineFollower:
     def mu(self) -> float:
         """Deprecated name of :attr:`grip` (``mu`` names the heading in the state)."""
         import warnings
-        warnings.warn("RacelineFollower.mu is deprecated, use .grip (the envelope scale)",
-                      DeprecationWarning, stacklevel=2)
+
+        warnings.warn(
+            "RacelineFollower.mu is deprecated, use .grip (the envelope scale)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
         return self.grip
 
     @property
@@ -92,16 +110,22 @@ class RacelineFollower:
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         from .raceline import get_raceline
+
         self.track = make_track(track)
         self.raceline = rl = get_raceline(self.track, self.vehicle, self.raceline_config)
-        rl.speed_at(0.0, self.grip)     # fail now, with the library's message, if out of range
+        rl.speed_at(0.0, self.grip)  # fail now, with the library's message, if out of range
         f = self.line_fraction
         # reference tables on the track grid: offset, its slope (heading to the centre line), curvature
         t = self.track
         self._n_ref = f * rl.offset_at(t.s_grid)
-        self._mu_ref = np.arctan(np.gradient(np.concatenate([self._n_ref[-1:], self._n_ref, self._n_ref[:1]]),
-                                             t.ds)[1:-1])
-        self._kappa_ref = f * np.interp(t.s_grid, rl.s_track, rl.kappa, period=t.length) + (1 - f) * t.kappa
+        self._mu_ref = np.arctan(
+            np.gradient(np.concatenate([self._n_ref[-1:], self._n_ref, self._n_ref[:1]]), t.ds)[
+                1:-1
+            ]
+        )
+        self._kappa_ref = (
+            f * np.interp(t.s_grid, rl.s_track, rl.kappa, period=t.length) + (1 - f) * t.kappa
+        )
         self._v_ref = self.speed_scale * rl.speed_at(t.s_grid, self.grip)
         self._gains = self.gains()
         self.agent_id = agent_id
@@ -109,9 +133,23 @@ class RacelineFollower:
     def gains(self) -> np.ndarray:
         """Packed controller constants for :func:`follower_action`."""
         v = self.vehicle
-        return np.array([self.preview_min, self.preview_time, self.speed_preview, self.k_speed,
-                         v.lf + v.lr, self.k_us, v.C1, v.C2, v.C3, v.C4, v.d_min, v.d_max,
-                         v.delta_max])
+        return np.array(
+            [
+                self.preview_min,
+                self.preview_time,
+                self.speed_preview,
+                self.k_speed,
+                v.lf + v.lr,
+                self.k_us,
+                v.C1,
+                v.C2,
+                v.C3,
+                v.C4,
+                v.d_min,
+                v.d_max,
+                v.delta_max,
+            ]
+        )
 
     def tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(n_ref, mu_ref, kappa_ref, v_ref) on the track grid, the follower's references."""
@@ -121,9 +159,16 @@ class RacelineFollower:
         """Normalised ``[throttle, steering]`` (float32, in [-1, 1]) from an env observation."""
         if self.track is None:
             raise RuntimeError("RacelineFollower.act() before reset(track, ...)")
-        a = follower_action(np.asarray(observation[:6], dtype=np.float64), self._n_ref,
-                            self._mu_ref, self._kappa_ref, self._v_ref, self.track.ds,
-                            self.track.length, self._gains)
+        a = follower_action(
+            np.asarray(observation[:6], dtype=np.float64),
+            self._n_ref,
+            self._mu_ref,
+            self._kappa_ref,
+            self._v_ref,
+            self.track.ds,
+            self.track.length,
+            self._gains,
+        )
         return np.array(a, dtype=np.float32)
 
 
@@ -134,13 +179,14 @@ def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
     s, n, mu, vx, vy = x[0], x[1], x[2], x[3], x[4]
     preview = max(g[0], g[1] * vx)
     beta = math.atan2(vy, max(vx, 0.1))
-    kappa_cmd = (_lookup(kappa_ref, s + 0.5 * preview, ds, length)
-                 + 2.0 / preview * (_lookup(mu_ref, s, ds, length) - (mu + beta))
-                 + 1.0 / preview ** 2 * (_lookup(n_ref, s, ds, length) - n))
+    kappa_cmd = (
+        _lookup(kappa_ref, s + 0.5 * preview, ds, length)
+        + 2.0 / preview * (_lookup(mu_ref, s, ds, length) - (mu + beta))
+        + 1.0 / preview**2 * (_lookup(n_ref, s, ds, length) - n)
+    )
     delta = math.atan(g[4] * kappa_cmd) + g[5] * vx * vx * kappa_cmd
     v_target = _lookup(v_ref, s + g[2] * vx, ds, length)
     d = (g[8] + g[9] * vx * vx) / max(g[6] - g[7] * vx, 1e-6) + g[3] * (v_target - vx)
     d = min(max(d, g[10]), g[11])
     d_norm = (2.0 * d - (g[11] + g[10])) / (g[11] - g[10])
     return d_norm, min(max(delta / g[12], -1.0), 1.0)
-

@@ -3,6 +3,7 @@
 :class:`BatchedRaces` is the batched path (data collection, RL training) and the engine inside
 the PettingZoo and Gymnasium environments, which run it with ``n_races=1``.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -28,8 +29,14 @@ S_CLIP = 1.0e4
 INFO_KEYS = ("contact", "off_track", "laps", "progress", "substeps", "contacts", "off_tracks")
 
 
-def start_states(track: Track, n_cars: int, start: StartConfig, width: float,
-                 rng: np.random.Generator, order: Sequence[int] | np.ndarray | None = None) -> np.ndarray:
+def start_states(
+    track: Track,
+    n_cars: int,
+    start: StartConfig,
+    width: float,
+    rng: np.random.Generator,
+    order: Sequence[int] | np.ndarray | None = None,
+) -> np.ndarray:
     """Initial states (n_cars, 6) for one race; see :class:`StartConfig` for the modes.
 
     ``order`` (regions mode): ``order[i]`` is the region index (0 = R1, front-most) of car i;
@@ -46,23 +53,33 @@ def start_states(track: Track, n_cars: int, start: StartConfig, width: float,
     elif start.mode == "regions":
         span = n_cars * start.region_length + (n_cars - 1) * start.region_gap
         if span > 0.5 * track.length:
-            raise ValueError(f"{n_cars} start regions span {span:.2f} m, over half the track "
-                             f"length {track.length:.2f} m; shorten region_length/region_gap")
+            raise ValueError(
+                f"{n_cars} start regions span {span:.2f} m, over half the track "
+                f"length {track.length:.2f} m; shorten region_length/region_gap"
+            )
         order = rng.permutation(n_cars) if order is None else np.asarray(order)
         if sorted(order.tolist()) != list(range(n_cars)):
-            raise ValueError(f"start order must be a permutation of 0..{n_cars - 1}, got {order.tolist()}")
+            raise ValueError(
+                f"start order must be a permutation of 0..{n_cars - 1}, got {order.tolist()}"
+            )
         for i in range(n_cars):
             front = start.s0 - order[i] * (start.region_length + start.region_gap)
             x[i, 0] = front - rng.uniform(0.0, start.region_length)
             x[i, 1] = rng.uniform(-1.0, 1.0) * start.lateral_jitter * usable
     else:  # random
         if n_cars * start.min_gap > track.length:
-            raise ValueError(f"{n_cars} cars at least {start.min_gap} m apart do not fit on "
-                             f"a {track.length:.2f} m track")
+            raise ValueError(
+                f"{n_cars} cars at least {start.min_gap} m apart do not fit on "
+                f"a {track.length:.2f} m track"
+            )
         # equal slots at a random rotation, jittered so that neighbours stay min_gap apart
         slot = track.length / n_cars
         jitter = 0.5 * max(slot - start.min_gap, 0.0)
-        s = rng.uniform(0.0, track.length) + slot * np.arange(n_cars) + rng.uniform(-jitter, jitter, n_cars)
+        s = (
+            rng.uniform(0.0, track.length)
+            + slot * np.arange(n_cars)
+            + rng.uniform(-jitter, jitter, n_cars)
+        )
         x[:, 0] = (s % track.length)[rng.permutation(n_cars)]
         wl, wr = track.widths(x[:, 0])
         lim = np.maximum(np.minimum(wl, wr) - width / 2.0, 0.0)
@@ -87,11 +104,16 @@ class BatchedRaces:
     a race is the start position of its front-most car.
     """
 
-    def __init__(self, track: Track | str = "default", config: RaceConfig | None = None,
-                 n_races: int = 1, seed: int | None = None):
+    def __init__(
+        self,
+        track: Track | str = "default",
+        config: RaceConfig | None = None,
+        n_races: int = 1,
+        seed: int | None = None,
+    ):
         if not (isinstance(n_races, (int, np.integer)) and n_races >= 1):
             raise ValueError(f"n_races must be a positive integer, got {n_races!r}")
-        notice()                    # the cache-fallback warning, if any, once per process
+        notice()  # the cache-fallback warning, if any, once per process
         self.track = make_track(track)
         self.config = config or RaceConfig()
         self.n_races = int(n_races)
@@ -119,7 +141,9 @@ class BatchedRaces:
         self._obs = np.zeros((b, n, self.obs_dim), dtype=np.float32)
         self._phys = np.zeros((b, n, 2))
         v = self.config.vehicle
-        self._act_map = np.array([0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min), v.delta_max])
+        self._act_map = np.array(
+            [0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min), v.delta_max]
+        )
         self._lap_event = np.full((b, n), -1.0)
         self._where = np.zeros(2, dtype=np.int64)
 
@@ -137,8 +161,13 @@ class BatchedRaces:
             self.config = self.config.with_(n_cars=n_cars)
             self._alloc()
 
-    def reset(self, seed: int | None = None, races: Sequence[int] | np.ndarray | None = None,
-              order: Sequence[int] | np.ndarray | None = None, start: StartConfig | None = None) -> np.ndarray:
+    def reset(
+        self,
+        seed: int | None = None,
+        races: Sequence[int] | np.ndarray | None = None,
+        order: Sequence[int] | np.ndarray | None = None,
+        start: StartConfig | None = None,
+    ) -> np.ndarray:
         """Put races (default: all; or an index array) on the start line; returns observations.
 
         ``seed`` reseeds the race generator (same seed, same starts). ``order`` fixes the
@@ -150,12 +179,14 @@ class BatchedRaces:
         start = start or self.config.start
         if seed is not None:
             rng = np.random.default_rng(seed)
-        else:                       # a copy: a failed draw must not advance the race generator
+        else:  # a copy: a failed draw must not advance the race generator
             rng = np.random.Generator(type(self.rng.bit_generator)())
             rng.bit_generator.state = self.rng.bit_generator.state
         # every start first (each may raise), then the races change: a failed reset changes nothing
-        starts = [start_states(self.track, self.n_cars, start, self.config.vehicle.width, rng, order)
-                  for _ in idx]
+        starts = [
+            start_states(self.track, self.n_cars, start, self.config.vehicle.width, rng, order)
+            for _ in idx
+        ]
         self.rng = rng
         for b, x in zip(idx, starts):
             self.state[b] = x
@@ -175,22 +206,48 @@ class BatchedRaces:
     def _advance(self, actions, normalised: bool):
         a = np.asarray(actions, dtype=np.float64)
         if a.shape != self._phys.shape:
-            raise ValueError(f"actions must have shape {self._phys.shape} (races, cars, 2), got {a.shape}")
+            raise ValueError(
+                f"actions must have shape {self._phys.shape} (races, cars, 2), got {a.shape}"
+            )
         tb = self._tables
         kernel = advance_parallel if self.n_races >= PARALLEL_MIN_RACES else advance
-        code = kernel(self.state, a, normalised, self._act_map, tb.kappa, tb.w_left, tb.w_right,
-                      tb.wall_left, tb.wall_right, tb.ds, tb.length, self._params, self.config.dt,
-                      self._rules, self.t, self.s_line, self.laps, self.contacts, self.offtracks,
-                      self._lap_event, self.reward, self.contact, self.offtrack, self.substeps,
-                      self._where)
+        code = kernel(
+            self.state,
+            a,
+            normalised,
+            self._act_map,
+            tb.kappa,
+            tb.w_left,
+            tb.w_right,
+            tb.wall_left,
+            tb.wall_right,
+            tb.ds,
+            tb.length,
+            self._params,
+            self.config.dt,
+            self._rules,
+            self.t,
+            self.s_line,
+            self.laps,
+            self.contacts,
+            self.offtracks,
+            self._lap_event,
+            self.reward,
+            self.contact,
+            self.offtrack,
+            self.substeps,
+            self._where,
+        )
         if code:
             b, i = self._where
             if code == 1:
                 what = "NaN" if normalised else "not finite"
                 raise ValueError(f"action of car {i} in race {b} is {what}: {a[b, i].tolist()}")
-            raise FloatingPointError(f"simulation produced a non-finite state for car {i} in race {b} "
-                                     f"at step {self.t[b]}: {self.state[b, i].tolist()} "
-                                     f"(action {a[b, i].tolist()})")
+            raise FloatingPointError(
+                f"simulation produced a non-finite state for car {i} in race {b} "
+                f"at step {self.t[b]}: {self.state[b, i].tolist()} "
+                f"(action {a[b, i].tolist()})"
+            )
         if self.laps.any():
             for b, i in np.argwhere(self._lap_event >= 0.0):
                 self.lap_times[b][i].append(float(self._lap_event[b, i]))
@@ -222,23 +279,37 @@ class BatchedRaces:
     def observe(self) -> np.ndarray:
         tb = self._tables
         kernel = observe_parallel if self.n_races >= PARALLEL_MIN_RACES else observe
-        kernel(self.state, tb.kappa, tb.ds, tb.length, self.config.preview_ds,
-                self.config.n_preview, S_CLIP, self._obs)
+        kernel(
+            self.state,
+            tb.kappa,
+            tb.ds,
+            tb.length,
+            self.config.preview_ds,
+            self.config.n_preview,
+            S_CLIP,
+            self._obs,
+        )
         return self._obs.copy()
 
     def progress(self) -> np.ndarray:
         """Distance driven since the start [m], (B, N)."""
         return self.state[:, :, 0] - self.start[:, :, 0]
 
-    def infos(self, races: int | Sequence[int] | np.ndarray,
-              cars: int | Sequence[int] | np.ndarray) -> list[dict]:
+    def infos(
+        self, races: int | Sequence[int] | np.ndarray, cars: int | Sequence[int] | np.ndarray
+    ) -> list[dict]:
         """The envs' info dicts (keys :data:`INFO_KEYS`) of the cars ``cars`` in races
         ``races`` (integers or index arrays, broadcast together), in that order."""
         r, c = np.broadcast_arrays(np.asarray(races), np.asarray(cars))
-        cols = (self.contact[r, c].astype(bool).tolist(), self.offtrack[r, c].astype(bool).tolist(),
-                self.laps[r, c].tolist(), (self.state[r, c, 0] - self.start[r, c, 0]).tolist(),
-                self.substeps[r, c].tolist(), self.contacts[r, c].tolist(),
-                self.offtracks[r, c].tolist())
+        cols = (
+            self.contact[r, c].astype(bool).tolist(),
+            self.offtrack[r, c].astype(bool).tolist(),
+            self.laps[r, c].tolist(),
+            (self.state[r, c, 0] - self.start[r, c, 0]).tolist(),
+            self.substeps[r, c].tolist(),
+            self.contacts[r, c].tolist(),
+            self.offtracks[r, c].tolist(),
+        )
         return [dict(zip(INFO_KEYS, col)) for col in zip(*cols)]
 
     def state_bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -251,16 +322,18 @@ class BatchedRaces:
         tb, v = self._tables, self.config.vehicle
         wall = float(max(tb.wall_left.max(), tb.wall_right.max())) + 1e-6
         vmax = 1.5 * max(v.top_speed, self.config.start.speed) + 1.0
-        return (np.array([-np.inf, -wall, -np.pi, 0.0, -vmax, -100.0]),
-                np.array([np.inf, wall, np.pi, vmax, vmax, 100.0]))
+        return (
+            np.array([-np.inf, -wall, -np.pi, 0.0, -vmax, -100.0]),
+            np.array([np.inf, wall, np.pi, vmax, vmax, 100.0]),
+        )
 
     def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(low, high) of one car's observation (D,), float32, from :meth:`state_bounds`."""
         lo, hi = self.state_bounds()
         own_lo, own_hi = lo.copy(), hi.copy()
-        own_lo[0], own_hi[0] = 0.0, self.track.length                  # own s is wrapped
+        own_lo[0], own_hi[0] = 0.0, self.track.length  # own s is wrapped
         rel_hi = np.concatenate([[S_CLIP], hi[1:] - lo[1:]])
-        rel_hi[2] = np.pi                                                  # wrapped difference
+        rel_hi[2] = np.pi  # wrapped difference
         kmax = float(np.abs(self._tables.kappa).max()) + 1e-6
         n, k = self.n_cars, self.config.n_preview
         high = np.concatenate([own_hi, np.tile(rel_hi, n - 1), np.full(k, kmax)])

@@ -6,6 +6,7 @@ a racing line or a race state into arrays.
 Pixel coordinates ``(u, v)`` are (column, row) with the origin at the top-left corner of the
 image, ``v`` down; a pixel ``(i, j)`` covers ``[i, i + 1) x [j, j + 1)``.
 """
+
 from __future__ import annotations
 
 import math
@@ -15,14 +16,14 @@ from PIL import Image, ImageDraw, ImageFont
 
 # ---------------------------------------------------------------------------- colours
 CAR_COLORS: tuple[tuple[int, int, int], ...] = (
-    (230, 25, 75),    # 0 red
-    (0, 130, 200),    # 1 blue
-    (255, 225, 25),   # 2 yellow
-    (60, 180, 75),    # 3 green
-    (245, 130, 48),   # 4 orange
-    (145, 30, 180),   # 5 purple
-    (240, 50, 230),   # 6 magenta
-    (170, 110, 40),   # 7 brown
+    (230, 25, 75),  # 0 red
+    (0, 130, 200),  # 1 blue
+    (255, 225, 25),  # 2 yellow
+    (60, 180, 75),  # 3 green
+    (245, 130, 48),  # 4 orange
+    (145, 30, 180),  # 5 purple
+    (240, 50, 230),  # 6 magenta
+    (170, 110, 40),  # 7 brown
 )
 """Fixed RGB colour of car ``i`` (cars beyond 8 reuse the palette, ``i % 8``). None of these
 colours occurs in the rendered background."""
@@ -61,16 +62,19 @@ def _fill_convex(out: np.ndarray, polys_colors) -> None:
     h, w = out.shape[:2]
     allp = np.concatenate([p for p, _ in polys_colors])
     u0, v0 = max(int(math.floor(allp[:, 0].min())), 0), max(int(math.floor(allp[:, 1].min())), 0)
-    u1, v1 = min(int(math.ceil(allp[:, 0].max())) + 1, w), min(int(math.ceil(allp[:, 1].max())) + 1, h)
+    u1, v1 = (
+        min(int(math.ceil(allp[:, 0].max())) + 1, w),
+        min(int(math.ceil(allp[:, 1].max())) + 1, h),
+    )
     if u1 <= u0 or v1 <= v0:
         return  # entirely outside the image
-    pu = np.arange(u0, u1) + 0.5                 # pixel centres
+    pu = np.arange(u0, u1) + 0.5  # pixel centres
     pv = (np.arange(v0, v1) + 0.5)[:, None]
     region = out[v0:v1, u0:u1]
     for poly, color in polys_colors:
-        a = poly[:, :, None, None]                # (K, 2, 1, 1)
+        a = poly[:, :, None, None]  # (K, 2, 1, 1)
         e = np.roll(poly, -1, axis=0)[:, :, None, None] - a
-        cross = e[:, 0] * (pv - a[:, 1]) - e[:, 1] * (pu - a[:, 0])   # (K, h, w)
+        cross = e[:, 0] * (pv - a[:, 1]) - e[:, 1] * (pu - a[:, 0])  # (K, h, w)
         inside = (cross >= 0).all(axis=0) | (cross <= 0).all(axis=0)
         region[inside] = color
 
@@ -96,7 +100,9 @@ def _as_xy(raceline_xy) -> tuple[np.ndarray, np.ndarray]:
     """(x, y) arrays [m] from ``(x, y)`` or an (M, 2) array; validates shape and finiteness."""
     a = np.asarray(raceline_xy, dtype=float)
     if a.ndim != 2 or 2 not in a.shape:
-        raise ValueError(f"raceline_xy must be (x, y) arrays or an (M, 2) array, got shape {a.shape}")
+        raise ValueError(
+            f"raceline_xy must be (x, y) arrays or an (M, 2) array, got shape {a.shape}"
+        )
     if a.shape[0] != 2:
         a = a.T
     if a.shape[1] < 2:

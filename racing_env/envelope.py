@@ -37,6 +37,7 @@ heading in the state) multiplies every acceleration by ``grip``: the
 racing line's speed library (:mod:`racing_env.raceline`) holds profiles over ``grip``, ``grip = 1``
 being the car's own limit. Units: SI (m/s, m/s^2, rad).
 """
+
 from __future__ import annotations
 
 import functools
@@ -56,7 +57,9 @@ N_FRACTIONS = 41
 """Points of the lateral-fraction grid ``r`` of :func:`ggv`."""
 
 
-def grip_arg(grip: float | None, mu: float | None, where: str, default: float | None = None) -> float | None:
+def grip_arg(
+    grip: float | None, mu: float | None, where: str, default: float | None = None
+) -> float | None:
     """The envelope scale of a call that takes ``grip`` and still accepts its old name ``mu``
     (which now names only the heading in the state): ``mu`` given warns (DeprecationWarning
     naming ``grip``) and is used; both given is a ValueError. ``default``: the value when
@@ -64,16 +67,24 @@ def grip_arg(grip: float | None, mu: float | None, where: str, default: float | 
     if mu is None:
         return default if grip is None else grip
     import warnings
+
     if grip is not None and grip != default:
-        raise ValueError(f"{where}: give the envelope scale once, as grip= (mu= is its old "
-                         f"name), got grip={grip!r} and mu={mu!r}")
-    warnings.warn(f"{where}: mu= is deprecated as the envelope (grip) scale, use grip={mu!r} "
-                  f"(mu names the heading in the state)", DeprecationWarning, stacklevel=3)
+        raise ValueError(
+            f"{where}: give the envelope scale once, as grip= (mu= is its old "
+            f"name), got grip={grip!r} and mu={mu!r}"
+        )
+    warnings.warn(
+        f"{where}: mu= is deprecated as the envelope (grip) scale, use grip={mu!r} "
+        f"(mu names the heading in the state)",
+        DeprecationWarning,
+        stacklevel=3,
+    )
     return mu
 
 
-def steady_corner(V: float | np.ndarray, ay: float | np.ndarray,
-                  vehicle: VehicleParams | None = None) -> dict[str, np.ndarray]:
+def steady_corner(
+    V: float | np.ndarray, ay: float | np.ndarray, vehicle: VehicleParams | None = None
+) -> dict[str, np.ndarray]:
     """Quasi-steady cornering at path speed ``V`` [m/s] and lateral acceleration ``ay`` [m/s^2]
     (arrays broadcast; the sign of ``ay`` is the turn direction, the result is symmetric).
 
@@ -90,14 +101,14 @@ def steady_corner(V: float | np.ndarray, ay: float | np.ndarray,
     omega = ay / Vs
     wb = p.lf + p.lr
     yaw_v = 0.5 * wb * omega
-    fade = (Vs * Vs + yaw_v * yaw_v) / (Vs * Vs + yaw_v * yaw_v + p.v_low ** 2)   # vx^2 + vy^2 = V^2
+    fade = (Vs * Vs + yaw_v * yaw_v) / (Vs * Vs + yaw_v * yaw_v + p.v_low**2)  # vx^2 + vy^2 = V^2
 
     def rear(vx):
         """(f_r, vy): the rear force the corner needs (fraction of its peak) and the lateral
         velocity whose slip angle gives it (stable side of the peak)."""
         f_r = p.m * vx * omega * p.lf / wb / (fade * p.Dr)
         alpha_r = np.tan(np.arcsin(np.clip(f_r, -1.0, 1.0)) / p.Cr) / p.Br
-        return f_r, omega * p.lr - np.sqrt(vx * vx + p.v_low ** 2) * np.tan(alpha_r)
+        return f_r, omega * p.lr - np.sqrt(vx * vx + p.v_low**2) * np.tan(alpha_r)
 
     # vx solves vx^2 + vy(vx)^2 = V^2; bisection on [V/2, V] (body slip below 60 degrees)
     def excess(vx):
@@ -113,7 +124,7 @@ def steady_corner(V: float | np.ndarray, ay: float | np.ndarray,
     vx = 0.5 * (lo + hi)
     f_r, vy = rear(vx)
     ok &= np.abs(f_r) <= 1.0
-    vx_eff = np.sqrt(vx * vx + p.v_low ** 2)
+    vx_eff = np.sqrt(vx * vx + p.v_low**2)
     # steering: F_fy(delta - beta_f) cos(delta) = m vx omega lr / (lf + lr), by bisection on
     # delta between beta_f and the smaller of the steering bound and the front tyre's peak
     # (the product rises with delta there: cos(delta) > 0.9)
@@ -141,9 +152,17 @@ def steady_corner(V: float | np.ndarray, ay: float | np.ndarray,
     ax_max = ((p.C1 - p.C2 * vx) * p.d_max - resist) / p.m - lateral_drag
     ax_min = ((p.C1 - p.C2 * vx) * p.d_min * stop - resist) / p.m - lateral_drag
     nan = np.full(V.shape, np.nan)
-    return {"feasible": ok, "delta": delta, "vx": vx, "vy": vy, "omega": omega,
-            "f_front": f_f, "f_rear": f_r, "ax_max": np.where(ok, ax_max, nan),
-            "ax_min": np.where(ok, ax_min, nan)}
+    return {
+        "feasible": ok,
+        "delta": delta,
+        "vx": vx,
+        "vy": vy,
+        "omega": omega,
+        "f_front": f_f,
+        "f_rear": f_r,
+        "ax_max": np.where(ok, ax_max, nan),
+        "ax_min": np.where(ok, ax_min, nan),
+    }
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,34 +181,51 @@ class GGV:
     ax_min: np.ndarray
     top_speed: float
 
-    def lateral_limit(self, v: float | np.ndarray, grip: float = 1.0, *, mu: float | None = None) -> float | np.ndarray:
+    def lateral_limit(
+        self, v: float | np.ndarray, grip: float = 1.0, *, mu: float | None = None
+    ) -> float | np.ndarray:
         """Largest lateral acceleration [m/s^2] at speed ``v`` [m/s] (any shape), scaled by
         ``grip`` (``mu``: deprecated name of ``grip``)."""
         grip = grip_arg(grip, mu, "lateral_limit", 1.0)
         return grip * np.interp(v, self.v, self.ay_max)
 
-    def longitudinal_limits(self, v: float | np.ndarray, ay: float | np.ndarray, grip: float = 1.0,
-                            *, mu: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def longitudinal_limits(
+        self,
+        v: float | np.ndarray,
+        ay: float | np.ndarray,
+        grip: float = 1.0,
+        *,
+        mu: float | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``(ax_max, ax_min)`` [m/s^2] at speed ``v`` and lateral acceleration ``ay`` (arrays
         broadcast) of the envelope scaled by ``grip``; ``ay`` beyond the limit counts as at it.
         ``mu``: deprecated name of ``grip``."""
         grip = grip_arg(grip, mu, "longitudinal_limits", 1.0)
         v, ay = np.broadcast_arrays(np.asarray(v, dtype=float), np.abs(np.asarray(ay, dtype=float)))
         v_tab, ay_tab, r_tab, hi_tab, lo_tab = self.tables(grip)
-        flat = (np.ascontiguousarray(v).ravel(), np.ascontiguousarray(ay).ravel(), v_tab, ay_tab,
-                r_tab)
-        return (_envelope_many(*flat, hi_tab).reshape(v.shape),
-                _envelope_many(*flat, lo_tab).reshape(v.shape))
+        flat = (
+            np.ascontiguousarray(v).ravel(),
+            np.ascontiguousarray(ay).ravel(),
+            v_tab,
+            ay_tab,
+            r_tab,
+        )
+        return (
+            _envelope_many(*flat, hi_tab).reshape(v.shape),
+            _envelope_many(*flat, lo_tab).reshape(v.shape),
+        )
 
-    def corner_speed(self, kappa: float | np.ndarray, grip: float = 1.0, *, mu: float | None = None) -> np.ndarray:
+    def corner_speed(
+        self, kappa: float | np.ndarray, grip: float = 1.0, *, mu: float | None = None
+    ) -> np.ndarray:
         """Highest speed [m/s] at which curvature ``kappa`` [1/m] (any shape) can be held:
         the largest grid speed ``v`` with ``v^2 |kappa| <= grip ay_max(u)`` for every ``u <= v``
         (the connected feasible range from standstill), interpolated between grid points,
         capped at the top speed. ``mu``: deprecated name of ``grip``."""
         grip = grip_arg(grip, mu, "corner_speed", 1.0)
         k = np.abs(np.asarray(kappa, dtype=float))
-        lim = grip * self.ay_max                                   # (I,)
-        slack = lim[None, :] - self.v[None, :] ** 2 * k.reshape(-1, 1)   # (P, I), >= 0 feasible
+        lim = grip * self.ay_max  # (I,)
+        slack = lim[None, :] - self.v[None, :] ** 2 * k.reshape(-1, 1)  # (P, I), >= 0 feasible
         bad = slack < 0
         first = np.where(bad.any(axis=1), bad.argmax(axis=1), len(self.v))
         out = np.full(k.size, self.top_speed)
@@ -201,8 +237,9 @@ class GGV:
         out[hit] = self.v[i0] + w * (self.v[i] - self.v[i0])
         return np.minimum(out, self.top_speed).reshape(k.shape)
 
-    def tables(self, grip: float = 1.0, *, mu: float | None = None) -> tuple[np.ndarray,
-               np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def tables(
+        self, grip: float = 1.0, *, mu: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Arrays for the compiled speed profile: ``(v, grip * ay_max, r, grip * ax_max,
         grip * ax_min)`` (``mu``: deprecated name of ``grip``)."""
         grip = grip_arg(grip, mu, "tables", 1.0)
@@ -222,8 +259,12 @@ def envelope_at(v, ay, v_tab, ay_tab, r_tab, tab):
     y = min(ay / lim, 1.0) if lim > 1e-9 else 1.0
     j = min(int(y * (nr - 1)), nr - 2)
     ty = (y - r_tab[j]) / (r_tab[j + 1] - r_tab[j])
-    return ((1 - tx) * (1 - ty) * tab[i, j] + tx * (1 - ty) * tab[i + 1, j]
-            + (1 - tx) * ty * tab[i, j + 1] + tx * ty * tab[i + 1, j + 1])
+    return (
+        (1 - tx) * (1 - ty) * tab[i, j]
+        + tx * (1 - ty) * tab[i + 1, j]
+        + (1 - tx) * ty * tab[i, j + 1]
+        + tx * ty * tab[i + 1, j + 1]
+    )
 
 
 @njit(cache=True)

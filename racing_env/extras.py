@@ -2,6 +2,7 @@
 ``selfplay``, the ``ppo`` agent, :mod:`racing_env.vec_env`) needs the ``learn`` extra: torch,
 stable-baselines3 and tensorboard, installed by ``pip install "alpha-racer[learn]"``.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -22,4 +23,5 @@ def require(module: str, purpose: str, extra: str = LEARN) -> ModuleType:
     except ImportError as exc:
         raise MissingExtraError(
             f"{purpose} needs {module.split('.')[0]!r}, which cannot be imported ({exc}). It comes with "
-            f"the {extra!r} extra: pip install \"alpha-racer[{extra}]\"") from exc
+            f'the {extra!r} extra: pip install "alpha-racer[{extra}]"'
+        ) from exc

@@ -1,4 +1,5 @@
 """Files written whole or not at all: :func:`atomic_path`, the one atomic-write helper."""
+
 from __future__ import annotations
 
 import os
@@ -20,7 +21,7 @@ def current_umask() -> int:
                     return int(line.split()[1], 8)
     except (OSError, ValueError, IndexError):
         pass
-    mask = os.umask(0o022)           # elsewhere: set and restore (not atomic across threads)
+    mask = os.umask(0o022)  # elsewhere: set and restore (not atomic across threads)
     os.umask(mask)
     return mask
 

@@ -1,9 +1,10 @@
 """Gymnasium single-agent env: one learner races opponents that are given as agents."""
+
 from __future__ import annotations
 
 import copy
-from typing import Any
 from collections.abc import Sequence
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -11,7 +12,6 @@ import numpy as np
 from .config import RaceConfig, StartConfig
 from .parallel_env import RacingParallelEnv, _check_reset_options, check_reward_options
 from .track import Track
-
 
 OpponentSpec = Any
 """An opponent as the envs accept it: an agent spec string (``"mpc:zeta=0.9"``, built by
@@ -21,7 +21,11 @@ an agent instance (an object with ``reset(track, agent_id, seed)`` and ``act(obs
 
 def _is_agent(obj) -> bool:
     """An agent instance (a class with ``act`` and ``reset`` is a factory, not an agent)."""
-    return not isinstance(obj, type) and callable(getattr(obj, "act", None)) and callable(getattr(obj, "reset", None))
+    return (
+        not isinstance(obj, type)
+        and callable(getattr(obj, "act", None))
+        and callable(getattr(obj, "reset", None))
+    )
 
 
 def agent_label(agent: object, spec: str | None = None) -> str:
@@ -43,11 +47,13 @@ def act_named(agent: Any, observation: np.ndarray, car: str, spec: str | None = 
             raise
         size = np.shape(observation)[-1] if np.ndim(observation) else "?"
         try:
-            named = type(exc)(f"agent {agent_label(agent, spec)} driving {car} (observation of "
-                              f"{size} values): {msg}")
+            named = type(exc)(
+                f"agent {agent_label(agent, spec)} driving {car} (observation of "
+                f"{size} values): {msg}"
+            )
         except Exception:
             raise exc from None
-        named.agent_error = exc         # the agent's own error, for callers that name it themselves
+        named.agent_error = exc  # the agent's own error, for callers that name it themselves
         raise named from exc
 
 
@@ -56,23 +62,29 @@ def make_opponent(spec: OpponentSpec, k: int = 0) -> Any:
     is built through the agents registry, a factory is called, an instance is deep-copied, so
     that no two envs share an opponent's state. ``k`` (the opponent's index) names it in errors."""
     if isinstance(spec, str):
-        import agents                 # lazily: racing_env does not depend on agents at import
+        import agents  # lazily: racing_env does not depend on agents at import
+
         return agents.make_agent_spec(spec)
     if _is_agent(spec):
         return copy.deepcopy(spec)
     if callable(spec):
         agent = spec()
         if not _is_agent(agent):
-            raise ValueError(f"opponent {k}: factory {spec!r} returned {agent!r}, which lacks "
-                             f"reset(track, agent_id, seed) and act(observation) methods")
+            raise ValueError(
+                f"opponent {k}: factory {spec!r} returned {agent!r}, which lacks "
+                f"reset(track, agent_id, seed) and act(observation) methods"
+            )
         return agent
-    raise ValueError(f"opponent {k} ({spec!r}) must be an agent spec string, a factory, or an agent "
-                     f"with reset(track, agent_id, seed) and act(observation) methods")
+    raise ValueError(
+        f"opponent {k} ({spec!r}) must be an agent spec string, a factory, or an agent "
+        f"with reset(track, agent_id, seed) and act(observation) methods"
+    )
 
 
 def default_opponents() -> list:
     """Two :class:`racing_env.controllers.RacelineFollower` s (envelope scales 0.75 and 0.8)."""
     from .controllers import RacelineFollower
+
     return [RacelineFollower(grip=0.75), RacelineFollower(grip=0.8)]
 
 
@@ -133,30 +145,50 @@ class HeadToHeadEnv(gym.Env):
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
 
-    def __init__(self, opponents: Sequence | None = None, track: str | Track = "default",
-                 render_mode: str | None = None, config: RaceConfig | None = None,
-                 start: str | StartConfig | None = None, offtrack_penalty: float = 0.0,
-                 terminate_off_track: bool = False, **kwargs):
+    def __init__(
+        self,
+        opponents: Sequence | None = None,
+        track: str | Track = "default",
+        render_mode: str | None = None,
+        config: RaceConfig | None = None,
+        start: str | StartConfig | None = None,
+        offtrack_penalty: float = 0.0,
+        terminate_off_track: bool = False,
+        **kwargs,
+    ):
         if opponents is None:
             opponents = default_opponents()
         if isinstance(opponents, str) or _is_agent(opponents):
-            raise ValueError(f"opponents must be a sequence (one per opponent car), got {opponents!r}")
+            raise ValueError(
+                f"opponents must be a sequence (one per opponent car), got {opponents!r}"
+            )
         self.offtrack_penalty, self.terminate_off_track = check_reward_options(
-            offtrack_penalty, terminate_off_track)
+            offtrack_penalty, terminate_off_track
+        )
         self.opponents = [make_opponent(o, k) for k, o in enumerate(opponents)]
         n_cars = kwargs.pop("n_cars", 1 + len(self.opponents))
         if n_cars != 1 + len(self.opponents):
-            raise ValueError(f"n_cars = {n_cars} but {len(self.opponents)} opponents were given; "
-                             f"n_cars must be 1 + number of opponents")
-        self.race = RacingParallelEnv(track=track, n_cars=n_cars, render_mode=render_mode,
-                                      config=config, start=start, **kwargs)
+            raise ValueError(
+                f"n_cars = {n_cars} but {len(self.opponents)} opponents were given; "
+                f"n_cars must be 1 + number of opponents"
+            )
+        self.race = RacingParallelEnv(
+            track=track,
+            n_cars=n_cars,
+            render_mode=render_mode,
+            config=config,
+            start=start,
+            **kwargs,
+        )
         self.render_mode = render_mode
         self.learner = self.race.possible_agents[0]
         self.observation_space = self.race.observation_space(self.learner)
         self.action_space = self.race.action_space(self.learner)
         self._last_obs = None
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+    def reset(
+        self, *, seed: int | None = None, options: dict | None = None
+    ) -> tuple[np.ndarray, dict]:
         """Start a new race against freshly reset opponents.
 
         Parameters
@@ -184,15 +216,17 @@ class HeadToHeadEnv(gym.Env):
         """
         options = dict(options or {})
         if "n_cars" in options and options["n_cars"] != self.race.core.n_cars:
-            raise ValueError(f"reset option n_cars = {options['n_cars']!r}: the Gymnasium env races "
-                             f"{self.race.core.n_cars} cars (the learner and {len(self.opponents)} "
-                             f"opponents); make a new env to race another number")
+            raise ValueError(
+                f"reset option n_cars = {options['n_cars']!r}: the Gymnasium env races "
+                f"{self.race.core.n_cars} cars (the learner and {len(self.opponents)} "
+                f"opponents); make a new env to race another number"
+            )
         unknown = set(options) - {"n_cars", "start", "order"}
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; known: start, order")
         _check_reset_options(options, self.race.core)
         super().reset(seed=seed)
-        race_seed = int(self.np_random.integers(2 ** 31))
+        race_seed = int(self.np_random.integers(2**31))
         obs, infos = self.race.reset(seed=race_seed, options=options)
         for k, opp in enumerate(self.opponents):
             opp.reset(self.race.track, self.race.possible_agents[k + 1], race_seed + k + 1)

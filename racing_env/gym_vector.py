@@ -11,6 +11,7 @@ Needs only the core install (no stable-baselines3: the batched races live in
 :mod:`racing_env.batched_env`; the SB3 ``VecEnv`` is :mod:`racing_env.vec_env`, behind the
 ``learn`` extra). ``import racing_env`` alone does not load this module.
 """
+
 from __future__ import annotations
 
 import math
@@ -21,9 +22,9 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from .batched_env import HeadToHeadBatch
 from .config import RaceConfig
 from .track import Track
-from .batched_env import HeadToHeadBatch
 
 if TYPE_CHECKING:
     from .core import BatchedRaces
@@ -46,11 +47,18 @@ class HeadToHeadVectorEnv(VectorEnv):
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.NEXT_STEP}
     render_mode = None
 
-    def __init__(self, num_envs: int = 8, opponents: Sequence | None = None,
-                 track: str | Track = "default", config: RaceConfig | None = None,
-                 max_episode_steps: int | None = None, **kwargs):
-        self._batch = HeadToHeadBatch(num_envs, opponents=opponents, track=track, config=config,
-                                       **kwargs)
+    def __init__(
+        self,
+        num_envs: int = 8,
+        opponents: Sequence | None = None,
+        track: str | Track = "default",
+        config: RaceConfig | None = None,
+        max_episode_steps: int | None = None,
+        **kwargs,
+    ):
+        self._batch = HeadToHeadBatch(
+            num_envs, opponents=opponents, track=track, config=config, **kwargs
+        )
         self.num_envs = self._batch.num_envs
         self.single_observation_space = self._batch.observation_space
         self.single_action_space = self._batch.action_space
@@ -69,8 +77,9 @@ class HeadToHeadVectorEnv(VectorEnv):
     def opponents(self) -> list:
         return self._batch.opponents
 
-    def reset(self, *, seed: int | Sequence[int | None] | None = None,
-              options: dict | None = None) -> tuple[np.ndarray, dict]:
+    def reset(
+        self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None
+    ) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed if isinstance(seed, int) else None)
         if seed is None or isinstance(seed, int):
             seeds = [None if seed is None else seed + b for b in range(self.num_envs)]
@@ -84,15 +93,19 @@ class HeadToHeadVectorEnv(VectorEnv):
         self._all_obs = self.core.observe()
         return self._all_obs[:, 0].copy(), self._infos()
 
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         if self._all_obs is None:
             raise RuntimeError("step() called before reset(); call reset() first")
         a = np.asarray(actions, dtype=np.float64)
         if a.shape != (self.num_envs, 2):
-            raise ValueError(f"actions must have shape ({self.num_envs}, 2) (envs, [throttle, "
-                             f"steering]), got {a.shape}")
+            raise ValueError(
+                f"actions must have shape ({self.num_envs}, 2) (envs, [throttle, "
+                f"steering]), got {a.shape}"
+            )
         acts, obs, done = self._batch._actions, self._all_obs, self._autoreset
-        acts[:, 0] = np.where(done[:, None], 0.0, a)     # envs being reset ignore their action
+        acts[:, 0] = np.where(done[:, None], 0.0, a)  # envs being reset ignore their action
         for k, opp in enumerate(self.opponents):
             if self._batch._batched[k]:
                 acts[:, k + 1] = opp.act_batch(obs[:, k + 1])

@@ -9,15 +9,24 @@ arrays of any shape, :func:`periodic_lookup` for one ``s`` inside numba kernels;
 same floating-point operations in the same order, so they agree bit for bit
 (``tests/test_interp.py``).
 """
+
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
 
-def periodic_interp(table: np.ndarray, s: float | np.ndarray, length: float,
-                    ds: float | None = None, *, per_metre: float | None = None, size: int | None = None,
-                    offset: int = 0, snap: float = 0.0) -> np.ndarray:
+def periodic_interp(
+    table: np.ndarray,
+    s: float | np.ndarray,
+    length: float,
+    ds: float | None = None,
+    *,
+    per_metre: float | None = None,
+    size: int | None = None,
+    offset: int = 0,
+    snap: float = 0.0,
+) -> np.ndarray:
     """Periodic linear interpolation of ``table`` at unwrapped arc lengths ``s`` [m].
 
     ``table`` (..., M): values at the grid points (the last axis; leading axes are
@@ -32,8 +41,9 @@ def periodic_interp(table: np.ndarray, s: float | np.ndarray, length: float,
     ``table.shape[:-1] + s.shape``.
     """
     if (ds is None) == (per_metre is None):
-        raise ValueError(f"give exactly one of ds and per_metre, got ds={ds!r}, "
-                         f"per_metre={per_metre!r}")
+        raise ValueError(
+            f"give exactly one of ds and per_metre, got ds={ds!r}, per_metre={per_metre!r}"
+        )
     sw = np.mod(np.asarray(s, dtype=float), length)
     f = sw / ds if per_metre is None else sw * per_metre
     if snap:

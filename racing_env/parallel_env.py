@@ -1,4 +1,5 @@
 """PettingZoo ParallelEnv of N cars racing on a track (the paper's game, section 2)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -17,11 +18,16 @@ RESET_OPTIONS = ("n_cars", "start", "order")
 def check_reward_options(offtrack_penalty: float, terminate_off_track: bool) -> tuple[float, bool]:
     """Validated ``(offtrack_penalty, terminate_off_track)`` of an env (see
     :class:`RacingParallelEnv`): a finite penalty >= 0 [m per step off track] and a bool."""
-    if isinstance(offtrack_penalty, (bool, np.bool_)) or not isinstance(
-            offtrack_penalty, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(offtrack_penalty) or offtrack_penalty < 0:
-        raise ValueError(f"offtrack_penalty must be a finite number >= 0 (metres of reward taken "
-                         f"per step off track), got {offtrack_penalty!r}")
+    if (
+        isinstance(offtrack_penalty, (bool, np.bool_))
+        or not isinstance(offtrack_penalty, (int, float, np.integer, np.floating))
+        or not np.isfinite(offtrack_penalty)
+        or offtrack_penalty < 0
+    ):
+        raise ValueError(
+            f"offtrack_penalty must be a finite number >= 0 (metres of reward taken "
+            f"per step off track), got {offtrack_penalty!r}"
+        )
     if not isinstance(terminate_off_track, (bool, np.bool_)):
         raise ValueError(f"terminate_off_track must be True or False, got {terminate_off_track!r}")
     return float(offtrack_penalty), bool(terminate_off_track)
@@ -135,15 +141,27 @@ class RacingParallelEnv(ParallelEnv):
       get the rear factor); not kept.
     """
 
-    metadata = {"name": "alpha_racer_v2", "render_modes": ["human", "rgb_array"],
-                "render_fps": 10, "is_parallelizable": True}
+    metadata = {
+        "name": "alpha_racer_v2",
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": 10,
+        "is_parallelizable": True,
+    }
 
-    def __init__(self, track: str | Track = "default", n_cars: int | None = None,
-                 max_cycles: int | None = None, laps: int | None = None,
-                 start: str | StartConfig | None = None, vehicle: VehicleParams | None = None,
-                 rules: RulesConfig | None = None, config: RaceConfig | None = None,
-                 render_mode: str | None = None, offtrack_penalty: float = 0.0,
-                 terminate_off_track: bool = False):
+    def __init__(
+        self,
+        track: str | Track = "default",
+        n_cars: int | None = None,
+        max_cycles: int | None = None,
+        laps: int | None = None,
+        start: str | StartConfig | None = None,
+        vehicle: VehicleParams | None = None,
+        rules: RulesConfig | None = None,
+        config: RaceConfig | None = None,
+        render_mode: str | None = None,
+        offtrack_penalty: float = 0.0,
+        terminate_off_track: bool = False,
+    ):
         cfg = config or RaceConfig()
         changes = {}
         if n_cars is not None:
@@ -160,10 +178,13 @@ class RacingParallelEnv(ParallelEnv):
             changes["rules"] = rules
         cfg = cfg.with_(**changes) if changes else cfg
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, "
-                             f"got {render_mode!r}")
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or None, "
+                f"got {render_mode!r}"
+            )
         self.offtrack_penalty, self.terminate_off_track = check_reward_options(
-            offtrack_penalty, terminate_off_track)
+            offtrack_penalty, terminate_off_track
+        )
         self.render_mode = render_mode
         self.core = BatchedRaces(track, cfg, n_races=1)
         self.track = self.core.track
@@ -181,11 +202,15 @@ class RacingParallelEnv(ParallelEnv):
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
         lo, hi = self.core.observation_bounds()
         self._obs_spaces = {a: spaces.Box(lo, hi, dtype=np.float32) for a in self.possible_agents}
-        self._act_spaces = {a: spaces.Box(-1.0, 1.0, (2,), dtype=np.float32) for a in self.possible_agents}
+        self._act_spaces = {
+            a: spaces.Box(-1.0, 1.0, (2,), dtype=np.float32) for a in self.possible_agents
+        }
         slo, shi = self.core.state_bounds()
-        self.state_space = spaces.Box(np.tile(np.maximum(slo, -1e9), n).astype(np.float32),
-                                      np.tile(np.minimum(shi, 1e9), n).astype(np.float32),
-                                      dtype=np.float32)
+        self.state_space = spaces.Box(
+            np.tile(np.maximum(slo, -1e9), n).astype(np.float32),
+            np.tile(np.minimum(shi, 1e9), n).astype(np.float32),
+            dtype=np.float32,
+        )
         self._actions = np.zeros((1, n, 2))
 
     def observation_space(self, agent: str) -> spaces.Box:
@@ -227,15 +252,18 @@ class RacingParallelEnv(ParallelEnv):
         try:
             return table[agent]
         except (KeyError, TypeError):
-            raise ValueError(f"unknown agent {agent!r}; the agents are {self.possible_agents}") from None
+            raise ValueError(
+                f"unknown agent {agent!r}; the agents are {self.possible_agents}"
+            ) from None
 
     @property
     def config(self) -> RaceConfig:
         return self.core.config
 
     # ------------------------------------------------------------------ API
-    def reset(self, seed: int | None = None,
-              options: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
+    def reset(
+        self, seed: int | None = None, options: dict | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
         """Start a new race.
 
         Parameters
@@ -275,11 +303,16 @@ class RacingParallelEnv(ParallelEnv):
         if self.render_mode == "human":
             self.render()
         infos = self._infos()
-        return ({a: obs[0, i] for i, a in enumerate(self.agents)},
-                {a: infos[i] for i, a in enumerate(self.agents)})
+        return (
+            {a: obs[0, i] for i, a in enumerate(self.agents)},
+            {a: infos[i] for i, a in enumerate(self.agents)},
+        )
 
-    def step(self, actions: dict) -> tuple[dict[str, np.ndarray], dict[str, float],
-             dict[str, bool], dict[str, bool], dict[str, dict]]:
+    def step(
+        self, actions: dict
+    ) -> tuple[
+        dict[str, np.ndarray], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict]
+    ]:
         """Advance the race by one control period (0.1 s) with one action per live agent.
 
         Parameters
@@ -312,15 +345,19 @@ class RacingParallelEnv(ParallelEnv):
             raise RuntimeError("step() called on a finished episode; call reset() first")
         unknown = [a for a in actions if a not in self.agents]
         if unknown:
-            raise ValueError(f"actions for unknown agents {unknown}; the live agents are {self.agents}")
+            raise ValueError(
+                f"actions for unknown agents {unknown}; the live agents are {self.agents}"
+            )
         acts = self._actions
         for a in self.agents:
             if a not in actions:
                 raise ValueError(f"missing action for {a}; every live agent acts each step")
             act = np.asarray(actions[a], dtype=np.float64)
             if act.shape != (2,):
-                raise ValueError(f"action of {a} must have shape (2,) [throttle, steering], "
-                                 f"got shape {act.shape}: {actions[a]!r}")
+                raise ValueError(
+                    f"action of {a} must have shape (2,) [throttle, steering], "
+                    f"got shape {act.shape}: {actions[a]!r}"
+                )
             if np.isnan(act).any():
                 raise ValueError(f"action of {a} is NaN: {act.tolist()}")
             acts[0, self._index[a]] = act
@@ -351,7 +388,9 @@ class RacingParallelEnv(ParallelEnv):
 
     def _require_reset(self, what: str) -> None:
         if not self._was_reset:
-            raise RuntimeError(f"{what} called before reset(): there is no race yet; call reset() first")
+            raise RuntimeError(
+                f"{what} called before reset(): there is no race yet; call reset() first"
+            )
 
     def state(self) -> np.ndarray:
         """The global joint state of the race (for centralised critics).
@@ -388,6 +427,7 @@ class RacingParallelEnv(ParallelEnv):
         """
         if self.render_mode is None:
             import gymnasium
+
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode=...")
             return None
         self._require_reset("render()")
@@ -395,6 +435,7 @@ class RacingParallelEnv(ParallelEnv):
         if self.render_mode == "rgb_array":
             return frame
         from .render import HumanViewer
+
         if self._viewer is None:
             self._viewer = HumanViewer(title=self.metadata["name"])
         self._viewer.show(frame)
@@ -406,8 +447,11 @@ class RacingParallelEnv(ParallelEnv):
         if self._renderer is None:
             from .raceline import get_raceline
             from .render import Renderer
+
             rl = get_raceline(self.track, self.config.vehicle)
-            self._renderer = Renderer(self.track, vehicle=self.config.vehicle, raceline_xy=(rl.x, rl.y))
+            self._renderer = Renderer(
+                self.track, vehicle=self.config.vehicle, raceline_xy=(rl.x, rl.y)
+            )
         c = self.core
         hud = [f"t = {c.t[0] * self.config.dt:5.1f} s"]
         order = np.argsort(-c.state[0, :, 0])
@@ -430,8 +474,10 @@ def _check_reset_options(options: dict | None, core: BatchedRaces, known=RESET_O
     unknown = set(options) - set(known)
     if unknown:  # the PettingZoo checkers pass arbitrary options; ignore them loudly
         import gymnasium
-        gymnasium.logger.warn(f"ignoring unknown reset options {sorted(unknown)}; "
-                              f"known: {', '.join(known)}")
+
+        gymnasium.logger.warn(
+            f"ignoring unknown reset options {sorted(unknown)}; known: {', '.join(known)}"
+        )
     n_cars = options.get("n_cars", core.n_cars)
     cfg = core.config.with_(n_cars=n_cars) if n_cars != core.n_cars else core.config
     start = _start_config(options["start"], cfg.start) if "start" in options else None
@@ -440,11 +486,21 @@ def _check_reset_options(options: dict | None, core: BatchedRaces, known=RESET_O
         try:
             order = [int(o) for o in order]
         except (TypeError, ValueError):
-            raise ValueError(f"start order must be a list of start-region indices, got {order!r}") from None
+            raise ValueError(
+                f"start order must be a list of start-region indices, got {order!r}"
+            ) from None
         if sorted(order) != list(range(cfg.n_cars)):
-            raise ValueError(f"start order must be a permutation of 0..{cfg.n_cars - 1}, got {order}")
-    start_states(core.track, cfg.n_cars, start or cfg.start, cfg.vehicle.width,
-                 np.random.default_rng(0), order)
+            raise ValueError(
+                f"start order must be a permutation of 0..{cfg.n_cars - 1}, got {order}"
+            )
+    start_states(
+        core.track,
+        cfg.n_cars,
+        start or cfg.start,
+        cfg.vehicle.width,
+        np.random.default_rng(0),
+        order,
+    )
     return cfg.n_cars, start, options.get("order")
 
 
@@ -453,6 +509,7 @@ def _start_config(start, base: StartConfig) -> StartConfig:
         return start
     if isinstance(start, str):
         from dataclasses import replace
+
         return replace(base, mode=start)
     raise ValueError(f"start must be 'grid', 'regions', 'random' or a StartConfig, got {start!r}")
 
@@ -465,6 +522,7 @@ def parallel_env(**kwargs) -> RacingParallelEnv:
 def env(**kwargs) -> RacingParallelEnv:
     """Make the AEC version of :class:`RacingParallelEnv` (cars act in turn, step together)."""
     from pettingzoo.utils.conversions import parallel_to_aec
+
     return parallel_to_aec(RacingParallelEnv(**kwargs))
 
 

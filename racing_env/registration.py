@@ -10,6 +10,7 @@ batched core for all envs) unless ``vectorization_mode="sync"`` / ``"async"`` is
 (contact checked only at the end of each 0.1 s step) are no longer registered: their
 behaviour is not kept; see Version History in ``HeadToHeadEnv``.
 """
+
 import gymnasium
 
 ENV_ID = "alpha_racer/HeadToHead-v2"
@@ -17,6 +18,9 @@ MAX_EPISODE_STEPS = 500
 """The registered ``spec.max_episode_steps``: :class:`racing_env.RaceConfig`'s ``max_cycles``."""
 
 if ENV_ID not in gymnasium.registry:
-    gymnasium.register(id=ENV_ID, entry_point="racing_env.gym_env:HeadToHeadEnv",
-                       vector_entry_point="racing_env.gym_vector:HeadToHeadVectorEnv",
-                       max_episode_steps=MAX_EPISODE_STEPS)
+    gymnasium.register(
+        id=ENV_ID,
+        entry_point="racing_env.gym_env:HeadToHeadEnv",
+        vector_entry_point="racing_env.gym_vector:HeadToHeadVectorEnv",
+        max_episode_steps=MAX_EPISODE_STEPS,
+    )

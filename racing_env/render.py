@@ -18,6 +18,7 @@ Conventions: world coordinates in metres, ``y`` up; pixel coordinates ``(u, v)``
 ``(i, j)`` covers ``[i, i + 1) x [j, j + 1)``. A car's state is the Frenet vector
 ``(s, n, mu, vx, vy, omega)`` (see :mod:`racing_env.vehicle`); a race state has shape (N, 6).
 """
+
 from __future__ import annotations
 
 import math
@@ -31,9 +32,22 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from .animation import ffmpeg_available, save_animation  # noqa: F401 (re-exported)
-from .draw import (CAR_COLORS, CHECKER_COLORS, EDGE_COLOR, GRASS_COLOR,  # noqa: F401 (re-exported)
-                   HUD_BOX_COLOR, HUD_TEXT_COLOR, RACELINE_COLOR, TRACK_COLOR, _as_race_state,
-                   _as_xy, _draw_patch, _fill_convex, _load_font, car_color)
+from .draw import (
+    CAR_COLORS,
+    CHECKER_COLORS,
+    EDGE_COLOR,
+    GRASS_COLOR,  # noqa: F401 (re-exported)
+    HUD_BOX_COLOR,
+    HUD_TEXT_COLOR,
+    RACELINE_COLOR,
+    TRACK_COLOR,
+    _as_race_state,
+    _as_xy,
+    _draw_patch,
+    _fill_convex,
+    _load_font,
+    car_color,  # noqa: F401 (re-exported)
+)
 from .track import Track
 from .trajectory_plot import plot_trajectories  # noqa: F401 (re-exported)
 from .vehicle import VehicleParams
@@ -74,9 +88,18 @@ class Renderer:
         Drawn car size [px].
     """
 
-    def __init__(self, track: Track, vehicle: VehicleParams | None = None, raceline_xy=None,
-                 width: int = 640, height: int = 480, car_scale: float = 1.0, *,
-                 margin_px: float = 12.0, min_car_length_px: float = 8.0):
+    def __init__(
+        self,
+        track: Track,
+        vehicle: VehicleParams | None = None,
+        raceline_xy=None,
+        width: int = 640,
+        height: int = 480,
+        car_scale: float = 1.0,
+        *,
+        margin_px: float = 12.0,
+        min_car_length_px: float = 8.0,
+    ):
         if not isinstance(track, Track):
             raise ValueError(f"track must be a Track, got {type(track).__name__}")
         for name, v in (("width", width), ("height", height)):
@@ -85,7 +108,9 @@ class Renderer:
         if not (isinstance(car_scale, numbers.Real) and math.isfinite(car_scale) and car_scale > 0):
             raise ValueError(f"car_scale must be a positive finite number, got {car_scale!r}")
         if not (0 <= margin_px < min(width, height) / 2):
-            raise ValueError(f"margin_px must be in [0, {min(width, height) / 2}), got {margin_px!r}")
+            raise ValueError(
+                f"margin_px must be in [0, {min(width, height) / 2}), got {margin_px!r}"
+            )
         self.track = track
         self.vehicle = vehicle if vehicle is not None else VehicleParams()
         self.width, self.height = int(width), int(height)
@@ -96,8 +121,9 @@ class Renderer:
         xs, ys = np.concatenate([xl, xr]), np.concatenate([yl, yr])
         x0, x1, y0, y1 = xs.min(), xs.max(), ys.min(), ys.max()
         span_x, span_y = max(x1 - x0, 1e-9), max(y1 - y0, 1e-9)
-        self.scale = float(min((self.width - 2 * margin_px) / span_x,
-                               (self.height - 2 * margin_px) / span_y))
+        self.scale = float(
+            min((self.width - 2 * margin_px) / span_x, (self.height - 2 * margin_px) / span_y)
+        )
         self._cx, self._cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
 
         # drawn car size
@@ -108,10 +134,17 @@ class Renderer:
         # unit car outline and nose triangle in body coordinates [px] (x forward, y left)
         hl, hw = 0.5 * self.car_length_px, 0.5 * self.car_width_px
         self._body = np.array([[hl, hw], [-hl, hw], [-hl, -hw], [hl, -hw]])
-        self._nose = np.array([[hl, 0.0], [hl - 0.45 * self.car_length_px, 0.7 * hw],
-                               [hl - 0.45 * self.car_length_px, -0.7 * hw]])
-        self._nose_colors = [(20, 20, 20) if (0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]) > 150
-                             else (250, 250, 250) for c in CAR_COLORS]
+        self._nose = np.array(
+            [
+                [hl, 0.0],
+                [hl - 0.45 * self.car_length_px, 0.7 * hw],
+                [hl - 0.45 * self.car_length_px, -0.7 * hw],
+            ]
+        )
+        self._nose_colors = [
+            (20, 20, 20) if (0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2]) > 150 else (250, 250, 250)
+            for c in CAR_COLORS
+        ]
         self._font = _load_font()
         self._line_h = int(self._font.getbbox("Ag")[3]) + 2  # text line height [px]
 
@@ -120,7 +153,9 @@ class Renderer:
         self.background = bg
 
     # ------------------------------------------------------------------ transform
-    def world_to_pixel(self, x: float | np.ndarray, y: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def world_to_pixel(
+        self, x: float | np.ndarray, y: float | np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """World (x, y) [m] -> pixel (u, v) [px] (column, row; floats, any broadcastable shape)."""
         u = 0.5 * self.width + self.scale * (np.asarray(x, dtype=float) - self._cx)
         v = 0.5 * self.height - self.scale * (np.asarray(y, dtype=float) - self._cy)
@@ -132,8 +167,9 @@ class Renderer:
         out = []
         for shape in (self._body, self._nose):
             bx, by = shape[:, 0], shape[:, 1]  # body frame: x forward, y left; v points down
-            out.append(np.stack([u[:, None] + bx * c - by * s,
-                                 v[:, None] - (bx * s + by * c)], axis=-1))
+            out.append(
+                np.stack([u[:, None] + bx * c - by * s, v[:, None] - (bx * s + by * c)], axis=-1)
+            )
         return out[0], out[1]
 
     def car_pixel_positions(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -178,10 +214,12 @@ class Renderer:
         nrm = np.array([-t[1], t[0]])
         for row in range(2):
             for col in range(n_sq):
-                a0, a1 = (row - 1) * sq, row * sq            # along the track
+                a0, a1 = (row - 1) * sq, row * sq  # along the track
                 b0, b1 = -wr + col * sq, -wr + (col + 1) * sq  # across (left positive)
-                corners = [np.array([x0, y0]) + a * t + b * nrm
-                           for a, b in ((a0, b0), (a1, b0), (a1, b1), (a0, b1))]
+                corners = [
+                    np.array([x0, y0]) + a * t + b * nrm
+                    for a, b in ((a0, b0), (a1, b0), (a1, b1), (a0, b1))
+                ]
                 c = np.array(corners)
                 poly = [tuple(p) for p in px(c[:, 0], c[:, 1])]
                 d.polygon(poly, fill=CHECKER_COLORS[(row + col) % 2])
@@ -194,8 +232,12 @@ class Renderer:
         return img.reduce(f)  # box filter: anti-aliased, no ringing
 
     # ------------------------------------------------------------------ frames
-    def frame(self, state: np.ndarray, labels: Sequence[str] | None = None,
-              hud: Sequence[str] | None = None) -> np.ndarray:
+    def frame(
+        self,
+        state: np.ndarray,
+        labels: Sequence[str] | None = None,
+        hud: Sequence[str] | None = None,
+    ) -> np.ndarray:
         """Render one race state.
 
         Parameters
@@ -219,21 +261,29 @@ class Renderer:
         if labels is not None:
             labels = list(labels)
             if len(labels) != n_cars:
-                raise ValueError(f"labels must have one entry per car ({n_cars}), got {len(labels)}")
+                raise ValueError(
+                    f"labels must have one entry per car ({n_cars}), got {len(labels)}"
+                )
         out = self.background.copy()
         if n_cars:
             ok = np.all(np.isfinite(st[:, :3]), axis=1)
             u, v, phi = self.car_pixel_positions(np.where(ok[:, None], st, 0.0))
             body, nose = self._car_polygons(u, v, phi)  # (N, 4, 2), (N, 3, 2) [px]
             for i in np.flatnonzero(ok):
-                _fill_convex(out, ((body[i], CAR_COLORS[i % len(CAR_COLORS)]),
-                                   (nose[i], self._nose_colors[i % len(CAR_COLORS)])))
+                _fill_convex(
+                    out,
+                    (
+                        (body[i], CAR_COLORS[i % len(CAR_COLORS)]),
+                        (nose[i], self._nose_colors[i % len(CAR_COLORS)]),
+                    ),
+                )
             if labels is not None:
                 off = 0.5 * self.car_length_px + 2
                 for i in range(n_cars):
                     if ok[i] and labels[i]:
-                        self._draw_text(out, u[i] + off, v[i] - off - self._line_h,
-                                        [str(labels[i])], box=False)
+                        self._draw_text(
+                            out, u[i] + off, v[i] - off - self._line_h, [str(labels[i])], box=False
+                        )
         if hud:
             self._draw_text(out, 6, 5, [str(line) for line in hud], box=True)
         return out
@@ -246,10 +296,14 @@ class Renderer:
 
         def draw_text(d, ox, oy):
             if box:
-                d.rectangle((x - pad - ox, y - pad - oy, x + w + pad - ox, y + h + pad - oy),
-                            fill=HUD_BOX_COLOR)
+                d.rectangle(
+                    (x - pad - ox, y - pad - oy, x + w + pad - ox, y + h + pad - oy),
+                    fill=HUD_BOX_COLOR,
+                )
             for k, line in enumerate(lines):
-                d.text((x - ox, y + k * self._line_h - oy), line, fill=HUD_TEXT_COLOR, font=self._font)
+                d.text(
+                    (x - ox, y + k * self._line_h - oy), line, fill=HUD_TEXT_COLOR, font=self._font
+                )
 
         _draw_patch(out, (x - pad, y - pad), (x + w + pad, y + h + pad), draw_text)
 
@@ -257,8 +311,17 @@ class Renderer:
 
 
 # ---------------------------------------------------------------------------- human viewer
-_NON_INTERACTIVE = {"agg", "cairo", "pdf", "pgf", "ps", "svg", "template",
-                    "module://matplotlib_inline.backend_inline", "inline"}
+_NON_INTERACTIVE = {
+    "agg",
+    "cairo",
+    "pdf",
+    "pgf",
+    "ps",
+    "svg",
+    "template",
+    "module://matplotlib_inline.backend_inline",
+    "inline",
+}
 
 
 def display_available() -> tuple[bool, str]:
@@ -272,6 +335,7 @@ def display_available() -> tuple[bool, str]:
             return False, "no DISPLAY or WAYLAND_DISPLAY environment variable"
     try:
         import matplotlib
+
         backend = str(matplotlib.get_backend()).lower()
     except Exception as exc:  # pragma: no cover
         return False, f"matplotlib unavailable ({exc})"
@@ -312,9 +376,12 @@ class HumanViewer:
         self.available = False
         if not self._warned:
             self._warned = True
-            warnings.warn(f"human rendering needs a display ({reason}); frames are not shown. "
-                          f"Use render_mode='rgb_array' and save_animation() instead.",
-                          RuntimeWarning, stacklevel=3)
+            warnings.warn(
+                f"human rendering needs a display ({reason}); frames are not shown. "
+                f"Use render_mode='rgb_array' and save_animation() instead.",
+                RuntimeWarning,
+                stacklevel=3,
+            )
 
     def show(self, frame: np.ndarray) -> None:
         """Display ``frame`` ((H, W, 3) uint8), replacing the previous one."""
@@ -327,6 +394,7 @@ class HumanViewer:
         try:
             if self._plt is None:
                 import matplotlib.pyplot as plt
+
                 self._plt = plt
                 plt.ion()
             plt = self._plt

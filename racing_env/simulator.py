@@ -15,6 +15,7 @@ applied at the moment of contact (see :func:`_step_one_race`), with the bodies k
 off-track slow-down with re-alignment. A car cannot go more than ``wall_margin`` beyond an edge (a wall stops it
 sideways) and cannot roll backwards (``vx >= 0``: a brake stops a car, it does not reverse it).
 """
+
 from __future__ import annotations
 
 import math
@@ -26,13 +27,36 @@ from numba import njit, prange
 
 from .interp import periodic_lookup as _lookup  # also imported from here by controllers, agents.mpc
 from .track import Track
-from .vehicle import P_BF, P_BR, P_CF, P_CR, P_DF, P_DR, P_IZ, P_LF, P_LR, P_M, P_VLOW, bind, frenet_ode
-
+from .vehicle import (
+    P_BF,
+    P_BR,
+    P_CF,
+    P_CR,
+    P_DF,
+    P_DR,
+    P_IZ,
+    P_LF,
+    P_LR,
+    P_M,
+    P_VLOW,
+    bind,
+    frenet_ode,
+)
 
 _ode = njit(cache=True)(bind(frenet_ode, math))
 
 # rule vector layout (see RulesConfig.pack)
-R_CONTACT_ON, R_CONTACT_DS, R_CONTACT_DN, R_FRONT, R_REAR, R_OFF_ON, R_OFF_FACTOR, R_MAX_SUB, R_SUB_GAIN = range(9)
+(
+    R_CONTACT_ON,
+    R_CONTACT_DS,
+    R_CONTACT_DN,
+    R_FRONT,
+    R_REAR,
+    R_OFF_ON,
+    R_OFF_FACTOR,
+    R_MAX_SUB,
+    R_SUB_GAIN,
+) = range(9)
 
 
 @dataclass(frozen=True)
@@ -58,8 +82,15 @@ class TrackTables:
         wall_l = np.minimum(track.w_left + wall_margin, lim_l)
         wall_r = np.minimum(track.w_right + wall_margin, lim_r)
         f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
-        return cls(f64(k), f64(track.w_left), f64(track.w_right), f64(wall_l), f64(wall_r),
-                   float(track.ds), float(track.length))
+        return cls(
+            f64(k),
+            f64(track.w_left),
+            f64(track.w_right),
+            f64(wall_l),
+            f64(wall_r),
+            float(track.ds),
+            float(track.length),
+        )
 
 
 @njit(cache=True)
@@ -80,16 +111,41 @@ def _rk4_substep(x, d, delta, kappa_tab, ds, length, p, h):
     s, n, mu, vx, vy, om = x[0], x[1], x[2], x[3], x[4], x[5]
     k1 = _ode(n, mu, vx, vy, om, d, delta, _lookup(kappa_tab, s, ds, length), p)
     s2 = s + 0.5 * h * k1[0]
-    k2 = _ode(n + 0.5 * h * k1[1], mu + 0.5 * h * k1[2], vx + 0.5 * h * k1[3],
-              vy + 0.5 * h * k1[4], om + 0.5 * h * k1[5], d, delta,
-              _lookup(kappa_tab, s2, ds, length), p)
+    k2 = _ode(
+        n + 0.5 * h * k1[1],
+        mu + 0.5 * h * k1[2],
+        vx + 0.5 * h * k1[3],
+        vy + 0.5 * h * k1[4],
+        om + 0.5 * h * k1[5],
+        d,
+        delta,
+        _lookup(kappa_tab, s2, ds, length),
+        p,
+    )
     s3 = s + 0.5 * h * k2[0]
-    k3 = _ode(n + 0.5 * h * k2[1], mu + 0.5 * h * k2[2], vx + 0.5 * h * k2[3],
-              vy + 0.5 * h * k2[4], om + 0.5 * h * k2[5], d, delta,
-              _lookup(kappa_tab, s3, ds, length), p)
+    k3 = _ode(
+        n + 0.5 * h * k2[1],
+        mu + 0.5 * h * k2[2],
+        vx + 0.5 * h * k2[3],
+        vy + 0.5 * h * k2[4],
+        om + 0.5 * h * k2[5],
+        d,
+        delta,
+        _lookup(kappa_tab, s3, ds, length),
+        p,
+    )
     s4 = s + h * k3[0]
-    k4 = _ode(n + h * k3[1], mu + h * k3[2], vx + h * k3[3], vy + h * k3[4], om + h * k3[5],
-              d, delta, _lookup(kappa_tab, s4, ds, length), p)
+    k4 = _ode(
+        n + h * k3[1],
+        mu + h * k3[2],
+        vx + h * k3[3],
+        vy + h * k3[4],
+        om + h * k3[5],
+        d,
+        delta,
+        _lookup(kappa_tab, s4, ds, length),
+        p,
+    )
     for j in range(6):
         x[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
     if x[3] < 0.0:
@@ -134,8 +190,25 @@ def _cut(x, applied, i, f):
         applied[i] = f
 
 
-def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_right, ds, length,
-                   p, dt, rules, reward, contact, offtrack, substeps):
+def _step_one_race(
+    b,
+    state,
+    phys,
+    kappa_tab,
+    w_left,
+    w_right,
+    wall_left,
+    wall_right,
+    ds,
+    length,
+    p,
+    dt,
+    rules,
+    reward,
+    contact,
+    offtrack,
+    substeps,
+):
     """Physics, rules and reward of race ``b`` for one control period (inputs ``phys`` (N, 2)).
 
     Contact is checked over the whole period, not only at its end, so that no car can drive
@@ -184,14 +257,35 @@ def _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_r
         for i in range(n_cars):
             for j in range(i + 1, n_cars):
                 d0 = (x0[i, 0] - x0[j, 0] + half) % length - half
-                if d0 + lo_s[i] - hi_s[j] < c_ds + margin and d0 + hi_s[i] - lo_s[j] > -c_ds - margin \
-                        and lo_n[i] - hi_n[j] < c_dn + margin and hi_n[i] - lo_n[j] > -c_dn - margin:
+                if (
+                    d0 + lo_s[i] - hi_s[j] < c_ds + margin
+                    and d0 + hi_s[i] - lo_s[j] > -c_ds - margin
+                    and lo_n[i] - hi_n[j] < c_dn + margin
+                    and hi_n[i] - lo_n[j] > -c_dn - margin
+                ):
                     possible = True
         if possible:
             ahead = np.empty((n_cars, n_cars), dtype=np.bool_)
-            _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, k_max,
-                                   c_ds, c_dn, rules[R_FRONT], rules[R_REAR], applied, contact,
-                                   substeps, ahead)
+            _lockstep_with_contact(
+                b,
+                state,
+                phys,
+                x0,
+                kappa_tab,
+                ds,
+                length,
+                p,
+                dt,
+                k_max,
+                c_ds,
+                c_dn,
+                rules[R_FRONT],
+                rules[R_REAR],
+                applied,
+                contact,
+                substeps,
+                ahead,
+            )
             _clamp_to_walls(b, state, wall_left, wall_right, ds, length)
             # a wall may have moved a car sideways into another: keep them apart
             _separate(b, state, x0, ahead, length, c_ds, c_dn, False)
@@ -281,7 +375,7 @@ def _separate(b, state, x_from, ahead, length, c_ds, c_dn, swept):
                 xf, xr = state[b, f], state[b, r]
                 g1 = _wrapped(xf[0] - xr[0], length)
                 dn1 = xf[1] - xr[1]
-                if g1 >= c_ds or g1 < -0.25 * length:   # apart, or far apart (across the wrap)
+                if g1 >= c_ds or g1 < -0.25 * length:  # apart, or far apart (across the wrap)
                     continue
                 if not swept:
                     if abs(dn1) < c_dn:
@@ -307,11 +401,11 @@ def _separate(b, state, x_from, ahead, length, c_ds, c_dn, swept):
                         t1, t2 = t2, t1
                     tn, tn_out = max(t1, 0.0), min(t2, 1.0)
                 if max(tg, tn) >= tn_out:
-                    continue                 # never both: passed beside, or still clear
-                if tg >= tn:                 # from behind
+                    continue  # never both: passed beside, or still clear
+                if tg >= tn:  # from behind
                     xr[0] -= ds_to - g1
                     xr[3] = min(xr[3], xf[3])
-                else:                        # from the side
+                else:  # from the side
                     side = 1.0 if dn0 + tn * (dn1 - dn0) >= 0.0 else -1.0
                     need = side * dn_to - dn1
                     if side * dn1 >= c_dn:
@@ -323,15 +417,33 @@ def _separate(b, state, x_from, ahead, length, c_ds, c_dn, swept):
             break
     for i in range(n_cars):
         for j in range(i + 1, n_cars):
-            if abs(state[b, i, 1] - state[b, j, 1]) >= c_dn:   # laterally clear
+            if abs(state[b, i, 1] - state[b, j, 1]) >= c_dn:  # laterally clear
                 d = _wrapped(state[b, i, 0] - state[b, j, 0], length)
                 if d != 0.0:
                     ahead[i, j] = d > 0.0
                     ahead[j, i] = not ahead[i, j]
 
 
-def _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, n_sub, c_ds, c_dn,
-                           front_f, rear_f, applied, contact, substeps, ahead):
+def _lockstep_with_contact(
+    b,
+    state,
+    phys,
+    x0,
+    kappa_tab,
+    ds,
+    length,
+    p,
+    dt,
+    n_sub,
+    c_ds,
+    c_dn,
+    front_f,
+    rear_f,
+    applied,
+    contact,
+    substeps,
+    ahead,
+):
     """Integrate race ``b`` again from ``x0`` (N, 6) with every car in lockstep (``n_sub`` RK4
     sub-steps), applying the contact rule at each pair's first moment of contact and keeping
     the bodies apart after every sub-step (:func:`_separate`; ``ahead`` (N, N) is filled with
@@ -339,7 +451,7 @@ def _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, n_s
     n_cars = x0.shape[0]
     half = 0.5 * length
     h = dt / n_sub
-    d_start = np.empty((n_cars, n_cars))    # wrapped s_i - s_j at the start of the period
+    d_start = np.empty((n_cars, n_cars))  # wrapped s_i - s_j at the start of the period
     hit = np.zeros((n_cars, n_cars), dtype=np.bool_)
     prev = np.empty((n_cars, 2))
     prev_x = np.empty((n_cars, 6))
@@ -362,7 +474,7 @@ def _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, n_s
                     continue
                 ds1 = d_start[i, j] + (state[b, i, 0] - x0[i, 0]) - (state[b, j, 0] - x0[j, 0])
                 dn1 = state[b, i, 1] - state[b, j, 1]
-                if m == 0:   # already touching at the start of the period
+                if m == 0:  # already touching at the start of the period
                     u = 0.0 if abs(ds1) < c_ds and abs(dn1) < c_dn else -1.0
                     ds_at, ds_from = ds1, ds1
                 else:
@@ -381,20 +493,48 @@ def _lockstep_with_contact(b, state, phys, x0, kappa_tab, ds, length, p, dt, n_s
                     if f >= applied[car]:
                         continue
                     x = state[b, car]
-                    if m > 0:   # redo the sub-step: up to the moment of contact, cut, on
+                    if m > 0:  # redo the sub-step: up to the moment of contact, cut, on
                         x[:] = prev_x[car]
                         if u > 0.0:
-                            _rk4_substep(x, phys[car, 0], phys[car, 1], kappa_tab, ds, length, p, u * h)
+                            _rk4_substep(
+                                x, phys[car, 0], phys[car, 1], kappa_tab, ds, length, p, u * h
+                            )
                     _cut(x, applied, car, f)
                     if m > 0 and u < 1.0:
-                        _rk4_substep(x, phys[car, 0], phys[car, 1], kappa_tab, ds, length, p, (1.0 - u) * h)
+                        _rk4_substep(
+                            x, phys[car, 0], phys[car, 1], kappa_tab, ds, length, p, (1.0 - u) * h
+                        )
         if m > 0:
             _separate(b, state, prev_x, ahead, length, c_ds, c_dn, True)
 
 
-def _advance(state, action, normalised, act_map, kappa_tab, w_left, w_right, wall_left, wall_right,
-             ds, length, p, dt, rules, t, s_line, laps, contacts, offtracks, lap_event,
-             reward, contact, offtrack, substeps, where):
+def _advance(
+    state,
+    action,
+    normalised,
+    act_map,
+    kappa_tab,
+    w_left,
+    w_right,
+    wall_left,
+    wall_right,
+    ds,
+    length,
+    p,
+    dt,
+    rules,
+    t,
+    s_line,
+    laps,
+    contacts,
+    offtracks,
+    lap_event,
+    reward,
+    contact,
+    offtrack,
+    substeps,
+    where,
+):
     """Advance every race in ``state`` (B, N, 6) by one control period, in place.
 
     ``action`` (B, N, 2): normalised [-1, 1] actions if ``normalised`` (clipped, then mapped
@@ -411,7 +551,11 @@ def _advance(state, action, normalised, act_map, kappa_tab, w_left, w_right, wal
     for b in range(n_races):
         for i in range(n_cars):
             a0, a1 = action[b, i, 0], action[b, i, 1]
-            if math.isnan(a0) or math.isnan(a1) or not (normalised or (math.isfinite(a0) and math.isfinite(a1))):
+            if (
+                math.isnan(a0)
+                or math.isnan(a1)
+                or not (normalised or (math.isfinite(a0) and math.isfinite(a1)))
+            ):
                 where[0] = b
                 where[1] = i
                 return 1
@@ -426,8 +570,25 @@ def _advance(state, action, normalised, act_map, kappa_tab, w_left, w_right, wal
                 a1 = act_map[2] * a1
             phys[i, 0] = a0
             phys[i, 1] = a1
-        before = _step_one_race(b, state, phys, kappa_tab, w_left, w_right, wall_left, wall_right,
-                                ds, length, p, dt, rules, reward, contact, offtrack, substeps)
+        before = _step_one_race(
+            b,
+            state,
+            phys,
+            kappa_tab,
+            w_left,
+            w_right,
+            wall_left,
+            wall_right,
+            ds,
+            length,
+            p,
+            dt,
+            rules,
+            reward,
+            contact,
+            offtrack,
+            substeps,
+        )
         # bookkeeping: laps (the line is s_line + k L), time of crossing within the period
         for i in range(n_cars):
             contacts[b, i] += contact[b, i]
@@ -498,4 +659,3 @@ advance = njit(cache=True)(_variant(_advance, "_serial"))
 advance_parallel = njit(cache=True, parallel=True)(_variant(_advance, "_parallel"))
 observe = njit(cache=True)(_variant(_observe, "_serial"))
 observe_parallel = njit(cache=True, parallel=True)(_variant(_observe, "_parallel"))
-

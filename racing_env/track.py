@@ -14,6 +14,7 @@ A :class:`Track` stores its geometry on a uniform arc-length grid (``ds`` about 
 lap, at most a few cm) and a periodic cubic spline through it, so that positions, heading and
 curvature are consistent with each other.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -46,7 +47,7 @@ def _segments_intersect(p: np.ndarray) -> tuple[int, int] | None:
     # bounding-box prefilter via sort on x, then exact orientation test for candidates
     order = np.argsort(lo[:, 0])
     for idx, i in enumerate(order):
-        for j in order[idx + 1:]:
+        for j in order[idx + 1 :]:
             if lo[j, 0] > hi[i, 0]:
                 break
             if abs(i - j) <= 1 or abs(i - j) == m - 1:
@@ -62,8 +63,13 @@ def _segments_intersect(p: np.ndarray) -> tuple[int, int] | None:
     return None
 
 
-def validate_centerline(x: np.ndarray, y: np.ndarray, w_right: float | np.ndarray,
-                        w_left: float | np.ndarray, allow_crossing: bool = False) -> tuple[np.ndarray, ...]:
+def validate_centerline(
+    x: np.ndarray,
+    y: np.ndarray,
+    w_right: float | np.ndarray,
+    w_left: float | np.ndarray,
+    allow_crossing: bool = False,
+) -> tuple[np.ndarray, ...]:
     """Check raw centre-line data and return it as float arrays with a repeated end point removed.
 
     Raises ``ValueError`` naming what is wrong and where (point index and coordinates).
@@ -76,8 +82,10 @@ def validate_centerline(x: np.ndarray, y: np.ndarray, w_right: float | np.ndarra
         arrays.append(a)
     x, y, w_right, w_left = arrays
     if not (len(x) == len(y) == len(w_right) == len(w_left)):
-        _fail(f"track arrays differ in length: x {len(x)}, y {len(y)}, "
-              f"w_right {len(w_right)}, w_left {len(w_left)}")
+        _fail(
+            f"track arrays differ in length: x {len(x)}, y {len(y)}, "
+            f"w_right {len(w_right)}, w_left {len(w_left)}"
+        )
     for name, a in (("x", x), ("y", y), ("w_right", w_right), ("w_left", w_left)):
         bad = np.flatnonzero(~np.isfinite(a))
         if bad.size:
@@ -89,31 +97,40 @@ def validate_centerline(x: np.ndarray, y: np.ndarray, w_right: float | np.ndarra
     for name, w in (("w_right", w_right), ("w_left", w_left)):
         bad = np.flatnonzero(w <= 0)
         if bad.size:
-            _fail(f"track {name} must be positive; point {bad[0]} at "
-                  f"({x[bad[0]]:.3f}, {y[bad[0]]:.3f}) has {name} = {w[bad[0]]}")
+            _fail(
+                f"track {name} must be positive; point {bad[0]} at "
+                f"({x[bad[0]]:.3f}, {y[bad[0]]:.3f}) has {name} = {w[bad[0]]}"
+            )
     seg = np.hypot(np.diff(x), np.diff(y))
     dup = np.flatnonzero(seg < 1e-9)
     if dup.size:
-        _fail(f"track has repeated consecutive points at index {dup[0]} "
-              f"({x[dup[0]]:.3f}, {y[dup[0]]:.3f})")
+        _fail(
+            f"track has repeated consecutive points at index {dup[0]} "
+            f"({x[dup[0]]:.3f}, {y[dup[0]]:.3f})"
+        )
     gap = np.hypot(x[-1] - x[0], y[-1] - y[0])
     typical = float(np.median(seg))
     if gap > 5.0 * typical:
-        _fail(f"track is not closed: the last point ({x[-1]:.3f}, {y[-1]:.3f}) is {gap:.3f} m "
-              f"from the first ({x[0]:.3f}, {y[0]:.3f}), over 5x the median point spacing "
-              f"{typical:.3f} m")
+        _fail(
+            f"track is not closed: the last point ({x[-1]:.3f}, {y[-1]:.3f}) is {gap:.3f} m "
+            f"from the first ({x[0]:.3f}, {y[0]:.3f}), over 5x the median point spacing "
+            f"{typical:.3f} m"
+        )
     hit = None if allow_crossing else _segments_intersect(np.column_stack([x, y]))
     if hit is not None:
         i, j = hit
-        _fail(f"track centre line intersects itself: segment {i} starting at "
-              f"({x[i]:.3f}, {y[i]:.3f}) crosses segment {j} starting at ({x[j]:.3f}, {y[j]:.3f}) "
-              f"(for a circuit with a bridge pass allow_crossing=True)")
+        _fail(
+            f"track centre line intersects itself: segment {i} starting at "
+            f"({x[i]:.3f}, {y[i]:.3f}) crosses segment {j} starting at ({x[j]:.3f}, {y[j]:.3f}) "
+            f"(for a circuit with a bridge pass allow_crossing=True)"
+        )
     return x, y, w_right, w_left
 
 
 def _narrow_tight(name, s_grid, kappa, w_l, w_r, limit=0.8):
     """Narrow the inner width to ``limit / |kappa|`` where it reaches further; warn."""
     import warnings
+
     with np.errstate(divide="ignore"):
         cap = limit / np.abs(kappa)
     new_l = np.where(kappa > 0, np.minimum(w_l, cap), w_l)
@@ -121,9 +138,12 @@ def _narrow_tight(name, s_grid, kappa, w_l, w_r, limit=0.8):
     cut = np.maximum(w_l - new_l, w_r - new_r)
     if cut.max() > 0:
         k = int(np.argmax(cut))
-        warnings.warn(f"track '{name}': inner width narrowed at {int((cut > 0).sum())} grid points "
-                      f"(most, by {cut[k]:.3f} m, at s = {s_grid[k]:.2f} m) to keep it inside "
-                      f"{limit:.0%} of the radius of curvature", stacklevel=4)
+        warnings.warn(
+            f"track '{name}': inner width narrowed at {int((cut > 0).sum())} grid points "
+            f"(most, by {cut[k]:.3f} m, at s = {s_grid[k]:.2f} m) to keep it inside "
+            f"{limit:.0%} of the radius of curvature",
+            stacklevel=4,
+        )
     return new_l, new_r
 
 
@@ -151,10 +171,17 @@ class Track:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_centerline(cls, x: np.ndarray, y: np.ndarray, w_right: float | np.ndarray,
-                        w_left: float | np.ndarray, name: str = "custom",
-                        ds: float | None = None, allow_crossing: bool = False,
-                        narrow_tight: bool = False) -> Track:
+    def from_centerline(
+        cls,
+        x: np.ndarray,
+        y: np.ndarray,
+        w_right: float | np.ndarray,
+        w_left: float | np.ndarray,
+        name: str = "custom",
+        ds: float | None = None,
+        allow_crossing: bool = False,
+        narrow_tight: bool = False,
+    ) -> Track:
         """Build a track from a closed centre line (x, y) [m] with right/left widths [m].
 
         The points go around the track once (the first point may or may not be repeated at
@@ -204,9 +231,20 @@ class Track:
         kappa = (dx * ddy - dy * ddx) / np.maximum(np.hypot(dx, dy), 1e-12) ** 3
         if narrow_tight:
             w_l, w_r = _narrow_tight(name, s_grid, kappa, w_l, w_r)
-        track = cls(name=name, s_grid=s_grid, x=gx, y=gy, psi=psi, kappa=kappa,
-                    w_left=w_l, w_right=w_r, length=float(length), _sx=sx, _sy=sy,
-                    _tree=cKDTree(np.column_stack([gx, gy])))
+        track = cls(
+            name=name,
+            s_grid=s_grid,
+            x=gx,
+            y=gy,
+            psi=psi,
+            kappa=kappa,
+            w_left=w_l,
+            w_right=w_r,
+            length=float(length),
+            _sx=sx,
+            _sy=sy,
+            _tree=cKDTree(np.column_stack([gx, gy])),
+        )
         track._check_frenet_valid()
         return track
 
@@ -215,9 +253,11 @@ class Track:
         fold = inner * np.abs(self.kappa)
         k = int(np.argmax(fold))
         if fold[k] >= 1.0:
-            _fail(f"track '{self.name}' is too tight at s = {self.s_grid[k]:.3f} m "
-                  f"(x = {self.x[k]:.3f}, y = {self.y[k]:.3f}): the inner width "
-                  f"{inner[k]:.3f} m exceeds the radius of curvature {1 / abs(self.kappa[k]):.3f} m")
+            _fail(
+                f"track '{self.name}' is too tight at s = {self.s_grid[k]:.3f} m "
+                f"(x = {self.x[k]:.3f}, y = {self.y[k]:.3f}): the inner width "
+                f"{inner[k]:.3f} m exceeds the radius of curvature {1 / abs(self.kappa[k]):.3f} m"
+            )
 
     # ------------------------------------------------------------------ properties
     @property
@@ -269,8 +309,9 @@ class Track:
         return self._sx(sw), self._sy(sw)
 
     # ------------------------------------------------------------------ Frenet <-> Cartesian
-    def to_cartesian(self, s: float | np.ndarray, n: float | np.ndarray,
-                     mu: float | np.ndarray | None = None) -> tuple[float | np.ndarray, ...]:
+    def to_cartesian(
+        self, s: float | np.ndarray, n: float | np.ndarray, mu: float | np.ndarray | None = None
+    ) -> tuple[float | np.ndarray, ...]:
         """Frenet (s, n[, mu]) -> Cartesian (x, y[, phi]); arrays broadcast together.
 
         ``mu`` is the heading relative to the centre line; ``phi = psi(s) + mu`` is returned
@@ -288,9 +329,15 @@ class Track:
         phi = np.arctan2(ty, tx) + np.asarray(mu, dtype=float)
         return x, y, np.arctan2(np.sin(phi), np.cos(phi))
 
-    def to_frenet(self, x: float | np.ndarray, y: float | np.ndarray,
-                  phi: float | np.ndarray | None = None, s_hint: float | np.ndarray | None = None,
-                  window: float | None = None, k: int = 8) -> tuple[float | np.ndarray, ...]:
+    def to_frenet(
+        self,
+        x: float | np.ndarray,
+        y: float | np.ndarray,
+        phi: float | np.ndarray | None = None,
+        s_hint: float | np.ndarray | None = None,
+        window: float | None = None,
+        k: int = 8,
+    ) -> tuple[float | np.ndarray, ...]:
         """Cartesian (x, y[, phi]) -> Frenet (s, n[, mu]) by nearest-point projection.
 
         Robust on hairpins: the ``k`` nearest grid points are each refined by Newton steps on
@@ -306,9 +353,9 @@ class Track:
         kk = min(k, len(self.s_grid))
         _, idx = self._tree.query(np.column_stack([px, py]), k=kk)
         idx = idx.reshape(len(px), kk)
-        cand = self.s_grid[idx]                                      # (P, k)
+        cand = self.s_grid[idx]  # (P, k)
         qx, qy = px[:, None], py[:, None]
-        for _ in range(4):                                           # Newton on (P - C(s)) . C'(s) = 0
+        for _ in range(4):  # Newton on (P - C(s)) . C'(s) = 0
             sw = np.mod(cand, self.length)
             cx, cy = self._sx(sw), self._sy(sw)
             dx, dy = self._sx(sw, 1), self._sy(sw, 1)
@@ -331,8 +378,10 @@ class Track:
         s_out = (sw_un if s_hint is not None else sw)[rows, best]
         if not np.all(np.isfinite(dist2[rows, best])):
             bad = int(np.flatnonzero(~np.isfinite(dist2[rows, best]))[0])
-            _fail(f"no centre-line point within window {window} m of s_hint for point "
-                  f"({px[bad]:.3f}, {py[bad]:.3f})")
+            _fail(
+                f"no centre-line point within window {window} m of s_hint for point "
+                f"({px[bad]:.3f}, {py[bad]:.3f})"
+            )
         swb = np.mod(s_out, self.length)
         tx, ty = self._sx(swb, 1), self._sy(swb, 1)
         norm = np.maximum(np.hypot(tx, ty), 1e-12)
@@ -344,13 +393,16 @@ class Track:
         return s_out, n_out, np.arctan2(np.sin(mu), np.cos(mu))
 
     # ------------------------------------------------------------------ edges
-    def edges(self, s: float | np.ndarray | None = None) -> tuple[tuple[float | np.ndarray, ...],
-              tuple[float | np.ndarray, ...]]:
+    def edges(
+        self, s: float | np.ndarray | None = None
+    ) -> tuple[tuple[float | np.ndarray, ...], tuple[float | np.ndarray, ...]]:
         """Left and right edge polylines: ((xl, yl), (xr, yr)) at s (default: the grid)."""
         s = self.s_grid if s is None else s
         wl, wr = self.widths(s)
         return self.to_cartesian(s, wl), self.to_cartesian(s, -wr)
 
     def __repr__(self) -> str:
-        return (f"Track(name={self.name!r}, length={self.length:.3f} m, points={len(self.s_grid)}, "
-                f"width {self.width.min():.3f}..{self.width.max():.3f} m)")
+        return (
+            f"Track(name={self.name!r}, length={self.length:.3f} m, points={len(self.s_grid)}, "
+            f"width {self.width.min():.3f}..{self.width.max():.3f} m)"
+        )

@@ -8,6 +8,7 @@
 * ``load_tumftm_csv(path, scale=...)`` reads the TUMFTM racetrack-database format
   (``# x_m,y_m,w_tr_right_m,w_tr_left_m``).
 """
+
 from __future__ import annotations
 
 import os
@@ -24,20 +25,20 @@ DEFAULT_HALF_WIDTH = 0.25
 # Angles in degrees (left positive); the two "close" straights get the lengths that close the loop.
 _DEFAULT_LAYOUT = (
     ("straight", "close", None),  # main straight (start/finish at s = 0)
-    ("arc", 180.0, 0.8),          # hairpin
+    ("arc", 180.0, 0.8),  # hairpin
     ("straight", 2.0, None),
-    ("arc", -60.0, 2.5),          # fast right sweeper
+    ("arc", -60.0, 2.5),  # fast right sweeper
     ("straight", "close", None),
-    ("arc", 60.0, 2.5),           # fast left sweeper
+    ("arc", 60.0, 2.5),  # fast left sweeper
     ("straight", 1.0, None),
-    ("arc", -40.0, 0.8),          # chicane
+    ("arc", -40.0, 0.8),  # chicane
     ("arc", 80.0, 0.8),
     ("arc", -40.0, 0.8),
     ("straight", 1.5, None),
-    ("arc", 90.0, 1.2),           # medium left
+    ("arc", 90.0, 1.2),  # medium left
     ("straight", 1.0, None),
-    ("arc", -90.0, 1.0),          # tight right
-    ("arc", 150.0, 1.1),          # long left onto the straight
+    ("arc", -90.0, 1.0),  # tight right
+    ("arc", 150.0, 1.1),  # long left onto the straight
     ("straight", 1.0, None),
     ("arc", 30.0, 2.0),
 )
@@ -64,7 +65,10 @@ def _layout_geometry(layout, close_lengths=None, ds=0.01):
                 pos = pos + h * np.array([np.cos(heading), np.sin(heading)])
             else:
                 new = heading + kap * h
-                pos = pos + np.array([np.sin(new) - np.sin(heading), np.cos(heading) - np.cos(new)]) / kap
+                pos = (
+                    pos
+                    + np.array([np.sin(new) - np.sin(heading), np.cos(heading) - np.cos(new)]) / kap
+                )
                 heading = new
     return np.array(pts), pos
 
@@ -94,11 +98,16 @@ def default_track(half_width: float = DEFAULT_HALF_WIDTH) -> Track:
     return Track.from_centerline(pts[:, 0], pts[:, 1], w, w, name="default")
 
 
-def oval_track(straight: float = 6.0, radius: float = 1.5,
-               half_width: float = DEFAULT_HALF_WIDTH) -> Track:
+def oval_track(
+    straight: float = 6.0, radius: float = 1.5, half_width: float = DEFAULT_HALF_WIDTH
+) -> Track:
     """A stadium oval: two straights of ``straight`` m joined by half circles of ``radius`` m."""
-    layout = (("straight", straight, None), ("arc", 180.0, radius),
-              ("straight", straight, None), ("arc", 180.0, radius))
+    layout = (
+        ("straight", straight, None),
+        ("arc", 180.0, radius),
+        ("straight", straight, None),
+        ("arc", 180.0, radius),
+    )
     pts, _ = _layout_geometry(layout, ds=0.05)
     pts = _smooth_closed(pts, window=5)
     w = np.full(len(pts), half_width)
@@ -116,8 +125,13 @@ def _smooth_closed(pts: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
-def random_track(seed: int, length: float = 30.0, half_width: float = DEFAULT_HALF_WIDTH,
-                 n_control: int | None = None, max_tries: int = 50) -> Track:
+def random_track(
+    seed: int,
+    length: float = 30.0,
+    half_width: float = DEFAULT_HALF_WIDTH,
+    n_control: int | None = None,
+    max_tries: int = 50,
+) -> Track:
     """A random closed track from ``seed``: a star-shaped loop of random radii, smoothed.
 
     The loop is scaled to ``length`` m (approximately) and redrawn until the inner edge stays
@@ -127,16 +141,19 @@ def random_track(seed: int, length: float = 30.0, half_width: float = DEFAULT_HA
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"random track seed must be a non-negative integer, got {seed!r}")
     if length <= 0 or half_width <= 0:
-        raise ValueError(f"random_track needs positive length and half_width, got {length}, {half_width}")
+        raise ValueError(
+            f"random_track needs positive length and half_width, got {length}, {half_width}"
+        )
     rng = np.random.default_rng(seed)
     for _ in range(max_tries):
         k = n_control or int(rng.integers(8, 14))
         angles = np.sort(rng.uniform(0, 2 * np.pi, k))
         angles += np.linspace(0, 2 * np.pi, k, endpoint=False) - angles  # keep ordered,
-        angles += rng.uniform(-0.3, 0.3, k) * (2 * np.pi / k)             # jittered spacing
+        angles += rng.uniform(-0.3, 0.3, k) * (2 * np.pi / k)  # jittered spacing
         radii = rng.uniform(0.55, 1.0, k)
         # periodic spline through control points, densely sampled
         from scipy.interpolate import CubicSpline
+
         t = np.append(angles, angles[0] + 2 * np.pi)
         r = np.append(radii, radii[0])
         spr = CubicSpline(t, r, bc_type="periodic")
@@ -154,12 +171,19 @@ def random_track(seed: int, length: float = 30.0, half_width: float = DEFAULT_HA
             continue
         if np.max(np.abs(track.kappa)) * half_width * 1.5 < 1.0:
             return track
-    raise ValueError(f"random_track(seed={seed}) found no valid track in {max_tries} tries; "
-                     f"try a larger length ({length}) or smaller half_width ({half_width})")
+    raise ValueError(
+        f"random_track(seed={seed}) found no valid track in {max_tries} tries; "
+        f"try a larger length ({length}) or smaller half_width ({half_width})"
+    )
 
 
-def load_tumftm_csv(path: str | os.PathLike, scale: float = 1.0, name: str | None = None,
-                    allow_crossing: bool = False, narrow_tight: bool = True) -> Track:
+def load_tumftm_csv(
+    path: str | os.PathLike,
+    scale: float = 1.0,
+    name: str | None = None,
+    allow_crossing: bool = False,
+    narrow_tight: bool = True,
+) -> Track:
     """Load a TUMFTM racetrack-database CSV (``# x_m,y_m,w_tr_right_m,w_tr_left_m``).
 
     ``scale`` multiplies every length (positions and widths), so a full-size circuit can host
@@ -178,12 +202,19 @@ def load_tumftm_csv(path: str | os.PathLike, scale: float = 1.0, name: str | Non
     except ValueError as exc:
         raise ValueError(f"{path}: not a TUMFTM track CSV ({exc})") from None
     if data.shape[1] != 4:
-        raise ValueError(f"{path}: expected 4 columns x_m,y_m,w_tr_right_m,w_tr_left_m, "
-                         f"got {data.shape[1]}")
+        raise ValueError(
+            f"{path}: expected 4 columns x_m,y_m,w_tr_right_m,w_tr_left_m, got {data.shape[1]}"
+        )
     data = data * scale
-    return Track.from_centerline(data[:, 0], data[:, 1], data[:, 2], data[:, 3],
-                                 name=name or path.stem, allow_crossing=allow_crossing,
-                                 narrow_tight=narrow_tight)
+    return Track.from_centerline(
+        data[:, 0],
+        data[:, 1],
+        data[:, 2],
+        data[:, 3],
+        name=name or path.stem,
+        allow_crossing=allow_crossing,
+        narrow_tight=narrow_tight,
+    )
 
 
 def tumftm_dir() -> Path | None:
@@ -237,21 +268,27 @@ def make_track(spec: str | Track, scale: float | None = None) -> Track:
         except ValueError:
             seed = -1
         if seed < 0:
-            raise ValueError(f"random track seed must be a non-negative integer, e.g. 'random:3', "
-                             f"got {spec!r}")
+            raise ValueError(
+                f"random track seed must be a non-negative integer, e.g. 'random:3', got {spec!r}"
+            )
         track = random_track(seed)
     elif spec.startswith("tumftm:"):
         d = tumftm_dir()
         name = spec.split(":", 1)[1]
         if d is None or not (d / f"{name}.csv").is_file():
-            raise ValueError(f"TUMFTM track {name!r} not found (folder: {d}); "
-                             f"set ALPHA_RACER_TUMFTM to the racetrack-database tracks folder")
-        track = load_tumftm_csv(d / f"{name}.csv", scale=scale or 1 / 43,
-                                allow_crossing=name in CROSSING_CIRCUITS)
+            raise ValueError(
+                f"TUMFTM track {name!r} not found (folder: {d}); "
+                f"set ALPHA_RACER_TUMFTM to the racetrack-database tracks folder"
+            )
+        track = load_tumftm_csv(
+            d / f"{name}.csv", scale=scale or 1 / 43, allow_crossing=name in CROSSING_CIRCUITS
+        )
     elif spec.endswith(".csv"):
         track = load_tumftm_csv(spec, scale=scale or 1.0)
     else:
-        raise ValueError(f"unknown track {spec!r}; expected one of {sorted(BUILTIN)}, "
-                         f"'random:SEED', 'tumftm:NAME' or a .csv path")
+        raise ValueError(
+            f"unknown track {spec!r}; expected one of {sorted(BUILTIN)}, "
+            f"'random:SEED', 'tumftm:NAME' or a .csv path"
+        )
     _CACHE[key] = track
     return track

@@ -1,5 +1,6 @@
 """The trajectory plot: :func:`plot_trajectories` draws the cars' paths over an episode on
 the track to a PNG (matplotlib Agg), in the cars' colours of the race frames."""
+
 from __future__ import annotations
 
 import os
@@ -13,10 +14,15 @@ from .files import atomic_path
 from .track import Track
 
 
-def plot_trajectories(track: Track, states: np.ndarray, path: str | os.PathLike,
-                      raceline_xy: tuple[np.ndarray, np.ndarray] | np.ndarray | None = None,
-                      labels: Sequence[str] | None = None, title: str | None = None,
-                      dpi: int = 150) -> Path:
+def plot_trajectories(
+    track: Track,
+    states: np.ndarray,
+    path: str | os.PathLike,
+    raceline_xy: tuple[np.ndarray, np.ndarray] | np.ndarray | None = None,
+    labels: Sequence[str] | None = None,
+    title: str | None = None,
+    dpi: int = 150,
+) -> Path:
     """Plot each car's path over an episode on the track to a PNG (matplotlib Agg, no pyplot).
 
     Parameters
@@ -45,7 +51,9 @@ def plot_trajectories(track: Track, states: np.ndarray, path: str | os.PathLike,
 
     path = Path(path)
     if path.suffix.lower() != ".png":
-        raise ValueError(f"plot_trajectories writes PNG; got suffix {path.suffix!r} in {str(path)!r}")
+        raise ValueError(
+            f"plot_trajectories writes PNG; got suffix {path.suffix!r} in {str(path)!r}"
+        )
     st = np.asarray(states, dtype=float)
     if st.ndim == 2:
         st = st[:, None, :]
@@ -69,8 +77,14 @@ def plot_trajectories(track: Track, states: np.ndarray, path: str | os.PathLike,
     ax.plot([sl_x[0], sr_x[0]], [sl_y[0], sr_y[0]], color="k", lw=2.0, label="start/finish")
     if raceline_xy is not None:
         rx, ry = _as_xy(raceline_xy)
-        ax.plot(np.append(rx, rx[0]), np.append(ry, ry[0]), "--", color="0.55", lw=1.0,
-                label="racing line")
+        ax.plot(
+            np.append(rx, rx[0]),
+            np.append(ry, ry[0]),
+            "--",
+            color="0.55",
+            lw=1.0,
+            label="racing line",
+        )
     for i in range(n_cars):
         x, y = track.to_cartesian(st[:, i, 0], st[:, i, 1])
         col = np.array(car_color(i)) / 255.0

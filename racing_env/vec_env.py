@@ -15,10 +15,11 @@ agent per race, called per race.
 Imports stable-baselines3 (``VecEnv``, the ``learn`` extra); ``import racing_env`` alone does not
 load this module.
 """
+
 from __future__ import annotations
 
-from typing import Any
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -48,10 +49,17 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
     metadata = {"render_modes": []}
     render_mode = None
 
-    def __init__(self, n_envs: int = 8, opponents: Sequence | None = None,
-                 track: str | Track = "default", config: RaceConfig | None = None, **kwargs):
-        HeadToHeadBatch.__init__(self, n_envs, opponents=opponents, track=track, config=config,
-                                 **kwargs)
+    def __init__(
+        self,
+        n_envs: int = 8,
+        opponents: Sequence | None = None,
+        track: str | Track = "default",
+        config: RaceConfig | None = None,
+        **kwargs,
+    ):
+        HeadToHeadBatch.__init__(
+            self, n_envs, opponents=opponents, track=track, config=config, **kwargs
+        )
         VecEnv.__init__(self, self.num_envs, self.observation_space, self.action_space)
         self._obs = None
 
@@ -102,15 +110,26 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
     def get_attr(self, attr_name: str, indices: int | Sequence[int] | None = None) -> list[Any]:
         return [getattr(self, attr_name) for _ in self._get_indices(indices)]
 
-    def set_attr(self, attr_name: str, value: Any, indices: int | Sequence[int] | None = None) -> None:
+    def set_attr(
+        self, attr_name: str, value: Any, indices: int | Sequence[int] | None = None
+    ) -> None:
         setattr(self, attr_name, value)
 
-    def env_method(self, method_name: str, *method_args,
-                   indices: int | Sequence[int] | None = None, **method_kwargs) -> list[Any]:
-        return [getattr(self, method_name)(*method_args, **method_kwargs)
-                for _ in self._get_indices(indices)]
+    def env_method(
+        self,
+        method_name: str,
+        *method_args,
+        indices: int | Sequence[int] | None = None,
+        **method_kwargs,
+    ) -> list[Any]:
+        return [
+            getattr(self, method_name)(*method_args, **method_kwargs)
+            for _ in self._get_indices(indices)
+        ]
 
-    def env_is_wrapped(self, wrapper_class: type, indices: int | Sequence[int] | None = None) -> list[bool]:
+    def env_is_wrapped(
+        self, wrapper_class: type, indices: int | Sequence[int] | None = None
+    ) -> list[bool]:
         return [False for _ in self._get_indices(indices)]
 
     def get_images(self) -> list[None]:

@@ -39,6 +39,7 @@ autonomous racing of 1:43 scale RC cars", Optimal Control Applications and Metho
 global ``M``; :func:`bind` makes copies of it that use ``numpy`` (batched arrays), ``math``
 (compiled by numba in the simulator) or ``casadi`` (symbolic, for the MPC).
 """
+
 from __future__ import annotations
 
 import math
@@ -56,7 +57,9 @@ if TYPE_CHECKING:
 M = math  # the maths backend of frenet_ode; replaced per copy by bind()
 
 # indices into the packed parameter vector (see VehicleParams.pack)
-P_M, P_IZ, P_LF, P_LR, P_C1, P_C2, P_C3, P_C4, P_BF, P_CF, P_DF, P_BR, P_CR, P_DR, P_VLOW = range(15)
+P_M, P_IZ, P_LF, P_LR, P_C1, P_C2, P_C3, P_C4, P_BF, P_CF, P_DF, P_BR, P_CR, P_DR, P_VLOW = range(
+    15
+)
 N_PARAMS = 15
 
 STATE_NAMES = ("s", "n", "mu", "vx", "vy", "omega")
@@ -68,26 +71,26 @@ ACTION_NAMES = ("d", "delta")
 class VehicleParams:
     """Physical parameters of one car (defaults: Liniger et al. 2015, 1:43 ORCA car)."""
 
-    m: float = 0.041          # mass [kg]
-    Iz: float = 27.8e-6       # yaw moment of inertia [kg m^2]
-    lf: float = 0.029         # centre of mass to front axle [m]
-    lr: float = 0.033         # centre of mass to rear axle [m]
-    C1: float = 0.287         # drive force gain [N]
-    C2: float = 0.0545        # drive force loss with speed [N s/m]
-    C3: float = 0.0518        # rolling resistance [N]
-    C4: float = 0.00035       # aerodynamic drag [N s^2/m^2]
-    Bf: float = 2.579         # Pacejka front B [-]
-    Cf: float = 1.2           # Pacejka front C [-]
-    Df: float = 0.192         # Pacejka front D (peak force) [N]
-    Br: float = 3.3852        # Pacejka rear B [-]
-    Cr: float = 1.2691        # Pacejka rear C [-]
-    Dr: float = 0.1737        # Pacejka rear D (peak force) [N]
-    v_low: float = 0.1        # low-speed regularisation of slip angles [m/s]
-    length: float = 0.12      # body length [m] (contact, rendering)
-    width: float = 0.06       # body width [m] (contact, racing line margin, rendering)
-    d_min: float = -1.0       # throttle bounds [-]; negative brakes
+    m: float = 0.041  # mass [kg]
+    Iz: float = 27.8e-6  # yaw moment of inertia [kg m^2]
+    lf: float = 0.029  # centre of mass to front axle [m]
+    lr: float = 0.033  # centre of mass to rear axle [m]
+    C1: float = 0.287  # drive force gain [N]
+    C2: float = 0.0545  # drive force loss with speed [N s/m]
+    C3: float = 0.0518  # rolling resistance [N]
+    C4: float = 0.00035  # aerodynamic drag [N s^2/m^2]
+    Bf: float = 2.579  # Pacejka front B [-]
+    Cf: float = 1.2  # Pacejka front C [-]
+    Df: float = 0.192  # Pacejka front D (peak force) [N]
+    Br: float = 3.3852  # Pacejka rear B [-]
+    Cr: float = 1.2691  # Pacejka rear C [-]
+    Dr: float = 0.1737  # Pacejka rear D (peak force) [N]
+    v_low: float = 0.1  # low-speed regularisation of slip angles [m/s]
+    length: float = 0.12  # body length [m] (contact, rendering)
+    width: float = 0.06  # body width [m] (contact, racing line margin, rendering)
+    d_min: float = -1.0  # throttle bounds [-]; negative brakes
     d_max: float = 1.0
-    delta_max: float = 0.35   # steering bound [rad], symmetric
+    delta_max: float = 0.35  # steering bound [rad], symmetric
     delta_rate_max: float = 3.5  # steering-rate bound [rad/s] (used by the MPC)
 
     def __post_init__(self):
@@ -102,8 +105,25 @@ class VehicleParams:
 
     def pack(self) -> np.ndarray:
         """Parameter vector in the order of the ``P_*`` indices, shape (N_PARAMS,)."""
-        return np.array([self.m, self.Iz, self.lf, self.lr, self.C1, self.C2, self.C3, self.C4,
-                         self.Bf, self.Cf, self.Df, self.Br, self.Cr, self.Dr, self.v_low])
+        return np.array(
+            [
+                self.m,
+                self.Iz,
+                self.lf,
+                self.lr,
+                self.C1,
+                self.C2,
+                self.C3,
+                self.C4,
+                self.Bf,
+                self.Cf,
+                self.Df,
+                self.Br,
+                self.Cr,
+                self.Dr,
+                self.v_low,
+            ]
+        )
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -111,19 +131,22 @@ class VehicleParams:
     @property
     def top_speed(self) -> float:
         """Speed [m/s] where full throttle balances resistance and drag on a straight."""
-        a, b, c = self.C4, self.C2, self.C3 - self.C1       # C4 v^2 + C2 v + (C3 - C1) = 0
+        a, b, c = self.C4, self.C2, self.C3 - self.C1  # C4 v^2 + C2 v + (C3 - C1) = 0
         return float((-b + math.sqrt(b * b - 4 * a * c)) / (2 * a))
 
     def stiffness(self, vx: float | np.ndarray) -> float | np.ndarray:
         """Rough largest eigenvalue [1/s] of the lateral/yaw dynamics at speed vx (for sub-steps)."""
         ca_f = self.Bf * self.Cf * self.Df
         ca_r = self.Br * self.Cr * self.Dr
-        v = np.sqrt(np.asarray(vx) ** 2 + 4.0 * self.v_low ** 2)   # the fade caps it at v = v_low
-        return (ca_f + ca_r) / (self.m * v) + (ca_f * self.lf ** 2 + ca_r * self.lr ** 2) / (self.Iz * v)
+        v = np.sqrt(np.asarray(vx) ** 2 + 4.0 * self.v_low**2)  # the fade caps it at v = v_low
+        return (ca_f + ca_r) / (self.m * v) + (ca_f * self.lf**2 + ca_r * self.lr**2) / (
+            self.Iz * v
+        )
 
 
-def frenet_ode(n: Any, mu: Any, vx: Any, vy: Any, omega: Any, d: Any, delta: Any, kappa: Any,
-               p: Any) -> tuple[Any, Any, Any, Any, Any, Any]:
+def frenet_ode(
+    n: Any, mu: Any, vx: Any, vy: Any, omega: Any, d: Any, delta: Any, kappa: Any, p: Any
+) -> tuple[Any, Any, Any, Any, Any, Any]:
     """Time derivatives (s', n', mu', vx', vy', omega') of the Frenet bicycle model.
 
     Arguments are scalars, equally shaped arrays, or CasADi expressions (whichever the bound
@@ -135,12 +158,14 @@ def frenet_ode(n: Any, mu: Any, vx: Any, vy: Any, omega: Any, d: Any, delta: Any
     alpha_r = M.atan((omega * p[P_LR] - vy) / vx_eff)
     yaw_v = 0.5 * (p[P_LF] + p[P_LR]) * omega
     v2 = vx * vx + vy * vy + yaw_v * yaw_v
-    fade = v2 / (v2 + p[P_VLOW] * p[P_VLOW])    # no lateral force at rest
+    fade = v2 / (v2 + p[P_VLOW] * p[P_VLOW])  # no lateral force at rest
     f_fy = fade * p[P_DF] * M.sin(p[P_CF] * M.atan(p[P_BF] * alpha_f))
     f_ry = fade * p[P_DR] * M.sin(p[P_CR] * M.atan(p[P_BR] * alpha_r))
-    stop = M.tanh(vx / p[P_VLOW])               # smooth sgn(vx)
+    stop = M.tanh(vx / p[P_VLOW])  # smooth sgn(vx)
     d_drive, d_brake = 0.5 * (d + M.fabs(d)), 0.5 * (d - M.fabs(d))
-    f_rx = (p[P_C1] - p[P_C2] * vx) * (d_drive + d_brake * stop) - p[P_C3] * stop - p[P_C4] * vx * vx
+    f_rx = (
+        (p[P_C1] - p[P_C2] * vx) * (d_drive + d_brake * stop) - p[P_C3] * stop - p[P_C4] * vx * vx
+    )
     sin_mu, cos_mu = M.sin(mu), M.cos(mu)
     sin_d, cos_d = M.sin(delta), M.cos(delta)
     s_dot = (vx * cos_mu - vy * sin_mu) / (1.0 - n * kappa)
@@ -166,16 +191,19 @@ frenet_ode_numpy = bind(frenet_ode, np)
 def frenet_ode_casadi() -> Callable[..., tuple]:
     """:func:`frenet_ode` on CasADi symbols (imports casadi lazily)."""
     import casadi
+
     return bind(frenet_ode, casadi)
 
 
 def casadi_model(params: VehicleParams | None = None) -> Any:
     """CasADi ``Function('f', [x(6), u(2), kappa], [x_dot(6)])`` of the model."""
     import casadi
+
     p = [float(v) for v in (params or VehicleParams()).pack()]
     x = casadi.SX.sym("x", 6)
     u = casadi.SX.sym("u", 2)
     kappa = casadi.SX.sym("kappa")
     dx = frenet_ode_casadi()(x[1], x[2], x[3], x[4], x[5], u[0], u[1], kappa, p)
-    return casadi.Function("frenet_ode", [x, u, kappa], [casadi.vertcat(*dx)],
-                           ["x", "u", "kappa"], ["x_dot"])
+    return casadi.Function(
+        "frenet_ode", [x, u, kappa], [casadi.vertcat(*dx)], ["x", "u", "kappa"], ["x_dot"]
+    )

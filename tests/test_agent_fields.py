@@ -1,5 +1,6 @@
 """An RL researcher's own policy in our races: plain SB3 zips, field sizes, errors that name
 the agent and its car, ``adapt_observation`` public."""
+
 import zipfile
 
 import numpy as np
@@ -22,6 +23,7 @@ def sb3_run(tmp_path_factory):
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
     from racing_env.vec_env import HeadToHeadVecEnv
+
     out = tmp_path_factory.mktemp("sb3")
     venv = VecNormalize(VecMonitor(HeadToHeadVecEnv(2, max_cycles=20)))
     model = PPO("MlpPolicy", venv, n_steps=32, batch_size=32, n_epochs=1, seed=0, device="cpu")
@@ -33,10 +35,13 @@ def sb3_run(tmp_path_factory):
 
 def test_plain_sb3_zip_races_with_its_normalisation(sb3_run):
     out, model, venv = sb3_run
-    agent = make_agent_spec(f"ppo:checkpoint={out / 'model.zip'},vecnormalize={out / 'vecnormalize.pkl'}")
+    agent = make_agent_spec(
+        f"ppo:checkpoint={out / 'model.zip'},vecnormalize={out / 'vecnormalize.pkl'}"
+    )
     assert agent.n_cars == 3 and agent.meta["kind"] == "sb3"
     assert agent.model_files() == [out / "model.zip", out / "vecnormalize.pkl"]
     from racing_env import parallel_env
+
     env = parallel_env(n_cars=3)
     obs, _ = env.reset(seed=0)
     agent.reset(env.track, "car_0")
@@ -63,12 +68,15 @@ def test_plain_sb3_zip_errors_say_what_to_give(sb3_run, tmp_path):
 
 def test_save_checkpoint_output_races_as_ppo_checkpoint(sb3_run, tmp_path):
     from agents.ppo_agent import save_checkpoint
+
     out, model, venv = sb3_run
     with pytest.raises(ValueError, match="n_preview"):
         save_checkpoint(model, venv, tmp_path / "x.zip", {"n_cars": 3})
     path = save_checkpoint(model, venv, tmp_path / "mine.zip", {"n_cars": 3, "n_preview": 10})
     a = make_agent_spec(f"ppo:checkpoint={path}")
-    b = make_agent_spec(f"ppo:checkpoint={out / 'model.zip'},vecnormalize={out / 'vecnormalize.pkl'}")
+    b = make_agent_spec(
+        f"ppo:checkpoint={out / 'model.zip'},vecnormalize={out / 'vecnormalize.pkl'}"
+    )
     obs = np.random.default_rng(0).normal(size=(4, 28)).astype(np.float32)
     np.testing.assert_array_equal(a.act_batch(obs), b.act_batch(obs))
 
@@ -77,9 +85,14 @@ def test_a_three_car_policy_in_a_two_car_vector_env(sb3_run):
     """act_batch (the vector envs' path) adapts other field sizes too; before the fix this was
     'operands could not be broadcast together with shapes (22,) (28,)'."""
     from racing_env.vec_env import HeadToHeadVecEnv
+
     out, *_ = sb3_run
-    policy = make_agent_spec(f"ppo:checkpoint={out / 'model.zip'},vecnormalize={out / 'vecnormalize.pkl'}")
-    with pytest.raises(ValueError, match=r"observations of 22 values, its policy reads 28 \(3 cars\)"):
+    policy = make_agent_spec(
+        f"ppo:checkpoint={out / 'model.zip'},vecnormalize={out / 'vecnormalize.pkl'}"
+    )
+    with pytest.raises(
+        ValueError, match=r"observations of 22 values, its policy reads 28 \(3 cars\)"
+    ):
         policy.act_batch(np.zeros((2, 22), np.float32))
     env = HeadToHeadVecEnv(2, opponents=[policy], n_cars=2)
     env.reset()
@@ -89,6 +102,7 @@ def test_a_three_car_policy_in_a_two_car_vector_env(sb3_run):
 
 class Fixed3:
     """A user agent made for 3-car fields that does not adapt."""
+
     field_sizes = {3}
     name = "fixed3"
 
@@ -109,11 +123,17 @@ class Undeclared(Fixed3):
 def test_field_sizes_are_checked_before_the_race_and_errors_name_agent_and_car():
     agents.register_agent("fixed3", Fixed3)
     agents.register_agent("undeclared3", Undeclared)
-    with pytest.raises(ValueError, match=r"agent 'fixed3' driving car_1 cannot race in a field of 2 "
-                                         r"cars: it supports 3 cars"):
+    with pytest.raises(
+        ValueError,
+        match=r"agent 'fixed3' driving car_1 cannot race in a field of 2 "
+        r"cars: it supports 3 cars",
+    ):
         run_race(["raceline", "fixed3"], max_cycles=2, progress_bar=False)
-    with pytest.raises(ValueError, match=r"agent 'undeclared3' driving car_1 \(observation of 22 "
-                                         r"values\): .*broadcast"):
+    with pytest.raises(
+        ValueError,
+        match=r"agent 'undeclared3' driving car_1 \(observation of 22 "
+        r"values\): .*broadcast",
+    ):
         run_race(["raceline", "undeclared3"], max_cycles=2, progress_bar=False)
     result, _ = run_race(["raceline", "fixed3", "raceline"], max_cycles=2, progress_bar=False)
     assert len(result.agents) == 3
@@ -123,6 +143,7 @@ def test_field_sizes_are_checked_before_the_race_and_errors_name_agent_and_car()
 
 def test_gym_env_opponent_errors_name_the_opponent_and_car():
     from racing_env.gym_env import HeadToHeadEnv
+
     env = HeadToHeadEnv(opponents=[Undeclared()])
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"agent 'fixed3' driving car_1"):
@@ -133,8 +154,9 @@ def test_adapt_observation_is_public_with_the_old_names():
     from agents import adapt_observation
     from agents.observations import _adapt_observation
     from agents.ppo_agent import adapt_observation as from_ppo
+
     assert adapt_observation is _adapt_observation is from_ppo
-    obs = np.arange(22, dtype=np.float32)               # 2 cars, 10 preview values
+    obs = np.arange(22, dtype=np.float32)  # 2 cars, 10 preview values
     three = adapt_observation(obs, 3, 10, track_length=40.0)
     assert three.shape == (28,) and three[12] == -20.0
     np.testing.assert_array_equal(three[:12], obs[:12])

@@ -1,4 +1,5 @@
 """The alpha-potential: features, numpy networks, returns, maximisation, the pipeline end to end."""
+
 import json
 import warnings
 
@@ -7,8 +8,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agents.features import (potential_dim, potential_features, potential_theta_slots, scale_theta,
-                             unscale_theta, value_dim, value_features)
+from agents.features import (
+    potential_dim,
+    potential_features,
+    potential_theta_slots,
+    scale_theta,
+    unscale_theta,
+    value_dim,
+    value_features,
+)
 from agents.mlp import MLP
 from agents.reference import THETA_HIGH, THETA_LOW
 from experiments.nets import TrainConfig, discounted_partial_returns, split_races
@@ -35,12 +43,15 @@ def test_features_are_consistent_under_reordering_of_cars(seed, n):
     x, th = _joint(rng, n)
     perm = rng.permutation(n)
     # Phi's features: any reordering of the cars gives the same input
-    np.testing.assert_allclose(potential_features(x[perm], th[perm], TRACK),
-                               potential_features(x, th, TRACK))
+    np.testing.assert_allclose(
+        potential_features(x[perm], th[perm], TRACK), potential_features(x, th, TRACK)
+    )
     # V_i's features: reordering the cars (and following the ego) changes nothing
     ego = int(rng.integers(n))
-    np.testing.assert_allclose(value_features(x[perm], th[perm], TRACK, int(np.argsort(perm)[ego])),
-                               value_features(x, th, TRACK, ego))
+    np.testing.assert_allclose(
+        value_features(x[perm], th[perm], TRACK, int(np.argsort(perm)[ego])),
+        value_features(x, th, TRACK, ego),
+    )
     assert value_features(x, th, TRACK, ego).shape == (value_dim(n),)
     assert potential_features(x, th, TRACK).shape == (potential_dim(n),)
 
@@ -54,7 +65,7 @@ def test_value_features_see_relative_progress_on_unwrapped_s():
     b[:, 0] -= L
     fa, fb = value_features(a, th, TRACK, 0), value_features(b, th, TRACK, 0)
     np.testing.assert_allclose(fa, fb, atol=1e-9)
-    assert fa[5 + 4 + 5] == pytest.approx(1.0)         # first other car: s_j - s_i
+    assert fa[5 + 4 + 5] == pytest.approx(1.0)  # first other car: s_j - s_i
 
 
 def test_theta_slots_hold_the_scaled_thetas():
@@ -64,7 +75,9 @@ def test_theta_slots_hold_the_scaled_thetas():
     order = np.argsort(-x[:, 0])
     np.testing.assert_allclose(f[potential_theta_slots(3)], scale_theta(th[order]))
     np.testing.assert_allclose(unscale_theta(scale_theta(th)), th)
-    assert scale_theta(THETA_LOW).tolist() == [-1] * 5 and scale_theta(THETA_HIGH).tolist() == [1] * 5
+    assert (
+        scale_theta(THETA_LOW).tolist() == [-1] * 5 and scale_theta(THETA_HIGH).tolist() == [1] * 5
+    )
 
 
 def test_bad_feature_input_is_refused():
@@ -76,7 +89,9 @@ def test_bad_feature_input_is_refused():
 
 def test_numpy_network_matches_torch_and_its_input_gradient_matches_finite_differences():
     torch = pytest.importorskip("torch")
-    from experiments.nets import to_numpy_mlp as _to_numpy_mlp, torch_mlp as _torch_mlp
+    from experiments.nets import to_numpy_mlp as _to_numpy_mlp
+    from experiments.nets import torch_mlp as _torch_mlp
+
     torch.manual_seed(0)
     net = _torch_mlp(7, (16, 8), torch)
     mean, std = np.linspace(-1, 1, 7), np.linspace(0.5, 2, 7)
@@ -98,10 +113,10 @@ def test_numpy_network_matches_torch_and_its_input_gradient_matches_finite_diffe
 
 
 def test_discounted_returns_by_hand():
-    r = np.array([[[1.0], [2.0], [3.0]]])                   # one race, 3 steps, one car
+    r = np.array([[[1.0], [2.0], [3.0]]])  # one race, 3 steps, one car
     P, tail = discounted_partial_returns(r, 0.5)
     np.testing.assert_allclose(P[0, :, 0], [1 + 0.5 * 2 + 0.25 * 3, 2 + 0.5 * 3, 3])
-    np.testing.assert_allclose(tail, [0.125, 0.25, 0.5])     # gamma^(T - t) for the bootstrap
+    np.testing.assert_allclose(tail, [0.125, 0.25, 0.5])  # gamma^(T - t) for the bootstrap
 
 
 def test_race_split_holds_out_whole_races():
@@ -124,23 +139,32 @@ def _synthetic_model(n=3):
     """A potential whose maximiser is known: Phi = -||theta_scaled - target||^2 through a
     one-hidden-layer network is not exact, so use a quadratic-like smooth MLP built by hand:
     hidden units z = +-(theta_scaled - target), SiLU, output -sum(z silu-ish)."""
-    from agents.potential import PotentialModel
     from agents.features import FEATURE_VERSION
+    from agents.potential import PotentialModel
+
     D = potential_dim(n)
     slots = potential_theta_slots(n).ravel()
     target = np.linspace(-0.5, 0.7, len(slots))
     W1 = np.zeros((D, 2 * len(slots)))
     b1 = np.zeros(2 * len(slots))
-    for k, c in enumerate(slots):                   # z = +-(x_c - target_k)
+    for k, c in enumerate(slots):  # z = +-(x_c - target_k)
         W1[c, 2 * k], b1[2 * k] = 1.0, -target[k]
         W1[c, 2 * k + 1], b1[2 * k + 1] = -1.0, target[k]
-    W2 = -np.ones((2 * len(slots), 1))              # silu(z) + silu(-z) = z tanh-ish >= 0, min at 0
+    W2 = -np.ones((2 * len(slots), 1))  # silu(z) + silu(-z) = z tanh-ish >= 0, min at 0
     net = MLP([(W1, b1), (W2, np.zeros(1))], np.zeros(D), np.ones(D))
-    value = MLP([(np.zeros((value_dim(n), 1)), np.zeros(1))], np.zeros(value_dim(n)),
-                np.ones(value_dim(n)))
-    return PotentialModel(value, net, {"feature_version": FEATURE_VERSION, "n_cars": n,
-                                       "theta_low": THETA_LOW.tolist(),
-                                       "theta_high": THETA_HIGH.tolist()}), target
+    value = MLP(
+        [(np.zeros((value_dim(n), 1)), np.zeros(1))], np.zeros(value_dim(n)), np.ones(value_dim(n))
+    )
+    return PotentialModel(
+        value,
+        net,
+        {
+            "feature_version": FEATURE_VERSION,
+            "n_cars": n,
+            "theta_low": THETA_LOW.tolist(),
+            "theta_high": THETA_HIGH.tolist(),
+        },
+    ), target
 
 
 def test_maximisation_finds_the_maximiser_within_bounds():
@@ -166,16 +190,23 @@ def test_maximisation_under_a_zeta_ceiling_stays_in_the_lowered_box():
     for k in range(5):
         x, _ = _joint(rng, 3)
         free, _ = model.maximise(x, TRACK, restarts=4, iterations=40, rng=np.random.default_rng(k))
-        same = model.maximise(x, TRACK, restarts=4, iterations=40, rng=np.random.default_rng(k),
-                              high=np.tile(THETA_HIGH, (3, 1)))
+        same = model.maximise(
+            x,
+            TRACK,
+            restarts=4,
+            iterations=40,
+            rng=np.random.default_rng(k),
+            high=np.tile(THETA_HIGH, (3, 1)),
+        )
         assert same[0].tobytes() == free.tobytes()
         ceiling = float(np.clip(free[0, 1] - 0.05, 0.8, 1.05))
         high = np.tile(THETA_HIGH, (3, 1))
         high[0, 1] = ceiling
-        capped, phi = model.maximise(x, TRACK, restarts=4, iterations=40,
-                                     rng=np.random.default_rng(k), high=high)
+        capped, phi = model.maximise(
+            x, TRACK, restarts=4, iterations=40, rng=np.random.default_rng(k), high=high
+        )
         assert capped[0, 1] <= ceiling + 1e-12 and np.all(capped >= THETA_LOW - 1e-9)
-        assert capped[0, 1] == pytest.approx(ceiling, abs=0.01)     # the ceiling binds
+        assert capped[0, 1] == pytest.approx(ceiling, abs=0.01)  # the ceiling binds
         assert phi == pytest.approx(model.potential(x[None], capped[None], TRACK)[0], abs=1e-6)
     with pytest.raises(ValueError, match=r"high must be \(N, 5\) = \(3, 5\)"):
         model.maximise(x, TRACK, high=np.ones((2, 5)))
@@ -184,6 +215,7 @@ def test_maximisation_under_a_zeta_ceiling_stays_in_the_lowered_box():
 def test_alpha_agent_with_a_zeta_ceiling_never_drives_above_it():
     from agents import make_agent_spec
     from racing_env import RacingParallelEnv
+
     env = RacingParallelEnv(track="default", n_cars=3, max_cycles=15)
     obs, _ = env.reset(seed=2, options={"order": [1, 0, 2]})
     agent = make_agent_spec("alpha:zeta_max=0.9")
@@ -192,8 +224,9 @@ def test_alpha_agent_with_a_zeta_ceiling_never_drives_above_it():
     for _ in range(15):
         action = agent.act(obs["car_0"])
         zetas.append(agent.theta.zeta)
-        obs, *_ = env.step({"car_0": action, "car_1": np.zeros(2, np.float32),
-                            "car_2": np.zeros(2, np.float32)})
+        obs, *_ = env.step(
+            {"car_0": action, "car_1": np.zeros(2, np.float32), "car_2": np.zeros(2, np.float32)}
+        )
     assert max(zetas) <= 0.9 + 1e-12 and agent.driven_theta.zeta <= 0.9
 
 
@@ -202,19 +235,61 @@ def test_tiny_pipeline_end_to_end(tmp_path):
     """collect -> train -> validate -> race the alpha agent: the learned potential beats a
     constant potential on held-out deviations, and the agent reports its potential and theta."""
     pytest.importorskip("torch")
+    from agents import register_agent
     from agents.alpha_agent import AlphaAgent
     from agents.potential import load_model
     from experiments.cli import main
     from experiments.race import run_race
-    from agents import register_agent
 
     data, out = tmp_path / "races", tmp_path / "model"
-    assert main(["collect", "--races", "8", "--steps", "60", "--shard-size", "4", "--workers", "1",
-                 "--out", str(data)]) == 0
-    assert main(["train", "--data", str(data), "--out", str(out), "--value-epochs", "3",
-                 "--potential-steps", "150", "--value-hidden", "32", "32",
-                 "--potential-hidden", "64", "64", "--val-fraction", "0.25",
-                 "--rollout-pairs", "2", "--rollout-steps", "10", "--threads", "1"]) == 0
+    assert (
+        main(
+            [
+                "collect",
+                "--races",
+                "8",
+                "--steps",
+                "60",
+                "--shard-size",
+                "4",
+                "--workers",
+                "1",
+                "--out",
+                str(data),
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "train",
+                "--data",
+                str(data),
+                "--out",
+                str(out),
+                "--value-epochs",
+                "3",
+                "--potential-steps",
+                "150",
+                "--value-hidden",
+                "32",
+                "32",
+                "--potential-hidden",
+                "64",
+                "64",
+                "--val-fraction",
+                "0.25",
+                "--rollout-pairs",
+                "2",
+                "--rollout-steps",
+                "10",
+                "--threads",
+                "1",
+            ]
+        )
+        == 0
+    )
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["gap_rel_median"] < metrics["const_rel_median"]
     assert metrics["gap_rel_p95"] < metrics["const_rel_p95"]
@@ -224,10 +299,36 @@ def test_tiny_pipeline_end_to_end(tmp_path):
     assert model.meta["config"]["gamma"] == 0.99 and model.meta["data"]["races"] == 8
     # the same data and settings in a fresh directory give the same networks, weight for weight
     again = tmp_path / "model_again"
-    assert main(["train", "--data", str(data), "--out", str(again), "--value-epochs", "3",
-                 "--potential-steps", "150", "--value-hidden", "32", "32",
-                 "--potential-hidden", "64", "64", "--val-fraction", "0.25",
-                 "--rollout-pairs", "2", "--rollout-steps", "10", "--threads", "1"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--data",
+                str(data),
+                "--out",
+                str(again),
+                "--value-epochs",
+                "3",
+                "--potential-steps",
+                "150",
+                "--value-hidden",
+                "32",
+                "32",
+                "--potential-hidden",
+                "64",
+                "64",
+                "--val-fraction",
+                "0.25",
+                "--rollout-pairs",
+                "2",
+                "--rollout-steps",
+                "10",
+                "--threads",
+                "1",
+            ]
+        )
+        == 0
+    )
     with np.load(out / "model.npz") as a, np.load(again / "model.npz") as b:
         assert a.files == b.files
         for k in a.files:
@@ -235,12 +336,35 @@ def test_tiny_pipeline_end_to_end(tmp_path):
                 np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     # a rerun with the same settings resumes from the checkpoints (nothing left to train);
     # other settings in the same directory are refused
-    args = ["train", "--data", str(data), "--out", str(out), "--value-epochs", "3",
-            "--potential-steps", "150", "--value-hidden", "32", "32", "--potential-hidden", "64",
-            "64", "--val-fraction", "0.25", "--rollout-pairs", "2", "--rollout-steps", "10",
-            "--threads", "1"]
+    args = [
+        "train",
+        "--data",
+        str(data),
+        "--out",
+        str(out),
+        "--value-epochs",
+        "3",
+        "--potential-steps",
+        "150",
+        "--value-hidden",
+        "32",
+        "32",
+        "--potential-hidden",
+        "64",
+        "64",
+        "--val-fraction",
+        "0.25",
+        "--rollout-pairs",
+        "2",
+        "--rollout-steps",
+        "10",
+        "--threads",
+        "1",
+    ]
     assert main(args) == 0
-    assert json.loads((out / "metrics.json").read_text())["value_history"] == metrics["value_history"]
+    assert (
+        json.loads((out / "metrics.json").read_text())["value_history"] == metrics["value_history"]
+    )
     assert main(args[:-2] + ["--threads", "2", "--gamma", "0.98"]) == 2
     register_agent("alpha_tiny", lambda **kw: AlphaAgent(model=model, **kw))
     with warnings.catch_warnings():
@@ -253,6 +377,7 @@ def test_tiny_pipeline_end_to_end(tmp_path):
 
 def test_alpha_agent_refuses_a_model_for_another_number_of_cars():
     from agents.alpha_agent import AlphaAgent
+
     model, _ = _synthetic_model(n=2)
     agent = AlphaAgent(model=model)
     agent.reset("default", "car_0", 0)
@@ -264,6 +389,7 @@ def test_alpha_agent_refuses_a_model_for_another_number_of_cars():
 
 def _first_decision(agent, track, n):
     from racing_env import RacingParallelEnv
+
     env = RacingParallelEnv(track=track, n_cars=n, max_cycles=2, start="regions")
     obs, _ = env.reset(seed=0)
     agent.reset(env.track, "car_0", 0)
@@ -273,15 +399,17 @@ def _first_decision(agent, track, n):
 
 
 def test_auto_races_the_single_track_model_where_it_was_trained_and_the_general_one_elsewhere(
-        monkeypatch):
+    monkeypatch,
+):
     import agents.potential as potential
     from agents.alpha_agent import AlphaAgent, auto_model
     from agents.potential import MODEL_DIR, SHIPPED, cached_model
+
     assert auto_model("default", 3) == "default"
     general = (MODEL_DIR / SHIPPED["general"]).exists()
     for track, n in (("oval", 3), ("default", 2), ("random:7", 5)):
         assert auto_model(track, n) == ("general" if general else "default")
-    agent = AlphaAgent()                                     # model="auto", reused across races
+    agent = AlphaAgent()  # model="auto", reused across races
     assert agent.model is None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -297,6 +425,7 @@ def test_auto_races_the_single_track_model_where_it_was_trained_and_the_general_
 def test_shipped_models_load_and_race():
     from agents.potential import MODEL_DIR, SHIPPED, PotentialModel, load_model
     from experiments.race import run_race
+
     shipped = [n for n, f in SHIPPED.items() if (MODEL_DIR / f).exists()]
     assert "races400" in shipped
     for name in shipped:
@@ -306,8 +435,9 @@ def test_shipped_models_load_and_race():
     m = load_model("races400")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result, _ = run_race(["alpha:model=races400", "mpc", "mpc:zeta=0.8"], max_cycles=15,
-                             render=False)
+        result, _ = run_race(
+            ["alpha:model=races400", "mpc", "mpc:zeta=0.8"], max_cycles=15, render=False
+        )
     assert result.agent_stats[0]["solves"] == 15 and np.isfinite(result.progress).all()
     meta = {**m.meta, "feature_version": -1}
     with pytest.raises(ValueError, match="feature version -1"):
@@ -324,8 +454,10 @@ def test_restricted_network_matches_the_full_one_for_any_layer_sizes():
     rng = np.random.default_rng(3)
     for hidden in ((), (7,), (16, 9), (12, 5, 8)):
         dims = (11,) + hidden + (1,)
-        layers = [(rng.normal(size=(a, b)) / np.sqrt(a), rng.normal(size=b) * 0.1)
-                  for a, b in zip(dims[:-1], dims[1:])]
+        layers = [
+            (rng.normal(size=(a, b)) / np.sqrt(a), rng.normal(size=b) * 0.1)
+            for a, b in zip(dims[:-1], dims[1:])
+        ]
         net = MLP(layers, rng.normal(size=11), rng.uniform(0.5, 2, 11), 2.5, -0.3)
         x = rng.normal(size=11)
         free = np.array([9, 2, 5])
@@ -346,13 +478,15 @@ def test_maximise_beats_the_reference_from_a_cold_start_and_keeps_a_warm_start()
     release's 4 x 6 on every sampled state, and a warm-started ascent never ends below its
     warm start."""
     from agents.potential import cached_model
+
     model = cached_model("default")
     rng = np.random.default_rng(5)
     for k in range(6):
         x, _ = _joint(rng, 3)
         th, phi = model.maximise(x, TRACK, restarts=32, iterations=12, rng=np.random.default_rng(k))
-        _, phi_ref = model.maximise_reference(x, TRACK, restarts=4, iterations=6,
-                                              rng=np.random.default_rng(k))
+        _, phi_ref = model.maximise_reference(
+            x, TRACK, restarts=4, iterations=6, rng=np.random.default_rng(k)
+        )
         assert phi > phi_ref
         assert phi == pytest.approx(model.potential(x[None], th[None], TRACK)[0], abs=1e-4)
         warm = rng.uniform(THETA_LOW, THETA_HIGH, (3, 5))
@@ -379,15 +513,26 @@ def test_a_race_with_the_alpha_agent_is_identical_with_1_and_2_threads(tmp_path)
     import subprocess
     import sys
     from pathlib import Path
+
     root = Path(__file__).resolve().parents[1]
     states = []
     for n in (1, 2):
-        env = {**os.environ, "OPENBLAS_NUM_THREADS": str(n), "OMP_NUM_THREADS": str(n),
-               "MKL_NUM_THREADS": str(n), "NUMBA_NUM_THREADS": str(n),
-               "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+        env = {
+            **os.environ,
+            "OPENBLAS_NUM_THREADS": str(n),
+            "OMP_NUM_THREADS": str(n),
+            "MKL_NUM_THREADS": str(n),
+            "NUMBA_NUM_THREADS": str(n),
+            "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]),
+        }
         out = tmp_path / f"states_{n}.npy"
-        subprocess.run([sys.executable, "-c", _RACE_SCRIPT, str(out)], env=env, cwd=root,
-                       check=True, timeout=300)
+        subprocess.run(
+            [sys.executable, "-c", _RACE_SCRIPT, str(out)],
+            env=env,
+            cwd=root,
+            check=True,
+            timeout=300,
+        )
         states.append(np.load(out))
     assert states[0].shape == (61, 3, 6)
     assert states[0].tobytes() == states[1].tobytes()
@@ -398,4 +543,5 @@ def test_the_shipped_model_card_is_laid_out_from_the_shipped_models():
     the committed card is that output, so it cannot drift from the models."""
     from agents.potential import MODEL_DIR
     from experiments.model_card import card
+
     assert (MODEL_DIR / "MODEL_CARD.md").read_text() == card()

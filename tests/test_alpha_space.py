@@ -2,6 +2,7 @@
 networks sized by the space, models recording it, training reading it from the collection,
 the alpha agent maximising over its box; mismatches named. The paper space's numbers are
 unchanged (tests/test_alpha.py, tests/test_regression.py)."""
+
 import json
 import warnings
 
@@ -45,7 +46,7 @@ def test_extended_features_are_the_paper_layout_with_b_after_each_theta(fs):
     slots6 = fs.potential_theta_slots(n, "extended")
     assert slots6.shape == (n, 6)
     keep = np.setdiff1d(np.arange(p6.shape[-1]), slots6[:, 5])
-    if fs is gf:                      # empty slots are zero in both: drop every slot's b column
+    if fs is gf:  # empty slots are zero in both: drop every slot's b column
         per = gf.dims("extended")["slot"]
         keep = np.setdiff1d(np.arange(p6.shape[-1]), np.arange(gf.N_MAX) * per + per - 1)
     np.testing.assert_array_equal(p6[:, keep], p5)
@@ -82,7 +83,8 @@ def test_shared_value_helpers_carry_the_space():
     o_rel, o_state, o_theta = ff.others_in_order(x, th, rel, order, "extended")
     assert o_rel.shape == (5, 2, 1) and o_state.shape == (5, 2, 5) and o_theta.shape == (5, 2, 6)
     np.testing.assert_array_equal(
-        o_theta, scale_theta(np.take_along_axis(th, order[..., None], axis=-2), "extended"))
+        o_theta, scale_theta(np.take_along_axis(th, order[..., None], axis=-2), "extended")
+    )
     np.testing.assert_array_equal(o_theta, ff.others_in_order(x, th, rel, order)[2])
     with pytest.raises(ValueError, match="'paper' policy space have 5 parameters"):
         ff.others_in_order(x, th, rel, order, "paper")
@@ -103,9 +105,15 @@ def _extended_model(n=3, meta=None):
     net = MLP([(W1, b1), (-np.ones((2 * len(slots), 1)), np.zeros(1))], np.zeros(D), np.ones(D))
     dv = ff.value_dim(n, "extended")
     value = MLP([(np.zeros((dv, 1)), np.zeros(1))], np.zeros(dv), np.ones(dv))
-    meta = {"feature_version": ff.FEATURE_VERSION, "n_cars": n, "track": "default",
-            "space": "extended", "theta_low": EXTENDED.low.tolist(),
-            "theta_high": EXTENDED.high.tolist(), **(meta or {})}
+    meta = {
+        "feature_version": ff.FEATURE_VERSION,
+        "n_cars": n,
+        "track": "default",
+        "space": "extended",
+        "theta_low": EXTENDED.low.tolist(),
+        "theta_high": EXTENDED.high.tolist(),
+        **(meta or {}),
+    }
     return PotentialModel(value, net, meta), target
 
 
@@ -139,8 +147,9 @@ def test_an_extended_model_maximises_over_the_six_dimensional_box(tmp_path):
 
 def test_a_model_without_a_space_is_the_papers_and_a_wrong_box_is_refused():
     from agents.potential import load_model
+
     shipped = load_model("races400")
-    assert "space" not in shipped.meta and shipped.space is PAPER     # trained before spaces
+    assert "space" not in shipped.meta and shipped.space is PAPER  # trained before spaces
     with pytest.raises(ValueError, match=r"theta box .*'extended' policy space"):
         _extended_model(meta={"theta_low": PAPER.low.tolist(), "theta_high": PAPER.high.tolist()})
     with pytest.raises(ValueError, match="policy space must be one of"):
@@ -151,9 +160,12 @@ def test_a_model_without_a_space_is_the_papers_and_a_wrong_box_is_refused():
 def test_alpha_takes_its_models_space_and_names_a_mismatch():
     from agents import make_agent_spec
     from agents.alpha_agent import AlphaAgent
+
     model, _ = _extended_model()
     agent = AlphaAgent(model=model)
-    assert agent.space == "extended" and AlphaAgent(model=model, space="extended").space == "extended"
+    assert (
+        agent.space == "extended" and AlphaAgent(model=model, space="extended").space == "extended"
+    )
     with pytest.raises(ValueError, match="trained on the 'extended' policy space.*space='paper'"):
         AlphaAgent(model=model, space="paper")
     with pytest.raises(ValueError, match="trained on the 'paper' policy space.*space='extended'"):
@@ -163,22 +175,41 @@ def test_alpha_takes_its_models_space_and_names_a_mismatch():
     assert make_agent_spec("alpha").space == "paper"
     # racing: the joint theta lives in the 6-dimensional box, the MPC drives the ego's part
     from racing_env import RacingParallelEnv
+
     env = RacingParallelEnv(track="default", n_cars=3, max_cycles=4)
     obs, _ = env.reset(seed=0, options={"order": [1, 0, 2]})
     agent.reset(env.track, "car_0", 0)
     for _ in range(4):
         action = agent.act(obs["car_0"])
         assert agent._theta_joint.shape == (3, 6) and np.isfinite(action).all()
-        obs, *_ = env.step({"car_0": action, "car_1": np.zeros(2, np.float32),
-                            "car_2": np.zeros(2, np.float32)})
+        obs, *_ = env.step(
+            {"car_0": action, "car_1": np.zeros(2, np.float32), "car_2": np.zeros(2, np.float32)}
+        )
     assert agent.theta.as_array("extended").tolist() == pytest.approx(agent._theta_joint[0])
     assert agent.stats["theta"]["b"] == agent.theta.b and agent.blend_line is not None
 
 
 # ---------------------------------------------------------------------------- end to end
-TRAIN_ARGS = ["--value-epochs", "2", "--potential-steps", "40", "--potential-batch", "256",
-              "--value-hidden", "16", "16", "--potential-hidden", "32", "32",
-              "--val-fraction", "0.25", "--rollout-pairs", "0", "--threads", "1"]
+TRAIN_ARGS = [
+    "--value-epochs",
+    "2",
+    "--potential-steps",
+    "40",
+    "--potential-batch",
+    "256",
+    "--value-hidden",
+    "16",
+    "16",
+    "--potential-hidden",
+    "32",
+    "32",
+    "--val-fraction",
+    "0.25",
+    "--rollout-pairs",
+    "0",
+    "--threads",
+    "1",
+]
 
 
 @pytest.fixture(scope="module")
@@ -187,31 +218,57 @@ def extended_run(tmp_path_factory):
     pytest.importorskip("daqp")
     pytest.importorskip("torch")
     from experiments.cli import main
+
     root = tmp_path_factory.mktemp("extended")
-    assert main(["collect", "--space", "extended", "--races", "4", "--steps", "30",
-                 "--shard-size", "2", "--workers", "1", "--out", str(root / "data")]) == 0
-    assert main(["train", "--data", str(root / "data"), "--out", str(root / "model")]
-                + TRAIN_ARGS) == 0
+    assert (
+        main(
+            [
+                "collect",
+                "--space",
+                "extended",
+                "--races",
+                "4",
+                "--steps",
+                "30",
+                "--shard-size",
+                "2",
+                "--workers",
+                "1",
+                "--out",
+                str(root / "data"),
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(["train", "--data", str(root / "data"), "--out", str(root / "model")] + TRAIN_ARGS)
+        == 0
+    )
     return root
 
 
 def test_tiny_extended_pipeline_collect_train_race(extended_run):
     from agents.potential import load_model
     from experiments.race import run_race
+
     model = load_model(extended_run / "model" / "model.npz")
     meta = model.meta
     assert model.space is EXTENDED and meta["space"] == "extended"
-    assert meta["theta_low"] == EXTENDED.low.tolist() and meta["theta_high"] == EXTENDED.high.tolist()
+    assert (
+        meta["theta_low"] == EXTENDED.low.tolist() and meta["theta_high"] == EXTENDED.high.tolist()
+    )
     assert meta["data"]["collect"]["space"] == "extended"
     assert model.potential_net.layers[0][0].shape[0] == ff.potential_dim(3, "extended")
-    assert json.loads((extended_run / "model" / "train_config.json").read_text())["space"] == "extended"
+    assert (
+        json.loads((extended_run / "model" / "train_config.json").read_text())["space"]
+        == "extended"
+    )
     card = (extended_run / "model" / "model_card.md").read_text()
     assert "--space extended" in card and "s3, b; the extended policy space" in card
     spec = f"alpha:space=extended,model={extended_run / 'model' / 'model.npz'}"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result, _ = run_race([spec, "mpc", "mpc:space=extended,b=0.5"], max_cycles=5,
-                             render=False)
+        result, _ = run_race([spec, "mpc", "mpc:space=extended,b=0.5"], max_cycles=5, render=False)
     st = result.agent_stats[0]
     assert st["solves"] == 5 and np.isfinite(st["potential"])
     assert list(st["theta"]) == list(EXTENDED.names) and 0 <= st["theta"]["b"] <= 1
@@ -221,19 +278,34 @@ def test_training_names_a_space_mismatch(extended_run, tmp_path):
     from experiments.collect import CollectConfig, collect
     from experiments.nets import TrainConfig
     from experiments.train import train
-    cfg = TrainConfig(value_epochs=1, potential_steps=10, value_hidden=(8,),
-                      potential_hidden=(8,), val_fraction=0.25, rollout_pairs=0, threads=1)
+
+    cfg = TrainConfig(
+        value_epochs=1,
+        potential_steps=10,
+        value_hidden=(8,),
+        potential_hidden=(8,),
+        val_fraction=0.25,
+        rollout_pairs=0,
+        threads=1,
+    )
     data = extended_run / "data"
-    with pytest.raises(ValueError, match=r"holds races of the 'extended' policy space, "
-                                         r"--space paper was asked for"):
+    with pytest.raises(
+        ValueError,
+        match=r"holds races of the 'extended' policy space, "
+        r"--space paper was asked for",
+    ):
         train(data, tmp_path / "a", cfg, progress_bar=False, log=lambda *a: None, space="paper")
     assert not (tmp_path / "a").exists()
     # continuing the extended run's folder on races of the paper's space
     paper = tmp_path / "paper"
-    collect(CollectConfig(races=2, steps=3, races_per_shard=2), paper, workers=1,
-            progress_bar=False)
-    with pytest.raises(ValueError, match=r"training run on the 'extended' policy space; the "
-                                         r"races in .* are of the 'paper' space"):
+    collect(
+        CollectConfig(races=2, steps=3, races_per_shard=2), paper, workers=1, progress_bar=False
+    )
+    with pytest.raises(
+        ValueError,
+        match=r"training run on the 'extended' policy space; the "
+        r"races in .* are of the 'paper' space",
+    ):
         train(paper, extended_run / "model", cfg, progress_bar=False, log=lambda *a: None)
     # a manifest that disagrees with its thetas
     manifest = json.loads((data / "manifest.json").read_text())
@@ -243,6 +315,9 @@ def test_training_names_a_space_mismatch(extended_run, tmp_path):
     (bad / "manifest.json").write_text(json.dumps(manifest))
     for shard in data.glob("shard_*.npz"):
         (bad / shard.name).write_bytes(shard.read_bytes())
-    with pytest.raises(ValueError, match=r"manifest says the 'paper' policy space \(5 "
-                                         r"parameters\), the thetas have 6"):
+    with pytest.raises(
+        ValueError,
+        match=r"manifest says the 'paper' policy space \(5 "
+        r"parameters\), the thetas have 6",
+    ):
         train(bad, tmp_path / "b", cfg, progress_bar=False, log=lambda *a: None)

@@ -1,4 +1,5 @@
 """Nash analyses: regret by simulation, approximation gap, potential slices, figures."""
+
 import json
 
 import numpy as np
@@ -7,19 +8,38 @@ import pytest
 pytest.importorskip("daqp")
 
 from agents.potential import load_model  # noqa: E402
-from experiments.analyze import (AnalyzeConfig, analyze, maximiser, regret_task,  # noqa: E402
-                                 slice_state)
+from experiments.analyze import (
+    AnalyzeConfig,
+    analyze,
+    maximiser,
+    regret_task,  # noqa: E402
+    slice_state,
+)
 from experiments.cli import main  # noqa: E402
 from racing_env.tracks import make_track  # noqa: E402
 
-TINY = AnalyzeConfig(heldout_races=2, gap_pairs=400, regret_states=2, regret_horizon=10,
-                     cem_iterations=2, cem_samples=3, value_search=64, slice_points=9,
-                     slice_rollouts=3, slice_steps=10, steps=40)
+TINY = AnalyzeConfig(
+    heldout_races=2,
+    gap_pairs=400,
+    regret_states=2,
+    regret_horizon=10,
+    cem_iterations=2,
+    cem_samples=3,
+    value_search=64,
+    slice_points=9,
+    slice_rollouts=3,
+    slice_steps=10,
+    steps=40,
+)
 
 # three cars side by side-ish on the main straight, rolling at 2 m/s
-STATE = np.array([[6.0, 0.10, 0.0, 2.0, 0.0, 0.0],
-                  [5.6, -0.10, 0.0, 2.0, 0.0, 0.0],
-                  [5.2, 0.05, 0.0, 2.0, 0.0, 0.0]])
+STATE = np.array(
+    [
+        [6.0, 0.10, 0.0, 2.0, 0.0, 0.0],
+        [5.6, -0.10, 0.0, 2.0, 0.0, 0.0],
+        [5.2, 0.05, 0.0, 2.0, 0.0, 0.0],
+    ]
+)
 
 
 @pytest.fixture(scope="module")
@@ -33,10 +53,10 @@ def test_regret_detects_a_bad_theta_and_is_never_negative(model):
     good = maximiser(model, STATE, track, seed=0)
     cfg = AnalyzeConfig(regret_horizon=30, cem_iterations=1, cem_samples=6, value_search=256)
     bad = good.copy()
-    bad[0, 1] = 0.7                          # car 0 crawls: zeta at its lower bound
+    bad[0, 1] = 0.7  # car 0 crawls: zeta at its lower bound
     r_bad = regret_task("default", "default", 0, STATE.tolist(), bad.tolist(), 0, cfg)
     r_good = regret_task("default", "default", 0, STATE.tolist(), good.tolist(), 0, cfg)
-    assert r_bad["regret_rel"] > 0.005       # a faster theta of its own gains progress
+    assert r_bad["regret_rel"] > 0.005  # a faster theta of its own gains progress
     assert r_good["regret_rel"] >= 0.0 and r_bad["regret_rel"] >= 0.0
     assert r_bad["g_best"] >= r_bad["g_star"]
     assert r_good["regret_rel"] < r_bad["regret_rel"]
@@ -45,6 +65,7 @@ def test_regret_detects_a_bad_theta_and_is_never_negative(model):
 
 def test_careful_maximiser_beats_the_box_centre_and_stays_in_bounds(model):
     from agents.reference import THETA_HIGH, THETA_LOW
+
     track = make_track("default")
     th = maximiser(model, STATE, track, seed=0)
     assert np.all(th >= THETA_LOW - 1e-9) and np.all(th <= THETA_HIGH + 1e-9)
@@ -54,8 +75,8 @@ def test_careful_maximiser_beats_the_box_centre_and_stays_in_bounds(model):
 
 def test_slice_state_picks_the_closest_follower():
     X = np.zeros((2, 3, 6))
-    X[0, :, 0] = [5.0, 3.0, 1.0]               # gaps 2 m
-    X[1, :, 0] = [5.0, 4.9, 1.0]               # car 1 is 0.1 m behind car 0
+    X[0, :, 0] = [5.0, 3.0, 1.0]  # gaps 2 m
+    X[1, :, 0] = [5.0, 4.9, 1.0]  # car 1 is 0.1 m behind car 0
     assert slice_state(X) == (1, 1)
 
 
@@ -69,13 +90,19 @@ def test_bad_config_is_refused():
 @pytest.mark.slow
 def test_tiny_analysis_end_to_end(tmp_path):
     s = analyze(TINY, tmp_path, workers=1, progress_bar=False)
-    for name in ("track.png", "fig2a_approximation_gap.png", "fig2b_nash_regret.png",
-                 "fig3_potential_slices.png", "summary.md", "summary.json"):
+    for name in (
+        "track.png",
+        "fig2a_approximation_gap.png",
+        "fig2b_nash_regret.png",
+        "fig3_potential_slices.png",
+        "summary.md",
+        "summary.json",
+    ):
         assert (tmp_path / name).stat().st_size > 0
     g = s["gap"]
     assert g["pairs"] == 400 and g["races"] == 2
     assert 0 <= g["median"] <= g["p95"] <= g["max"]
-    assert g["median"] < g["const_median"]              # the learned potential beats a constant
+    assert g["median"] < g["const_median"]  # the learned potential beats a constant
     reg = json.loads((tmp_path / "regret.json").read_text())
     assert len(reg["regret_rel"]) == 2 * 3
     assert min(reg["regret_rel"]) >= 0.0 and min(reg["value_regret_rel"]) >= 0.0
@@ -97,12 +124,44 @@ def test_tiny_analysis_end_to_end(tmp_path):
 @pytest.mark.slow
 def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys, monkeypatch):
     from agents.best_theta import TABLE_ENV_VAR, lookup
-    monkeypatch.setenv(TABLE_ENV_VAR, str(tmp_path / "best_fixed_theta.json"))   # empty table
-    assert main(["reproduce", "--out", str(tmp_path), "--races", "3", "--steps", "30",
-                 "--heldout-races", "2", "--gap-pairs", "300", "--regret-states", "2",
-                 "--regret-horizon", "5", "--cem-iterations", "1", "--cem-samples", "2",
-                 "--slice-points", "5", "--policy-thetas", "2", "--control-thetas", "2",
-                 "--control-races", "3", "--workers", "1"]) == 0
+
+    monkeypatch.setenv(TABLE_ENV_VAR, str(tmp_path / "best_fixed_theta.json"))  # empty table
+    assert (
+        main(
+            [
+                "reproduce",
+                "--out",
+                str(tmp_path),
+                "--races",
+                "3",
+                "--steps",
+                "30",
+                "--heldout-races",
+                "2",
+                "--gap-pairs",
+                "300",
+                "--regret-states",
+                "2",
+                "--regret-horizon",
+                "5",
+                "--cem-iterations",
+                "1",
+                "--cem-samples",
+                "2",
+                "--slice-points",
+                "5",
+                "--policy-thetas",
+                "2",
+                "--control-thetas",
+                "2",
+                "--control-races",
+                "3",
+                "--workers",
+                "1",
+            ]
+        )
+        == 0
+    )
     table = json.loads((tmp_path / "paper_table" / "paper_table.json").read_text())
     assert list(table["cases"]) == ["I", "II", "III", "IV", "V"]
     md = (tmp_path / "paper_table" / "paper_table.md").read_text()
@@ -119,25 +178,34 @@ def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys, monkeypa
     assert 1 <= sel["map"]["eligible_thetas"] <= sel["map"]["rows"]
     control = json.loads((tmp_path / "paper_table_control" / "paper_table.json").read_text())
     assert control["ego"] == "mpc:theta=best" and list(control["cases"]) == list(table["cases"])
-    for case in control["cases"].values():          # and its races were raced, every one
+    for case in control["cases"].values():  # and its races were raced, every one
         s = case["summary"]
         assert s["races"] == 3 and sum(w["wins"] for w in s["wins"].values()) == 3
-    for case in control["cases"]:       # each case's folder records the theta it raced
-        claimed = json.loads((tmp_path / "paper_table_control" / f"case_{case}"
-                              / "best_fixed_theta.json").read_text())
+    for case in control["cases"]:  # each case's folder records the theta it raced
+        claimed = json.loads(
+            (
+                tmp_path / "paper_table_control" / f"case_{case}" / "best_fixed_theta.json"
+            ).read_text()
+        )
         assert claimed["config"]["default"]["theta"] == sel["winner"]["theta"]
     extra = json.loads((tmp_path / "paper_table_mpc_ego" / "paper_table.json").read_text())
     assert extra["ego"] == "mpc" and list(extra["cases"]) == list(table["cases"])
     text = (tmp_path / "README.md").read_text()
     assert "Table 1" in text and "Nash regret" in text
     comparison = (tmp_path / "comparison.md").read_text()
-    assert comparison in text and "| alpha wins (R1/R2/R3) | best fixed wins (R1/R2/R3) | mpc " \
-        "wins (R1/R2/R3) | margin m (alpha / best fixed / mpc) |" in comparison
+    assert (
+        comparison in text
+        and "| alpha wins (R1/R2/R3) | best fixed wins (R1/R2/R3) | mpc "
+        "wins (R1/R2/R3) | margin m (alpha / best fixed / mpc) |"
+        in comparison
+    )
     for c, case in table["cases"].items():
         s = case["summary"]
         reg = "/".join(str(s["by_region"][r]["ego"]["wins"]) for r in ("R1", "R2", "R3"))
-        assert f"| {c} | `{case['opponents']}` | {s['wins']['ego']['wins']}/3 ({reg}) |" in comparison
+        assert (
+            f"| {c} | `{case['opponents']}` | {s['wins']['ego']['wins']}/3 ({reg}) |" in comparison
+        )
     rows = [json.loads(line) for line in (tmp_path / "policy_map" / "rows.jsonl").open()]
-    assert len(rows) == 2 * 2 * 4                      # thetas x modes x default tracks
+    assert len(rows) == 2 * 2 * 4  # thetas x modes x default tracks
     assert all(r["steps"] == 30 for r in rows if "error" not in r)
     assert (tmp_path / "policy_map" / "summary.md").read_text() in text

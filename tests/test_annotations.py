@@ -1,6 +1,7 @@
 """The public API of racing_env and agents is annotated: every public function and method (a
 name without a leading underscore, in a module without one) of their modules has an annotation
 on each parameter (``self``, ``cls``, ``*args`` and ``**kwargs`` aside) and on its return."""
+
 from __future__ import annotations
 
 import importlib
@@ -13,9 +14,11 @@ PACKAGES = ("racing_env", "agents")
 
 # (module, qualified name) -> why it cannot be annotated
 EXCEPTIONS: dict[tuple[str, str], str] = {
-    ("racing_env.vehicle", "frenet_ode_numpy"):
-        "frenet_ode rebound to numpy by vehicle.bind (types.FunctionType of its code object): a "
-        "function built at import carries no annotations; frenet_ode itself is annotated",
+    (
+        "racing_env.vehicle",
+        "frenet_ode_numpy",
+    ): "frenet_ode rebound to numpy by vehicle.bind (types.FunctionType of its code object): a "
+    "function built at import carries no annotations; frenet_ode itself is annotated",
 }
 
 
@@ -56,10 +59,13 @@ def missing_annotations(func) -> list[str]:
     """The parameters of ``func`` without an annotation, and ``return`` when it has none."""
     sig = inspect.signature(func, follow_wrapped=False)
     params = list(sig.parameters.values())
-    missing = [p.name for i, p in enumerate(params)
-               if p.annotation is inspect.Parameter.empty
-               and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
-               and not (i == 0 and p.name in ("self", "cls"))]
+    missing = [
+        p.name
+        for i, p in enumerate(params)
+        if p.annotation is inspect.Parameter.empty
+        and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+        and not (i == 0 and p.name in ("self", "cls"))
+    ]
     if sig.return_annotation is inspect.Signature.empty:
         missing.append("return")
     return missing

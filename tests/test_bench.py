@@ -1,4 +1,5 @@
 """Head-to-head benchmark: the paper's protocol, statistics, output invariants, resume."""
+
 import json
 
 import numpy as np
@@ -8,8 +9,15 @@ from hypothesis import strategies as st
 
 pytest.importorskip("daqp")
 
-from experiments.bench import (PAPER_CASES, BenchConfig, BenchRun, bench, bench_race,  # noqa: E402
-                               summarise, wilson_interval)
+from experiments.bench import (
+    PAPER_CASES,
+    BenchConfig,
+    BenchRun,
+    bench,
+    bench_race,  # noqa: E402
+    summarise,
+    wilson_interval,
+)
 from experiments.cli import main  # noqa: E402
 
 TINY = BenchConfig(ego="mpc:zeta=0.95", opponents="raceline", races=4, steps=15, seed=3)
@@ -18,7 +26,7 @@ TINY = BenchConfig(ego="mpc:zeta=0.95", opponents="raceline", races=4, steps=15,
 # ---------------------------------------------------------------------------- statistics
 def test_wilson_interval_hand_derived_cases():
     # 0 of n: lower 0, upper z^2 / (n + z^2)
-    z2 = 1.959964 ** 2
+    z2 = 1.959964**2
     lo, hi = wilson_interval(0, 10)
     assert lo == 0.0 and hi == pytest.approx(z2 / (10 + z2), rel=1e-9)
     # n of n mirrors it
@@ -50,7 +58,7 @@ def test_start_order_follows_the_paper_protocol():
     orders = [BenchConfig.start_order(k) for k in range(99)]
     assert all(sorted(o) == [0, 1, 2] for o in orders)
     assert [sum(o[0] == r for o in orders) for r in range(3)] == [33, 33, 33]
-    assert all(o[1] < o[2] for o in orders)               # O1 always ahead of O2
+    assert all(o[1] < o[2] for o in orders)  # O1 always ahead of O2
 
 
 def test_start_order_scaled_to_n_cars():
@@ -63,8 +71,9 @@ def test_start_order_scaled_to_n_cars():
         assert [sum(o[0] == r for o in orders) for r in range(n)] == [4] * n
         assert all(o[1:] == sorted(o[1:]) for o in orders)
         assert [o[0] for o in orders[:n]] == list(range(n))
-    assert [BenchConfig.start_order(k, 3) for k in range(99)] == [BenchConfig.start_order(k)
-                                                                  for k in range(99)]
+    assert [BenchConfig.start_order(k, 3) for k in range(99)] == [
+        BenchConfig.start_order(k) for k in range(99)
+    ]
 
 
 def test_n_car_config_names_bad_values_and_keeps_the_3_car_manifest():
@@ -72,15 +81,16 @@ def test_n_car_config_names_bad_values_and_keeps_the_3_car_manifest():
         BenchConfig(n_cars=4, races=6)
     with pytest.raises(ValueError, match="n_cars must be an integer in 2..8, got 9"):
         BenchConfig(n_cars=9, races=9)
-    assert "n_cars" not in BenchConfig().to_dict()                  # the paper's manifests
+    assert "n_cars" not in BenchConfig().to_dict()  # the paper's manifests
     assert BenchConfig(n_cars=4, races=8).to_dict()["n_cars"] == 4
     assert BenchConfig(n_cars=4, races=4).agents == ["alpha", "mpc", "mpc", "mpc"]
 
 
 def test_a_4_car_benchmark_places_every_car_in_its_region_and_summarises(tmp_path):
-    cfg = BenchConfig(ego="mpc:zeta=0.95", opponents="raceline", races=4, steps=10, seed=3,
-                      n_cars=4)
-    out = bench_race(cfg, 1)                              # race 1: ego from R2
+    cfg = BenchConfig(
+        ego="mpc:zeta=0.95", opponents="raceline", races=4, steps=10, seed=3, n_cars=4
+    )
+    out = bench_race(cfg, 1)  # race 1: ego from R2
     rec, states = out["record"], out["states"]
     assert rec["start_regions"] == ["R2", "R1", "R3", "R4"] and rec["ego_region"] == "R2"
     s0 = states[0, :, 0]
@@ -104,11 +114,11 @@ def test_paper_cases_are_the_papers_table():
 
 
 def test_bench_race_places_cars_in_their_regions_and_names_the_winner():
-    out = bench_race(TINY, 2)                            # race 2: ego from R3
+    out = bench_race(TINY, 2)  # race 2: ego from R3
     rec, states = out["record"], out["states"]
     assert rec["start_regions"] == ["R3", "R1", "R2"] and rec["ego_region"] == "R3"
     s0 = states[0, :, 0]
-    assert s0[1] > s0[2] > s0[0]                          # O1 (R1) ahead of O2 (R2) ahead of ego
+    assert s0[1] > s0[2] > s0[0]  # O1 (R1) ahead of O2 (R2) ahead of ego
     progress = np.array(rec["progress_m"])
     assert rec["winner"] == ("ego", "O1", "O2")[int(np.argmax(progress))]
     assert rec["margin_m"] == pytest.approx(progress[0] - progress[1:].max(), abs=1e-3)
@@ -127,8 +137,9 @@ def test_bad_config_is_refused():
 def check_summary_invariants(s: dict, races: int) -> None:
     assert s["races"] == races
     assert sum(w["wins"] for w in s["wins"].values()) == races
-    for w in list(s["wins"].values()) + [w for reg in s["by_region"].values()
-                                         for k, w in reg.items() if k != "margin_m_mean"]:
+    for w in list(s["wins"].values()) + [
+        w for reg in s["by_region"].values() for k, w in reg.items() if k != "margin_m_mean"
+    ]:
         lo, hi = w["ci95"]
         assert 0 <= lo <= w["fraction"] <= hi <= 1
     assert sum(reg["ego"]["races"] for reg in s["by_region"].values()) == races
@@ -149,7 +160,7 @@ def test_bench_writes_consistent_outputs_and_resumes_after_a_kill(tmp_path):
     again = bench(TINY, tmp_path, workers=1, progress_bar=False)
     check_summary_invariants(again, 4)
     redone = BenchRun(tmp_path, TINY).records()[lost]
-    assert redone["progress_m"] == first[lost]["progress_m"]       # deterministic per race
+    assert redone["progress_m"] == first[lost]["progress_m"]  # deterministic per race
 
 
 def test_a_folder_of_another_config_is_refused(tmp_path):
@@ -185,7 +196,9 @@ def test_ray_backend_gives_the_same_races_as_the_local_pool(tmp_path):
 def _native_threads(_):
     """A task reporting its BLAS thread count and the thread variables (module level: pickled)."""
     import os
+
     from threadpoolctl import threadpool_info
+
     blas = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
     return blas, os.environ.get("OPENBLAS_NUM_THREADS")
 
@@ -194,6 +207,7 @@ def test_tasks_run_on_one_native_thread_in_workers_and_in_the_driver():
     from threadpoolctl import threadpool_info
 
     from experiments.parallel import run_tasks
+
     before = {p["filepath"]: p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"}
     for workers in (1, 2):
         out = {}
@@ -202,7 +216,7 @@ def test_tasks_run_on_one_native_thread_in_workers_and_in_the_driver():
         if workers == 2:
             assert all(var == "1" for _, var in out.values())
     after = {p["filepath"]: p["num_threads"] for p in threadpool_info()}
-    assert {f: after[f] for f in before} == before                # the driver's own, restored
+    assert {f: after[f] for f in before} == before  # the driver's own, restored
 
 
 def test_alpha_races_are_the_same_with_1_and_2_workers(tmp_path):
@@ -241,14 +255,23 @@ def test_batched_races_are_identical_with_1_and_2_numba_threads(tmp_path):
     import subprocess
     import sys
     from pathlib import Path
+
     root = Path(__file__).resolve().parents[1]
     out = []
     for n in (1, 2):
-        env = {**os.environ, "NUMBA_NUM_THREADS": str(n),
-               "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+        env = {
+            **os.environ,
+            "NUMBA_NUM_THREADS": str(n),
+            "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]),
+        }
         path = tmp_path / f"states_{n}.npy"
-        subprocess.run([sys.executable, "-c", _BATCHED_SCRIPT, str(path)], env=env, cwd=root,
-                       check=True, timeout=300)
+        subprocess.run(
+            [sys.executable, "-c", _BATCHED_SCRIPT, str(path)],
+            env=env,
+            cwd=root,
+            check=True,
+            timeout=300,
+        )
         out.append(np.load(path))
     assert out[0].shape == (40, 64, 3, 6) and np.isfinite(out[0]).all()
     assert out[0].tobytes() == out[1].tobytes()
@@ -258,26 +281,35 @@ def test_a_folder_of_another_env_version_is_refused(tmp_path):
     # races of env v1 (manifests without "env") and v2 never mix in one folder
     from experiments.artifacts import env_version
     from experiments.bench import SCHEMA_VERSION, BenchRun
+
     cfg = BenchConfig(ego="raceline", opponents="raceline", races=3, steps=5)
     BenchRun(tmp_path / "new", cfg)
     stored = json.loads((tmp_path / "new" / "manifest.json").read_text())
     assert stored["env"] == env_version() == "alpha_racer_v2"
     (tmp_path / "old").mkdir()
     (tmp_path / "old" / "manifest.json").write_text(
-        json.dumps({"schema_version": SCHEMA_VERSION, "config": cfg.to_dict()}))
+        json.dumps({"schema_version": SCHEMA_VERSION, "config": cfg.to_dict()})
+    )
     with pytest.raises(ValueError, match="alpha_racer_v1 or older"):
         BenchRun(tmp_path / "old", cfg)
 
 
 # ---------------------------------------------------------------------------- strategy metrics
 def test_ego_regions_fix_the_egos_seat_and_keep_the_default_manifest():
-    assert BenchConfig().to_dict() == {"ego": "alpha", "opponents": "mpc", "races": 99,
-                                       "steps": 500, "track": "default", "seed": 0}
+    assert BenchConfig().to_dict() == {
+        "ego": "alpha",
+        "opponents": "mpc",
+        "races": 99,
+        "steps": 500,
+        "track": "default",
+        "seed": 0,
+    }
     cfg = BenchConfig(races=5, ego_regions=("R2", "R3"))
     assert [cfg.order(k) for k in range(4)] == [[1, 0, 2], [2, 0, 1]] * 2
     assert cfg.to_dict()["ego_regions"] == ["R2", "R3"]
-    assert [BenchConfig().order(k) for k in range(6)] == [BenchConfig.start_order(k)
-                                                          for k in range(6)]
+    assert [BenchConfig().order(k) for k in range(6)] == [
+        BenchConfig.start_order(k) for k in range(6)
+    ]
     with pytest.raises(ValueError, match=r"ego_regions .* R1, R2, R3, got \['R4'\]"):
         BenchConfig(ego_regions=("R4",))
     with pytest.raises(ValueError, match=r"ego_regions .* got \[\]"):
@@ -286,6 +318,7 @@ def test_ego_regions_fix_the_egos_seat_and_keep_the_default_manifest():
 
 def test_records_carry_the_metrics_of_their_stored_states_and_old_folders_get_them(tmp_path):
     from experiments.metrics import RECORD_KEYS, record_metrics
+
     summary = bench(TINY, tmp_path, workers=1, progress_bar=False)
     run = BenchRun(tmp_path, TINY)
     for k, rec in run.records().items():
@@ -305,10 +338,17 @@ def test_records_carry_the_metrics_of_their_stored_states_and_old_folders_get_th
     s = summarise(old, TINY)
     assert s["strategy"]["races"] == 0 and s["strategy"]["passes"] is None
     from experiments.bench import summary_markdown
+
     md = summary_markdown(s)
     assert "| passes per race (held 1 s, clear sideways) | - | - | - |" in md
     assert "Strategy metrics missing for all 4 races" in md
-    half = summarise(old[:2] + [BenchRun(tmp_path, TINY).records_with_metrics()[k]
-                                for k in (old[2]["race"], old[3]["race"])], TINY)
+    half = summarise(
+        old[:2]
+        + [
+            BenchRun(tmp_path, TINY).records_with_metrics()[k]
+            for k in (old[2]["race"], old[3]["race"])
+        ],
+        TINY,
+    )
     assert half["strategy"]["races"] == 2 and half["strategy"]["missing"] == 2
     assert "over 2 of 4 races" in summary_markdown(half)

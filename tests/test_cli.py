@@ -1,4 +1,5 @@
 """The alpha-racer command line, the race runner, the fuzz, the README example."""
+
 import json
 import runpy
 import subprocess
@@ -19,8 +20,23 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_race_command_writes_table_animation_and_plot(tmp_path, capsys):
     out = tmp_path / "race"
-    assert main(["race", "--agents", "raceline", "raceline:grip=0.7", "--steps", "40",
-                 "--seed", "3", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "race",
+                "--agents",
+                "raceline",
+                "raceline:grip=0.7",
+                "--steps",
+                "40",
+                "--seed",
+                "3",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "progress m" in text and "car_1" in text
     summary = json.loads((out / "result.json").read_text())
@@ -30,10 +46,11 @@ def test_race_command_writes_table_animation_and_plot(tmp_path, capsys):
 
 
 def test_race_result_orders_by_position_on_track():
-    result, frames = run_race(["raceline", "constant:throttle=0.0"], max_cycles=60, seed=1,
-                              progress_bar=False)
+    result, frames = run_race(
+        ["raceline", "constant:throttle=0.0"], max_cycles=60, seed=1, progress_bar=False
+    )
     assert frames == []
-    assert result.order.tolist() == [0, 1]             # the parked car loses
+    assert result.order.tolist() == [0, 1]  # the parked car loses
     assert result.progress[0] > 10.0
     assert result.states.shape == (61, 2, 6)
 
@@ -59,8 +76,20 @@ def test_tracks_and_raceline_commands(tmp_path, capsys):
     rows = np.loadtxt(csv, delimiter=",", comments="#")
     assert rows.shape[1] == 9 and np.isfinite(rows).all()
     curvature_lap = float(text.split("lap time estimate ")[1].split(" s")[0])
-    assert main(["raceline", "--track", "oval", "--objective", "lap_time", "--out",
-                 str(tmp_path / "fast")]) == 0
+    assert (
+        main(
+            [
+                "raceline",
+                "--track",
+                "oval",
+                "--objective",
+                "lap_time",
+                "--out",
+                str(tmp_path / "fast"),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "shortest-path weight" in text
     assert float(text.split("lap time estimate ")[1].split(" s")[0]) <= curvature_lap
@@ -75,21 +104,26 @@ def test_short_fuzz_finds_nothing():
 
 def test_fuzz_catches_a_drive_through_and_nothing_else():
     from experiments.fuzz import drive_through
+
     L = 20.0
     before = np.array([[[5.0, 0.0, 0, 0, 0, 0], [4.8, 0.02, 0, 0, 0, 0], [4.9, 0.2, 0, 0, 0, 0]]])
     through = before.copy()
-    through[0, 1, 0] = 5.2                       # car 1 ends 0.2 m ahead, still in line
-    assert drive_through(before, through, L, 0.12, 0.06) == (0, 0, 1, "swapped places while "
-                                                             "overlapping laterally")
+    through[0, 1, 0] = 5.2  # car 1 ends 0.2 m ahead, still in line
+    assert drive_through(before, through, L, 0.12, 0.06) == (
+        0,
+        0,
+        1,
+        "swapped places while overlapping laterally",
+    )
     inside = before.copy()
-    inside[0, 1, 0] = 4.95                       # car 1 inside car 0's body
+    inside[0, 1, 0] = 4.95  # car 1 inside car 0's body
     assert drive_through(before, inside, L, 0.12, 0.06)[3] == "bodies overlap"
     beside = before.copy()
-    beside[0, 2, 0] = 5.3                        # car 2 passes car 0 beside it: free space
+    beside[0, 2, 0] = 5.3  # car 2 passes car 0 beside it: free space
     assert drive_through(before, beside, L, 0.12, 0.06) is None
     half_lap = np.array([[[0.1, 0.0, 0, 0, 0, 0], [10.05, 0.0, 0, 0, 0, 0]]])
     moved = half_lap.copy()
-    moved[0, 1, 0] = 10.15                       # half a lap apart: the wrap flips the sign
+    moved[0, 1, 0] = 10.15  # half a lap apart: the wrap flips the sign
     assert drive_through(half_lap, moved, L, 0.12, 0.06) is None
 
 
@@ -107,8 +141,12 @@ def test_custom_agent_example_runs(capsys):
 @pytest.mark.slow
 def test_readme_main_job(tmp_path):
     """The README's main job, as a user runs it: a 50 s race with the default agents."""
-    proc = subprocess.run(["alpha-racer", "race", "--out", str(tmp_path / "race")],
-                          capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        ["alpha-racer", "race", "--out", str(tmp_path / "race")],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "pos  car" in proc.stdout and " alpha " in proc.stdout
     assert (tmp_path / "race" / "race.gif").exists()
@@ -118,7 +156,9 @@ def test_readme_main_job(tmp_path):
     # the README reports it, and races at the limit differ between CPU types)
     progress = summary["progress_m"]
     assert np.isfinite(progress).all() and len(progress) == 3
-    assert summary["order"] == [f"car_{i}" for i in np.argsort(-np.asarray(progress), kind="stable")]
+    assert summary["order"] == [
+        f"car_{i}" for i in np.argsort(-np.asarray(progress), kind="stable")
+    ]
 
 
 @pytest.mark.slow
@@ -132,8 +172,20 @@ def test_long_fuzz(n_cars, steps):
 @pytest.mark.slow
 @pytest.mark.skipif(tumftm_dir() is None, reason="TUMFTM racetrack-database folder not present")
 def test_raceline_on_a_tumftm_circuit(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "experiments.cli", "raceline", "--track",
-                           "tumftm:Monza", "--out", str(tmp_path)], capture_output=True, text=True,
-                          timeout=600)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "experiments.cli",
+            "raceline",
+            "--track",
+            "tumftm:Monza",
+            "--out",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "Monza_raceline.csv").exists() and (tmp_path / "Monza_raceline.png").exists()

@@ -1,5 +1,6 @@
 """A default lives in one place: every command-line option that sets a config dataclass field
 defaults to that field's default, or (default None) says that default in its help."""
+
 import argparse
 import dataclasses
 
@@ -21,8 +22,16 @@ from experiments.strategy import StrategyConfig
 COMMANDS = {
     "collect": (CollectConfig, {"cars": "n_cars"}),
     "train": (TrainConfig, {}),
-    "selfplay": (SelfPlayConfig, {"cars": "n_cars", "envs": "n_envs", "epochs": "n_epochs",
-                                  "lr": "learning_rate", "race_steps": "max_cycles"}),
+    "selfplay": (
+        SelfPlayConfig,
+        {
+            "cars": "n_cars",
+            "envs": "n_envs",
+            "epochs": "n_epochs",
+            "lr": "learning_rate",
+            "race_steps": "max_cycles",
+        },
+    ),
     "bench": (BenchConfig, {"cars": "n_cars"}),
     "league": (LeagueConfig, {}),
     "strategy": (StrategyConfig, {}),
@@ -44,8 +53,11 @@ def _same(option_default, field_default) -> bool:
         option_default = tuple(option_default)
     if isinstance(option_default, str) and not isinstance(field_default, str):
         # a comma list or a number given as text ("2,3,5", "3")
-        shown = (",".join(map(str, field_default)) if isinstance(field_default, tuple)
-                 else str(field_default))
+        shown = (
+            ",".join(map(str, field_default))
+            if isinstance(field_default, tuple)
+            else str(field_default)
+        )
         return option_default == shown
     return option_default == field_default
 
@@ -70,13 +82,17 @@ def test_option_defaults_are_the_config_defaults(command):
     checked, wrong = 0, []
     for action, field in _options(command):
         checked += 1
-        if action.default is None:            # the config's default applies: the help says it
+        if action.default is None:  # the config's default applies: the help says it
             if not any(s in (action.help or "") for s in _shown(field.default)):
-                wrong.append(f"{action.option_strings[0]}: help {action.help!r} does not say "
-                             f"the default {field.default!r} of {field.name}")
+                wrong.append(
+                    f"{action.option_strings[0]}: help {action.help!r} does not say "
+                    f"the default {field.default!r} of {field.name}"
+                )
         elif not _same(action.default, field.default):
-            wrong.append(f"{action.option_strings[0]}={action.default!r} but "
-                         f"{COMMANDS[command][0].__name__}.{field.name}={field.default!r}")
+            wrong.append(
+                f"{action.option_strings[0]}={action.default!r} but "
+                f"{COMMANDS[command][0].__name__}.{field.name}={field.default!r}"
+            )
     assert checked >= 3, f"{command}: only {checked} options matched config fields"
     assert wrong == []
 
@@ -86,7 +102,7 @@ def test_every_command_with_a_config_is_checked():
 
 
 def test_a_mismatch_would_be_found(monkeypatch):
-    monkeypatch.setattr(SelfPlayConfig, "cycles", 34)     # the class attribute the parser reads
+    monkeypatch.setattr(SelfPlayConfig, "cycles", 34)  # the class attribute the parser reads
     actions = dict((a.dest, a) for a, _ in _options("selfplay"))
     assert actions["cycles"].default == 34
     assert not _same(33, 34) and _same([1, 2], (1, 2)) and _same("2,3,5", (2, 3, 5))

@@ -1,5 +1,6 @@
 """Bad input to the command line: one-line errors (exit code 2) before any race, and help
 that describes every option."""
+
 import argparse
 
 import pytest
@@ -20,16 +21,31 @@ def _one_line_error(capsys, argv) -> str:
 
 
 def test_missing_model_names_the_value_and_the_shipped_models(capsys):
-    err = _one_line_error(capsys, ["race", "--agents", "alpha:model=nosuch", "mpc", "--steps", "5",
-                                   "--no-animation"])
+    err = _one_line_error(
+        capsys, ["race", "--agents", "alpha:model=nosuch", "mpc", "--steps", "5", "--no-animation"]
+    )
     assert "'nosuch'" in err
     for name in ("default", "gamma0.98", "gamma0.995", "races400"):
         assert name in err
 
 
 def test_missing_model_fails_before_the_benchmark(capsys, tmp_path):
-    err = _one_line_error(capsys, ["bench", "--opponents", "alpha:model=nosuch", "--races", "1",
-                                   "--steps", "5", "--workers", "1", "--out", str(tmp_path)])
+    err = _one_line_error(
+        capsys,
+        [
+            "bench",
+            "--opponents",
+            "alpha:model=nosuch",
+            "--races",
+            "1",
+            "--steps",
+            "5",
+            "--workers",
+            "1",
+            "--out",
+            str(tmp_path),
+        ],
+    )
     assert "'nosuch'" in err and "default" in err
 
 
@@ -37,14 +53,18 @@ def test_bad_family_collection_input_names_the_value_and_what_is_expected(capsys
     out = str(tmp_path / "data")
     err = _one_line_error(capsys, ["collect", "--cars", "1-9", "--races", "2", "--out", out])
     assert "'1-9'" in err and "2..8" in err and "1, 9" in err
-    err = _one_line_error(capsys, ["collect", "--tracks", "default", "nosuch", "--cars", "2-3",
-                                   "--races", "2", "--out", out])
+    err = _one_line_error(
+        capsys,
+        ["collect", "--tracks", "default", "nosuch", "--cars", "2-3", "--races", "2", "--out", out],
+    )
     assert "'nosuch'" in err and "random:SEED" in err and "random:A-B" in err
-    err = _one_line_error(capsys, ["collect", "--tracks", "random:7-3", "--races", "2",
-                                   "--out", out])
+    err = _one_line_error(
+        capsys, ["collect", "--tracks", "random:7-3", "--races", "2", "--out", out]
+    )
     assert "'random:7-3'" in err and "A <= B" in err
-    err = _one_line_error(capsys, ["collect", "--track", "oval", "--tracks", "default",
-                                   "--races", "2", "--out", out])
+    err = _one_line_error(
+        capsys, ["collect", "--track", "oval", "--tracks", "default", "--races", "2", "--out", out]
+    )
     assert "--track" in err and "--tracks" in err
     assert not (tmp_path / "data").exists()
 
@@ -62,22 +82,27 @@ def test_general_report_refuses_a_single_track_model(capsys, tmp_path):
 
 
 def test_unknown_agent_key_lists_the_valid_keys(capsys):
-    err = _one_line_error(capsys, ["race", "--agents", "mpc:foo=1", "--steps", "5",
-                                   "--no-animation"])
+    err = _one_line_error(
+        capsys, ["race", "--agents", "mpc:foo=1", "--steps", "5", "--no-animation"]
+    )
     assert "foo" in err
     for key in ("q", "zeta", "s1", "s2", "s3"):
         assert key in err
-    err = _one_line_error(capsys, ["race", "--agents", "alpha:zetta=1", "--steps", "5",
-                                   "--no-animation"])
+    err = _one_line_error(
+        capsys, ["race", "--agents", "alpha:zetta=1", "--steps", "5", "--no-animation"]
+    )
     assert "zetta" in err and "model" in err and "zeta" in err
 
 
 def test_mp4_without_ffmpeg_fails_before_the_race(capsys, monkeypatch, tmp_path):
     import racing_env.animation
+
     monkeypatch.setattr(racing_env.animation, "_find_ffmpeg", lambda: None)
     monkeypatch.setattr(experiments.race, "run_race", _no_race)
-    err = _one_line_error(capsys, ["race", "--agents", "raceline", "--steps", "5",
-                                   "--format", "mp4", "--out", str(tmp_path)])
+    err = _one_line_error(
+        capsys,
+        ["race", "--agents", "raceline", "--steps", "5", "--format", "mp4", "--out", str(tmp_path)],
+    )
     assert "mp4" in err and "ffmpeg" in err and "gif" in err
     assert not any(tmp_path.iterdir())
 
@@ -99,5 +124,6 @@ def test_every_option_has_help_and_shows_its_default(name):
     text = parser.format_help()
     for action in parser._actions:
         if action.default not in (None, [], argparse.SUPPRESS) and action.help:
-            assert f"(default: {action.default})" in " ".join(text.split()), \
+            assert f"(default: {action.default})" in " ".join(text.split()), (
                 f"{name} {action.option_strings}: default not shown"
+            )

@@ -1,4 +1,5 @@
 """Race data collection: schema, determinism across worker counts, resume after a kill."""
+
 import json
 
 import numpy as np
@@ -7,8 +8,14 @@ import pytest
 pytest.importorskip("daqp")
 
 from experiments.cli import main  # noqa: E402
-from experiments.collect import (CollectConfig, collect, load_races, rollout_from_state,  # noqa: E402
-                                simulate_shard, write_shard)
+from experiments.collect import (
+    CollectConfig,
+    collect,
+    load_races,
+    rollout_from_state,  # noqa: E402
+    simulate_shard,
+    write_shard,
+)
 
 CFG = CollectConfig(races=4, n_cars=3, steps=15, seed=7, races_per_shard=2)
 
@@ -26,7 +33,10 @@ def test_collect_writes_shards_with_the_documented_schema(tmp_path):
     lead = np.stack([np.delete(s, i, axis=2).max(axis=2) for i in range(3)], axis=2)
     np.testing.assert_allclose(data["rewards"], np.diff(s - lead, axis=1), atol=1e-4)
     from agents.reference import THETA_HIGH, THETA_LOW
-    assert np.all(data["thetas"] >= THETA_LOW - 1e-6) and np.all(data["thetas"] <= THETA_HIGH + 1e-6)
+
+    assert np.all(data["thetas"] >= THETA_LOW - 1e-6) and np.all(
+        data["thetas"] <= THETA_HIGH + 1e-6
+    )
     assert json.loads((tmp_path / "manifest.json").read_text())["config"]["seed"] == 7
 
 
@@ -52,12 +62,30 @@ def test_a_killed_run_resumes_without_losing_finished_races(tmp_path):
 def test_manifest_mismatch_is_refused(tmp_path):
     collect(CFG, tmp_path, workers=1, progress_bar=False)
     with pytest.raises(ValueError, match="another configuration"):
-        collect(CollectConfig(**{**CFG.__dict__, "seed": 8}), tmp_path, workers=1, progress_bar=False)
+        collect(
+            CollectConfig(**{**CFG.__dict__, "seed": 8}), tmp_path, workers=1, progress_bar=False
+        )
 
 
 def test_collect_command(tmp_path, capsys):
-    assert main(["collect", "--races", "2", "--steps", "5", "--shard-size", "1", "--workers", "1",
-                 "--out", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "collect",
+                "--races",
+                "2",
+                "--steps",
+                "5",
+                "--shard-size",
+                "1",
+                "--workers",
+                "1",
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     assert "2 races simulated" in capsys.readouterr().out
 
 
@@ -80,8 +108,12 @@ def test_rollout_from_a_stored_state_continues_the_race(tmp_path):
     """Replaying a stored race from its step-5 state with the same thetas gives rewards of the
     same kind: finite, consistent with the states it returns (the MPCs restart cold, so not
     the identical trajectory)."""
-    collect(CollectConfig(races=1, n_cars=3, steps=10, seed=3, races_per_shard=1), tmp_path,
-            workers=1, progress_bar=False)
+    collect(
+        CollectConfig(races=1, n_cars=3, steps=10, seed=3, races_per_shard=1),
+        tmp_path,
+        workers=1,
+        progress_bar=False,
+    )
     d = load_races(tmp_path)
     states, rewards = rollout_from_state("default", d["states"][0, 5], d["thetas"][0], 8)
     assert states.shape == (9, 3, 6) and rewards.shape == (8, 3)
@@ -89,23 +121,26 @@ def test_rollout_from_a_stored_state_continues_the_race(tmp_path):
     s = states[..., 0]
     lead = np.stack([np.delete(s, i, axis=1).max(axis=1) for i in range(3)], axis=1)
     np.testing.assert_allclose(rewards, np.diff(s - lead, axis=0), atol=1e-9)
-    assert np.all(np.diff(s, axis=0) > 0)          # every car keeps moving forward
+    assert np.all(np.diff(s, axis=0) > 0)  # every car keeps moving forward
 
 
 def test_an_extended_close_collection_draws_six_parameters_and_starts_close(tmp_path):
     from agents.reference import EXTENDED_HIGH, EXTENDED_LOW
-    cfg = CollectConfig(races=2, n_cars=3, steps=5, seed=7, races_per_shard=2,
-                        space="extended", start="close")
+
+    cfg = CollectConfig(
+        races=2, n_cars=3, steps=5, seed=7, races_per_shard=2, space="extended", start="close"
+    )
     collect(cfg, tmp_path, workers=1, progress_bar=False)
     data = load_races(tmp_path)
     th = data["thetas"]
     assert th.shape == (2, 3, 6)
     assert np.all(th >= EXTENDED_LOW - 1e-6) and np.all(th <= EXTENDED_HIGH + 1e-6)
     s0 = data["states"][:, 0, :, 0]
-    assert np.ptp(s0, axis=1).max() <= 3 * 0.2 + 2 * 0.1 + 1e-6   # three 0.2 m regions, 0.1 m apart
-    paper = load_races_of(CollectConfig(races=2, n_cars=3, steps=5, seed=7, races_per_shard=2),
-                          tmp_path / "paper")
-    assert np.ptp(paper["states"][:, 0, :, 0], axis=1).min() > 0.6    # the paper's 0.6 m gaps
+    assert np.ptp(s0, axis=1).max() <= 3 * 0.2 + 2 * 0.1 + 1e-6  # three 0.2 m regions, 0.1 m apart
+    paper = load_races_of(
+        CollectConfig(races=2, n_cars=3, steps=5, seed=7, races_per_shard=2), tmp_path / "paper"
+    )
+    assert np.ptp(paper["states"][:, 0, :, 0], axis=1).min() > 0.6  # the paper's 0.6 m gaps
 
 
 def load_races_of(cfg, out):

@@ -1,4 +1,5 @@
 """The best fixed theta per track: the selection rule, the table, mpc:theta=best, the command."""
+
 import json
 
 import numpy as np
@@ -24,42 +25,82 @@ def _rows(race: dict, solo: dict, off=(), solo_off=(), errors=()) -> list[dict]:
     """Hand-made map rows: ``race[k] = (start region, progress)``, ``solo[k] = progress``."""
     rows = []
     for k, (reg, p) in race.items():
-        r = {"mode": "race", "track": "default", "index": k, "theta": _theta(k),
-             "start_region": reg, "progress_m": p, "margin_m": p - 100.0,
-             "off_track_frac": 0.05 if k in off else 0.0}
+        r = {
+            "mode": "race",
+            "track": "default",
+            "index": k,
+            "theta": _theta(k),
+            "start_region": reg,
+            "progress_m": p,
+            "margin_m": p - 100.0,
+            "off_track_frac": 0.05 if k in off else 0.0,
+        }
         if k in errors:
-            r = {"mode": "race", "track": "default", "index": k, "theta": _theta(k),
-                 "start_region": reg, "error": "RuntimeError: boom"}
+            r = {
+                "mode": "race",
+                "track": "default",
+                "index": k,
+                "theta": _theta(k),
+                "start_region": reg,
+                "error": "RuntimeError: boom",
+            }
         rows.append(r)
     for k, p in solo.items():
-        rows.append({"mode": "solo", "track": "default", "index": k, "theta": _theta(k),
-                     "progress_m": p, "off_track_frac": 0.02 if k in solo_off else 0.0})
+        rows.append(
+            {
+                "mode": "solo",
+                "track": "default",
+                "index": k,
+                "theta": _theta(k),
+                "progress_m": p,
+                "off_track_frac": 0.02 if k in solo_off else 0.0,
+            }
+        )
     return rows
 
 
 # ---------------------------------------------------------------------------- the rule
 def test_candidates_are_ranked_within_their_start_region_then_by_adjusted_progress():
     # R1 starts are worth more raw progress than R3 starts: adjusted, theta 3 (R3) is the best
-    race = {0: ("R1", 110.0), 1: ("R1", 104.0), 2: ("R1", 100.0),
-            3: ("R3", 99.0), 4: ("R3", 90.0), 5: ("R3", 91.0)}
+    race = {
+        0: ("R1", 110.0),
+        1: ("R1", 104.0),
+        2: ("R1", 100.0),
+        3: ("R3", 99.0),
+        4: ("R3", 90.0),
+        5: ("R3", 91.0),
+    }
     solo = {k: 150.0 for k in race}
     cands = ct.choose_candidates(_rows(race, solo), k=2)
-    assert [c["index"] for c in cands] == [3, 0]        # +8.0 (99 - 91), +6.0 (110 - 104)
+    assert [c["index"] for c in cands] == [3, 0]  # +8.0 (99 - 91), +6.0 (110 - 104)
     assert cands[0]["race_adjusted_m"] == pytest.approx(8.0)
     assert [c["region_rank"] for c in cands] == [1, 1]
     # the best solo theta (index 0 on a tie of all: the lower index) is already in: no extra
     assert cands[1]["reasons"] == ["race", "solo"]
     # a wide spread from R1 (free road) does not crowd out the best from R3 (in traffic):
     # theta 1 is +14.5 m over R1's median, theta 3 only +1 m over R3's, but it is R3's best
-    race = {0: ("R1", 130.0), 1: ("R1", 129.0), 2: ("R1", 100.0), 9: ("R1", 90.0),
-            3: ("R3", 96.0), 4: ("R3", 95.0), 5: ("R3", 94.0)}
+    race = {
+        0: ("R1", 130.0),
+        1: ("R1", 129.0),
+        2: ("R1", 100.0),
+        9: ("R1", 90.0),
+        3: ("R3", 96.0),
+        4: ("R3", 95.0),
+        5: ("R3", 94.0),
+    }
     cands = ct.choose_candidates(_rows(race, {k: 150.0 for k in race}), k=3)
     assert [(c["index"], c["region_rank"]) for c in cands] == [(0, 1), (3, 1), (1, 2)]
 
 
 def test_best_solo_theta_joins_and_off_track_or_failed_thetas_never_do():
-    race = {0: ("R1", 110.0), 1: ("R1", 105.0), 2: ("R2", 103.0), 3: ("R2", 100.0),
-            4: ("R3", 95.0), 5: ("R3", 96.0)}
+    race = {
+        0: ("R1", 110.0),
+        1: ("R1", 105.0),
+        2: ("R2", 103.0),
+        3: ("R2", 100.0),
+        4: ("R3", 95.0),
+        5: ("R3", 96.0),
+    }
     solo = {0: 150.0, 1: 140.0, 2: 160.0, 3: 190.0, 4: 145.0, 5: 170.0}
     # theta 0 leaves the track in the race, 3 alone (although best alone), 5 failed its race
     rows = _rows(race, solo, off={0}, solo_off={3}, errors={5})
@@ -79,10 +120,12 @@ def test_candidate_ties_go_to_the_lower_index():
 
 
 def test_playoff_ranks_wins_then_margin_then_index():
-    scores = [{"index": 9, "wins": 10, "margin_m_mean": -1.0},
-              {"index": 3, "wins": 11, "margin_m_mean": -5.0},
-              {"index": 5, "wins": 10, "margin_m_mean": 0.5},
-              {"index": 2, "wins": 10, "margin_m_mean": 0.5}]
+    scores = [
+        {"index": 9, "wins": 10, "margin_m_mean": -1.0},
+        {"index": 3, "wins": 11, "margin_m_mean": -5.0},
+        {"index": 5, "wins": 10, "margin_m_mean": 0.5},
+        {"index": 2, "wins": 10, "margin_m_mean": 0.5},
+    ]
     ranked = ct.rank_playoff(scores)
     assert [(s["index"], s["rank"]) for s in ranked] == [(3, 1), (2, 2), (5, 3), (9, 4)]
     assert ct.rank_playoff(list(reversed(scores))) == ranked
@@ -107,10 +150,17 @@ def test_config_rejects_bad_values():
 # ---------------------------------------------------------------------------- theta=best
 def _entry(track: str, theta: dict, env: str | None = None) -> dict:
     from racing_env.tracks import make_track
+
     t = make_track(track)
-    return {"track": track, "name": t.name, "fingerprint": t.fingerprint(),
-            "env": env or best_theta.env_name(), "theta": theta, "package_version": "test",
-            "selection": {"file": "hand-made", "sha256": "0"}}
+    return {
+        "track": track,
+        "name": t.name,
+        "fingerprint": t.fingerprint(),
+        "env": env or best_theta.env_name(),
+        "theta": theta,
+        "package_version": "test",
+        "selection": {"file": "hand-made", "sha256": "0"},
+    }
 
 
 @pytest.fixture
@@ -129,7 +179,7 @@ def test_theta_best_resolves_per_track_at_reset(table):
     b = {"q": 300.0, "zeta": 1.01, "s1": 0.0, "s2": 10.0, "s3": 0.0}
     _write(table, _entry("default", a), _entry("oval", b))
     agent = make_agent_spec("mpc:theta=best")
-    for track, want in (("default", a), ("oval", b), ("default", a)):     # one agent, a league
+    for track, want in (("default", a), ("oval", b), ("default", a)):  # one agent, a league
         agent.reset(track, "car_0", 0)
         assert agent.theta.as_array().tolist() == [want[n] for n in NAMES]
     obs = np.zeros(6 + 10, dtype=np.float32)
@@ -140,12 +190,18 @@ def test_theta_best_resolves_per_track_at_reset(table):
 def test_theta_best_errors_name_the_track_and_the_command(table):
     _write(table, _entry("default", _theta(0)))
     agent = make_agent_spec("mpc:theta=best")
-    with pytest.raises(ValueError, match="no best fixed theta for track 'oval'.*it has: default.*"
-                                         "alpha-racer control --tracks oval"):
+    with pytest.raises(
+        ValueError,
+        match="no best fixed theta for track 'oval'.*it has: default.*"
+        "alpha-racer control --tracks oval",
+    ):
         agent.reset("oval")
     _write(table, _entry("default", _theta(0), env="alpha_racer_v0"))
-    with pytest.raises(ValueError, match="track 'default'.*chosen on env 'alpha_racer_v0', this is "
-                                         "'alpha_racer_v\\d+'.*alpha-racer control --tracks default"):
+    with pytest.raises(
+        ValueError,
+        match="track 'default'.*chosen on env 'alpha_racer_v0', this is "
+        "'alpha_racer_v\\d+'.*alpha-racer control --tracks default",
+    ):
         agent.reset("default")
     e = _entry("default", _theta(0))
     e["fingerprint"] = "0123456789abcdef"
@@ -168,16 +224,38 @@ def test_explicit_theta_keywords_and_the_listing_keep_their_defaults(capsys):
     assert agent.theta.as_array().tolist() == [20.0, 1.02, 0.1, 4.0, 1.0] and not agent.best
     assert main(["agents"]) == 0
     text = capsys.readouterr().out
-    assert "theta = None  ('best': the track's best fixed theta, chosen by alpha-racer control)" \
+    assert (
+        "theta = None  ('best': the track's best fixed theta, chosen by alpha-racer control)"
         in text
+    )
 
 
-def test_bench_with_theta_best_fails_before_racing_on_a_track_missing_from_the_table(table,
-                                                                                    tmp_path, capsys):
+def test_bench_with_theta_best_fails_before_racing_on_a_track_missing_from_the_table(
+    table, tmp_path, capsys
+):
     _write(table, _entry("default", _theta(0)))
-    assert main(["bench", "--ego", "mpc:theta=best", "--opponents", "raceline", "--track", "oval",
-                 "--races", "1", "--steps", "5", "--workers", "1",
-                 "--out", str(tmp_path / "b")]) == 2
+    assert (
+        main(
+            [
+                "bench",
+                "--ego",
+                "mpc:theta=best",
+                "--opponents",
+                "raceline",
+                "--track",
+                "oval",
+                "--races",
+                "1",
+                "--steps",
+                "5",
+                "--workers",
+                "1",
+                "--out",
+                str(tmp_path / "b"),
+            ]
+        )
+        == 2
+    )
     assert "no best fixed theta for track 'oval'" in capsys.readouterr().err
     assert not (tmp_path / "b").exists()
 
@@ -190,8 +268,21 @@ def test_shipped_table_is_a_valid_table():
 
 
 # ---------------------------------------------------------------------------- the command
-TINY = ["control", "--tracks", "default", "--thetas", "2", "--candidates", "1", "--races", "3",
-        "--steps", "20", "--workers", "1"]
+TINY = [
+    "control",
+    "--tracks",
+    "default",
+    "--thetas",
+    "2",
+    "--candidates",
+    "1",
+    "--races",
+    "3",
+    "--steps",
+    "20",
+    "--workers",
+    "1",
+]
 
 
 @pytest.mark.slow
@@ -213,7 +304,7 @@ def test_control_command_selects_installs_and_resumes(table, tmp_path, capsys):
     rows = (out / "default" / "map" / "rows.jsonl").read_text()
     before = sel_path.read_bytes()
     capsys.readouterr()
-    assert main(TINY + ["--out", str(out)]) == 0            # resume: nothing runs again
+    assert main(TINY + ["--out", str(out)]) == 0  # resume: nothing runs again
     assert "0 new map runs and 0 new playoff races" in capsys.readouterr().out
     assert (out / "default" / "map" / "rows.jsonl").read_text() == rows
     assert sel_path.read_bytes() == before
@@ -225,12 +316,13 @@ def test_control_command_selects_installs_and_resumes(table, tmp_path, capsys):
 def test_ensure_selects_only_missing_tracks_and_claim_refuses_a_changed_table(table, tmp_path):
     cfg = ct.ControlConfig(thetas=2, candidates=1, races=3, steps=20)
     _write(table, _entry("oval", _theta(1)))
-    got = ct.ensure_best_thetas(["oval", "default"], cfg, tmp_path / "ctl", workers=1,
-                                progress_bar=False)
+    got = ct.ensure_best_thetas(
+        ["oval", "default"], cfg, tmp_path / "ctl", workers=1, progress_bar=False
+    )
     assert got["oval"]["theta"] == _theta(1) and got["default"]["selection"]["index"] in (0, 1)
     assert [p.parent.name for p in (tmp_path / "ctl").glob("*/selection.json")] == ["default"]
     claim_best_thetas(tmp_path / "run", ["oval", "default"])
-    claim_best_thetas(tmp_path / "run", ["oval", "default"])              # same: resumes
+    claim_best_thetas(tmp_path / "run", ["oval", "default"])  # same: resumes
     table_now = json.loads(table.read_text())
     table_now["tracks"]["oval"]["theta"] = _theta(2)
     table.write_text(json.dumps(table_now))
@@ -238,34 +330,45 @@ def test_ensure_selects_only_missing_tracks_and_claim_refuses_a_changed_table(ta
         claim_best_thetas(tmp_path / "run", ["oval", "default"])
     # a bench that races mpc:theta=best claims its folder the same way
     from experiments.bench import BenchConfig, BenchRun
+
     cfg = BenchConfig(ego="mpc:theta=best", opponents="raceline", races=3, steps=5, track="oval")
     with pytest.raises(ValueError, match="races of a best fixed theta of another configuration"):
         BenchRun(tmp_path / "run", cfg)
     BenchRun(tmp_path / "bench", cfg)
-    assert json.loads((tmp_path / "bench" / "best_fixed_theta.json").read_text())["config"] \
-        == {"oval": {"theta": _theta(2), "env": table_now["tracks"]["oval"]["env"]}}
+    assert json.loads((tmp_path / "bench" / "best_fixed_theta.json").read_text())["config"] == {
+        "oval": {"theta": _theta(2), "env": table_now["tracks"]["oval"]["env"]}
+    }
 
 
 def test_one_theta_best_player_races_each_track_of_a_league_with_its_own_theta(table, tmp_path):
     from experiments.league import LeagueConfig, league
+
     a = {"q": 5.0, "zeta": 1.04, "s1": 0.3, "s2": 0.5, "s3": 4.0}
     b = {"q": 300.0, "zeta": 0.85, "s1": 0.0, "s2": 10.0, "s3": 0.0}
     _write(table, _entry("default", a), _entry("oval", b))
-    cfg = LeagueConfig(agents=("mpc:theta=best", "raceline"), tracks=("default", "oval"), cars=2,
-                       steps=20)
+    cfg = LeagueConfig(
+        agents=("mpc:theta=best", "raceline"), tracks=("default", "oval"), cars=2, steps=20
+    )
     board = league(cfg, tmp_path / "lg", workers=1, progress_bar=False)
     recs = [json.loads(x) for x in (tmp_path / "lg" / "races.jsonl").read_text().splitlines()]
     assert {r["track"] for r in recs} == {"default", "oval"} and board["new_races"] == len(recs)
     # the same theta alone on each track: the progress of the theta=best car in the league
     from experiments.race import run_race
+
     for r in recs:
         car = r["agents"].index("mpc:theta=best")
         theta = a if r["track"] == "default" else b
         explicit = "mpc:" + ",".join(f"{k}={v!r}" for k, v in theta.items())
         agents = [explicit if x == "mpc:theta=best" else x for x in r["agents"]]
-        res, _ = run_race(agents, track=r["track"], seed=r["seed"], max_cycles=20,
-                          start="regions", order=[int(s[1:]) - 1 for s in r["start_regions"]],
-                          progress_bar=False)
+        res, _ = run_race(
+            agents,
+            track=r["track"],
+            seed=r["seed"],
+            max_cycles=20,
+            start="regions",
+            order=[int(s[1:]) - 1 for s in r["start_regions"]],
+            progress_bar=False,
+        )
         assert round(float(res.progress[car]), 4) == r["progress_m"][car]
     _write(table, _entry("default", a))
     with pytest.raises(ValueError, match="'mpc:theta=best': no best fixed theta for track 'oval'"):

@@ -1,4 +1,5 @@
 """The README, the examples and the project files it points to."""
+
 import argparse
 import contextlib
 import io
@@ -14,20 +15,42 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
-REPO_DIRS = ("racing_env", "agents", "experiments", "examples", "benchmarks", "docs", "tests",
-             "results", ".ci")
+REPO_DIRS = (
+    "racing_env",
+    "agents",
+    "experiments",
+    "examples",
+    "benchmarks",
+    "docs",
+    "tests",
+    "results",
+    ".ci",
+)
 ROOT_FILES = ("CITATION.cff", "CHANGELOG.md", "pyproject.toml", "mkdocs.yml", "README.md")
 # outputs of the commands the README shows, not files of the repository
-GENERATED = ("results/race", "results/ibr_race", "results/raceline", "results/bench", "results/example",
-             "results/paper_table_mpc_ego", "results/paper_table/runs.jsonl", "results/policy_map",
-             "results/league", "results/general", "agents/models/alpha_general.npz",
-             "results/control", "results/paper_table_control", "results/comparison.md",
-             "results/analysis", "results/strategy")
+GENERATED = (
+    "results/race",
+    "results/ibr_race",
+    "results/raceline",
+    "results/bench",
+    "results/example",
+    "results/paper_table_mpc_ego",
+    "results/paper_table/runs.jsonl",
+    "results/policy_map",
+    "results/league",
+    "results/general",
+    "agents/models/alpha_general.npz",
+    "results/control",
+    "results/paper_table_control",
+    "results/comparison.md",
+    "results/analysis",
+    "results/strategy",
+)
 
 
 def _readme_paths() -> set[str]:
     paths = set()
-    for target in re.findall(r"\]\(([^)\s]+)\)", README):           # [text](target), ![..](..)
+    for target in re.findall(r"\]\(([^)\s]+)\)", README):  # [text](target), ![..](..)
         if not re.match(r"[a-z]+:|#", target):
             paths.add(target.split("#")[0])
     for token in re.split(r"[\s`'\"(),\[\]]+", README):
@@ -41,9 +64,12 @@ def test_readme_points_only_inside_the_repository():
     assert "../" not in README
     paths = _readme_paths()
     assert {"docs/design.md", "examples/bench_api.py", "CITATION.cff", "CHANGELOG.md"} <= paths
-    shipped = GENERATED if (ROOT / "results").is_dir() else (*GENERATED, "results/")  # sdist: no results/
-    missing = sorted(p for p in paths if not p.startswith(shipped)
-                     and not any(ROOT.glob(p.rstrip("/"))))          # globs: case_*/
+    shipped = (
+        GENERATED if (ROOT / "results").is_dir() else (*GENERATED, "results/")
+    )  # sdist: no results/
+    missing = sorted(
+        p for p in paths if not p.startswith(shipped) and not any(ROOT.glob(p.rstrip("/")))
+    )  # globs: case_*/
     assert not missing, f"README names paths that are not in the repository: {missing}"
 
 
@@ -86,6 +112,7 @@ def test_docs_pages_and_pictures_exist():
         else:
             for x in item.values():
                 yield from pages(x)
+
     for page in pages(nav):
         assert (ROOT / "docs" / page).exists(), page
     for page in (ROOT / "docs").rglob("*.md"):
@@ -118,36 +145,50 @@ def quoted_commands(text: str) -> list[str]:
 
 
 def test_quoted_commands_are_found():
-    text = ("Run `alpha-racer race --steps 100` or\n\n```bash\nalpha-racer bench --ego alpha \\\n"
-            "    --opponents ibr   # a comment\npip install -e . && alpha-racer tracks\n```\n"
-            "```python\nalpha-racer = 1\n```\n")
-    assert quoted_commands(text) == ["alpha-racer bench --ego alpha --opponents ibr",
-                                     "alpha-racer tracks", "alpha-racer race --steps 100"]
+    text = (
+        "Run `alpha-racer race --steps 100` or\n\n```bash\nalpha-racer bench --ego alpha \\\n"
+        "    --opponents ibr   # a comment\npip install -e . && alpha-racer tracks\n```\n"
+        "```python\nalpha-racer = 1\n```\n"
+    )
+    assert quoted_commands(text) == [
+        "alpha-racer bench --ego alpha --opponents ibr",
+        "alpha-racer tracks",
+        "alpha-racer race --steps 100",
+    ]
 
 
 def test_every_quoted_command_parses_with_the_current_cli():
     from experiments.cli import build_parser
+
     parser = build_parser()
-    subcommands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    subcommands = next(
+        a for a in parser._actions if isinstance(a, argparse._SubParsersAction)
+    ).choices
     found, bad = 0, []
     for path in DOC_FILES:
         for command in quoted_commands(path.read_text()):
             # placeholders of the prose: [optional parts], "...", COMMAND
-            argv = [t for t in shlex.split(command.replace("[", " ").replace("]", " "))[1:] if t != "..."]
+            argv = [
+                t
+                for t in shlex.split(command.replace("[", " ").replace("]", " "))[1:]
+                if t != "..."
+            ]
             if not argv or argv[0] == "COMMAND":
                 continue
             found += 1
             if argv[0] not in subcommands:
                 bad.append(f"{path.relative_to(ROOT)}: {command!r}: no command {argv[0]!r}")
                 continue
-            if len(argv) == 1:                  # the command named in prose: its name suffices
+            if len(argv) == 1:  # the command named in prose: its name suffices
                 continue
             err = io.StringIO()
             try:
                 with contextlib.redirect_stderr(err):
                     parser.parse_args(argv)
             except SystemExit:
-                bad.append(f"{path.relative_to(ROOT)}: {command!r}: {err.getvalue().strip().splitlines()[-1]}")
+                bad.append(
+                    f"{path.relative_to(ROOT)}: {command!r}: {err.getvalue().strip().splitlines()[-1]}"
+                )
     assert found > 50, f"only {found} commands found: is the extraction broken?"
     assert not bad, "commands in the docs that the CLI refuses:\n" + "\n".join(bad)
 
@@ -169,8 +210,13 @@ def test_built_site_has_no_literal_sphinx_roles(tmp_path):
     pytest.importorskip("mkdocstrings")
     site = tmp_path / "site"
     env = dict(os.environ, NO_MKDOCS_2_WARNING="1")
-    run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet",
-                          "--site-dir", str(site)], cwd=ROOT, env=env, capture_output=True, text=True)
+    run = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet", "--site-dir", str(site)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     role = re.compile(r":(?:py:)?(?:class|func|meth|data|mod|attr|exc|obj|const):(?:<code>|`)")
     pages = list(site.rglob("*.html"))
@@ -179,7 +225,7 @@ def test_built_site_has_no_literal_sphinx_roles(tmp_path):
     literal = {k: v for k, v in literal.items() if v}
     assert not literal, f"literal Sphinx roles in the built site: {literal}"
     api = (site / "api" / "racing_env" / "index.html").read_text()
-    assert 'class="autorefs autorefs-internal"' in api     # roles became links
+    assert 'class="autorefs autorefs-internal"' in api  # roles became links
 
 
 def test_sphinx_roles_become_optional_cross_references():
@@ -189,5 +235,7 @@ def test_sphinx_roles_become_optional_cross_references():
     text = "See :class:`~racing_env.track.Track`, :func:`make <racing_env.make_track>` and :mod:`agents`."
     out = hooks["replace_roles"](text, module)
     assert ":class:" not in out and ":func:" not in out and ":mod:" not in out
-    assert '<autoref identifier="racing_env.track.Track" optional><code>Track</code></autoref>' in out
+    assert (
+        '<autoref identifier="racing_env.track.Track" optional><code>Track</code></autoref>' in out
+    )
     assert '<autoref identifier="racing_env.make_track" optional><code>make</code></autoref>' in out

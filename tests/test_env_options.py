@@ -1,5 +1,6 @@
 """The envs as a library: make_vec without the learn extra, atomic resets, errors before reset,
 the off-track reward options and the observation bounds."""
+
 import os
 import subprocess
 import sys
@@ -42,34 +43,53 @@ def test_make_vec_default_mode_needs_no_stable_baselines3():
         print("OK")
     """)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True,
-                       text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300
+    )
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip().endswith("OK")
-    assert "vec_env:" in r.stdout and "learn" in r.stdout     # the SB3 VecEnv stays behind the extra
+    assert "vec_env:" in r.stdout and "learn" in r.stdout  # the SB3 VecEnv stays behind the extra
 
 
-@pytest.mark.parametrize("options, match", [
-    ({"n_cars": 2, "start": "pole"}, "start mode must be"),
-    ({"n_cars": 2, "order": [0, 0]}, "permutation"),
-    ({"n_cars": 9}, "n_cars must be an integer"),
-    ({"order": [0, 1, 5]}, "permutation"),
-    ({"n_cars": 8, "start": racing_env.StartConfig(mode="regions", region_length=3.0)}, "start regions span"),
-])
+@pytest.mark.parametrize(
+    "options, match",
+    [
+        ({"n_cars": 2, "start": "pole"}, "start mode must be"),
+        ({"n_cars": 2, "order": [0, 0]}, "permutation"),
+        ({"n_cars": 9}, "n_cars must be an integer"),
+        ({"order": [0, 1, 5]}, "permutation"),
+        (
+            {"n_cars": 8, "start": racing_env.StartConfig(mode="regions", region_length=3.0)},
+            "start regions span",
+        ),
+    ],
+)
 def test_failed_parallel_reset_leaves_the_env_as_it_was(options, match):
     env = racing_env.parallel_env(n_cars=3)
     env.reset(seed=4)
     env.step({a: np.array([0.5, 0.1]) for a in env.agents})
-    before = (env.state().copy(), list(env.agents), list(env.possible_agents), env.config,
-              env.core.rng.bit_generator.state, env.core.t.copy())
+    before = (
+        env.state().copy(),
+        list(env.agents),
+        list(env.possible_agents),
+        env.config,
+        env.core.rng.bit_generator.state,
+        env.core.t.copy(),
+    )
     with pytest.raises(ValueError, match=match):
         env.reset(seed=9, options=options)
-    after = (env.state(), env.agents, env.possible_agents, env.config,
-             env.core.rng.bit_generator.state, env.core.t)
+    after = (
+        env.state(),
+        env.agents,
+        env.possible_agents,
+        env.config,
+        env.core.rng.bit_generator.state,
+        env.core.t,
+    )
     np.testing.assert_array_equal(before[0], after[0])
     assert before[1:5] == after[1:5]
     np.testing.assert_array_equal(before[5], after[5])
-    obs, *_ = env.step({a: np.array([0.5, 0.1]) for a in env.agents})   # still racing
+    obs, *_ = env.step({a: np.array([0.5, 0.1]) for a in env.agents})  # still racing
     assert sorted(obs) == ["car_0", "car_1", "car_2"]
 
 
@@ -122,7 +142,7 @@ def test_offtrack_penalty_and_termination_in_the_gym_env():
     for _ in range(60):
         o1, r1, te1, tr1, i1 = base.step(np.array([1.0, 1.0], np.float32))
         o2, r2, te2, tr2, i2 = pen.step(np.array([1.0, 1.0], np.float32))
-        np.testing.assert_array_equal(o1, o2)           # the penalty changes rewards only
+        np.testing.assert_array_equal(o1, o2)  # the penalty changes rewards only
         assert r2 == pytest.approx(r1 - 0.25 * i1["off_track"], abs=1e-12)
         off_seen |= i1["off_track"]
     assert off_seen
@@ -130,7 +150,7 @@ def test_offtrack_penalty_and_termination_in_the_gym_env():
     term.reset(seed=2)
     steps = []
     while not (steps and (steps[-1][2] or steps[-1][3])):
-        steps.append(term.step(np.array([1.0, 1.0], np.float32)))   # hard left: leaves the track
+        steps.append(term.step(np.array([1.0, 1.0], np.float32)))  # hard left: leaves the track
     assert steps[-1][2] and steps[-1][4]["off_track"] and len(steps) < 60
     assert not any(s[4]["off_track"] for s in steps[:-1])
     with pytest.raises(RuntimeError, match="finished episode"):
@@ -138,7 +158,9 @@ def test_offtrack_penalty_and_termination_in_the_gym_env():
 
 
 def test_offtrack_options_in_the_parallel_and_vector_envs():
-    env = racing_env.parallel_env(n_cars=2, start="grid", terminate_off_track=True, offtrack_penalty=1.0)
+    env = racing_env.parallel_env(
+        n_cars=2, start="grid", terminate_off_track=True, offtrack_penalty=1.0
+    )
     ref = racing_env.parallel_env(n_cars=2, start="grid")
     env.reset(seed=3)
     ref.reset(seed=3)
@@ -153,8 +175,13 @@ def test_offtrack_options_in_the_parallel_and_vector_envs():
             break
     else:
         pytest.fail("the parallel env never terminated off track")
-    v = gymnasium.make_vec("alpha_racer/HeadToHead-v2", num_envs=2, start="grid", terminate_off_track=True,
-                           offtrack_penalty=0.5)
+    v = gymnasium.make_vec(
+        "alpha_racer/HeadToHead-v2",
+        num_envs=2,
+        start="grid",
+        terminate_off_track=True,
+        offtrack_penalty=0.5,
+    )
     single = HeadToHeadEnv(start="grid", terminate_off_track=True, offtrack_penalty=0.5)
     v.reset(seed=5)
     single.reset(seed=5)
@@ -168,9 +195,14 @@ def test_offtrack_options_in_the_parallel_and_vector_envs():
         pytest.fail("the vector env never terminated off track")
 
 
-@pytest.mark.parametrize("kw, match", [({"offtrack_penalty": -1.0}, "offtrack_penalty"),
-                                       ({"offtrack_penalty": float("nan")}, "offtrack_penalty"),
-                                       ({"terminate_off_track": "yes"}, "terminate_off_track")])
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"offtrack_penalty": -1.0}, "offtrack_penalty"),
+        ({"offtrack_penalty": float("nan")}, "offtrack_penalty"),
+        ({"terminate_off_track": "yes"}, "terminate_off_track"),
+    ],
+)
 def test_bad_offtrack_options(kw, match):
     with pytest.raises(ValueError, match=match):
         racing_env.parallel_env(**kw)

@@ -1,4 +1,5 @@
 """The g-g-v envelope (racing_env.envelope) against hand-derived cases of the bicycle model."""
+
 from __future__ import annotations
 
 import math
@@ -58,7 +59,9 @@ def test_limit_shape_and_motor_saturation():
     assert np.all(np.diff(low) > 0)
     assert 0.7 * 9.81 < float(env.lateral_limit(2.5)) < 0.9 * 9.81
     for V in (1.0, 2.0, 3.0):
-        by_hand = ((VEH.C1 - VEH.C2 * V) - VEH.C3 * math.tanh(V / VEH.v_low) - VEH.C4 * V * V) / VEH.m
+        by_hand = (
+            (VEH.C1 - VEH.C2 * V) - VEH.C3 * math.tanh(V / VEH.v_low) - VEH.C4 * V * V
+        ) / VEH.m
         ax, _ = env.longitudinal_limits(V, 0.0)
         assert float(ax) == pytest.approx(by_hand, rel=1e-3)
     ax_top, _ = env.longitudinal_limits(VEH.top_speed, 0.0)
@@ -78,7 +81,7 @@ def test_infeasible_beyond_the_limit():
 def test_corner_speed_round_trip():
     env = ggv()
     for V in (1.0, 2.0, 3.0):
-        kappa = float(env.lateral_limit(V)) / V ** 2
+        kappa = float(env.lateral_limit(V)) / V**2
         assert float(env.corner_speed(kappa)) == pytest.approx(V, rel=0.01)
     assert float(env.corner_speed(0.0)) == pytest.approx(VEH.top_speed)
     assert float(env.corner_speed(1.0, grip=0.5)) < float(env.corner_speed(1.0))

@@ -1,4 +1,5 @@
 """PettingZoo and Gymnasium environments: official checkers, determinism, options, errors."""
+
 import sys
 
 import gymnasium
@@ -6,7 +7,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from pettingzoo.test import api_test, max_cycles_test, parallel_api_test, parallel_seed_test, render_test
+from pettingzoo.test import (
+    api_test,
+    max_cycles_test,
+    parallel_api_test,
+    parallel_seed_test,
+    render_test,
+)
 
 import racing_env
 from racing_env import RacingParallelEnv
@@ -63,7 +70,7 @@ def test_multi_step_determinism():
     np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(sa, sb)
     c, _ = _rollout(racing_env.parallel_env(n_cars=4), seed=8, steps=300)
-    assert not np.array_equal(a[0], c[0])          # another seed, another start
+    assert not np.array_equal(a[0], c[0])  # another seed, another start
 
 
 def test_reset_options_change_cars_and_start():
@@ -72,7 +79,7 @@ def test_reset_options_change_cars_and_start():
     assert env.agents == [f"car_{i}" for i in range(5)]
     assert obs["car_4"].shape == env.observation_space("car_4").shape == (6 * 5 + 10,)
     s = env.state().reshape(5, 6)[:, 0]
-    assert np.all(np.diff(s) < 0)                  # grid: car_0 on pole, the rest behind
+    assert np.all(np.diff(s) < 0)  # grid: car_0 on pole, the rest behind
     env.reset(seed=0, options={"start": "regions", "order": [1, 2, 0, 3, 4]})
     s = env.state().reshape(5, 6)[:, 0]
     assert s[2] > s[0] > s[1]
@@ -94,12 +101,12 @@ def test_observation_reports_relative_states():
     env = RacingParallelEnv(track="oval", n_cars=3, start="grid")
     env.reset(seed=0)
     st = env.core.state[0]
-    st[:, 0] = [2.0, 1.5, env.track.length + 1.0]      # car_2 a lap ahead, physically behind
+    st[:, 0] = [2.0, 1.5, env.track.length + 1.0]  # car_2 a lap ahead, physically behind
     obs = env.core.observe()[0]
     assert obs[0, 0] == pytest.approx(2.0)
-    assert obs[0, 6] == pytest.approx(-0.5)              # car_1 relative to car_0
+    assert obs[0, 6] == pytest.approx(-0.5)  # car_1 relative to car_0
     assert obs[0, 12] == pytest.approx(env.track.length - 1.0, rel=1e-6)
-    assert obs[2, 0] == pytest.approx(1.0, rel=1e-5)     # own s is wrapped
+    assert obs[2, 0] == pytest.approx(1.0, rel=1e-5)  # own s is wrapped
 
 
 def test_bad_arguments_raise_clear_errors():
@@ -120,6 +127,7 @@ def test_bad_arguments_raise_clear_errors():
 def test_gymnasium_env_passes_checkers():
     from gymnasium.utils.env_checker import check_env
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
     env = gymnasium.make("alpha_racer/HeadToHead-v2")
     check_env(env.unwrapped, skip_render_check=True)
     sb3_check_env(HeadToHeadEnv(max_cycles=50), warn=True)
@@ -134,8 +142,8 @@ def test_gymnasium_env_opponents_drive():
         obs, r, term, trunc, info = env.step(np.array([0.0, 0.0], np.float32))
         total += r
     assert trunc and not term
-    assert env.race.core.progress()[0, 1] > 5.0        # the follower raced on
-    assert total < 0                                     # standing still loses ground
+    assert env.race.core.progress()[0, 1] > 5.0  # the follower raced on
+    assert total < 0  # standing still loses ground
     with pytest.raises(ValueError, match="n_cars"):
         HeadToHeadEnv(opponents=[RacelineFollower()], n_cars=3)
     with pytest.raises(ValueError, match="act"):
@@ -172,15 +180,17 @@ class Wobbler:
 
 def _vec_opponents():
     import functools
+
     return [Wobbler(0.4), functools.partial(Wobbler, -0.3), "raceline:grip=0.8"]
 
 
 @pytest.mark.parametrize("mode", ["sync", "async", "vector_entry_point"])
 def test_make_vec_matches_single_envs_step_for_step(mode):
-    n_envs, steps, cycles = 3, 14, 6       # over two episode ends (autoreset included)
+    n_envs, steps, cycles = 3, 14, 6  # over two episode ends (autoreset included)
     kwargs = dict(opponents=_vec_opponents(), max_cycles=cycles, start="grid")
-    venv = gymnasium.make_vec("alpha_racer/HeadToHead-v2", num_envs=n_envs,
-                              vectorization_mode=mode, **kwargs)
+    venv = gymnasium.make_vec(
+        "alpha_racer/HeadToHead-v2", num_envs=n_envs, vectorization_mode=mode, **kwargs
+    )
     singles = [gymnasium.make("alpha_racer/HeadToHead-v2", **kwargs) for _ in range(n_envs)]
     obs, _ = venv.reset(seed=11)
     single_obs = [env.reset(seed=11 + b)[0] for b, env in enumerate(singles)]
@@ -191,7 +201,7 @@ def test_make_vec_matches_single_envs_step_for_step(mode):
         actions = rng.uniform(-1, 1, (n_envs, 2)).astype(np.float32)
         obs, rew, term, trunc, _ = venv.step(actions)
         for b, env in enumerate(singles):
-            if done[b]:                     # Gymnasium's next-step autoreset
+            if done[b]:  # Gymnasium's next-step autoreset
                 o, r, te, tr = env.reset()[0], 0.0, False, False
             else:
                 o, r, te, tr, _ = env.step(actions[b])
@@ -205,6 +215,7 @@ def test_make_vec_matches_single_envs_step_for_step(mode):
 def test_vector_envs_each_get_their_own_opponents():
     from racing_env.gym_vector import HeadToHeadVectorEnv
     from racing_env.vec_env import HeadToHeadVecEnv
+
     shared = Wobbler()
     venv = HeadToHeadVectorEnv(num_envs=2, opponents=[shared, Wobbler])
     a, b = (opp for opp in venv.opponents[0]), (opp for opp in venv.opponents[1])
@@ -254,8 +265,11 @@ def test_actions_for_unknown_agents_raise():
 
 
 @settings(max_examples=20, deadline=None)
-@given(throttle=st.sampled_from([-np.inf, np.inf, 0.3]), steer=st.sampled_from([-np.inf, np.inf, -0.2]),
-       car=st.integers(0, 1))
+@given(
+    throttle=st.sampled_from([-np.inf, np.inf, 0.3]),
+    steer=st.sampled_from([-np.inf, np.inf, -0.2]),
+    car=st.integers(0, 1),
+)
 def test_infinite_actions_are_clipped_like_any_out_of_range_value(throttle, steer, car):
     states = []
     for action in (np.array([throttle, steer]), np.clip([throttle, steer], -1.0, 1.0)):
@@ -285,6 +299,7 @@ def test_messages_name_the_problem():
 
 def _reset_with_timeout(env, seconds=30.0):
     import threading
+
     box = []
     th = threading.Thread(target=lambda: box.append(env.reset(seed=0)), daemon=True)
     th.start()
@@ -293,25 +308,28 @@ def _reset_with_timeout(env, seconds=30.0):
 
 
 def test_random_start_of_a_full_track_returns():
-    env = racing_env.parallel_env(n_cars=8, track="oval",
-                                  start=racing_env.StartConfig(mode="random", min_gap=2.4))
+    env = racing_env.parallel_env(
+        n_cars=8, track="oval", start=racing_env.StartConfig(mode="random", min_gap=2.4)
+    )
     _reset_with_timeout(env)
     with pytest.raises(ValueError, match="do not fit"):
-        racing_env.parallel_env(n_cars=8, track="oval",
-                                start=racing_env.StartConfig(mode="random", min_gap=2.7)).reset(seed=0)
+        racing_env.parallel_env(
+            n_cars=8, track="oval", start=racing_env.StartConfig(mode="random", min_gap=2.7)
+        ).reset(seed=0)
 
 
 @settings(max_examples=30, deadline=None)
-@given(n_cars=st.integers(2, 8), fill=st.floats(0.05, 1.0), seed=st.integers(0, 2 ** 31 - 1))
+@given(n_cars=st.integers(2, 8), fill=st.floats(0.05, 1.0), seed=st.integers(0, 2**31 - 1))
 def test_random_starts_keep_the_minimum_gap(n_cars, fill, seed):
     track = racing_env.make_track("oval")
     min_gap = fill * track.length / n_cars
-    env = racing_env.parallel_env(n_cars=n_cars, track=track,
-                                  start=racing_env.StartConfig(mode="random", min_gap=min_gap))
+    env = racing_env.parallel_env(
+        n_cars=n_cars, track=track, start=racing_env.StartConfig(mode="random", min_gap=min_gap)
+    )
     env.reset(seed=seed)
     s = np.sort(env.state().reshape(n_cars, 6)[:, 0].astype(np.float64) % track.length)
     gaps = np.diff(np.append(s, s[0] + track.length))
-    assert gaps.min() >= min_gap - 1e-4          # state() is float32
+    assert gaps.min() >= min_gap - 1e-4  # state() is float32
 
 
 def test_parallel_env_has_a_seeded_np_random():

@@ -1,4 +1,5 @@
 """The one atomic-write helper: whole files, normal permissions (the umask), no leftovers."""
+
 import os
 import stat
 
@@ -15,6 +16,7 @@ def umask():
 
     def set_mask(mask):
         os.umask(mask)
+
     yield set_mask
     os.umask(old)
 

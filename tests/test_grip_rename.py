@@ -1,5 +1,6 @@
 """The envelope (grip) scale is ``grip``; its old name ``mu`` (which names the heading in the
 state) still works, with a DeprecationWarning naming ``grip``, and gives the same numbers."""
+
 import numpy as np
 import pytest
 

@@ -1,4 +1,5 @@
 """The iterated-best-response agent: overtaking, no contact, track edges, N cars, bad input."""
+
 import warnings
 
 import numpy as np
@@ -32,7 +33,9 @@ def drive(env, agents, obs, steps):
         a.reset(env.track, agent_id, 0)
     states, info = [], {}
     for _ in range(steps):
-        obs, _, _, _, info = env.step({i: a.act(obs[i]) for a, i in zip(agents, env.possible_agents)})
+        obs, _, _, _, info = env.step(
+            {i: a.act(obs[i]) for a, i in zip(agents, env.possible_agents)}
+        )
         states.append(env.core.state[0].copy())
         if not env.agents:
             break
@@ -49,11 +52,16 @@ def two_car_env(steps):
 def test_overtakes_a_slower_car_on_the_straight_without_contact():
     # the default track's main straight runs from about s = 0.7 m to 12.4 m
     env = two_car_env(30)
-    obs = place(env, [[1.0, 0.0, 0.0, 2.5, 0.0, 0.0],      # IBR car
-                      [2.5, 0.0, 0.0, 1.4, 0.0, 0.0]])     # slow car ahead on the same line
+    obs = place(
+        env,
+        [
+            [1.0, 0.0, 0.0, 2.5, 0.0, 0.0],  # IBR car
+            [2.5, 0.0, 0.0, 1.4, 0.0, 0.0],
+        ],
+    )  # slow car ahead on the same line
     ibr = IBRAgent()
     states, info = drive(env, [ibr, make_agent_spec("constant:throttle=0.25")], obs, 30)
-    assert states[-1, 0, 0] > states[-1, 1, 0] + 1.0        # got past
+    assert states[-1, 0, 0] > states[-1, 1, 0] + 1.0  # got past
     assert env.core.contacts[0].sum() == 0
     assert info["car_0"]["off_tracks"] == 0
     assert ibr.stats["fallbacks"] == 0 and ibr.stats["solves"] == 30
@@ -67,8 +75,13 @@ def test_does_not_cause_contact_with_a_faster_car_behind(n_other):
     # dives (2-3 contact steps for four MPC settings), so that case tests the MPC, not IBR;
     # the next test holds IBR's side-keeping against cars that hold their line.)
     env = two_car_env(40)
-    obs = place(env, [[3.0, -0.02, 0.0, 1.0, 0.0, 0.0],     # IBR car, slow
-                      [2.3, n_other, 0.0, 3.5, 0.0, 0.0]])  # faster car behind
+    obs = place(
+        env,
+        [
+            [3.0, -0.02, 0.0, 1.0, 0.0, 0.0],  # IBR car, slow
+            [2.3, n_other, 0.0, 3.5, 0.0, 0.0],
+        ],
+    )  # faster car behind
     ibr = IBRAgent()
     states, info = drive(env, [ibr, MPCAgent(zeta=1.0, s1=0.2)], obs, 40)
     assert env.core.contacts[0].sum() == 0
@@ -84,13 +97,18 @@ def test_does_not_move_into_the_line_of_a_faster_car_behind(n_other, v_other, th
     # than it started (or sep_n), so it never touches the car, and stays on the track
     env = two_car_env(20)
     n0 = -0.02
-    obs = place(env, [[3.0, n0, 0.0, 1.0, 0.0, 0.0],        # IBR car, slow
-                      [2.3, n_other, 0.0, v_other, 0.0, 0.0]])
+    obs = place(
+        env,
+        [
+            [3.0, n0, 0.0, 1.0, 0.0, 0.0],  # IBR car, slow
+            [2.3, n_other, 0.0, v_other, 0.0, 0.0],
+        ],
+    )
     ibr = IBRAgent()
     states, info = drive(env, [ibr, make_agent_spec(f"constant:throttle={throttle}")], obs, 20)
-    np.testing.assert_allclose(states[:, 1, 1], n_other, atol=1e-9)   # the line held
+    np.testing.assert_allclose(states[:, 1, 1], n_other, atol=1e-9)  # the line held
     level = np.abs(states[:, 0, 0] - states[:, 1, 0]) < env.config.rules.contact_ds
-    assert level.any()                                       # they did come level
+    assert level.any()  # they did come level
     gap = np.abs(states[level, 0, 1] - n_other)
     assert gap.min() >= min(abs(n0 - n_other), ibr.config.sep_n) - 0.005
     assert env.core.contacts[0].sum() == 0
@@ -107,11 +125,11 @@ def test_plans_respect_the_track_edges():
     info = {}
     while env.agents:
         action = ibr.act(obs["car_0"])
-        plan = ibr.ibr.last["plans"][0]                     # the IBR car's final plan (6, K)
+        plan = ibr.ibr.last["plans"][0]  # the IBR car's final plan (6, K)
         wl, wr = env.track.widths(plan[0])
         worst = max(worst, float(np.max(np.maximum(plan[1] + half - wl, -wr - (plan[1] - half)))))
         obs, _, _, _, info = env.step({"car_0": action})
-    assert worst < 0.0                                      # the whole car inside the edges
+    assert worst < 0.0  # the whole car inside the edges
     assert info["car_0"]["off_tracks"] == 0
     assert env.core.state[0, 0, 0] - 3.0 > 0.9 * env.track.length  # and it raced
 
@@ -136,27 +154,33 @@ def test_every_car_separates_from_every_other_cars_plan():
     # separation is lateral OR longitudinal per stage and car, never a mix of s and n
     K = 4
     s, n = np.full(K, 5.0), np.zeros(K)
-    S = np.array([[5.0] * K,                  # car 0: the one deciding (skipped)
-                  [5.05] * K,                 # car 1: just ahead, 0.1 m to the left
-                  [4.0] * K,                  # car 2: 1 m behind on the same line
-                  [9.0] * K])                 # car 3: out of the window
+    S = np.array(
+        [
+            [5.0] * K,  # car 0: the one deciding (skipped)
+            [5.05] * K,  # car 1: just ahead, 0.1 m to the left
+            [4.0] * K,  # car 2: 1 m behind on the same line
+            [9.0] * K,
+        ]
+    )  # car 3: out of the window
     N = np.array([[0.0] * K, [0.1] * K, [0.0] * K, [0.0] * K])
     cap = np.full_like(S, np.inf)
     ok = np.ones(4, dtype=bool)
     owner = np.arange(4)
-    stage, lat, sign, margin = _separation_pairs(s, n, S, N, cap, ok, owner, 0, 0.15, 0.08, 2.0,
-                                                 40.0, np.zeros(4))
-    assert len(stage) == 2 * K                              # cars 1 and 2, every stage
-    np.testing.assert_allclose(margin[:K], 0.1 - 0.08)      # car 1: lateral, 2 cm to spare
-    assert lat[:K].all() and (sign[:K] == -1).all()         # ... stay to its right
-    np.testing.assert_allclose(margin[K:], 1.0 - 0.15)      # car 2: longitudinal, in front
+    stage, lat, sign, margin = _separation_pairs(
+        s, n, S, N, cap, ok, owner, 0, 0.15, 0.08, 2.0, 40.0, np.zeros(4)
+    )
+    assert len(stage) == 2 * K  # cars 1 and 2, every stage
+    np.testing.assert_allclose(margin[:K], 0.1 - 0.08)  # car 1: lateral, 2 cm to spare
+    assert lat[:K].all() and (sign[:K] == -1).all()  # ... stay to its right
+    np.testing.assert_allclose(margin[K:], 1.0 - 0.15)  # car 2: longitudinal, in front
     assert not lat[K:].any() and (sign[K:] == 1).all()
     # a car a lap behind on unwrapped progress, physically 0.1 m ahead: near, and ahead
     S[2] = 5.1 - 40.0
-    stage, lat, sign, margin = _separation_pairs(s, n, S, N, cap, ok, owner, 0, 0.15, 0.08, 2.0,
-                                                 40.0, np.zeros(4))
-    np.testing.assert_allclose(margin[K:], 0.1 - 0.15)      # 0.1 m apart, 0.15 m needed
-    assert not lat[K:].any() and (sign[K:] == -1).all()     # ... stay behind it
+    stage, lat, sign, margin = _separation_pairs(
+        s, n, S, N, cap, ok, owner, 0, 0.15, 0.08, 2.0, 40.0, np.zeros(4)
+    )
+    np.testing.assert_allclose(margin[K:], 0.1 - 0.15)  # 0.1 m apart, 0.15 m needed
+    assert not lat[K:].any() and (sign[K:] == -1).all()  # ... stay behind it
 
 
 def test_a_kept_side_holds_while_beside_each_other():
@@ -170,7 +194,7 @@ def test_a_kept_side_holds_while_beside_each_other():
     cap = np.full_like(S, np.inf)
     args = (s, n, S, N, cap, np.ones(2, dtype=bool), np.arange(2), 0, 0.15, 0.08, 2.0, 40.0)
     free = _separation_pairs(*args, np.zeros(2))
-    assert (free[2][free[1]] == 1.0).any()                  # free: stage 2 on the left
+    assert (free[2][free[1]] == 1.0).any()  # free: stage 2 on the left
     stage, lat, sign, margin = _separation_pairs(*args, np.array([0.0, -1.0]))
     np.testing.assert_array_equal(stage, [0, 1, 2, 3])
     np.testing.assert_array_equal(lat, [False, True, True, False])
@@ -185,8 +209,8 @@ def test_warm_start_is_the_shifted_previous_plan():
     states = np.array([[2.0, 0.0, 0.0, 2.5, 0.0, 0.0], [3.0, 0.1, 0.0, 2.0, 0.0, 0.0]])
     ibr.solve(states, np.zeros(2))
     plans, inputs = ibr.last["plans"], ibr.last["inputs"]
-    nxt = plans[:, :, 0]                                    # every car where its plan says
-    warm = ibr._warm_start(0, nxt[0].copy())               # what the next decision begins with
+    nxt = plans[:, :, 0]  # every car where its plan says
+    warm = ibr._warm_start(0, nxt[0].copy())  # what the next decision begins with
     np.testing.assert_array_equal(warm.U[:, :-1], inputs[0][:, 1:])
     np.testing.assert_array_equal(warm.U[:, -1], inputs[0][:, -1])
     # the same prediction, up to curvature looked up at the final plan's own stages
@@ -197,11 +221,12 @@ def test_warm_start_is_the_shifted_previous_plan():
 
 def test_a_failing_solver_falls_back_without_crashing(monkeypatch):
     import daqp
+
     env = RacingParallelEnv(n_cars=2, max_cycles=5)
     obs, _ = env.reset(seed=0)
     ibr = IBRAgent(rounds=2)
     ibr.reset(env.track, "car_0", 0)
-    ibr.act(obs["car_0"])                                   # one good decision first
+    ibr.act(obs["car_0"])  # one good decision first
     K = ibr.config.horizon
 
     def infeasible(H, f, *args, **kwargs):
@@ -230,6 +255,7 @@ def test_a_failing_solver_falls_back_without_crashing(monkeypatch):
 
 def test_a_bug_in_a_best_response_is_not_counted_as_a_failed_qp(monkeypatch):
     import daqp
+
     env = RacingParallelEnv(n_cars=2, max_cycles=5)
     obs, _ = env.reset(seed=0)
     ibr = IBRAgent(rounds=2)
@@ -249,6 +275,7 @@ def test_a_blown_up_linearisation_is_not_handed_to_the_qp(monkeypatch):
     decision) skip the QP: the best response fails and the decision falls back in bounded
     time. Below the bound the QP gets the iteration limit."""
     import daqp
+
     env = RacingParallelEnv(n_cars=2, max_cycles=5)
     obs, _ = env.reset(seed=0)
     calls = []
@@ -259,7 +286,7 @@ def test_a_blown_up_linearisation_is_not_handed_to_the_qp(monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(daqp, "solve", spy)
-    ibr = IBRAgent(rounds=2, max_sensitivity=1e-6)         # every real linearisation exceeds it
+    ibr = IBRAgent(rounds=2, max_sensitivity=1e-6)  # every real linearisation exceeds it
     ibr.reset(env.track, "car_0", 0)
     a = ibr.act(obs["car_0"])
     assert np.isfinite(a).all() and np.all(np.abs(a) <= 1)
@@ -279,18 +306,21 @@ def test_registered_and_built_by_spec():
     assert agent.config.rounds == 3 and agent.config.horizon == 10
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"rounds": 0}, "rounds must be an integer in 1..100, got 0"),
-    ({"rounds": 2.5}, "rounds"),
-    ({"horizon": 0}, "horizon must be an integer number of stages in 2..100, got 0"),
-    ({"horizon": 1}, "horizon"),
-    ({"tol": -1.0}, "tol must be a positive number, got -1.0"),
-    ({"dt": 0.0}, "dt"),
-    ({"slip_weight": -1.0}, "slip_weight"),
-    ({"track_margin": -0.1}, "track_margin"),
-    ({"max_sensitivity": 0.0}, "max_sensitivity must be a positive number, got 0.0"),
-    ({"qp_iter_limit": 0}, "qp_iter_limit must be a positive integer, got 0"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"rounds": 0}, "rounds must be an integer in 1..100, got 0"),
+        ({"rounds": 2.5}, "rounds"),
+        ({"horizon": 0}, "horizon must be an integer number of stages in 2..100, got 0"),
+        ({"horizon": 1}, "horizon"),
+        ({"tol": -1.0}, "tol must be a positive number, got -1.0"),
+        ({"dt": 0.0}, "dt"),
+        ({"slip_weight": -1.0}, "slip_weight"),
+        ({"track_margin": -0.1}, "track_margin"),
+        ({"max_sensitivity": 0.0}, "max_sensitivity must be a positive number, got 0.0"),
+        ({"qp_iter_limit": 0}, "qp_iter_limit must be a positive integer, got 0"),
+    ],
+)
 def test_invalid_config_is_a_clear_error(kwargs, match):
     with pytest.raises(ValueError, match=match):
         IBRConfig(**kwargs)
@@ -320,9 +350,25 @@ def test_race_command_runs_ibr_against_mpc(tmp_path, capsys):
     import json
 
     from experiments.cli import main
+
     out = tmp_path / "race"
-    assert main(["race", "--agents", "ibr", "mpc", "mpc", "--steps", "20", "--no-animation",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "race",
+                "--agents",
+                "ibr",
+                "mpc",
+                "mpc",
+                "--steps",
+                "20",
+                "--no-animation",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert "ibr" in capsys.readouterr().out
     summary = json.loads((out / "result.json").read_text())
     st = summary["agent_stats"][0]
@@ -335,6 +381,7 @@ def test_full_three_car_race_runs_cleanly(tmp_path):
     import json
 
     from experiments.cli import main
+
     out = tmp_path / "race"
     assert main(["race", "--agents", "ibr", "mpc", "mpc", "--no-animation", "--out", str(out)]) == 0
     summary = json.loads((out / "result.json").read_text())

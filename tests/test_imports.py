@@ -1,5 +1,6 @@
 """The package's import graph: module-level imports among racing_env, agents and experiments
 form no cycle, and the layers import downwards only (racing_env <- agents <- experiments)."""
+
 import ast
 from pathlib import Path
 
@@ -23,7 +24,8 @@ def _modules() -> dict:
 def _is_type_checking(node) -> bool:
     test = node.test
     return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
-        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
 
 
 def _imports(tree, lazy: bool):
@@ -38,9 +40,13 @@ def _imports(tree, lazy: bool):
         elif isinstance(node, ast.If) and _is_type_checking(node):
             continue
         elif isinstance(node, (ast.If, ast.Try, ast.With, ast.For, ast.While)) or (
-                lazy and isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))):
-            todo += [c for c in ast.iter_child_nodes(node)
-                     if isinstance(c, (ast.stmt, ast.ExceptHandler))]
+            lazy and isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))
+        ):
+            todo += [
+                c
+                for c in ast.iter_child_nodes(node)
+                if isinstance(c, (ast.stmt, ast.ExceptHandler))
+            ]
         elif isinstance(node, ast.ExceptHandler):
             todo += node.body
 
@@ -60,10 +66,11 @@ def import_graph(lazy: bool = False) -> dict:
                 base = node.module or ""
                 if node.level:
                     anchor = pkg.split(".")
-                    anchor = anchor[:len(anchor) - (node.level - 1)]
+                    anchor = anchor[: len(anchor) - (node.level - 1)]
                     base = ".".join(anchor + ([base] if base else []))
-                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in mods else base
-                           for a in node.names]
+                targets = [
+                    f"{base}.{a.name}" if f"{base}.{a.name}" in mods else base for a in node.names
+                ]
             deps |= {t for t in targets if t in mods and t != name}
         graph[name] = deps
     return graph
@@ -78,7 +85,7 @@ def _cycle(graph):
         stack.append(v)
         for w in sorted(graph[v]):
             if state.get(w) == 1:
-                return stack[stack.index(w):] + [w]
+                return stack[stack.index(w) :] + [w]
             if w not in state:
                 found = visit(w)
                 if found:
@@ -141,8 +148,12 @@ def test_the_former_cycles_stay_broken():
 
 
 def _upwards(graph) -> set:
-    return {(m, d) for m, deps in graph.items() for d in deps
-            if LAYER[d.split(".")[0]] > LAYER[m.split(".")[0]]}
+    return {
+        (m, d)
+        for m, deps in graph.items()
+        for d in deps
+        if LAYER[d.split(".")[0]] > LAYER[m.split(".")[0]]
+    }
 
 
 def test_layers_import_downwards_only():

@@ -1,5 +1,6 @@
 """Installs anywhere: one movable cache folder, a failing C compiler, racing without the learning
 extra, packaging metadata, and (slow) a wheel racing from a read-only site-packages."""
+
 import os
 import shutil
 import subprocess
@@ -26,14 +27,31 @@ print(cache_root())
 
 
 def _run(code: str, env: dict, cwd=ROOT, timeout=600) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def _clean_env(**extra) -> dict:
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("HOME", "XDG_CACHE_HOME", "NUMBA_CACHE_DIR", "ALPHA_RACER_CACHE", "CC",
-                        "PYTHONPATH", "TMPDIR")}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k
+        not in (
+            "HOME",
+            "XDG_CACHE_HOME",
+            "NUMBA_CACHE_DIR",
+            "ALPHA_RACER_CACHE",
+            "CC",
+            "PYTHONPATH",
+            "TMPDIR",
+        )
+    }
     env.update({k: str(v) for k, v in extra.items()})
     return env
 
@@ -42,6 +60,7 @@ def _kernels(folder: Path, package: str) -> list[Path]:
     """numba index files under ``folder`` of functions defined in ``package`` or one of its
     sub-packages (numba names a kernel's folder after its source file's folder, plus a hash)."""
     import importlib.util
+
     root = Path(importlib.util.find_spec(package).origin).parent
     names = {d.name for d in (root, *root.rglob("*")) if (d / "__init__.py").is_file()}
     return [p for p in folder.rglob("*.nbi") if p.parent.name.rsplit("_", 1)[0] in names]
@@ -53,15 +72,15 @@ def _kernels(folder: Path, package: str) -> list[Path]:
 def test_unwritable_cache_and_home_fall_back_to_a_temp_folder(tmp_path, where):
     """No writable cache folder, no usable home: import and race anyway, with a warning, and
     compile into a private temporary folder."""
-    blocker = tmp_path / "a-file"            # nothing can be created under a file, even by root
+    blocker = tmp_path / "a-file"  # nothing can be created under a file, even by root
     blocker.write_text("")
     tmp = tmp_path / "tmp"
     tmp.mkdir()
     env = _clean_env(TMPDIR=tmp)
     if where == "ALPHA_RACER_CACHE":
-        env["ALPHA_RACER_CACHE"] = str(blocker / "cache")      # and HOME unset
+        env["ALPHA_RACER_CACHE"] = str(blocker / "cache")  # and HOME unset
     else:
-        env["HOME"] = str(blocker)                              # the default is under HOME
+        env["HOME"] = str(blocker)  # the default is under HOME
     r = _run(STEPS, env)
     assert r.returncode == 0, r.stderr
     assert "alpha-racer cannot write to" in r.stderr and "temporary folder" in r.stderr, r.stderr
@@ -71,7 +90,7 @@ def test_unwritable_cache_and_home_fall_back_to_a_temp_folder(tmp_path, where):
 
 
 def _unwritable_home(tmp_path) -> dict:
-    blocker = tmp_path / "a-file"            # nothing can be created under a file, even by root
+    blocker = tmp_path / "a-file"  # nothing can be created under a file, even by root
     blocker.write_text("")
     tmp = tmp_path / "tmp"
     tmp.mkdir(exist_ok=True)
@@ -81,12 +100,20 @@ def _unwritable_home(tmp_path) -> dict:
 def test_cache_fallback_is_one_line_once_and_not_on_version_or_help(tmp_path):
     env = _unwritable_home(tmp_path)
     for args in (["--version"], ["--help"], ["race", "--help"]):
-        r = subprocess.run([sys.executable, "-m", "experiments.cli", *args], cwd=ROOT, env=env,
-                           capture_output=True, text=True, timeout=300)
+        r = subprocess.run(
+            [sys.executable, "-m", "experiments.cli", *args],
+            cwd=ROOT,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         assert r.returncode == 0 and r.stderr == "", (args, r.stderr)
-    code = ("import racing_env\nracing_env.parallel_env(n_cars=2)\nracing_env.parallel_env(n_cars=3)\n"
-            "from racing_env.cache import cache_dir, cache_root\ncache_dir('raceline')\nprint(cache_root())")
-    r = _run(code, env)                          # two envs and a cache look-up: one line in all
+    code = (
+        "import racing_env\nracing_env.parallel_env(n_cars=2)\nracing_env.parallel_env(n_cars=3)\n"
+        "from racing_env.cache import cache_dir, cache_root\ncache_dir('raceline')\nprint(cache_root())"
+    )
+    r = _run(code, env)  # two envs and a cache look-up: one line in all
     assert r.returncode == 0, r.stderr
     lines = r.stderr.splitlines()
     assert len(lines) == 1, r.stderr
@@ -100,14 +127,22 @@ def test_import_under_W_error_and_matplotlib_in_our_cache(tmp_path):
     without a writable home: Matplotlib's config goes into our cache, so it does not warn."""
     env = _unwritable_home(tmp_path)
     env["ALPHA_RACER_CACHE"] = str(tmp_path / "cache")
-    code = ("import os, racing_env, matplotlib.pyplot, matplotlib; "
-            "print(os.environ['MPLCONFIGDIR']); print(matplotlib.get_configdir())")
-    r = subprocess.run([sys.executable, "-W", "error", "-c", code], cwd=ROOT, env=env,
-                       capture_output=True, text=True, timeout=300)
+    code = (
+        "import os, racing_env, matplotlib.pyplot, matplotlib; "
+        "print(os.environ['MPLCONFIGDIR']); print(matplotlib.get_configdir())"
+    )
+    r = subprocess.run(
+        [sys.executable, "-W", "error", "-c", code],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0 and r.stderr == "", r.stderr
     mpl = str(tmp_path / "cache" / "matplotlib")
     assert r.stdout.split() == [mpl, mpl]
-    env["HOME"] = str(tmp_path / "home")                # a writable home: Matplotlib's own folder
+    env["HOME"] = str(tmp_path / "home")  # a writable home: Matplotlib's own folder
     env["MPLCONFIGDIR"] = ""
     r = _run("import os, racing_env; print(os.environ.get('MPLCONFIGDIR', ''))", env)
     assert r.returncode == 0 and r.stdout.strip() == "", r.stderr
@@ -119,7 +154,9 @@ def test_compiled_artefacts_land_under_ALPHA_RACER_CACHE(tmp_path):
     to $ALPHA_RACER_CACHE; nothing goes to the home folder."""
     cache, home = tmp_path / "cache", tmp_path / "home"
     home.mkdir()
-    code = STEPS + """
+    code = (
+        STEPS
+        + """
 import warnings
 from agents import make_agent
 env = racing_env.parallel_env(n_cars=1, max_cycles=5)
@@ -130,6 +167,7 @@ with warnings.catch_warnings():
     agent.reset(env.track, "car_0")
 agent.act(obs["car_0"])
 """
+    )
     r = _run(code, _clean_env(ALPHA_RACER_CACHE=cache, HOME=home))
     assert r.returncode == 0, r.stderr
     assert Path(r.stdout.strip().splitlines()[-1]) == cache
@@ -143,6 +181,7 @@ agent.act(obs["car_0"])
 def test_cache_dir_is_one_function(tmp_path, monkeypatch):
     from agents.mpc import codegen
     from racing_env import cache, raceline
+
     monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "c"))
     assert cache.cache_dir() == tmp_path / "c"
     assert raceline.cache_dir() == cache.cache_dir("raceline") == tmp_path / "c" / "raceline"
@@ -154,29 +193,32 @@ def test_kernel_folder_changes_with_any_source_of_either_package(tmp_path):
     """numba checks a kernel against its own file only; the folder name covers every file, so an
     edit of a callee in another file (or another package) cannot leave a stale kernel in use."""
     from racing_env.cache import kernel_sources_hash
+
     env_pkg, agents_pkg = tmp_path / "racing_env", tmp_path / "agents"
     for pkg in (env_pkg, agents_pkg):
         pkg.mkdir()
         (pkg / "a.py").write_text("x = 1\n")
     (env_pkg / "notes.txt").write_text("not a source")
     base = kernel_sources_hash([env_pkg, agents_pkg])
-    assert base == kernel_sources_hash([env_pkg, agents_pkg])          # stable
+    assert base == kernel_sources_hash([env_pkg, agents_pkg])  # stable
     (env_pkg / "notes.txt").write_text("edited")
-    assert kernel_sources_hash([env_pkg, agents_pkg]) == base          # only .py files count
+    assert kernel_sources_hash([env_pkg, agents_pkg]) == base  # only .py files count
     (env_pkg / "a.py").write_text("x = 2\n")
     edited = kernel_sources_hash([env_pkg, agents_pkg])
     assert edited != base
     (agents_pkg / "b.py").write_text("")
     added = kernel_sources_hash([env_pkg, agents_pkg])
     assert added not in (base, edited)
-    (agents_pkg / "sub").mkdir()                                      # a sub-package counts too
+    (agents_pkg / "sub").mkdir()  # a sub-package counts too
     (agents_pkg / "sub" / "c.py").write_text("")
     assert kernel_sources_hash([env_pkg, agents_pkg]) not in (base, edited, added)
 
 
 def test_numba_cache_points_at_the_hashed_folder():
     import numba
+
     from racing_env.cache import cache_dir, kernel_sources_hash
+
     if os.environ.get("NUMBA_CACHE_DIR"):
         pytest.skip("NUMBA_CACHE_DIR is set: numba's own folder is used as it is")
     assert Path(numba.config.CACHE_DIR) == cache_dir("numba") / kernel_sources_hash()
@@ -193,17 +235,22 @@ def _script(path: Path, body: str) -> Path:
 def fresh_compiler_fallback(monkeypatch):
     """The compiler fallback as in a new process (it warns once per process)."""
     from agents.mpc import codegen
+
     monkeypatch.setattr(codegen, "_WARNED", False)
     monkeypatch.setattr(codegen, "_FAILED", set())
 
 
-def test_failing_c_compiler_shows_its_message_and_falls_back(tmp_path, monkeypatch, fresh_compiler_fallback):
+def test_failing_c_compiler_shows_its_message_and_falls_back(
+    tmp_path, monkeypatch, fresh_compiler_fallback
+):
     from agents.mpc import MPCConfig, trajectory_function
+    from racing_env.cache import cache_root
     from racing_env.vehicle import VehicleParams
 
-    from racing_env.cache import cache_root
     default_cache = str(cache_root())
-    cc = _script(tmp_path / "broken-cc", "echo 'broken-cc: fatal error: no licence for -O3' >&2\nexit 3\n")
+    cc = _script(
+        tmp_path / "broken-cc", "echo 'broken-cc: fatal error: no licence for -O3' >&2\nexit 3\n"
+    )
     monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv("CC", str(cc))
     with pytest.warns(RuntimeWarning) as record:
@@ -243,8 +290,9 @@ def test_mpc_agent_races_with_a_failing_compiler(tmp_path, monkeypatch, fresh_co
         obs, *_ = env.step({"car_0": a})
 
 
-def test_compiler_fallback_warns_once_per_process_in_one_line(tmp_path, monkeypatch,
-                                                            fresh_compiler_fallback):
+def test_compiler_fallback_warns_once_per_process_in_one_line(
+    tmp_path, monkeypatch, fresh_compiler_fallback
+):
     """Three MPC cars with a broken compiler: one warning line in all, and the failing
     compiler runs once per compiled function, not once per car."""
     from agents import make_agent
@@ -257,7 +305,7 @@ def test_compiler_fallback_warns_once_per_process_in_one_line(tmp_path, monkeypa
     obs, _ = env.reset(seed=0)
     cars = [make_agent("mpc") for _ in range(3)]
     with warnings.catch_warnings(record=True) as record:
-        warnings.simplefilter("always")            # no dedup by the warnings module itself
+        warnings.simplefilter("always")  # no dedup by the warnings module itself
         for i, car in enumerate(cars):
             car.reset(env.track, f"car_{i}")
         env.step({f"car_{i}": car.act(obs[f"car_{i}"]) for i, car in enumerate(cars)})
@@ -265,7 +313,7 @@ def test_compiler_fallback_warns_once_per_process_in_one_line(tmp_path, monkeypa
     assert len(warned) == 1, warned
     assert "\n" not in warned[0]
     assert "not compiled" in warned[0] and "exit status 1" in warned[0] and "Set CC" in warned[0]
-    assert log.read_text().count("run") <= 2          # 6 before: every car compiled again
+    assert log.read_text().count("run") <= 2  # 6 before: every car compiled again
 
 
 def test_CC_is_the_compiler(tmp_path, monkeypatch):
@@ -278,7 +326,7 @@ def test_CC_is_the_compiler(tmp_path, monkeypatch):
     log = tmp_path / "cc.log"
     cc = _script(tmp_path / "my cc", f'echo "$@" >> "{log}"\nexec "{gcc}" "$@"\n')
     monkeypatch.setenv("ALPHA_RACER_CACHE", str(tmp_path / "cache"))
-    monkeypatch.setenv("CC", f"'{cc}' -O1")                # a command, quoted like in a shell
+    monkeypatch.setenv("CC", f"'{cc}' -O1")  # a command, quoted like in a shell
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         trajectory_function(VehicleParams(), MPCConfig(horizon=5))
@@ -295,7 +343,9 @@ for name in ("torch", "stable_baselines3", "tensorboard"):
 
 @pytest.mark.slow
 def test_race_without_the_learn_extra(tmp_path):
-    code = BLOCK_LEARN + """
+    code = (
+        BLOCK_LEARN
+        + """
 import racing_env, agents, agents.mpc_agent, agents.alpha_agent, agents.ibr
 from experiments.race import run_race
 result, _ = run_race(["alpha", "mpc", "mpc:zeta=0.8"], max_cycles=2, render=False)
@@ -309,7 +359,9 @@ for make in (lambda: make_agent_spec("ppo"), lambda: __import__("racing_env.vec_
         print("MISSING:", exc)
 assert not any(sys.modules.get(m) for m in ("torch", "stable_baselines3"))
 """
+    )
     from racing_env.cache import cache_root
+
     r = _run(code, _clean_env(ALPHA_RACER_CACHE=cache_root()))
     assert r.returncode == 0, r.stderr
     assert "raced" in r.stdout
@@ -320,9 +372,24 @@ assert not any(sys.modules.get(m) for m in ("torch", "stable_baselines3"))
 
 def test_cli_names_the_extra(capsys, monkeypatch):
     from experiments.cli import main
+
     monkeypatch.setitem(sys.modules, "stable_baselines3", None)
-    assert main(["race", "--agents", "ppo", "mpc", "--steps", "1", "--no-animation",
-                 "--out", os.devnull]) == 2
+    assert (
+        main(
+            [
+                "race",
+                "--agents",
+                "ppo",
+                "mpc",
+                "--steps",
+                "1",
+                "--no-animation",
+                "--out",
+                os.devnull,
+            ]
+        )
+        == 2
+    )
     assert 'pip install "alpha-racer[learn]"' in capsys.readouterr().err
 
 
@@ -334,26 +401,36 @@ def _pyproject() -> dict:
 
 def _names(reqs) -> set[str]:
     import re
+
     return {re.split(r"[<>=!~\[; ]", r, maxsplit=1)[0].lower().replace("_", "-") for r in reqs}
 
 
 def test_learning_packages_are_an_extra_that_dev_includes():
     project = _pyproject()["project"]
     learn = _names(project["optional-dependencies"]["learn"])
-    assert learn == {"torch", "stable-baselines3", "tensorboard", "rich"}    # rich: SB3's progress_bar
+    assert learn == {
+        "torch",
+        "stable-baselines3",
+        "tensorboard",
+        "rich",
+    }  # rich: SB3's progress_bar
     assert not learn & _names(project["dependencies"])
     assert learn <= _names(project["optional-dependencies"]["dev"])
-    assert not [r for r in project["dependencies"] if "==" in r]          # ranges, not pins
+    assert not [r for r in project["dependencies"] if "==" in r]  # ranges, not pins
     assert project["license"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")
 
 
 def test_metadata_declares_llvmlite_and_every_supported_python():
     import re
+
     project = _pyproject()["project"]
-    assert "llvmlite" in _names(project["dependencies"])       # codegen.py imports llvmlite.ir
+    assert "llvmlite" in _names(project["dependencies"])  # codegen.py imports llvmlite.ir
     minimum = re.fullmatch(r">=3\.(\d+)", project["requires-python"]).group(1)
-    versions = sorted(int(c.rsplit(".", 1)[1]) for c in project["classifiers"]
-                      if re.fullmatch(r"Programming Language :: Python :: 3\.\d+", c))
+    versions = sorted(
+        int(c.rsplit(".", 1)[1])
+        for c in project["classifiers"]
+        if re.fullmatch(r"Programming Language :: Python :: 3\.\d+", c)
+    )
     assert versions == list(range(int(minimum), versions[-1] + 1)), versions
     assert sys.version_info[1] in versions
 
@@ -361,9 +438,10 @@ def test_metadata_declares_llvmlite_and_every_supported_python():
 def test_package_index_description_renders_without_broken_links():
     """README.md's pictures and links are repository-relative: the index page gets its own."""
     import re
+
     readme = _pyproject()["project"]["readme"]
     text = (ROOT / readme).read_text()
-    assert len(text) < 5000 and not re.search(r"!\[", text)           # no images
+    assert len(text) < 5000 and not re.search(r"!\[", text)  # no images
     for target in re.findall(r"\]\(([^)\s]+)\)|<(\S+?)>", text):
         link = next(t for t in target if t)
         assert link.startswith("https://"), link
@@ -375,6 +453,7 @@ def test_version(capsys):
     import experiments
     import racing_env
     from experiments.cli import main
+
     assert racing_env.__version__ == agents.__version__ == experiments.__version__
     with pytest.raises(SystemExit) as exit_:
         main(["--version"])
@@ -392,8 +471,9 @@ def _read_only_runner(paths: list[Path]) -> list[str] | None:
         return []
     if shutil.which("unshare") is None or subprocess.run(["unshare", "-m", "true"]).returncode:
         return None
-    mounts = " && ".join(f"mount --bind {q} {q} && mount -o remount,ro,bind {q}"
-                         for q in (f"'{p}'" for p in paths))
+    mounts = " && ".join(
+        f"mount --bind {q} {q} && mount -o remount,ro,bind {q}" for q in (f"'{p}'" for p in paths)
+    )
     return ["unshare", "-m", "sh", "-c", mounts + ' && exec "$@"', "sh"]
 
 
@@ -403,33 +483,68 @@ def test_wheel_races_from_a_read_only_install_without_home(tmp_path):
     is then read-only, with HOME unset (and, for root, the home folder read-only too), races
     alpha, mpc and ibr without torch."""
     import pwd
+
     whl, venv, out, tmp = (tmp_path / d for d in ("whl", "venv", "out", "tmp"))
     tmp.mkdir()
-    subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "--no-build-isolation",
-                    "-q", "-w", str(whl)], check=True, cwd=tmp_path)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            str(ROOT),
+            "--no-deps",
+            "--no-build-isolation",
+            "-q",
+            "-w",
+            str(whl),
+        ],
+        check=True,
+        cwd=tmp_path,
+    )
     subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True)
     python = venv / "bin" / "python"
-    subprocess.run([str(python), "-m", "pip", "install", "-q", "--no-deps", "--no-index",
-                    *map(str, whl.glob("*.whl"))], check=True)
-    home = Path(pwd.getpwuid(os.getuid()).pw_dir)      # where ~ points with HOME unset
+    subprocess.run(
+        [
+            str(python),
+            "-m",
+            "pip",
+            "install",
+            "-q",
+            "--no-deps",
+            "--no-index",
+            *map(str, whl.glob("*.whl")),
+        ],
+        check=True,
+    )
+    home = Path(pwd.getpwuid(os.getuid()).pw_dir)  # where ~ points with HOME unset
     runner = _read_only_runner([venv] + ([home] if home.is_dir() and home != Path("/") else []))
     if runner is None:
         pytest.skip("cannot make the venv read-only (root without unshare)")
-    code = BLOCK_LEARN + f"""
+    code = (
+        BLOCK_LEARN
+        + f"""
 import racing_env
 assert racing_env.__file__.startswith({str(venv)!r}), racing_env.__file__
 from experiments.cli import main
 sys.exit(main(["race", "--agents", "alpha", "mpc", "ibr", "--steps", "30", "--no-animation",
                "--out", {str(out)!r}]))
 """
+    )
     env = _clean_env(TMPDIR=tmp, MPLCONFIGDIR=tmp / "mpl")
-    r = subprocess.run([*runner, str(python), "-c", code], cwd="/", env=env, capture_output=True,
-                       text=True, timeout=900)
+    r = subprocess.run(
+        [*runner, str(python), "-c", code],
+        cwd="/",
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     assert "Race on 'default'" in r.stdout and (out / "result.json").exists()
     for agent in ("alpha", "mpc", "ibr"):
         assert agent in r.stdout
-    if runner:                                           # root: the home folder was read-only too
+    if runner:  # root: the home folder was read-only too
         assert "alpha-racer cannot write to the default cache folder" in r.stderr
     installed = [d for pkg in ("racing_env", "agents", "experiments") for d in venv.rglob(pkg)]
     assert len(installed) == 3

@@ -1,5 +1,6 @@
 """League: a balanced, seeded schedule; openskill ratings replayed in schedule order; outputs,
 resume after a kill, refusal of another config, bad input."""
+
 import json
 import math
 import shutil
@@ -17,8 +18,12 @@ from experiments import league as lg  # noqa: E402
 from experiments.artifacts import read_jsonl  # noqa: E402
 from experiments.cli import main  # noqa: E402
 
-RACELINES = ("raceline", "raceline:grip=0.6", "raceline:speed_scale=0.7",
-             "raceline:line_fraction=0.5")
+RACELINES = (
+    "raceline",
+    "raceline:grip=0.6",
+    "raceline:speed_scale=0.7",
+    "raceline:line_fraction=0.5",
+)
 TINY = lg.LeagueConfig(agents=RACELINES, tracks=("default", "oval"), cars=3, steps=40, seed=4)
 
 
@@ -44,11 +49,14 @@ def tiny_league(tmp_path_factory):
 @given(k=st.integers(2, 10), data=st.data())
 def test_schedule_is_balanced(k, data):
     n = data.draw(st.integers(2, min(k, 8)), label="cars")
-    cfg = lg.LeagueConfig(agents=tuple(f"a{i}" for i in range(k)), cars=n,
-                          tracks=("default", "oval")[:data.draw(st.integers(1, 2))],
-                          rounds=data.draw(st.integers(1, 2)),
-                          max_groups=data.draw(st.integers(1, 40), label="max_groups"),
-                          seed=data.draw(st.integers(0, 2 ** 32 - 1), label="seed"))
+    cfg = lg.LeagueConfig(
+        agents=tuple(f"a{i}" for i in range(k)),
+        cars=n,
+        tracks=("default", "oval")[: data.draw(st.integers(1, 2))],
+        rounds=data.draw(st.integers(1, 2)),
+        max_groups=data.draw(st.integers(1, 40), label="max_groups"),
+        seed=data.draw(st.integers(0, 2**32 - 1), label="seed"),
+    )
     races = lg.schedule(cfg)
     assert [r.index for r in races] == list(range(len(races)))
     assert all(r.seed == cfg.race_seed(r.index) for r in races)
@@ -64,20 +72,22 @@ def test_schedule_is_balanced(k, data):
     tracks = Counter((a, r.track) for r in races for a in r.agents)
     assert set(tracks.values()) == {per // len(cfg.tracks)}
     groups = lg.round_groups(cfg, 0)
-    assert len(races) == sum(len(lg.round_groups(cfg, i)) for i in range(cfg.rounds)) \
-        * n * len(cfg.tracks)
-    if math.comb(k, n) <= cfg.max_groups:            # every subset: every pair alike too
+    assert len(races) == sum(len(lg.round_groups(cfg, i)) for i in range(cfg.rounds)) * n * len(
+        cfg.tracks
+    )
+    if math.comb(k, n) <= cfg.max_groups:  # every subset: every pair alike too
         assert groups == list(combinations(range(k), n))
         pairs = Counter(p for r in races for p in combinations(sorted(r.agents), 2))
         assert len(pairs) == math.comb(k, 2) and len(set(pairs.values())) == 1
-    else:                                            # whole balanced blocks, at least one
+    else:  # whole balanced blocks, at least one
         block = math.lcm(k, n) // n
         assert len(groups) == block * max(1, cfg.max_groups // block)
 
 
 def test_schedule_is_fixed_by_the_seed_and_rounds_differ():
-    cfg = lg.LeagueConfig(agents=tuple(f"a{i}" for i in range(7)), cars=3, rounds=2,
-                          max_groups=14, seed=3)
+    cfg = lg.LeagueConfig(
+        agents=tuple(f"a{i}" for i in range(7)), cars=3, rounds=2, max_groups=14, seed=3
+    )
     assert lg.schedule(cfg) == lg.schedule(cfg)
     other = lg.schedule(lg.LeagueConfig(**{**cfg.__dict__, "seed": 4}))
     assert [r.seed for r in other] != [r.seed for r in lg.schedule(cfg)]
@@ -94,10 +104,10 @@ def test_schedule_is_fixed_by_the_seed_and_rounds_differ():
 
 def test_balanced_groups_by_hand():
     rng = np.random.default_rng(0)
-    groups = lg.balanced_groups(5, 3, 5, rng)        # lcm(5, 3) / 3 = 5 groups, 3 each
+    groups = lg.balanced_groups(5, 3, 5, rng)  # lcm(5, 3) / 3 = 5 groups, 3 each
     assert len(groups) == 5 and all(len(set(g)) == 3 for g in groups)
     assert Counter(a for g in groups for a in g) == {a: 3 for a in range(5)}
-    assert len(lg.balanced_groups(6, 3, 5, rng)) == 4     # two blocks of 2: 4 <= 5
+    assert len(lg.balanced_groups(6, 3, 5, rng)) == 4  # two blocks of 2: 4 <= 5
     with pytest.raises(ValueError, match="groups of 4"):
         lg.balanced_groups(3, 4, 5, rng)
 
@@ -110,6 +120,7 @@ def test_finish_ranks_follow_progress_and_give_ties_to_the_lower_car():
 
 def test_rate_is_openskill_plackett_luce_and_keeps_the_prior_without_races():
     from openskill.models import PlackettLuce
+
     rec = {"race": 0, "agents": ["b", "a"], "ranks": [1, 2]}
     r = lg.rate([rec], ["a", "b", "idle"])
     m = PlackettLuce(tau=0.0)
@@ -135,8 +146,9 @@ def test_ratings_do_not_depend_on_the_completion_order(tiny_league):
 
 
 def test_a_clearly_slower_agent_is_rated_lower(tmp_path):
-    cfg = lg.LeagueConfig(agents=("mpc", "raceline", "raceline:speed_scale=0.5"), cars=2,
-                          steps=60, seed=1)
+    cfg = lg.LeagueConfig(
+        agents=("mpc", "raceline", "raceline:speed_scale=0.5"), cars=2, steps=60, seed=1
+    )
     board = lg.league(cfg, tmp_path / "slow", workers=1, progress_bar=False)
     rows = {r["agent"]: r for r in board["standings"]}
     slow = rows["raceline:speed_scale=0.5"]
@@ -166,7 +178,7 @@ def test_tiny_league_writes_consistent_outputs(tiny_league):
     assert [r["ordinal"] for r in rows] == sorted((r["ordinal"] for r in rows), reverse=True)
     assert all(r["ordinal"] == pytest.approx(r["mu"] - 3 * r["sigma"]) for r in rows)
     assert sum(r["wins"] for r in rows) == len(races)
-    assert all(r["races"] == 18 for r in rows)             # 3 groups of 4, 3 starts, 2 tracks
+    assert all(r["races"] == 18 for r in rows)  # 3 groups of 4, 3 starts, 2 tracks
     for r in rows:
         assert r["win_ci95"][0] <= r["win_rate"] <= r["win_ci95"][1]
     pw = board["pairwise"]
@@ -181,25 +193,28 @@ def test_tiny_league_writes_consistent_outputs(tiny_league):
 
 def test_leaderboard_reports_strategy_metrics_and_says_when_old_records_lack_them(tiny_league):
     from experiments.metrics import RECORD_KEYS
+
     out, board = tiny_league
     records = read_jsonl(out / "races.jsonl")
     for row in board["standings"]:
-        mine = [(r, r["agents"].index(row["agent"])) for r in records
-                if row["agent"] in r["agents"]]
+        mine = [
+            (r, r["agents"].index(row["agent"])) for r in records if row["agent"] in r["agents"]
+        ]
         assert row["strategy_races"] == row["races"] == len(mine)
         assert row["passes"] == sum(r["passes"][i] for r, i in mine)
-        assert row["wins_from_behind"] == sum(r["won_from_behind"] and r["ranks"][i] == 1
-                                              for r, i in mine)
-    assert sum(r["wins_from_behind"] for r in board["standings"]) == \
-        sum(r["won_from_behind"] for r in records)
+        assert row["wins_from_behind"] == sum(
+            r["won_from_behind"] and r["ranks"][i] == 1 for r, i in mine
+        )
+    assert sum(r["wins_from_behind"] for r in board["standings"]) == sum(
+        r["won_from_behind"] for r in records
+    )
     assert "| passes/race |" in (out / "leaderboard.md").read_text()
     # records of an older league (no metrics, no states): None and a note, never zeros
     old = [{k: v for k, v in r.items() if k not in RECORD_KEYS} for r in records]
     stale = lg.leaderboard(old[:10] + records[10:], TINY)
     assert all(0 < r["strategy_races"] < r["races"] for r in stale["standings"])
     none = lg.leaderboard(old, TINY)
-    assert all(r["passes"] is None and r["wins_from_behind"] is None
-               for r in none["standings"])
+    assert all(r["passes"] is None and r["wins_from_behind"] is None for r in none["standings"])
     md = lg.leaderboard_markdown(none)
     assert "missing for some races" in md and "over 0 of 18 races" in md
 
@@ -210,7 +225,7 @@ def test_resume_after_a_kill_runs_only_the_missing_races(tiny_league, tmp_path):
     shutil.copytree(out, copy)
     lines = (copy / "races.jsonl").read_text().splitlines(keepends=True)
     kept = lines[:9]
-    (copy / "races.jsonl").write_text("".join(kept) + lines[9][:25])     # a torn last line
+    (copy / "races.jsonl").write_text("".join(kept) + lines[9][:25])  # a torn last line
     again = lg.league(TINY, copy, workers=1, progress_bar=False)
     assert again["new_races"] == len(lines) - 9
     done = {json.loads(line)["race"] for line in kept}
@@ -224,10 +239,30 @@ def test_a_folder_of_another_config_is_refused(tiny_league, capsys):
     out, _ = tiny_league
     before = (out / "races.jsonl").read_text()
     with pytest.raises(ValueError, match="holds a league of another configuration"):
-        lg.league(lg.LeagueConfig(**{**TINY.__dict__, "seed": 5}), out, workers=1,
-                  progress_bar=False)
-    assert main(["league", "--agents", *TINY.agents, "--tracks", "default", "oval",
-                 "--steps", "41", "--seed", "4", "--workers", "1", "--out", str(out)]) == 2
+        lg.league(
+            lg.LeagueConfig(**{**TINY.__dict__, "seed": 5}), out, workers=1, progress_bar=False
+        )
+    assert (
+        main(
+            [
+                "league",
+                "--agents",
+                *TINY.agents,
+                "--tracks",
+                "default",
+                "oval",
+                "--steps",
+                "41",
+                "--seed",
+                "4",
+                "--workers",
+                "1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 2
+    )
     assert "another configuration" in capsys.readouterr().err
     assert (out / "races.jsonl").read_text() == before
 
@@ -244,25 +279,44 @@ def test_records_of_another_schedule_are_refused(tiny_league, tmp_path):
 
 
 # ---------------------------------------------------------------------------- input
-@pytest.mark.parametrize("args, message", [
-    (["--agents", "raceline", "mpc"], "3 cars per race need at least 3 agent specs, got 2"),
-    (["--agents", "mpc", "raceline", "mpc"], "given more than once: mpc"),
-    (["--agents", "mpc", "raceline", "nope"], "unknown agent 'nope'"),
-    (["--agents", "mpc", "raceline", "raceline:mux=1"], "unknown parameter(s) mux"),
-    (["--agents", "mpc", "raceline", "--cars", "1"], "cars per race must be an integer in 2..8, got 1"),
-    (["--agents", "mpc", "raceline", "--cars", "2", "--tracks", "nope"], "unknown track 'nope'"),
-    (["--agents", "mpc", "raceline", "--cars", "2", "--tracks", "oval", "oval"],
-     "tracks must be distinct"),
-    (["--agents", "mpc", "raceline", "--cars", "2", "--steps", "0"],
-     "steps must be a positive integer, got 0"),
-    (["--agents", "mpc", "raceline", "--cars", "2", "--max-groups", "0"],
-     "max_groups must be a positive integer, got 0"),
-    (["--agents", "mpc", "raceline", "--cars", "2", "--workers", "0"],
-     "workers must be a positive integer, got 0"),
-    (["--agents", "alpha:model=default", "mpc", "raceline", "--cars", "2"],
-     "agent 'alpha:model=default' cannot race in a field of 2 cars on 'default': ValueError: "
-     "alpha-potential model trained for 3 cars"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--agents", "raceline", "mpc"], "3 cars per race need at least 3 agent specs, got 2"),
+        (["--agents", "mpc", "raceline", "mpc"], "given more than once: mpc"),
+        (["--agents", "mpc", "raceline", "nope"], "unknown agent 'nope'"),
+        (["--agents", "mpc", "raceline", "raceline:mux=1"], "unknown parameter(s) mux"),
+        (
+            ["--agents", "mpc", "raceline", "--cars", "1"],
+            "cars per race must be an integer in 2..8, got 1",
+        ),
+        (
+            ["--agents", "mpc", "raceline", "--cars", "2", "--tracks", "nope"],
+            "unknown track 'nope'",
+        ),
+        (
+            ["--agents", "mpc", "raceline", "--cars", "2", "--tracks", "oval", "oval"],
+            "tracks must be distinct",
+        ),
+        (
+            ["--agents", "mpc", "raceline", "--cars", "2", "--steps", "0"],
+            "steps must be a positive integer, got 0",
+        ),
+        (
+            ["--agents", "mpc", "raceline", "--cars", "2", "--max-groups", "0"],
+            "max_groups must be a positive integer, got 0",
+        ),
+        (
+            ["--agents", "mpc", "raceline", "--cars", "2", "--workers", "0"],
+            "workers must be a positive integer, got 0",
+        ),
+        (
+            ["--agents", "alpha:model=default", "mpc", "raceline", "--cars", "2"],
+            "agent 'alpha:model=default' cannot race in a field of 2 cars on 'default': ValueError: "
+            "alpha-potential model trained for 3 cars",
+        ),
+    ],
+)
 def test_bad_input_fails_before_any_race_with_a_clear_message(args, message, tmp_path, capsys):
     out = tmp_path / "bad"
     assert main(["league", *args, "--out", str(out)]) == 2
@@ -275,16 +329,36 @@ def test_imported_user_agents_race_in_the_league(tmp_path, monkeypatch):
     import sys
 
     from agents.base import _REGISTRY
+
     (tmp_path / "league_user_agents.py").write_text(
         "from agents import register_agent\nfrom agents.simple import RacelineFollower\n\n\n"
         "@register_agent('cautious_user')\ndef cautious(mu: float = 0.6):\n"
-        "    return RacelineFollower(grip=mu)\n")
+        "    return RacelineFollower(grip=mu)\n"
+    )
     monkeypatch.chdir(tmp_path)
     monkeypatch.delitem(sys.modules, "league_user_agents", raising=False)
     try:
-        assert main(["league", "--import", "league_user_agents.py", "--agents", "raceline",
-                     "cautious_user", "--cars", "2", "--steps", "20", "--workers", "1",
-                     "--out", "out"]) == 0
+        assert (
+            main(
+                [
+                    "league",
+                    "--import",
+                    "league_user_agents.py",
+                    "--agents",
+                    "raceline",
+                    "cautious_user",
+                    "--cars",
+                    "2",
+                    "--steps",
+                    "20",
+                    "--workers",
+                    "1",
+                    "--out",
+                    "out",
+                ]
+            )
+            == 0
+        )
         board = json.loads((tmp_path / "out" / "leaderboard.json").read_text())
         assert {r["agent"] for r in board["standings"]} == {"raceline", "cautious_user"}
         # a worker that has not imported the module (spawned, Ray) imports it for its race

@@ -1,11 +1,11 @@
 """Strategy metrics from hand-built races: passes, contact, fall-backs, wins from behind."""
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from experiments.metrics import (behind_time, hold_steps, pass_events, race_metrics,
-                                 winner_and_front)
+from experiments.metrics import behind_time, hold_steps, pass_events, race_metrics, winner_and_front
 
 DT = 0.1
 
@@ -29,7 +29,7 @@ def steady(T, speeds, starts):
 def test_a_clean_pass_is_credited_to_the_passer_at_the_interpolated_crossing():
     # car 0 starts 1 m behind car 1, 1 m/s faster: level at t = 1.0 s, beside it by 0.2 m
     s = steady(40, [4.0, 3.0], [0.0, 1.0])
-    s[:, 0] += 0.01                    # the crossing at t = 0.99 s: between steps 9 and 10
+    s[:, 0] += 0.01  # the crossing at t = 0.99 s: between steps 9 and 10
     m = race_metrics(race(s, [0.2, 0.0]), DT)
     assert m["passes"] == [1, 0] and m["passes_contact"] == [0, 0]
     (e,) = m["pass_events"]
@@ -43,12 +43,12 @@ def test_a_crossing_lost_within_one_second_is_no_pass_nor_is_regaining_the_place
     T = 60
     s = np.zeros((T + 1, 2))
     s[:, 1] = 3.0 * np.arange(T + 1) * DT
-    gap = np.full(T + 1, -0.5)              # car 0 0.5 m behind ...
-    gap[20:25] = 0.1                        # ... ahead for 5 steps (0.5 s), then behind again
+    gap = np.full(T + 1, -0.5)  # car 0 0.5 m behind ...
+    gap[20:25] = 0.1  # ... ahead for 5 steps (0.5 s), then behind again
     s[:, 0] = s[:, 1] + gap
     m = race_metrics(race(s, [0.3, 0.0]), DT)
     assert m["passes"] == [0, 0] and m["passes_contact"] == [0, 0]
-    assert m["fell_back"] == [1, 0]                        # car 0's failed attempt, once
+    assert m["fell_back"] == [1, 0]  # car 0's failed attempt, once
     assert [e["kind"] for e in m["pass_events"]] == ["fell_back"]
     assert not m["won_from_behind"]
 
@@ -57,11 +57,11 @@ def test_a_pass_that_holds_exactly_the_hold_counts_and_one_step_less_does_not():
     hold = hold_steps(DT)
     assert hold == 10
     gap = np.full(50, -0.5)
-    gap[20:20 + hold] = 0.2                   # car 0 ahead for 10 states, then behind for good
+    gap[20 : 20 + hold] = 0.2  # car 0 ahead for 10 states, then behind for good
     s = np.column_stack([gap, np.zeros(50)])
     e = pass_events(race(s, [0.5, 0.0]), DT)
     assert [(x.kind, x.passer, x.step) for x in e] == [("pass", 0, 20), ("pass", 1, 30)]
-    gap[20 + hold - 1] = -0.5                 # ahead for 9 states: a failed attempt only
+    gap[20 + hold - 1] = -0.5  # ahead for 9 states: a failed attempt only
     s = np.column_stack([gap, np.zeros(50)])
     e = pass_events(race(s, [0.5, 0.0]), DT)
     assert [(x.kind, x.passer, x.step) for x in e] == [("fell_back", 0, 20)]
@@ -69,17 +69,17 @@ def test_a_pass_that_holds_exactly_the_hold_counts_and_one_step_less_does_not():
 
 def test_a_crossing_in_the_last_second_does_not_count():
     gap = np.full(30, -0.5)
-    gap[22:] = 0.2                            # ahead in the last 8 states: unconfirmed
+    gap[22:] = 0.2  # ahead in the last 8 states: unconfirmed
     s = np.column_stack([gap, np.zeros(30)])
     m = race_metrics(race(s, [0.5, 0.0]), DT)
     assert m["passes"] == [0, 0] and m["passes_race_end"] == [1, 0]
-    assert m["won_from_behind"]              # it still won: progress decides the race
+    assert m["won_from_behind"]  # it still won: progress decides the race
 
 
 def test_a_crossing_with_lateral_overlap_is_a_pass_through_contact():
     s = steady(40, [4.0, 3.0], [0.0, 1.05])
     n = np.zeros((41, 2))
-    n[:, 0] = 0.03                            # 3 cm apart sideways: the bodies (6 cm) overlap
+    n[:, 0] = 0.03  # 3 cm apart sideways: the bodies (6 cm) overlap
     m = race_metrics(race(s, n), DT, contact_dn=0.06)
     assert m["passes"] == [0, 0] and m["passes_contact"] == [1, 0]
     assert m["pass_events"][0]["kind"] == "contact"
@@ -102,7 +102,7 @@ def test_the_lateral_gap_is_interpolated_at_the_crossing():
 
 
 def test_side_by_side_cars_never_pass_and_level_steps_are_no_change_of_order():
-    s = steady(50, [3.0, 3.0], [0.0, 0.0])          # level all race
+    s = steady(50, [3.0, 3.0], [0.0, 0.0])  # level all race
     m = race_metrics(race(s, [0.1, -0.1]), DT)
     assert m["pass_events"] == [] and m["behind_1m_s"] == [0.0, 0.0]
     assert m["winner"] == 0 and m["front"] == 0 and not m["won_from_behind"]
@@ -124,19 +124,20 @@ def test_four_cars_a_car_passing_the_whole_field():
     m = race_metrics(race(s, n), DT)
     assert m["passes"] == [0, 0, 0, 3] and m["passes_contact"] == [0] * 4
     assert [e["passed"] for e in m["pass_events"]] == [2, 1, 0]
-    assert [e["time_s"] for e in m["pass_events"]] == pytest.approx([1.1 / 0.6, 2 / 0.6, 2.9 / 0.6],
-                                                                     abs=1e-4)
+    assert [e["time_s"] for e in m["pass_events"]] == pytest.approx(
+        [1.1 / 0.6, 2 / 0.6, 2.9 / 0.6], abs=1e-4
+    )
     assert m["winner"] == 3 and m["front"] == 0 and m["won_from_behind"]
     # car 1 is 0.9 m behind car 0 all race (close behind), car 2 likewise behind car 1
     assert m["behind_1m_s"][1] == pytest.approx(10.0) and m["behind_1m_s"][2] == pytest.approx(10.0)
-    assert m["behind_1m_s"][0] < 10.0        # only while car 3 is close ahead of it
+    assert m["behind_1m_s"][0] < 10.0  # only while car 3 is close ahead of it
 
 
 def test_time_within_one_metre_behind_counts_steps_after_each_control_period():
     s = np.column_stack([np.zeros(21), np.full(21, 1.5)])
-    s[5:15, 0] = 0.6                          # 0.9 m behind car 1 in states 5..14: 1.0 s
+    s[5:15, 0] = 0.6  # 0.9 m behind car 1 in states 5..14: 1.0 s
     np.testing.assert_allclose(behind_time(race(s), DT), [1.0, 0.0])
-    s[0, 0] = 1.0                             # state 0 is the start, not a period: not counted
+    s[0, 0] = 1.0  # state 0 is the start, not a period: not counted
     np.testing.assert_allclose(behind_time(race(s), DT), [1.0, 0.0])
 
 
@@ -161,9 +162,9 @@ def test_bad_input_is_refused_with_the_value():
 # ---------------------------------------------------------------------------- properties
 def random_race(data, n_cars):
     T = data.draw(st.integers(1, 60))
-    rng = np.random.default_rng(data.draw(st.integers(0, 2 ** 31)))
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**31)))
     speed = rng.uniform(2.0, 4.0, (T, n_cars))
-    speed[rng.random((T, n_cars)) < 0.1] = 0.0           # stops make exact ties
+    speed[rng.random((T, n_cars)) < 0.1] = 0.0  # stops make exact ties
     s = np.vstack([rng.uniform(0, 2, n_cars).round(1), np.zeros((T, n_cars))])
     s[1:] = s[0] + np.cumsum(speed * DT, axis=0).round(2)
     n = rng.uniform(-0.2, 0.2, (T + 1, n_cars)).round(2)
@@ -175,14 +176,15 @@ def random_race(data, n_cars):
 def test_renumbering_the_cars_renumbers_the_metrics(data, n_cars):
     states = random_race(data, n_cars)
     perm = np.random.default_rng(data.draw(st.integers(0, 1000))).permutation(n_cars)
-    a, b = race_metrics(states, DT), race_metrics(states[:, perm], DT)   # b's car k = a's perm[k]
+    a, b = race_metrics(states, DT), race_metrics(states[:, perm], DT)  # b's car k = a's perm[k]
     for key in ("passes", "passes_contact", "fell_back", "passes_race_end", "behind_1m_s"):
         assert b[key] == [a[key][p] for p in perm], key
-    ev = lambda m, names: sorted((e["step"], names[e["passer"]], names[e["passed"]], e["kind"])
-                                 for e in m["pass_events"])
+    ev = lambda m, names: sorted(
+        (e["step"], names[e["passer"]], names[e["passed"]], e["kind"]) for e in m["pass_events"]
+    )
     assert ev(b, perm) == ev(a, range(n_cars))
     s0, sT = states[0, :, 0], states[-1, :, 0]
-    if len(set(s0)) == n_cars and len(set(sT)) == n_cars:       # no ties: indices irrelevant
+    if len(set(s0)) == n_cars and len(set(sT)) == n_cars:  # no ties: indices irrelevant
         assert b["won_from_behind"] == a["won_from_behind"]
 
 
@@ -198,8 +200,11 @@ def test_passes_of_a_pair_alternate_and_net_to_its_change_of_order(data, n_cars)
     T = len(s) - 1
     for i in range(n_cars):
         for j in range(i + 1, n_cars):
-            counted = [e for e in events if {e.passer, e.passed} == {i, j}
-                       and e.kind in ("pass", "contact")]
+            counted = [
+                e
+                for e in events
+                if {e.passer, e.passed} == {i, j} and e.kind in ("pass", "contact")
+            ]
             dirs = [1 if e.passer == i else -1 for e in counted]
             assert all(a != b for a, b in zip(dirs, dirs[1:]))
             d = s[:, i] - s[:, j]
@@ -217,8 +222,15 @@ def test_passes_of_a_pair_alternate_and_net_to_its_change_of_order(data, n_cars)
 
 def test_metrics_of_a_real_race_are_consistent_with_its_result():
     from experiments.race import run_race
-    result, _ = run_race(["mpc:zeta=1.0", "raceline", "raceline"], track="default", seed=4,
-                         max_cycles=60, order=[2, 0, 1], progress_bar=False)
+
+    result, _ = run_race(
+        ["mpc:zeta=1.0", "raceline", "raceline"],
+        track="default",
+        seed=4,
+        max_cycles=60,
+        order=[2, 0, 1],
+        progress_bar=False,
+    )
     m = result.metrics
     assert m["winner"] == int(result.order[0]) and m["front"] == 1
     summary = result.summary()

@@ -1,4 +1,5 @@
 """The MPC's building blocks: prediction, condensing, the QP."""
+
 import warnings
 
 import numpy as np
@@ -32,7 +33,7 @@ def test_condensed_sensitivities_match_finite_differences(mpc):
         Xp = np.asarray(mpc._traj(x0, up.reshape(K, 2).T, kap)[0])
         fd = (Xp[:2].T.reshape(-1) - X[:2].T.reshape(-1)) / eps
         np.testing.assert_allclose(G[:, i], fd, atol=1e-4)
-    assert np.all(G[:2 * (K - 1), 2 * K - 2:] == 0)          # causality: late inputs move nothing early
+    assert np.all(G[: 2 * (K - 1), 2 * K - 2 :] == 0)  # causality: late inputs move nothing early
 
 
 def test_steady_tracking_on_a_straight_is_one_cheap_qp(mpc):
@@ -43,11 +44,11 @@ def test_steady_tracking_on_a_straight_is_one_cheap_qp(mpc):
     n_ref = np.zeros(K)
     for _ in range(3):
         u = mpc.solve(x, s_ref, n_ref, 50.0, None, np.zeros(2))
-        mpc._U = np.concatenate([u[:, None], mpc._U[:, :-1]], axis=1)   # same problem again
+        mpc._U = np.concatenate([u[:, None], mpc._U[:, :-1]], axis=1)  # same problem again
     assert mpc.last_status == "ok"
     pred = mpc.last_prediction
-    np.testing.assert_allclose(pred[0], s_ref, atol=1e-2)               # holds the speed (1 cm)
-    np.testing.assert_allclose(pred[1], 0.0, atol=1e-3)                 # stays on the line
+    np.testing.assert_allclose(pred[0], s_ref, atol=1e-2)  # holds the speed (1 cm)
+    np.testing.assert_allclose(pred[1], 0.0, atol=1e-3)  # stays on the line
     assert abs(u[1]) < 1e-3 and -1 <= u[0] <= 1
 
 
@@ -63,6 +64,7 @@ def test_qp_rows_follow_the_separation_rule_and_the_cost():
     :func:`separation_choice` picks (sign, side and need), and its cost is q||G du + e||^2 +
     ||D(u + du)||^2 up to a constant."""
     from agents.mpc import qp_arrays, separation_choice
+
     rng = np.random.default_rng(3)
     cfg = MPCConfig()
     K = cfg.horizon
@@ -72,11 +74,27 @@ def test_qp_rows_follow_the_separation_rule_and_the_cost():
     s_ref, n_ref = s_pred + 0.1, n_pred - 0.02
     u = rng.uniform(-1, 1, 2 * K)
     D = np.diff(np.eye(2 * K).reshape(K, 2, 2 * K), axis=0).reshape(-1, 2 * K)
-    opps = np.array([[5.9, 0.02, 1.5], [4.8, -0.1, 2.5], [40.0, 0.0, 1.0]])   # last: far away
-    H, f, A, blo, bhi, sense = qp_arrays(G, s_pred, n_pred, s_ref, n_ref, 7.0, D.T @ D, u, 0.1,
-                                         0.2, np.full(K, -0.2), np.full(K, 0.2), opps,
-                                         cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window)
-    rows = [A[2 * K:]]
+    opps = np.array([[5.9, 0.02, 1.5], [4.8, -0.1, 2.5], [40.0, 0.0, 1.0]])  # last: far away
+    H, f, A, blo, bhi, sense = qp_arrays(
+        G,
+        s_pred,
+        n_pred,
+        s_ref,
+        n_ref,
+        7.0,
+        D.T @ D,
+        u,
+        0.1,
+        0.2,
+        np.full(K, -0.2),
+        np.full(K, 0.2),
+        opps,
+        cfg.dt,
+        cfg.sep_s,
+        cfg.sep_n,
+        cfg.sep_window,
+    )
+    rows = [A[2 * K :]]
     r = 0
     for opp in opps:
         near, lat, sign, s_jk = separation_choice(s_pred, n_pred, opp, cfg)
@@ -84,10 +102,13 @@ def test_qp_rows_follow_the_separation_rule_and_the_cost():
             gap = n_pred[k] - opp[1] if lat[k] else s_pred[k] - s_jk[k]
             row = G[2 * k + 1] if lat[k] else G[2 * k]
             np.testing.assert_allclose(rows[0][r], sign[k] * row)
-            assert blo[2 * K + 2 * K + r] == pytest.approx((cfg.sep_n if lat[k] else cfg.sep_s)
-                                                           - sign[k] * gap)
+            assert blo[2 * K + 2 * K + r] == pytest.approx(
+                (cfg.sep_n if lat[k] else cfg.sep_s) - sign[k] * gap
+            )
             r += 1
-    assert r == len(rows[0]) > 0 and np.all(sense[4 * K:] == 8) and np.all(sense[2 * K:3 * K] == 0)
+    assert (
+        r == len(rows[0]) > 0 and np.all(sense[4 * K :] == 8) and np.all(sense[2 * K : 3 * K] == 0)
+    )
     du = rng.normal(size=2 * K)
     e = np.column_stack([s_pred - s_ref, n_pred - n_ref]).reshape(-1)
     cost = lambda d: 7.0 * np.sum((G @ d + e) ** 2) + np.sum((D @ (u + d)) ** 2)
@@ -96,10 +117,12 @@ def test_qp_rows_follow_the_separation_rule_and_the_cost():
 
 
 def test_config_names_bad_sqp_settings():
-    for kw, name in (({"curvature_passes": -1}, "curvature_passes"),
-                     ({"merit_rtol": -0.1}, "merit_rtol"),
-                     ({"step_sizes": (1.0, 0.0)}, "step_sizes"),
-                     ({"step_sizes": ()}, "step_sizes")):
+    for kw, name in (
+        ({"curvature_passes": -1}, "curvature_passes"),
+        ({"merit_rtol": -0.1}, "merit_rtol"),
+        ({"step_sizes": (1.0, 0.0)}, "step_sizes"),
+        ({"step_sizes": ()}, "step_sizes"),
+    ):
         with pytest.raises(ValueError, match=name):
             MPCConfig(**kw)
 
@@ -110,21 +133,20 @@ def test_a_plan_is_rolled_out_along_its_own_progress(mpc):
     along the previous pass's progress, and the progress it was looked up at converges to
     the rollout's own: a plan is costed on the corners it drives through."""
     K = mpc.cfg.horizon
-    for s0 in (0.0, 9.0):                                # a straight into a corner, a corner
+    for s0 in (0.0, 9.0):  # a straight into a corner, a corner
         x0 = np.array([s0, 0.0, 0.0, 3.0, 0.0, 0.0])
         U = mpc._follower_warm_start(x0)
-        wrong = x0[0] + 0.5 + 0.1 * np.arange(K + 1)   # 0.5 m ahead, at 1 m/s
+        wrong = x0[0] + 0.5 + 0.1 * np.arange(K + 1)  # 0.5 m ahead, at 1 m/s
 
         def nodes(X):
             return np.concatenate([[x0[0]], X[0]])  # noqa: B023
 
-        rollouts = [mpc._plan(x0, U, s_prev=wrong, jacobians=False, passes=p)[0]
-                    for p in range(4)]
-        used = [wrong] + [nodes(X) for X in rollouts[:-1]]   # pass p looks up along pass p - 1
+        rollouts = [mpc._plan(x0, U, s_prev=wrong, jacobians=False, passes=p)[0] for p in range(4)]
+        used = [wrong] + [nodes(X) for X in rollouts[:-1]]  # pass p looks up along pass p - 1
         mismatch = [float(np.abs(u - nodes(X)).max()) for u, X in zip(used, rollouts)]
-        assert mismatch[0] > 1.0                             # [m]: the guess is far off
+        assert mismatch[0] > 1.0  # [m]: the guess is far off
         for before, after in zip(mismatch[1:], mismatch[2:]):
-            assert after < before / 4                        # every pass contracts it
+            assert after < before / 4  # every pass contracts it
         assert mismatch[-1] < 1e-3
 
 
@@ -132,10 +154,11 @@ def test_predicted_decrease_of_a_hand_made_qp():
     """The QP model's decrease from du = 0 to du: 0.5 du'H du + f'du, plus the soft rows'
     penalty w v^2 before minus after; hard rows (sense 0) cost nothing."""
     from agents.mpc import predicted_decrease
+
     H = np.diag([2.0, 4.0])
     f = np.array([-2.0, 0.0])
-    A = np.array([[1.0, 0.0], [0.0, 1.0]])          # row 0 soft, row 1 hard
-    blo = np.array([-1.0, -1.0, 0.5, -1.0])         # 2 simple bounds lead, then the rows
+    A = np.array([[1.0, 0.0], [0.0, 1.0]])  # row 0 soft, row 1 hard
+    blo = np.array([-1.0, -1.0, 0.5, -1.0])  # 2 simple bounds lead, then the rows
     bhi = np.array([1.0, 1.0, 2.0, 1.0])
     sense = np.array([0, 0, 8, 0], dtype=np.int32)
     du = np.array([1.0, 0.5])
@@ -174,14 +197,15 @@ def test_the_compiled_sqp_step_is_the_python_step_bit_for_bit():
             calls["steps"] += 1
             calls["codes"].add(StepCode(out.code))
             return out
+
         return step
 
     for agent in agents:
-        assert agent.mpc._step == agent.mpc._compiled_step      # compiled here (gcc in CI)
+        assert agent.mpc._step == agent.mpc._compiled_step  # compiled here (gcc in CI)
         agent.mpc._step = checked(agent.mpc)
     while env.agents:
         obs, *_ = env.step({a: ag.act(obs[a]) for a, ag in zip(env.possible_agents, agents)})
-    assert calls["steps"] > 100                                      # rejected and accepted steps
+    assert calls["steps"] > 100  # rejected and accepted steps
     assert {StepCode.REJECTED, StepCode.RELINEARISED} <= calls["codes"]
 
 
@@ -189,6 +213,7 @@ def test_the_public_prediction_is_the_mpcs_own(mpc):
     """``trajectory_function``, the prediction IBR rolls out, gives the MPC's plan, its
     Jacobians and its rollout bit for bit on the same inputs and curvature."""
     from agents.mpc import kappa_at_substeps, trajectory_function
+
     K, cfg = mpc.cfg.horizon, mpc.cfg
     x0 = np.array([3.0, 0.05, 0.02, 2.5, 0.1, 0.2])
     U = mpc._follower_warm_start(x0)
@@ -201,5 +226,6 @@ def test_the_public_prediction_is_the_mpcs_own(mpc):
     plan = mpc._plan(x0, U, s_prev=nodes, passes=0)
     for a, b in zip(full, plan):
         np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(states[0], mpc._plan(x0, U, s_prev=nodes, jacobians=False,
-                                                       passes=0)[0])
+    np.testing.assert_array_equal(
+        states[0], mpc._plan(x0, U, s_prev=nodes, jacobians=False, passes=0)[0]
+    )

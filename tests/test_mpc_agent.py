@@ -1,4 +1,5 @@
 """The fixed-parameter MPC agent in closed loop: track edges, separation, a short race."""
+
 import warnings
 
 import numpy as np
@@ -18,7 +19,9 @@ def drive(env, agents, steps):
         a.reset(env.track, agent_id, 0)
     states = []
     for _ in range(steps):
-        obs, _, _, _, info = env.step({i: a.act(obs[i]) for a, i in zip(agents, env.possible_agents)})
+        obs, _, _, _, info = env.step(
+            {i: a.act(obs[i]) for a, i in zip(agents, env.possible_agents)}
+        )
         states.append(env.core.state[0].copy())
         if not env.agents:
             break
@@ -47,7 +50,7 @@ def test_standing_start_laps_within_the_track():
     env = RacingParallelEnv(n_cars=1, max_cycles=150, start="grid")
     states, info = drive(env, [MPCAgent()], 150)
     assert info["car_0"]["off_tracks"] == 0
-    assert states[-1, 0, 0] - states[0, 0, 0] > 35.0            # about a lap in 15 s
+    assert states[-1, 0, 0] - states[0, 0, 0] > 35.0  # about a lap in 15 s
     wl, wr = env.track.widths(states[:, 0, 0])
     assert np.all(states[:, 0, 1] <= wl) and np.all(states[:, 0, 1] >= -wr)
 
@@ -55,17 +58,19 @@ def test_standing_start_laps_within_the_track():
 def test_soft_rows_weigh_more_for_tight_trackers():
     cfg = MPCConfig()
     assert cfg.soft_rho_at(5.0) == cfg.soft_rho_at(20.0) == pytest.approx(1e-4)
-    assert cfg.soft_rho_at(500.0) == pytest.approx(1e-4 * 20.0 / 500.0)   # 25x the weight
+    assert cfg.soft_rho_at(500.0) == pytest.approx(1e-4 * 20.0 / 500.0)  # 25x the weight
     with pytest.raises(ValueError, match="soft_q_ref"):
         MPCConfig(soft_q_ref=0.0)
 
 
 # Sobol thetas of a 64-theta policy map that left ``default`` on 12, 12, 4 and 14 of 300 steps
 # while the soft rows' weight did not grow with q (``MPCConfig(soft_q_ref=1e9)``: 42 steps)
-TIGHT_TRACKERS = [(455.7109, 0.8333, 0.0237, 5.9953, 2.759),
-                  (287.8734, 1.0182, 0.2171, 15.484, 4.7131),
-                  (361.4085, 0.9196, 0.2859, 17.8878, 3.9061),
-                  (266.4905, 0.8658, 0.1264, 15.1021, 0.5553)]
+TIGHT_TRACKERS = [
+    (455.7109, 0.8333, 0.0237, 5.9953, 2.759),
+    (287.8734, 1.0182, 0.2171, 15.484, 4.7131),
+    (361.4085, 0.9196, 0.2859, 17.8878, 3.9061),
+    (266.4905, 0.8658, 0.1264, 15.1021, 0.5553),
+]
 
 
 def test_tight_trackers_stay_on_the_track():
@@ -74,14 +79,17 @@ def test_tight_trackers_stay_on_the_track():
         env = RacingParallelEnv(n_cars=1, max_cycles=300, start="grid")
         _, info = drive(env, [MPCAgent(q=q, zeta=zeta, s1=s1, s2=s2, s3=s3)], 300)
         off += info["car_0"]["off_tracks"]
-    assert off <= 4                                  # at most 1% of 4 x 300 steps
+    assert off <= 4  # at most 1% of 4 x 300 steps
 
 
 def test_keeps_separation_from_a_parked_car():
     # car_1 parked on the racing line ahead; the MPC car must not run into it
-    env = RacingParallelEnv(n_cars=2, max_cycles=60,
-                            start=StartConfig(mode="grid", grid_gap=0.3, speed=0.0),
-                            rules=RulesConfig())
+    env = RacingParallelEnv(
+        n_cars=2,
+        max_cycles=60,
+        start=StartConfig(mode="grid", grid_gap=0.3, speed=0.0),
+        rules=RulesConfig(),
+    )
     parked = make_agent_spec("constant:throttle=-1.0")
     obs, _ = env.reset(seed=0)
     env.core.state[0, 1, :] = [env.core.state[0, 0, 0] + 3.0, 0.0, 0.0, 0.0, 0.0, 0.0]
@@ -90,9 +98,11 @@ def test_keeps_separation_from_a_parked_car():
     parked.reset(env.track, "car_1", 0)
     obs = {a: env.core.observe()[0, i] for i, a in enumerate(env.possible_agents)}
     for _ in range(60):
-        obs, _, _, _, info = env.step({"car_0": mpc.act(obs["car_0"]), "car_1": parked.act(obs["car_1"])})
+        obs, _, _, _, info = env.step(
+            {"car_0": mpc.act(obs["car_0"]), "car_1": parked.act(obs["car_1"])}
+        )
     assert info["car_0"]["contacts"] == 0
-    assert env.core.state[0, 0, 0] > env.core.state[0, 1, 0] + 1.0   # and got past it
+    assert env.core.state[0, 0, 0] > env.core.state[0, 1, 0] + 1.0  # and got past it
 
 
 def test_three_mpc_cars_race_from_the_start_regions():
@@ -101,7 +111,7 @@ def test_three_mpc_cars_race_from_the_start_regions():
     states, info = drive(env, agents, 150)
     assert np.isfinite(states).all()
     for a in agents:
-        assert a.stats["fallbacks"] <= 3                     # no fallback storms
+        assert a.stats["fallbacks"] <= 3  # no fallback storms
         assert a.stats["solves"] == 150
 
 
@@ -109,11 +119,13 @@ def test_three_mpc_cars_race_from_the_start_regions():
 def test_rti_lap_time_within_two_percent_of_converged_ipopt():
     import sys
     from pathlib import Path
+
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from mpc_speed import closed_loop
 
     from agents.mpc import MPC
     from agents.mpc_ipopt import IpoptMPC
+
     track = RacingParallelEnv(n_cars=1).track
     laps = {}
     for name, solver in (("rti", MPC(track)), ("ipopt", IpoptMPC(track))):
@@ -127,10 +139,12 @@ def test_rti_lap_time_within_two_percent_of_converged_ipopt():
 def test_mpc_speed_config_pairs_set_numeric_fields_and_name_bad_ones():
     import sys
     from pathlib import Path
+
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from mpc_speed import parse_config
 
     from agents.mpc import MPCConfig
+
     cfg = parse_config(["sqp_iterations=4", "merit_rtol=0", "restart_offtrack=-1"])
     assert cfg == MPCConfig(sqp_iterations=4, merit_rtol=0.0, restart_offtrack=-1.0)
     assert isinstance(cfg.sqp_iterations, int)
@@ -149,13 +163,16 @@ def test_rti_plans_cost_within_five_percent_of_ipopt_at_the_limit():
     within 5%."""
     import sys
     from pathlib import Path
+
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from mpc_speed import THETA, plan_quality
 
     from agents.reference import Theta
+
     track = RacingParallelEnv(n_cars=1).track
-    gaps, _ = plan_quality(track, 150, 5, [Theta(q=THETA.q, zeta=1.0, s1=THETA.s1, s2=THETA.s2,
-                                                 s3=THETA.s3)])
+    gaps, _ = plan_quality(
+        track, 150, 5, [Theta(q=THETA.q, zeta=1.0, s1=THETA.s1, s2=THETA.s2, s3=THETA.s3)]
+    )
     assert gaps.size >= 25
     assert np.mean(gaps <= 0.05) >= 0.8
 
@@ -165,15 +182,20 @@ def test_a_zeta_ceiling_drives_the_capped_theta_and_names_bad_values():
     ``zeta=0.95`` bit for bit; a ceiling above the zeta leaves the agent as it was."""
     from agents import make_agent_spec
     from experiments.race import run_race
-    a, _ = run_race(["mpc:zeta=1.02,zeta_max=0.95", "raceline"], seed=3, max_cycles=25,
-                    progress_bar=False)
+
+    a, _ = run_race(
+        ["mpc:zeta=1.02,zeta_max=0.95", "raceline"], seed=3, max_cycles=25, progress_bar=False
+    )
     b, _ = run_race(["mpc:zeta=0.95", "raceline"], seed=3, max_cycles=25, progress_bar=False)
     assert a.states.tobytes() == b.states.tobytes()
     agent = make_agent_spec("mpc:zeta=0.9,zeta_max=1.0")
     assert agent.driven_theta is agent.theta
     for bad, shown in (("0.5", "0.5"), ("1.1", "1.1"), ("true", "True")):
-        with pytest.raises(ValueError, match=rf"zeta_max must be a number in .*\[0.8, 1.05\], "
-                                             rf"got {shown}"):
+        with pytest.raises(
+            ValueError,
+            match=rf"zeta_max must be a number in .*\[0.8, 1.05\], "
+            rf"got {shown}",
+        ):
             make_agent_spec(f"mpc:zeta_max={bad}")
 
 
@@ -182,6 +204,7 @@ def test_extended_space_agent_checks_and_chooses_the_pass_side_by_room():
     with ``b = 0`` and no car near, the extended agent races as the paper's bit for bit; its
     pass side is the room rule's at every step, the paper's agent keeps the paper's rule."""
     from experiments.race import run_race
+
     with pytest.raises(ValueError, match="b = 0.5 is a parameter of the extended policy space"):
         make_agent_spec("mpc:b=0.5")
     with pytest.raises(ValueError, match="it needs line='curvature', got 'lap_time'"):
@@ -189,7 +212,7 @@ def test_extended_space_agent_checks_and_chooses_the_pass_side_by_room():
     with pytest.raises(ValueError, match="policy space must be one of"):
         make_agent_spec("mpc:space=huge")
     with pytest.raises(ValueError, match="model='auto' races the shipped models, of the 'paper'"):
-        make_agent_spec("alpha:space=extended")        # needs a model of the extended space
+        make_agent_spec("alpha:space=extended")  # needs a model of the extended space
     a, _ = run_race(["mpc:space=extended,b=0"], seed=3, max_cycles=20, progress_bar=False)
     b, _ = run_race(["mpc"], seed=3, max_cycles=20, progress_bar=False)
     assert a.states.tobytes() == b.states.tobytes()
@@ -199,7 +222,7 @@ def test_extended_space_agent_checks_and_chooses_the_pass_side_by_room():
     agent.reset(env.track, "car_0", 0)
     assert np.all(np.isfinite(agent.act(obs["car_0"])))
     assert agent._pass_side() == "room"
-    assert make_agent_spec("mpc:s1=0.3")._pass_side() is None    # paper: its rule
+    assert make_agent_spec("mpc:s1=0.3")._pass_side() is None  # paper: its rule
 
 
 @pytest.mark.slow
@@ -209,10 +232,17 @@ def test_the_extended_space_passes_a_racing_line_follower_the_paper_s_best_theta
     of the paper's space stays behind (docs: "The extended policy space")."""
     from experiments.metrics import race_metrics
     from experiments.race import run_race
+
     ext = "mpc:space=extended,q=5,zeta=1.05,s1=0.3,s2=0.5,s3=0,b=1"
     for spec, passes in ((ext, 1), ("mpc:theta=best", 0)):
-        r, _ = run_race([spec, "raceline", "raceline"], track="default", seed=7000,
-                        max_cycles=300, order=[1, 0, 2], progress_bar=False)
+        r, _ = run_race(
+            [spec, "raceline", "raceline"],
+            track="default",
+            seed=7000,
+            max_cycles=300,
+            order=[1, 0, 2],
+            progress_bar=False,
+        )
         m = race_metrics(r.states)
         assert m["passes"][0] == passes and m["passes_contact"][0] == 0, (spec, m)
         assert (r.order[0] == 0) == bool(passes), (spec, r.order)

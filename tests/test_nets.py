@@ -1,4 +1,5 @@
 """Training helpers shared by the single-track and general trainings (experiments.nets)."""
+
 import pytest
 
 
@@ -20,12 +21,22 @@ def test_a_training_checkpoint_resumes_net_optimiser_and_schedule(tmp_path):
     sched.step()
     ckpt = tmp_path / "value_ckpt.pt"
     assert _resume(ckpt, *parts(1), torch) is None
-    _save_atomic_torch({"net": net.state_dict(), "opt": opt.state_dict(),
-                        "sched": sched.state_dict(), "epoch": 1, "history": [0.5]}, ckpt, torch)
+    _save_atomic_torch(
+        {
+            "net": net.state_dict(),
+            "opt": opt.state_dict(),
+            "sched": sched.state_dict(),
+            "epoch": 1,
+            "history": [0.5],
+        },
+        ckpt,
+        torch,
+    )
     net2, opt2, sched2 = parts(1)
     st = _resume(ckpt, net2, opt2, sched2, torch)
     assert st["epoch"] == 1 and st["history"] == [0.5]
-    assert all(torch.equal(a, b) for a, b in zip(net.state_dict().values(),
-                                                 net2.state_dict().values()))
+    assert all(
+        torch.equal(a, b) for a, b in zip(net.state_dict().values(), net2.state_dict().values())
+    )
     assert sched2.state_dict()["last_epoch"] == sched.state_dict()["last_epoch"] == 1
     assert opt2.state_dict()["state"][0]["step"] == opt.state_dict()["state"][0]["step"]

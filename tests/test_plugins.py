@@ -1,5 +1,6 @@
 """Agent plugins: entry points of the ``alpha_racer.agents`` group, ``--import MODULE`` and
 ``alpha-racer agents``."""
+
 import json
 import os
 import subprocess
@@ -36,8 +37,14 @@ class Mine:
 
 def _cli(args, cwd, pythonpath):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(map(str, pythonpath)))
-    return subprocess.run([sys.executable, "-m", "experiments.cli", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "experiments.cli", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -56,17 +63,46 @@ def plugin_site(tmp_path_factory):
 @pytest.mark.slow
 def test_installed_plugin_races_from_the_command_line(plugin_site, tmp_path):
     out = tmp_path / "race"
-    proc = _cli(["race", "--agents", "mine:throttle=0.8", "raceline", "--steps", "5",
-                 "--no-animation", "--out", str(out)], ROOT, [plugin_site, ROOT])
+    proc = _cli(
+        [
+            "race",
+            "--agents",
+            "mine:throttle=0.8",
+            "raceline",
+            "--steps",
+            "5",
+            "--no-animation",
+            "--out",
+            str(out),
+        ],
+        ROOT,
+        [plugin_site, ROOT],
+    )
     assert proc.returncode == 0, proc.stderr
     assert "mine:throttle=0.8" in proc.stdout
     assert json.loads((out / "result.json").read_text())["agents"][0] == "mine:throttle=0.8"
 
 
 def test_installed_plugin_benches_and_is_listed(plugin_site, tmp_path):
-    proc = _cli(["bench", "--ego", "mine", "--opponents", "raceline", "--races", "1",
-                 "--steps", "5", "--workers", "1", "--out", str(tmp_path / "b")],
-                ROOT, [plugin_site, ROOT])
+    proc = _cli(
+        [
+            "bench",
+            "--ego",
+            "mine",
+            "--opponents",
+            "raceline",
+            "--races",
+            "1",
+            "--steps",
+            "5",
+            "--workers",
+            "1",
+            "--out",
+            str(tmp_path / "b"),
+        ],
+        ROOT,
+        [plugin_site, ROOT],
+    )
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "b" / "summary.md").exists()
     proc = _cli(["agents"], ROOT, [plugin_site, ROOT])
@@ -80,8 +116,20 @@ def test_broken_plugin_is_a_one_line_error(tmp_path):
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: broken\nVersion: 0.1\n")
     (info / "entry_points.txt").write_text(f"[{ENTRY_POINT_GROUP}]\nbroken = no_such_module:X\n")
-    proc = _cli(["race", "--agents", "broken", "--steps", "5", "--no-animation",
-                 "--out", str(tmp_path / "r")], ROOT, [tmp_path, ROOT])
+    proc = _cli(
+        [
+            "race",
+            "--agents",
+            "broken",
+            "--steps",
+            "5",
+            "--no-animation",
+            "--out",
+            str(tmp_path / "r"),
+        ],
+        ROOT,
+        [tmp_path, ROOT],
+    )
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0
     assert "agent plugin 'broken'" in proc.stderr and "no_such_module" in proc.stderr
@@ -90,18 +138,32 @@ def test_broken_plugin_is_a_one_line_error(tmp_path):
 def test_import_option_registers_user_agents(tmp_path):
     (tmp_path / "my_agents.py").write_text(
         "from agents import register_agent\nfrom my_agent import Mine\n"
-        "register_agent('imported', Mine)\n")
+        "register_agent('imported', Mine)\n"
+    )
     (tmp_path / "my_agent.py").write_text(PLUGIN)
-    proc = _cli(["race", "--import", "my_agents", "--agents", "imported", "raceline",
-                 "--steps", "5", "--no-animation", "--out", str(tmp_path / "r")],
-                tmp_path, [ROOT])                      # found in the current directory
+    proc = _cli(
+        [
+            "race",
+            "--import",
+            "my_agents",
+            "--agents",
+            "imported",
+            "raceline",
+            "--steps",
+            "5",
+            "--no-animation",
+            "--out",
+            str(tmp_path / "r"),
+        ],
+        tmp_path,
+        [ROOT],
+    )  # found in the current directory
     assert proc.returncode == 0, proc.stderr
     assert "imported" in proc.stdout
 
 
 def test_import_option_failure_is_one_line(capsys):
-    assert main(["race", "--import", "no_such_module_xyz", "--steps", "5",
-                 "--no-animation"]) == 2
+    assert main(["race", "--import", "no_such_module_xyz", "--steps", "5", "--no-animation"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "'no_such_module_xyz'" in err
     assert main(["bench", "--import", "missing_file.py", "--races", "1", "--steps", "5"]) == 2
@@ -129,6 +191,7 @@ def test_agent_parameters_follow_kwargs_to_the_base_class():
     @register_agent("_kw_open")
     def _factory(**kwargs):
         raise AssertionError("not built")
+
     try:
         assert agent_parameters("_kw_open") == ([], True)
         assert "_kw_open" in agent_names()

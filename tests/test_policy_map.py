@@ -1,4 +1,5 @@
 """Policy map: Sobol thetas over the current box, rows, resume, determinism, summary, figures."""
+
 import json
 
 import numpy as np
@@ -10,13 +11,29 @@ from experiments import policy_map as pm  # noqa: E402
 from experiments.artifacts import read_jsonl  # noqa: E402
 from experiments.cli import main  # noqa: E402
 
-TINY = ["policy-map", "--thetas", "4", "--tracks", "default", "--steps", "30",
-        "--modes", "solo", "race", "--workers", "1", "--seed", "5"]
+TINY = [
+    "policy-map",
+    "--thetas",
+    "4",
+    "--tracks",
+    "default",
+    "--steps",
+    "30",
+    "--modes",
+    "solo",
+    "race",
+    "--workers",
+    "1",
+    "--seed",
+    "5",
+]
 
 
 def _untimed(rows):
-    return sorted(({k: v for k, v in r.items() if k not in pm.TIMING_KEYS} for r in rows),
-                  key=lambda r: (r["mode"], r["track"], r["index"]))
+    return sorted(
+        ({k: v for k, v in r.items() if k not in pm.TIMING_KEYS} for r in rows),
+        key=lambda r: (r["mode"], r["track"], r["index"]),
+    )
 
 
 # ---------------------------------------------------------------------------- sampling
@@ -34,17 +51,19 @@ def test_sobol_thetas_fill_the_current_box_one_per_stratum():
 
 def test_box_is_read_at_run_time(monkeypatch):
     from agents import reference
+
     low = np.array([10.0, 0.8, 0.0, 1.0, 0.0])
     high = np.array([20.0, 1.1, 0.1, 2.0, 1.0])
     monkeypatch.setattr(reference, "THETA_LOW", low)
     monkeypatch.setattr(reference, "THETA_HIGH", high)
     th = pm.sample_thetas(8, seed=0)
     assert np.all(th >= low) and np.all(th < high)
-    assert th[:, 1].max() > 1.05       # one point in the top eighth of the new zeta range
+    assert th[:, 1].max() > 1.05  # one point in the top eighth of the new zeta range
 
 
 def test_theta_spec_is_exact():
     from agents import make_agent_spec
+
     th = pm.sample_thetas(2, seed=1)[1]
     agent = make_agent_spec(pm.theta_spec(th))
     assert np.array_equal(agent.theta.as_array(), th)
@@ -67,7 +86,7 @@ def test_best_flying_lap_skips_the_standing_start_lap():
 
 
 def test_binned_means_by_hand():
-    x = [0.1, 0.2, 0.9, 1.0]           # 1.0 sits on the upper edge: last cell
+    x = [0.1, 0.2, 0.9, 1.0]  # 1.0 sits on the upper edge: last cell
     y = [0.1, 0.1, 0.9, 0.6]
     xe, ye, m = pm.binned_means(x, y, [1.0, 3.0, 5.0, 7.0], (0, 1), (0, 1), 2)
     assert xe.tolist() == [0.0, 0.5, 1.0] and ye.tolist() == [0.0, 0.5, 1.0]
@@ -80,6 +99,7 @@ def test_a_failing_run_becomes_an_error_row(monkeypatch):
 
     def boom(*a, **k):
         raise FloatingPointError("solver diverged")
+
     monkeypatch.setattr(experiments.race, "run_race", boom)
     cfg = pm.PolicyMapConfig(thetas=2, tracks=("default",), modes=("race",), steps=5)
     row = pm.map_row(cfg, "race", "default", 1, pm.sample_thetas(2, 0)[1])
@@ -113,7 +133,9 @@ def test_tiny_map_writes_rows_summary_and_heat_maps(tiny_map):
     assert [r["start_region"] for r in race] == ["R1", "R2", "R3", "R1"]
     for r in race:
         assert r["rank"] in (1, 2, 3)
-        assert r["margin_m"] == pytest.approx(r["progress_m"] - max(r["opponents_progress_m"]), abs=1e-3)
+        assert r["margin_m"] == pytest.approx(
+            r["progress_m"] - max(r["opponents_progress_m"]), abs=1e-3
+        )
         assert (r["rank"] == 1) == (r["margin_m"] >= 0)
     manifest = json.loads((tiny_map / "manifest.json").read_text())
     box = manifest["config"]["theta_box"]
@@ -151,6 +173,7 @@ def test_another_config_is_refused(tiny_map, capsys):
 
 def test_a_map_of_another_theta_box_is_refused(tiny_map, monkeypatch):
     from agents import reference
+
     monkeypatch.setattr(reference, "THETA_HIGH", np.array(reference.THETA_HIGH) + 0.05)
     cfg = pm.PolicyMapConfig(thetas=4, tracks=("default",), steps=30, seed=5)
     with pytest.raises(ValueError, match="another configuration.*theta_box"):
@@ -174,22 +197,54 @@ def test_same_seed_same_rows_and_a_torn_row_is_redone(tiny_map, tmp_path):
 
 def test_every_option_says_its_default():
     from experiments.cli import build_parser
+
     sub = next(a for a in build_parser()._actions if a.dest == "command")
     pm = sub.choices["policy-map"]
     opts = [a for a in pm._actions if a.dest not in ("help",)]
-    assert {a.dest for a in opts} >= {"thetas", "tracks", "modes", "steps", "seed", "workers",
-                                      "backend", "out"}
+    assert {a.dest for a in opts} >= {
+        "thetas",
+        "tracks",
+        "modes",
+        "steps",
+        "seed",
+        "workers",
+        "backend",
+        "out",
+    }
     text = " ".join(pm.format_help().split())
-    for shown in ("(default: 256)", "(default: 500)", "(default: results/policy_map)",
-                  "(default: local)"):
+    for shown in (
+        "(default: 256)",
+        "(default: 500)",
+        "(default: results/policy_map)",
+        "(default: local)",
+    ):
         assert shown in text, shown
 
 
 def test_cli_races_the_theta_against_the_opponents_named(tmp_path):
     out = tmp_path / "pm"
-    assert main(["policy-map", "--thetas", "2", "--tracks", "oval", "--modes", "race",
-                 "--opponents", "raceline", "--steps", "20", "--workers", "1",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "policy-map",
+                "--thetas",
+                "2",
+                "--tracks",
+                "oval",
+                "--modes",
+                "race",
+                "--opponents",
+                "raceline",
+                "--steps",
+                "20",
+                "--workers",
+                "1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["config"]["opponents"] == "raceline"
     rows = [json.loads(line) for line in (out / "rows.jsonl").open()]
@@ -199,8 +254,10 @@ def test_cli_races_the_theta_against_the_opponents_named(tmp_path):
 
 def test_an_extended_map_samples_b_and_races_it():
     from agents import make_agent_spec
-    cfg = pm.PolicyMapConfig(thetas=2, tracks=("default",), modes=("solo",), steps=5,
-                             space="extended")
+
+    cfg = pm.PolicyMapConfig(
+        thetas=2, tracks=("default",), modes=("solo",), steps=5, space="extended"
+    )
     low, high = pm.theta_box("extended")
     assert low.shape == (6,) and (low[5], high[5]) == (0.0, 1.0)
     th = pm.sample_thetas(2, 0, low, high)

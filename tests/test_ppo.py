@@ -1,5 +1,6 @@
 """PPO self-play: the batched learning env, the frozen policy, the pipeline end to end,
 resume after an interruption, the shipped ``ppo`` agent, config errors."""
+
 import csv
 import json
 import zipfile
@@ -9,8 +10,13 @@ import pytest
 import torch
 
 from agents import make_agent_spec
-from agents.ppo_agent import (FrozenPolicy, PPOAgent, adapt_observation, default_checkpoint,
-                              read_checkpoint_meta)
+from agents.ppo_agent import (
+    FrozenPolicy,
+    PPOAgent,
+    adapt_observation,
+    default_checkpoint,
+    read_checkpoint_meta,
+)
 from experiments import selfplay as sp
 from experiments.cli import main
 from experiments.selfplay import SelfPlayConfig, selfplay
@@ -21,20 +27,55 @@ from racing_env.vec_env import HeadToHeadVecEnv
 
 torch.set_num_threads(1)
 
-TINY = dict(n_cars=2, cycles=1, steps_per_turn=128, n_envs=2, n_steps=64, batch_size=64,
-            n_epochs=1, max_cycles=40, eval_races=1, mpc_reference=False)
-TINY_ARGS = ["--cars", "2", "--cycles", "1", "--steps-per-turn", "128", "--envs", "2",
-             "--n-steps", "64", "--batch-size", "64", "--epochs", "1", "--race-steps", "40",
-             "--eval-races", "1", "--no-mpc-reference"]
+TINY = dict(
+    n_cars=2,
+    cycles=1,
+    steps_per_turn=128,
+    n_envs=2,
+    n_steps=64,
+    batch_size=64,
+    n_epochs=1,
+    max_cycles=40,
+    eval_races=1,
+    mpc_reference=False,
+)
+TINY_ARGS = [
+    "--cars",
+    "2",
+    "--cycles",
+    "1",
+    "--steps-per-turn",
+    "128",
+    "--envs",
+    "2",
+    "--n-steps",
+    "64",
+    "--batch-size",
+    "64",
+    "--epochs",
+    "1",
+    "--race-steps",
+    "40",
+    "--eval-races",
+    "1",
+    "--no-mpc-reference",
+]
 
 
 # ---------------------------------------------------------------------- the batched env
 def test_batched_vec_env_equals_dummy_vec_env_over_the_gym_env():
     from stable_baselines3.common.vec_env import DummyVecEnv
+
     cfg = RaceConfig(n_cars=3, max_cycles=25)
     opps = [RacelineFollower(grip=0.75), RacelineFollower(grip=0.8)]
-    ref = DummyVecEnv([lambda: HeadToHeadEnv(opponents=[RacelineFollower(grip=0.75), RacelineFollower(grip=0.8)],
-                                             config=cfg)] * 3)
+    ref = DummyVecEnv(
+        [
+            lambda: HeadToHeadEnv(
+                opponents=[RacelineFollower(grip=0.75), RacelineFollower(grip=0.8)], config=cfg
+            )
+        ]
+        * 3
+    )
     bat = HeadToHeadVecEnv(3, opponents=opps, config=cfg)
     assert bat.observation_space == ref.observation_space and bat.action_space == ref.action_space
     ref.seed(11)
@@ -42,7 +83,7 @@ def test_batched_vec_env_equals_dummy_vec_env_over_the_gym_env():
     np.testing.assert_array_equal(ref.reset(), bat.reset())
     rng = np.random.default_rng(0)
     ends = 0
-    for _ in range(60):                                  # two episode ends per race
+    for _ in range(60):  # two episode ends per race
         a = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
         o1, r1, d1, i1 = ref.step(a)
         o2, r2, d2, i2 = bat.step(a)
@@ -75,6 +116,7 @@ def test_batched_vec_env_errors():
 def trained_model():
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
+
     env = VecNormalize(HeadToHeadVecEnv(2, max_cycles=30))
     model = PPO("MlpPolicy", env, n_steps=32, batch_size=32, n_epochs=1, device="cpu", seed=0)
     model.learn(64)
@@ -84,11 +126,11 @@ def trained_model():
 def test_frozen_policy_equals_sb3_predict(trained_model):
     model, env = trained_model
     frozen = FrozenPolicy(model.policy, env, n_cars=3)
-    assert frozen.layers is not None                      # the numpy actor
+    assert frozen.layers is not None  # the numpy actor
     obs = HeadToHeadVecEnv(4).reset()
     expected, _ = model.policy.predict(env.normalize_obs(obs), deterministic=True)
     np.testing.assert_allclose(frozen.act_batch(obs), np.clip(expected, -1, 1), atol=1e-5)
-    frozen.layers = None                                  # the generic path: policy.predict
+    frozen.layers = None  # the generic path: policy.predict
     np.testing.assert_allclose(frozen.act_batch(obs), np.clip(expected, -1, 1), atol=1e-6)
 
 
@@ -103,10 +145,12 @@ def test_adapt_observation_pads_phantoms_and_keeps_nearest():
     np.testing.assert_array_equal(a[-k:], prev)
     np.testing.assert_array_equal(a[6:18].reshape(2, 6)[:, 0], [-20.0, -20.0])
     assert not a[6:18].reshape(2, 6)[:, 1:].any()
-    others = np.array([[5.0, 1, 1, 1, 1, 1], [-0.5, 2, 2, 2, 2, 2], [0.2, 3, 3, 3, 3, 3]], np.float32)
+    others = np.array(
+        [[5.0, 1, 1, 1, 1, 1], [-0.5, 2, 2, 2, 2, 2], [0.2, 3, 3, 3, 3, 3]], np.float32
+    )
     five = np.concatenate([own, others.ravel(), prev])
     b = adapt_observation(five, 3, k, length)
-    np.testing.assert_array_equal(b[6:18].reshape(2, 6), others[1:])   # the two nearest, index order
+    np.testing.assert_array_equal(b[6:18].reshape(2, 6), others[1:])  # the two nearest, index order
     with pytest.raises(ValueError, match="does not fit"):
         adapt_observation(np.zeros(13), 3, k, length)
 
@@ -116,11 +160,12 @@ def _assert_learning_curve_drawn(path):
     """The figure of :func:`experiments.selfplay.plot_learning_curve`: 8 x 9 in at 110 dpi,
     three panels with coloured curves on white."""
     from PIL import Image
+
     img = np.asarray(Image.open(path).convert("RGB")).astype(int)
     assert img.shape == (990, 880, 3)
     white = (img == 255).all(axis=2)
-    assert 0.5 < white.mean() < 0.99                      # mostly background, not blank
-    coloured = np.ptp(img, axis=2) > 60                   # saturated pixels: curves, not text
+    assert 0.5 < white.mean() < 0.99  # mostly background, not blank
+    coloured = np.ptp(img, axis=2) > 60  # saturated pixels: curves, not text
     assert coloured.sum() > 200
     rows = np.flatnonzero(coloured.any(axis=1))
     # curves in the top and the bottom panel (the middle one holds the 5% line)
@@ -129,14 +174,27 @@ def _assert_learning_curve_drawn(path):
 
 def test_selfplay_tiny_end_to_end(tmp_path, capsys):
     out = tmp_path / "run"
-    assert main(["selfplay", "--out", str(out), "--init", "bc", "--bc-steps", "96"] + TINY_ARGS) == 0
+    assert (
+        main(["selfplay", "--out", str(out), "--init", "bc", "--bc-steps", "96"] + TINY_ARGS) == 0
+    )
     assert "2/2 turns" in capsys.readouterr().out
-    for name in ("config.json", "state.json", "summary.json", "evals.csv", "learning_curve.png", "MODEL_CARD.md",
-                 "best.zip", "final/car_0.zip", "final/car_1.zip", "checkpoints/bc_init.zip",
-                 "checkpoints/turn_000_car_0.zip", "checkpoints/turn_001_car_1.zip"):
+    for name in (
+        "config.json",
+        "state.json",
+        "summary.json",
+        "evals.csv",
+        "learning_curve.png",
+        "MODEL_CARD.md",
+        "best.zip",
+        "final/car_0.zip",
+        "final/car_1.zip",
+        "checkpoints/bc_init.zip",
+        "checkpoints/turn_000_car_0.zip",
+        "checkpoints/turn_001_car_1.zip",
+    ):
         assert (out / name).is_file(), name
     _assert_learning_curve_drawn(out / "learning_curve.png")
-    assert list((out / "logs" / "car_0").glob("events.out.tfevents.*"))      # TensorBoard
+    assert list((out / "logs" / "car_0").glob("events.out.tfevents.*"))  # TensorBoard
     assert list((out / "logs" / "eval").glob("events.out.tfevents.*"))
     progress = list((out / "logs" / "car_1").glob("progress_*.csv"))
     assert progress and "rollout/ep_rew_mean" in progress[0].read_text().splitlines()[0]
@@ -159,13 +217,13 @@ def test_selfplay_tiny_end_to_end(tmp_path, capsys):
 
 
 def test_selfplay_resumes_from_the_last_checkpoint(tmp_path, monkeypatch):
-    cfg = SelfPlayConfig(**{**TINY, "steps_per_turn": 256})          # 2 rollouts per turn
+    cfg = SelfPlayConfig(**{**TINY, "steps_per_turn": 256})  # 2 rollouts per turn
     real_write = sp.write_json
 
     def interrupt_after_in_turn_checkpoint(path, obj):
         real_write(path, obj)
         if path.name == "state.json" and obj.get("turn") == 1 and obj.get("current"):
-            raise KeyboardInterrupt                      # killed in the middle of turn 2
+            raise KeyboardInterrupt  # killed in the middle of turn 2
 
     monkeypatch.setattr(sp, "write_json", interrupt_after_in_turn_checkpoint)
     with pytest.raises(KeyboardInterrupt):
@@ -175,7 +233,7 @@ def test_selfplay_resumes_from_the_last_checkpoint(tmp_path, monkeypatch):
     assert state["turn"] == 1 and state["turn_steps"] == 128 and state["total_steps"] == 384
     first_turn = (tmp_path / "checkpoints" / "turn_000_car_0.zip").stat().st_mtime_ns
     summary = selfplay(cfg, tmp_path, progress_bar=False)
-    assert summary["done"] and summary["total_steps"] == 512      # nothing trained twice
+    assert summary["done"] and summary["total_steps"] == 512  # nothing trained twice
     assert (tmp_path / "checkpoints" / "turn_000_car_0.zip").stat().st_mtime_ns == first_turn
     # the resumed half-turn logged from step 128 on, and car 1's step counter went on
     assert (tmp_path / "logs" / "car_1" / "progress_turn001_000000128.csv").is_file()
@@ -187,13 +245,30 @@ def test_selfplay_resumes_from_the_last_checkpoint(tmp_path, monkeypatch):
         selfplay(SelfPlayConfig(**{**TINY, "seed": 1}), tmp_path, progress_bar=False)
 
 
-@pytest.mark.parametrize("field, value", [
-    ("cycles", 0), ("steps_per_turn", -5), ("n_envs", 1.5), ("n_cars", 1), ("n_cars", 9),
-    ("learning_rate", 0.0), ("gamma", 1.5), ("vec_env", "ray"), ("warmup_opponent", "mpc"),
-    ("net_arch", (64, 0)), ("start", "pole"), ("ent_coef", -0.1), ("init", "pretrained"),
-    ("bc_rounds", 0), ("bc_noise", -1.0)])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("cycles", 0),
+        ("steps_per_turn", -5),
+        ("n_envs", 1.5),
+        ("n_cars", 1),
+        ("n_cars", 9),
+        ("learning_rate", 0.0),
+        ("gamma", 1.5),
+        ("vec_env", "ray"),
+        ("warmup_opponent", "mpc"),
+        ("net_arch", (64, 0)),
+        ("start", "pole"),
+        ("ent_coef", -0.1),
+        ("init", "pretrained"),
+        ("bc_rounds", 0),
+        ("bc_noise", -1.0),
+    ],
+)
 def test_bad_config_values_raise_naming_the_value(field, value):
-    with pytest.raises(ValueError, match=f"{field}.*{value!r}".replace("(", r"\(").replace(")", r"\)")):
+    with pytest.raises(
+        ValueError, match=f"{field}.*{value!r}".replace("(", r"\(").replace(")", r"\)")
+    ):
         SelfPlayConfig(**{field: value})
 
 
@@ -224,7 +299,7 @@ def test_shipped_ppo_agent_loads_and_drives():
             acts["car_0"] = agent.act(obs["car_0"])
             assert np.all(np.isfinite(acts["car_0"])) and np.all(np.abs(acts["car_0"]) <= 1)
             obs, *_ = env.step(acts)
-        assert env.core.progress()[0, 0] > 1.0         # it drives off
+        assert env.core.progress()[0, 0] > 1.0  # it drives off
 
 
 # ---------------------------------------------------------------------- slow
@@ -239,8 +314,23 @@ def test_selfplay_with_sb3_vec_envs(tmp_path, backend):
 def test_race_ppo_against_two_mpcs(tmp_path):
     pytest.importorskip("daqp")
     out = tmp_path / "race"
-    assert main(["race", "--agents", "ppo", "mpc", "mpc", "--steps", "100", "--no-animation",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "race",
+                "--agents",
+                "ppo",
+                "mpc",
+                "mpc",
+                "--steps",
+                "100",
+                "--no-animation",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     summary = json.loads((out / "result.json").read_text())
     assert summary["agents"] == ["ppo", "mpc", "mpc"] and min(summary["progress_m"]) > 5.0
 

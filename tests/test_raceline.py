@@ -1,4 +1,5 @@
 """Tests of racing_env.raceline: minimum-curvature path, speed profile/library, lookups, cache."""
+
 from __future__ import annotations
 
 import math
@@ -12,8 +13,17 @@ from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 from racing_env import raceline as R
-from racing_env.raceline import (CSV_COLUMNS, G, Raceline, RacelineConfig, RacelineConvergenceWarning,
-                                 accel_limits, compute_raceline, get_raceline, speed_profile)
+from racing_env.raceline import (
+    CSV_COLUMNS,
+    G,
+    Raceline,
+    RacelineConfig,
+    RacelineConvergenceWarning,
+    accel_limits,
+    compute_raceline,
+    get_raceline,
+    speed_profile,
+)
 from racing_env.track import Track
 from racing_env.tracks import make_track, random_track, tumftm_dir
 from racing_env.vehicle import VehicleParams
@@ -44,12 +54,12 @@ def check_profile(kappa, ds, vx, mu, tol=1e-9):
     assert np.all(vx <= R.speed_limit(kappa, mu) * (1 + 1e-9) + tol)
     assert np.all(vx <= VEH.top_speed + tol)
     assert np.all(vx > 0)
-    v1 = np.roll(vx, -1)                    # includes the wrap from the last point to the first
+    v1 = np.roll(vx, -1)  # includes the wrap from the last point to the first
     k1 = np.roll(kappa, -1)
     a_acc, _ = accel_limits(vx, kappa, mu)
     _, a_brk = accel_limits(v1, k1, mu)
-    assert np.all(v1 ** 2 - vx ** 2 <= 2 * a_acc * ds + 1e-6)
-    assert np.all(vx ** 2 - v1 ** 2 <= 2 * a_brk * ds + 1e-6)
+    assert np.all(v1**2 - vx**2 <= 2 * a_acc * ds + 1e-6)
+    assert np.all(vx**2 - v1**2 <= 2 * a_brk * ds + 1e-6)
 
 
 def steady_speed_by_hand(kappa, mu):
@@ -57,6 +67,7 @@ def steady_speed_by_hand(kappa, mu):
     the largest v with the corner feasible and the motor able to hold v (ax_max >= 0), by a
     fine scan of racing_env.envelope.steady_corner (no tables)."""
     from racing_env.envelope import steady_corner
+
     v = np.linspace(0.05, VEH.top_speed, 4000)
     c = steady_corner(v, v * v * kappa / mu)
     ok = c["feasible"] & (c["ax_max"] >= 0)
@@ -81,23 +92,35 @@ def check_line(rl: Raceline, track: Track, config=RacelineConfig(), curvature=Tr
     # lower summed squared curvature than the centre line (at the same points and as an integral)
     if curvature:
         assert rl.cost < rl.cost_center
-        assert np.sum(rl.kappa ** 2) < np.sum(track.kappa ** 2)
-        assert np.sum(rl.kappa ** 2 * rl.ds) < np.sum(track.kappa ** 2 * track.ds)
+        assert np.sum(rl.kappa**2) < np.sum(track.kappa**2)
+        assert np.sum(rl.kappa**2 * rl.ds) < np.sum(track.kappa**2 * track.ds)
     for j, mu in enumerate(rl.mus):
         check_profile(rl.kappa, rl.ds, rl.vx_lib[j], mu)
     assert rl.converged
 
 
 # ---------------------------------------------------------------------- config
-@pytest.mark.parametrize("kw, word", [
-    (dict(margin=-0.01), "margin"), (dict(mu_min=0.0), "mu_min"), (dict(mu_min=1.0, mu_max=0.5), "mu_min"),
-    (dict(mu_nominal=1.2), "mu_nominal"), (dict(n_mu=1), "n_mu"), (dict(n_mu=2.5), "n_mu"),
-    (dict(point_spacing=0), "point_spacing"), (dict(tol=float("nan")), "tol"), (dict(max_iter=0), "max_iter"),
-    (dict(smoothing=-1.0), "smoothing"), (dict(margin="x"), "margin"),
-    (dict(linearization="newton"), "linearization"), (dict(n_mu=True), "n_mu"),
-    (dict(objective="fastest"), "objective"), (dict(length_weight=-0.1), "length_weight"),
-    (dict(length_weight=float("inf")), "length_weight"),
-])
+@pytest.mark.parametrize(
+    "kw, word",
+    [
+        (dict(margin=-0.01), "margin"),
+        (dict(mu_min=0.0), "mu_min"),
+        (dict(mu_min=1.0, mu_max=0.5), "mu_min"),
+        (dict(mu_nominal=1.2), "mu_nominal"),
+        (dict(n_mu=1), "n_mu"),
+        (dict(n_mu=2.5), "n_mu"),
+        (dict(point_spacing=0), "point_spacing"),
+        (dict(tol=float("nan")), "tol"),
+        (dict(max_iter=0), "max_iter"),
+        (dict(smoothing=-1.0), "smoothing"),
+        (dict(margin="x"), "margin"),
+        (dict(linearization="newton"), "linearization"),
+        (dict(n_mu=True), "n_mu"),
+        (dict(objective="fastest"), "objective"),
+        (dict(length_weight=-0.1), "length_weight"),
+        (dict(length_weight=float("inf")), "length_weight"),
+    ],
+)
 def test_config_rejects_bad_values(kw, word):
     with pytest.raises(ValueError, match=word):
         RacelineConfig(**kw)
@@ -106,8 +129,8 @@ def test_config_rejects_bad_values(kw, word):
 def test_config_mus_include_nominal():
     c = RacelineConfig(mu_min=0.5, mu_max=1.0, n_mu=6, mu_nominal=0.85)
     assert np.all(np.diff(c.mus) > 0) and 0.85 in c.mus and c.mus[0] == 0.5 and c.mus[-1] == 1.0
-    assert len(RacelineConfig(n_mu=6, mu_nominal=0.9).mus) == 6     # already on the grid
-    assert RacelineConfig().mu_nominal == 1.0           # the car's own envelope
+    assert len(RacelineConfig(n_mu=6, mu_nominal=0.9).mus) == 6  # already on the grid
+    assert RacelineConfig().mu_nominal == 1.0  # the car's own envelope
 
 
 def test_too_narrow_track_raises():
@@ -131,11 +154,11 @@ def test_oval_uses_the_width(oval_rl):
     corners = [r for r in runs if corner[r[0]]]
     straights = [r for r in runs if not corner[r[0]]]
     assert len(corners) == 2 and len(straights) == 2
-    for r in corners:                         # apex at the inside (left: the oval turns left)
+    for r in corners:  # apex at the inside (left: the oval turns left)
         assert n[r].max() >= hi[r].max() - 1e-3
         mid = r[len(r) // 2]
         assert n[mid] > 0.5 * hi[mid]
-    for r in straights:                       # wide on the straight, i.e. outside at entry/exit
+    for r in straights:  # wide on the straight, i.e. outside at entry/exit
         assert n[r].min() <= lo[r].min() + 1e-3
     # the car swings out: offsets span (almost) the whole usable width
     assert n.max() - n.min() > 0.95 * (hi.max() - lo.min())
@@ -159,7 +182,7 @@ def test_circle_cornering_speed_by_hand(linearization):
     for mu in (0.5, 0.7, 1.0):
         v_hand = steady_speed_by_hand(1.0 / r_line, mu)
         np.testing.assert_allclose(rl.speed_at(rl.s_track, mu), v_hand, rtol=1e-2)
-    np.testing.assert_allclose(rl.ax, 0.0, atol=0.02 * G)          # spline ripple only
+    np.testing.assert_allclose(rl.ax, 0.0, atol=0.02 * G)  # spline ripple only
     v_nom = steady_speed_by_hand(1.0 / r_line, cfg.mu_nominal)
     np.testing.assert_allclose(rl.lap_time, 2 * np.pi * r_line / v_nom, rtol=1e-2)
     if linearization == "exact":
@@ -180,7 +203,7 @@ def test_shortest_path_term_on_a_circle_by_hand(weight):
     rl = compute_raceline(circle_track(radius, half_width), config=cfg)
     r_hand = (radius * (2 * half_width) ** 2 / (2 * weight)) ** (1.0 / 3.0)
     edge = half_width - VEH.width / 2 - cfg.margin
-    assert radius - edge < r_hand < radius + edge          # an interior optimum, not a bound
+    assert radius - edge < r_hand < radius + edge  # an interior optimum, not a bound
     np.testing.assert_allclose(radius - rl.n, r_hand, rtol=5e-3)
     np.testing.assert_allclose(rl.length, 2 * np.pi * r_hand, rtol=5e-3)
     assert rl.length_weight == weight
@@ -192,8 +215,8 @@ def test_lap_time_line_is_no_slower_than_minimum_curvature_and_shorter_where_it_
     fast = compute_raceline(track, config=RacelineConfig(objective="lap_time"))
     check_line(fast, track, curvature=False)
     assert curv.length_weight == 0.0
-    assert fast.lap_time < curv.lap_time       # random:202 gains (7.66 -> 7.63 s) ...
-    assert fast.length_weight > 0 and fast.length < curv.length    # ... by a shorter path
+    assert fast.lap_time < curv.lap_time  # random:202 gains (7.66 -> 7.63 s) ...
+    assert fast.length_weight > 0 and fast.length < curv.length  # ... by a shorter path
     assert fast.key != curv.key
 
 
@@ -201,7 +224,7 @@ def test_lap_time_search_tries_the_minimum_curvature_line_and_keeps_the_fastest(
     track = make_track("oval")
     w, s_sub, n_sub, info, tried = R.lap_time_weight_search(track, refine=3)
     weights = [t[0] for t in tried]
-    assert weights[:len(R.LENGTH_WEIGHTS)] == list(R.LENGTH_WEIGHTS)
+    assert weights[: len(R.LENGTH_WEIGHTS)] == list(R.LENGTH_WEIGHTS)
     laps = dict(tried)
     assert laps[w] == min(lap for _, lap in tried)
     assert np.all(np.isfinite(n_sub)) and n_sub.shape == s_sub.shape
@@ -209,6 +232,7 @@ def test_lap_time_search_tries_the_minimum_curvature_line_and_keeps_the_fastest(
 
 def test_the_mpc_and_follower_race_the_line_they_are_given():
     from agents import make_agent_spec
+
     mpc = make_agent_spec("mpc:zeta=1.0,line=lap_time")
     mpc.reset("random:202", "car_0", 0)
     want = get_raceline("random:202", config=RacelineConfig(objective="lap_time"))
@@ -225,13 +249,14 @@ def test_exact_linearization_minimises_curvature(default_rl):
     track = make_track("default")
     rl = compute_raceline(track, config=RacelineConfig(linearization="exact"))
     check_line(rl, track)
-    assert rl.cost < default_rl.cost             # the true minimiser beats the frozen fixed point
+    assert rl.cost < default_rl.cost  # the true minimiser beats the frozen fixed point
 
 
 def test_exact_line_is_a_stationary_point_of_curvature_per_metre():
     """No small feasible move of the exact line's offsets lowers the integral of kappa^2 over
     the path (the objective weighs curvature per metre of path, not per station)."""
     from racing_env.raceline import minimum_curvature_offsets
+
     track = make_track("oval")
     s, n, info = minimum_curvature_offsets(track, config=RacelineConfig(linearization="exact"))
     lo, hi = R.offset_bounds(track, s, VEH, RacelineConfig().margin)
@@ -242,7 +267,7 @@ def test_exact_line_is_a_stationary_point_of_curvature_per_metre():
         d1 = (np.roll(p, -1, 0) - np.roll(p, 1, 0)) / 2
         d2 = np.roll(p, -1, 0) - 2 * p + np.roll(p, 1, 0)
         ds = np.hypot(*d1.T)
-        return float(np.sum(((d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / ds ** 3) ** 2 * ds))
+        return float(np.sum(((d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / ds**3) ** 2 * ds))
 
     f0 = integral(n)
     rng = np.random.default_rng(0)
@@ -259,13 +284,14 @@ def test_box_qp_active_set_meets_the_kkt_conditions(seed, n):
     """The active-set solution is feasible and optimal: the gradient vanishes on free offsets,
     points into the box at the bounds (checked against the KKT conditions by hand)."""
     from scipy import sparse
+
     rng = np.random.default_rng(seed)
     a = rng.normal(size=(n, n))
     h = sparse.csc_matrix(a.T @ a + 0.1 * np.eye(n))
     g = rng.normal(size=n) * 3
     lo, hi = -rng.uniform(0.1, 1, n), rng.uniform(0.1, 1, n)
     x = R.box_qp_active_set(h, g, lo, hi)
-    assume(x is not None)                           # cycling falls back to OSQP / DAQP
+    assume(x is not None)  # cycling falls back to OSQP / DAQP
     grad = h @ x + g
     tol = 1e-8 * (1 + np.abs(g).max())
     assert np.all(x >= lo) and np.all(x <= hi)
@@ -280,6 +306,7 @@ def test_box_qp_interior_point_meets_the_kkt_conditions(seed, n):
     """The interior-point solution, polished by the active-set method, meets the KKT
     conditions; unpolished it is within 1e-6 of them (strictly inside the bounds)."""
     from scipy import sparse
+
     rng = np.random.default_rng(seed)
     a = rng.normal(size=(n, n))
     h = sparse.csc_matrix(a.T @ a + 0.1 * np.eye(n))
@@ -288,7 +315,7 @@ def test_box_qp_interior_point_meets_the_kkt_conditions(seed, n):
     x_ip = R.box_qp_interior_point(h, g, lo, hi)
     assert x_ip is not None and np.all(x_ip > lo) and np.all(x_ip < hi)
     x = R.box_qp_active_set(h, g, lo, hi, x_ip)
-    assert x is not None                            # started at the solution, it settles
+    assert x is not None  # started at the solution, it settles
     assert np.abs(x - x_ip).max() < 1e-6
     grad = h @ x + g
     tol = 1e-8 * (1 + np.abs(g).max())
@@ -299,9 +326,11 @@ def test_box_qp_interior_point_meets_the_kkt_conditions(seed, n):
 
 def test_box_qp_interior_point_needs_room_between_the_bounds():
     from scipy import sparse
+
     with pytest.raises(ValueError, match="lo < hi everywhere, got 1 of 2 bounds with hi <= lo"):
-        R.box_qp_interior_point(sparse.eye(2, format="csc"), np.ones(2), np.zeros(2),
-                                np.array([1.0, 0.0]))
+        R.box_qp_interior_point(
+            sparse.eye(2, format="csc"), np.ones(2), np.zeros(2), np.array([1.0, 0.0])
+        )
 
 
 def test_a_full_scale_qp_the_active_set_method_cannot_settle_goes_to_the_interior_point():
@@ -310,10 +339,16 @@ def test_a_full_scale_qp_the_active_set_method_cannot_settle_goes_to_the_interio
     from scipy import sparse
 
     from racing_env.raceline import boxqp
+
     n = boxqp.INTERIOR_POINT_FIRST_ABOVE + 1
     i = np.arange(n)
-    d2 = sparse.csr_matrix((np.r_[np.ones(n), -2 * np.ones(n), np.ones(n)],
-                            (np.r_[i, i, i], np.r_[(i + 1) % n, i, (i - 1) % n])), shape=(n, n))
+    d2 = sparse.csr_matrix(
+        (
+            np.r_[np.ones(n), -2 * np.ones(n), np.ones(n)],
+            (np.r_[i, i, i], np.r_[(i + 1) % n, i, (i - 1) % n]),
+        ),
+        shape=(n, n),
+    )
     h = sparse.csc_matrix(d2.T @ d2 + 1e-6 * sparse.eye(n))
     g = np.sin(np.linspace(0, 40 * np.pi, n)) * 1e-3
     lo, hi = -np.ones(n), np.ones(n)
@@ -332,7 +367,7 @@ def test_a_full_scale_qp_the_active_set_method_cannot_settle_goes_to_the_interio
         x = qp.solve(h, g)
     finally:
         mp.undo()
-    assert calls == [True, False]                   # the cold attempt, then the polish
+    assert calls == [True, False]  # the cold attempt, then the polish
     grad = h @ x + g
     free = (x > lo) & (x < hi)
     assert np.abs(grad[free]).max() < 1e-9 * np.abs(g).max()
@@ -342,6 +377,7 @@ def test_tolerance_scales_with_the_track():
     """``tol=None`` is TOL_PER_WIDTH of the mean width: 1e-4 m on the 0.5 m wide built-in
     tracks, 43 times that on a track 43 times larger."""
     from racing_env.raceline import TOL_PER_WIDTH
+
     cfg = RacelineConfig()
     small, big = circle_track(1.5, 0.25), circle_track(64.5, 10.75)
     assert cfg.tol_for(make_track("default")) == pytest.approx(TOL_PER_WIDTH * 0.5)
@@ -358,7 +394,7 @@ def test_convergence_warning():
 
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 10_000))
-@example(seed=140)           # clipping the spline at the target bounds once made curvature spikes here
+@example(seed=140)  # clipping the spline at the target bounds once made curvature spikes here
 def test_random_tracks_valid_line(seed):
     try:
         track = random_track(seed)
@@ -381,10 +417,10 @@ def test_tumftm_monza_valid_line():
     if not (tumftm_dir() / "Monza.csv").is_file():
         pytest.skip("Monza.csv not in the TUMFTM folder")
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)      # track loader notes (not ours)
+        warnings.simplefilter("ignore", UserWarning)  # track loader notes (not ours)
         track = make_track("tumftm:Monza")
     rl = compute_raceline(track)
-    check_line(rl, track)                        # its time: benchmarks/raceline_speed.py
+    check_line(rl, track)  # its time: benchmarks/raceline_speed.py
     assert 20.0 < rl.lap_time < 60.0
 
 
@@ -394,7 +430,7 @@ def test_speed_profile_constraints_and_periodicity(default_rl):
     for mu in (0.5, 0.85, 1.0):
         vx, ax = speed_profile(rl.kappa, rl.ds, mu)
         check_profile(rl.kappa, rl.ds, vx, mu)
-        np.testing.assert_allclose(ax, (np.roll(vx, -1) ** 2 - vx ** 2) / (2 * rl.ds), atol=1e-9)
+        np.testing.assert_allclose(ax, (np.roll(vx, -1) ** 2 - vx**2) / (2 * rl.ds), atol=1e-9)
         # periodic: starting the lap elsewhere gives the same (rotated) profile
         for shift in (1, 137, len(vx) // 2):
             v2, _ = speed_profile(np.roll(rl.kappa, shift), np.roll(rl.ds, shift), mu)
@@ -407,19 +443,22 @@ def test_speed_profile_constraints_and_periodicity(default_rl):
 def test_accel_limits_match_steady_corner():
     """The tabulated envelope agrees with the quasi-steady corner solved point by point."""
     from racing_env.envelope import steady_corner
+
     v = np.linspace(0.5, 0.95 * VEH.top_speed, 7)[:, None]
     k = np.array([0.0, 0.3, 1.0, 1.5])[None, :]
     for mu in (0.5, 1.0):
         c = steady_corner(v, v * v * k / mu)
         inside = c["feasible"]
         a1, b1 = accel_limits(v, k, mu, VEH)
-        np.testing.assert_allclose(a1[inside], mu * c["ax_max"][inside], atol=0.05)   # table: 41 x 240
+        np.testing.assert_allclose(
+            a1[inside], mu * c["ax_max"][inside], atol=0.05
+        )  # table: 41 x 240
         np.testing.assert_allclose(b1[inside], -mu * c["ax_min"][inside], atol=0.05)
     # at a standing start on a straight: the drive force less the (smoothed, nearly zero)
     # rolling resistance, the envelope's lowest speed being 0.02 m/s
     a, b = accel_limits(0.0, 0.0, 1.0, VEH)
     v0 = 0.02
-    by_hand = (VEH.C1 - VEH.C2 * v0 - VEH.C3 * math.tanh(v0 / VEH.v_low) - VEH.C4 * v0 ** 2) / VEH.m
+    by_hand = (VEH.C1 - VEH.C2 * v0 - VEH.C3 * math.tanh(v0 / VEH.v_low) - VEH.C4 * v0**2) / VEH.m
     assert a == pytest.approx(by_hand, rel=1e-6)
 
 
@@ -447,8 +486,9 @@ def test_library_exact_at_grid_and_monotone(default_rl):
     lap = [rl.lap_time_at(mu) for mu in mus]
     assert np.all(np.diff(lap) <= 1e-9)
     # halfway between two grid mus is the mean of their profiles
-    np.testing.assert_allclose(rl.speed_at(s, 0.5 * (rl.mus[0] + rl.mus[1])),
-                               0.5 * (rl.vx_lib[0] + rl.vx_lib[1]))
+    np.testing.assert_allclose(
+        rl.speed_at(s, 0.5 * (rl.mus[0] + rl.mus[1])), 0.5 * (rl.vx_lib[0] + rl.vx_lib[1])
+    )
 
 
 @pytest.mark.parametrize("mu", [0.3, 1.2, -1.0, float("nan"), float("inf")])
@@ -463,8 +503,9 @@ def test_lookups_vectorised_and_unwrapped(default_rl):
     rl = default_rl
     L = rl.track_length
     np.testing.assert_allclose(rl.offset_at(rl.s_track), rl.n, atol=1e-12)
-    np.testing.assert_allclose(rl.heading_at(rl.s_track), np.arctan2(np.sin(rl.psi), np.cos(rl.psi)),
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        rl.heading_at(rl.s_track), np.arctan2(np.sin(rl.psi), np.cos(rl.psi)), atol=1e-9
+    )
     s = np.linspace(-L, 3 * L, 200).reshape(20, 10)
     for f in (rl.offset_at, rl.speed_at, rl.heading_at, rl.kappa_at):
         out = f(s)
@@ -515,11 +556,24 @@ def test_cache_round_trip(counting_cache, tmp_path):
     assert len(counting_cache) == 1 and not rl1.from_cache
     path = R.cache_path(track)
     assert path.is_file() and path.parent == tmp_path / "raceline"
-    assert get_raceline(track) is rl1                        # in-process memo
+    assert get_raceline(track) is rl1  # in-process memo
     R.clear_memo()
     rl2 = get_raceline(track)
-    assert len(counting_cache) == 1 and rl2.from_cache      # from disk, not recomputed
-    for name in ("s", "x", "y", "psi", "kappa", "vx", "ax", "n", "s_track", "mus", "vx_lib", "ax_lib"):
+    assert len(counting_cache) == 1 and rl2.from_cache  # from disk, not recomputed
+    for name in (
+        "s",
+        "x",
+        "y",
+        "psi",
+        "kappa",
+        "vx",
+        "ax",
+        "n",
+        "s_track",
+        "mus",
+        "vx_lib",
+        "ax_lib",
+    ):
         np.testing.assert_array_equal(getattr(rl2, name), getattr(rl1, name))
     assert rl2.lap_time == rl1.lap_time and rl2.key == rl1.key and rl2.track is track
     assert not [p for p in path.parent.iterdir() if p.suffix != ".npz" or ".tmp" in p.name]
@@ -556,7 +610,7 @@ def test_corrupt_cache_is_recomputed(counting_cache, damage):
         path.write_bytes(raw[: len(raw) // 2])
     elif damage == "empty":
         path.write_bytes(b"")
-    elif damage == "foreign":                  # a valid file for another config under this name
+    elif damage == "foreign":  # a valid file for another config under this name
         other = compute_raceline(track, config=RacelineConfig(margin=0.02))
         np.savez(path, **other.to_npz_dict())
     elif damage == "nan":
@@ -570,13 +624,14 @@ def test_corrupt_cache_is_recomputed(counting_cache, damage):
     assert len(counting_cache) == n_before + 1 and not rl2.from_cache
     np.testing.assert_allclose(rl2.vx, rl1.vx)
     R.clear_memo()
-    assert get_raceline(track).from_cache                   # the file was rewritten and is good
+    assert get_raceline(track).from_cache  # the file was rewritten and is good
 
 
 def test_the_line_is_its_offsets_on_the_grid():
     """compute_raceline is minimum_curvature_offsets' offsets put on the track grid by
     path.line_on_grid, and get_raceline without a cache is compute_raceline, bit for bit."""
     from racing_env.raceline.path import line_on_grid
+
     track, cfg = make_track("oval"), RacelineConfig()
     rl = compute_raceline(track, VEH, cfg)
     s_sub, n_sub, info = R.minimum_curvature_offsets(track, VEH, cfg)

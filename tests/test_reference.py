@@ -1,14 +1,22 @@
 """Tests of agents.reference: theta bounds, neighbours, the MPC reference and its wrap-safety."""
+
 from __future__ import annotations
 
 import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from agents.reference import (THETA_HIGH, THETA_LOW, THETA_NAMES, Theta, opponent_neighbours,
-                              reference_trajectory)
+from agents.reference import (
+    THETA_HIGH,
+    THETA_LOW,
+    THETA_NAMES,
+    Theta,
+    opponent_neighbours,
+    reference_trajectory,
+)
 from racing_env.raceline import get_raceline
 from racing_env.tracks import make_track
 
@@ -82,7 +90,7 @@ def test_neighbours_basic():
     assert opponent_neighbours(5.0, [6.0, 4.0, 5.5, 3.0], L) == (2, 1)
     assert opponent_neighbours(5.0, [6.0, 7.0], L) == (0, -1)
     assert opponent_neighbours(5.0, [4.0, 2.0], L) == (-1, 0)
-    assert opponent_neighbours(5.0, [5.0], L) == (0, -1)          # level counts as ahead
+    assert opponent_neighbours(5.0, [5.0], L) == (0, -1)  # level counts as ahead
 
 
 def test_neighbours_across_line_and_laps():
@@ -98,9 +106,11 @@ def test_neighbours_across_line_and_laps():
 
 
 @HYP
-@given(ego=st.floats(-50, 200), d=st.lists(st.floats(-30, 30).filter(lambda x: abs(x) >= 1e-3),
-                                              min_size=1, max_size=7),
-       k=st.integers(-2, 4))
+@given(
+    ego=st.floats(-50, 200),
+    d=st.lists(st.floats(-30, 30).filter(lambda x: abs(x) >= 1e-3), min_size=1, max_size=7),
+    k=st.integers(-2, 4),
+)
 def test_neighbours_match_brute_force(ego, d, k):
     opp = [ego + x for x in d]
     a, b = opponent_neighbours(ego, opp, L)
@@ -131,16 +141,19 @@ def test_shapes_and_no_opponents():
         assert getattr(r, f).shape == (15,)
     assert r.ahead == r.behind == -1
     assert np.all(r.n_ot == 0) and np.all(r.n_bl == 0)
-    assert np.array_equal(r.n_ref, r.n_pert)          # race line is inside the clip bounds
+    assert np.array_equal(r.n_ref, r.n_pert)  # race line is inside the clip bounds
     r0 = ref(th(), car(5.0, 0.0, 3.0), np.zeros((0, 6)))
     assert np.array_equal(r0.n_ref, r.n_ref)
-    r7 = ref(th(), car(5.0, 0.0, 3.0), np.array([car(5 + i, 0.0, 3.0) for i in range(-3, 4)
-                                                 if i]).reshape(-1, 6))
+    r7 = ref(
+        th(),
+        car(5.0, 0.0, 3.0),
+        np.array([car(5 + i, 0.0, 3.0) for i in range(-3, 4) if i]).reshape(-1, 6),
+    )
     assert r7.n_ref.shape == (15,)
 
 
 @HYP
-@given(s0=st.floats(0, 1) .map(lambda u: u * L), lap=st.integers(-1, 5))
+@given(s0=st.floats(0, 1).map(lambda u: u * L), lap=st.integers(-1, 5))
 def test_zeta_one_follows_raceline(s0, lap):
     s0 += lap * L
     r = ref(th(zeta=1.0), car(s0, 0.05, 3.0))
@@ -152,7 +165,7 @@ def test_zeta_one_follows_raceline(s0, lap):
     pts = np.concatenate([[s0], r.s_ref])
     assert np.all(np.diff(pts) > 0)
     u = np.linspace(0.0, 1.0, 201)
-    ss = pts[:-1, None] + np.diff(pts)[:, None] * u[None, :]          # (K, 201)
+    ss = pts[:-1, None] + np.diff(pts)[:, None] * u[None, :]  # (K, 201)
     mu_rl = np.angle(np.exp(1j * (RL.heading_at(ss) - TRACK.heading(ss))))
     sdot = RL.speed_at(ss) * np.cos(mu_rl) / (1 - RL.offset_at(ss) * TRACK.curvature(ss))
     t_step = np.trapezoid(1.0 / sdot, ss, axis=1)
@@ -166,7 +179,7 @@ def test_zeta_one_follows_raceline(s0, lap):
 def test_zeta_one_on_the_straight_advances_v_rl_dt(s0):
     r = ref(th(zeta=1.0), car(s0, 0.0, 3.0))
     pts = np.concatenate([[s0], r.s_ref])
-    assert np.all(np.abs(TRACK.curvature(pts[pts < 12.0])) < 1e-6)   # main straight
+    assert np.all(np.abs(TRACK.curvature(pts[pts < 12.0])) < 1e-6)  # main straight
     steps = np.diff(pts)
     # each step is v_rl dt (the speed averaged over the step in time): int ds / v_rl = dt
     u = np.linspace(0.0, 1.0, 101)
@@ -180,16 +193,22 @@ def test_zeta_one_euler_is_the_literal_reading():
     r = ref(th(zeta=1.0), car(5.0, 0.0, 3.0), integration="euler")
     rx = ref(th(zeta=1.0), car(5.0, 0.0, 3.0))
     steps = np.diff(np.concatenate([[5.0], r.s_ref]))
-    assert np.allclose(steps, np.concatenate([[rx.v_pert[0] * 0 + RL.speed_at(5.0)],
-                                              rx.v_pert[:-1]]) * DT, rtol=1e-3)
+    assert np.allclose(
+        steps,
+        np.concatenate([[rx.v_pert[0] * 0 + RL.speed_at(5.0)], rx.v_pert[:-1]]) * DT,
+        rtol=1e-3,
+    )
     assert np.abs(r.n_pert - RL.offset_at(r.s_ref)).max() < 0.25
     with pytest.raises(ValueError, match="integration"):
         ref(th(), car(5.0, 0.0, 3.0), integration="rk4")
 
 
 @HYP
-@given(s0=st.floats(0, 1).map(lambda u: u * L), z1=st.floats(float(THETA_LOW[1]), float(THETA_HIGH[1])),
-       z2=st.floats(float(THETA_LOW[1]), float(THETA_HIGH[1])))
+@given(
+    s0=st.floats(0, 1).map(lambda u: u * L),
+    z1=st.floats(float(THETA_LOW[1]), float(THETA_HIGH[1])),
+    z2=st.floats(float(THETA_LOW[1]), float(THETA_HIGH[1])),
+)
 def test_higher_zeta_is_further_ahead(s0, z1, z2):
     lo, hi = sorted((z1, z2))
     if hi - lo < 1e-6:
@@ -215,7 +234,7 @@ def ot_scene(gap, s0=5.0, dn=0.03, theta=None, v=None):
 def test_overtake_moves_away_from_car_ahead():
     r = ot_scene(0.3)
     assert r.ahead == 0 and r.behind == -1
-    assert np.all(r.n_ot < 0)                          # opponent slightly left: move right
+    assert np.all(r.n_ot < 0)  # opponent slightly left: move right
     assert np.abs(r.n_ot).max() <= 0.2 - 0.03 + 1e-12  # at most s1 - |dn|
     assert np.all(r.n_bl == 0)
 
@@ -228,7 +247,7 @@ def test_overtake_decays_with_distance():
 
 def test_overtake_off_when_s1_zero_or_far_apart():
     assert np.all(ot_scene(0.3, theta=th(s1=0.0, s3=0.0)).n_ot == 0)
-    assert np.all(ot_scene(0.3, dn=0.25).n_ot == 0)     # already 0.25 m > s1 apart laterally
+    assert np.all(ot_scene(0.3, dn=0.25).n_ot == 0)  # already 0.25 m > s1 apart laterally
 
 
 def test_overtake_sign_zero_takes_roomier_side():
@@ -250,7 +269,9 @@ def test_overtake_matches_formula():
     for j in range(2):
         sj_k = o[j, 0] + k * DT * o[j, 3]
         dn = n_e - o[j, 1]
-        expect += np.sign(dn) * np.maximum((t.s1 - abs(dn)) * np.exp(-t.s2 * (r.s_ref - sj_k) ** 2), 0)
+        expect += np.sign(dn) * np.maximum(
+            (t.s1 - abs(dn)) * np.exp(-t.s2 * (r.s_ref - sj_k) ** 2), 0
+        )
     assert np.allclose(r.n_ot, expect, atol=1e-15)
 
 
@@ -266,9 +287,9 @@ def test_block_moves_toward_faster_car_behind():
     r = bl_scene(5.5)
     assert r.behind == 0 and r.ahead == -1
     assert np.all(r.n_ot == 0)
-    assert np.any(r.n_bl > 0)                          # the car behind is to the left
+    assert np.any(r.n_bl > 0)  # the car behind is to the left
     assert np.all(r.n_bl >= 0)
-    assert np.all(r.n_bl < 0.15)                       # a fraction of the lateral gap
+    assert np.all(r.n_bl < 0.15)  # a fraction of the lateral gap
     # it stops once the faster car's prediction is past the reference
     k = np.arange(1, 16)
     past = (5.0 - 0.4 + k * DT * 5.5) > r.s_ref
@@ -278,7 +299,7 @@ def test_block_moves_toward_faster_car_behind():
 
 
 def test_block_off_for_slower_car_or_s3_zero():
-    assert np.all(bl_scene(3.0).n_bl == 0)             # slower than the ego reference
+    assert np.all(bl_scene(3.0).n_bl == 0)  # slower than the ego reference
     assert np.all(bl_scene(5.5, theta=th(s1=0.0, s3=0.0)).n_bl == 0)
 
 
@@ -297,8 +318,12 @@ def test_block_matches_formula_with_sign_fix():
     k = np.arange(1, 16)
     sj_k = o[0, 0] + k * DT * o[0, 3]
     ind = (r.v_pert <= o[0, 3]) & (r.s_ref >= sj_k)
-    expect = ind * (o[0, 1] - r.n_pert) * (1 - np.exp(-t.s3 * (o[0, 3] - r.v_pert))) \
+    expect = (
+        ind
+        * (o[0, 1] - r.n_pert)
+        * (1 - np.exp(-t.s3 * (o[0, 3] - r.v_pert)))
         * np.exp(-t.s2 * (r.s_ref - sj_k) ** 2)
+    )
     assert np.any(ind)
     assert np.allclose(r.n_bl, expect, atol=1e-15)
 
@@ -309,7 +334,7 @@ def test_reference_clipped_to_track():
     w = 0.03
     assert np.all(r.n_ref >= -0.25 + w - 1e-12) and np.all(r.n_ref <= 0.25 - w + 1e-12)
     raw = r.n_pert + r.n_ot + r.n_bl
-    assert np.any(raw < -0.25 + w)                     # the clip was active
+    assert np.any(raw < -0.25 + w)  # the clip was active
     assert np.allclose(r.n_ref, np.clip(raw, -0.25 + w, 0.25 - w))
 
 
@@ -318,11 +343,15 @@ SHIFT_FIELDS = ("n_ot", "n_bl", "n_ref", "n_pert", "v_pert")
 
 
 @HYP
-@given(u=st.floats(0, 1), gap=st.floats(-1.0, 1.0).filter(lambda g: abs(g) >= 1e-3),
-       lap=st.integers(-3, 6),
-       dn=st.floats(-0.2, 0.2), vo=st.floats(2.0, 5.5))
+@given(
+    u=st.floats(0, 1),
+    gap=st.floats(-1.0, 1.0).filter(lambda g: abs(g) >= 1e-3),
+    lap=st.integers(-3, 6),
+    dn=st.floats(-0.2, 0.2),
+    vo=st.floats(2.0, 5.5),
+)
 def test_shifts_invariant_under_whole_laps(u, gap, lap, dn, vo):
-    s0 = u * L                                         # includes scenes across the line
+    s0 = u * L  # includes scenes across the line
     n_e = float(RL.offset_at(s0))
     ego, opp = car(s0, n_e, 3.5), np.array([car(s0 + gap, n_e + dn, vo)])
     a = ref(th(), ego, opp)
@@ -340,7 +369,7 @@ def test_overtake_across_start_finish_line(lap):
     t = th(s3=0.0)
 
     def scene(s0):
-        v = float(ref(t, car(s0, 0.0, 3.0)).v_pert[0])   # opponent keeps the reference's pace
+        v = float(ref(t, car(s0, 0.0, 3.0)).v_pert[0])  # opponent keeps the reference's pace
         return ref(t, car(s0, 0.0, v), np.array([car(s0 + 0.3, 0.03, v)]))
 
     a = scene(lap * L + L - 0.1)
@@ -363,8 +392,8 @@ def test_block_across_start_finish_line():
 
 def test_car_a_lap_ahead_is_not_close():
     r = ref(th(), car(5.0, 0.0, 4.0), np.array([car(5.1 + L, 0.01, 4.0)]))
-    assert r.ahead == 0                                # nearest ahead in race order...
-    assert np.abs(r.n_ot).max() < 1e-12                # ...but L + 0.1 m away, not 0.1 m
+    assert r.ahead == 0  # nearest ahead in race order...
+    assert np.abs(r.n_ot).max() < 1e-12  # ...but L + 0.1 m away, not 0.1 m
     assert np.abs(r.n_bl).max() < 1e-12
     r2 = ref(th(), car(5.0, 0.0, 4.0), np.array([car(5.1 + L, 0.01, 4.0), car(7.0, 0.2, 4.0)]))
     assert r2.ahead == 1
@@ -391,7 +420,7 @@ def test_bad_shapes_raise():
 
 
 def test_long_horizon_wraps():
-    r = ref(th(), car(L - 1.0, 0.0, 3.0), None, K=300, dt=0.1)   # 30 s: about 3 laps
+    r = ref(th(), car(L - 1.0, 0.0, 3.0), None, K=300, dt=0.1)  # 30 s: about 3 laps
     assert np.all(np.diff(r.s_ref) > 0)
     assert np.allclose(r.n_pert, RL.offset_at(r.s_ref), atol=1e-9)
 
@@ -408,6 +437,7 @@ def run_distance(v0, t):
     """Distance [m] of a full-throttle run from v0 [m/s] over t [s] on a straight, integrated
     here independently (explicit Euler, 1 ms) from the envelope's drive limit at zero a_y."""
     from racing_env.envelope import ggv
+
     env, x, v = ggv(), 0.0, v0
     for _ in range(int(round(t / 1e-3))):
         a = max(float(env.longitudinal_limits(v, 0.0)[0]), 0.0)
@@ -420,6 +450,7 @@ def test_reachable_cap_from_rest_is_the_run_up_on_the_reference_path():
     """From rest the paper's reference starts at racing speed (0.4 m in the first 0.1 s here);
     the capped one asks for REACH_SLACK times what full throttle covers, along the same path."""
     from agents.reference import REACH_SLACK
+
     ego = car(3.0, 0.0, 0.0)
     paper = ref(th(), ego)
     capped = ref(th(), ego, reachable=True)
@@ -429,8 +460,9 @@ def test_reachable_cap_from_rest_is_the_run_up_on_the_reference_path():
         assert d[k] == pytest.approx(REACH_SLACK * run_distance(0.0, DT * (k + 1)), rel=0.02)
     assert np.all(np.diff(capped.s_ref) > 0)
     # same path: the capped lateral reference is the paper's n at the capped progress
-    path_n = np.interp(capped.s_ref, np.append(3.0, paper.s_ref), np.append(RL.offset_at(3.0),
-                                                                             paper.n_pert))
+    path_n = np.interp(
+        capped.s_ref, np.append(3.0, paper.s_ref), np.append(RL.offset_at(3.0), paper.n_pert)
+    )
     np.testing.assert_allclose(capped.n_pert, path_n, atol=1e-9)
 
 
@@ -460,17 +492,21 @@ def test_reachable_reference_advances_and_never_passes_the_paper(s0, v, zeta):
 
 def lap_time_line():
     from racing_env.raceline import RacelineConfig
+
     return get_raceline(TRACK, config=RacelineConfig(objective="lap_time"))
 
 
 def test_policy_spaces():
     from agents.reference import SPACES, policy_space
+
     paper, ext = policy_space("paper"), policy_space("extended")
     assert paper.names == THETA_NAMES and paper.dim == 5
     assert ext.names == THETA_NAMES + ("b",) and ext.dim == 6
     assert ext.low[:5].tolist() == THETA_LOW.tolist() and (ext.low[5], ext.high[5]) == (0, 1)
     assert set(SPACES) == {"paper", "extended"} and policy_space(ext) is ext
-    with pytest.raises(ValueError, match=r"policy space must be one of \['extended', 'paper'\], got 'x'"):
+    with pytest.raises(
+        ValueError, match=r"policy space must be one of \['extended', 'paper'\], got 'x'"
+    ):
         policy_space("x")
     a = ext.sample(3)
     assert ext.array(ext.theta(a)).tolist() == a.tolist()
@@ -507,7 +543,7 @@ def test_blend_one_is_the_lap_time_line_and_half_is_between(s0):
     half = ref(th(b=0.5), ego, blend=lt)
     np.testing.assert_allclose(half.n_pert, 0.5 * (zero.n_pert + one.n_pert), atol=1e-12)
     np.testing.assert_allclose(half.v_pert, 0.5 * (zero.v_pert + one.v_pert), atol=1e-12)
-    assert np.abs(one.n_pert - zero.n_pert).max() > 0.01      # the lines do differ here
+    assert np.abs(one.n_pert - zero.n_pert).max() > 0.01  # the lines do differ here
 
 
 def test_blend_needs_the_second_line():
@@ -523,23 +559,23 @@ def test_side_room_passes_on_the_car_s_side_with_room():
     assert r.side == 1.0 and np.all(r.n_ot > 0)
     paper = ref(th(s3=0.0), car(5.0, 0.02, 3.0), o)
     assert r.side == 1.0 and paper.side == 0.0
-    assert np.allclose(r.n_ot, paper.n_ot)         # same side, same size while the ego is left
+    assert np.allclose(r.n_ot, paper.n_ot)  # same side, same size while the ego is left
 
 
 def test_side_room_flips_when_the_edge_leaves_no_room():
     w = float(TRACK.w_left[0])
-    o = np.array([car(5.3, w - 0.08, 2.5)])        # car ahead near the left edge
+    o = np.array([car(5.3, w - 0.08, 2.5)])  # car ahead near the left edge
     r = ref(th(s3=0.0), car(5.0, w - 0.06, 3.0), o, side="room")
-    assert r.side == -1.0 and r.n_ot.min() < 0      # ego left of it, but no room there
+    assert r.side == -1.0 and r.n_ot.min() < 0  # ego left of it, but no room there
     p = ref(th(s3=0.0), car(5.0, w - 0.06, 3.0), o)
-    assert p.n_ot.min() >= 0                        # the paper's rule pushes into the edge
+    assert p.n_ot.min() >= 0  # the paper's rule pushes into the edge
 
 
 def test_held_side_and_bad_side():
     o = np.array([car(5.3, 0.0, 2.5)])
     r = ref(th(s3=0.0), car(5.0, 0.05, 3.0), o, side=-1)
-    assert r.side == -1.0 and np.all(r.n_ot < 0)    # held right, although the ego is left
+    assert r.side == -1.0 and np.all(r.n_ot < 0)  # held right, although the ego is left
     far = ref(th(s3=0.0), car(5.0, 0.05, 3.0), np.array([car(15.0, 0.0, 2.5)]), side=-1)
-    assert far.side == 0.0                          # out of the shift's range: nothing to hold
+    assert far.side == 0.0  # out of the shift's range: nothing to hold
     with pytest.raises(ValueError, match="side must be None, 'room', 1 or -1, got 'up'"):
         ref(th(), car(5.0, 0.05, 3.0), o, side="up")

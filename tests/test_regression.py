@@ -2,6 +2,7 @@
 stored configuration give the stored records (progress to 0.1 mm, ranks, contacts, off-track
 steps, passes). A refactor that changes a race, however slightly, fails here; a deliberate
 change of the dynamics or the agents re-runs the tables and updates results/."""
+
 import json
 from pathlib import Path
 
@@ -10,8 +11,17 @@ import pytest
 from experiments.bench import BenchConfig, bench_race
 
 ROOT = Path(__file__).resolve().parents[1]
-KEYS = ("seed", "start_regions", "winner", "progress_m", "margin_m", "ranks", "contacts",
-        "off_tracks", "fallbacks")
+KEYS = (
+    "seed",
+    "start_regions",
+    "winner",
+    "progress_m",
+    "margin_m",
+    "ranks",
+    "contacts",
+    "off_tracks",
+    "fallbacks",
+)
 
 
 def stored(case: str, k: int):

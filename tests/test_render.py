@@ -1,5 +1,6 @@
 """Tests of racing_env.render and the modules it re-exports (draw, animation, trajectory_plot):
 frames, background cache, animations, viewer, trajectory plot."""
+
 from __future__ import annotations
 
 import shutil
@@ -11,8 +12,7 @@ import pytest
 from PIL import Image
 
 from racing_env import animation, render
-from racing_env.render import (CAR_COLORS, HumanViewer, Renderer, plot_trajectories,
-                               save_animation)
+from racing_env.render import CAR_COLORS, HumanViewer, Renderer, plot_trajectories, save_animation
 from racing_env.tracks import make_track
 from racing_env.vehicle import VehicleParams
 
@@ -62,7 +62,7 @@ def test_car_drawn_at_projected_position(oval, oval_renderer):
         assert len(rows) >= 6, "car too small or missing"
         dist = np.hypot(cols + 0.5 - u, rows + 0.5 - v)
         radius = 0.5 * np.hypot(r.car_length_px, r.car_width_px) + 1.0
-        assert dist.max() <= radius            # nothing of that colour elsewhere
+        assert dist.max() <= radius  # nothing of that colour elsewhere
         assert abs(np.mean(cols + 0.5) - u) < 2.0 and abs(np.mean(rows + 0.5) - v) < 2.0
         # only the car's pixels changed
         changed = np.any(f != r.background, axis=-1)
@@ -165,7 +165,8 @@ def test_aspect_ratio_and_y_up(oval):
     assert u.min() >= 0 and u.max() <= 400 and v.min() >= 0 and v.max() <= 400
     # oval is wider than tall, so it fills the width; same scale on both axes
     assert (u.max() - u.min()) / (v.max() - v.min()) == pytest.approx(
-        (np.ptp(np.r_[xl, xr])) / np.ptp(np.r_[yl, yr]), rel=1e-9)
+        (np.ptp(np.r_[xl, xr])) / np.ptp(np.r_[yl, yr]), rel=1e-9
+    )
     _, v_lo = r.world_to_pixel(0.0, 0.0)
     _, v_hi = r.world_to_pixel(0.0, 1.0)
     assert v_hi < v_lo  # y up in the world is up in the image
@@ -195,8 +196,9 @@ def test_gif_roundtrip(tmp_path):
 
 
 def test_gif_from_renderer(tmp_path, oval_renderer):
-    frames = [oval_renderer.frame(_state((1.0 + 0.3 * k, 0.0, 0.0)), hud=[f"step {k}"])
-              for k in range(4)]
+    frames = [
+        oval_renderer.frame(_state((1.0 + 0.3 * k, 0.0, 0.0)), hud=[f"step {k}"]) for k in range(4)
+    ]
     path = save_animation(np.stack(frames), tmp_path / "sub" / "race.GIF", fps=20)
     with Image.open(path) as im:
         assert im.n_frames == 4 and im.size == (320, 200)
@@ -221,9 +223,10 @@ def _fake_ffmpeg(tmp_path, fail=False):
         f"if {fail!r}:\n"
         "    sys.stderr.write('boom'); sys.exit(1)\n"
         "assert len(data) % (w * h * 3) == 0\n"
-        "open(args[-1], 'w').write(str(len(data) // (w * h * 3)))\n")
+        "open(args[-1], 'w').write(str(len(data) // (w * h * 3)))\n"
+    )
     exe = tmp_path / "ffmpeg"
-    exe.write_text(f"#!/bin/sh\nexec {sys.executable} {script} \"$@\"\n")
+    exe.write_text(f'#!/bin/sh\nexec {sys.executable} {script} "$@"\n')
     exe.chmod(0o755)
     return str(exe)
 
@@ -255,18 +258,26 @@ def test_mp4_without_ffmpeg_raises(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("frames, path, fps, match", [
-    ([], "a.gif", 10, "empty"),
-    ([np.zeros((4, 4, 3), np.float32)], "a.gif", 10, "float32"),
-    ([np.zeros((4, 4), np.uint8)], "a.gif", 10, r"\(4, 4\)"),
-    ([np.zeros((4, 4, 3), np.uint8), np.zeros((5, 4, 3), np.uint8)], "a.gif", 10, r"\(5, 4, 3\)"),
-    ([np.zeros((4, 4, 3), np.uint8)], "a.avi", 10, "'.avi'"),
-    ([np.zeros((4, 4, 3), np.uint8)], "a", 10, "suffix"),
-    ([np.zeros((4, 4, 3), np.uint8)], "a.gif", 0, "fps.*0"),
-    ([np.zeros((4, 4, 3), np.uint8)], "a.gif", -2.5, "-2.5"),
-    ([np.zeros((4, 4, 3), np.uint8)], "a.gif", float("nan"), "nan"),
-    ("not frames", "a.gif", 10, "str"),
-])
+@pytest.mark.parametrize(
+    "frames, path, fps, match",
+    [
+        ([], "a.gif", 10, "empty"),
+        ([np.zeros((4, 4, 3), np.float32)], "a.gif", 10, "float32"),
+        ([np.zeros((4, 4), np.uint8)], "a.gif", 10, r"\(4, 4\)"),
+        (
+            [np.zeros((4, 4, 3), np.uint8), np.zeros((5, 4, 3), np.uint8)],
+            "a.gif",
+            10,
+            r"\(5, 4, 3\)",
+        ),
+        ([np.zeros((4, 4, 3), np.uint8)], "a.avi", 10, "'.avi'"),
+        ([np.zeros((4, 4, 3), np.uint8)], "a", 10, "suffix"),
+        ([np.zeros((4, 4, 3), np.uint8)], "a.gif", 0, "fps.*0"),
+        ([np.zeros((4, 4, 3), np.uint8)], "a.gif", -2.5, "-2.5"),
+        ([np.zeros((4, 4, 3), np.uint8)], "a.gif", float("nan"), "nan"),
+        ("not frames", "a.gif", 10, "str"),
+    ],
+)
 def test_save_animation_bad_inputs(tmp_path, frames, path, fps, match):
     with pytest.raises(ValueError, match=match):
         save_animation(frames, tmp_path / path, fps=fps)
@@ -292,6 +303,7 @@ def test_human_viewer_without_display_warns_once(monkeypatch):
 
 def test_human_viewer_non_interactive_backend(monkeypatch):
     import matplotlib
+
     monkeypatch.setenv("DISPLAY", ":99")
     monkeypatch.setattr(matplotlib, "get_backend", lambda: "agg")
     with pytest.warns(RuntimeWarning, match="non-interactive"):
@@ -308,8 +320,9 @@ def test_plot_trajectories(tmp_path, oval):
         states[:, i, 0] = t * (1 + 0.2 * i)
         states[:, i, 1] = 0.1 * np.sin(t + i)
     rl = oval.to_cartesian(oval.s_grid, np.zeros_like(oval.s_grid))
-    path = plot_trajectories(oval, states, tmp_path / "traj.png", raceline_xy=rl,
-                             labels=["a", "b", "c"])
+    path = plot_trajectories(
+        oval, states, tmp_path / "traj.png", raceline_xy=rl, labels=["a", "b", "c"]
+    )
     with Image.open(path) as im:
         assert im.format == "PNG" and im.size[0] > 100
     assert [p.name for p in tmp_path.iterdir()] == ["traj.png"]

@@ -1,5 +1,6 @@
 """experiments.artifacts.ResumableRun: the one claim / records / missing / add of bench,
 league, policy map and the strategy suite's pace races."""
+
 import json
 
 import pytest
@@ -27,9 +28,9 @@ def test_a_run_resumes_with_the_missing_tasks(tmp_path):
     assert run.missing() == [("sq", k) for k in range(4)]
     run.add({"k": 2, "v": 4})
     run.add({"k": 0, "v": 0})
-    with open(run.records_path, "a") as f:          # a kill mid-write: a torn last line
+    with open(run.records_path, "a") as f:  # a kill mid-write: a torn last line
         f.write('{"k": 1, "v"')
-    again = Squares(tmp_path, {"n": 4, "shape": (2, 3)})   # tuples equal the stored lists
+    again = Squares(tmp_path, {"n": 4, "shape": (2, 3)})  # tuples equal the stored lists
     assert again.missing() == [("sq", 1), ("sq", 3)]
     again.add({"k": 1, "v": 1})
     assert sorted(again.records()) == [("sq", 0), ("sq", 1), ("sq", 2)]
@@ -43,8 +44,9 @@ def _square(k: int) -> dict:
 def test_run_missing_runs_and_stores_only_the_missing_tasks(tmp_path):
     run = Squares(tmp_path, {"n": 4})
     run.add({"k": 1, "v": 1})
-    kw = dict(workers=1, backend="local", address=None, desc="squares", unit="task",
-              progress_bar=False)
+    kw = dict(
+        workers=1, backend="local", address=None, desc="squares", unit="task", progress_bar=False
+    )
     assert run.run_missing(_square, lambda task: (task[1],), **kw) == 3
     assert {k: rec["v"] for (_, k), rec in run.records().items()} == {0: 0, 1: 1, 2: 4, 3: 9}
     assert run.run_missing(_square, lambda task: (task[1],), **kw) == 0
@@ -52,15 +54,18 @@ def test_run_missing_runs_and_stores_only_the_missing_tasks(tmp_path):
 
 def test_a_run_of_another_configuration_is_refused(tmp_path):
     Squares(tmp_path, {"n": 4})
-    with pytest.raises(ValueError, match=r"holds squares of another configuration \(config: "
-                                         r"stored \{'n': 4\}, this run \{'n': 5\}\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"holds squares of another configuration \(config: "
+        r"stored \{'n': 4\}, this run \{'n': 5\}\)",
+    ):
         Squares(tmp_path, {"n": 5})
 
 
 def test_claim_compares_configs_as_stored(tmp_path):
     meta = {"config": {"tracks": ("default", "oval"), "seed": 0}}
     claim(tmp_path / "manifest.json", meta, "a test")
-    claim(tmp_path / "manifest.json", meta, "a test")      # no refusal of its own tuples
+    claim(tmp_path / "manifest.json", meta, "a test")  # no refusal of its own tuples
     assert as_stored(meta) == json.loads((tmp_path / "manifest.json").read_text())
 
 

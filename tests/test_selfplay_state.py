@@ -1,4 +1,5 @@
 """Self-play's progress: a typed state with a JSON round trip, reading old state files."""
+
 import json
 
 import pytest
@@ -32,10 +33,20 @@ def test_a_missing_file_is_a_new_run(tmp_path):
 
 def test_an_old_state_file_without_the_cpu_times_still_reads(tmp_path):
     # written before train_cpu_seconds and bc_cpu_seconds were recorded
-    old = {"turn": 2, "turn_steps": 0, "current": None, "total_steps": 4096,
-           "train_seconds": 30.0, "cars": ["a.zip", "b.zip", None], "trained_turns": [1, 1, 0],
-           "evals": [], "train_curve": [], "mpc_reference": None, "bc_init": None,
-           "done": False}
+    old = {
+        "turn": 2,
+        "turn_steps": 0,
+        "current": None,
+        "total_steps": 4096,
+        "train_seconds": 30.0,
+        "cars": ["a.zip", "b.zip", None],
+        "trained_turns": [1, 1, 0],
+        "evals": [],
+        "train_curve": [],
+        "mpc_reference": None,
+        "bc_init": None,
+        "done": False,
+    }
     (tmp_path / "state.json").write_text(json.dumps(old))
     state = SelfPlayState.load(tmp_path / "state.json", SelfPlayConfig(n_cars=3))
     assert state.turn == 2 and state.total_steps == 4096 and state.cars[1] == "b.zip"
@@ -50,4 +61,3 @@ def test_unknown_fields_and_a_wrong_number_of_cars_are_refused():
         SelfPlayState.from_dict({"cars": [None, None], "trained_turns": [0, 0]}, cfg)
     with pytest.raises(ValueError, match="JSON object"):
         SelfPlayState.from_dict([1, 2], cfg)
-

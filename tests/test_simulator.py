@@ -1,4 +1,5 @@
 """Integration, rules and reward of the compiled step, through BatchedRaces."""
+
 import numpy as np
 import pytest
 from hypothesis import example, given, settings
@@ -13,8 +14,12 @@ NO_RULES = RulesConfig(contact=False, offtrack=False)
 
 
 def races(n_cars=1, rules=None, track="oval", n_races=1, **cfg):
-    return BatchedRaces(track, RaceConfig(n_cars=n_cars, rules=rules or RulesConfig(), **cfg),
-                        n_races=n_races, seed=0)
+    return BatchedRaces(
+        track,
+        RaceConfig(n_cars=n_cars, rules=rules or RulesConfig(), **cfg),
+        n_races=n_races,
+        seed=0,
+    )
 
 
 def place(r, states):
@@ -92,12 +97,18 @@ def test_contact_slows_front_by_half_and_rear_by_a_third():
     np.testing.assert_allclose(hit.state[0, :, 3], free.state[0, :, 3], atol=2e-3)
 
 
-COAST_DV = 0.1 * (P.C3 + P.C4 * 4.5 ** 2) / P.m + 1e-3   # most speed coasting can lose in 0.1 s
+COAST_DV = 0.1 * (P.C3 + P.C4 * 4.5**2) / P.m + 1e-3  # most speed coasting can lose in 0.1 s
 
 
 @settings(max_examples=60, deadline=None)
-@given(gap=st.floats(0.005, 1.0), v_fast=st.floats(2.0, 4.0), v_slow=st.floats(0.0, 0.5),
-       n=st.floats(-0.1, 0.1), dn=st.floats(-0.05, 0.05), s=st.floats(0.6, 1.5))
+@given(
+    gap=st.floats(0.005, 1.0),
+    v_fast=st.floats(2.0, 4.0),
+    v_slow=st.floats(0.0, 0.5),
+    n=st.floats(-0.1, 0.1),
+    dn=st.floats(-0.05, 0.05),
+    s=st.floats(0.6, 1.5),
+)
 def test_a_fast_car_cannot_drive_through_a_slow_one(gap, v_fast, v_slow, n, dn, s):
     # hand check on the oval's first straight (0.5..5.5 m), both coasting (d = 0): the fast
     # car (car 1) closes at least (v_fast - v_slow - 2 COAST_DV) * 0.1 m per step, so it meets
@@ -113,17 +124,20 @@ def test_a_fast_car_cannot_drive_through_a_slow_one(gap, v_fast, v_slow, n, dn, 
         r.step_physical(phys(r))
         if r.contact[0].any():
             break
-        assert r.state[0, 1, 0] < r.state[0, 0, 0] - 0.12     # never through without contact
+        assert r.state[0, 1, 0] < r.state[0, 0, 0] - 0.12  # never through without contact
     else:
         pytest.fail("the fast car never touched the slow one")
     assert r.contact[0].tolist() == [1, 1]
     v_front, v_rear = r.state[0, :, 3]
     assert max(0.0, (v0[0] - COAST_DV) / 2 - COAST_DV) <= v_front <= v0[0] / 2 + 1e-9
-    assert min(max(0.0, (v0[1] - COAST_DV) / 3 - COAST_DV), v_front - COAST_DV) <= v_rear \
+    assert (
+        min(max(0.0, (v0[1] - COAST_DV) / 3 - COAST_DV), v_front - COAST_DV)
+        <= v_rear
         <= v0[1] / 3 + 1e-9
-    if abs(dn) < 0.06:                                          # not laterally clear: kept apart
+    )
+    if abs(dn) < 0.06:  # not laterally clear: kept apart
         assert r.state[0, 1, 0] <= r.state[0, 0, 0] - 0.12 + 1e-9
-    assert r.state[0, 1, 0] < r.state[0, 0, 0] + 0.12           # not through
+    assert r.state[0, 1, 0] < r.state[0, 0, 0] + 0.12  # not through
 
 
 def test_contact_across_the_start_line_uses_wrapped_distance():
@@ -159,14 +173,16 @@ def test_off_track_halves_speed_and_realigns():
 def test_wall_stops_a_car_sideways():
     r = races(rules=NO_RULES)
     wall = r._tables.wall_left[0]
-    place(r, [[1.0, wall - 0.01, 1.2, 3.0, 0.0, 0.0]])   # heading hard left at the wall
+    place(r, [[1.0, wall - 0.01, 1.2, 3.0, 0.0, 0.0]])  # heading hard left at the wall
     r.step_physical(phys(r, 1.0))
     assert r.state[0, 0, 1] <= wall + 1e-9
 
 
 def test_reward_is_change_of_gap_to_best_opponent():
     r = races(n_cars=3, rules=NO_RULES)
-    place(r, [[2.0, 0.0, 0.0, 2.0, 0, 0], [1.0, 0.15, 0.0, 1.0, 0, 0], [0.5, -0.15, 0.0, 3.0, 0, 0]])
+    place(
+        r, [[2.0, 0.0, 0.0, 2.0, 0, 0], [1.0, 0.15, 0.0, 1.0, 0, 0], [0.5, -0.15, 0.0, 3.0, 0, 0]]
+    )
     before = r.state[0, :, 0].copy()
     r.step_physical(phys(r, 0.1))
     after = r.state[0, :, 0]
@@ -182,7 +198,7 @@ def test_single_car_reward_is_progress_and_has_no_jump_at_the_line():
     place(r, [[length - 0.1, 0.0, 0.0, 2.5, 0.0, 0.0]])
     s0 = r.state[0, 0, 0]
     r.step_physical(phys(r, 0.5))
-    assert r.state[0, 0, 0] > length                         # unwrapped
+    assert r.state[0, 0, 0] > length  # unwrapped
     assert r.reward[0, 0] == pytest.approx(r.state[0, 0, 0] - s0)
     assert 0.2 < r.reward[0, 0] < 0.35
 
@@ -194,7 +210,7 @@ def test_driving_backwards_costs_reward():
     for _ in range(5):
         r.step_physical(phys(r, 0.3))
         total += r.reward[0, 0]
-    assert total < -0.5 and r.state[0, 0, 0] < 0.0        # crossed the line backwards, no jump
+    assert total < -0.5 and r.state[0, 0, 0] < 0.0  # crossed the line backwards, no jump
 
 
 def test_laps_and_lap_times_are_counted():
@@ -205,7 +221,7 @@ def test_laps_and_lap_times_are_counted():
     r.step_physical(phys(r, 0.3))
     assert r.laps[0, 0] == 1 and r.terminated()[0]
     t = r.lap_times[0][0][0]
-    assert 0.0 < t < 0.1       # crossed within the first control period
+    assert 0.0 < t < 0.1  # crossed within the first control period
 
 
 @settings(max_examples=25, deadline=None)
@@ -226,7 +242,7 @@ def test_batched_races_equal_single_races(seed, n_cars):
     for a in actions:
         batch.step(a)
         for b, one in enumerate(singles):
-            one.step(a[b:b + 1])
+            one.step(a[b : b + 1])
     for b, one in enumerate(singles):
         np.testing.assert_array_equal(batch.state[b], one.state[0])
 
@@ -235,6 +251,7 @@ def test_parallel_kernel_equals_serial_kernel(monkeypatch):
     # the same 8 races stepped once by each kernel: the threshold that picks the kernel is set
     # per call, so the comparison holds whatever core.PARALLEL_MIN_RACES is
     import racing_env.core as core
+
     rng = np.random.default_rng(1)
     par = BatchedRaces("default", RaceConfig(n_cars=3), n_races=8, seed=5)
     ser = BatchedRaces("default", RaceConfig(n_cars=3), n_races=8, seed=5)
@@ -252,9 +269,9 @@ def test_parallel_kernel_equals_serial_kernel(monkeypatch):
         monkeypatch.setattr(core, fn, counted)
     for _ in range(20):
         a = rng.uniform(-1, 1, (8, 3, 2))
-        monkeypatch.setattr(core, "PARALLEL_MIN_RACES", 1)            # parallel for any n
+        monkeypatch.setattr(core, "PARALLEL_MIN_RACES", 1)  # parallel for any n
         op, _, _, _ = par.step(a)
-        monkeypatch.setattr(core, "PARALLEL_MIN_RACES", 10 ** 9)      # serial for any n
+        monkeypatch.setattr(core, "PARALLEL_MIN_RACES", 10**9)  # serial for any n
         os_, _, _, _ = ser.step(a)
     assert kernels == {"parallel": 20, "serial": 20}
     np.testing.assert_array_equal(par.state, ser.state)
@@ -274,7 +291,7 @@ def test_bad_actions_raise_clear_errors():
 
 def test_start_regions_put_cars_in_the_requested_order():
     r = races(n_cars=3, track="default")
-    r.reset(seed=3, order=[2, 0, 1])       # car_1 in R1, car_2 in R2, car_0 in R3
+    r.reset(seed=3, order=[2, 0, 1])  # car_1 in R1, car_2 in R2, car_0 in R3
     s = r.state[0, :, 0]
     assert s[1] > s[2] > s[0]
     with pytest.raises(ValueError, match="permutation"):
@@ -303,8 +320,10 @@ def _order_kept(before, after, length):
             d0 = (before[i, 0] - before[j, 0] + length / 2) % length - length / 2
             d1 = (after[i, 0] - after[j, 0] + length / 2) % length - length / 2
             # (a pair pushed apart sideways sits at exactly c_dn: touching, not overlapping)
-            overlap = (abs(before[i, 1] - before[j, 1]) < C_DN - 1e-7
-                       and abs(after[i, 1] - after[j, 1]) < C_DN - 1e-7)
+            overlap = (
+                abs(before[i, 1] - before[j, 1]) < C_DN - 1e-7
+                and abs(after[i, 1] - after[j, 1]) < C_DN - 1e-7
+            )
             out.append((overlap, (d0 > 0) == (d1 > 0), d1, after[i, 1] - after[j, 1]))
     return out
 
@@ -318,20 +337,23 @@ def _assert_apart(r):
             assert not (abs(d) < C_DS - 1e-7 and abs(st[i, 1] - st[j, 1]) < C_DN - 1e-7), (i, j, d)
 
 
-@pytest.mark.parametrize("track, s0", [("oval", 1.0), ("oval", 7.0), ("default", 3.0),
-                                       ("default", 13.5), ("default", 33.0)])
+@pytest.mark.parametrize(
+    "track, s0",
+    [("oval", 1.0), ("oval", 7.0), ("default", 3.0), ("default", 13.5), ("default", 33.0)],
+)
 def test_full_throttle_cannot_push_through_a_stopped_car(track, s0):
     # the issue's case: a car at full throttle from rest, 0.5 m behind a braking (stopped)
     # car on the same line; both steer along the racing line (oval 7 m and default 13.5 and
     # 33 m are corners). v1 let the rear car end 8-14 m ahead after 60 steps; v2 keeps it
     # behind, touching (contact at nearly every step), for the whole 6 s of pushing
     from racing_env.controllers import RacelineFollower, follower_action
+
     r = races(n_cars=2, track=track)
     f = RacelineFollower()
     f.reset(r.track)
     n_ref = f.tables()[0]
     line_n = lambda s: float(r.track.interp(n_ref, s))
-    assert abs(r.track.curvature(s0 + 0.5)) > 0.5 or s0 in (1.0, 3.0)   # the corner cases bend
+    assert abs(r.track.curvature(s0 + 0.5)) > 0.5 or s0 in (1.0, 3.0)  # the corner cases bend
     place(r, [[s0 + 0.5, line_n(s0 + 0.5), 0, 0, 0, 0], [s0, line_n(s0), 0, 0, 0, 0]])
     tb = [np.asarray(a, dtype=float) for a in f.tables()]
     contacts = 0
@@ -340,22 +362,27 @@ def test_full_throttle_cannot_push_through_a_stopped_car(track, s0):
         a = np.zeros((1, 2, 2))
         for i in range(2):
             a[0, i] = follower_action(r.state[0, i], *tb, r.track.ds, r.track.length, f.gains())
-        a[0, 0, 0], a[0, 1, 0] = -1.0, 1.0                     # front brakes, rear full throttle
+        a[0, 0, 0], a[0, 1, 0] = -1.0, 1.0  # front brakes, rear full throttle
         r.step(a)
         contacts += int(r.contact[0, 1])
         _assert_apart(r)
         for overlap, kept, *_ in _order_kept(before, r.state[0], r.track.length):
             assert kept or not overlap
     gap = r.state[0, 0, 0] - r.state[0, 1, 0]
-    assert r.state[0, 0, 3] == 0.0 and gap >= C_DS - 1e-9          # stopped, and still ahead
+    assert r.state[0, 0, 3] == 0.0 and gap >= C_DS - 1e-9  # stopped, and still ahead
     assert abs(r.state[0, 0, 1] - r.state[0, 1, 1]) < C_DN and gap == pytest.approx(C_DS)
-    assert contacts >= 50                                          # pushing is contact
+    assert contacts >= 50  # pushing is contact
 
 
 @settings(max_examples=40, deadline=None)
 @example(seed=2_147_483_647, n_cars=2, s=20.40397426061176, spread=0.13, track="default")
-@given(seed=st.integers(0, 2**31 - 1), n_cars=st.integers(2, 4), s=st.floats(0.5, 25.0),
-       spread=st.floats(0.13, 0.6), track=st.sampled_from(["oval", "default"]))
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    n_cars=st.integers(2, 4),
+    s=st.floats(0.5, 25.0),
+    spread=st.floats(0.13, 0.6),
+    track=st.sampled_from(["oval", "default"]),
+)
 def test_no_two_cars_swap_order_while_they_overlap_laterally(seed, n_cars, s, spread, track):
     # cars bunched up close behind one another at random offsets and speeds, random held
     # inputs: at every step end no two bodies overlap, and a pair that overlaps laterally at
@@ -391,10 +418,10 @@ def test_a_car_steering_into_one_alongside_pushes_it_aside_not_back():
         s_before = r.state[0, :, 0].copy()
         r.step_physical(a)
         _assert_apart(r)
-        assert np.all(r.state[0, :, 0] > s_before)                    # nobody thrown back
-    assert r.contacts[0, 0] == r.contacts[0, 1] >= 1                   # bumped, both
-    assert r.state[0, 0, 1] - r.state[0, 1, 1] >= C_DN - 1e-7       # apart sideways
-    assert r.state[0, 0, 0] > r.state[0, 1, 0]                         # order kept
+        assert np.all(r.state[0, :, 0] > s_before)  # nobody thrown back
+    assert r.contacts[0, 0] == r.contacts[0, 1] >= 1  # bumped, both
+    assert r.state[0, 0, 1] - r.state[0, 1, 1] >= C_DN - 1e-7  # apart sideways
+    assert r.state[0, 0, 0] > r.state[0, 1, 0]  # order kept
 
 
 def test_rewards_telescope_through_contact():

@@ -1,6 +1,7 @@
 """Strategy benchmark: a tiny suite of every scenario, its outputs' structure and behaviour
 (same races for ego and control, seats per scenario, the defend ceiling and pace measurement,
 metrics equal to those recomputed from the stored states, resume without new races)."""
+
 import json
 
 import numpy as np
@@ -13,10 +14,26 @@ from experiments.bench import BenchRun  # noqa: E402
 from experiments.cli import build_parser, main  # noqa: E402
 from experiments.metrics import RECORD_KEYS, record_metrics  # noqa: E402
 
-TINY = sg.StrategyConfig(ego="alpha", control="mpc:zeta=1.02", tracks=("default",), races=3,
-                         steps=20, seed=7)
-ARGS = ["strategy", "--ego", "alpha", "--control", "mpc:zeta=1.02", "--tracks", "default",
-        "--races", "3", "--steps", "20", "--seed", "7", "--workers", "1"]
+TINY = sg.StrategyConfig(
+    ego="alpha", control="mpc:zeta=1.02", tracks=("default",), races=3, steps=20, seed=7
+)
+ARGS = [
+    "strategy",
+    "--ego",
+    "alpha",
+    "--control",
+    "mpc:zeta=1.02",
+    "--tracks",
+    "default",
+    "--races",
+    "3",
+    "--steps",
+    "20",
+    "--seed",
+    "7",
+    "--workers",
+    "1",
+]
 
 
 @pytest.fixture(scope="module")
@@ -27,20 +44,25 @@ def tiny_suite(tmp_path_factory):
 
 
 def _runs(out, config=TINY):
-    return {(c.bench, c.track, c.role): BenchRun(c.folder(out), c.config)
-            for c in sg.cells(config)}
+    return {(c.bench, c.track, c.role): BenchRun(c.folder(out), c.config) for c in sg.cells(config)}
 
 
 @pytest.mark.slow
 def test_the_suite_has_a_row_per_bench_and_track_and_the_cli_wrote_it(tiny_suite):
     out, table = tiny_suite
-    assert [r["bench"] for r in table["rows"]] == ["pass", "equal", "defend", "table1_ibr",
-                                                   "table1_ppo", "table1_alpha"]
+    assert [r["bench"] for r in table["rows"]] == [
+        "pass",
+        "equal",
+        "defend",
+        "table1_ibr",
+        "table1_ppo",
+        "table1_alpha",
+    ]
     assert table["config"] == TINY.to_dict()
     md = (out / "strategy.md").read_text()
-    assert md.count("\n| ") == 1 + 6 + 1 + 3        # table header + rows, pace header + rows
+    assert md.count("\n| ") == 1 + 6 + 1 + 3  # table header + rows, pace header + rows
     for r in table["rows"]:
-        n = 1 if r["bench"].startswith("table1_") else 3     # table1 shares its 3 races
+        n = 1 if r["bench"].startswith("table1_") else 3  # table1 shares its 3 races
         for side in ("ego", "control"):
             assert r[side]["races"] == n and r[side]["complete"]
             assert sum(r[side]["races_by_region"].values()) == n
@@ -54,8 +76,14 @@ def test_ego_and_control_race_the_same_seeds_seats_and_opponents(tiny_suite):
     out, table = tiny_suite
     runs = _runs(out)
     seats = {"pass": ["R2", "R3", "R2"], "defend": ["R1"] * 3}
-    opponents = {"pass": "raceline", "equal": "mpc:zeta=1.02", "defend": "mpc:zeta=1.02",
-                 "table1_ibr": "ibr", "table1_ppo": "ppo", "table1_alpha": "alpha"}
+    opponents = {
+        "pass": "raceline",
+        "equal": "mpc:zeta=1.02",
+        "defend": "mpc:zeta=1.02",
+        "table1_ibr": "ibr",
+        "table1_ppo": "ppo",
+        "table1_alpha": "alpha",
+    }
     for bench in opponents:
         ego, control = runs[(bench, "default", "ego")], runs[(bench, "default", "control")]
         e, c = ego.records(), control.records()
@@ -65,7 +93,9 @@ def test_ego_and_control_race_the_same_seeds_seats_and_opponents(tiny_suite):
             assert e[k]["agents"][1:] == c[k]["agents"][1:] == [opponents[bench]] * 2
             # the same start positions: the opponents' cars start where they did for the other
             np.testing.assert_array_equal(ego.states(k)[0, 1:], control.states(k)[0, 1:])
-        assert [e[k]["ego_region"] for k in sorted(e)] == seats.get(bench, ["R1", "R2", "R3"])[:len(e)]
+        assert [e[k]["ego_region"] for k in sorted(e)] == seats.get(bench, ["R1", "R2", "R3"])[
+            : len(e)
+        ]
     assert runs[("defend", "default", "ego")].config.ego == "alpha:zeta_max=0.94"
     assert runs[("defend", "default", "control")].config.ego == "mpc:zeta=1.02,zeta_max=0.94"
 
@@ -85,10 +115,10 @@ def test_the_table_equals_the_metrics_recomputed_from_the_stored_states(tiny_sui
             assert got["passes"] == sum(m[k]["passes"][0] for k in m)
             assert got["passes_contact"] == sum(m[k]["passes_contact"][0] for k in m)
             assert got["opponent_passes"] == sum(sum(m[k]["passes"][1:]) for k in m)
-            assert got["wins_from_behind"] == sum(m[k]["won_from_behind"] and
-                                                  recs[k]["winner"] == "ego" for k in m)
-            assert got["behind_1m_s"] == pytest.approx(np.mean([m[k]["behind_1m_s"][0]
-                                                                for k in m]))
+            assert got["wins_from_behind"] == sum(
+                m[k]["won_from_behind"] and recs[k]["winner"] == "ego" for k in m
+            )
+            assert got["behind_1m_s"] == pytest.approx(np.mean([m[k]["behind_1m_s"][0] for k in m]))
             s = [run.states(k) for k in sorted(recs)]
             margin = [st[-1, 0, 0] - st[-1, 1:, 0].max() for st in s]
             assert got["margin_m_mean"] == pytest.approx(np.mean(margin), abs=1e-3)
@@ -100,7 +130,7 @@ def test_defend_measures_the_pace_gap_and_flags_a_small_one(tiny_suite):
     out, table = tiny_suite
     pace = table["pace"]["default"]
     capped_ego, capped_control, opponent = sg.pace_specs(TINY)
-    assert pace["progress_m"][capped_ego] is None                 # alpha cannot race alone
+    assert pace["progress_m"][capped_ego] is None  # alpha cannot race alone
     assert "cannot race alone" in pace["reasons"][capped_ego]
     m_ctl, m_opp = pace["progress_m"][capped_control], pace["progress_m"][opponent]
     assert m_ctl > 0 and m_opp > 0
@@ -127,10 +157,25 @@ def test_a_resumed_suite_runs_no_race_and_writes_the_same_table(tiny_suite):
 def test_parser_defaults_are_the_config_defaults():
     args = build_parser().parse_args(["strategy"])
     d = sg.config_defaults()
-    assert (args.ego, args.control, tuple(args.tracks), tuple(args.scenarios), args.races,
-            args.steps, args.seed, args.zeta_max) == (
-        d["ego"], d["control"], d["tracks"], d["scenarios"], d["races"], d["steps"], d["seed"],
-        d["zeta_max"])
+    assert (
+        args.ego,
+        args.control,
+        tuple(args.tracks),
+        tuple(args.scenarios),
+        args.races,
+        args.steps,
+        args.seed,
+        args.zeta_max,
+    ) == (
+        d["ego"],
+        d["control"],
+        d["tracks"],
+        d["scenarios"],
+        d["races"],
+        d["steps"],
+        d["seed"],
+        d["zeta_max"],
+    )
     assert d["control"] == "mpc:theta=best" and d["races"] == 99
 
 
@@ -149,12 +194,13 @@ def test_bad_suites_are_refused_naming_the_value(tmp_path, capsys):
     assert sg.with_option("mpc:zeta=1.0", "zeta_max", 0.94) == "mpc:zeta=1.0,zeta_max=0.94"
     assert main(["strategy", "--ego", "nosuchagent", "--out", str(tmp_path)]) == 2
     assert "unknown agent 'nosuchagent'" in capsys.readouterr().err
-    assert not list(tmp_path.rglob("races.jsonl"))           # refused before any race
+    assert not list(tmp_path.rglob("races.jsonl"))  # refused before any race
 
 
 def test_pass_opponents_name_the_pass_benches_followers_only():
-    config = sg.StrategyConfig(ego="mpc", control="mpc:zeta=1.02", tracks=("default",),
-                               pass_opponents="raceline:grip=0.9")
+    config = sg.StrategyConfig(
+        ego="mpc", control="mpc:zeta=1.02", tracks=("default",), pass_opponents="raceline:grip=0.9"
+    )
     opponents = {c.bench: c.config.opponents for c in sg.cells(config)}
     assert opponents["pass"] == "raceline:grip=0.9"
     assert opponents["equal"] == opponents["defend"] == "mpc:zeta=1.02"

@@ -1,4 +1,5 @@
 """The bicycle model against hand-derived cases, and its three evaluations against each other."""
+
 import math
 
 import numpy as np
@@ -20,14 +21,14 @@ def ode(n=0.0, mu=0.0, vx=0.0, vy=0.0, omega=0.0, d=0.0, delta=0.0, kappa=0.0):
 def test_straight_line_longitudinal_force():
     # no slip, no steering: only F_rx acts; hand formula of the paper with smooth sign
     vx, d = 2.0, 0.7
-    f_rx = (P.C1 - P.C2 * vx) * d - P.C3 * math.tanh(vx / P.v_low) - P.C4 * vx ** 2
+    f_rx = (P.C1 - P.C2 * vx) * d - P.C3 * math.tanh(vx / P.v_low) - P.C4 * vx**2
     x_dot = ode(vx=vx, d=d)
     assert x_dot == pytest.approx([vx, 0.0, 0.0, f_rx / P.m, 0.0, 0.0], abs=1e-12)
 
 
 def test_top_speed_balances_forces():
     v = P.top_speed
-    assert ode(vx=v, d=1.0)[3] == pytest.approx(0.0, abs=1e-3)   # tanh(v/v_low) ~ 1 there
+    assert ode(vx=v, d=1.0)[3] == pytest.approx(0.0, abs=1e-3)  # tanh(v/v_low) ~ 1 there
     assert ode(vx=0.9 * v, d=1.0)[3] > 0 > ode(vx=1.1 * v, d=1.0)[3]
 
 
@@ -48,8 +49,8 @@ def test_frenet_kinematics_on_a_curve():
 
 
 def fade(vx, vy=0.0, omega=0.0):
-    v2 = vx ** 2 + vy ** 2 + (0.5 * (P.lf + P.lr) * omega) ** 2
-    return v2 / (v2 + P.v_low ** 2)
+    v2 = vx**2 + vy**2 + (0.5 * (P.lf + P.lr) * omega) ** 2
+    return v2 / (v2 + P.v_low**2)
 
 
 def test_steering_left_yaws_left_with_hand_pacejka():
@@ -74,14 +75,14 @@ def test_steering_left_yaws_left_with_hand_pacejka():
 def test_standing_start_is_finite_and_does_not_roll_back():
     x_dot = ode(vx=0.0, d=0.0, delta=0.3)
     assert np.isfinite(x_dot).all()
-    assert x_dot[3] == pytest.approx(0.0, abs=1e-9)   # rolling resistance is 0 at rest
+    assert x_dot[3] == pytest.approx(0.0, abs=1e-9)  # rolling resistance is 0 at rest
     assert ode(vx=0.0, d=1.0)[3] == pytest.approx(P.C1 / P.m)
     # the low-speed fade vanishes at rest and is negligible at racing speed
     assert fade(0.0) == 0.0 and fade(1.0) > 0.99
     # braking at rest does not push backwards; braking at speed is the paper's (C1 - C2 vx) d
     assert ode(vx=0.0, d=-1.0)[3] == pytest.approx(0.0, abs=1e-12)
     vx = 2.0
-    f = (P.C1 - P.C2 * vx) * -1.0 - P.C3 - P.C4 * vx ** 2
+    f = (P.C1 - P.C2 * vx) * -1.0 - P.C3 - P.C4 * vx**2
     assert ode(vx=vx, d=-1.0)[3] == pytest.approx(f / P.m, rel=1e-6)
 
 
@@ -89,8 +90,16 @@ finite = st.floats(-1.0, 1.0, allow_nan=False)
 
 
 @settings(max_examples=60, deadline=None)
-@given(n=st.floats(-0.3, 0.3), mu=st.floats(-3, 3), vx=st.floats(0, 5), vy=st.floats(-2, 2),
-       omega=st.floats(-8, 8), d=finite, delta=st.floats(-0.35, 0.35), kappa=st.floats(-1.5, 1.5))
+@given(
+    n=st.floats(-0.3, 0.3),
+    mu=st.floats(-3, 3),
+    vx=st.floats(0, 5),
+    vy=st.floats(-2, 2),
+    omega=st.floats(-8, 8),
+    d=finite,
+    delta=st.floats(-0.35, 0.35),
+    kappa=st.floats(-1.5, 1.5),
+)
 def test_numpy_numba_casadi_agree(n, mu, vx, vy, omega, d, delta, kappa):
     ref = ode(n, mu, vx, vy, omega, d, delta, kappa)
     nb = np.array(ode_numba(n, mu, vx, vy, omega, d, delta, kappa, p))

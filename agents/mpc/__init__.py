@@ -67,17 +67,57 @@ as C: generated, compiled, cached, called from Python and numba), :mod:`.predict
 model's stage and horizon, curvature along a plan, the follower's warm start), :mod:`.qp` (the
 cost of a plan and its condensed QP), :mod:`.solver` (:class:`MPC` and the SQP step).
 """
+
 from .config import MPCConfig
-from .prediction import (follower_rollout, kappa_at_substeps, kappa_flat, make_follower,
-                         prediction_v_low, stage_function, stage_nodes, trajectory_function)
-from .qp import (EdgeBounds, condense, condense_states, input_rate_matrix, linearised_qp,
-                 plan_cost, predicted_decrease, qp_arrays, score_rollout, separation_choice)
-from .qp import _grid_interp  # noqa: F401  agents.mpc_agent's import
+from .prediction import (
+    follower_rollout,
+    kappa_at_substeps,
+    kappa_flat,
+    make_follower,
+    prediction_v_low,
+    stage_function,
+    stage_nodes,
+    trajectory_function,
+)
+from .qp import (
+    EdgeBounds,
+    _grid_interp,  # noqa: F401  agents.mpc_agent's import
+    condense,
+    condense_states,
+    input_rate_matrix,
+    linearised_qp,
+    plan_cost,
+    predicted_decrease,
+    qp_arrays,
+    score_rollout,
+    separation_choice,
+)
 from .solver import MPC, StepCode, StepConstants, StepResult, sqp_step, trial_step
 
-__all__ = ["MPC", "EdgeBounds", "MPCConfig", "StepCode", "StepConstants", "StepResult",
-           "condense", "condense_states", "follower_rollout", "input_rate_matrix",
-           "kappa_at_substeps", "kappa_flat", "linearised_qp", "make_follower", "plan_cost",
-           "predicted_decrease", "prediction_v_low", "qp_arrays", "score_rollout",
-           "separation_choice", "sqp_step", "stage_function", "stage_nodes", "trial_step",
-           "trajectory_function"]
+__all__ = [
+    "MPC",
+    "EdgeBounds",
+    "MPCConfig",
+    "StepCode",
+    "StepConstants",
+    "StepResult",
+    "condense",
+    "condense_states",
+    "follower_rollout",
+    "input_rate_matrix",
+    "kappa_at_substeps",
+    "kappa_flat",
+    "linearised_qp",
+    "make_follower",
+    "plan_cost",
+    "predicted_decrease",
+    "prediction_v_low",
+    "qp_arrays",
+    "score_rollout",
+    "separation_choice",
+    "sqp_step",
+    "stage_function",
+    "stage_nodes",
+    "trial_step",
+    "trajectory_function",
+]

@@ -2,6 +2,7 @@
 cached on disk (``mpc/`` of the alpha-racer cache folder, see :mod:`racing_env.cache`) and
 called on preallocated buffers, from Python through ctypes and from numba through an
 intrinsic; interpreted by CasADi when there is no working compiler."""
+
 from __future__ import annotations
 
 import hashlib
@@ -28,10 +29,13 @@ if TYPE_CHECKING:
 def _cache_root() -> Path:
     """Folder of the compiled predictions: ``mpc/`` of the alpha-racer cache folder."""
     from racing_env.cache import cache_dir
+
     return cache_dir("mpc")
 
 
-def load_prediction(fn: Any, horizon: int, substeps: int, name: str) -> CompiledTrajectory | InterpretedTrajectory:
+def load_prediction(
+    fn: Any, horizon: int, substeps: int, name: str
+) -> CompiledTrajectory | InterpretedTrajectory:
     """The CasADi horizon function ``fn`` (inputs ``x0, U, kap``) as C: generated, compiled to
     ``mpc/<name>_<hash of the code>.so`` in the cache folder (once; the compiler is ``$CC``
     if set, a command such as ``"ccache gcc"``, else ``gcc`` or ``cc``) and loaded, a
@@ -46,19 +50,23 @@ def load_prediction(fn: Any, horizon: int, substeps: int, name: str) -> Compiled
     flags = ["-O3", "-fPIC", "-shared"]
     key = hashlib.sha1((code + " ".join(flags)).encode()).hexdigest()[:16]
     lib = _cache_root() / f"{name}_{key}.so"
-    if (lib, os.environ.get("CC")) in _FAILED:   # failed before in this process: not retried per car
+    if (lib, os.environ.get("CC")) in _FAILED:  # failed before in this process: not retried per car
         return InterpretedTrajectory(fn)
     if not lib.exists():
         cc = _c_compiler()
         if cc is None:
             cc_env = os.environ.get("CC", "").strip()
-            why = f"CC={cc_env!r} is not a program on the PATH" if cc_env else "no gcc or cc on the PATH"
+            why = (
+                f"CC={cc_env!r} is not a program on the PATH"
+                if cc_env
+                else "no gcc or cc on the PATH"
+            )
             return _interpreted(fn, lib, f"no C compiler found ({why})")
         with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
             src = Path(tmp) / f"{name}.c"
             src.write_text(code)
             try:
-                with atomic_path(lib, ".so") as out:   # a killed compile leaves no broken library
+                with atomic_path(lib, ".so") as out:  # a killed compile leaves no broken library
                     cmd = [*cc, *flags, str(src), "-o", str(out)]
                     _compile(cmd)
             except _CompileError as exc:
@@ -69,7 +77,7 @@ def load_prediction(fn: Any, horizon: int, substeps: int, name: str) -> Compiled
         return _interpreted(fn, lib, f"cannot load the compiled {str(lib)!r} ({exc})")
 
 
-_FAILED: set[tuple[Path, str | None]] = set()     # (library, $CC) that failed in this process
+_FAILED: set[tuple[Path, str | None]] = set()  # (library, $CC) that failed in this process
 _WARNED = False
 
 
@@ -82,9 +90,10 @@ def _compile(cmd: list[str]) -> None:
         subprocess.run(cmd, check=True, capture_output=True, text=True)
     except subprocess.CalledProcessError as exc:
         output = " ".join((exc.stderr or exc.stdout or "").split())
-        raise _CompileError(f"exit status {exc.returncode}"
-                            + (f": ...{output[-300:]}" if output else "")) from None
-    except OSError as exc:          # not executable, not a program, ...
+        raise _CompileError(
+            f"exit status {exc.returncode}" + (f": ...{output[-300:]}" if output else "")
+        ) from None
+    except OSError as exc:  # not executable, not a program, ...
         raise _CompileError(f"could not run: {exc}") from None
 
 
@@ -95,9 +104,13 @@ def _interpreted(fn, lib: Path, why: str) -> InterpretedTrajectory:
     _FAILED.add((lib, os.environ.get("CC")))
     if not _WARNED:
         _WARNED = True
-        warnings.warn(f"alpha-racer: the MPC prediction is not compiled, {why}; it runs "
-                      f"interpreted by CasADi (same results, slower). Set CC to a working C "
-                      f"compiler to speed it up", RuntimeWarning, stacklevel=4)
+        warnings.warn(
+            f"alpha-racer: the MPC prediction is not compiled, {why}; it runs "
+            f"interpreted by CasADi (same results, slower). Set CC to a working C "
+            f"compiler to speed it up",
+            RuntimeWarning,
+            stacklevel=4,
+        )
     return InterpretedTrajectory(fn)
 
 
@@ -121,7 +134,7 @@ class InterpretedTrajectory:
 
     def __call__(self, x0, U, kap):
         out = self._fn(x0, U, kap)
-        out = out if isinstance(out, (tuple, list)) else (out,)   # one output comes bare
+        out = out if isinstance(out, (tuple, list)) else (out,)  # one output comes bare
         return tuple(np.asarray(o, dtype=float) for o in out)
 
     def states(self, x0: np.ndarray, u_vec: np.ndarray, kap_flat: np.ndarray, K: int) -> np.ndarray:
@@ -129,7 +142,9 @@ class InterpretedTrajectory:
         ``kap_flat`` (substeps K,) stage after stage (the layouts of the compiled buffers)."""
         return np.ascontiguousarray(self.full(x0, u_vec, kap_flat, K)[0])
 
-    def full(self, x0: np.ndarray, u_vec: np.ndarray, kap_flat: np.ndarray, K: int) -> tuple[np.ndarray, ...]:
+    def full(
+        self, x0: np.ndarray, u_vec: np.ndarray, kap_flat: np.ndarray, K: int
+    ) -> tuple[np.ndarray, ...]:
         """``(X, A, B)`` (or ``(X,)``) of flat inputs, like :meth:`states`."""
         U = np.asarray(u_vec).reshape(K, 2).T
         kap = np.asarray(kap_flat).reshape(K, -1).T
@@ -140,11 +155,11 @@ class KernelHandle(NamedTuple):
     """What :func:`run_prediction` needs to call a compiled prediction from numba
     (:meth:`CompiledTrajectory.kernel_args`)."""
 
-    ws: np.ndarray      # the workspace: inputs, outputs, CasADi's work vector (float64)
-    ptrs: np.ndarray    # argument pointers, then result pointers (uint64)
-    iw: np.ndarray      # CasADi's integer work vector (int64)
-    fn: int             # address of the C function
-    res: int            # byte offset of the result pointers in ptrs
+    ws: np.ndarray  # the workspace: inputs, outputs, CasADi's work vector (float64)
+    ptrs: np.ndarray  # argument pointers, then result pointers (uint64)
+    iw: np.ndarray  # CasADi's integer work vector (int64)
+    fn: int  # address of the C function
+    res: int  # byte offset of the result pointers in ptrs
 
 
 class CompiledTrajectory:
@@ -159,6 +174,7 @@ class CompiledTrajectory:
 
     def __init__(self, lib: Path, horizon: int, substeps: int, name: str = "mpc_traj"):
         import ctypes
+
         self._lib = ctypes.CDLL(str(lib))
         fn = getattr(self._lib, name)
         i64 = ctypes.c_longlong
@@ -171,15 +187,21 @@ class CompiledTrajectory:
         offsets = workspace_offsets(K, substeps)
         self.ws = np.zeros(offsets[-1] + max(n_w, 1))
         self.x0, self.U, self.kap, self.X, self.A, self.B = (
-            self.ws[a:b] for a, b in zip(offsets[:-1], offsets[1:]))
-        self._w = self.ws[offsets[-1]:]
+            self.ws[a:b] for a, b in zip(offsets[:-1], offsets[1:])
+        )
+        self._w = self.ws[offsets[-1] :]
         self.iw = np.zeros(max(n_iw, 1), dtype=np.int64)
         self.ptrs = np.zeros(self.n_arg + n_res_slots, dtype=np.uint64)
         self.ptrs[:3] = [a.ctypes.data for a in (self.x0, self.U, self.kap)]
-        self.ptrs[self.n_arg:self.n_arg + 3] = [a.ctypes.data for a in (self.X, self.A, self.B)]
+        self.ptrs[self.n_arg : self.n_arg + 3] = [a.ctypes.data for a in (self.X, self.A, self.B)]
         vp = ctypes.c_void_p
-        self._args = (vp(self.ptrs.ctypes.data), vp(self.ptrs.ctypes.data + 8 * self.n_arg),
-                      vp(self.iw.ctypes.data), vp(self._w.ctypes.data), 0)
+        self._args = (
+            vp(self.ptrs.ctypes.data),
+            vp(self.ptrs.ctypes.data + 8 * self.n_arg),
+            vp(self.iw.ctypes.data),
+            vp(self._w.ctypes.data),
+            0,
+        )
         fn.restype = ctypes.c_int
         fn.argtypes = [vp, vp, vp, vp, ctypes.c_int]
         self._fn = fn
@@ -188,8 +210,14 @@ class CompiledTrajectory:
     def kernel_args(self) -> KernelHandle:
         """What :func:`~agents.mpc.solver.sqp_step` needs to call this prediction."""
         import ctypes
-        return KernelHandle(self.ws, self.ptrs, self.iw,
-                            ctypes.cast(self._fn, ctypes.c_void_p).value, 8 * self.n_arg)
+
+        return KernelHandle(
+            self.ws,
+            self.ptrs,
+            self.iw,
+            ctypes.cast(self._fn, ctypes.c_void_p).value,
+            8 * self.n_arg,
+        )
 
     def _run(self, x0, u_vec, kap_flat) -> None:
         """Write the inputs into the buffers and run the C function on them."""
@@ -210,7 +238,9 @@ class CompiledTrajectory:
         self._run(x0, u_vec, kap_flat)
         return self.X.reshape(K, 6).T.copy()
 
-    def full(self, x0: np.ndarray, u_vec: np.ndarray, kap_flat: np.ndarray, K: int) -> tuple[np.ndarray, ...]:
+    def full(
+        self, x0: np.ndarray, u_vec: np.ndarray, kap_flat: np.ndarray, K: int
+    ) -> tuple[np.ndarray, ...]:
         """``(X (6, K), A (36, K), B (12, K))`` (``(X,)`` for a states-only prediction) of
         flat inputs, like :meth:`states`."""
         self._run(x0, u_vec, kap_flat)
@@ -245,6 +275,7 @@ def _call_casadi(typingctx, fn, arg, res, iw, w):
         f = builder.inttoptr(args[0], fnty.as_pointer())
         ptrs = [builder.inttoptr(a, i8p) for a in args[1:]]
         return builder.call(f, ptrs + [ir.Constant(ir.IntType(32), 0)])
+
     return sig, codegen
 
 
@@ -254,5 +285,10 @@ def run_prediction(h, K, m):
     its workspace (inputs already written; see :class:`CompiledTrajectory`); returns its
     status (0: success)."""
     o_w = workspace_offsets(K, m)[-1]
-    return _call_casadi(h.fn, h.ptrs.ctypes.data, h.ptrs.ctypes.data + h.res, h.iw.ctypes.data,
-                        h.ws.ctypes.data + 8 * o_w)
+    return _call_casadi(
+        h.fn,
+        h.ptrs.ctypes.data,
+        h.ptrs.ctypes.data + h.res,
+        h.iw.ctypes.data,
+        h.ws.ctypes.data + 8 * o_w,
+    )

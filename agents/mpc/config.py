@@ -1,4 +1,5 @@
 """The MPC's settings: :class:`MPCConfig` (horizon, prediction model, constraints, SQP)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -10,55 +11,69 @@ import numpy as np
 class MPCConfig:
     """MPC settings. Lengths in m, times in s."""
 
-    horizon: int = 15             # K
+    horizon: int = 15  # K
     dt: float = 0.1
-    substeps: int = 3             # RK4 steps per stage
-    v_low: float = 0.5            # slip regularisation of the prediction model at rest [m/s]
-    v_blend: float = 1.0          # ... fading to the simulator's v_low above this speed [m/s]
-    track_margin: float = 0.03    # keep the car centre this far inside the edges
-    sep_s: float = 0.15           # longitudinal separation p_x^min
-    sep_n: float = 0.08           # lateral separation p_y^min
-    sep_window: float = 2.0       # only opponents within this progress distance constrain
-    soft_rho: float = 1e-4        # DAQP rho_soft at q <= soft_q_ref: a soft violation v costs
-                                  # v^2 / (2 rho), rho = soft_rho_at(q)
-    soft_q_ref: float = 20.0      # above this tracking weight rho shrinks like 1 / q
-    sqp_iterations: int = 12      # most SQP iterations (QPs) per solve: the SQP stops earlier
-                                  # when a QP step predicts a relative decrease of the cost
-                                  # below merit_rtol, or when no step length lowers it
-    merit_rtol: float = 1e-3      # predicted relative cost decrease worth a merit check
+    substeps: int = 3  # RK4 steps per stage
+    v_low: float = 0.5  # slip regularisation of the prediction model at rest [m/s]
+    v_blend: float = 1.0  # ... fading to the simulator's v_low above this speed [m/s]
+    track_margin: float = 0.03  # keep the car centre this far inside the edges
+    sep_s: float = 0.15  # longitudinal separation p_x^min
+    sep_n: float = 0.08  # lateral separation p_y^min
+    sep_window: float = 2.0  # only opponents within this progress distance constrain
+    soft_rho: float = 1e-4  # DAQP rho_soft at q <= soft_q_ref: a soft violation v costs
+    # v^2 / (2 rho), rho = soft_rho_at(q)
+    soft_q_ref: float = 20.0  # above this tracking weight rho shrinks like 1 / q
+    sqp_iterations: int = 12  # most SQP iterations (QPs) per solve: the SQP stops earlier
+    # when a QP step predicts a relative decrease of the cost
+    # below merit_rtol, or when no step length lowers it
+    merit_rtol: float = 1e-3  # predicted relative cost decrease worth a merit check
     step_sizes: tuple = (1.0, 0.5, 0.25, 0.125)  # merit-checked step lengths of each QP step
-    curvature_passes: int = 1     # re-rollouts of a plan with the curvature along its own
-                                  # progress (0: along the previous plan's progress only)
+    curvature_passes: int = 1  # re-rollouts of a plan with the curvature along its own
+    # progress (0: along the previous plan's progress only)
     restart_offtrack: float = 0.06  # warm start from a follower rollout when the shifted plan
-                                    # leaves the track by more than this [m]
-    qp_iter_limit: int = 300        # DAQP active-set iterations; a QP that needs more (rare
-                                    # cycling) falls back instead of spinning for 10 ms
+    # leaves the track by more than this [m]
+    qp_iter_limit: int = 300  # DAQP active-set iterations; a QP that needs more (rare
+    # cycling) falls back instead of spinning for 10 ms
 
     def __post_init__(self):
         if not (isinstance(self.horizon, int) and 2 <= self.horizon <= 100):
             raise ValueError(f"MPC horizon must be an integer in 2..100, got {self.horizon!r}")
         if not (isinstance(self.substeps, int) and 1 <= self.substeps <= 10):
             raise ValueError(f"MPC substeps must be an integer in 1..10, got {self.substeps!r}")
-        for name in ("dt", "v_low", "v_blend", "sep_s", "sep_n", "sep_window", "soft_rho",
-                     "soft_q_ref"):
+        for name in (
+            "dt",
+            "v_low",
+            "v_blend",
+            "sep_s",
+            "sep_n",
+            "sep_window",
+            "soft_rho",
+            "soft_q_ref",
+        ):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"MPCConfig.{name} must be positive, got {v!r}")
         if not (isinstance(self.qp_iter_limit, int) and self.qp_iter_limit >= 1):
-            raise ValueError(f"MPCConfig.qp_iter_limit must be a positive integer, got "
-                             f"{self.qp_iter_limit!r}")
+            raise ValueError(
+                f"MPCConfig.qp_iter_limit must be a positive integer, got {self.qp_iter_limit!r}"
+            )
         if self.track_margin < 0 or self.sqp_iterations < 1:
-            raise ValueError(f"MPCConfig needs track_margin >= 0 and sqp_iterations >= 1, got "
-                             f"{self.track_margin}, {self.sqp_iterations}")
+            raise ValueError(
+                f"MPCConfig needs track_margin >= 0 and sqp_iterations >= 1, got "
+                f"{self.track_margin}, {self.sqp_iterations}"
+            )
         if not (isinstance(self.curvature_passes, int) and 0 <= self.curvature_passes <= 5):
-            raise ValueError(f"MPCConfig.curvature_passes must be an integer in 0..5, got "
-                             f"{self.curvature_passes!r}")
+            raise ValueError(
+                f"MPCConfig.curvature_passes must be an integer in 0..5, got "
+                f"{self.curvature_passes!r}"
+            )
         if not (np.isfinite(self.merit_rtol) and self.merit_rtol >= 0):
             raise ValueError(f"MPCConfig.merit_rtol must be >= 0, got {self.merit_rtol!r}")
         steps = tuple(self.step_sizes)
         if not steps or any(not (0 < a <= 1) for a in steps):
-            raise ValueError(f"MPCConfig.step_sizes must be step lengths in (0, 1], got "
-                             f"{self.step_sizes!r}")
+            raise ValueError(
+                f"MPCConfig.step_sizes must be step lengths in (0, 1], got {self.step_sizes!r}"
+            )
 
     def soft_rho_at(self, q: float) -> float:
         """DAQP's ``rho_soft`` for tracking weight ``q``: ``soft_rho * min(1, soft_q_ref / q)``,

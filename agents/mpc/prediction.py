@@ -2,6 +2,7 @@
 the horizon and compiled (:func:`trajectory_function`, the rollout IBR uses too), the track
 curvature along a plan's progress, and the raceline follower's rollout that warm-starts a
 plan."""
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -26,13 +27,15 @@ if TYPE_CHECKING:
     from .codegen import CompiledTrajectory, InterpretedTrajectory
 
 
-def prediction_v_low(vx: Any, v_low_sim: float, cfg: MPCConfig, exp: Callable[[Any], Any] = np.exp) -> Any:
+def prediction_v_low(
+    vx: Any, v_low_sim: float, cfg: MPCConfig, exp: Callable[[Any], Any] = np.exp
+) -> Any:
     """Slip regularisation [m/s] of the prediction model at speed ``vx`` [m/s]:
     ``v_low_sim + (cfg.v_low - v_low_sim) exp(-(vx / cfg.v_blend)^2)``. Near rest the larger
     ``cfg.v_low`` keeps the RK4 sub-steps stable; at racing speed (within 1e-3 above
     ``2.7 v_blend``) it is the simulator's own, so the prediction holds the tyre forces the car
     really has (a constant 0.5 m/s cost 4% of lateral force at 2.5 m/s)."""
-    return v_low_sim + (cfg.v_low - v_low_sim) * exp(-(vx / cfg.v_blend) ** 2)
+    return v_low_sim + (cfg.v_low - v_low_sim) * exp(-((vx / cfg.v_blend) ** 2))
 
 
 def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True) -> Any:
@@ -41,6 +44,7 @@ def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = Tru
     the prediction's ``v_low``; ``u`` are the env's normalised inputs. Without ``jacobians``
     it returns ``x_next`` only."""
     import casadi as ca
+
     from racing_env.vehicle import frenet_ode_casadi
 
     ode = frenet_ode_casadi()
@@ -68,13 +72,16 @@ def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = Tru
         xn = xn + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     if not jacobians:
         return ca.Function("stage_x", [x, u, kap], [xn])
-    return ca.Function("stage", [x, u, kap],
-                       [xn, ca.densify(ca.vec(ca.jacobian(xn, x))),
-                        ca.densify(ca.vec(ca.jacobian(xn, u)))])
+    return ca.Function(
+        "stage",
+        [x, u, kap],
+        [xn, ca.densify(ca.vec(ca.jacobian(xn, x))), ca.densify(ca.vec(ca.jacobian(xn, u)))],
+    )
 
 
-def trajectory_function(vehicle: VehicleParams, cfg: MPCConfig,
-                        jacobians: bool = True) -> CompiledTrajectory | InterpretedTrajectory:
+def trajectory_function(
+    vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True
+) -> CompiledTrajectory | InterpretedTrajectory:
     """The horizon ``(x0[6], U[2xK], KAP[substeps x K]) -> (X[6xK], A[36xK], B[12xK])`` (numpy
     arrays): the stage function folded K times (mapaccum), compiled to C and cached on disk
     by :func:`~agents.mpc.codegen.load_prediction` (interpreted by CasADi, with a warning, when
@@ -122,28 +129,54 @@ def _rollout(x, n_ref, mu_ref, kappa_ref, v_ref, kappa_tab, ds, length, gains, p
         a0, a1 = follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, gains)
         U[0, k] = a0
         U[1, k] = a1
-        integrate_car(x, act_map[0] + act_map[1] * a0, act_map[2] * a1, kappa_tab, ds, length,
-                      p, dt, _n_substeps(x[3], p, dt, 1.0, 100))
+        integrate_car(
+            x,
+            act_map[0] + act_map[1] * a0,
+            act_map[2] * a1,
+            kappa_tab,
+            ds,
+            length,
+            p,
+            dt,
+            _n_substeps(x[3], p, dt, 1.0, 100),
+        )
 
 
-def follower_rollout(track: Track, vehicle: VehicleParams, follower: RacelineFollower,
-                     x0: np.ndarray, K: int, dt: float) -> np.ndarray:
+def follower_rollout(
+    track: Track,
+    vehicle: VehicleParams,
+    follower: RacelineFollower,
+    x0: np.ndarray,
+    K: int,
+    dt: float,
+) -> np.ndarray:
     """Normalised inputs (2, K) from rolling the raceline follower's law forward from ``x0``
     (6,) in the simulator's model for ``K`` stages of ``dt`` s: an on-track initial guess.
     ``follower`` is a :class:`racing_env.controllers.RacelineFollower` reset on ``track``."""
     U = np.empty((2, K))
     v = vehicle
-    _rollout(np.array(x0, dtype=float), *follower.tables(), track.kappa, track.ds, track.length,
-             follower.gains(), v.pack(),
-             np.array([0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min), v.delta_max]),
-             dt, U)
+    _rollout(
+        np.array(x0, dtype=float),
+        *follower.tables(),
+        track.kappa,
+        track.ds,
+        track.length,
+        follower.gains(),
+        v.pack(),
+        np.array([0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min), v.delta_max]),
+        dt,
+        U,
+    )
     return U
 
 
-def make_follower(track: Track, vehicle: VehicleParams, line: str = "curvature") -> RacelineFollower:
+def make_follower(
+    track: Track, vehicle: VehicleParams, line: str = "curvature"
+) -> RacelineFollower:
     """A raceline follower of racing line ``line`` reset on ``track`` (for
     :func:`follower_rollout`)."""
     from racing_env.controllers import RacelineFollower
+
     follower = RacelineFollower(vehicle, line=line)
     follower.reset(track)
     return follower

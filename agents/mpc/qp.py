@@ -1,6 +1,7 @@
 """The MPC's problem at a plan: the cost of a rollout (tracking, input rates, the soft rows'
 penalty), the track-edge bounds and separation choices, and the condensed QP in the input
 corrections that one SQP iteration solves with DAQP."""
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -49,8 +50,9 @@ def condense_states(A, B, K):
 def condense(A, B, n_steps):
     """Sensitivities of (s, n) at stages 1..K to the inputs: (2K, 2K) rows [s^1, n^1, ...],
     ``G[2k + r, 2j + c] = d x_r^{k+1} / d u_c^j`` (rows r = 0, 1 of :func:`condense_states`)."""
-    return np.ascontiguousarray(condense_states(A, B, n_steps)[:, :2, :]).reshape(2 * n_steps,
-                                                                                  2 * n_steps)
+    return np.ascontiguousarray(condense_states(A, B, n_steps)[:, :2, :]).reshape(
+        2 * n_steps, 2 * n_steps
+    )
 
 
 @njit(cache=True)
@@ -70,19 +72,21 @@ class EdgeBounds:
     def __init__(self, track: Track, vehicle: VehicleParams, cfg: MPCConfig):
         half = 0.5 * vehicle.width + cfg.track_margin
         self.track = track
-        self.lo_table = np.ascontiguousarray(-track.w_right + half)    # per track station
+        self.lo_table = np.ascontiguousarray(-track.w_right + half)  # per track station
         self.hi_table = np.ascontiguousarray(track.w_left - half)
 
     def __call__(self, s):
         t = self.track
         s = np.ascontiguousarray(s, dtype=float)
-        return (_grid_interp(self.lo_table, s, t.ds, t.length),
-                _grid_interp(self.hi_table, s, t.ds, t.length))
+        return (
+            _grid_interp(self.lo_table, s, t.ds, t.length),
+            _grid_interp(self.hi_table, s, t.ds, t.length),
+        )
 
 
-def separation_choice(s_pred: np.ndarray, n_pred: np.ndarray,
-                      opponent: Sequence[float] | np.ndarray,
-                      cfg: MPCConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def separation_choice(
+    s_pred: np.ndarray, n_pred: np.ndarray, opponent: Sequence[float] | np.ndarray, cfg: MPCConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Which separation to impose against one opponent at each predicted stage k = 1..K.
 
     ``opponent = (s_j, n_j, s_dot_j)`` moves at constant progress rate and lateral position.
@@ -105,14 +109,31 @@ def input_rate_matrix(K: int) -> np.ndarray:
     ``u^T DtD u = sum_{k=1..K-1} ||u^k - u^{k-1}||^2``."""
     D = np.zeros((2 * (K - 1), 2 * K))
     for k in range(1, K):
-        D[2 * (k - 1):2 * k, 2 * k:2 * k + 2] = np.eye(2)
-        D[2 * (k - 1):2 * k, 2 * (k - 1):2 * k] = -np.eye(2)
+        D[2 * (k - 1) : 2 * k, 2 * k : 2 * k + 2] = np.eye(2)
+        D[2 * (k - 1) : 2 * k, 2 * (k - 1) : 2 * k] = -np.eye(2)
     return D.T @ D
 
 
 @njit(cache=True)
-def qp_arrays(G, s_pred, n_pred, s_ref, n_ref, q, DtD, u_vec, delta_applied, rate, nlo, nhi,
-              opponents, dt, sep_s, sep_n, sep_window):
+def qp_arrays(
+    G,
+    s_pred,
+    n_pred,
+    s_ref,
+    n_ref,
+    q,
+    DtD,
+    u_vec,
+    delta_applied,
+    rate,
+    nlo,
+    nhi,
+    opponents,
+    dt,
+    sep_s,
+    sep_n,
+    sep_window,
+):
     """The condensed QP in the input corrections ``du`` (2K,) for DAQP, built in one pass.
 
     Cost ``0.5 du' H du + f' du`` of ``q ||(s, n) - ref||^2 + ||D u||^2``; constraint rows
@@ -182,8 +203,22 @@ def qp_arrays(G, s_pred, n_pred, s_ref, n_ref, q, DtD, u_vec, delta_applied, rat
 
 
 @njit(cache=True)
-def plan_cost(s_pred, n_pred, s_ref, n_ref, q, u_vec, nlo, nhi, opponents, dt, sep_s, sep_n,
-              sep_window, w_soft):
+def plan_cost(
+    s_pred,
+    n_pred,
+    s_ref,
+    n_ref,
+    q,
+    u_vec,
+    nlo,
+    nhi,
+    opponents,
+    dt,
+    sep_s,
+    sep_n,
+    sep_window,
+    w_soft,
+):
     """The MPC's objective at a plan's rollout (:func:`qp_arrays`' cost before linearisation):
     ``q ||(s, n) - ref||^2 + ||D u||^2 + w_soft * (sum of squared violations of the track
     edges and of the separations, chosen per stage as in qp_arrays)``."""
@@ -236,8 +271,25 @@ def _all_finite(a):
 
 
 @njit(cache=True)
-def linearised_qp(X, A, B, s_ref, n_ref, q, DtD, u_vec, delta_applied, rate, nlo, nhi,
-                  opponents, dt, sep_s, sep_n, sep_window):
+def linearised_qp(
+    X,
+    A,
+    B,
+    s_ref,
+    n_ref,
+    q,
+    DtD,
+    u_vec,
+    delta_applied,
+    rate,
+    nlo,
+    nhi,
+    opponents,
+    dt,
+    sep_s,
+    sep_n,
+    sep_window,
+):
     """One SQP iteration's QP at the plan ``X`` (6, K) with stage Jacobians ``A`` (36, K),
     ``B`` (12, K), in one call: ``(ok, G, H, f, Acon, blo, bhi, sense)`` with ``G`` from
     :func:`condense` and the rest from :func:`qp_arrays`; ``ok`` False (and the arrays empty)
@@ -247,15 +299,46 @@ def linearised_qp(X, A, B, s_ref, n_ref, q, DtD, u_vec, delta_applied, rate, nlo
         e = np.empty((0, 0))
         return False, e, e, np.empty(0), e, np.empty(0), np.empty(0), np.empty(0, np.int32)
     G = condense(A, B, K)
-    H, f, Acon, blo, bhi, sense = qp_arrays(G, X[0], X[1], s_ref, n_ref, q, DtD, u_vec,
-                                            delta_applied, rate, nlo, nhi, opponents, dt, sep_s,
-                                            sep_n, sep_window)
+    H, f, Acon, blo, bhi, sense = qp_arrays(
+        G,
+        X[0],
+        X[1],
+        s_ref,
+        n_ref,
+        q,
+        DtD,
+        u_vec,
+        delta_applied,
+        rate,
+        nlo,
+        nhi,
+        opponents,
+        dt,
+        sep_s,
+        sep_n,
+        sep_window,
+    )
     return True, G, H, f, Acon, blo, bhi, sense
 
 
 @njit(cache=True)
-def score_rollout(X, u_vec, s_ref, n_ref, q, lo_tab, hi_tab, ds, length, opponents, dt, sep_s,
-                  sep_n, sep_window, w_soft):
+def score_rollout(
+    X,
+    u_vec,
+    s_ref,
+    n_ref,
+    q,
+    lo_tab,
+    hi_tab,
+    ds,
+    length,
+    opponents,
+    dt,
+    sep_s,
+    sep_n,
+    sep_window,
+    w_soft,
+):
     """``(cost, lo, hi)`` of a plan's rollout ``X`` (6, K) in one pass: the bounds (K,) on n
     along ``X[0]`` (:class:`EdgeBounds`) and :func:`plan_cost` on them; ``inf`` cost (and
     bounds not filled) for a non-finite rollout."""
@@ -267,6 +350,7 @@ def score_rollout(X, u_vec, s_ref, n_ref, q, lo_tab, hi_tab, ds, length, opponen
     for k in range(K):
         lo[k] = _lookup(lo_tab, X[0, k], ds, length)
         hi[k] = _lookup(hi_tab, X[0, k], ds, length)
-    J = plan_cost(X[0], X[1], s_ref, n_ref, q, u_vec, lo, hi, opponents, dt, sep_s, sep_n,
-                  sep_window, w_soft)
+    J = plan_cost(
+        X[0], X[1], s_ref, n_ref, q, u_vec, lo, hi, opponents, dt, sep_s, sep_n, sep_window, w_soft
+    )
     return J, lo, hi

@@ -1,6 +1,7 @@
 """The MPC's solver: :class:`MPC`, the RTI-SQP loop of one car (warm start, QP, merit-checked
 steps, fallback), and :func:`sqp_step`, one iteration's merit-checked step in one compiled
 call (:meth:`MPC._step_python` is the same step for an interpreted prediction)."""
+
 from __future__ import annotations
 
 import time
@@ -16,54 +17,59 @@ from racing_env.vehicle import VehicleParams
 
 from .codegen import CompiledTrajectory, run_prediction, workspace_offsets
 from .config import MPCConfig
-from .prediction import (follower_rollout, kappa_flat, make_follower, stage_nodes,
-                         trajectory_function)
+from .prediction import (
+    follower_rollout,
+    kappa_flat,
+    make_follower,
+    stage_nodes,
+    trajectory_function,
+)
 from .qp import EdgeBounds, input_rate_matrix, linearised_qp, predicted_decrease, score_rollout
 
 
 class StepCode(IntEnum):
     """How a merit-checked SQP step ended (:attr:`StepResult.code`)."""
 
-    FAILED = -1         # a prediction failed
-    REJECTED = 0        # no step length lowers the cost: the plan is kept (the rest is meaningless)
-    ACCEPTED = 1        # a step accepted, not linearised again (A, B empty)
-    RELINEARISED = 2    # a step accepted and the plan linearised again
+    FAILED = -1  # a prediction failed
+    REJECTED = 0  # no step length lowers the cost: the plan is kept (the rest is meaningless)
+    ACCEPTED = 1  # a step accepted, not linearised again (A, B empty)
+    RELINEARISED = 2  # a step accepted and the plan linearised again
 
 
 class StepConstants(NamedTuple):
     """What every SQP step of one :meth:`MPC.solve` shares."""
 
-    x0: np.ndarray          # (6,) the car's Frenet state
+    x0: np.ndarray  # (6,) the car's Frenet state
     step_sizes: np.ndarray  # merit-checked step lengths, tried in order
-    kappa_tab: np.ndarray   # track curvature per grid station [1/m]
-    ds: float               # track grid spacing [m]
-    length: float           # track length [m]
-    m: int                  # RK4 sub-steps per stage
-    s_ref: np.ndarray       # (K,) reference progress of the predicted states 1..K [m]
-    n_ref: np.ndarray       # (K,) reference lateral offsets [m]
-    q: float                # tracking weight
-    lo_tab: np.ndarray      # lower bound on n per grid station [m] (EdgeBounds)
-    hi_tab: np.ndarray      # upper bound on n per grid station [m]
-    opponents: np.ndarray   # (M, 3) rows (s, n, s_dot) of the nearby cars
-    dt: float               # stage length [s]
-    sep_s: float            # longitudinal separation [m]
-    sep_n: float            # lateral separation [m]
-    sep_window: float       # progress distance within which an opponent constrains [m]
-    w_soft: float           # weight of a soft row's squared violation, 1 / (2 rho)
+    kappa_tab: np.ndarray  # track curvature per grid station [1/m]
+    ds: float  # track grid spacing [m]
+    length: float  # track length [m]
+    m: int  # RK4 sub-steps per stage
+    s_ref: np.ndarray  # (K,) reference progress of the predicted states 1..K [m]
+    n_ref: np.ndarray  # (K,) reference lateral offsets [m]
+    q: float  # tracking weight
+    lo_tab: np.ndarray  # lower bound on n per grid station [m] (EdgeBounds)
+    hi_tab: np.ndarray  # upper bound on n per grid station [m]
+    opponents: np.ndarray  # (M, 3) rows (s, n, s_dot) of the nearby cars
+    dt: float  # stage length [s]
+    sep_s: float  # longitudinal separation [m]
+    sep_n: float  # lateral separation [m]
+    sep_window: float  # progress distance within which an opponent constrains [m]
+    w_soft: float  # weight of a soft row's squared violation, 1 / (2 rho)
 
 
 class StepResult(NamedTuple):
     """A merit-checked SQP step (:func:`sqp_step`, :meth:`MPC._step_python`)."""
 
     code: StepCode
-    J: float                # cost of the plan (the old one unless accepted)
-    u_vec: np.ndarray       # (2K,) inputs [d0, delta0, d1, ...]
-    X: np.ndarray           # (6, K) its rollout
-    A: np.ndarray | None    # (36, K) stage Jacobians when RELINEARISED, else empty (None in Python)
-    B: np.ndarray | None    # (12, K)
-    lo: np.ndarray          # (K,) bounds on n along X
-    hi: np.ndarray          # (K,)
-    s_nominal: np.ndarray   # (K + 1,) progress at the stage boundaries of the plan
+    J: float  # cost of the plan (the old one unless accepted)
+    u_vec: np.ndarray  # (2K,) inputs [d0, delta0, d1, ...]
+    X: np.ndarray  # (6, K) its rollout
+    A: np.ndarray | None  # (36, K) stage Jacobians when RELINEARISED, else empty (None in Python)
+    B: np.ndarray | None  # (12, K)
+    lo: np.ndarray  # (K,) bounds on n along X
+    hi: np.ndarray  # (K,)
+    s_nominal: np.ndarray  # (K + 1,) progress at the stage boundaries of the plan
 
 
 @njit(cache=True)
@@ -109,14 +115,16 @@ def sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, roll, traj):
     best_lo = np.empty(K)
     best_hi = np.empty(K)
     for a in range(c.step_sizes.shape[0]):
-        ua, kap_a = trial_step(u_vec, du, c.step_sizes[a], c.x0[0], s_pred, ds_lin, c.kappa_tab,
-                               c.ds, c.length, m)
+        ua, kap_a = trial_step(
+            u_vec, du, c.step_sizes[a], c.x0[0], s_pred, ds_lin, c.kappa_tab, c.ds, c.length, m
+        )
         roll.ws[:o_u] = c.x0
         roll.ws[o_u:o_kap] = ua
         roll.ws[o_kap:o_x] = kap_a
         if run_prediction(roll, K, m):
-            return StepResult(StepCode.FAILED, J, u_vec, best_X, empty, empty, best_lo, best_hi,
-                              s_pred)
+            return StepResult(
+                StepCode.FAILED, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred
+            )
         Xa = roll.ws[o_x:o_a].reshape(K, 6).T.copy()
         Ja, lo, hi = _plan_score(Xa, ua, c)
         if not found or Ja < best_J:
@@ -125,20 +133,21 @@ def sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, roll, traj):
         if Ja <= J:
             break
     if best_J > J:
-        return StepResult(StepCode.REJECTED, J, u_vec, best_X, empty, empty, best_lo, best_hi,
-                          s_pred)
+        return StepResult(
+            StepCode.REJECTED, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred
+        )
     s_nom = np.empty(K + 1)
     s_nom[0] = c.x0[0]
     s_nom[1:] = best_X[0]
     if not relinearise:
-        return StepResult(StepCode.ACCEPTED, best_J, best_u, best_X, empty, empty, best_lo,
-                          best_hi, s_nom)
+        return StepResult(
+            StepCode.ACCEPTED, best_J, best_u, best_X, empty, empty, best_lo, best_hi, s_nom
+        )
     traj.ws[:o_u] = c.x0
     traj.ws[o_u:o_kap] = best_u
     traj.ws[o_kap:o_x] = kappa_flat(c.kappa_tab, s_nom, m, c.ds, c.length)
     if run_prediction(traj, K, m):
-        return StepResult(StepCode.FAILED, J, u_vec, best_X, empty, empty, best_lo, best_hi,
-                          s_pred)
+        return StepResult(StepCode.FAILED, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred)
     X = traj.ws[o_x:o_a].reshape(K, 6).T.copy()
     A = traj.ws[o_a:o_b].reshape(K, 36).T.copy()
     B = traj.ws[o_b:o_w].reshape(K, 12).T.copy()
@@ -150,8 +159,23 @@ def sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, roll, traj):
 def _plan_score(X, u_vec, c):
     """:func:`~agents.mpc.qp.score_rollout` of rollout ``X`` (6, K) with inputs ``u_vec`` (2K,)
     under the solve's :class:`StepConstants` ``c``."""
-    return score_rollout(X, u_vec, c.s_ref, c.n_ref, c.q, c.lo_tab, c.hi_tab, c.ds, c.length,
-                         c.opponents, c.dt, c.sep_s, c.sep_n, c.sep_window, c.w_soft)
+    return score_rollout(
+        X,
+        u_vec,
+        c.s_ref,
+        c.n_ref,
+        c.q,
+        c.lo_tab,
+        c.hi_tab,
+        c.ds,
+        c.length,
+        c.opponents,
+        c.dt,
+        c.sep_s,
+        c.sep_n,
+        c.sep_window,
+        c.w_soft,
+    )
 
 
 class MPC:
@@ -164,29 +188,45 @@ class MPC:
     last (physical ``d, delta``). Returns the physical input ``(d, delta)`` to apply now.
     """
 
-    def __init__(self, track: Track, vehicle: VehicleParams | None = None,
-                 config: MPCConfig | None = None, line: str = "curvature"):
+    def __init__(
+        self,
+        track: Track,
+        vehicle: VehicleParams | None = None,
+        config: MPCConfig | None = None,
+        line: str = "curvature",
+    ):
         import daqp  # noqa: F401  (fail early with an ImportError naming the package)
+
         self.track = track
-        self.line = line                        # the racing line of the follower's warm start
+        self.line = line  # the racing line of the follower's warm start
         self.vehicle = vehicle or VehicleParams()
         self.cfg = config or MPCConfig()
         self._traj = trajectory_function(self.vehicle, self.cfg)
         self._roll = trajectory_function(self.vehicle, self.cfg, jacobians=False)
         self._step_sizes = np.array(self.cfg.step_sizes, dtype=float)
-        if isinstance(self._traj, CompiledTrajectory) and isinstance(self._roll, CompiledTrajectory):
+        if isinstance(self._traj, CompiledTrajectory) and isinstance(
+            self._roll, CompiledTrajectory
+        ):
             self._kernels = (self._roll.kernel_args(), self._traj.kernel_args())
             self._step = self._compiled_step
-        else:                                   # interpreted prediction: the same step in Python
+        else:  # interpreted prediction: the same step in Python
             self._step = self._step_python
         K = self.cfg.horizon
         # input-rate cost sum_{k=1..K-1} ||u^k - u^{k-1}||^2 as D^T D
         self._DtD = input_rate_matrix(K)
-        self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max  # normalised
+        self._rate = (
+            self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max
+        )  # normalised
         self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
-        self.stats = {"solves": 0, "fallbacks": 0, "restarts": 0, "qp_iterations": 0,
-                      "rejected_steps": 0, "extra_iterations": 0,
-                      "solve_ms": deque(maxlen=100_000)}
+        self.stats = {
+            "solves": 0,
+            "fallbacks": 0,
+            "restarts": 0,
+            "qp_iterations": 0,
+            "rejected_steps": 0,
+            "extra_iterations": 0,
+            "solve_ms": deque(maxlen=100_000),
+        }
         self.reset()
 
     def reset(self) -> None:
@@ -201,8 +241,9 @@ class MPC:
         an on-track initial guess when the shifted previous plan has left the track."""
         if self._follower is None:
             self._follower = make_follower(self.track, self.vehicle, self.line)
-        return follower_rollout(self.track, self.vehicle, self._follower, x0, self.cfg.horizon,
-                                self.cfg.dt)
+        return follower_rollout(
+            self.track, self.vehicle, self._follower, x0, self.cfg.horizon, self.cfg.dt
+        )
 
     def _plan(self, x0, U, s_prev=None, jacobians=True, passes=None):
         """Nonlinear rollout of inputs ``U`` (2, K) from ``x0``: ``(X (6, K), A, B)`` (A, B
@@ -215,8 +256,11 @@ class MPC:
         another plan's progress, a step that changes the speed is judged on the wrong corner
         and the merit test rejects the steps that would fix the plan."""
         cfg, t = self.cfg, self.track
-        nodes = (stage_nodes(self._s_nom, x0, cfg.horizon, cfg.dt) if s_prev is None
-                 else np.asarray(s_prev, dtype=float))
+        nodes = (
+            stage_nodes(self._s_nom, x0, cfg.horizon, cfg.dt)
+            if s_prev is None
+            else np.asarray(s_prev, dtype=float)
+        )
         kap = kappa_flat(t.kappa, nodes, cfg.substeps, t.ds, t.length)
         u_vec = np.ascontiguousarray(np.asarray(U, dtype=float).T).reshape(-1)
         for _ in range(cfg.curvature_passes if passes is None else passes):
@@ -230,20 +274,23 @@ class MPC:
         X, A, B = self._traj.full(x0, u_vec, kap, cfg.horizon)
         return X, A, B
 
-    def _compiled_step(self, c: StepConstants, u_vec, du, ds_lin, s_pred, J: float,
-                       relinearise: bool) -> StepResult:
+    def _compiled_step(
+        self, c: StepConstants, u_vec, du, ds_lin, s_pred, J: float, relinearise: bool
+    ) -> StepResult:
         """:func:`sqp_step` on this MPC's two compiled predictions."""
         return sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, *self._kernels)
 
-    def _step_python(self, c: StepConstants, u_vec, du, ds_lin, s_pred, J: float,
-                     relinearise: bool) -> StepResult:
+    def _step_python(
+        self, c: StepConstants, u_vec, du, ds_lin, s_pred, J: float, relinearise: bool
+    ) -> StepResult:
         """:func:`sqp_step` with an interpreted prediction (no C compiler)."""
         K = s_pred.shape[0]
         x0, m = c.x0, c.m
         best = None
         for alpha in c.step_sizes:
-            ua, kap_a = trial_step(u_vec, du, alpha, x0[0], s_pred, ds_lin, c.kappa_tab, c.ds,
-                                   c.length, m)
+            ua, kap_a = trial_step(
+                u_vec, du, alpha, x0[0], s_pred, ds_lin, c.kappa_tab, c.ds, c.length, m
+            )
             Xa = self._roll.states(x0, ua, kap_a, K)
             Ja, lo, hi = _plan_score(Xa, ua, c)
             if best is None or Ja < best[0]:
@@ -267,26 +314,51 @@ class MPC:
         along ``X``; :func:`~agents.mpc.qp.score_rollout`), and the bounds ``(lo, hi)`` on n
         along ``X``; ``(inf, None)`` for a non-finite rollout."""
         cfg, b, t = self.cfg, self._bounds_n, self.track
-        J, lo, hi = score_rollout(X, np.ascontiguousarray(U.T).reshape(-1), s_ref, n_ref,
-                                  float(q), b.lo_table, b.hi_table, t.ds, t.length, opp, cfg.dt,
-                                  cfg.sep_s, cfg.sep_n, cfg.sep_window, 0.5 / cfg.soft_rho_at(q))
+        J, lo, hi = score_rollout(
+            X,
+            np.ascontiguousarray(U.T).reshape(-1),
+            s_ref,
+            n_ref,
+            float(q),
+            b.lo_table,
+            b.hi_table,
+            t.ds,
+            t.length,
+            opp,
+            cfg.dt,
+            cfg.sep_s,
+            cfg.sep_n,
+            cfg.sep_window,
+            0.5 / cfg.soft_rho_at(q),
+        )
         return J, (None if J == np.inf else (lo, hi))
 
     def _merit(self, X, U, s_ref, n_ref, q, opp):
         """The cost of :meth:`_score` alone."""
         return self._score(X, U, s_ref, n_ref, q, opp)[0]
 
-    def solve(self, x0: np.ndarray, s_ref: np.ndarray, n_ref: np.ndarray, q: float,
-              opponents: np.ndarray | None = None, u_prev: np.ndarray | None = None) -> np.ndarray:
+    def solve(
+        self,
+        x0: np.ndarray,
+        s_ref: np.ndarray,
+        n_ref: np.ndarray,
+        q: float,
+        opponents: np.ndarray | None = None,
+        u_prev: np.ndarray | None = None,
+    ) -> np.ndarray:
         import daqp
+
         t0 = time.perf_counter()
         cfg, K = self.cfg, self.cfg.horizon
         x0 = np.asarray(x0, dtype=float)
         s_ref = np.asarray(s_ref, dtype=float)
         n_ref = np.asarray(n_ref, dtype=float)
         u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
-        opp = (np.zeros((0, 3)) if opponents is None
-               else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3))
+        opp = (
+            np.zeros((0, 3))
+            if opponents is None
+            else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3)
+        )
 
         w_soft = 0.5 / cfg.soft_rho_at(q)
         bounds, track = self._bounds_n, self.track
@@ -295,15 +367,14 @@ class MPC:
             return self._score(X_, U_, s_ref, n_ref, q, opp)
 
         fresh = self._U is None
-        if fresh:                                   # first solve: start from the follower
+        if fresh:  # first solve: start from the follower
             U = self._follower_warm_start(x0)
         else:
             U = self._U
         X, A, B = self._plan(x0, U)
         J, edges = score(X, U)
         if not fresh:
-            off = (np.inf if edges is None
-                   else np.maximum(X[1] - edges[1], edges[0] - X[1]).max())
+            off = np.inf if edges is None else np.maximum(X[1] - edges[1], edges[0] - X[1]).max()
             if off > cfg.restart_offtrack or x0[3] < 2.0 * cfg.v_low:
                 # the shifted plan leaves the track, or the car is (nearly) stopped, where the
                 # linearisation sees little of what drive does: also try a follower rollout
@@ -313,10 +384,25 @@ class MPC:
                 if Jf < J:
                     U, X, A, B, J, edges = Uf, Xf, Af, Bf, Jf, edges_f
                     self.stats["restarts"] += 1
-        consts = StepConstants(x0, self._step_sizes, track.kappa, track.ds, track.length,
-                               cfg.substeps, s_ref, n_ref, float(q), bounds.lo_table,
-                               bounds.hi_table, opp, cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window,
-                               w_soft)
+        consts = StepConstants(
+            x0,
+            self._step_sizes,
+            track.kappa,
+            track.ds,
+            track.length,
+            cfg.substeps,
+            s_ref,
+            n_ref,
+            float(q),
+            bounds.lo_table,
+            bounds.hi_table,
+            opp,
+            cfg.dt,
+            cfg.sep_s,
+            cfg.sep_n,
+            cfg.sep_window,
+            w_soft,
+        )
         status = "ok"
         for it in range(cfg.sqp_iterations):
             if edges is None:
@@ -324,22 +410,45 @@ class MPC:
                 break
             s_pred = X[0]
             lo_n, hi_n = edges
-            u_vec = np.ascontiguousarray(U.T).reshape(-1)                 # [d0, delta0, d1, ...]
+            u_vec = np.ascontiguousarray(U.T).reshape(-1)  # [d0, delta0, d1, ...]
             ok, G, H, f, Acon, blo, bhi, sense = linearised_qp(
-                X, A, B, s_ref, n_ref, float(q), self._DtD, u_vec, float(u_prev[1]),
-                self._rate, lo_n, hi_n, opp, cfg.dt, cfg.sep_s, cfg.sep_n, cfg.sep_window)
+                X,
+                A,
+                B,
+                s_ref,
+                n_ref,
+                float(q),
+                self._DtD,
+                u_vec,
+                float(u_prev[1]),
+                self._rate,
+                lo_n,
+                hi_n,
+                opp,
+                cfg.dt,
+                cfg.sep_s,
+                cfg.sep_n,
+                cfg.sep_window,
+            )
             if not ok:
                 status = "nonfinite prediction"
                 break
-            du, _, exitflag, info = daqp.solve(H, f, Acon, bhi, blo, sense, rho_soft=cfg.soft_rho_at(q),
-                                               iter_limit=cfg.qp_iter_limit)
+            du, _, exitflag, info = daqp.solve(
+                H,
+                f,
+                Acon,
+                bhi,
+                blo,
+                sense,
+                rho_soft=cfg.soft_rho_at(q),
+                iter_limit=cfg.qp_iter_limit,
+            )
             self.stats["qp_iterations"] += int(info.get("iterations", 0))
             if exitflag < 0 or not np.all(np.isfinite(du)):
                 status = f"qp exitflag {exitflag}" if it == 0 else status
                 break
-            if predicted_decrease(H, f, Acon, blo, bhi, sense, du, w_soft) \
-                    <= cfg.merit_rtol * J:
-                break                          # converged: the model sees nothing left to gain
+            if predicted_decrease(H, f, Acon, blo, bhi, sense, du, w_soft) <= cfg.merit_rtol * J:
+                break  # converged: the model sees nothing left to gain
             # merit check on the nonlinear rollout: the full step, else shorter ones, each
             # with the curvature along its own linearised progress (no extra rollout)
             ds_lin = G[0::2] @ du
@@ -362,13 +471,13 @@ class MPC:
         self.stats["solves"] += 1
         if status != "ok":
             self.stats["fallbacks"] += 1
-            U = (U if self._U is None else self._U).copy()   # the plan for now (shifted)
-            U[0, :] = np.minimum(U[0, :], 0.0)          # fallback: keep the steering plan, lift off
+            U = (U if self._U is None else self._U).copy()  # the plan for now (shifted)
+            U[0, :] = np.minimum(U[0, :], 0.0)  # fallback: keep the steering plan, lift off
             self._s_nom = None
         u0 = U[:, 0].copy()
-        self._U = np.concatenate([U[:, 1:], U[:, -1:]], axis=1)          # shifted warm start
+        self._U = np.concatenate([U[:, 1:], U[:, -1:]], axis=1)  # shifted warm start
         self.last_status = status
         self.last_prediction = X if status == "ok" else None
-        self.last_plan = (U, J if status == "ok" else np.inf)   # inputs (2, K) and their cost
+        self.last_plan = (U, J if status == "ok" else np.inf)  # inputs (2, K) and their cost
         self.stats["solve_ms"].append(1e3 * (time.perf_counter() - t0))
         return u0

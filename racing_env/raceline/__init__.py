@@ -53,19 +53,49 @@ line's geometry), :mod:`.boxqp` (the QP of each linearisation), :mod:`.optimise`
 minimum-curvature and lap-time lines, :func:`compute_raceline`), :mod:`.speed` (the speed
 profile), :mod:`.result` (:class:`Raceline`, its files and plot), :mod:`.cache` (the disk cache).
 """  # noqa: E501
+
 from .boxqp import box_qp_active_set, box_qp_interior_point
 from .cache import cache_dir, cache_path, clear_memo, get_raceline
-from .config import (CACHE_VERSION, LENGTH_WEIGHTS, OBJECTIVES, SOURCES, TOL_PER_WIDTH,
-                     RacelineConfig, RacelineConvergenceWarning, cache_key)
+from .config import (
+    CACHE_VERSION,
+    LENGTH_WEIGHTS,
+    OBJECTIVES,
+    SOURCES,
+    TOL_PER_WIDTH,
+    RacelineConfig,
+    RacelineConvergenceWarning,
+    cache_key,
+)
 from .optimise import compute_raceline, lap_time_weight_search, minimum_curvature_offsets
 from .path import offset_bounds
 from .result import CSV_COLUMNS, Raceline, plot_raceline
 from .speed import G, accel_limits, lap_time_of, speed_limit, speed_profile
 
-__all__ = ["CACHE_VERSION", "CSV_COLUMNS", "G", "LENGTH_WEIGHTS", "OBJECTIVES", "SOURCES",
-           "TOL_PER_WIDTH", "Raceline", "RacelineConfig", "RacelineConvergenceWarning",
-           "accel_limits", "box_qp_active_set", "box_qp_interior_point", "cache_dir", "cache_key",
-           "cache_path",
-           "clear_memo", "compute_raceline", "get_raceline", "lap_time_of",
-           "lap_time_weight_search", "minimum_curvature_offsets", "offset_bounds",
-           "plot_raceline", "speed_limit", "speed_profile"]
+__all__ = [
+    "CACHE_VERSION",
+    "CSV_COLUMNS",
+    "G",
+    "LENGTH_WEIGHTS",
+    "OBJECTIVES",
+    "SOURCES",
+    "TOL_PER_WIDTH",
+    "Raceline",
+    "RacelineConfig",
+    "RacelineConvergenceWarning",
+    "accel_limits",
+    "box_qp_active_set",
+    "box_qp_interior_point",
+    "cache_dir",
+    "cache_key",
+    "cache_path",
+    "clear_memo",
+    "compute_raceline",
+    "get_raceline",
+    "lap_time_of",
+    "lap_time_weight_search",
+    "minimum_curvature_offsets",
+    "offset_bounds",
+    "plot_raceline",
+    "speed_limit",
+    "speed_profile",
+]

@@ -2,14 +2,17 @@
 ``min 1/2 x' H x + g' x  s.t.  lo <= x <= hi``: a primal-dual active-set method; where its
 active sets do not settle, an interior-point method whose solution the active-set method then
 polishes; OSQP and DAQP (through CasADi) as last fallbacks."""
+
 from __future__ import annotations
 
 import numpy as np
 from scipy import sparse
 
+
 def _to_casadi(sp_matrix, pattern=None):
     """scipy sparse -> casadi DM, on ``pattern`` (a csc matrix) when given."""
     import casadi
+
     pat = sparse.csc_matrix(sp_matrix if pattern is None else pattern)
     pat.sort_indices()
     sp = casadi.Sparsity(pat.shape[0], pat.shape[1], pat.indptr.tolist(), pat.indices.tolist())
@@ -55,6 +58,7 @@ class BoxQP:
 
     def _conic(self, name, plugin, opts):
         import casadi
+
         nvar = self.pattern.shape[0]
         prob = {"h": _to_casadi(self.pattern).sparsity(), "a": casadi.Sparsity(0, nvar)}
         return casadi.conic(name, plugin, prob, {"error_on_fail": False, **opts})
@@ -68,7 +72,7 @@ class BoxQP:
         if len(g) > INTERIOR_POINT_FIRST_ABOVE and np.all(self.hi > self.lo):
             x_ip = box_qp_interior_point(h, g, self.lo, self.hi, x0)
             if x_ip is not None:
-                x = box_qp_active_set(h, g, self.lo, self.hi, x_ip)       # polish
+                x = box_qp_active_set(h, g, self.lo, self.hi, x_ip)  # polish
                 return x if x is not None else np.clip(x_ip, self.lo, self.hi)
         hdm = _to_casadi(h, self.pattern)
         args = dict(h=hdm, g=g, lbx=self.lo, ubx=self.hi)
@@ -77,18 +81,30 @@ class BoxQP:
         if self._lam is not None:
             args["lam_x0"] = self._lam
         if self._osqp is None:
-            self._osqp = self._conic("raceline_osqp", "osqp", {"osqp": {
-                "eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 20000, "polish": True,
-                "verbose": False}})
+            self._osqp = self._conic(
+                "raceline_osqp",
+                "osqp",
+                {
+                    "osqp": {
+                        "eps_abs": 1e-7,
+                        "eps_rel": 1e-7,
+                        "max_iter": 20000,
+                        "polish": True,
+                        "verbose": False,
+                    }
+                },
+            )
         res = self._osqp(**args)
         if not self._osqp.stats().get("success", False):
             if self._daqp is None:
                 self._daqp = self._conic("raceline_daqp", "daqp", {})
             res = self._daqp(**args)
             if not self._daqp.stats().get("success", False):
-                raise RuntimeError("racing-line QP failed in the active-set method, OSQP and DAQP: "
-                                   f"{self._osqp.stats().get('return_status')}, "
-                                   f"{self._daqp.stats().get('return_status')}")
+                raise RuntimeError(
+                    "racing-line QP failed in the active-set method, OSQP and DAQP: "
+                    f"{self._osqp.stats().get('return_status')}, "
+                    f"{self._daqp.stats().get('return_status')}"
+                )
         x = np.asarray(res["x"], dtype=float).ravel()
         self._lam = np.asarray(res["lam_x"], dtype=float).ravel()
         if not np.all(np.isfinite(x)):
@@ -96,8 +112,14 @@ class BoxQP:
         return np.clip(x, self.lo, self.hi)
 
 
-def box_qp_active_set(h: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                      x0: np.ndarray | None = None, max_iter: int = 30) -> np.ndarray | None:
+def box_qp_active_set(
+    h: np.ndarray,
+    g: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    x0: np.ndarray | None = None,
+    max_iter: int = 30,
+) -> np.ndarray | None:
     """``argmin 1/2 x' H x + g' x`` over ``lo <= x <= hi`` by the primal-dual active-set
     method (Hintermueller, Ito and Kunisch 2002), ``H`` sparse symmetric positive definite,
     shapes (n, n), (n,), (n,), (n,). Each iteration fixes at a bound every ``x_i`` whose
@@ -106,6 +128,7 @@ def box_qp_active_set(h: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarr
     stops once the sets repeat. ``None`` if they do not settle in ``max_iter`` iterations or a
     solve is not finite (the caller falls back to a general QP solver)."""
     from scipy.sparse.linalg import splu
+
     h = sparse.csc_matrix(h)
     n = len(g)
     x = np.clip(np.zeros(n) if x0 is None else np.asarray(x0, float), lo, hi)
@@ -125,16 +148,22 @@ def box_qp_active_set(h: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarr
             rhs = -(g[fi] + h[fi][:, ~free] @ x[~free])
             try:
                 x[fi] = splu(h[fi][:, fi].tocsc()).solve(rhs)
-            except RuntimeError:                      # singular: let a general solver try
+            except RuntimeError:  # singular: let a general solver try
                 return None
             if not np.all(np.isfinite(x)):
                 return None
     return None
 
 
-
-def box_qp_interior_point(h: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                          x0: np.ndarray | None = None, max_iter: int = 100, tol: float = 1e-12) -> np.ndarray | None:
+def box_qp_interior_point(
+    h: np.ndarray,
+    g: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    x0: np.ndarray | None = None,
+    max_iter: int = 100,
+    tol: float = 1e-12,
+) -> np.ndarray | None:
     """``argmin 1/2 x' H x + g' x`` over ``lo < x < hi`` by a primal-dual interior-point
     method (Mehrotra's predictor-corrector), ``H`` sparse symmetric positive definite, shapes
     (n, n), (n,), (n,), (n,) with ``lo < hi``. With the bound multipliers ``z_lo, z_hi >= 0``
@@ -147,11 +176,14 @@ def box_qp_interior_point(h: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.n
     not exactly on the active ones: polish with :func:`box_qp_active_set`), or ``None`` if
     it does not converge in ``max_iter`` iterations or a solve is not finite."""
     from scipy.sparse.linalg import splu
+
     h = sparse.csc_matrix(h)
     g, lo, hi = np.asarray(g, float), np.asarray(lo, float), np.asarray(hi, float)
     if not np.all(hi > lo):
-        raise ValueError(f"box_qp_interior_point needs lo < hi everywhere, got "
-                         f"{int(np.sum(hi <= lo))} of {len(lo)} bounds with hi <= lo")
+        raise ValueError(
+            f"box_qp_interior_point needs lo < hi everywhere, got "
+            f"{int(np.sum(hi <= lo))} of {len(lo)} bounds with hi <= lo"
+        )
     n, w = len(g), hi - lo
     x = np.zeros(n) if x0 is None else np.asarray(x0, float)
     x = np.clip(x, lo + 0.05 * w, hi - 0.05 * w)
@@ -172,23 +204,27 @@ def box_qp_interior_point(h: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.n
             return x
         try:
             lu = splu((h + sparse.diags(z_lo / d_lo + z_hi / d_hi)).tocsc())
-        except RuntimeError:                          # singular
+        except RuntimeError:  # singular
             return None
 
         def newton(c_lo, c_hi):
             dx = lu.solve(-r_d + c_lo / d_lo - c_hi / d_hi)  # noqa: B023
             return dx, (c_lo - z_lo * dx) / d_lo, (c_hi + z_hi * dx) / d_hi  # noqa: B023
 
-        dx, dz_lo, dz_hi = newton(-d_lo * z_lo, -d_hi * z_hi)          # predictor
+        dx, dz_lo, dz_hi = newton(-d_lo * z_lo, -d_hi * z_hi)  # predictor
         ap = min(to_boundary(d_lo, dx), to_boundary(d_hi, -dx))
         ad = min(to_boundary(z_lo, dz_lo), to_boundary(z_hi, dz_hi))
-        mu_aff = float((d_lo + ap * dx) @ (z_lo + ad * dz_lo)
-                       + (d_hi - ap * dx) @ (z_hi + ad * dz_hi)) / (2 * n)
+        mu_aff = float(
+            (d_lo + ap * dx) @ (z_lo + ad * dz_lo) + (d_hi - ap * dx) @ (z_hi + ad * dz_hi)
+        ) / (2 * n)
         sm = (mu_aff / mu) ** 3 * mu
-        dx, dz_lo, dz_hi = newton(sm - d_lo * z_lo - dx * dz_lo,            # corrector
-                                  sm - d_hi * z_hi + dx * dz_hi)
-        if not (np.all(np.isfinite(dx)) and np.all(np.isfinite(dz_lo))
-                and np.all(np.isfinite(dz_hi))):
+        dx, dz_lo, dz_hi = newton(
+            sm - d_lo * z_lo - dx * dz_lo,  # corrector
+            sm - d_hi * z_hi + dx * dz_hi,
+        )
+        if not (
+            np.all(np.isfinite(dx)) and np.all(np.isfinite(dz_lo)) and np.all(np.isfinite(dz_hi))
+        ):
             return None
         ap = 0.995 * min(to_boundary(d_lo, dx), to_boundary(d_hi, -dx))
         ad = 0.995 * min(to_boundary(z_lo, dz_lo), to_boundary(z_hi, dz_hi))

@@ -1,6 +1,7 @@
 """The racing lines' cache: :func:`get_raceline` from an in-process memo, else a ``.npz`` file
 in ``raceline/`` of the alpha-racer cache folder (keyed by :func:`cache_key`), else computed
 and stored."""
+
 from __future__ import annotations
 
 import warnings
@@ -25,8 +26,9 @@ def cache_dir() -> Path:
     return _cache_folder("raceline")
 
 
-def cache_path(track: Track, vehicle: VehicleParams | None = None,
-               config: RacelineConfig | None = None) -> Path:
+def cache_path(
+    track: Track, vehicle: VehicleParams | None = None, config: RacelineConfig | None = None
+) -> Path:
     """The .npz file :func:`get_raceline` uses for these inputs."""
     key = cache_key(track, vehicle or VehicleParams(), config or RacelineConfig())
     safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in track.name)[:40]
@@ -40,7 +42,7 @@ def _load(path: Path, key: str) -> Raceline | None:
         if rl.key != key or getattr(rl, "_meta_version", None) != CACHE_VERSION:
             return None
         return rl
-    except Exception:                # corrupt, truncated, old or foreign file: recompute
+    except Exception:  # corrupt, truncated, old or foreign file: recompute
         return None
 
 
@@ -49,11 +51,17 @@ def _save(path: Path, rl: Raceline) -> None:
         with atomic_path(path, ".npz") as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **rl.to_npz_dict())
     except OSError as exc:
-        warnings.warn(f"could not write racing-line cache {path}: {exc}", RuntimeWarning, stacklevel=3)
+        warnings.warn(
+            f"could not write racing-line cache {path}: {exc}", RuntimeWarning, stacklevel=3
+        )
 
 
-def get_raceline(track: Track | str, vehicle: VehicleParams | None = None,
-                 config: RacelineConfig | None = None, use_cache: bool = True) -> Raceline:
+def get_raceline(
+    track: Track | str,
+    vehicle: VehicleParams | None = None,
+    config: RacelineConfig | None = None,
+    use_cache: bool = True,
+) -> Raceline:
     """The racing line of ``track`` (a :class:`Track` or a :func:`~racing_env.tracks.make_track`
     name) for ``vehicle`` and ``config``, from the in-process memo, else the disk cache
     (:func:`cache_path`), else computed by :func:`compute_raceline` and stored (written to a
@@ -63,6 +71,7 @@ def get_raceline(track: Track | str, vehicle: VehicleParams | None = None,
     """
     if not isinstance(track, Track):
         from ..tracks import make_track
+
         track = make_track(track)
     vehicle = vehicle if vehicle is not None else VehicleParams()
     config = config if config is not None else RacelineConfig()

@@ -1,5 +1,6 @@
 """What a racing line is computed from, and the key that names it: :class:`RacelineConfig`,
 and :func:`cache_key` over the track, the vehicle, the config and the code (:data:`SOURCES`)."""
+
 from __future__ import annotations
 
 import hashlib
@@ -92,11 +93,14 @@ class RacelineConfig:
 
     def __post_init__(self):
         if self.linearization not in ("frozen", "exact"):
-            raise ValueError(f"RacelineConfig.linearization must be 'frozen' or 'exact', "
-                             f"got {self.linearization!r}")
+            raise ValueError(
+                f"RacelineConfig.linearization must be 'frozen' or 'exact', "
+                f"got {self.linearization!r}"
+            )
         if self.objective not in OBJECTIVES:
-            raise ValueError(f"RacelineConfig.objective must be one of {OBJECTIVES}, "
-                             f"got {self.objective!r}")
+            raise ValueError(
+                f"RacelineConfig.objective must be one of {OBJECTIVES}, got {self.objective!r}"
+            )
         for f in fields(self):
             if f.name in ("linearization", "objective") or (f.name == "tol" and self.tol is None):
                 continue
@@ -106,20 +110,28 @@ class RacelineConfig:
         for name in ("n_mu", "max_iter"):
             v = getattr(self, name)
             if int(v) != v or v < (2 if name == "n_mu" else 1):
-                raise ValueError(f"RacelineConfig.{name} must be an integer >= "
-                                 f"{2 if name == 'n_mu' else 1}, got {v!r}")
+                raise ValueError(
+                    f"RacelineConfig.{name} must be an integer >= "
+                    f"{2 if name == 'n_mu' else 1}, got {v!r}"
+                )
         for name in ("mu_min", "mu_max", "mu_nominal", "point_spacing", "tol"):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
-                raise ValueError(f"RacelineConfig.{name} must be positive, got {getattr(self, name)!r}")
+                raise ValueError(
+                    f"RacelineConfig.{name} must be positive, got {getattr(self, name)!r}"
+                )
         for name in ("margin", "smoothing", "length_weight"):
             if getattr(self, name) < 0:
                 raise ValueError(f"RacelineConfig.{name} must be >= 0, got {getattr(self, name)!r}")
         if not self.mu_min < self.mu_max:
-            raise ValueError(f"RacelineConfig needs mu_min < mu_max, got mu_min={self.mu_min!r}, "
-                             f"mu_max={self.mu_max!r}")
+            raise ValueError(
+                f"RacelineConfig needs mu_min < mu_max, got mu_min={self.mu_min!r}, "
+                f"mu_max={self.mu_max!r}"
+            )
         if not self.mu_min <= self.mu_nominal <= self.mu_max:
-            raise ValueError(f"RacelineConfig.mu_nominal={self.mu_nominal!r} is outside "
-                             f"[mu_min, mu_max] = [{self.mu_min}, {self.mu_max}]")
+            raise ValueError(
+                f"RacelineConfig.mu_nominal={self.mu_nominal!r} is outside "
+                f"[mu_min, mu_max] = [{self.mu_min}, {self.mu_max}]"
+            )
 
     def tol_for(self, track: Track) -> float:
         """The stopping tolerance [m] on ``track``: ``tol``, or ``TOL_PER_WIDTH`` times the
@@ -139,15 +151,24 @@ class RacelineConfig:
 
 #: the modules whose code computes a racing line (this package, the envelope, the vehicle model
 #: and the track geometry): an edit of any of them is a new cache key, so no stale line is loaded
-SOURCES = (*sorted(Path(__file__).parent.glob("*.py")),
-           *(Path(__file__).parents[1] / m for m in ("envelope.py", "vehicle.py", "track.py")))
+SOURCES = (
+    *sorted(Path(__file__).parent.glob("*.py")),
+    *(Path(__file__).parents[1] / m for m in ("envelope.py", "vehicle.py", "track.py")),
+)
 _SOURCES_HASH = sources_hash(SOURCES)
 
 
 def cache_key(track: Track, vehicle: VehicleParams, config: RacelineConfig) -> str:
     """Hash [hex, 24 chars] of the track geometry, the vehicle parameters, the config and the
     code that computes the line (:data:`SOURCES`)."""
-    blob = json.dumps({"version": CACHE_VERSION, "sources": _SOURCES_HASH,
-                       "track": track.fingerprint(), "vehicle": vehicle.to_dict(),
-                       "config": asdict(config)}, sort_keys=True)
+    blob = json.dumps(
+        {
+            "version": CACHE_VERSION,
+            "sources": _SOURCES_HASH,
+            "track": track.fingerprint(),
+            "vehicle": vehicle.to_dict(),
+            "config": asdict(config),
+        },
+        sort_keys=True,
+    )
     return hashlib.sha1(blob.encode()).hexdigest()[:24]

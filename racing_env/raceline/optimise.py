@@ -2,6 +2,7 @@
 linearisation, the lap-time line's search over the shortest-path weight, and
 :func:`compute_raceline`, which turns the offsets into a :class:`Raceline` with its speed
 library."""
+
 from __future__ import annotations
 
 import math
@@ -25,11 +26,18 @@ def _periodic_diff_matrices(n: int, h: float):
     """Sparse periodic central-difference matrices D1 (d/du) and D2 (d^2/du^2), shape (n, n)."""
     i = np.arange(n)
     ip, im = (i + 1) % n, (i - 1) % n
-    d1 = sparse.csr_matrix((np.r_[np.full(n, 0.5), np.full(n, -0.5)] / h,
-                            (np.r_[i, i], np.r_[ip, im])), shape=(n, n))
-    d2 = sparse.csr_matrix((np.r_[np.ones(n), -2.0 * np.ones(n), np.ones(n)] / h ** 2,
-                            (np.r_[i, i, i], np.r_[ip, i, im])), shape=(n, n))
+    d1 = sparse.csr_matrix(
+        (np.r_[np.full(n, 0.5), np.full(n, -0.5)] / h, (np.r_[i, i], np.r_[ip, im])), shape=(n, n)
+    )
+    d2 = sparse.csr_matrix(
+        (
+            np.r_[np.ones(n), -2.0 * np.ones(n), np.ones(n)] / h**2,
+            (np.r_[i, i, i], np.r_[ip, i, im]),
+        ),
+        shape=(n, n),
+    )
     return d1, d2
+
 
 @dataclass(frozen=True)
 class _Stations:
@@ -61,8 +69,9 @@ class _Stations:
     g_len: np.ndarray | None
 
     @classmethod
-    def on(cls, track: Track, vehicle: VehicleParams, config: RacelineConfig,
-           w_len: float) -> _Stations:
+    def on(
+        cls, track: Track, vehicle: VehicleParams, config: RacelineConfig, w_len: float
+    ) -> _Stations:
         """The problem on ``track`` with the shortest-path weight ``w_len`` (0: none)."""
         m_grid = len(track.s_grid)
         n_pts = int(min(m_grid, max(16, math.ceil(track.length / config.point_spacing))))
@@ -74,7 +83,7 @@ class _Stations:
         lo, hi = offset_bounds(track, s_sub, vehicle, config.margin)
         d1, d2 = _periodic_diff_matrices(n_pts, h)
         d2nx, d2ny = d2 @ sparse.diags(nx), d2 @ sparse.diags(ny)
-        reg = (config.smoothing / track.length ** 2) * (d1.T @ d1)
+        reg = (config.smoothing / track.length**2) * (d1.T @ d1)
         exact = config.linearization == "exact"
         d1nx, d1ny = (d1 @ sparse.diags(nx), d1 @ sparse.diags(ny)) if exact else (None, None)
         a_len = b_len = h_len = g_len = None
@@ -83,13 +92,35 @@ class _Stations:
             # curvature residuals sum to (1 / h) int kappa^2 dl, so this term sums to
             # (1 / h) (w / W^2) sum |dp|^2 / h: the weight does not depend on the station spacing
             scale = math.sqrt(w_len) / (h * float(np.mean(track.width)))
-            fwd = sparse.diags([-np.ones(n_pts), np.ones(n_pts - 1), np.ones(1)],
-                               [0, 1, -(n_pts - 1)], format="csr")
+            fwd = sparse.diags(
+                [-np.ones(n_pts), np.ones(n_pts - 1), np.ones(1)],
+                [0, 1, -(n_pts - 1)],
+                format="csr",
+            )
             a_len = scale * sparse.vstack([fwd @ sparse.diags(nx), fwd @ sparse.diags(ny)]).tocsr()
             b_len = scale * np.concatenate([fwd @ cx, fwd @ cy])
             h_len, g_len = a_len.T @ a_len, a_len.T @ b_len
-        return cls(s_sub, h, cx, cy, nx, ny, lo, hi, d1, d2, d2nx, d2ny, d1nx, d1ny, reg, a_len,
-                   b_len, h_len, g_len)
+        return cls(
+            s_sub,
+            h,
+            cx,
+            cy,
+            nx,
+            ny,
+            lo,
+            hi,
+            d1,
+            d2,
+            d2nx,
+            d2ny,
+            d1nx,
+            d1ny,
+            reg,
+            a_len,
+            b_len,
+            h_len,
+            g_len,
+        )
 
     def kappa(self, n):
         """Curvature [1/m] (N,) of the path through offsets ``n`` [m] (N,)."""
@@ -122,21 +153,25 @@ class _Stations:
         dx, dy = d1 @ px, d1 @ py
         ddx, ddy = self.d2 @ px, self.d2 @ py
         q = dx * dx + dy * dy
-        den = q ** 1.5
+        den = q**1.5
         kap = (dx * ddy - dy * ddx) / den
         # the objective is sum kappa^2 |dp/ds| h: curvature per metre of *path*, not per station
         # (per station, a wider line's longer path would be free); residual r = sqrt|dp/ds| kappa
-        rw = q ** 0.25
+        rw = q**0.25
         # kappa(n') ~ kap + a (n' - n): second derivatives exact in n', first derivatives frozen
         a = sparse.diags(dx / den) @ self.d2ny - sparse.diags(dy / den) @ self.d2nx
-        if exact:   # ... plus the first derivatives' terms: the full Jacobian (Gauss-Newton)
+        if exact:  # ... plus the first derivatives' terms: the full Jacobian (Gauss-Newton)
             d1nx, d1ny = self.d1nx, self.d1ny
-            a = a + sparse.diags(ddy / den - 3.0 * kap * dx / q) @ d1nx \
-                  - sparse.diags(ddx / den + 3.0 * kap * dy / q) @ d1ny
+            a = (
+                a
+                + sparse.diags(ddy / den - 3.0 * kap * dx / q) @ d1nx
+                - sparse.diags(ddx / den + 3.0 * kap * dy / q) @ d1ny
+            )
             # and the path weight's own derivative, d(q^1/4) = q^-3/4 (dx d1nx + dy d1ny) / 2
-            jr = sparse.diags(rw) @ a + sparse.diags(0.5 * kap * q ** -0.75) @ (
-                sparse.diags(dx) @ d1nx + sparse.diags(dy) @ d1ny)
-        else:       # frozen: the path weight too is fixed at the current iterate
+            jr = sparse.diags(rw) @ a + sparse.diags(0.5 * kap * q**-0.75) @ (
+                sparse.diags(dx) @ d1nx + sparse.diags(dy) @ d1ny
+            )
+        else:  # frozen: the path weight too is fixed at the current iterate
             jr = sparse.diags(rw) @ a
         r = rw * kap
         hess, grad = jr.T @ jr + self.reg, jr.T @ (r - jr @ n)
@@ -157,11 +192,13 @@ class _Stations:
         return alpha, f1 < f0, f1 >= f0 - 1e-6 * abs(f0)
 
 
-def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None,
-                              config: RacelineConfig | None = None,
-                              length_weight: float | None = None,
-                              n_init: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray,
-                              dict]:
+def minimum_curvature_offsets(
+    track: Track,
+    vehicle: VehicleParams | None = None,
+    config: RacelineConfig | None = None,
+    length_weight: float | None = None,
+    n_init: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """Solve the minimum-curvature problem on ``N`` uniform centre-line stations.
 
     ``length_weight`` (default ``config.length_weight``) adds the shortest-path term
@@ -180,46 +217,60 @@ def minimum_curvature_offsets(track: Track, vehicle: VehicleParams | None = None
     if not (math.isfinite(w_len) and w_len >= 0):
         raise ValueError(f"length_weight must be a finite number >= 0, got {length_weight!r}")
     st = _Stations.on(track, vehicle, config, w_len)
-    qp = BoxQP(sparse.csc_matrix(abs(st.d2).T @ abs(st.d2) + abs(st.d1).T @ abs(st.d1)), st.lo,
-               st.hi)
+    qp = BoxQP(
+        sparse.csc_matrix(abs(st.d2).T @ abs(st.d2) + abs(st.d1).T @ abs(st.d1)), st.lo, st.hi
+    )
     exact = config.linearization == "exact"
     tol = config.tol_for(track)
     n_pts = len(st.s)
-    n = np.clip(np.zeros(n_pts) if n_init is None else np.asarray(n_init, dtype=float), st.lo,
-                st.hi)
+    n = np.clip(
+        np.zeros(n_pts) if n_init is None else np.asarray(n_init, dtype=float), st.lo, st.hi
+    )
     converged, change, prev_change, alpha, it = False, np.inf, np.inf, 1.0, 0
     for it in range(1, int(config.max_iter) + 1):  # noqa: B007
         hess, grad = st.least_squares(n, exact)
         n_new = qp.solve(hess, grad, x0=n)
-        change = float(np.max(np.abs(n_new - n)))     # fixed-point residual [m]
+        change = float(np.max(np.abs(n_new - n)))  # fixed-point residual [m]
         if change < tol:
             n = n_new
             converged = True
             break
-        if exact:                                     # backtrack on the true cost
+        if exact:  # backtrack on the true cost
             alpha, lower, stalled = st.backtrack(n, n_new)
-            if stalled:                               # no more progress: a stationary point
+            if stalled:  # no more progress: a stationary point
                 if lower:
                     n = np.clip(n + alpha * (n_new - n), st.lo, st.hi)
                 converged = True
                 break
-        elif change >= prev_change:                   # not contracting (a limit cycle at a
-            alpha = max(0.5 * alpha, 0.1)             # tight hairpin): under-relax the update
+        elif change >= prev_change:  # not contracting (a limit cycle at a
+            alpha = max(0.5 * alpha, 0.1)  # tight hairpin): under-relax the update
         prev_change = change
         n = np.clip(n + alpha * (n_new - n), st.lo, st.hi)
     if not converged:
-        warnings.warn(f"minimum-curvature racing line on track '{track.name}' did not converge in "
-                      f"max_iter={config.max_iter} iterations (last offset change {change:.2e} m > "
-                      f"tol {tol:.2e} m); using the last iterate",
-                      RacelineConvergenceWarning, stacklevel=2)
-    info = dict(iterations=it, converged=converged, last_change=change, tol=tol,
-                cost=st.curvature_integral(n), cost_center=st.curvature_integral(np.zeros(n_pts)))
+        warnings.warn(
+            f"minimum-curvature racing line on track '{track.name}' did not converge in "
+            f"max_iter={config.max_iter} iterations (last offset change {change:.2e} m > "
+            f"tol {tol:.2e} m); using the last iterate",
+            RacelineConvergenceWarning,
+            stacklevel=2,
+        )
+    info = dict(
+        iterations=it,
+        converged=converged,
+        last_change=change,
+        tol=tol,
+        cost=st.curvature_integral(n),
+        cost_center=st.curvature_integral(np.zeros(n_pts)),
+    )
     return st.s, n, info
 
 
-def lap_time_weight_search(track: Track, vehicle: VehicleParams | None = None,
-                           config: RacelineConfig | None = None, refine: int = 6) -> tuple[float,
-                           np.ndarray, np.ndarray, dict, list]:
+def lap_time_weight_search(
+    track: Track,
+    vehicle: VehicleParams | None = None,
+    config: RacelineConfig | None = None,
+    refine: int = 6,
+) -> tuple[float, np.ndarray, np.ndarray, dict, list]:
     """The ``length_weight`` whose line has the shortest lap estimate at ``mu_nominal``.
 
     Tries :data:`LENGTH_WEIGHTS` in increasing order (each iteration warm-started from the
@@ -235,8 +286,9 @@ def lap_time_weight_search(track: Track, vehicle: VehicleParams | None = None,
 
     def evaluate(w):
         nonlocal best, n_prev
-        s_sub, n_sub, info = minimum_curvature_offsets(track, vehicle, config, length_weight=w,
-                                                       n_init=n_prev)
+        s_sub, n_sub, info = minimum_curvature_offsets(
+            track, vehicle, config, length_weight=w, n_init=n_prev
+        )
         n_prev = n_sub
         lap = line_on_grid(track, vehicle, config, s_sub, n_sub)["lap_time"]
         tried.append((float(w), lap))
@@ -244,7 +296,7 @@ def lap_time_weight_search(track: Track, vehicle: VehicleParams | None = None,
             best = (lap, float(w), s_sub, n_sub, info)
         return lap
 
-    with warnings.catch_warnings():      # a weight's non-converged iterate is only a candidate
+    with warnings.catch_warnings():  # a weight's non-converged iterate is only a candidate
         warnings.simplefilter("ignore", RacelineConvergenceWarning)
         laps = [evaluate(w) for w in LENGTH_WEIGHTS]
         i = int(np.argmin(laps))
@@ -265,15 +317,19 @@ def lap_time_weight_search(track: Track, vehicle: VehicleParams | None = None,
                     fb = evaluate(math.exp(b))
     _, w, s_sub, n_sub, info = best
     if not info["converged"]:
-        warnings.warn(f"lap-time racing line on track '{track.name}': the best weight's "
-                      f"iteration did not converge (last offset change {info['last_change']:.2e} m "
-                      f"> tol {info['tol']:.2e} m); using its last iterate",
-                      RacelineConvergenceWarning, stacklevel=2)
+        warnings.warn(
+            f"lap-time racing line on track '{track.name}': the best weight's "
+            f"iteration did not converge (last offset change {info['last_change']:.2e} m "
+            f"> tol {info['tol']:.2e} m); using its last iterate",
+            RacelineConvergenceWarning,
+            stacklevel=2,
+        )
     return w, s_sub, n_sub, info, tried
 
 
-def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
-                     config: RacelineConfig | None = None) -> Raceline:
+def compute_raceline(
+    track: Track, vehicle: VehicleParams | None = None, config: RacelineConfig | None = None
+) -> Raceline:
     """Compute (no cache) the racing line of ``config.objective`` and its speed library on
     ``track``."""
     vehicle = vehicle or VehicleParams()
@@ -291,17 +347,36 @@ def compute_raceline(track: Track, vehicle: VehicleParams | None = None,
     vx_lib = np.array([v for v, _ in lib])
     ax_lib = np.array([a for _, a in lib])
     j = int(np.argmin(np.abs(mus - config.mu_nominal)))
-    rl = Raceline(s=line["s"], x=line["x"], y=line["y"], psi=line["psi"], kappa=kappa,
-                  vx=vx_lib[j].copy(), ax=ax_lib[j].copy(), n=line["n"],
-                  s_track=np.asarray(track.s_grid, dtype=float), n_lo=line["n_lo"],
-                  n_hi=line["n_hi"], mus=mus, vx_lib=vx_lib, ax_lib=ax_lib,
-                  length=line["length"], track_length=float(track.length),
-                  mu_nominal=float(config.mu_nominal), lap_time=lap_time_of(vx_lib[j], ds),
-                  iterations=int(info["iterations"]), converged=bool(info["converged"]),
-                  last_change=float(info["last_change"]), cost=info["cost"],
-                  cost_center=info["cost_center"], compute_time=time.perf_counter() - t0,
-                  length_weight=w, track_name=track.name,
-                  track_fingerprint=track.fingerprint(), key=cache_key(track, vehicle, config),
-                  track=track)
+    rl = Raceline(
+        s=line["s"],
+        x=line["x"],
+        y=line["y"],
+        psi=line["psi"],
+        kappa=kappa,
+        vx=vx_lib[j].copy(),
+        ax=ax_lib[j].copy(),
+        n=line["n"],
+        s_track=np.asarray(track.s_grid, dtype=float),
+        n_lo=line["n_lo"],
+        n_hi=line["n_hi"],
+        mus=mus,
+        vx_lib=vx_lib,
+        ax_lib=ax_lib,
+        length=line["length"],
+        track_length=float(track.length),
+        mu_nominal=float(config.mu_nominal),
+        lap_time=lap_time_of(vx_lib[j], ds),
+        iterations=int(info["iterations"]),
+        converged=bool(info["converged"]),
+        last_change=float(info["last_change"]),
+        cost=info["cost"],
+        cost_center=info["cost_center"],
+        compute_time=time.perf_counter() - t0,
+        length_weight=w,
+        track_name=track.name,
+        track_fingerprint=track.fingerprint(),
+        key=cache_key(track, vehicle, config),
+        track=track,
+    )
     rl.validate()
     return rl

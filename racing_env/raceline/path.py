@@ -1,5 +1,6 @@
 """The geometry of a racing line: the bounds of its offsets on the track, and the closed line
 through offsets at stations, on the track grid (arc length, heading, curvature)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -11,8 +12,9 @@ from .config import RacelineConfig
 from .speed import lap_time_of, speed_profile
 
 
-def offset_bounds(track: Track, s_track: np.ndarray, vehicle: VehicleParams,
-                  margin: float) -> tuple[np.ndarray, np.ndarray]:
+def offset_bounds(
+    track: Track, s_track: np.ndarray, vehicle: VehicleParams, margin: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Lower / upper bounds ``(n_lo, n_hi)`` [m] on the racing-line offset at centre-line ``s_track``.
 
     ``n_lo = -w_right + width/2 + margin``, ``n_hi = w_left - width/2 - margin``; raises
@@ -25,13 +27,17 @@ def offset_bounds(track: Track, s_track: np.ndarray, vehicle: VehicleParams,
     if bad.size:
         k = int(bad[0])
         s = float(np.ravel(s_track)[k])
-        raise ValueError(f"track '{track.name}' is too narrow for the racing line at s = {s:.3f} m: "
-                         f"width {w_l[k] + w_r[k]:.3f} m < car width {vehicle.width} m + 2 x margin "
-                         f"{margin} m")
+        raise ValueError(
+            f"track '{track.name}' is too narrow for the racing line at s = {s:.3f} m: "
+            f"width {w_l[k] + w_r[k]:.3f} m < car width {vehicle.width} m + 2 x margin "
+            f"{margin} m"
+        )
     return lo, hi
 
 
-def line_geometry(px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+def line_geometry(
+    px: np.ndarray, py: np.ndarray
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
     """Arc length, lap length, heading and curvature of the closed polyline (px, py), shape (M,)."""
     chord = np.hypot(np.diff(np.append(px, px[0])), np.diff(np.append(py, py[0])))
     if np.any(chord <= 1e-12):
@@ -54,15 +60,23 @@ def line_geometry(px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, float, np
     return s, length, psi, kappa
 
 
-def line_on_grid(track: Track, vehicle: VehicleParams, config: RacelineConfig, s_sub: np.ndarray, n_sub: np.ndarray,
-                  with_lap: bool = True) -> dict:
+def line_on_grid(
+    track: Track,
+    vehicle: VehicleParams,
+    config: RacelineConfig,
+    s_sub: np.ndarray,
+    n_sub: np.ndarray,
+    with_lap: bool = True,
+) -> dict:
     """The line through offsets ``n_sub`` [m] at stations ``s_sub`` [m], on the track grid:
     a dict of ``n``, ``n_lo``, ``n_hi`` (the target bounds), ``x``, ``y``, ``s``, ``length``,
     ``psi``, ``kappa``, ``ds`` and (with ``with_lap``) the lap estimate ``lap_time`` [s] of its
     profile at ``mu_nominal``."""
     s_track = np.asarray(track.s_grid, dtype=float)
     n_lo, n_hi = offset_bounds(track, s_track, vehicle, config.margin)
-    spn = CubicSpline(np.append(s_sub, track.length), np.append(n_sub, n_sub[0]), bc_type="periodic")
+    spn = CubicSpline(
+        np.append(s_sub, track.length), np.append(n_sub, n_sub[0]), bc_type="periodic"
+    )
     # Clip only at the physical bounds (edge minus half the car): a cubic spline through the
     # stations overshoots the target bounds by fractions of a millimetre, which the margin
     # absorbs; clipping at the target bounds would put kinks (curvature spikes) in the line.
@@ -70,8 +84,20 @@ def line_on_grid(track: Track, vehicle: VehicleParams, config: RacelineConfig, s
     px, py = track.to_cartesian(s_track, n)
     s, length, psi, kappa = line_geometry(np.asarray(px), np.asarray(py))
     ds = np.diff(np.append(s, length))
-    line = dict(n=n, n_lo=n_lo, n_hi=n_hi, x=np.asarray(px, float), y=np.asarray(py, float),
-                s=s, length=length, psi=psi, kappa=kappa, ds=ds)
+    line = dict(
+        n=n,
+        n_lo=n_lo,
+        n_hi=n_hi,
+        x=np.asarray(px, float),
+        y=np.asarray(py, float),
+        s=s,
+        length=length,
+        psi=psi,
+        kappa=kappa,
+        ds=ds,
+    )
     if with_lap:
-        line["lap_time"] = lap_time_of(speed_profile(kappa, ds, float(config.mu_nominal), vehicle)[0], ds)
+        line["lap_time"] = lap_time_of(
+            speed_profile(kappa, ds, float(config.mu_nominal), vehicle)[0], ds
+        )
     return line

@@ -1,5 +1,6 @@
 """The racing line as a result: :class:`Raceline` (per-point arrays on the track grid, the
 speed library, lookups at centre-line ``s``), its CSV and ``.npz`` forms and its plot."""
+
 from __future__ import annotations
 
 import json
@@ -20,14 +21,48 @@ if TYPE_CHECKING:
     import os
 
 
-CSV_COLUMNS = ("s_m", "x_m", "y_m", "psi_rad", "kappa_radpm", "vx_mps", "ax_mps2", "n_m",
-               "s_track_m")
+CSV_COLUMNS = (
+    "s_m",
+    "x_m",
+    "y_m",
+    "psi_rad",
+    "kappa_radpm",
+    "vx_mps",
+    "ax_mps2",
+    "n_m",
+    "s_track_m",
+)
 """Column names (with units) of :meth:`Raceline.to_csv`."""
 
-_ARRAYS = ("s", "x", "y", "psi", "kappa", "vx", "ax", "n", "s_track", "n_lo", "n_hi", "mus",
-           "vx_lib", "ax_lib")
-_SCALARS = ("length", "track_length", "mu_nominal", "lap_time", "iterations", "converged",
-            "last_change", "cost", "cost_center", "compute_time", "length_weight")
+_ARRAYS = (
+    "s",
+    "x",
+    "y",
+    "psi",
+    "kappa",
+    "vx",
+    "ax",
+    "n",
+    "s_track",
+    "n_lo",
+    "n_hi",
+    "mus",
+    "vx_lib",
+    "ax_lib",
+)
+_SCALARS = (
+    "length",
+    "track_length",
+    "mu_nominal",
+    "lap_time",
+    "iterations",
+    "converged",
+    "last_change",
+    "cost",
+    "cost_center",
+    "compute_time",
+    "length_weight",
+)
 
 
 @dataclass(eq=False)
@@ -89,8 +124,13 @@ class Raceline:
             a = getattr(self, name)
             if not np.all(np.isfinite(a)):
                 raise ValueError(f"raceline {name} has non-finite values")
-            want = (len(self.mus), m) if name in ("vx_lib", "ax_lib") else \
-                (len(self.mus),) if name == "mus" else (m,)
+            want = (
+                (len(self.mus), m)
+                if name in ("vx_lib", "ax_lib")
+                else (len(self.mus),)
+                if name == "mus"
+                else (m,)
+            )
             if a.shape != want:
                 raise ValueError(f"raceline {name} has shape {a.shape}, expected {want}")
         for name in _SCALARS:
@@ -111,8 +151,9 @@ class Raceline:
         """Periodic linear interpolation of a per-point table at (unwrapped) centre-line s."""
         m = len(self.s_track)
         # grid points hit their entry exactly (snap)
-        return periodic_interp(table, s_track, self.track_length, per_metre=m / self.track_length,
-                               size=m, snap=1e-9)
+        return periodic_interp(
+            table, s_track, self.track_length, per_metre=m / self.track_length, size=m, snap=1e-9
+        )
 
     def offset_at(self, s_track: float | np.ndarray) -> float | np.ndarray:
         """Racing-line offset ``n`` [m] (left positive) at centre-line arc length ``s_track`` [m]
@@ -123,11 +164,14 @@ class Raceline:
         grip_f = float(grip)
         lo, hi = float(self.mus[0]), float(self.mus[-1])
         if not (math.isfinite(grip_f) and lo - 1e-12 <= grip_f <= hi + 1e-12):
-            raise ValueError(f"envelope scale grip={grip!r} is outside the speed library range "
-                             f"[{lo}, {hi}]")
+            raise ValueError(
+                f"envelope scale grip={grip!r} is outside the speed library range [{lo}, {hi}]"
+            )
         return min(max(grip_f, lo), hi)
 
-    def profile(self, grip: float | None = None, *, mu: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def profile(
+        self, grip: float | None = None, *, mu: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``(vx, ax)`` per point [m/s], [m/s^2] for envelope scale ``grip`` (default
         ``mu_nominal``), linearly interpolated between the library's neighbouring profiles;
         shapes (M,). ``mu``: deprecated name of ``grip``."""
@@ -136,7 +180,7 @@ class Raceline:
             return self.vx, self.ax
         grip = self._check_grip(grip)
         hit = np.flatnonzero(np.abs(self.mus - grip) <= 1e-12)
-        if hit.size:                                   # a library entry: exactly its profile
+        if hit.size:  # a library entry: exactly its profile
             return self.vx_lib[hit[0]], self.ax_lib[hit[0]]
         j = int(np.clip(np.searchsorted(self.mus, grip, side="right") - 1, 0, len(self.mus) - 2))
         w = (grip - self.mus[j]) / (self.mus[j + 1] - self.mus[j])
@@ -144,16 +188,18 @@ class Raceline:
         ax = (1.0 - w) * self.ax_lib[j] + w * self.ax_lib[j + 1]
         return vx, ax
 
-    def speed_at(self, s_track: float | np.ndarray, grip: float | None = None, *,
-                 mu: float | None = None) -> float | np.ndarray:
+    def speed_at(
+        self, s_track: float | np.ndarray, grip: float | None = None, *, mu: float | None = None
+    ) -> float | np.ndarray:
         """Reference speed ``vx`` [m/s] at centre-line ``s_track`` [m] (any shape, unwrapped
         allowed) for envelope scale ``grip`` (scalar in ``[mus[0], mus[-1]]``, default
         ``mu_nominal``; ``mu``: its deprecated name). Raises ``ValueError`` for a ``grip``
         outside the library range."""
         return self._interp(self.profile(grip_arg(grip, mu, "Raceline.speed_at"))[0], s_track)
 
-    def accel_at(self, s_track: float | np.ndarray, grip: float | None = None, *,
-                 mu: float | None = None) -> float | np.ndarray:
+    def accel_at(
+        self, s_track: float | np.ndarray, grip: float | None = None, *, mu: float | None = None
+    ) -> float | np.ndarray:
         """Reference acceleration ``ax`` [m/s^2] at centre-line ``s_track`` (like :meth:`speed_at`)."""
         return self._interp(self.profile(grip_arg(grip, mu, "Raceline.accel_at"))[1], s_track)
 
@@ -186,29 +232,46 @@ class Raceline:
         """Write the nominal racing line as CSV (columns :data:`CSV_COLUMNS`, units in the names:
         ``_m`` metres, ``_rad`` radians, ``_radpm`` 1/m, ``_mps`` m/s, ``_mps2`` m/s^2)."""
         path = Path(path)
-        data = np.column_stack([self.s, self.x, self.y, self.psi, self.kappa, self.vx, self.ax,
-                                self.n, self.s_track])
+        data = np.column_stack(
+            [self.s, self.x, self.y, self.psi, self.kappa, self.vx, self.ax, self.n, self.s_track]
+        )
         if not np.all(np.isfinite(data)):
             raise ValueError("refusing to write a racing line with non-finite values")
-        header = (f"racing line of track '{self.track_name}' ({self.track_fingerprint}), "
-                  f"mu = {self.mu_nominal}, length {self.length:.4f} m, lap time {self.lap_time:.4f} s\n"
-                  + ",".join(CSV_COLUMNS))
+        header = (
+            f"racing line of track '{self.track_name}' ({self.track_fingerprint}), "
+            f"mu = {self.mu_nominal}, length {self.length:.4f} m, lap time {self.lap_time:.4f} s\n"
+            + ",".join(CSV_COLUMNS)
+        )
         np.savetxt(path, data, delimiter=",", header=header, fmt="%.9g")
         return path
 
-    def plot(self, path: str | os.PathLike, track: Track | None = None, grip: float | None = None,
-             *, mu: float | None = None) -> Path:
+    def plot(
+        self,
+        path: str | os.PathLike,
+        track: Track | None = None,
+        grip: float | None = None,
+        *,
+        mu: float | None = None,
+    ) -> Path:
         """Write a PNG of the track edges, centre line and racing line coloured by speed."""
-        return plot_raceline(track if track is not None else self.track, self, path,
-                             grip=grip_arg(grip, mu, "Raceline.plot"))
+        return plot_raceline(
+            track if track is not None else self.track,
+            self,
+            path,
+            grip=grip_arg(grip, mu, "Raceline.plot"),
+        )
 
     def to_npz_dict(self) -> dict:
         """Arrays and metadata for :func:`numpy.savez` (no objects, loadable without pickle)."""
         d = {name: np.asarray(getattr(self, name), dtype=float) for name in _ARRAYS}
         for name in _SCALARS:
             d[name] = np.asarray(float(getattr(self, name)))
-        meta = dict(track_name=self.track_name, track_fingerprint=self.track_fingerprint,
-                    key=self.key, version=CACHE_VERSION)
+        meta = dict(
+            track_name=self.track_name,
+            track_fingerprint=self.track_fingerprint,
+            key=self.key,
+            version=CACHE_VERSION,
+        )
         d["meta"] = np.asarray(json.dumps(meta))
         return d
 
@@ -221,22 +284,34 @@ class Raceline:
             kw[name] = float(d[name][()])
         kw["iterations"] = int(kw["iterations"])
         kw["converged"] = bool(kw["converged"])
-        rl = cls(**kw, track_name=str(meta["track_name"]),
-                 track_fingerprint=str(meta["track_fingerprint"]), key=str(meta["key"]))
+        rl = cls(
+            **kw,
+            track_name=str(meta["track_name"]),
+            track_fingerprint=str(meta["track_fingerprint"]),
+            key=str(meta["key"]),
+        )
         rl._meta_version = meta.get("version")
         rl.validate()
         return rl
 
     def __repr__(self) -> str:
-        return (f"Raceline(track={self.track_name!r}, points={len(self.s)}, length={self.length:.3f} m, "
-                f"lap_time={self.lap_time:.3f} s at mu={self.mu_nominal}, "
-                f"v {self.vx.min():.2f}..{self.vx.max():.2f} m/s, iterations={self.iterations}, "
-                f"converged={self.converged})")
+        return (
+            f"Raceline(track={self.track_name!r}, points={len(self.s)}, length={self.length:.3f} m, "
+            f"lap_time={self.lap_time:.3f} s at mu={self.mu_nominal}, "
+            f"v {self.vx.min():.2f}..{self.vx.max():.2f} m/s, iterations={self.iterations}, "
+            f"converged={self.converged})"
+        )
 
 
-def plot_raceline(track: Track, raceline: Raceline, path: str | os.PathLike,
-                  grip: float | None = None, dpi: int = 150, *,
-                  mu: float | None = None) -> Path:
+def plot_raceline(
+    track: Track,
+    raceline: Raceline,
+    path: str | os.PathLike,
+    grip: float | None = None,
+    dpi: int = 150,
+    *,
+    mu: float | None = None,
+) -> Path:
     """Write a PNG [path] of the track edges, the centre line and the racing line coloured by
     speed [m/s] (profile for envelope scale ``grip``, default nominal; ``mu``: its deprecated name). Uses matplotlib's Agg canvas directly, so
     it never touches the global backend."""  # noqa: E501
@@ -265,8 +340,10 @@ def plot_raceline(track: Track, raceline: Raceline, path: str | os.PathLike,
     fig.colorbar(lc, ax=ax, label="speed [m/s]")
     ax.plot(raceline.x[0], raceline.y[0], "r>", ms=8, label="start")
     grip_txt = raceline.mu_nominal if grip is None else float(grip)
-    ax.set_title(f"{raceline.track_name}: racing line, grip = {grip_txt:g}, "
-                 f"lap {lap_time_of(vx, raceline.ds):.2f} s")
+    ax.set_title(
+        f"{raceline.track_name}: racing line, grip = {grip_txt:g}, "
+        f"lap {lap_time_of(vx, raceline.ds):.2f} s"
+    )
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")

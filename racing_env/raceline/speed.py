@@ -1,6 +1,7 @@
 """The speed profile along a closed path for the car's g-g-v envelope scaled by ``grip``
 (:mod:`racing_env.envelope`): forward (drive) and backward (braking) passes around the lap
 until nothing changes, and the lap time of a profile."""
+
 from __future__ import annotations
 
 import math
@@ -15,9 +16,14 @@ G = 9.81
 """Gravitational acceleration [m/s^2]."""
 
 
-def accel_limits(v: float | np.ndarray, kappa: float | np.ndarray, grip: float | None = None,
-                 vehicle: VehicleParams | None = None, *,
-                 mu: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def accel_limits(
+    v: float | np.ndarray,
+    kappa: float | np.ndarray,
+    grip: float | None = None,
+    vehicle: VehicleParams | None = None,
+    *,
+    mu: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Largest acceleration and deceleration [m/s^2] (deceleration >= 0) at speed ``v`` [m/s]
     on a path of curvature ``kappa`` [1/m] for the car's g-g-v envelope scaled by ``grip``
     (:mod:`racing_env.envelope`; ``mu``: deprecated name of ``grip``); arrays broadcast.
@@ -40,8 +46,13 @@ def _required_grip(grip, mu, where: str) -> float:
     return grip
 
 
-def speed_limit(kappa: float | np.ndarray, grip: float | None = None, vehicle: VehicleParams | None = None, *,
-                mu: float | None = None) -> float | np.ndarray:
+def speed_limit(
+    kappa: float | np.ndarray,
+    grip: float | None = None,
+    vehicle: VehicleParams | None = None,
+    *,
+    mu: float | None = None,
+) -> float | np.ndarray:
     """Quasi-steady speed cap [m/s] of curvature ``kappa`` [1/m] (any shape): the highest speed
     at which the envelope scaled by ``grip`` holds ``v^2 |kappa|`` (the steering bound at low
     speed, the tyres above), and never above the top speed (:meth:`GGV.corner_speed`).
@@ -50,9 +61,15 @@ def speed_limit(kappa: float | np.ndarray, grip: float | None = None, vehicle: V
     return ggv(vehicle or VehicleParams()).corner_speed(kappa, grip)
 
 
-def speed_profile(kappa: np.ndarray, ds: float | np.ndarray, grip: float | None = None,
-                  vehicle: VehicleParams | None = None,
-                  max_sweeps: int = 50, *, mu: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def speed_profile(
+    kappa: np.ndarray,
+    ds: float | np.ndarray,
+    grip: float | None = None,
+    vehicle: VehicleParams | None = None,
+    max_sweeps: int = 50,
+    *,
+    mu: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Periodic speed profile ``(vx, ax)`` [m/s], [m/s^2] on a closed path, shapes (M,).
 
     ``kappa`` [1/m] at the M points, ``ds[k]`` [m] the distance from point k to point k+1
@@ -70,7 +87,9 @@ def speed_profile(kappa: np.ndarray, ds: float | np.ndarray, grip: float | None 
     kappa = np.asarray(kappa, dtype=float)
     ds = np.asarray(ds, dtype=float)
     if kappa.shape != ds.shape or kappa.ndim != 1 or len(kappa) < 2:
-        raise ValueError(f"speed_profile needs kappa and ds of equal 1-D shape, got {kappa.shape}, {ds.shape}")
+        raise ValueError(
+            f"speed_profile needs kappa and ds of equal 1-D shape, got {kappa.shape}, {ds.shape}"
+        )
     if not (np.all(np.isfinite(kappa)) and np.all(np.isfinite(ds)) and np.all(ds > 0)):
         raise ValueError("speed_profile needs finite kappa and finite positive ds")
     if not (math.isfinite(grip) and 0 < grip <= 1.5):
@@ -78,8 +97,18 @@ def speed_profile(kappa: np.ndarray, ds: float | np.ndarray, grip: float | None 
     env = ggv(p)
     v2 = speed_limit(kappa, grip, p) ** 2
     v_tab, ay_tab, r_tab, axp_tab, axm_tab = env.tables(grip)
-    ok = _profile_sweeps(v2, np.abs(kappa), ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab,
-                         int(np.argmin(v2)), int(max_sweeps))
+    ok = _profile_sweeps(
+        v2,
+        np.abs(kappa),
+        ds,
+        v_tab,
+        ay_tab,
+        r_tab,
+        axp_tab,
+        axm_tab,
+        int(np.argmin(v2)),
+        int(max_sweeps),
+    )
     if not ok:
         raise RuntimeError(f"speed profile did not settle in {max_sweeps} sweeps")
     vx = np.sqrt(v2)
@@ -94,7 +123,7 @@ def _profile_sweeps(v2, kab, ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab, start, 
     m = v2.shape[0]
     for _ in range(max_sweeps):
         changed = False
-        for j in range(m):                                   # forward: drive
+        for j in range(m):  # forward: drive
             k = (start + j) % m
             k1 = k + 1 if k + 1 < m else 0
             vk2 = v2[k]
@@ -104,7 +133,7 @@ def _profile_sweeps(v2, kab, ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab, start, 
             if cand < v2[k1] * (1.0 - 1e-12):
                 v2[k1] = cand
                 changed = True
-        for j in range(m):                                   # backward: braking
+        for j in range(m):  # backward: braking
             k1 = (start - j) % m
             k = k1 - 1 if k1 > 0 else m - 1
             vk2 = v2[k1]
