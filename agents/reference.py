@@ -20,9 +20,10 @@ lateral offset, left positive, ``mu`` [rad] heading relative to the centre line,
 module is a difference of unwrapped progress, never a wrapped one.
 
 Everything is numpy, with no Python loop over the horizon (only over the <= 2 neighbours);
-per-(race line, track) tables are computed once and cached. Measured on a shared 2-core box:
-about 26 us per call without opponents and 70 us with both neighbours inside the shift range
-(K = 15), 15-20 us more when theta is passed as an array instead of a :class:`Theta`.
+per-(race line, track) tables are computed once and cached (:mod:`agents.reference_tables`).
+Measured on a shared 2-core box: about 26 us per call without opponents and 70 us with both
+neighbours inside the shift range (K = 15), 15-20 us more when theta is passed as an array
+instead of a :class:`Theta`.
 """
 
 from __future__ import annotations
@@ -35,6 +36,16 @@ import numpy as np
 from racing_env.vehicle import VehicleParams
 
 from .neighbours import _neighbours_list, opponent_neighbours  # noqa: F401 (re-exported)
+from .reference_tables import (
+    _CACHE,  # noqa: F401 (re-exported)
+    _check_horizon,
+    _interp1,
+    _run_up,  # noqa: F401 (re-exported)
+    _steps,
+    _Tables,
+    _tables,
+    clear_cache,
+)
 from .theta import (
     EXTENDED_HIGH,  # noqa: F401 (re-exported)
     EXTENDED_LOW,  # noqa: F401 (re-exported)
@@ -70,131 +81,6 @@ __all__ = [
     "reference_trajectory",
     "clear_cache",
 ]
-
-
-# ====================================================================== tables
-class _Tables:
-    """Per-(race line, track, friction) lookup tables on the track grid, repeated over two laps
-    plus one point (index 2M = index 0 two laps on) so that a horizon starting anywhere on a lap
-    interpolates without wrapping (``st2``, ``tt2``, ``sdot2``, ``ndot2``, ``wl2``, ``wr2``); single-lap
-    tables plus one point (``nrl``, ``kap``, ``wl``, ``wr``) for scalar look-ups."""
-
-    __slots__ = (
-        "L",
-        "T",
-        "M",
-        "inv_ds",
-        "st",
-        "tt",
-        "st2",
-        "tt2",
-        "sdot2",
-        "ndot2",
-        "wl2",
-        "wr2",
-        "nrl",
-        "nrl2",
-        "kap",
-        "wl",
-        "wr",
-        "w_const",
-        "refs",
-        "run_t",
-        "run_v",
-        "run_x",
-    )
-
-    def __init__(self, raceline, track, friction):
-        L = float(track.length)
-        if abs(float(raceline.track_length) - L) > 1e-6 * max(L, 1.0):
-            raise ValueError(
-                f"raceline is for a track of length {raceline.track_length} m, "
-                f"but the track is {L} m long"
-            )
-        st = np.asarray(raceline.s_track, dtype=float)
-        M = len(st)
-        if M < 2 or np.max(np.abs(st - np.arange(M) * (L / M))) > 1e-6 * L:
-            raise ValueError("raceline.s_track must be the track's uniform grid i * L / M")
-        vx = np.asarray(raceline.profile(friction)[0], dtype=float)
-        n = np.asarray(raceline.n, dtype=float)
-        kap_c = np.asarray(track.kappa, dtype=float)
-        psi_c = np.asarray(track.psi, dtype=float)
-        if not (len(kap_c) == len(psi_c) == M == len(vx) == len(n)):
-            raise ValueError("raceline and track grids differ in size")
-        # race-line heading relative to the centre line, and its Frenet velocities
-        mu_rl = np.angle(np.exp(1j * (np.asarray(raceline.psi, dtype=float) - psi_c)))
-        den = 1.0 - n * kap_c
-        if np.any(den <= 0):
-            raise ValueError("race line lies beyond the centre line's radius of curvature")
-        sdot = vx * np.cos(mu_rl) / den
-        ndot = vx * np.sin(mu_rl)
-        # time along the race line (constant acceleration between grid points, as lap_time_of)
-        seg = np.diff(np.append(np.asarray(raceline.s, dtype=float), raceline.length))
-        dt_seg = 2.0 * seg / np.maximum(vx + np.roll(vx, -1), 1e-12)
-        ext = lambda a: np.append(a, a[0])
-        ext2 = lambda a: np.concatenate([a, a, a[:1]])
-        wl = np.asarray(track.w_left, dtype=float)
-        wr = np.asarray(track.w_right, dtype=float)
-        self.L, self.M = L, M
-        self.inv_ds = M / L
-        grid = np.arange(2 * M + 1) * (L / M)
-        self.st = grid[: M + 1]
-        self.st2 = grid
-        tt = np.concatenate([[0.0], np.cumsum(dt_seg)])
-        self.tt = tt
-        self.T = float(tt[-1])
-        self.tt2 = np.concatenate([tt[:-1], tt + self.T])
-        self.sdot2, self.ndot2, self.nrl2 = ext2(sdot), ext2(ndot), ext2(n)
-        self.wl2, self.wr2 = ext2(wl), ext2(wr)
-        self.nrl, self.kap, self.wl, self.wr = ext(n), ext(kap_c), ext(wl), ext(wr)
-        const = np.ptp(wl) == 0 and np.ptp(wr) == 0
-        self.w_const = (float(wl[0]), float(wr[0])) if const else None
-        self.run_t, self.run_v, self.run_x = _run_up(
-            friction if friction is not None else float(raceline.mu_nominal)
-        )
-        # (not set read-only: np.interp copies read-only tables on every call)
-        self.refs = (raceline, track)  # keep them alive so their ids stay unique
-
-
-def _run_up(mu: float, dt: float = 0.005, t_max: float = 60.0):
-    """The car's full-throttle run from rest on a straight under the g-g-v envelope scaled by
-    ``mu``: times ``t`` [s], speeds ``v`` [m/s] (strictly increasing) and distances ``x`` [m],
-    each shape (P,). The drive limit depends on speed only, so the run from any speed ``v0``
-    is this one's tail from the time it passes ``v0``."""
-    from racing_env.envelope import ggv
-
-    env = ggv()
-    v_grid = np.linspace(0.0, env.top_speed, 400)
-    a_grid = np.maximum(env.longitudinal_limits(v_grid, 0.0, mu)[0], 0.0)
-    t, v, x = [0.0], [0.0], [0.0]
-    while t[-1] < t_max:
-        a = float(np.interp(v[-1], v_grid, a_grid))
-        if a < 1e-3:  # at the top speed
-            break
-        v_new = v[-1] + a * dt
-        x.append(x[-1] + 0.5 * (v[-1] + v_new) * dt)
-        v.append(v_new)
-        t.append(t[-1] + dt)
-    return np.array(t), np.array(v), np.array(x)
-
-
-_CACHE: dict = {}
-_CACHE_MAX = 32
-
-
-def _tables(raceline, track, friction) -> _Tables:
-    key = (id(raceline), id(track), friction)
-    tab = _CACHE.get(key)
-    if tab is None:
-        if len(_CACHE) >= _CACHE_MAX:
-            _CACHE.clear()
-        tab = _CACHE[key] = _Tables(raceline, track, friction)
-    return tab
-
-
-def clear_cache() -> None:
-    """Forget the cached per-race-line tables (call after mutating a race line in place)."""
-    _CACHE.clear()
 
 
 # ====================================================================== reference
@@ -310,11 +196,11 @@ def reference_trajectory(
        that leaves the track at its tail (a car stopped beside the track could wait for
        ever). So the progress ``s_pert^k - s_ego`` is capped at ``REACH_SLACK`` (1.1) times
        the distance a full-throttle run on a straight covers in ``k dt`` from the car's
-       progress rate (the g-g-v envelope's drive limit, :func:`_run_up`). Where the cap binds
-       the reference keeps its path and arrives later: ``n_pert^k`` is the uncapped
-       reference's lateral offset at the capped progress (interpolated in ``s``), and
-       ``v_pert^k`` at most the run's speed. At racing speed the run outpaces the profile and
-       the cap does not bind.
+       progress rate (the g-g-v envelope's drive limit,
+       :func:`~agents.reference_tables._run_up`). Where the cap binds the reference keeps its
+       path and arrives later: ``n_pert^k`` is the uncapped reference's lateral offset at the
+       capped progress (interpolated in ``s``), and ``v_pert^k`` at most the run's speed. At
+       racing speed the run outpaces the profile and the cap does not bind.
     2. *Opponents* keep their Frenet progress rate ``s_dot_j = (vx cos mu - vy sin mu) /
        (1 - n kappa)`` and lateral position: ``s_j^k = s_j + k dt s_dot_j``, ``n_j^k = n_j``.
        Only ``j^*`` (just ahead) and ``j_*`` (just behind), see :func:`opponent_neighbours`.
@@ -605,36 +491,3 @@ REACH_SLACK = 1.1
 the full-throttle run's distance: it binds only on a car at least 10% behind its reference's
 pace (from rest, after a contact or off the track), not on a car at the limit whose reference
 asks for a few per cent more (zeta up to 1.05), which a hard cap slowed by about 1% a lap."""
-_STEPS: dict = {}
-
-
-def _check_horizon(K, dt):
-    if isinstance(K, bool) or int(K) != K or int(K) < 1:
-        raise ValueError(f"K must be an integer >= 1, got {K!r}")
-    dt_f = float(dt)
-    if not (math.isfinite(dt_f) and dt_f > 0):
-        raise ValueError(f"dt must be a positive finite number [s], got {dt!r}")
-    return int(K), dt_f
-
-
-def _steps(K: int, dt: float):
-    key = (K, dt)
-    v = _STEPS.get(key)
-    if v is None:
-        if len(_STEPS) > 64:
-            _STEPS.clear()
-        a = dt * np.arange(K + 1)
-        a.setflags(write=False)
-        b = a[1:]
-        v = _STEPS[key] = (a, b)
-    return v
-
-
-def _interp1(table: np.ndarray, s_w: float, inv_ds: float) -> float:
-    """Linear interpolation of an extended grid table at one wrapped s in [0, L)."""
-    f = s_w * inv_ds
-    i = int(f)
-    if i >= len(table) - 1:
-        return float(table[-1])
-    t = f - i
-    return float(table[i]) * (1.0 - t) + float(table[i + 1]) * t
