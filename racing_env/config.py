@@ -39,7 +39,7 @@ class RulesConfig:
       it is not laterally clear of (``|n_i - n_j| < contact_dn``). A bump from behind puts the
       rear car back to ``contact_ds`` behind and limits its ``vx`` to the front car's; a bump
       from the side pushes the two apart sideways. A car passes another only through free
-      space (see :func:`racing_env.simulator._separate`).
+      space (see :func:`racing_env.contact._separate`).
     * Off track: a car beyond an edge (``n > w_left`` or ``n < -w_right``) is slowed to
       ``offtrack_factor * vx`` (paper: 1/2) and re-aligned with the track
       (``mu = 0``; we also zero ``vy`` and ``omega``).

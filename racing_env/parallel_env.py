@@ -119,7 +119,7 @@ class RacingParallelEnv(ParallelEnv):
     **Version History** (``metadata["name"]``; the Gymnasium id ``alpha_racer/HeadToHead-vN``
     carries the same number):
 
-    * v2: contact keeps the bodies apart (:func:`racing_env.simulator._separate`). After
+    * v2: contact keeps the bodies apart (:func:`racing_env.contact._separate`). After
       every RK4 sub-step of a period with contact, no car may overlap, or be beyond, a car
       that it is not laterally clear of (``|n_i - n_j| < contact_dn``): a bump from behind
       puts the rear car back to ``contact_ds`` behind the front car and limits its ``vx`` to
