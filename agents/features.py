@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .theta import SPACES, PolicySpace, policy_space
+from .theta import SPACES, PolicySpace, policy_space, space_of_dim
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -60,7 +60,7 @@ def theta_space(
 ) -> PolicySpace:
     """The policy space of ``thetas`` (..., dim): ``space`` when given (``ValueError`` naming
     both when the thetas' last dimension is not its dim), else the space of that dimension
-    (:func:`agents.theta.space_of`)."""
+    (:func:`agents.theta.space_of_dim`)."""
     dim = np.shape(thetas)[-1] if np.ndim(thetas) else None
     if space is not None:
         sp = policy_space(space)
@@ -70,9 +70,9 @@ def theta_space(
                 f"{sp.names}, got thetas of shape {np.shape(thetas)}"
             )
         return sp
-    for sp in SPACES.values():
-        if sp.dim == dim:
-            return sp
+    sp = space_of_dim(dim)
+    if sp is not None:
+        return sp
     raise ValueError(
         f"thetas must have {' or '.join(str(sp.dim) for sp in SPACES.values())} "
         f"parameters in the last dimension ("

@@ -28,6 +28,7 @@ __all__ = [
     "SPACES",
     "policy_space",
     "space_of",
+    "space_of_dim",
 ]
 
 # ====================================================================== theta
@@ -203,13 +204,22 @@ SPACES = {
 """The policy spaces by name."""
 
 
+def space_of_dim(dim: int | None) -> PolicySpace | None:
+    """The policy space of ``dim`` parameters (5 the paper's, 6 the extended one), ``None``
+    for another number."""
+    for space in SPACES.values():
+        if space.dim == dim:
+            return space
+    return None
+
+
 def space_of(theta: Sequence[float] | np.ndarray) -> PolicySpace:
     """The policy space whose parameters an array-like ``theta`` holds (by its length: 5 the
     paper's, 6 the extended one); ``ValueError`` for another length."""
     n = len(theta)
-    for space in SPACES.values():
-        if space.dim == n:
-            return space
+    space = space_of_dim(n)
+    if space is not None:
+        return space
     raise ValueError(f"a theta has {sorted(s.dim for s in SPACES.values())} parameters, got {n}")
 
 

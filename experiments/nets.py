@@ -12,7 +12,7 @@ import json
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +23,7 @@ from agents.potential import PotentialModel
 from agents.theta import PolicySpace, policy_space
 from racing_env.files import atomic_path
 
-from .artifacts import write_json, write_text
+from .artifacts import claim, write_json, write_text
 from .parallel import pin_worker
 
 OBJECTIVES = ("mse", "smoothmax", "tail")
@@ -119,6 +119,24 @@ def collection_space(
             f"--space {policy_space(asked).name} was asked for"
         )
     return space
+
+
+def claim_training_run(
+    out: Path, cfg: TrainConfig, data_dir, manifest: dict, space: PolicySpace, head: dict
+) -> None:
+    """Tie the training run in ``out`` to its settings, both trainings' way: refuse data of
+    another policy space than the run started on (:func:`check_run_space`), then claim
+    ``train_config.json`` with ``head`` (the feature set's version), the config without
+    ``threads`` (how fast, not what: may change on a resume), the collection's ``manifest``
+    and the space when it is not the paper's (recorded as collections do)."""
+    check_run_space(out, space, data_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    config = json.loads(json.dumps(asdict(cfg)))
+    config.pop("threads")
+    meta = {**head, "config": config, "data": manifest}
+    if space.name != "paper":
+        meta["space"] = space.name
+    claim(out / "train_config.json", meta, "a training run (config or data)")
 
 
 def check_run_space(out: Path, space: PolicySpace, data_dir) -> None:

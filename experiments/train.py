@@ -53,11 +53,10 @@ from agents.features import (
 )
 from agents.potential import PotentialModel
 
-from .artifacts import claim
 from .nets import (
     TrainConfig,
     ValueData,
-    check_run_space,
+    claim_training_run,
     collection_space,
     discounted_partial_returns,
     gap_statistics,
@@ -104,9 +103,7 @@ def train(
     out = Path(out_dir)
     manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
     sp = collection_space(data_dir, manifest, asked=space)
-    check_run_space(out, sp, data_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    _write_or_check_config(out, cfg, data_dir)
+    claim_training_run(out, cfg, data_dir, manifest, sp, {"feature_version": FEATURE_VERSION})
     t_start = time.perf_counter()
     data = load_races(data_dir)
     track = make_track(data["config"]["track"])
@@ -183,17 +180,6 @@ def _is_family(data_dir) -> bool:
             f"{data_dir}: no manifest.json; expected a folder written by `alpha-racer collect`"
         )
     return json.loads(path.read_text()).get("kind") == "family"
-
-
-def _write_or_check_config(out: Path, cfg: TrainConfig, data_dir) -> None:
-    config = json.loads(json.dumps(asdict(cfg)))
-    config.pop("threads")  # how fast, not what: may change on a resume
-    manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
-    meta = {"feature_version": FEATURE_VERSION, "config": config, "data": manifest}
-    space = manifest.get("config", {}).get("space", "paper")
-    if space != "paper":  # recorded when not the paper's (as collections do)
-        meta["space"] = space
-    claim(out / "train_config.json", meta, "a training run (config or data)")
 
 
 def _features_in_chunks(states, thetas, r, t, c, track, chunk=200_000):

@@ -38,12 +38,11 @@ from agents.features import theta_space
 from agents.general_features import TrackSet
 from agents.potential import PotentialModel
 
-from .artifacts import claim
 from .family import RaceGroup, load_family
 from .nets import (
     TrainConfig,
     ValueData,
-    check_run_space,
+    claim_training_run,
     collection_space,
     discounted_partial_returns,
     gap_statistics,
@@ -348,19 +347,14 @@ def train_general(
     out = Path(out_dir)
     manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
     sp = collection_space(data_dir, manifest, asked=space)
-    check_run_space(out, sp, data_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    config_meta = json.loads(json.dumps(asdict(cfg)))
-    config_meta.pop("threads")  # how fast, not what: may change on a resume
-    run = {
-        "feature_set": "general",
-        "feature_version": gf.FEATURE_VERSION,
-        "config": config_meta,
-        "data": manifest,
-    }
-    if sp.name != "paper":  # recorded when not the paper's
-        run["space"] = sp.name
-    claim(out / "train_config.json", run, "a training run (config or data)")
+    claim_training_run(
+        out,
+        cfg,
+        data_dir,
+        manifest,
+        sp,
+        {"feature_set": "general", "feature_version": gf.FEATURE_VERSION},
+    )
     t_start = time.perf_counter()
     groups, _ = load_family(data_dir)
     data = FamilyData(groups)
