@@ -1,13 +1,14 @@
 """How much interaction a collection holds: the share of steps with a car within 1 m behind or
 beside another (:func:`experiments.metrics.interaction_share`), and the passes, for the first
-races of ``alpha-racer collect`` in each policy space and start geometry.
+races of ``alpha-racer collect`` in each policy space, start geometry and pace draw.
 
     python benchmarks/interaction_share.py               # 30 races per setting
     python benchmarks/interaction_share.py --races 8     # a smoke check
 
 Settings: the paper's collection (``--space paper --start paper``), close starts
-(``--start close``), the extended space (``--space extended``) and both. The same race indices
-and seed for every setting (the draws then differ only by what the setting changes).
+(``--start close``), the extended space (``--space extended``), both, and both with the
+cars' paces drawn close together (``--pace close``). The same race indices and seed for every
+setting (the draws then differ only by what the setting changes).
 """
 
 from __future__ import annotations
@@ -18,16 +19,24 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-SETTINGS = (("paper", "paper"), ("paper", "close"), ("extended", "paper"), ("extended", "close"))
+SETTINGS = (
+    ("paper", "paper", "box"),
+    ("paper", "close", "box"),
+    ("extended", "paper", "box"),
+    ("extended", "close", "box"),
+    ("paper", "close", "close"),
+    ("extended", "close", "close"),
+)
 
 
 def one_race(args):
     from experiments.collect import CollectConfig, simulate_race
     from experiments.metrics import interaction_share, race_metrics
 
-    space, start, seed, i, races = args
+    space, start, pace, seed, i, races = args
     warnings.simplefilter("ignore")
-    race = simulate_race(CollectConfig(races=races, space=space, start=start, seed=seed), i)
+    config = CollectConfig(races=races, space=space, start=start, pace=pace, seed=seed)
+    race = simulate_race(config, i)
     return interaction_share(race["states"]), sum(race_metrics(race["states"])["passes"])
 
 
@@ -36,17 +45,30 @@ def main(argv=None) -> None:
     p.add_argument("--races", type=int, default=30, help="races per setting")
     p.add_argument("--seed", type=int, default=0, help="collection seed")
     p.add_argument("--workers", type=int, default=2, help="worker processes")
+    p.add_argument(
+        "--settings",
+        nargs="+",
+        default=None,
+        metavar="SPACE/START/PACE",
+        help="only these settings, e.g. extended/close/close (default: all)",
+    )
     args = p.parse_args(argv)
-    print(f"{'space':9s} {'start':6s} share of steps with a car within 1 m   passes per race")
-    for space, start in SETTINGS:
-        jobs = [(space, start, args.seed, i, args.races) for i in range(args.races)]
+    settings = SETTINGS
+    if args.settings:
+        settings = [tuple(x.split("/")) for x in args.settings]
+        bad = [x for x in settings if x not in SETTINGS]
+        if bad:
+            p.error(f"--settings: {bad} not among {['/'.join(x) for x in SETTINGS]}")
+    print(f"{'space':9s} {'start':6s} {'pace':6s} share of steps with a car within 1 m   passes")
+    for space, start, pace in settings:
+        jobs = [(space, start, pace, args.seed, i, args.races) for i in range(args.races)]
         with ProcessPoolExecutor(args.workers) as ex:
             res = list(ex.map(one_race, jobs))
         share = np.array([r[0] for r in res])
         passes = np.array([r[1] for r in res])
         half = 1.96 * share.std(ddof=1) / np.sqrt(len(share)) if len(share) > 1 else float("nan")
         print(
-            f"{space:9s} {start:6s} {share.mean():.3f} +- {half:.3f} (95% CI, {len(share)} races)"
+            f"{space:9s} {start:6s} {pace:6s} {share.mean():.3f} +- {half:.3f} (95% CI, {len(share)} races)"
             f"      {passes.mean():.2f}",
             flush=True,
         )

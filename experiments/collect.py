@@ -35,9 +35,15 @@ SCHEMA_VERSION = 1
 #: Start-region geometry of a collection's races (``StartConfig`` region_length, region_gap
 #: [m]): the paper's, or close together so that the cars interact from the first corner.
 START_REGIONS = {"paper": (0.4, 0.6), "close": (0.2, 0.1)}
+#: How a race's paces are drawn: ``"box"``, every car's zeta over the whole box (the paper);
+#: ``"close"``, one zeta for the race drawn over the box and every car's within
+#: ``PACE_SPREAD`` of it (clipped to the box), so that the field stays together and passes and
+#: blocks are frequent while the collection still spans the box's paces.
+PACES = ("box", "close")
+PACE_SPREAD = 0.03  # half-width of a "close" race's zeta spread (absolute, zeta units)
 #: Config fields added after collections were first made, with their paper defaults: a manifest
 #: records them only when they differ (:func:`experiments.artifacts.manifest_config`).
-ADDED_FIELDS = {"space": "paper", "start": "paper"}
+ADDED_FIELDS = {"space": "paper", "start": "paper", "pace": "box"}
 
 
 class ShardedRaces:
@@ -69,6 +75,7 @@ class CollectConfig(ShardedRaces):
     space: str = "paper"  # policy space the thetas are drawn from (agents.reference)
     start: str = "paper"  # start regions: "paper" (0.4 m long, 0.6 m apart) or
     # "close" (0.2 m long, 0.1 m apart: pass and block at once)
+    pace: str = "box"  # the cars' zeta: "box" (each over the box) or "close" (PACES)
 
     def __post_init__(self):
         from agents.reference import policy_space
@@ -78,6 +85,8 @@ class CollectConfig(ShardedRaces):
             raise ValueError(
                 f"CollectConfig.start must be one of {sorted(START_REGIONS)}, got {self.start!r}"
             )
+        if self.pace not in PACES:
+            raise ValueError(f"CollectConfig.pace must be one of {list(PACES)}, got {self.pace!r}")
         for name in ("races", "n_cars", "steps", "races_per_shard"):
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 1):
@@ -123,6 +132,8 @@ def simulate_race(config: CollectConfig, race_index: int) -> dict:
     obs, _ = env.reset(seed=int(rng.integers(2**31)), options={"order": order.tolist()})
     space = policy_space(config.space)  # the paper's draws are Theta.sample's, bit for bit
     thetas = np.array([space.sample(rng) for _ in range(config.n_cars)])
+    if config.pace == "close":
+        thetas = close_paces(thetas, space, rng)
     agents = _mpc_agents(env.track, thetas, rng, env.possible_agents, config.space)
     fallbacks0 = [a.stats["fallbacks"] for a in agents]
     states = np.empty((config.steps + 1, config.n_cars, 6), dtype=np.float32)
@@ -147,6 +158,17 @@ def simulate_race(config: CollectConfig, race_index: int) -> dict:
             [a.stats["fallbacks"] - f0 for a, f0 in zip(agents, fallbacks0)], dtype=np.int32
         ),
     }
+
+
+def close_paces(thetas: np.ndarray, space, rng: np.random.Generator) -> np.ndarray:
+    """``thetas`` (N, dim) with every car's zeta replaced by one drawn within ``PACE_SPREAD``
+    of a zeta for the race, itself drawn uniformly over ``space``'s zeta bounds (a copy)."""
+    z = space.names.index("zeta")
+    lo, hi = space.low[z], space.high[z]
+    centre = rng.uniform(lo, hi)
+    out = thetas.copy()
+    out[:, z] = np.clip(centre + rng.uniform(-PACE_SPREAD, PACE_SPREAD, len(out)), lo, hi)
+    return out
 
 
 def rollout_from_state(track, state, thetas, steps: int):

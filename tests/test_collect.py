@@ -4,6 +4,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("daqp")
 
@@ -153,3 +155,33 @@ def test_collect_config_names_bad_space_and_start():
         CollectConfig(space="wide")
     with pytest.raises(ValueError, match=r"start must be one of \['close', 'paper'\], got 'near'"):
         CollectConfig(start="near")
+    with pytest.raises(ValueError, match=r"pace must be one of \['box', 'close'\], got 'even'"):
+        CollectConfig(pace="even")
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), space=st.sampled_from(["paper", "extended"]))
+def test_close_paces_keep_every_zeta_in_the_box_and_within_the_spread(seed, space):
+    from agents.theta import policy_space
+    from experiments.collect import PACE_SPREAD, close_paces
+
+    box = policy_space(space)
+    rng = np.random.default_rng(seed)
+    thetas = np.array([box.sample(rng) for _ in range(4)])
+    out = close_paces(thetas, box, rng)
+    z = box.names.index("zeta")
+    assert np.all(out[:, z] >= box.low[z]) and np.all(out[:, z] <= box.high[z])
+    assert np.ptp(out[:, z]) <= 2 * PACE_SPREAD
+    others = [i for i in range(box.dim) if i != z]
+    np.testing.assert_array_equal(out[:, others], thetas[:, others])  # only zeta changes
+
+
+def test_a_close_pace_collection_differs_from_the_box_only_in_zeta(tmp_path):
+    kw = dict(races=2, n_cars=3, steps=3, seed=5, races_per_shard=2, space="extended")
+    box = load_races_of(CollectConfig(**kw), tmp_path / "box")
+    close = load_races_of(CollectConfig(pace="close", **kw), tmp_path / "close")
+    z = 1  # zeta is theta's second parameter in both spaces
+    assert np.ptp(close["thetas"][:, :, z], axis=1).max() <= 0.06 + 1e-6
+    assert np.ptp(box["thetas"][:, :, z], axis=1).max() > 0.06  # seed 5: a wide box draw
+    np.testing.assert_array_equal(np.delete(close["thetas"], z, 2), np.delete(box["thetas"], z, 2))
+    np.testing.assert_array_equal(close["states"][:, 0], box["states"][:, 0])  # same starts
