@@ -196,13 +196,13 @@ def summary(ms):
 
 
 def parse_config(pairs) -> MPCConfig:
-    """An :class:`MPCConfig` from ``KEY=VALUE`` strings, KEY a numeric field (value parsed as
-    the field's type)."""
+    """An :class:`MPCConfig` from ``KEY=VALUE`` strings, KEY a numeric or boolean field (value
+    parsed as the field's type; a boolean from 1/0, true/false)."""
     default = MPCConfig()
     numeric = {
         f.name: type(getattr(default, f.name))
         for f in fields(MPCConfig)
-        if type(getattr(default, f.name)) in (int, float)
+        if type(getattr(default, f.name)) in (int, float, bool)
     }
     kw = {}
     for pair in pairs:
@@ -211,7 +211,12 @@ def parse_config(pairs) -> MPCConfig:
             raise SystemExit(
                 f"--config takes KEY=VALUE with KEY one of {sorted(numeric)}, got {pair!r}"
             )
-        kw[key] = numeric[key](value)
+        if numeric[key] is bool:
+            if value.lower() not in ("1", "0", "true", "false"):
+                raise SystemExit(f"--config {key} takes 1/0 or true/false, got {value!r}")
+            kw[key] = value.lower() in ("1", "true")
+        else:
+            kw[key] = numeric[key](value)
     return MPCConfig(**kw)
 
 

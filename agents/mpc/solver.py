@@ -222,6 +222,7 @@ class MPC:
             "solves": 0,
             "fallbacks": 0,
             "restarts": 0,
+            "second_starts": 0,
             "qp_iterations": 0,
             "rejected_steps": 0,
             "extra_iterations": 0,
@@ -337,72 +338,15 @@ class MPC:
         """The cost of :meth:`_score` alone."""
         return self._score(X, U, s_ref, n_ref, q, opp)[0]
 
-    def solve(
-        self,
-        x0: np.ndarray,
-        s_ref: np.ndarray,
-        n_ref: np.ndarray,
-        q: float,
-        opponents: np.ndarray | None = None,
-        u_prev: np.ndarray | None = None,
-    ) -> np.ndarray:
+    def _sqp(self, consts: StepConstants, U, X, A, B, J: float, edges, u_prev):
+        """The SQP iterations of :meth:`solve` from the plan ``U`` (2, K) with rollout ``X``,
+        Jacobians ``A, B``, cost ``J`` and edges: ``(U, X, J, edges, status)`` of the last
+        accepted plan (``status`` "ok", else why it failed). Sets ``_s_nom``."""
         import daqp
 
-        t0 = time.perf_counter()
         cfg, K = self.cfg, self.cfg.horizon
-        x0 = np.asarray(x0, dtype=float)
-        s_ref = np.asarray(s_ref, dtype=float)
-        n_ref = np.asarray(n_ref, dtype=float)
-        u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
-        opp = (
-            np.zeros((0, 3))
-            if opponents is None
-            else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3)
-        )
-
-        w_soft = 0.5 / cfg.soft_rho_at(q)
-        bounds, track = self._bounds_n, self.track
-
-        def score(X_, U_):
-            return self._score(X_, U_, s_ref, n_ref, q, opp)
-
-        fresh = self._U is None
-        if fresh:  # first solve: start from the follower
-            U = self._follower_warm_start(x0)
-        else:
-            U = self._U
-        X, A, B = self._plan(x0, U)
-        J, edges = score(X, U)
-        if not fresh:
-            off = np.inf if edges is None else np.maximum(X[1] - edges[1], edges[0] - X[1]).max()
-            if off > cfg.restart_offtrack or x0[3] < 2.0 * cfg.v_low:
-                # the shifted plan leaves the track, or the car is (nearly) stopped, where the
-                # linearisation sees little of what drive does: also try a follower rollout
-                Uf = self._follower_warm_start(x0)
-                Xf, Af, Bf = self._plan(x0, Uf)
-                Jf, edges_f = score(Xf, Uf)
-                if Jf < J:
-                    U, X, A, B, J, edges = Uf, Xf, Af, Bf, Jf, edges_f
-                    self.stats["restarts"] += 1
-        consts = StepConstants(
-            x0,
-            self._step_sizes,
-            track.kappa,
-            track.ds,
-            track.length,
-            cfg.substeps,
-            s_ref,
-            n_ref,
-            float(q),
-            bounds.lo_table,
-            bounds.hi_table,
-            opp,
-            cfg.dt,
-            cfg.sep_s,
-            cfg.sep_n,
-            cfg.sep_window,
-            w_soft,
-        )
+        s_ref, n_ref, q, opp = consts.s_ref, consts.n_ref, consts.q, consts.opponents
+        w_soft = consts.w_soft
         status = "ok"
         for it in range(cfg.sqp_iterations):
             if edges is None:
@@ -468,6 +412,112 @@ class MPC:
             # the curvature pass)
             self.stats["extra_iterations"] += 1
             A, B = step.A, step.B
+        return U, X, J, edges, status
+
+    def _pays_penalty(self, X, U, J: float, s_ref, n_ref, q: float, opp) -> bool:
+        """Whether the plan's cost ``J`` includes the soft rows' penalty (an edge or a
+        separation violated along its rollout ``X``)."""
+        cfg, b, t = self.cfg, self._bounds_n, self.track
+        u_vec = np.ascontiguousarray(U.T).reshape(-1)
+        J0, _, _ = score_rollout(
+            X,
+            u_vec,
+            s_ref,
+            n_ref,
+            float(q),
+            b.lo_table,
+            b.hi_table,
+            t.ds,
+            t.length,
+            opp,
+            cfg.dt,
+            cfg.sep_s,
+            cfg.sep_n,
+            cfg.sep_window,
+            0.0,
+        )
+        return J > J0 * (1.0 + 1e-9)
+
+    def solve(
+        self,
+        x0: np.ndarray,
+        s_ref: np.ndarray,
+        n_ref: np.ndarray,
+        q: float,
+        opponents: np.ndarray | None = None,
+        u_prev: np.ndarray | None = None,
+    ) -> np.ndarray:
+        t0 = time.perf_counter()
+        cfg = self.cfg
+        x0 = np.asarray(x0, dtype=float)
+        s_ref = np.asarray(s_ref, dtype=float)
+        n_ref = np.asarray(n_ref, dtype=float)
+        u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
+        opp = (
+            np.zeros((0, 3))
+            if opponents is None
+            else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3)
+        )
+
+        w_soft = 0.5 / cfg.soft_rho_at(q)
+        bounds, track = self._bounds_n, self.track
+
+        def score(X_, U_):
+            return self._score(X_, U_, s_ref, n_ref, q, opp)
+
+        fresh = self._U is None
+        if fresh:  # first solve: start from the follower
+            U = self._follower_warm_start(x0)
+        else:
+            U = self._U
+        X, A, B = self._plan(x0, U)
+        J, edges = score(X, U)
+        if not fresh:
+            off = np.inf if edges is None else np.maximum(X[1] - edges[1], edges[0] - X[1]).max()
+            if off > cfg.restart_offtrack or x0[3] < 2.0 * cfg.v_low:
+                # the shifted plan leaves the track, or the car is (nearly) stopped, where the
+                # linearisation sees little of what drive does: also try a follower rollout
+                Uf = self._follower_warm_start(x0)
+                Xf, Af, Bf = self._plan(x0, Uf)
+                Jf, edges_f = score(Xf, Uf)
+                if Jf < J:
+                    U, X, A, B, J, edges = Uf, Xf, Af, Bf, Jf, edges_f
+                    self.stats["restarts"] += 1
+        consts = StepConstants(
+            x0,
+            self._step_sizes,
+            track.kappa,
+            track.ds,
+            track.length,
+            cfg.substeps,
+            s_ref,
+            n_ref,
+            float(q),
+            bounds.lo_table,
+            bounds.hi_table,
+            opp,
+            cfg.dt,
+            cfg.sep_s,
+            cfg.sep_n,
+            cfg.sep_window,
+            w_soft,
+        )
+        U, X, J, edges, status = self._sqp(consts, U, X, A, B, J, edges, u_prev)
+        if (
+            cfg.second_start
+            and status == "ok"
+            and self._pays_penalty(X, U, J, s_ref, n_ref, q, opp)
+        ):
+            s_nom = self._s_nom
+            Uf = self._follower_warm_start(x0)
+            Xf, Af, Bf = self._plan(x0, Uf)
+            Jf, edges_f = score(Xf, Uf)
+            Uf, Xf, Jf, edges_f, status_f = self._sqp(consts, Uf, Xf, Af, Bf, Jf, edges_f, u_prev)
+            if status_f == "ok" and Jf < J:
+                U, X, J, edges = Uf, Xf, Jf, edges_f
+                self.stats["second_starts"] += 1
+            else:
+                self._s_nom = s_nom
         self.stats["solves"] += 1
         if status != "ok":
             self.stats["fallbacks"] += 1
