@@ -43,19 +43,21 @@ def main(iterations: int = 2) -> list[float]:
     n_obs = env.observation_spec["car", "observation"].shape[-1]
     n_act = env.full_action_spec["car", "action"].shape[-1]
 
-    actor_net = torch.nn.Sequential(
-        MultiAgentMLP(
+    def mlp(n_outputs: int, centralised: bool):
+        """One network shared by the cars (two hidden layers of 64, tanh); ``centralised``: it
+        sees every car's observation."""
+        return MultiAgentMLP(
             n_agent_inputs=n_obs,
-            n_agent_outputs=2 * n_act,
+            n_agent_outputs=n_outputs,
             n_agents=N_CARS,
-            centralised=False,
+            centralised=centralised,
             share_params=True,
             depth=2,
             num_cells=64,
             activation_class=torch.nn.Tanh,
-        ),
-        NormalParamExtractor(),
-    )
+        )
+
+    actor_net = torch.nn.Sequential(mlp(2 * n_act, centralised=False), NormalParamExtractor())
     actor = ProbabilisticActor(
         TensorDictModule(
             actor_net, in_keys=[("car", "observation")], out_keys=[("car", "loc"), ("car", "scale")]
@@ -68,16 +70,7 @@ def main(iterations: int = 2) -> list[float]:
         return_log_prob=True,
     )
     critic = TensorDictModule(
-        MultiAgentMLP(
-            n_agent_inputs=n_obs,
-            n_agent_outputs=1,
-            n_agents=N_CARS,
-            centralised=True,
-            share_params=True,
-            depth=2,
-            num_cells=64,
-            activation_class=torch.nn.Tanh,
-        ),
+        mlp(1, centralised=True),
         in_keys=[("car", "observation")],
         out_keys=[("car", "state_value")],
     )

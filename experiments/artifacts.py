@@ -274,6 +274,17 @@ def read_jsonl(path) -> list:
     return out
 
 
+def check_track_specs(tracks) -> None:
+    """A ``ValueError`` unless ``tracks`` (a config's) are one or more distinct, non-empty track
+    spec strings."""
+    if (
+        not tracks
+        or len(set(tracks)) != len(tracks)
+        or not all(isinstance(t, str) and t for t in tracks)
+    ):
+        raise ValueError(f"tracks must be distinct track specs, got {list(tracks)}")
+
+
 def uses_best_theta(specs) -> bool:
     """Whether any agent spec of ``specs`` races the best-theta table (``theta=best``)."""
     return any("theta=best" in spec.replace(" ", "") for spec in specs)

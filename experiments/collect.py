@@ -231,11 +231,14 @@ def simulate_shard(config: CollectConfig, shard: int) -> dict:
     return {k: np.stack([r[k] for r in races]) for k in races[0]}
 
 
+def shard_path(out_dir, shard: int) -> Path:
+    """The file of shard ``shard`` in the collection folder ``out_dir`` (both kinds')."""
+    return Path(out_dir) / f"shard_{shard:05d}.npz"
+
+
 def write_shard(arrays: dict, shard: int, out_dir) -> str:
     """Write a shard atomically (temporary file, then rename); returns its path."""
-    return str(
-        write_npz(Path(out_dir) / f"shard_{shard:05d}.npz", schema_version=SCHEMA_VERSION, **arrays)
-    )
+    return str(write_npz(shard_path(out_dir, shard), schema_version=SCHEMA_VERSION, **arrays))
 
 
 def shard_is_complete(path: Path, config: CollectConfig, shard: int) -> bool:
@@ -272,23 +275,51 @@ def collect(
         "race data",
         provenance=provenance(),
     )
-    todo = [
-        k
-        for k in range(config.n_shards)
-        if not shard_is_complete(out / f"shard_{k:05d}.npz", config, k)
-    ]
+    return simulate_missing_shards(
+        config,
+        out,
+        simulate_shard,
+        shard_is_complete,
+        lambda k, arrays: write_shard(arrays, k, out),
+        "collect",
+        workers=workers,
+        backend=backend,
+        address=address,
+        progress_bar=progress_bar,
+    )
+
+
+def simulate_missing_shards(
+    config: ShardedRaces,
+    out: Path,
+    simulate,
+    is_complete,
+    write,
+    desc: str,
+    *,
+    workers: int,
+    backend: str,
+    address: str | None,
+    progress_bar: bool,
+) -> dict:
+    """Simulate every shard ``k`` of ``config`` whose file in ``out`` is not complete
+    (``is_complete(path, config, k)``) as ``simulate(config, k)`` on the pool, and
+    ``write(k, arrays)`` each as it arrives, behind a progress bar ``desc`` over all races;
+    returns the summary (races, simulated, resumed, seconds, races_per_s, out) of both kinds
+    of collection."""
+    todo = [k for k in range(config.n_shards) if not is_complete(shard_path(out, k), config, k)]
     done_races = config.races - sum(len(config.shard_races(k)) for k in todo)
     t0 = time.perf_counter()
     run_tasks_with_progress(
-        simulate_shard,
+        simulate,
         [(k, (config, k)) for k in todo],
-        lambda k, arrays: write_shard(arrays, k, out),
+        write,
         workers,
         backend,
         address,
         total=config.races,
         done=done_races,
-        desc="collect",
+        desc=desc,
         unit="race",
         progress_bar=progress_bar,
         count=lambda k: len(config.shard_races(k)),

@@ -23,7 +23,6 @@ single-track collection (schema 1) loads here too, as a family of one track and 
 from __future__ import annotations
 
 import json
-import time
 import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -32,8 +31,14 @@ import numpy as np
 
 from .artifacts import claim, write_npz
 from .collect import SCHEMA_VERSION as SINGLE_SCHEMA_VERSION
-from .collect import CollectConfig, ShardedRaces, simulate_race
-from .parallel import check_backend, run_tasks_with_progress
+from .collect import (
+    CollectConfig,
+    ShardedRaces,
+    shard_path,
+    simulate_missing_shards,
+    simulate_race,
+)
+from .parallel import check_backend
 
 SCHEMA_VERSION = 2
 MIN_CARS, MAX_CARS = 2, 8
@@ -204,10 +209,6 @@ def simulate_family_shard(config: FamilyConfig, shard: int) -> dict:
     return arrays
 
 
-def _shard_path(out: Path, shard: int) -> Path:
-    return out / f"shard_{shard:05d}.npz"
-
-
 def shard_is_complete(path: Path, config: FamilyConfig, shard: int) -> bool:
     track, n = config.assignment(shard)
     try:
@@ -238,35 +239,18 @@ def collect_family(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     claim(out / "manifest.json", config.manifest(), "race data")
-    todo = [
-        k for k in range(config.n_shards) if not shard_is_complete(_shard_path(out, k), config, k)
-    ]
-    done_races = config.races - sum(len(config.shard_races(k)) for k in todo)
-    t0 = time.perf_counter()
-    run_tasks_with_progress(
+    return simulate_missing_shards(
+        config,
+        out,
         simulate_family_shard,
-        [(k, (config, k)) for k in todo],
-        lambda k, arrays: write_npz(_shard_path(out, k), schema_version=SCHEMA_VERSION, **arrays),
-        workers,
-        backend,
-        address,
-        total=config.races,
-        done=done_races,
-        desc="collect family",
-        unit="race",
+        shard_is_complete,
+        lambda k, arrays: write_npz(shard_path(out, k), schema_version=SCHEMA_VERSION, **arrays),
+        "collect family",
+        workers=workers,
+        backend=backend,
+        address=address,
         progress_bar=progress_bar,
-        count=lambda k: len(config.shard_races(k)),
     )
-    seconds = time.perf_counter() - t0
-    new = config.races - done_races
-    return {
-        "races": config.races,
-        "simulated": new,
-        "resumed": done_races,
-        "seconds": seconds,
-        "races_per_s": new / seconds if seconds > 0 else float("nan"),
-        "out": str(out),
-    }
 
 
 @dataclass
@@ -313,7 +297,7 @@ def load_family(out_dir) -> tuple[list[RaceGroup], dict]:
                 d["race_index"],
             )
         ], meta
-    missing = [e["shard"] for e in meta["shards"] if not _shard_path(out, e["shard"]).exists()]
+    missing = [e["shard"] for e in meta["shards"] if not shard_path(out, e["shard"]).exists()]
     if missing:
         raise ValueError(
             f"{out}: {len(missing)} of {len(meta['shards'])} shards missing (first: "
@@ -321,7 +305,7 @@ def load_family(out_dir) -> tuple[list[RaceGroup], dict]:
         )
     parts: dict[tuple[str, int], list[dict]] = {}
     for entry in meta["shards"]:
-        p = _shard_path(out, entry["shard"])
+        p = shard_path(out, entry["shard"])
         with np.load(p) as z:
             if int(z["schema_version"]) != SCHEMA_VERSION:
                 raise ValueError(

@@ -49,7 +49,14 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics as race_metrics
-from .artifacts import ResumableRun, as_stored, env_version, write_json, write_text
+from .artifacts import (
+    ResumableRun,
+    as_stored,
+    check_track_specs,
+    env_version,
+    write_json,
+    write_text,
+)
 from .bench import check_agent_specs, wilson_interval
 from .parallel import check_backend
 
@@ -113,12 +120,7 @@ class LeagueConfig:
                 f"{self.cars} cars per race need at least {self.cars} agent specs, "
                 f"got {len(self.agents)}: {', '.join(self.agents) or 'none'}"
             )
-        if (
-            not self.tracks
-            or len(set(self.tracks)) != len(self.tracks)
-            or not all(isinstance(t, str) and t for t in self.tracks)
-        ):
-            raise ValueError(f"tracks must be distinct track specs, got {list(self.tracks)}")
+        check_track_specs(self.tracks)
 
     def race_seed(self, k: int) -> int:
         """Seed of race k: its start positions and (through ``run_race``) its agents."""

@@ -546,3 +546,93 @@ def summary_text(m: dict) -> str:
         )
     lines.append(f"training {m['train_seconds']:.0f} s, total {m['total_seconds']:.0f} s")
     return "\n".join(lines)
+
+
+@dataclass
+class TrainingRun:
+    """One training run in ``out``, both trainings' way (:meth:`open`, :meth:`fit`,
+    :meth:`finish`) on the collection at ``data_dir``: the config, torch, the progress bar and
+    log, the collection's ``manifest`` and policy ``space``, the ``command`` the model card
+    names, ``t_start`` (the clock after the claim) and ``train_seconds`` (of the two stages,
+    once fitted)."""
+
+    data_dir: Path
+    cfg: TrainConfig
+    out: Path
+    torch: object
+    progress_bar: bool
+    log: object
+    manifest: dict
+    space: PolicySpace
+    command: str
+    t_start: float
+    train_seconds: float = 0.0
+
+    @classmethod
+    def open(
+        cls,
+        data_dir,
+        out_dir,
+        cfg: TrainConfig,
+        space,
+        head: dict,
+        torch,
+        progress_bar,
+        log,
+        command,
+    ) -> TrainingRun:
+        """Set torch's threads and seed (the networks' initial weights: same data, same model),
+        read the collection's manifest and policy space (``space``, when given, must be it)
+        and claim the run in ``out_dir`` with ``head`` (:func:`claim_training_run`)."""
+        torch.set_num_threads(cfg.threads)
+        torch.manual_seed(cfg.seed)
+        out = Path(out_dir)
+        manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
+        sp = collection_space(data_dir, manifest, asked=space)
+        claim_training_run(out, cfg, data_dir, manifest, sp, head)
+        command = command or f"alpha-racer train --data {data_dir} --out {out_dir}"
+        return cls(
+            data_dir, cfg, out, torch, progress_bar, log, manifest, sp, command, time.perf_counter()
+        )
+
+    def split(self, n_races: int, theta_dim: int):
+        """The (train, val) race indices (:func:`split_races`), once the loaded thetas' last
+        dimension ``theta_dim`` is checked to be the collection's space's
+        (:func:`collection_space`)."""
+        collection_space(self.data_dir, self.manifest, theta_dim)
+        return split_races(n_races, self.cfg.val_fraction, self.cfg.seed)
+
+    def fit(self, value_data: ValueData, deviations):
+        """The value stage on ``value_data``, then the potential stage on ``deviations``;
+        returns the two (normalised torch) networks."""
+        out, torch, bar, log = self.out, self.torch, self.progress_bar, self.log
+        value = train_value(value_data, self.cfg, out, torch, bar, log)
+        potential = train_potential(deviations, self.cfg, value, out, torch, bar, log)
+        self.train_seconds = time.perf_counter() - self.t_start
+        return value, potential
+
+    def finish(self, value, potential, meta: dict, data: dict, gaps, rollouts, card_text) -> dict:
+        """The numpy model of the fitted networks with ``meta`` (then the policy space, the
+        config, ``data`` and the training time), validated by ``gaps(model)`` and, unless
+        ``rollout_pairs`` is 0, ``rollouts(model, value_range)``; saves it with its metrics and
+        card (:func:`save_model`) and returns the metrics."""
+        sp, cfg = self.space, self.cfg
+        meta = {
+            **meta,
+            "space": sp.name,
+            "theta_low": sp.low.tolist(),
+            "theta_high": sp.high.tolist(),
+            "gamma": cfg.gamma,
+            "config": asdict(cfg),
+            "data": data,
+            "train_seconds": self.train_seconds,
+        }
+        model = numpy_model(value, potential, meta)
+        self.log("validation on held-out races ...")
+        metrics = {"train_seconds": self.train_seconds, **value.metrics, **gaps(model)}
+        if cfg.rollout_pairs:
+            metrics.update(rollouts(model, metrics["value_range"]))
+        metrics["total_seconds"] = time.perf_counter() - self.t_start
+        save_model(model, metrics, self.out, card_text, self.command)
+        self.log(summary_text(metrics))
+        return metrics

@@ -34,7 +34,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import ResumableRun, env_version, manifest_config, slug, write_json, write_text
+from .artifacts import (
+    ResumableRun,
+    check_track_specs,
+    env_version,
+    manifest_config,
+    slug,
+    write_json,
+    write_text,
+)
 from .bench import REGIONS, BenchConfig, check_agent_specs
 from .parallel import check_backend
 
@@ -83,12 +91,7 @@ class PolicyMapConfig:
         bad = [m for m in self.modes if m not in MODES]
         if bad or not self.modes or len(set(self.modes)) != len(self.modes):
             raise ValueError(f"modes must be distinct values of {MODES}, got {list(self.modes)}")
-        if (
-            not self.tracks
-            or len(set(self.tracks)) != len(self.tracks)
-            or not all(isinstance(t, str) and t for t in self.tracks)
-        ):
-            raise ValueError(f"tracks must be distinct track specs, got {list(self.tracks)}")
+        check_track_specs(self.tracks)
 
     def row_seed(self, k: int) -> int:
         """Seed of theta k's runs (start positions in the race mode, the agents' seeds)."""

@@ -554,20 +554,26 @@ def plot_learning_curve(out: Path, state: SelfPlayState, cfg: SelfPlayConfig) ->
 
 
 # ---------------------------------------------------------------------- the pipeline
+PPO_SETTINGS = (
+    "learning_rate",
+    "n_steps",
+    "batch_size",
+    "n_epochs",
+    "gamma",
+    "gae_lambda",
+    "clip_range",
+    "ent_coef",
+)
+"""The :class:`SelfPlayConfig` fields that are PPO's settings of the same names."""
+
+
 def _new_model(cfg: SelfPlayConfig, env, seed: int):
     from stable_baselines3 import PPO
 
     return PPO(
         "MlpPolicy",
         env,
-        learning_rate=cfg.learning_rate,
-        n_steps=cfg.n_steps,
-        batch_size=cfg.batch_size,
-        n_epochs=cfg.n_epochs,
-        gamma=cfg.gamma,
-        gae_lambda=cfg.gae_lambda,
-        clip_range=cfg.clip_range,
-        ent_coef=cfg.ent_coef,
+        **{name: getattr(cfg, name) for name in PPO_SETTINGS},
         policy_kwargs={"net_arch": list(cfg.net_arch)},
         seed=seed,
         device="cpu",

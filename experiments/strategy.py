@@ -45,7 +45,15 @@ import warnings
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-from .artifacts import ResumableRun, append_jsonl, read_jsonl, slug, write_json, write_text
+from .artifacts import (
+    ResumableRun,
+    append_jsonl,
+    check_track_specs,
+    read_jsonl,
+    slug,
+    write_json,
+    write_text,
+)
 from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, check_spec_fields
 from .parallel import check_backend
 
@@ -127,12 +135,7 @@ class StrategyConfig:
                 f"scenarios must be distinct names of {', '.join(SCENARIOS)}, got "
                 f"{list(self.scenarios)}"
             )
-        if (
-            not self.tracks
-            or len(set(self.tracks)) != len(self.tracks)
-            or not all(isinstance(t, str) and t for t in self.tracks)
-        ):
-            raise ValueError(f"tracks must be distinct track specs, got {list(self.tracks)}")
+        check_track_specs(self.tracks)
         if (
             isinstance(self.zeta_max, bool)
             or not isinstance(self.zeta_max, (int, float))

@@ -37,8 +37,6 @@ it came from and the metrics; ``metrics.json`` and ``model_card.md`` sit beside 
 from __future__ import annotations
 
 import json
-import time
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -55,19 +53,12 @@ from agents.potential import PotentialModel
 
 from .nets import (
     TrainConfig,
+    TrainingRun,
     ValueData,
-    claim_training_run,
-    collection_space,
     discounted_partial_returns,
     gap_statistics,
-    numpy_model,
     paired_rollouts,
     rollout_statistics,
-    save_model,
-    split_races,
-    summary_text,
-    train_potential,
-    train_value,
     value_samples,
 )
 
@@ -94,82 +85,45 @@ def train(
     from racing_env.tracks import make_track
 
     cfg = config or TrainConfig()
-    if _is_family(data_dir):  # many tracks and field sizes: the general model
+    family = _is_family(data_dir)  # many tracks and field sizes: the general model
+    if family:
+        from .train_general import GENERAL_HEAD as head
         from .train_general import train_general
-
-        return train_general(data_dir, out_dir, cfg, progress_bar, log, command, space)
-    torch.set_num_threads(cfg.threads)
-    torch.manual_seed(cfg.seed)  # the networks' initial weights: same data, same model
-    out = Path(out_dir)
-    manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
-    sp = collection_space(data_dir, manifest, asked=space)
-    claim_training_run(out, cfg, data_dir, manifest, sp, {"feature_version": FEATURE_VERSION})
-    t_start = time.perf_counter()
+    else:
+        head = {"feature_version": FEATURE_VERSION}
+    run = TrainingRun.open(data_dir, out_dir, cfg, space, head, torch, progress_bar, log, command)
+    if family:
+        return train_general(run)
     data = load_races(data_dir)
     track = make_track(data["config"]["track"])
     states, thetas, rewards = data["states"], data["thetas"], data["rewards"]
-    collection_space(data_dir, manifest, thetas.shape[-1])
     R, T, N = rewards.shape
-    train_idx, val_idx = split_races(R, cfg.val_fraction, cfg.seed)
+    train_idx, val_idx = run.split(R, thetas.shape[-1])
     log(
         f"data: {R} races x {T} steps x {N} cars from {data_dir} "
         f"({len(train_idx)} training, {len(val_idx)} held out)"
-        + ("" if sp.name == "paper" else f", policy space {sp.name!r} {sp.names}")
+        + (
+            ""
+            if run.space.name == "paper"
+            else f", policy space {run.space.name!r} {run.space.names}"
+        )
     )
 
-    value = train_value(
+    value, potential = run.fit(
         _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg),
-        cfg,
-        out,
-        torch,
-        progress_bar,
-        log,
-    )
-    potential = train_potential(
         _Deviations(states, thetas, train_idx, track, cfg.own_theta_fraction),
-        cfg,
+    )
+    return run.finish(
         value,
-        out,
-        torch,
-        progress_bar,
-        log,
-    )
-    t_train = time.perf_counter() - t_start
-    meta = {
-        "feature_version": FEATURE_VERSION,
-        "n_cars": N,
-        "track": data["config"]["track"],
-        "space": sp.name,
-        "theta_low": sp.low.tolist(),
-        "theta_high": sp.high.tolist(),
-        "gamma": cfg.gamma,
-        "config": asdict(cfg),
-        "data": {"dir": str(data_dir), "races": R, "steps": T, "collect": data["config"]},
-        "train_seconds": t_train,
-    }
-    model = numpy_model(value, potential, meta)
-    log("validation on held-out races ...")
-    metrics = {
-        "train_seconds": t_train,
-        **value.metrics,
-        **validate_gaps(model, states, thetas, val_idx, track, cfg),
-    }
-    if cfg.rollout_pairs:
-        metrics.update(
-            validate_rollouts(
-                model, metrics["value_range"], states, thetas, val_idx, track, cfg, progress_bar
-            )
-        )
-    metrics["total_seconds"] = time.perf_counter() - t_start
-    save_model(
-        model,
-        metrics,
-        out,
+        potential,
+        {"feature_version": FEATURE_VERSION, "n_cars": N, "track": data["config"]["track"]},
+        {"dir": str(data_dir), "races": R, "steps": T, "collect": data["config"]},
+        lambda model: validate_gaps(model, states, thetas, val_idx, track, cfg),
+        lambda model, vr: validate_rollouts(
+            model, vr, states, thetas, val_idx, track, cfg, progress_bar
+        ),
         model_card_text,
-        command or f"alpha-racer train --data {data_dir} --out {out_dir}",
     )
-    log(summary_text(metrics))
-    return metrics
 
 
 def _is_family(data_dir) -> bool:

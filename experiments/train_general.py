@@ -26,11 +26,6 @@ the collection it came from.
 
 from __future__ import annotations
 
-import json
-import time
-from dataclasses import asdict
-from pathlib import Path
-
 import numpy as np
 
 from agents import general_features as gf
@@ -40,20 +35,12 @@ from agents.potential import PotentialModel
 
 from .family import RaceGroup, load_family
 from .nets import (
-    TrainConfig,
+    TrainingRun,
     ValueData,
-    claim_training_run,
-    collection_space,
     discounted_partial_returns,
     gap_statistics,
-    numpy_model,
     paired_rollouts,
     rollout_statistics,
-    save_model,
-    split_races,
-    summary_text,
-    train_potential,
-    train_value,
     value_samples,
 )
 
@@ -326,101 +313,54 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
 
 
 # ---------------------------------------------------------------------------- training
-def train_general(
-    data_dir,
-    out_dir,
-    config: TrainConfig | None = None,
-    progress_bar: bool = True,
-    log=print,
-    command: str | None = None,
-    space: str | None = None,
-) -> dict:
-    """Run (or resume) the three stages on a family collection; returns the metrics (also in
-    ``metrics.json``); writes ``model.npz`` and ``model_card.md`` beside them. ``space`` as
-    for :func:`experiments.train.train`."""
-    from racing_env.extras import require
+GENERAL_HEAD = {"feature_set": "general", "feature_version": gf.FEATURE_VERSION}
+"""What ties a training run to the general features (its ``train_config.json``'s head)."""
 
-    torch = require("torch", "training the value and alpha-potential networks (alpha-racer train)")
-    cfg = config or TrainConfig()
-    torch.set_num_threads(cfg.threads)
-    torch.manual_seed(cfg.seed)
-    out = Path(out_dir)
-    manifest = json.loads((Path(data_dir) / "manifest.json").read_text())
-    sp = collection_space(data_dir, manifest, asked=space)
-    claim_training_run(
-        out,
-        cfg,
-        data_dir,
-        manifest,
-        sp,
-        {"feature_set": "general", "feature_version": gf.FEATURE_VERSION},
-    )
-    t_start = time.perf_counter()
+
+def train_general(run: TrainingRun) -> dict:
+    """Run (or resume) the three stages of the training ``run`` (opened by
+    :func:`experiments.train.train` with :data:`GENERAL_HEAD`) on its family collection;
+    returns the metrics (also in ``metrics.json``); writes ``model.npz`` and ``model_card.md``
+    beside them."""
+    cfg, data_dir = run.cfg, run.data_dir
     groups, _ = load_family(data_dir)
     data = FamilyData(groups)
-    collection_space(data_dir, manifest, data.space.dim)
-    train_idx, val_idx = split_races(data.n_races, cfg.val_fraction, cfg.seed)
-    log(
+    train_idx, val_idx = run.split(data.n_races, data.space.dim)
+    run.log(
         f"data: {data.n_races} races x {data.T} steps on {len(data.tracks)} tracks with "
         f"{', '.join(map(str, data.cars))} cars from {data_dir} ({len(train_idx)} training, "
         f"{len(val_idx)} held out)"
     )
-    value = train_value(
-        _value_data(data, train_idx, val_idx, cfg), cfg, out, torch, progress_bar, log
-    )
-    potential = train_potential(
+    value, potential = run.fit(
+        _value_data(data, train_idx, val_idx, cfg),
         FamilyDeviations(data, train_idx, cfg.own_theta_fraction),
-        cfg,
-        value,
-        out,
-        torch,
-        progress_bar,
-        log,
     )
-    t_train = time.perf_counter() - t_start
-    meta = {
-        "feature_set": "general",
-        "feature_version": gf.FEATURE_VERSION,
-        "n_max": gf.N_MAX,
-        "n_cars_range": [min(data.cars), max(data.cars)],
-        "n_cars_trained": data.cars,
-        "tracks": data.tracks.specs,
-        "track_specs": manifest["config"]["tracks"],
-        "space": sp.name,
-        "theta_low": sp.low.tolist(),
-        "theta_high": sp.high.tolist(),
-        "gamma": cfg.gamma,
-        "config": asdict(cfg),
-        "data": {
+    metrics = run.finish(
+        value,
+        potential,
+        {
+            "feature_set": "general",
+            "feature_version": gf.FEATURE_VERSION,
+            "n_max": gf.N_MAX,
+            "n_cars_range": [min(data.cars), max(data.cars)],
+            "n_cars_trained": data.cars,
+            "tracks": data.tracks.specs,
+            "track_specs": run.manifest["config"]["tracks"],
+        },
+        {
             "dir": str(data_dir),
             "races": data.n_races,
             "steps": data.T,
-            "collect": manifest["config"],
+            "collect": run.manifest["config"],
         },
-        "train_seconds": t_train,
-    }
-    model = numpy_model(value, potential, meta)
-    log("validation on held-out races ...")
-    metrics = {
-        "train_seconds": t_train,
-        **value.metrics,
-        **family_gaps(model, data, val_idx, cfg.val_pairs, cfg.seed + 2, cfg.own_theta_fraction),
-    }
-    if cfg.rollout_pairs:
-        metrics.update(
-            family_rollouts(model, metrics["value_range"], data, val_idx, cfg, progress_bar)
-        )
-    metrics["total_seconds"] = time.perf_counter() - t_start
-    save_model(
-        model,
-        metrics,
-        out,
+        lambda model: family_gaps(
+            model, data, val_idx, cfg.val_pairs, cfg.seed + 2, cfg.own_theta_fraction
+        ),
+        lambda model, vr: family_rollouts(model, vr, data, val_idx, cfg, run.progress_bar),
         general_model_card_text,
-        command or f"alpha-racer train --data {data_dir} --out {out_dir}",
     )
-    log(summary_text(metrics))
     for N, s in metrics["by_cars"].items():
-        log(
+        run.log(
             f"  {N} cars: gap median {100 * s['gap_rel_median']:.2f}%, 95th pct "
             f"{100 * s['gap_rel_p95']:.2f}% (constant potential {100 * s['const_rel_median']:.2f}%, "
             f"{100 * s['const_rel_p95']:.2f}%)"
