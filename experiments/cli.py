@@ -156,10 +156,10 @@ def _cmd_collect(args) -> int:
                 f"give either --track ({args.track!r}) or --tracks "
                 f"({' '.join(args.tracks)}), not both"
             )
-        if (args.space, args.start) != ("paper", "paper"):
+        if (args.space, args.start, args.pace) != ("paper", "paper", "box"):
             raise ValueError(
-                f"--space {args.space} / --start {args.start} are options of a "
-                f"one-track collection; a family collection races the paper's"
+                f"--space {args.space} / --start {args.start} / --pace {args.pace} are "
+                f"options of a one-track collection; a family collection races the paper's"
             )
         cfg = _config(
             FamilyConfig,
@@ -528,7 +528,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from .analyze import AnalyzeConfig
     from .bench import BenchConfig
-    from .collect import START_REGIONS, CollectConfig
+    from .collect import PACES, START_REGIONS, CollectConfig
     from .control import ControlConfig
     from .general import GeneralReportConfig
     from .league import LeagueConfig
@@ -664,6 +664,12 @@ def build_parser() -> argparse.ArgumentParser:
             "start regions: the paper's (0.4 m long, 0.6 m apart) or close (0.2 m "
             "long, 0.1 m apart: more passing and blocking)",
             {"choices": sorted(START_REGIONS)},
+        ),
+        (
+            "--pace",
+            "the cars' zeta: each drawn over the box (the paper's), or close: one zeta per "
+            "race over the box and every car's within 0.03 of it (the field stays together)",
+            {"choices": list(PACES)},
         ),
         (
             "--shard-size",
