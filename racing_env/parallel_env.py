@@ -231,12 +231,15 @@ class RacingParallelEnv(ParallelEnv):
         return self._space(self._obs_spaces, agent)
 
     def action_space(self, agent: str) -> spaces.Box:
-        """The action space of one agent (``agent`` as in :meth:`observation_space`):
-        ``Box(-1, 1, (2,), float32)``, ``[throttle, steering]``, mapped affinely onto the
-        vehicle's ``[d_min, d_max]`` and ``[-delta_max, delta_max]`` rad (positive left).
+        """The action space of one agent (``agent`` as in :meth:`observation_space`).
 
-        The env applies no steering-rate bound (``VehicleParams.delta_rate_max`` binds the MPC
-        agents only): the steering angle may jump within one step.
+        Returns
+        -------
+        gymnasium.spaces.Box
+            ``Box(-1, 1, (2,), float32)``: ``[throttle, steering]``, mapped affinely onto the
+            vehicle's ``[d_min, d_max]`` and ``[-delta_max, delta_max]`` rad (positive left).
+            The env applies no steering-rate bound (``VehicleParams.delta_rate_max`` binds
+            the MPC agents only): the steering angle may jump within one step.
         """
         return self._space(self._act_spaces, agent)
 
