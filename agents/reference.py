@@ -35,6 +35,7 @@ import numpy as np
 
 from racing_env.vehicle import VehicleParams
 
+from . import theta as _theta
 from .neighbours import _neighbours_list, opponent_neighbours  # noqa: F401 (re-exported)
 from .reference_tables import (
     _CACHE,  # noqa: F401 (re-exported)
@@ -46,20 +47,8 @@ from .reference_tables import (
     _tables,
     clear_cache,
 )
-from .theta import (
-    EXTENDED_HIGH,  # noqa: F401 (re-exported)
-    EXTENDED_LOW,  # noqa: F401 (re-exported)
-    EXTENDED_NAMES,  # noqa: F401 (re-exported)
-    SPACES,  # noqa: F401 (re-exported)
-    THETA_BOUNDS_DOC,  # noqa: F401 (re-exported)
-    THETA_HIGH,
-    THETA_LOW,
-    THETA_NAMES,
-    THETA_UNITS,
-    PolicySpace,
-    Theta,
-    policy_space,
-)
+from .theta import *  # noqa: F403 (theta's public names, re-exported: see __all__)
+from .theta import Theta
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -68,14 +57,7 @@ if TYPE_CHECKING:
     from racing_env.track import Track
 
 __all__ = [
-    "THETA_NAMES",
-    "THETA_LOW",
-    "THETA_HIGH",
-    "THETA_UNITS",
-    "Theta",
-    "PolicySpace",
-    "SPACES",
-    "policy_space",
+    *_theta.__all__,
     "Reference",
     "opponent_neighbours",
     "reference_trajectory",

@@ -77,6 +77,11 @@ class HeadToHeadBatch:
         self._rngs = [None] * self.num_envs  # per-race generators, as HeadToHeadEnv.np_random
         self._actions = np.zeros((self.num_envs, n_cars, 2))
         self.agent_ids = [f"car_{i}" for i in range(n_cars)]
+        self._set_up()
+
+    def _set_up(self) -> None:
+        """The end of ``__init__``, where a subclass finishes its own set-up on the built races
+        and spaces (the stable-baselines3 ``VecEnv`` its base class's); nothing here."""
 
     @property
     def config(self) -> RaceConfig:

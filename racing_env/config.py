@@ -12,6 +12,19 @@ from .vehicle import VehicleParams
 START_MODES = ("grid", "regions", "random")
 MAX_CARS = 8
 
+# layout of the rule vector of the compiled step (RulesConfig.pack)
+(
+    R_CONTACT_ON,
+    R_CONTACT_DS,
+    R_CONTACT_DN,
+    R_FRONT,
+    R_REAR,
+    R_OFF_ON,
+    R_OFF_FACTOR,
+    R_MAX_SUB,
+    R_SUB_GAIN,
+) = range(9)
+
 
 def _is_int(v) -> bool:
     """An integer, but not a bool (``True`` is an ``int`` to Python, not a count to us)."""
@@ -65,7 +78,8 @@ class RulesConfig:
                 raise ValueError(f"RulesConfig.{name} must be in [0, 1], got {v!r}")
 
     def pack(self) -> np.ndarray:
-        """Vector for the compiled step (layout: ``simulator.R_*``)."""
+        """Vector for the compiled step (layout: ``R_*`` above, re-exported by
+        :mod:`racing_env.simulator`)."""
         return np.array(
             [
                 float(self.contact),

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .config import R_CONTACT_DN, R_CONTACT_DS, R_FRONT, R_REAR
 from .integrator import _rk4_substep
 
 
@@ -141,29 +142,16 @@ def _separate(b, state, x_from, ahead, length, c_ds, c_dn, swept):
 
 @njit(cache=True)
 def _lockstep_with_contact(
-    b,
-    state,
-    phys,
-    x0,
-    kappa_tab,
-    ds,
-    length,
-    p,
-    dt,
-    n_sub,
-    c_ds,
-    c_dn,
-    front_f,
-    rear_f,
-    applied,
-    contact,
-    substeps,
-    ahead,
+    b, state, phys, x0, tables, p, dt, rules, n_sub, applied, contact, substeps, ahead
 ):
     """Integrate race ``b`` again from ``x0`` (N, 6) with every car in lockstep (``n_sub`` RK4
-    sub-steps), applying the contact rule at each pair's first moment of contact and keeping
-    the bodies apart after every sub-step (:func:`_separate`; ``ahead`` (N, N) is filled with
-    the pairs' order)."""
+    sub-steps on the :class:`racing_env.simulator.TrackTables` ``tables``), applying the
+    contact rule of the rule vector ``rules`` at each pair's first moment of contact and
+    keeping the bodies apart after every sub-step (:func:`_separate`; ``ahead`` (N, N) is
+    filled with the pairs' order)."""
+    kappa_tab, ds, length = tables.kappa, tables.ds, tables.length
+    c_ds, c_dn = rules[R_CONTACT_DS], rules[R_CONTACT_DN]
+    front_f, rear_f = rules[R_FRONT], rules[R_REAR]
     n_cars = x0.shape[0]
     half = 0.5 * length
     h = dt / n_sub

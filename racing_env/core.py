@@ -209,20 +209,13 @@ class BatchedRaces:
             raise ValueError(
                 f"actions must have shape {self._phys.shape} (races, cars, 2), got {a.shape}"
             )
-        tb = self._tables
         kernel = advance_parallel if self.n_races >= PARALLEL_MIN_RACES else advance
         code = kernel(
             self.state,
             a,
             normalised,
             self._act_map,
-            tb.kappa,
-            tb.w_left,
-            tb.w_right,
-            tb.wall_left,
-            tb.wall_right,
-            tb.ds,
-            tb.length,
+            self._tables,
             self._params,
             self.config.dt,
             self._rules,
@@ -277,13 +270,10 @@ class BatchedRaces:
         return self.t >= self.config.max_cycles
 
     def observe(self) -> np.ndarray:
-        tb = self._tables
         kernel = observe_parallel if self.n_races >= PARALLEL_MIN_RACES else observe
         kernel(
             self.state,
-            tb.kappa,
-            tb.ds,
-            tb.length,
+            self._tables,
             self.config.preview_ds,
             self.config.n_preview,
             S_CLIP,

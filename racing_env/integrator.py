@@ -46,46 +46,28 @@ def _n_substeps(vx, p, dt, gain, max_sub):
 
 
 @njit(cache=True, inline="always")
+def _slope_at(x, k, a, d, delta, kappa_tab, ds, length, p):
+    """The ODE's slope at the state ``x + a k`` (an RK4 stage; ``x``, ``k`` (6,))."""
+    return _ode(
+        x[1] + a * k[1],
+        x[2] + a * k[2],
+        x[3] + a * k[3],
+        x[4] + a * k[4],
+        x[5] + a * k[5],
+        d,
+        delta,
+        _lookup(kappa_tab, x[0] + a * k[0], ds, length),
+        p,
+    )
+
+
+@njit(cache=True, inline="always")
 def _rk4_substep(x, d, delta, kappa_tab, ds, length, p, h):
     """One classical RK4 step of length ``h`` of one car's state ``x`` (6,), in place."""
-    s, n, mu, vx, vy, om = x[0], x[1], x[2], x[3], x[4], x[5]
-    k1 = _ode(n, mu, vx, vy, om, d, delta, _lookup(kappa_tab, s, ds, length), p)
-    s2 = s + 0.5 * h * k1[0]
-    k2 = _ode(
-        n + 0.5 * h * k1[1],
-        mu + 0.5 * h * k1[2],
-        vx + 0.5 * h * k1[3],
-        vy + 0.5 * h * k1[4],
-        om + 0.5 * h * k1[5],
-        d,
-        delta,
-        _lookup(kappa_tab, s2, ds, length),
-        p,
-    )
-    s3 = s + 0.5 * h * k2[0]
-    k3 = _ode(
-        n + 0.5 * h * k2[1],
-        mu + 0.5 * h * k2[2],
-        vx + 0.5 * h * k2[3],
-        vy + 0.5 * h * k2[4],
-        om + 0.5 * h * k2[5],
-        d,
-        delta,
-        _lookup(kappa_tab, s3, ds, length),
-        p,
-    )
-    s4 = s + h * k3[0]
-    k4 = _ode(
-        n + h * k3[1],
-        mu + h * k3[2],
-        vx + h * k3[3],
-        vy + h * k3[4],
-        om + h * k3[5],
-        d,
-        delta,
-        _lookup(kappa_tab, s4, ds, length),
-        p,
-    )
+    k1 = _ode(x[1], x[2], x[3], x[4], x[5], d, delta, _lookup(kappa_tab, x[0], ds, length), p)
+    k2 = _slope_at(x, k1, 0.5 * h, d, delta, kappa_tab, ds, length, p)
+    k3 = _slope_at(x, k2, 0.5 * h, d, delta, kappa_tab, ds, length, p)
+    k4 = _slope_at(x, k3, h, d, delta, kappa_tab, ds, length, p)
     for j in range(6):
         x[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
     if x[3] < 0.0:

@@ -231,12 +231,7 @@ class RacingParallelEnv(ParallelEnv):
         return self._space(self._obs_spaces, agent)
 
     def action_space(self, agent: str) -> spaces.Box:
-        """The action space of one agent.
-
-        Parameters
-        ----------
-        agent : str
-            ``"car_0"`` .. ``"car_{N-1}"`` (any of ``possible_agents``).
+        """The action space of one agent (``agent`` as in :meth:`observation_space`).
 
         Returns
         -------

@@ -26,11 +26,22 @@ from __future__ import annotations
 
 import math
 import types
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
 
+from .config import (  # the rule vector's layout, also imported from here
+    R_CONTACT_DN,
+    R_CONTACT_DS,
+    R_CONTACT_ON,
+    R_FRONT,  # noqa: F401 (re-exported)
+    R_MAX_SUB,
+    R_OFF_FACTOR,
+    R_OFF_ON,
+    R_REAR,  # noqa: F401 (re-exported)
+    R_SUB_GAIN,
+)
 from .contact import _cut, _lockstep_with_contact, _separate
 from .integrator import (
     _n_substeps,  # also imported from here by agents.mpc
@@ -41,23 +52,10 @@ from .integrator import (
 from .interp import periodic_lookup as _lookup  # also imported from here by controllers, agents.mpc
 from .track import Track
 
-# rule vector layout (see RulesConfig.pack)
-(
-    R_CONTACT_ON,
-    R_CONTACT_DS,
-    R_CONTACT_DN,
-    R_FRONT,
-    R_REAR,
-    R_OFF_ON,
-    R_OFF_FACTOR,
-    R_MAX_SUB,
-    R_SUB_GAIN,
-) = range(9)
 
-
-@dataclass(frozen=True)
-class TrackTables:
-    """Per-grid-point tables of a track, shape (M,) each, for the compiled kernels."""
+class TrackTables(NamedTuple):
+    """Per-grid-point tables of a track, shape (M,) each, and its grid: one argument of the
+    compiled kernels."""
 
     kappa: np.ndarray
     w_left: np.ndarray
@@ -89,26 +87,9 @@ class TrackTables:
         )
 
 
-def _step_one_race(
-    b,
-    state,
-    phys,
-    kappa_tab,
-    w_left,
-    w_right,
-    wall_left,
-    wall_right,
-    ds,
-    length,
-    p,
-    dt,
-    rules,
-    reward,
-    contact,
-    offtrack,
-    substeps,
-):
-    """Physics, rules and reward of race ``b`` for one control period (inputs ``phys`` (N, 2)).
+def _step_one_race(b, state, phys, tables, p, dt, rules, reward, contact, offtrack, substeps):
+    """Physics, rules and reward of race ``b`` for one control period (inputs ``phys`` (N, 2))
+    on the track of the :class:`TrackTables` ``tables``.
 
     Contact is checked over the whole period, not only at its end, so that no car can drive
     through another. First every car is integrated on its own (its own number of sub-steps),
@@ -120,6 +101,8 @@ def _step_one_race(
     in front then gets ``front_factor`` and the car behind ``rear_factor`` (applied to ``vx``
     there and then; a car is slowed at most once per period, by the smallest factor due).
     """
+    kappa_tab, w_left, w_right = tables.kappa, tables.w_left, tables.w_right
+    ds, length = tables.ds, tables.length
     n_cars = state.shape[1]
     half = 0.5 * length
     before = np.empty(n_cars)
@@ -166,30 +149,13 @@ def _step_one_race(
         if possible:
             ahead = np.empty((n_cars, n_cars), dtype=np.bool_)
             _lockstep_with_contact(
-                b,
-                state,
-                phys,
-                x0,
-                kappa_tab,
-                ds,
-                length,
-                p,
-                dt,
-                k_max,
-                c_ds,
-                c_dn,
-                rules[R_FRONT],
-                rules[R_REAR],
-                applied,
-                contact,
-                substeps,
-                ahead,
+                b, state, phys, x0, tables, p, dt, rules, k_max, applied, contact, substeps, ahead
             )
-            _clamp_to_walls(b, state, wall_left, wall_right, ds, length)
+            _clamp_to_walls(b, state, tables)
             # a wall may have moved a car sideways into another: keep them apart
             _separate(b, state, x0, ahead, length, c_ds, c_dn, False)
     if not possible:
-        _clamp_to_walls(b, state, wall_left, wall_right, ds, length)
+        _clamp_to_walls(b, state, tables)
     for i in range(n_cars):
         x = state[b, i]
         if x[1] > _lookup(w_left, x[0], ds, length) or x[1] < -_lookup(w_right, x[0], ds, length):
@@ -215,12 +181,13 @@ def _step_one_race(
 
 
 @njit(cache=True, inline="always")
-def _clamp_to_walls(b, state, wall_left, wall_right, ds, length):
+def _clamp_to_walls(b, state, tables):
     """A car cannot go further than a wall: it stops sideways there (race ``b``, in place)."""
+    ds, length = tables.ds, tables.length
     for i in range(state.shape[1]):
         x = state[b, i]
-        wl = _lookup(wall_left, x[0], ds, length)
-        wr = _lookup(wall_right, x[0], ds, length)
+        wl = _lookup(tables.wall_left, x[0], ds, length)
+        wr = _lookup(tables.wall_right, x[0], ds, length)
         if x[1] > wl or x[1] < -wr:
             x[1] = wl if x[1] > wl else -wr
             x[2] = 0.0
@@ -233,13 +200,7 @@ def _advance(
     action,
     normalised,
     act_map,
-    kappa_tab,
-    w_left,
-    w_right,
-    wall_left,
-    wall_right,
-    ds,
-    length,
+    tables,
     p,
     dt,
     rules,
@@ -258,7 +219,8 @@ def _advance(
     """Advance every race in ``state`` (B, N, 6) by one control period, in place.
 
     ``action`` (B, N, 2): normalised [-1, 1] actions if ``normalised`` (clipped, then mapped
-    with ``act_map = (d_mid, d_half, delta_max)``), else physical ``(d, delta)``.
+    with ``act_map = (d_mid, d_half, delta_max)``), else physical ``(d, delta)``, on the
+    track of the :class:`TrackTables` ``tables``.
     Per-car outputs (B, N): ``reward`` the change of (s_i - max_{j != i} s_j) (the change of
     s_i when N == 1), ``contact`` / ``offtrack`` 1 if that rule applied this step,
     ``substeps`` RK4 sub-steps used, ``lap_event`` the race time [s] of a lap completed this
@@ -268,6 +230,7 @@ def _advance(
     race and car in ``where`` (2,); nothing is stepped when an action is bad.
     """
     n_races, n_cars = state.shape[0], state.shape[1]
+    length = tables.length
     for b in range(n_races):
         for i in range(n_cars):
             a0, a1 = action[b, i, 0], action[b, i, 1]
@@ -291,23 +254,7 @@ def _advance(
             phys[i, 0] = a0
             phys[i, 1] = a1
         before = _step_one_race(
-            b,
-            state,
-            phys,
-            kappa_tab,
-            w_left,
-            w_right,
-            wall_left,
-            wall_right,
-            ds,
-            length,
-            p,
-            dt,
-            rules,
-            reward,
-            contact,
-            offtrack,
-            substeps,
+            b, state, phys, tables, p, dt, rules, reward, contact, offtrack, substeps
         )
         # bookkeeping: laps (the line is s_line + k L), time of crossing within the period
         for i in range(n_cars):
@@ -332,8 +279,9 @@ def _advance(
     return 0
 
 
-def _observe(state, kappa_tab, ds, length, preview_ds, n_preview, s_clip, out):
-    """Per-car observations ``out`` (B, N, 6 + 6 (N - 1) + n_preview) float32 from ``state``.
+def _observe(state, tables, preview_ds, n_preview, s_clip, out):
+    """Per-car observations ``out`` (B, N, 6 + 6 (N - 1) + n_preview) float32 from ``state`` on
+    the track of the :class:`TrackTables` ``tables``.
 
     Layout for car i: own ``(s mod length, n, mu, vx, vy, omega)``; then for every other car j
     in index order ``(s_j - s_i, n_j - n_i, wrap(mu_j - mu_i), vx_j - vx_i, vy_j - vy_i,
@@ -341,6 +289,7 @@ def _observe(state, kappa_tab, ds, length, preview_ds, n_preview, s_clip, out):
     ``s_i + k * preview_ds`` for k = 0..n_preview-1.
     """
     n_races, n_cars = state.shape[0], state.shape[1]
+    kappa_tab, ds, length = tables.kappa, tables.ds, tables.length
     for b in prange(n_races):
         for i in range(n_cars):
             o = out[b, i]

@@ -24,9 +24,7 @@ from typing import Any
 import numpy as np
 
 from .batched_env import HeadToHeadBatch
-from .config import RaceConfig
 from .extras import require
-from .track import Track
 
 VecEnv = require("stable_baselines3.common.vec_env.base_vec_env", "racing_env.vec_env").VecEnv
 
@@ -49,17 +47,8 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
     metadata = {"render_modes": []}
     render_mode = None
 
-    def __init__(
-        self,
-        n_envs: int = 8,
-        opponents: Sequence | None = None,
-        track: str | Track = "default",
-        config: RaceConfig | None = None,
-        **kwargs,
-    ):
-        HeadToHeadBatch.__init__(
-            self, n_envs, opponents=opponents, track=track, config=config, **kwargs
-        )
+    # __init__ is HeadToHeadBatch's, which ends in _set_up
+    def _set_up(self) -> None:
         VecEnv.__init__(self, self.num_envs, self.observation_space, self.action_space)
         self._obs = None
 

@@ -260,36 +260,36 @@ def test_tiny_pipeline_end_to_end(tmp_path):
         )
         == 0
     )
-    assert (
-        main(
-            [
-                "train",
-                "--data",
-                str(data),
-                "--out",
-                str(out),
-                "--value-epochs",
-                "3",
-                "--potential-steps",
-                "150",
-                "--value-hidden",
-                "32",
-                "32",
-                "--potential-hidden",
-                "64",
-                "64",
-                "--val-fraction",
-                "0.25",
-                "--rollout-pairs",
-                "2",
-                "--rollout-steps",
-                "10",
-                "--threads",
-                "1",
-            ]
-        )
-        == 0
-    )
+
+    def train_args(folder):
+        """The ``train`` command line of this test, into ``folder``."""
+        return [
+            "train",
+            "--data",
+            str(data),
+            "--out",
+            str(folder),
+            "--value-epochs",
+            "3",
+            "--potential-steps",
+            "150",
+            "--value-hidden",
+            "32",
+            "32",
+            "--potential-hidden",
+            "64",
+            "64",
+            "--val-fraction",
+            "0.25",
+            "--rollout-pairs",
+            "2",
+            "--rollout-steps",
+            "10",
+            "--threads",
+            "1",
+        ]
+
+    assert main(train_args(out)) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["gap_rel_median"] < metrics["const_rel_median"]
     assert metrics["gap_rel_p95"] < metrics["const_rel_p95"]
@@ -299,36 +299,7 @@ def test_tiny_pipeline_end_to_end(tmp_path):
     assert model.meta["config"]["gamma"] == 0.99 and model.meta["data"]["races"] == 8
     # the same data and settings in a fresh directory give the same networks, weight for weight
     again = tmp_path / "model_again"
-    assert (
-        main(
-            [
-                "train",
-                "--data",
-                str(data),
-                "--out",
-                str(again),
-                "--value-epochs",
-                "3",
-                "--potential-steps",
-                "150",
-                "--value-hidden",
-                "32",
-                "32",
-                "--potential-hidden",
-                "64",
-                "64",
-                "--val-fraction",
-                "0.25",
-                "--rollout-pairs",
-                "2",
-                "--rollout-steps",
-                "10",
-                "--threads",
-                "1",
-            ]
-        )
-        == 0
-    )
+    assert main(train_args(again)) == 0
     with np.load(out / "model.npz") as a, np.load(again / "model.npz") as b:
         assert a.files == b.files
         for k in a.files:
@@ -336,31 +307,7 @@ def test_tiny_pipeline_end_to_end(tmp_path):
                 np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     # a rerun with the same settings resumes from the checkpoints (nothing left to train);
     # other settings in the same directory are refused
-    args = [
-        "train",
-        "--data",
-        str(data),
-        "--out",
-        str(out),
-        "--value-epochs",
-        "3",
-        "--potential-steps",
-        "150",
-        "--value-hidden",
-        "32",
-        "32",
-        "--potential-hidden",
-        "64",
-        "64",
-        "--val-fraction",
-        "0.25",
-        "--rollout-pairs",
-        "2",
-        "--rollout-steps",
-        "10",
-        "--threads",
-        "1",
-    ]
+    args = train_args(out)
     assert main(args) == 0
     assert (
         json.loads((out / "metrics.json").read_text())["value_history"] == metrics["value_history"]

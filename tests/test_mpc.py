@@ -63,7 +63,7 @@ def test_qp_rows_follow_the_separation_rule_and_the_cost():
     """The compiled QP builder imposes, per opponent and nearby stage, the separation that
     :func:`separation_choice` picks (sign, side and need), and its cost is q||G du + e||^2 +
     ||D(u + du)||^2 up to a constant."""
-    from agents.mpc import qp_arrays, separation_choice
+    from agents.mpc import ProblemConstants, qp_arrays, separation_choice
 
     rng = np.random.default_rng(3)
     cfg = MPCConfig()
@@ -75,25 +75,25 @@ def test_qp_rows_follow_the_separation_rule_and_the_cost():
     u = rng.uniform(-1, 1, 2 * K)
     D = np.diff(np.eye(2 * K).reshape(K, 2, 2 * K), axis=0).reshape(-1, 2 * K)
     opps = np.array([[5.9, 0.02, 1.5], [4.8, -0.1, 2.5], [40.0, 0.0, 1.0]])  # last: far away
-    H, f, A, blo, bhi, sense = qp_arrays(
-        G,
-        s_pred,
-        n_pred,
-        s_ref,
-        n_ref,
-        7.0,
-        D.T @ D,
-        u,
-        0.1,
-        0.2,
-        np.full(K, -0.2),
-        np.full(K, 0.2),
-        opps,
-        cfg.dt,
-        cfg.sep_s,
-        cfg.sep_n,
-        cfg.sep_window,
+    p = ProblemConstants(
+        s_ref=s_ref,
+        n_ref=n_ref,
+        q=7.0,
+        DtD=D.T @ D,
+        delta_applied=0.1,
+        rate=0.2,
+        lo_tab=np.empty(0),  # the edge tables, the weight of the soft rows: not the QP's
+        hi_tab=np.empty(0),
+        ds=1.0,
+        length=1.0,
+        opponents=opps,
+        dt=cfg.dt,
+        sep_s=cfg.sep_s,
+        sep_n=cfg.sep_n,
+        sep_window=cfg.sep_window,
+        w_soft=0.0,
     )
+    H, f, A, blo, bhi, sense = qp_arrays(G, s_pred, n_pred, u, np.full(K, -0.2), np.full(K, 0.2), p)
     rows = [A[2 * K :]]
     r = 0
     for opp in opps:

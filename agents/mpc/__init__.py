@@ -81,6 +81,7 @@ from .prediction import (
 )
 from .qp import (
     EdgeBounds,
+    ProblemConstants,
     _grid_interp,  # noqa: F401  agents.mpc_agent's import
     condense,
     condense_states,
@@ -98,6 +99,7 @@ __all__ = [
     "MPC",
     "EdgeBounds",
     "MPCConfig",
+    "ProblemConstants",
     "StepCode",
     "StepConstants",
     "StepResult",

@@ -4,7 +4,7 @@ corrections that one SQP iteration solves with DAQP."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -17,6 +17,29 @@ from .config import MPCConfig
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
+
+
+class ProblemConstants(NamedTuple):
+    """What the QP and the cost of every SQP iteration of one :meth:`~agents.mpc.MPC.solve`
+    share: the references, the weights, the steering-rate rows, the track-edge tables and the
+    separation rule against the opponents (an argument of the compiled kernels below)."""
+
+    s_ref: np.ndarray  # (K,) reference progress of the predicted states 1..K [m]
+    n_ref: np.ndarray  # (K,) reference lateral offsets [m]
+    q: float  # tracking weight
+    DtD: np.ndarray  # (2K, 2K) input-rate cost (:func:`input_rate_matrix`)
+    delta_applied: float  # the steering input applied last (the first steering-rate row's)
+    rate: float  # bound on the steering change per stage (normalised)
+    lo_tab: np.ndarray  # lower bound on n per grid station [m] (EdgeBounds)
+    hi_tab: np.ndarray  # upper bound on n per grid station [m]
+    ds: float  # track grid spacing [m]
+    length: float  # track length [m]
+    opponents: np.ndarray  # (M, 3) rows (s, n, s_dot) of the nearby cars
+    dt: float  # stage length [s]
+    sep_s: float  # longitudinal separation [m]
+    sep_n: float  # lateral separation [m]
+    sep_window: float  # progress distance within which an opponent constrains [m]
+    w_soft: float  # weight of a soft row's squared violation, 1 / (2 rho)
 
 
 @njit(cache=True)
@@ -115,33 +138,19 @@ def input_rate_matrix(K: int) -> np.ndarray:
 
 
 @njit(cache=True)
-def qp_arrays(
-    G,
-    s_pred,
-    n_pred,
-    s_ref,
-    n_ref,
-    q,
-    DtD,
-    u_vec,
-    delta_applied,
-    rate,
-    nlo,
-    nhi,
-    opponents,
-    dt,
-    sep_s,
-    sep_n,
-    sep_window,
-):
-    """The condensed QP in the input corrections ``du`` (2K,) for DAQP, built in one pass.
+def qp_arrays(G, s_pred, n_pred, u_vec, nlo, nhi, p):
+    """The condensed QP in the input corrections ``du`` (2K,) for DAQP, built in one pass, at
+    the prediction ``(s_pred, n_pred)`` (K,) of the inputs ``u_vec`` (2K,) with the bounds
+    ``nlo, nhi`` (K,) on n along it, under the solve's :class:`ProblemConstants` ``p``.
 
     Cost ``0.5 du' H du + f' du`` of ``q ||(s, n) - ref||^2 + ||D u||^2``; constraint rows
     ``blo <= Acon du <= bhi`` after the 2K simple input bounds (which lead ``blo``/``bhi``):
     K steering-rate rows (hard), K track-edge rows on n (soft), and one separation row per
-    opponent and nearby stage (soft), chosen exactly as :func:`separation_choice` does.
-    ``opponents`` (M, 3) rows ``(s, n, s_dot)``; ``sense`` is DAQP's (0 hard, 8 soft).
+    opponent and nearby stage (soft), chosen exactly as :func:`separation_choice` does;
+    ``sense`` is DAQP's (0 hard, 8 soft).
     """
+    s_ref, n_ref, q, DtD, opponents = p.s_ref, p.n_ref, p.q, p.DtD, p.opponents
+    rate, dt, sep_s, sep_n, sep_window = p.rate, p.dt, p.sep_s, p.sep_n, p.sep_window
     K = s_pred.shape[0]
     nv = 2 * K
     sn_err = np.empty(nv)
@@ -160,7 +169,7 @@ def qp_arrays(
     # steering rate: delta^k - delta^{k-1} within +-rate (normalised), delta^{-1} applied
     for k in range(K):
         rows[k, 2 * k + 1] = 1.0
-        d_now = u_vec[2 * k + 1] - (u_vec[2 * k - 1] if k else delta_applied)
+        d_now = u_vec[2 * k + 1] - (u_vec[2 * k - 1] if k else p.delta_applied)
         if k:
             rows[k, 2 * k - 1] = -1.0
         lo[k] = -rate - d_now
@@ -203,25 +212,13 @@ def qp_arrays(
 
 
 @njit(cache=True)
-def plan_cost(
-    s_pred,
-    n_pred,
-    s_ref,
-    n_ref,
-    q,
-    u_vec,
-    nlo,
-    nhi,
-    opponents,
-    dt,
-    sep_s,
-    sep_n,
-    sep_window,
-    w_soft,
-):
-    """The MPC's objective at a plan's rollout (:func:`qp_arrays`' cost before linearisation):
+def plan_cost(s_pred, n_pred, u_vec, nlo, nhi, p):
+    """The MPC's objective at a plan's rollout (:func:`qp_arrays`' cost before linearisation,
+    same arguments but ``G``):
     ``q ||(s, n) - ref||^2 + ||D u||^2 + w_soft * (sum of squared violations of the track
     edges and of the separations, chosen per stage as in qp_arrays)``."""
+    s_ref, n_ref, q, opponents, w_soft = p.s_ref, p.n_ref, p.q, p.opponents, p.w_soft
+    dt, sep_s, sep_n, sep_window = p.dt, p.sep_s, p.sep_n, p.sep_window
     K = s_pred.shape[0]
     J = 0.0
     for k in range(K):
@@ -271,76 +268,26 @@ def _all_finite(a):
 
 
 @njit(cache=True)
-def linearised_qp(
-    X,
-    A,
-    B,
-    s_ref,
-    n_ref,
-    q,
-    DtD,
-    u_vec,
-    delta_applied,
-    rate,
-    nlo,
-    nhi,
-    opponents,
-    dt,
-    sep_s,
-    sep_n,
-    sep_window,
-):
-    """One SQP iteration's QP at the plan ``X`` (6, K) with stage Jacobians ``A`` (36, K),
-    ``B`` (12, K), in one call: ``(ok, G, H, f, Acon, blo, bhi, sense)`` with ``G`` from
-    :func:`condense` and the rest from :func:`qp_arrays`; ``ok`` False (and the arrays empty)
-    when the prediction is not finite."""
+def linearised_qp(X, A, B, u_vec, nlo, nhi, p):
+    """One SQP iteration's QP at the plan ``X`` (6, K) of the inputs ``u_vec`` (2K,) with stage
+    Jacobians ``A`` (36, K), ``B`` (12, K) and bounds ``nlo, nhi`` (K,) on n, in one call:
+    ``(ok, G, H, f, Acon, blo, bhi, sense)`` with ``G`` from :func:`condense` and the rest from
+    :func:`qp_arrays` (under the solve's :class:`ProblemConstants` ``p``); ``ok`` False (and
+    the arrays empty) when the prediction is not finite."""
     K = X.shape[1]
     if not (_all_finite(X) and _all_finite(A) and _all_finite(B)):
         e = np.empty((0, 0))
         return False, e, e, np.empty(0), e, np.empty(0), np.empty(0), np.empty(0, np.int32)
     G = condense(A, B, K)
-    H, f, Acon, blo, bhi, sense = qp_arrays(
-        G,
-        X[0],
-        X[1],
-        s_ref,
-        n_ref,
-        q,
-        DtD,
-        u_vec,
-        delta_applied,
-        rate,
-        nlo,
-        nhi,
-        opponents,
-        dt,
-        sep_s,
-        sep_n,
-        sep_window,
-    )
+    H, f, Acon, blo, bhi, sense = qp_arrays(G, X[0], X[1], u_vec, nlo, nhi, p)
     return True, G, H, f, Acon, blo, bhi, sense
 
 
 @njit(cache=True)
-def score_rollout(
-    X,
-    u_vec,
-    s_ref,
-    n_ref,
-    q,
-    lo_tab,
-    hi_tab,
-    ds,
-    length,
-    opponents,
-    dt,
-    sep_s,
-    sep_n,
-    sep_window,
-    w_soft,
-):
-    """``(cost, lo, hi)`` of a plan's rollout ``X`` (6, K) in one pass: the bounds (K,) on n
-    along ``X[0]`` (:class:`EdgeBounds`) and :func:`plan_cost` on them; ``inf`` cost (and
+def score_rollout(X, u_vec, p):
+    """``(cost, lo, hi)`` of a plan's rollout ``X`` (6, K) of the inputs ``u_vec`` (2K,) in one
+    pass, under the solve's :class:`ProblemConstants` ``p``: the bounds (K,) on n along
+    ``X[0]`` (:class:`EdgeBounds`' tables) and :func:`plan_cost` on them; ``inf`` cost (and
     bounds not filled) for a non-finite rollout."""
     K = X.shape[1]
     lo = np.empty(K)
@@ -348,9 +295,6 @@ def score_rollout(
     if not _all_finite(X):
         return np.inf, lo, hi
     for k in range(K):
-        lo[k] = _lookup(lo_tab, X[0, k], ds, length)
-        hi[k] = _lookup(hi_tab, X[0, k], ds, length)
-    J = plan_cost(
-        X[0], X[1], s_ref, n_ref, q, u_vec, lo, hi, opponents, dt, sep_s, sep_n, sep_window, w_soft
-    )
-    return J, lo, hi
+        lo[k] = _lookup(p.lo_tab, X[0, k], p.ds, p.length)
+        hi[k] = _lookup(p.hi_tab, X[0, k], p.ds, p.length)
+    return plan_cost(X[0], X[1], u_vec, lo, hi, p), lo, hi

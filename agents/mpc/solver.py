@@ -24,7 +24,14 @@ from .prediction import (
     stage_nodes,
     trajectory_function,
 )
-from .qp import EdgeBounds, input_rate_matrix, linearised_qp, predicted_decrease, score_rollout
+from .qp import (
+    EdgeBounds,
+    ProblemConstants,
+    input_rate_matrix,
+    linearised_qp,
+    predicted_decrease,
+    score_rollout,
+)
 
 
 class StepCode(IntEnum):
@@ -41,21 +48,9 @@ class StepConstants(NamedTuple):
 
     x0: np.ndarray  # (6,) the car's Frenet state
     step_sizes: np.ndarray  # merit-checked step lengths, tried in order
-    kappa_tab: np.ndarray  # track curvature per grid station [1/m]
-    ds: float  # track grid spacing [m]
-    length: float  # track length [m]
+    kappa_tab: np.ndarray  # track curvature per grid station [1/m] (grid of problem.ds)
     m: int  # RK4 sub-steps per stage
-    s_ref: np.ndarray  # (K,) reference progress of the predicted states 1..K [m]
-    n_ref: np.ndarray  # (K,) reference lateral offsets [m]
-    q: float  # tracking weight
-    lo_tab: np.ndarray  # lower bound on n per grid station [m] (EdgeBounds)
-    hi_tab: np.ndarray  # upper bound on n per grid station [m]
-    opponents: np.ndarray  # (M, 3) rows (s, n, s_dot) of the nearby cars
-    dt: float  # stage length [s]
-    sep_s: float  # longitudinal separation [m]
-    sep_n: float  # lateral separation [m]
-    sep_window: float  # progress distance within which an opponent constrains [m]
-    w_soft: float  # weight of a soft row's squared violation, 1 / (2 rho)
+    problem: ProblemConstants  # the cost's constants (references, weights, bounds, opponents)
 
 
 class StepResult(NamedTuple):
@@ -99,13 +94,13 @@ def sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, roll, traj):
     ``roll`` and the one with Jacobians ``traj`` (:class:`~agents.mpc.codegen.KernelHandle`).
 
     Tries the step lengths ``c.step_sizes`` in order (:func:`trial_step`, the nonlinear
-    rollout, :func:`~agents.mpc.qp.score_rollout`), stops at the first that does not raise the
-    cost ``J`` and keeps the cheapest; then, if ``relinearise``, rolls the accepted plan out
-    again with its Jacobians and the curvature along its own progress. Returns a
+    rollout, :func:`~agents.mpc.qp.score_rollout` under ``c.problem``), stops at the first that
+    does not raise the cost ``J`` and keeps the cheapest; then, if ``relinearise``, rolls the
+    accepted plan out again with its Jacobians and the curvature along its own progress. Returns a
     :class:`StepResult` (see :class:`StepCode`). The arithmetic is :meth:`MPC._step_python`'s,
     kernel for kernel, so the plans are the same bit for bit."""
     K = s_pred.shape[0]
-    m = c.m
+    m, p = c.m, c.problem
     _, o_u, o_kap, o_x, o_a, o_b, o_w = workspace_offsets(K, m)
     empty = np.empty((0, K))
     found = False
@@ -116,7 +111,7 @@ def sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, roll, traj):
     best_hi = np.empty(K)
     for a in range(c.step_sizes.shape[0]):
         ua, kap_a = trial_step(
-            u_vec, du, c.step_sizes[a], c.x0[0], s_pred, ds_lin, c.kappa_tab, c.ds, c.length, m
+            u_vec, du, c.step_sizes[a], c.x0[0], s_pred, ds_lin, c.kappa_tab, p.ds, p.length, m
         )
         roll.ws[:o_u] = c.x0
         roll.ws[o_u:o_kap] = ua
@@ -126,7 +121,7 @@ def sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, roll, traj):
                 StepCode.FAILED, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred
             )
         Xa = roll.ws[o_x:o_a].reshape(K, 6).T.copy()
-        Ja, lo, hi = _plan_score(Xa, ua, c)
+        Ja, lo, hi = score_rollout(Xa, ua, p)
         if not found or Ja < best_J:
             found = True
             best_J, best_u, best_X, best_lo, best_hi = Ja, ua, Xa, lo, hi
@@ -145,37 +140,14 @@ def sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, roll, traj):
         )
     traj.ws[:o_u] = c.x0
     traj.ws[o_u:o_kap] = best_u
-    traj.ws[o_kap:o_x] = kappa_flat(c.kappa_tab, s_nom, m, c.ds, c.length)
+    traj.ws[o_kap:o_x] = kappa_flat(c.kappa_tab, s_nom, m, p.ds, p.length)
     if run_prediction(traj, K, m):
         return StepResult(StepCode.FAILED, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred)
     X = traj.ws[o_x:o_a].reshape(K, 6).T.copy()
     A = traj.ws[o_a:o_b].reshape(K, 36).T.copy()
     B = traj.ws[o_b:o_w].reshape(K, 12).T.copy()
-    J2, lo2, hi2 = _plan_score(X, best_u, c)
+    J2, lo2, hi2 = score_rollout(X, best_u, p)
     return StepResult(StepCode.RELINEARISED, J2, best_u, X, A, B, lo2, hi2, s_nom)
-
-
-@njit(cache=True)
-def _plan_score(X, u_vec, c):
-    """:func:`~agents.mpc.qp.score_rollout` of rollout ``X`` (6, K) with inputs ``u_vec`` (2K,)
-    under the solve's :class:`StepConstants` ``c``."""
-    return score_rollout(
-        X,
-        u_vec,
-        c.s_ref,
-        c.n_ref,
-        c.q,
-        c.lo_tab,
-        c.hi_tab,
-        c.ds,
-        c.length,
-        c.opponents,
-        c.dt,
-        c.sep_s,
-        c.sep_n,
-        c.sep_window,
-        c.w_soft,
-    )
 
 
 class MPC:
@@ -286,14 +258,14 @@ class MPC:
     ) -> StepResult:
         """:func:`sqp_step` with an interpreted prediction (no C compiler)."""
         K = s_pred.shape[0]
-        x0, m = c.x0, c.m
+        x0, m, p = c.x0, c.m, c.problem
         best = None
         for alpha in c.step_sizes:
             ua, kap_a = trial_step(
-                u_vec, du, alpha, x0[0], s_pred, ds_lin, c.kappa_tab, c.ds, c.length, m
+                u_vec, du, alpha, x0[0], s_pred, ds_lin, c.kappa_tab, p.ds, p.length, m
             )
             Xa = self._roll.states(x0, ua, kap_a, K)
-            Ja, lo, hi = _plan_score(Xa, ua, c)
+            Ja, lo, hi = score_rollout(Xa, ua, p)
             if best is None or Ja < best[0]:
                 best = (Ja, ua, Xa, lo, hi)
             if Ja <= J:
@@ -304,23 +276,22 @@ class MPC:
         s_nom = np.concatenate([[x0[0]], Xa[0]])
         if not relinearise:
             return StepResult(StepCode.ACCEPTED, Ja, ua, Xa, None, None, lo, hi, s_nom)
-        X, A, B = self._traj.full(x0, ua, kappa_flat(c.kappa_tab, s_nom, m, c.ds, c.length), K)
-        J2, lo2, hi2 = _plan_score(X, ua, c)
+        X, A, B = self._traj.full(x0, ua, kappa_flat(c.kappa_tab, s_nom, m, p.ds, p.length), K)
+        J2, lo2, hi2 = score_rollout(X, ua, p)
         return StepResult(StepCode.RELINEARISED, J2, ua, X, A, B, lo2, hi2, s_nom)
 
-    def _score(self, X, U, s_ref, n_ref, q, opp):
-        """``(cost, edges)`` of a plan on its *nonlinear* rollout ``X`` (6, K) with inputs
-        ``U`` (2, K): tracking, input rates and the soft rows' quadratic penalty
-        ``violation^2 / (2 rho)`` (DAQP's, for the track edges and the separations chosen
-        along ``X``; :func:`~agents.mpc.qp.score_rollout`), and the bounds ``(lo, hi)`` on n
-        along ``X``; ``(inf, None)`` for a non-finite rollout."""
+    def _problem(self, s_ref, n_ref, q, opp, u_prev) -> ProblemConstants:
+        """The :class:`~agents.mpc.qp.ProblemConstants` of a solve: references ``s_ref, n_ref``
+        (K,), tracking weight ``q``, opponents ``opp`` (M, 3), the input ``u_prev`` (2,) applied
+        last."""
         cfg, b, t = self.cfg, self._bounds_n, self.track
-        J, lo, hi = score_rollout(
-            X,
-            np.ascontiguousarray(U.T).reshape(-1),
+        return ProblemConstants(
             s_ref,
             n_ref,
             float(q),
+            self._DtD,
+            float(u_prev[1]),
+            self._rate,
             b.lo_table,
             b.hi_table,
             t.ds,
@@ -332,21 +303,31 @@ class MPC:
             cfg.sep_window,
             0.5 / cfg.soft_rho_at(q),
         )
+
+    @staticmethod
+    def _score(X, U, p: ProblemConstants):
+        """``(cost, edges)`` of a plan on its *nonlinear* rollout ``X`` (6, K) with inputs
+        ``U`` (2, K) under the solve's constants ``p``: tracking, input rates and the soft rows'
+        quadratic penalty ``violation^2 / (2 rho)`` (DAQP's, for the track edges and the
+        separations chosen along ``X``; :func:`~agents.mpc.qp.score_rollout`), and the bounds
+        ``(lo, hi)`` on n along ``X``; ``(inf, None)`` for a non-finite rollout."""
+        J, lo, hi = score_rollout(X, np.ascontiguousarray(U.T).reshape(-1), p)
         return J, (None if J == np.inf else (lo, hi))
 
     def _merit(self, X, U, s_ref, n_ref, q, opp):
-        """The cost of :meth:`_score` alone."""
-        return self._score(X, U, s_ref, n_ref, q, opp)[0]
+        """The cost of :meth:`_score` alone, of the solve with these references, weight and
+        opponents."""
+        return self._score(X, U, self._problem(s_ref, n_ref, q, opp, np.zeros(2)))[0]
 
-    def _sqp(self, consts: StepConstants, U, X, A, B, J: float, edges, u_prev):
+    def _sqp(self, consts: StepConstants, U, X, A, B, J: float, edges):
         """The SQP iterations of :meth:`solve` from the plan ``U`` (2, K) with rollout ``X``,
         Jacobians ``A, B``, cost ``J`` and edges: ``(U, X, J, edges, status)`` of the last
         accepted plan (``status`` "ok", else why it failed). Sets ``_s_nom``."""
         import daqp
 
         cfg, K = self.cfg, self.cfg.horizon
-        s_ref, n_ref, q, opp = consts.s_ref, consts.n_ref, consts.q, consts.opponents
-        w_soft = consts.w_soft
+        problem = consts.problem
+        q, w_soft = problem.q, problem.w_soft
         status = "ok"
         for it in range(cfg.sqp_iterations):
             if edges is None:
@@ -355,25 +336,7 @@ class MPC:
             s_pred = X[0]
             lo_n, hi_n = edges
             u_vec = np.ascontiguousarray(U.T).reshape(-1)  # [d0, delta0, d1, ...]
-            ok, G, H, f, Acon, blo, bhi, sense = linearised_qp(
-                X,
-                A,
-                B,
-                s_ref,
-                n_ref,
-                float(q),
-                self._DtD,
-                u_vec,
-                float(u_prev[1]),
-                self._rate,
-                lo_n,
-                hi_n,
-                opp,
-                cfg.dt,
-                cfg.sep_s,
-                cfg.sep_n,
-                cfg.sep_window,
-            )
+            ok, G, H, f, Acon, blo, bhi, sense = linearised_qp(X, A, B, u_vec, lo_n, hi_n, problem)
             if not ok:
                 status = "nonfinite prediction"
                 break
@@ -414,28 +377,12 @@ class MPC:
             A, B = step.A, step.B
         return U, X, J, edges, status
 
-    def _pays_penalty(self, X, U, J: float, s_ref, n_ref, q: float, opp) -> bool:
-        """Whether the plan's cost ``J`` includes the soft rows' penalty (an edge or a
-        separation violated along its rollout ``X``)."""
-        cfg, b, t = self.cfg, self._bounds_n, self.track
+    @staticmethod
+    def _pays_penalty(X, U, J: float, p: ProblemConstants) -> bool:
+        """Whether the plan's cost ``J`` under the solve's constants ``p`` includes the soft
+        rows' penalty (an edge or a separation violated along its rollout ``X``)."""
         u_vec = np.ascontiguousarray(U.T).reshape(-1)
-        J0, _, _ = score_rollout(
-            X,
-            u_vec,
-            s_ref,
-            n_ref,
-            float(q),
-            b.lo_table,
-            b.hi_table,
-            t.ds,
-            t.length,
-            opp,
-            cfg.dt,
-            cfg.sep_s,
-            cfg.sep_n,
-            cfg.sep_window,
-            0.0,
-        )
+        J0, _, _ = score_rollout(X, u_vec, p._replace(w_soft=0.0))
         return J > J0 * (1.0 + 1e-9)
 
     def solve(
@@ -459,11 +406,10 @@ class MPC:
             else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3)
         )
 
-        w_soft = 0.5 / cfg.soft_rho_at(q)
-        bounds, track = self._bounds_n, self.track
+        problem = self._problem(s_ref, n_ref, q, opp, u_prev)
 
         def score(X_, U_):
-            return self._score(X_, U_, s_ref, n_ref, q, opp)
+            return self._score(X_, U_, problem)
 
         fresh = self._U is None
         if fresh:  # first solve: start from the follower
@@ -483,36 +429,14 @@ class MPC:
                 if Jf < J:
                     U, X, A, B, J, edges = Uf, Xf, Af, Bf, Jf, edges_f
                     self.stats["restarts"] += 1
-        consts = StepConstants(
-            x0,
-            self._step_sizes,
-            track.kappa,
-            track.ds,
-            track.length,
-            cfg.substeps,
-            s_ref,
-            n_ref,
-            float(q),
-            bounds.lo_table,
-            bounds.hi_table,
-            opp,
-            cfg.dt,
-            cfg.sep_s,
-            cfg.sep_n,
-            cfg.sep_window,
-            w_soft,
-        )
-        U, X, J, edges, status = self._sqp(consts, U, X, A, B, J, edges, u_prev)
-        if (
-            cfg.second_start
-            and status == "ok"
-            and self._pays_penalty(X, U, J, s_ref, n_ref, q, opp)
-        ):
+        consts = StepConstants(x0, self._step_sizes, self.track.kappa, cfg.substeps, problem)
+        U, X, J, edges, status = self._sqp(consts, U, X, A, B, J, edges)
+        if cfg.second_start and status == "ok" and self._pays_penalty(X, U, J, problem):
             s_nom = self._s_nom
             Uf = self._follower_warm_start(x0)
             Xf, Af, Bf = self._plan(x0, Uf)
             Jf, edges_f = score(Xf, Uf)
-            Uf, Xf, Jf, edges_f, status_f = self._sqp(consts, Uf, Xf, Af, Bf, Jf, edges_f, u_prev)
+            Uf, Xf, Jf, edges_f, status_f = self._sqp(consts, Uf, Xf, Af, Bf, Jf, edges_f)
             if status_f == "ok" and Jf < J:
                 U, X, J, edges = Uf, Xf, Jf, edges_f
                 self.stats["second_starts"] += 1
