@@ -229,3 +229,38 @@ def test_the_public_prediction_is_the_mpcs_own(mpc):
     np.testing.assert_array_equal(
         states[0], mpc._plan(x0, U, s_prev=nodes, jacobians=False, passes=0)[0]
     )
+
+
+@pytest.mark.slow
+def test_the_second_start_keeps_no_costlier_plan_and_finds_cheaper_ones():
+    """From the same warm start and problem, ``MPCConfig(second_start=True)`` ends with a plan
+    that costs at most what the plain SQP's costs, and less in some states of a 3-car race
+    at the top of the box (where the plain SQP's plan pays the soft rows' penalty)."""
+    from agents import make_agent_spec
+    from racing_env import RacingParallelEnv
+
+    env = RacingParallelEnv(n_cars=3, max_cycles=60)
+    obs, _ = env.reset(seed=3)
+    cars = [make_agent_spec("mpc:q=5,zeta=1.05,s1=0.3,s2=0.5,s3=0") for _ in range(3)]
+    for car, aid in zip(cars, env.possible_agents):
+        car.reset(env.track, aid, 0)
+    ego = cars[0].mpc
+    twin = MPC(env.track, config=MPCConfig(second_start=True))
+    plain_solve, costs = ego.solve, []
+
+    def solve(*args):
+        twin._U = None if ego._U is None else ego._U.copy()
+        twin._s_nom = None if ego._s_nom is None else ego._s_nom.copy()
+        twin.solve(*args)
+        u = plain_solve(*args)
+        if ego.last_status == twin.last_status == "ok":
+            costs.append((ego.last_plan[1], twin.last_plan[1]))
+        return u
+
+    ego.solve = solve
+    while env.agents:
+        obs, *_ = env.step({a: c.act(obs[a]) for a, c in zip(env.possible_agents, cars)})
+    plain, second = np.array(costs).T
+    assert len(costs) >= 50
+    assert np.all(second <= plain * (1 + 1e-12))
+    assert np.sum(second < 0.99 * plain) >= 1 and twin.stats["second_starts"] >= 1

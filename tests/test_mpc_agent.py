@@ -226,23 +226,32 @@ def test_extended_space_agent_checks_and_chooses_the_pass_side_by_room():
 
 
 @pytest.mark.slow
-def test_the_extended_space_passes_a_racing_line_follower_the_paper_s_best_theta_cannot():
-    """From R2 behind a ``raceline`` follower on ``default`` (seed 7000, 30 s), a fixed theta
-    of the extended space passes it through free space and leads; the track's best fixed theta
-    of the paper's space stays behind (docs: "The extended policy space")."""
+def test_the_extended_space_passes_racing_line_followers_the_paper_s_best_theta_cannot():
+    """From R2 behind two ``raceline`` followers on ``default`` (8 races of 30 s, seeds
+    7000-7007), a fixed theta of the extended space passes in several races, mostly through
+    free space; the track's best fixed theta of the paper's space passes in none (docs: "The
+    extended policy space"). Counted over races, not asserted of one: a race at the limit
+    differs from machine to machine in its last bits (docs "Which machine")."""
     from experiments.metrics import race_metrics
     from experiments.race import run_race
 
     ext = "mpc:space=extended,q=5,zeta=1.05,s1=0.3,s2=0.5,s3=0,b=1"
-    for spec, passes in ((ext, 1), ("mpc:theta=best", 0)):
-        r, _ = run_race(
-            [spec, "raceline", "raceline"],
-            track="default",
-            seed=7000,
-            max_cycles=300,
-            order=[1, 0, 2],
-            progress_bar=False,
-        )
-        m = race_metrics(r.states)
-        assert m["passes"][0] == passes and m["passes_contact"][0] == 0, (spec, m)
-        assert (r.order[0] == 0) == bool(passes), (spec, r.order)
+    counts = {}
+    for spec in (ext, "mpc:theta=best"):
+        races_with_a_pass = clean = through_contact = 0
+        for seed in range(7000, 7008):
+            r, _ = run_race(
+                [spec, "raceline", "raceline"],
+                track="default",
+                seed=seed,
+                max_cycles=300,
+                order=[1, 0, 2],
+                progress_bar=False,
+            )
+            m = race_metrics(r.states)
+            races_with_a_pass += m["passes"][0] > 0
+            clean += m["passes"][0]
+            through_contact += m["passes_contact"][0]
+        counts[spec] = (races_with_a_pass, clean, through_contact)
+    assert counts[ext][0] >= 3 and counts[ext][1] > counts[ext][2], counts
+    assert counts["mpc:theta=best"][:2] == (0, 0), counts

@@ -36,7 +36,8 @@ class MPCConfig:
     # cycling) falls back instead of spinning for 10 ms
     second_start: bool = False  # where the SQP's plan still pays the soft rows' penalty (a
     # track edge or a separation violated), solve again from the raceline follower's
-    # rollout and keep the cheaper plan (a local solution in traffic that IPOPT avoids)
+    # rollout and from the plan with less throttle, and keep the cheapest (a local solution
+    # in traffic that IPOPT avoids)
 
     def __post_init__(self):
         if not (isinstance(self.horizon, int) and 2 <= self.horizon <= 100):

@@ -43,6 +43,11 @@ class StepCode(IntEnum):
     RELINEARISED = 2  # a step accepted and the plan linearised again
 
 
+#: Throttle taken off the whole plan for the second start's braked candidate
+#: (:attr:`MPCConfig.second_start`; normalised throttle in [-1, 1]).
+SECOND_START_LIFT = 0.5
+
+
 class StepConstants(NamedTuple):
     """What every SQP step of one :meth:`MPC.solve` shares."""
 
@@ -432,16 +437,22 @@ class MPC:
         consts = StepConstants(x0, self._step_sizes, self.track.kappa, cfg.substeps, problem)
         U, X, J, edges, status = self._sqp(consts, U, X, A, B, J, edges)
         if cfg.second_start and status == "ok" and self._pays_penalty(X, U, J, problem):
-            s_nom = self._s_nom
-            Uf = self._follower_warm_start(x0)
-            Xf, Af, Bf = self._plan(x0, Uf)
-            Jf, edges_f = score(Xf, Uf)
-            Uf, Xf, Jf, edges_f, status_f = self._sqp(consts, Uf, Xf, Af, Bf, Jf, edges_f)
-            if status_f == "ok" and Jf < J:
-                U, X, J, edges = Uf, Xf, Jf, edges_f
-                self.stats["second_starts"] += 1
-            else:
+            # a local solution in traffic: try the follower's rollout, and the plan with less
+            # throttle (the basin behind the car ahead, not beside it); keep the cheapest
+            s_nom, best = self._s_nom, None
+            lifted = U.copy()
+            lifted[0] = np.clip(lifted[0] - SECOND_START_LIFT, -1.0, 1.0)
+            for U2 in (self._follower_warm_start(x0), lifted):
+                X2, A2, B2 = self._plan(x0, U2)
+                J2, edges2 = score(X2, U2)
+                plan = self._sqp(consts, U2, X2, A2, B2, J2, edges2)
+                if plan[4] == "ok" and plan[2] < (J if best is None else best[0][2]):
+                    best = (plan, self._s_nom)
+            if best is None:
                 self._s_nom = s_nom
+            else:
+                (U, X, J, edges, _), self._s_nom = best
+                self.stats["second_starts"] += 1
         self.stats["solves"] += 1
         if status != "ok":
             self.stats["fallbacks"] += 1
