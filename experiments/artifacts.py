@@ -21,7 +21,7 @@ from typing import Any
 
 from racing_env.files import atomic_path
 
-from .parallel import run_tasks_with_progress
+from .parallel import Pool, run_tasks_with_progress
 
 
 def slug(spec: str) -> str:
@@ -390,17 +390,14 @@ class ResumableRun:
         self,
         fn: Callable[..., dict],
         args: Callable[[Any], tuple],
-        workers: int,
-        backend: str,
-        address: str | None,
+        pool: Pool,
         *,
         desc: str,
         unit: str,
-        progress_bar: bool,
         postfix: Callable[[Hashable, dict], str] | None = None,
     ) -> int:
-        """Run the :meth:`missing` tasks, ``fn(*args(task))`` each, on ``workers`` local
-        processes or Ray (:func:`experiments.parallel.run_tasks`), storing each record
+        """Run the :meth:`missing` tasks, ``fn(*args(task))`` each, on ``pool``
+        (:func:`experiments.parallel.run_tasks`), storing each record
         (:meth:`add`) as it arrives, behind a progress bar over all the run's tasks (``desc``,
         ``unit``; ``postfix(key, record)`` with the task's :meth:`task_key` shows the last
         one). Returns the number of tasks run."""
@@ -410,14 +407,11 @@ class ResumableRun:
             fn,
             tasks,
             lambda key, record: self.add(record),
-            workers,
-            backend,
-            address,
+            pool,
             total=total,
             done=total - len(tasks),
             desc=desc,
             unit=unit,
-            progress_bar=progress_bar,
             postfix=postfix,
         )
         return len(tasks)

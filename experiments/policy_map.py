@@ -44,7 +44,7 @@ from .artifacts import (
     write_text,
 )
 from .bench import REGIONS, BenchConfig, check_agent_specs
-from .parallel import check_backend
+from .parallel import Pool
 
 SCHEMA_VERSION = 1
 MODES = ("solo", "race")
@@ -603,19 +603,11 @@ def plot_heatmaps(rows: list[dict], path, title: str, low, high, dpi: int = 120)
 
 
 # ---------------------------------------------------------------------------- driver
-def policy_map(
-    config: PolicyMapConfig,
-    out_dir,
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
-    progress_bar: bool = True,
-) -> dict:
+def policy_map(config: PolicyMapConfig, out_dir, pool: Pool = Pool()) -> dict:
     """Run (or resume) the policy map ``config`` into ``out_dir``; returns its summary with
     ``new_rows``, the number of rows computed by this call."""
     from racing_env.tracks import make_track
 
-    check_backend(backend, workers)
     for track in config.tracks:  # a typo fails before any run starts
         make_track(track)
     if "race" in config.modes:
@@ -624,12 +616,9 @@ def policy_map(
     new = run.run_missing(
         map_row,
         lambda key: (config, *key, run.thetas[key[2]]),
-        workers,
-        backend,
-        address,
+        pool,
         desc="policy map",
         unit="run",
-        progress_bar=progress_bar,
         postfix=lambda key, row: f"{key[0]}:{key[1]}:{key[2]}",
     )
     summary = run.write_outputs()

@@ -6,6 +6,7 @@ import json
 import pytest
 
 from experiments.artifacts import ResumableRun, as_stored, claim
+from experiments.parallel import Pool
 
 
 class Squares(ResumableRun):
@@ -44,9 +45,7 @@ def _square(k: int) -> dict:
 def test_run_missing_runs_and_stores_only_the_missing_tasks(tmp_path):
     run = Squares(tmp_path, {"n": 4})
     run.add({"k": 1, "v": 1})
-    kw = dict(
-        workers=1, backend="local", address=None, desc="squares", unit="task", progress_bar=False
-    )
+    kw = dict(pool=Pool(workers=1, progress_bar=False), desc="squares", unit="task")
     assert run.run_missing(_square, lambda task: (task[1],), **kw) == 3
     assert {k: rec["v"] for (_, k), rec in run.records().items()} == {0: 0, 1: 1, 2: 4, 3: 9}
     assert run.run_missing(_square, lambda task: (task[1],), **kw) == 0
