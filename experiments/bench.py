@@ -50,11 +50,12 @@ from .artifacts import (
     append_jsonl,
     env_version,
     read_jsonl,
+    run_missing,
     write_json,
     write_npz,
     write_text,
 )
-from .parallel import Pool, run_tasks_with_progress
+from .parallel import Pool
 
 SCHEMA_VERSION = 1
 ROLES = ("ego", "O1", "O2")
@@ -522,15 +523,11 @@ def strategy_note(st: dict | None, races: int) -> list[str]:
 # ---------------------------------------------------------------------------- drivers
 def _run_many(runs: dict, pool: Pool) -> None:
     """Run the missing races of every :class:`BenchRun` in ``runs`` (name -> run) in one pool."""
-    tasks = [((name, k), (run.config, k)) for name, run in runs.items() for k in run.missing()]
-    total = sum(run.config.races for run in runs.values())
-    run_tasks_with_progress(
+    run_missing(
+        runs,
         bench_race,
-        tasks,
-        lambda key, result: runs[key[0]].add(result),
+        lambda run, k: (run.config, k),
         pool,
-        total=total,
-        done=total - len(tasks),
         desc="bench",
         unit="race",
         postfix=lambda key, result: f"{key[0]}:{result['record']['winner']}",

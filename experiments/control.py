@@ -59,8 +59,8 @@ import numpy as np
 
 from .artifacts import append_jsonl, claim, read_jsonl, slug, write_json, write_text
 from .bench import REGIONS, BenchConfig, BenchRun, _run_many, check_agent_specs
-from .parallel import Pool, run_tasks_with_progress
-from .policy_map import MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, map_row, theta_spec
+from .parallel import Pool
+from .policy_map import MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, run_maps, theta_spec
 
 SCHEMA_VERSION = 1
 BEST_FIXED_SPEC = "mpc:theta=best"
@@ -408,23 +408,7 @@ def select_best_thetas(
     )
     t0 = time.perf_counter()
     maps = {t: PolicyMapRun(track_dir(out, t) / "map", cfg.map_config(t)) for t in tracks}
-    tasks = [
-        ((t, *key), (run.config, *key, run.thetas[key[2]]))
-        for t, run in maps.items()
-        for key in run.missing()
-    ]
-    total = sum(len(run.keys()) for run in maps.values())
-    run_tasks_with_progress(
-        map_row,
-        tasks,
-        lambda key, row: maps[key[0]].add(row),
-        pool,
-        total=total,
-        done=total - len(tasks),
-        desc="control: map",
-        unit="run",
-        postfix=lambda key, row: f"{key[1]}:{key[0]}:{key[3]}",
-    )
+    new_map_runs = run_maps(maps, pool, "control: map")
     for run in maps.values():
         run.write_outputs()
     cands = {t: choose_candidates(maps[t].rows().values(), cfg.candidates) for t in tracks}
@@ -439,12 +423,12 @@ def select_best_thetas(
         if install_table:
             install(path, table)
     wall = time.perf_counter() - t0
-    if tasks or todo:
+    if new_map_runs or todo:
         append_jsonl(
             out / "runs.jsonl",
             {
                 "tracks": tracks,
-                "map_runs": len(tasks),
+                "map_runs": new_map_runs,
                 "playoff_races": todo,
                 "wall_seconds": wall,
                 "workers": pool.workers,
@@ -453,7 +437,12 @@ def select_best_thetas(
             },
         )
     summary = write_summary(out)
-    return {**summary, "new_map_runs": len(tasks), "new_races": todo, "wall_seconds_this_run": wall}
+    return {
+        **summary,
+        "new_map_runs": new_map_runs,
+        "new_races": todo,
+        "wall_seconds_this_run": wall,
+    }
 
 
 def write_summary(out_dir) -> dict:

@@ -39,6 +39,7 @@ from .artifacts import (
     check_track_specs,
     env_version,
     manifest_config,
+    run_missing,
     slug,
     write_json,
     write_text,
@@ -613,14 +614,21 @@ def policy_map(config: PolicyMapConfig, out_dir, pool: Pool = Pool()) -> dict:
     if "race" in config.modes:
         check_agent_specs([config.opponents], config.tracks)
     run = PolicyMapRun(out_dir, config)
-    new = run.run_missing(
-        map_row,
-        lambda key: (config, *key, run.thetas[key[2]]),
-        pool,
-        desc="policy map",
-        unit="run",
-        postfix=lambda key, row: f"{key[0]}:{key[1]}:{key[2]}",
-    )
+    new = run_maps({None: run}, pool)
     summary = run.write_outputs()
     summary["new_rows"] = new
     return summary
+
+
+def run_maps(maps: dict, pool: Pool, desc: str = "policy map") -> int:
+    """Compute the missing rows of every :class:`PolicyMapRun` of ``maps`` (name -> run) in
+    one pool, behind one progress bar ``desc``; returns the number of rows computed."""
+    return run_missing(
+        maps,
+        map_row,
+        lambda run, key: (run.config, *key, run.thetas[key[2]]),
+        pool,
+        desc=desc,
+        unit="run",
+        postfix=lambda key, row: f"{key[1][0]}:{key[1][1]}:{key[1][2]}",
+    )
