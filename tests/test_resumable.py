@@ -82,3 +82,11 @@ def test_a_record_can_be_dropped_or_refused(tmp_path):
     run.add({"k": -1})
     with pytest.raises(ValueError, match="record -1 is not of this run"):
         run.records()
+
+
+def test_a_pool_is_checked_when_made():
+    assert Pool() == Pool(workers=2, backend="local", address=None, progress_bar=True)
+    with pytest.raises(ValueError, match="workers must be a positive integer, got 0"):
+        Pool(workers=0)
+    with pytest.raises(ValueError, match="backend must be 'local' or 'ray', got 'spark'"):
+        Pool(backend="spark")
