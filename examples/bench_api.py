@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from experiments.bench import BenchConfig, bench
+from experiments.parallel import Pool
 from experiments.race import run_race, write_outputs
 
 
@@ -29,7 +30,7 @@ def main(out: Path) -> dict:
     # A head-to-head benchmark: the ego against two opponents of one kind, the ego starting
     # from R1, R2, R3 in turn. Resumable: run it again and only missing races run.
     config = BenchConfig(ego="mpc", opponents="raceline", races=3, steps=20, seed=0)
-    summary = bench(config, out / "bench", workers=1, progress_bar=False)
+    summary = bench(config, out / "bench", pool=Pool(workers=1, progress_bar=False))
     wins = summary["wins"]
     print(
         f"ego wins {wins['ego']['wins']}/{summary['races']}, O1 {wins['O1']['wins']}, "

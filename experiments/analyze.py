@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from .artifacts import append_jsonl, claim, read_jsonl, write_json, write_npz, write_text
-from .parallel import check_backend, run_tasks_with_progress
+from .parallel import Pool, run_tasks_with_progress
 
 DT = 0.1  # control period of the races [s]
 
@@ -270,9 +270,7 @@ def race_states(model_name: str, track: str, n_states: int, seed: int, steps: in
     return result.states[t], t, result
 
 
-def nash_regret(
-    cfg: AnalyzeConfig, out: Path, workers: int, backend: str, address, progress_bar: bool
-) -> dict:
+def nash_regret(cfg: AnalyzeConfig, out: Path, pool: Pool) -> dict:
     model = _model(cfg.model)
     track_name = model.meta["track"]
     from racing_env.tracks import make_track
@@ -303,14 +301,11 @@ def nash_regret(
         regret_task,
         tasks,
         finished,
-        workers,
-        backend,
-        address,
+        pool,
         total=len(X) * X.shape[1],
         done=len(done),
         desc="nash regret",
         unit="car",
-        progress_bar=progress_bar,
     )
     recs = [done[k] for k in sorted(done)]
     reg = np.array([r["regret_rel"] for r in recs])
@@ -619,10 +614,7 @@ def analyze(
     cfg: AnalyzeConfig,
     out_dir,
     bench_dirs=(),
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
-    progress_bar: bool = True,
+    pool: Pool = Pool(),
     force: bool = False,
 ) -> dict:
     """Run every analysis into ``out_dir`` (skipping parts whose outputs exist unless
@@ -630,7 +622,6 @@ def analyze(
     from experiments.collect import CollectConfig, collect
     from racing_env.tracks import make_track
 
-    check_backend(backend, workers)
     model = _model(cfg.model)
     if model.general:
         raise ValueError(
@@ -656,16 +647,9 @@ def analyze(
             steps=cfg.steps,
             track=model.meta["track"],
             seed=cfg.heldout_seed,
-            races_per_shard=max(1, min(10, cfg.heldout_races // max(workers, 1))),
+            races_per_shard=max(1, min(10, cfg.heldout_races // pool.workers)),
         )
-        collect(
-            ccfg,
-            out / "heldout",
-            workers=workers,
-            backend=backend,
-            address=address,
-            progress_bar=progress_bar,
-        )
+        collect(ccfg, out / "heldout", pool)
         gap = approximation_gap(model, out / "heldout", cfg.gap_pairs, cfg.seed)
         gap["seconds"] = time.perf_counter() - t0
         write_json(out / "gap.json", gap)
@@ -678,7 +662,7 @@ def analyze(
         if force:
             for f in ("regret.jsonl", "regret_states.npz"):
                 (out / f).unlink(missing_ok=True)
-        reg = nash_regret(cfg, out, workers, backend, address, progress_bar)
+        reg = nash_regret(cfg, out, pool)
         reg["seconds_last_run"] = time.perf_counter() - t1  # a resumed run counts its own part
         write_json(out / "regret.json", reg)
         plot_regret(reg, out / "fig2b_nash_regret.png")

@@ -21,7 +21,7 @@ from typing import Any
 
 from racing_env.files import atomic_path
 
-from .parallel import run_tasks_with_progress
+from .parallel import Pool, run_tasks_with_progress
 
 
 def slug(spec: str) -> str:
@@ -390,34 +390,59 @@ class ResumableRun:
         self,
         fn: Callable[..., dict],
         args: Callable[[Any], tuple],
-        workers: int,
-        backend: str,
-        address: str | None,
+        pool: Pool,
         *,
         desc: str,
         unit: str,
-        progress_bar: bool,
         postfix: Callable[[Hashable, dict], str] | None = None,
     ) -> int:
-        """Run the :meth:`missing` tasks, ``fn(*args(task))`` each, on ``workers`` local
-        processes or Ray (:func:`experiments.parallel.run_tasks`), storing each record
-        (:meth:`add`) as it arrives, behind a progress bar over all the run's tasks (``desc``,
-        ``unit``; ``postfix(key, record)`` with the task's :meth:`task_key` shows the last
-        one). Returns the number of tasks run."""
-        tasks = [(self.task_key(task), args(task)) for task in self.missing()]
-        total = len(self.tasks())
-        run_tasks_with_progress(
+        """Run the :meth:`missing` tasks, ``fn(*args(task))`` each, on ``pool``
+        (:func:`run_missing`), storing each record (:meth:`add`) as it arrives, behind a
+        progress bar over all the run's tasks (``desc``, ``unit``; ``postfix(key, record)``
+        with the task's :meth:`task_key` shows the last one). Returns the number of tasks
+        run."""
+        return run_missing(
+            {None: self},
             fn,
-            tasks,
-            lambda key, record: self.add(record),
-            workers,
-            backend,
-            address,
-            total=total,
-            done=total - len(tasks),
+            lambda run, task: args(task),
+            pool,
             desc=desc,
             unit=unit,
-            progress_bar=progress_bar,
-            postfix=postfix,
+            postfix=None if postfix is None else lambda key, record: postfix(key[1], record),
         )
-        return len(tasks)
+
+
+def run_missing(
+    runs: dict[Hashable, ResumableRun],
+    fn: Callable[..., dict],
+    args: Callable[[Any, Any], tuple],
+    pool: Pool,
+    *,
+    desc: str,
+    unit: str,
+    postfix: Callable[[tuple, dict], str] | None = None,
+) -> int:
+    """Run the :meth:`~ResumableRun.missing` tasks of every run of ``runs`` (name -> run) in
+    one pool, ``fn(*args(run, task))`` each (:func:`experiments.parallel.run_tasks`), storing
+    each record in its run (:meth:`~ResumableRun.add`) as it arrives, behind one progress bar
+    over all the runs' tasks (``desc``, ``unit``; ``postfix((name, key), record)`` with the
+    task's :meth:`~ResumableRun.task_key` shows the last one). Returns the number of tasks
+    run."""
+    tasks = [
+        ((name, run.task_key(task)), args(run, task))
+        for name, run in runs.items()
+        for task in run.missing()
+    ]
+    total = sum(len(run.tasks()) for run in runs.values())
+    run_tasks_with_progress(
+        fn,
+        tasks,
+        lambda key, record: runs[key[0]].add(record),
+        pool,
+        total=total,
+        done=total - len(tasks),
+        desc=desc,
+        unit=unit,
+        postfix=postfix,
+    )
+    return len(tasks)

@@ -50,11 +50,12 @@ from .artifacts import (
     append_jsonl,
     env_version,
     read_jsonl,
+    run_missing,
     write_json,
     write_npz,
     write_text,
 )
-from .parallel import check_backend, run_tasks_with_progress
+from .parallel import Pool
 
 SCHEMA_VERSION = 1
 ROLES = ("ego", "O1", "O2")
@@ -520,39 +521,24 @@ def strategy_note(st: dict | None, races: int) -> list[str]:
 
 
 # ---------------------------------------------------------------------------- drivers
-def _run_many(runs: dict, workers: int, backend: str, address, progress_bar: bool) -> None:
+def _run_many(runs: dict, pool: Pool) -> None:
     """Run the missing races of every :class:`BenchRun` in ``runs`` (name -> run) in one pool."""
-    tasks = [((name, k), (run.config, k)) for name, run in runs.items() for k in run.missing()]
-    total = sum(run.config.races for run in runs.values())
-    run_tasks_with_progress(
+    run_missing(
+        runs,
         bench_race,
-        tasks,
-        lambda key, result: runs[key[0]].add(result),
-        workers,
-        backend,
-        address,
-        total=total,
-        done=total - len(tasks),
+        lambda run, k: (run.config, k),
+        pool,
         desc="bench",
         unit="race",
-        progress_bar=progress_bar,
         postfix=lambda key, result: f"{key[0]}:{result['record']['winner']}",
     )
 
 
-def bench(
-    config: BenchConfig,
-    out_dir,
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
-    progress_bar: bool = True,
-) -> dict:
-    """Run (or resume) one benchmark into ``out_dir``; returns its summary."""
-    check_backend(backend, workers)
+def bench(config: BenchConfig, out_dir, pool: Pool = Pool()) -> dict:
+    """Run (or resume) one benchmark into ``out_dir`` on ``pool``; returns its summary."""
     check_agent_specs(config.agents, [config.track])
     run = BenchRun(out_dir, config)
-    _run_many({"bench": run}, workers, backend, address, progress_bar)
+    _run_many({"bench": run}, pool)
     return run.write_summary()
 
 
@@ -564,15 +550,11 @@ def paper_table(
     track: str = "default",
     seed: int = 0,
     cases=None,
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
-    progress_bar: bool = True,
+    pool: Pool = Pool(),
 ) -> dict:
     """The paper's five cases (or ``cases``, names of :data:`PAPER_CASES`) in
     ``out_dir/case_<name>``, all races in one pool; writes ``out_dir/paper_table.md`` and
     ``paper_table.json`` and returns the latter's content."""
-    check_backend(backend, workers)
     cases = list(PAPER_CASES) if cases is None else list(cases)
     unknown = [c for c in cases if c not in PAPER_CASES]
     if unknown:
@@ -593,7 +575,7 @@ def paper_table(
     runs = {c: BenchRun(out / f"case_{c}", cfg) for c, cfg in configs.items()}
     todo = sum(len(run.missing()) for run in runs.values())
     t0 = time.perf_counter()
-    _run_many(runs, workers, backend, address, progress_bar)
+    _run_many(runs, pool)
     wall = time.perf_counter() - t0
     history = out / "runs.jsonl"
     if todo:  # every invocation that raced: the table's total wall time
@@ -603,8 +585,8 @@ def paper_table(
                 "cases": cases,
                 "races_simulated": todo,
                 "wall_seconds": wall,
-                "workers": workers,
-                "backend": backend,
+                "workers": pool.workers,
+                "backend": pool.backend,
                 "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
             },
         )
@@ -615,8 +597,8 @@ def paper_table(
         "steps": steps,
         "track": track,
         "seed": seed,
-        "workers": workers,
-        "backend": backend,
+        "workers": pool.workers,
+        "backend": pool.backend,
         "wall_seconds_this_run": wall,
         "runs": past,
         "cases": {

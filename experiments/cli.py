@@ -39,9 +39,12 @@ def _config(cls, args, renamed: dict | None = None, **values):
     return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in given.items()}, **values)
 
 
-def _pool(args) -> dict:
-    """The ``workers``, ``backend`` and ``address`` keywords of the drivers' process pool."""
-    return dict(workers=args.workers, backend=args.backend, address=args.address)
+def _pool(args):
+    """The drivers' :class:`~experiments.parallel.Pool` of ``--workers``, ``--backend`` and
+    ``--address``."""
+    from .parallel import Pool
+
+    return Pool(args.workers, args.backend, args.address)
 
 
 def _cmd_race(args) -> int:
@@ -149,7 +152,7 @@ def _cmd_collect(args) -> int:
             track=args.track or "default",
             races_per_shard=args.shard_size or 25,
         )
-        summary = collect(cfg, args.out, **_pool(args))
+        summary = collect(cfg, args.out, _pool(args))
     else:
         if args.track is not None and args.tracks is not None:
             raise ValueError(
@@ -168,7 +171,7 @@ def _cmd_collect(args) -> int:
             cars=cars,
             races_per_shard=args.shard_size or 4,
         )
-        summary = collect_family(cfg, args.out, **_pool(args))
+        summary = collect_family(cfg, args.out, _pool(args))
     print(
         f"{summary['simulated']} races simulated ({summary['resumed']} already there) in "
         f"{summary['seconds']:.1f} s, {summary['races_per_s']:.3f} races/s -> {summary['out']}"
@@ -218,7 +221,6 @@ def _cmd_bench(args) -> int:
     from .artifacts import slug
     from .bench import BenchConfig, bench, paper_table
 
-    kw = _pool(args)
     if args.paper_table:
         if args.cars != 3:
             raise ValueError(f"--paper-table is the paper's 3-car protocol; got --cars {args.cars}")
@@ -231,7 +233,7 @@ def _cmd_bench(args) -> int:
             track=args.track,
             seed=args.seed,
             cases=args.cases,
-            **kw,
+            pool=_pool(args),
         )
         print((Path(out) / "paper_table.md").read_text())
         print(
@@ -243,7 +245,7 @@ def _cmd_bench(args) -> int:
     cfg = _config(BenchConfig, args, _BENCH_FIELDS, races=races)
     field = "" if args.cars == 3 else f"_{args.cars}cars"
     out = Path(args.out or f"results/bench/{slug(args.ego)}_vs_{slug(args.opponents)}{field}")
-    bench(cfg, out, **kw)
+    bench(cfg, out, _pool(args))
     print((out / "summary.md").read_text())
     print(f"wrote {out / 'summary.md'}, {out / 'summary.json'} and {out / 'races.jsonl'}")
     return 0
@@ -253,7 +255,7 @@ def _cmd_league(args) -> int:
     from .league import LeagueConfig, league
 
     out = Path(args.out)
-    board = league(_config(LeagueConfig, args), out, imports=args.imports, **_pool(args))
+    board = league(_config(LeagueConfig, args), out, _pool(args), imports=args.imports)
     print((out / "leaderboard.md").read_text())
     print(
         f"{board['new_races']} new races; wrote {out / 'leaderboard.md'}, "
@@ -267,7 +269,7 @@ def _cmd_strategy(args) -> int:
     from .strategy import StrategyConfig, strategy
 
     out = Path(args.out)
-    t = strategy(_config(StrategyConfig, args), out, **_pool(args))
+    t = strategy(_config(StrategyConfig, args), out, _pool(args))
     print((out / "strategy.md").read_text())
     print(f"{t['new_races']} new races; wrote {out / 'strategy.md'} and {out / 'strategy.json'}")
     return 0
@@ -288,7 +290,7 @@ def _cmd_analyze(args) -> int:
         out,
         bench_dirs=args.bench or (),
         force=args.force,
-        **_pool(args),
+        pool=_pool(args),
     )
     print((out / "summary.md").read_text())
     print(f"wrote figures and JSON into {out}")
@@ -307,22 +309,22 @@ def _cmd_reproduce(args) -> int:
     from .control import BEST_FIXED_SPEC, ControlConfig, ensure_best_thetas
 
     out = Path(args.out)
-    kw = _pool(args)
     track = "default"  # the paper table's track
     # the control: the same races with the best fixed theta on the track as ego, selected
     # first (resumable, into out/control) if the best-theta table lacks the track
     ctl = ControlConfig(thetas=args.control_thetas, races=args.control_races, steps=args.steps)
-    entry = ensure_best_thetas([track], ctl, out / "control", **kw)[track]
-    paper_table(out / "paper_table", races=args.races, steps=args.steps, **kw)
+    pool = _pool(args)
+    entry = ensure_best_thetas([track], ctl, out / "control", pool)[track]
+    paper_table(out / "paper_table", races=args.races, steps=args.steps, pool=pool)
     tables = [out / "paper_table" / "paper_table.md"]
     compared = {"alpha": out / "paper_table"}
     control = out / "paper_table_control"
-    paper_table(control, ego=BEST_FIXED_SPEC, races=args.races, steps=args.steps, **kw)
+    paper_table(control, ego=BEST_FIXED_SPEC, races=args.races, steps=args.steps, pool=pool)
     tables.append(control / "paper_table.md")
     compared["best fixed"] = control
     if args.control_ego != "none":  # an extra row: the same races with another fixed ego
         extra = out / f"paper_table_{slug(args.control_ego)}_ego"
-        paper_table(extra, ego=args.control_ego, races=args.races, steps=args.steps, **kw)
+        paper_table(extra, ego=args.control_ego, races=args.races, steps=args.steps, pool=pool)
         tables.append(extra / "paper_table.md")
         compared[args.control_ego] = extra
     theta = ", ".join(f"{k} {v:.4g}" for k, v in entry["theta"].items())
@@ -351,14 +353,14 @@ def _cmd_reproduce(args) -> int:
         replace(_analyze_config(args), steps=args.steps),
         out / "analysis",
         bench_dirs=[out / "paper_table" / f"case_{c}" for c in cases],
-        **kw,
+        pool=pool,
     )
     parts = tables + [out / "analysis" / "summary.md"]
     if args.policy_thetas:  # the policy space the potential maximises over
         from .policy_map import PolicyMapConfig, policy_map
 
         policy_map(
-            PolicyMapConfig(thetas=args.policy_thetas, steps=args.steps), out / "policy_map", **kw
+            PolicyMapConfig(thetas=args.policy_thetas, steps=args.steps), out / "policy_map", pool
         )
         parts.append(out / "policy_map" / "summary.md")
     text = "\n".join(p.read_text() for p in parts)
@@ -378,9 +380,9 @@ def _cmd_general_report(args) -> int:
     general_report(
         _config(GeneralReportConfig, args, tracks=tuple(args.tracks or ())),
         out,
+        _pool(args),
         command="alpha-racer " + " ".join(args.argv),
         control_dir=args.control_out,
-        **_pool(args),
     )
     print((out / "summary.md").read_text())
     print(f"wrote {out / 'summary.md'} and {out / 'summary.json'}")
@@ -391,7 +393,7 @@ def _cmd_policy_map(args) -> int:
     from .policy_map import PolicyMapConfig, policy_map
 
     out = Path(args.out)
-    s = policy_map(_config(PolicyMapConfig, args), out, **_pool(args))
+    s = policy_map(_config(PolicyMapConfig, args), out, _pool(args))
     print((out / "summary.md").read_text())
     print(
         f"{s['new_rows']} new rows; wrote {out / 'summary.md'}, {out / 'summary.json'}, "
@@ -411,7 +413,7 @@ def _cmd_control(args) -> int:
         out,
         install_table=not args.no_install,
         table=args.table,
-        **_pool(args),
+        pool=_pool(args),
     )
     print((out / "summary.md").read_text())
     from agents.best_theta import table_path

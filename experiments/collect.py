@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .artifacts import claim, manifest_config, provenance, write_npz
-from .parallel import check_backend, run_tasks_with_progress
+from .parallel import Pool, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
 #: Start-region geometry of a collection's races (``StartConfig`` region_length, region_gap
@@ -251,22 +251,12 @@ def shard_is_complete(path: Path, config: CollectConfig, shard: int) -> bool:
         return False
 
 
-def collect(
-    config: CollectConfig,
-    out_dir,
-    workers: int = 2,
-    progress_bar: bool = True,
-    backend: str = "local",
-    address: str | None = None,
-) -> dict:
-    """Simulate every missing shard; returns a summary.
+def collect(config: CollectConfig, out_dir, pool: Pool = Pool()) -> dict:
+    """Simulate every missing shard on ``pool``; returns a summary.
 
-    ``backend="local"``: a process pool of ``workers`` (``workers = 1`` runs in this process).
-    ``backend="ray"``: Ray tasks on the cluster at ``address`` (``None`` starts a local Ray
-    with ``workers`` CPUs). Both run :func:`simulate_shard` and this process writes the
-    shards, so the data are identical. Resumable: complete shards are skipped.
+    Local processes and Ray tasks alike run :func:`simulate_shard` and this process writes
+    the shards, so the data are identical. Resumable: complete shards are skipped.
     """
-    check_backend(backend, workers)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     claim(
@@ -282,10 +272,7 @@ def collect(
         shard_is_complete,
         lambda k, arrays: write_shard(arrays, k, out),
         "collect",
-        workers=workers,
-        backend=backend,
-        address=address,
-        progress_bar=progress_bar,
+        pool,
     )
 
 
@@ -296,11 +283,7 @@ def simulate_missing_shards(
     is_complete,
     write,
     desc: str,
-    *,
-    workers: int,
-    backend: str,
-    address: str | None,
-    progress_bar: bool,
+    pool: Pool,
 ) -> dict:
     """Simulate every shard ``k`` of ``config`` whose file in ``out`` is not complete
     (``is_complete(path, config, k)``) as ``simulate(config, k)`` on the pool, and
@@ -314,14 +297,11 @@ def simulate_missing_shards(
         simulate,
         [(k, (config, k)) for k in todo],
         write,
-        workers,
-        backend,
-        address,
+        pool,
         total=config.races,
         done=done_races,
         desc=desc,
         unit="race",
-        progress_bar=progress_bar,
         count=lambda k: len(config.shard_races(k)),
     )
     seconds = time.perf_counter() - t0

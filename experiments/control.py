@@ -59,8 +59,8 @@ import numpy as np
 
 from .artifacts import append_jsonl, claim, read_jsonl, slug, write_json, write_text
 from .bench import REGIONS, BenchConfig, BenchRun, _run_many, check_agent_specs
-from .parallel import check_backend, run_tasks_with_progress
-from .policy_map import MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, map_row, theta_spec
+from .parallel import Pool
+from .policy_map import MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, run_maps, theta_spec
 
 SCHEMA_VERSION = 1
 BEST_FIXED_SPEC = "mpc:theta=best"
@@ -381,12 +381,9 @@ def select_best_thetas(
     cfg: ControlConfig,
     tracks,
     out_dir="results/control",
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
+    pool: Pool = Pool(),
     install_table: bool = True,
     table=None,
-    progress_bar: bool = True,
 ) -> dict:
     """Run (or resume) the selection ``cfg`` on every track of ``tracks`` into ``out_dir``
     (maps of all tracks in one pool, then all playoffs in one pool), write every track's
@@ -396,7 +393,6 @@ def select_best_thetas(
     from agents.best_theta import env_name
     from racing_env.tracks import make_track
 
-    check_backend(backend, workers)
     tracks = list(dict.fromkeys(tracks))
     if not tracks or not all(isinstance(t, str) and t for t in tracks):
         raise ValueError(f"tracks must be non-empty track specs, got {tracks!r}")
@@ -412,26 +408,7 @@ def select_best_thetas(
     )
     t0 = time.perf_counter()
     maps = {t: PolicyMapRun(track_dir(out, t) / "map", cfg.map_config(t)) for t in tracks}
-    tasks = [
-        ((t, *key), (run.config, *key, run.thetas[key[2]]))
-        for t, run in maps.items()
-        for key in run.missing()
-    ]
-    total = sum(len(run.keys()) for run in maps.values())
-    run_tasks_with_progress(
-        map_row,
-        tasks,
-        lambda key, row: maps[key[0]].add(row),
-        workers,
-        backend,
-        address,
-        total=total,
-        done=total - len(tasks),
-        desc="control: map",
-        unit="run",
-        progress_bar=progress_bar,
-        postfix=lambda key, row: f"{key[1]}:{key[0]}:{key[3]}",
-    )
+    new_map_runs = run_maps(maps, pool, "control: map")
     for run in maps.values():
         run.write_outputs()
     cands = {t: choose_candidates(maps[t].rows().values(), cfg.candidates) for t in tracks}
@@ -439,28 +416,33 @@ def select_best_thetas(
     for t in tracks:
         runs.update(_playoff_runs(cfg, out, t, cands[t]))
     todo = sum(len(run.missing()) for run in runs.values())
-    _run_many(runs, workers, backend, address, progress_bar)
+    _run_many(runs, pool)
     for t in tracks:
         path = track_dir(out, t) / "selection.json"
         write_json(path, _selection(cfg, t, maps[t], cands[t], runs))
         if install_table:
             install(path, table)
     wall = time.perf_counter() - t0
-    if tasks or todo:
+    if new_map_runs or todo:
         append_jsonl(
             out / "runs.jsonl",
             {
                 "tracks": tracks,
-                "map_runs": len(tasks),
+                "map_runs": new_map_runs,
                 "playoff_races": todo,
                 "wall_seconds": wall,
-                "workers": workers,
-                "backend": backend,
+                "workers": pool.workers,
+                "backend": pool.backend,
                 "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
             },
         )
     summary = write_summary(out)
-    return {**summary, "new_map_runs": len(tasks), "new_races": todo, "wall_seconds_this_run": wall}
+    return {
+        **summary,
+        "new_map_runs": new_map_runs,
+        "new_races": todo,
+        "wall_seconds_this_run": wall,
+    }
 
 
 def write_summary(out_dir) -> dict:
@@ -548,11 +530,8 @@ def ensure_best_thetas(
     tracks,
     cfg: ControlConfig,
     out_dir="results/control",
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
+    pool: Pool = Pool(),
     table=None,
-    progress_bar: bool = True,
 ) -> dict:
     """The best-theta table entry of every track of ``tracks``; tracks the table lacks (or
     holds for another env version or geometry) are selected first with ``cfg`` into
@@ -566,7 +545,5 @@ def ensure_best_thetas(
         except ValueError:
             missing.append(t)
     if missing:
-        select_best_thetas(
-            cfg, missing, out_dir, workers, backend, address, True, table, progress_bar
-        )
+        select_best_thetas(cfg, missing, out_dir, pool, True, table)
     return {t: lookup(t, table) for t in dict.fromkeys(tracks)}

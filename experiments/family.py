@@ -38,7 +38,7 @@ from .collect import (
     simulate_missing_shards,
     simulate_race,
 )
-from .parallel import check_backend
+from .parallel import Pool
 
 SCHEMA_VERSION = 2
 MIN_CARS, MAX_CARS = 2, 8
@@ -223,18 +223,10 @@ def shard_is_complete(path: Path, config: FamilyConfig, shard: int) -> bool:
         return False
 
 
-def collect_family(
-    config: FamilyConfig,
-    out_dir,
-    workers: int = 2,
-    progress_bar: bool = True,
-    backend: str = "local",
-    address: str | None = None,
-) -> dict:
-    """Simulate every missing shard of the family; returns a summary (as
+def collect_family(config: FamilyConfig, out_dir, pool: Pool = Pool()) -> dict:
+    """Simulate every missing shard of the family on ``pool``; returns a summary (as
     :func:`experiments.collect.collect`). Every track is built first, so a bad spec fails
     before any race."""
-    check_backend(backend, workers)
     check_tracks(config.track_list)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -246,10 +238,7 @@ def collect_family(
         shard_is_complete,
         lambda k, arrays: write_npz(shard_path(out, k), schema_version=SCHEMA_VERSION, **arrays),
         "collect family",
-        workers=workers,
-        backend=backend,
-        address=address,
-        progress_bar=progress_bar,
+        pool,
     )
 
 

@@ -40,7 +40,7 @@ from .artifacts import claim, slug, write_json, write_text
 from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, win_share
 from .control import BEST_FIXED_SPEC, ControlConfig, ensure_best_thetas
 from .family import FamilyConfig, collect_family, expand_tracks, load_family, parse_cars
-from .parallel import check_backend
+from .parallel import Pool
 
 HELDOUT_RANDOM = "random:10000-10019"
 """Procedural tracks of the default held-out set: seeds outside any training range we use."""
@@ -270,10 +270,7 @@ def default_results(runs: dict) -> dict:
 def general_report(
     cfg: GeneralReportConfig,
     out_dir="results/general",
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
-    progress_bar: bool = True,
+    pool: Pool = Pool(),
     command: str | None = None,
     control_dir=None,
 ) -> dict:
@@ -281,7 +278,6 @@ def general_report(
     ``command`` (the command line that made it) goes into the summary. The best fixed theta
     of a held-out track the best-theta table lacks is selected into ``control_dir`` (default
     ``out_dir/control``) and installed first."""
-    check_backend(backend, workers)
     model = _model(cfg.model)
     tracks = heldout_tracks(cfg, model)
     check_agent_specs(
@@ -299,15 +295,7 @@ def general_report(
     t0 = time.perf_counter()
     # the control on every held-out track: selected first where the table lacks it
     control_dir = Path(control_dir) if control_dir is not None else out / "control"
-    best = ensure_best_thetas(
-        tracks,
-        cfg.control_config(),
-        control_dir,
-        workers,
-        backend,
-        address,
-        progress_bar=progress_bar,
-    )
+    best = ensure_best_thetas(tracks, cfg.control_config(), control_dir, pool)
     fam = FamilyConfig(
         races=cfg.gap_races * len(cfg.gap_cars),
         tracks=tuple(tracks),
@@ -316,18 +304,11 @@ def general_report(
         seed=cfg.heldout_seed,
         races_per_shard=1,
     )
-    collect_family(
-        fam,
-        out / "heldout",
-        workers=workers,
-        backend=backend,
-        address=address,
-        progress_bar=progress_bar,
-    )
+    collect_family(fam, out / "heldout", pool)
     gap = gap_by_cars(model, out / "heldout", cfg)
     write_json(out / "gap.json", gap)
     runs = _bench_runs(cfg, tracks, out)
-    _run_many(runs, workers, backend, address, progress_bar)
+    _run_many(runs, pool)
     summary = {
         "config": json.loads(json.dumps(asdict(cfg))),
         "model": _model_info(model),

@@ -58,7 +58,7 @@ from .artifacts import (
     write_text,
 )
 from .bench import check_agent_specs, wilson_interval
-from .parallel import check_backend
+from .parallel import Pool
 
 SCHEMA_VERSION = 1
 #: openskill Plackett-Luce parameters: the package's defaults (mu 25, sigma 25/3, beta 25/6)
@@ -715,16 +715,12 @@ def check_field(agents, cars: int, track: str) -> None:
 def league(
     config: LeagueConfig,
     out_dir,
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
+    pool: Pool = Pool(),
     imports=(),
-    progress_bar: bool = True,
 ) -> dict:
     """Run (or resume) the league ``config`` into ``out_dir``; returns its leaderboard with
     ``new_races``, the number of races run by this call. ``imports`` (module names or ``.py``
     paths, as ``--import``) are imported in every worker before its first race."""
-    check_backend(backend, workers)
     imports = tuple(str(Path(m).resolve()) if m.endswith(".py") else m for m in imports)
     _import_once(imports)
     check_agent_specs(config.agents, config.tracks)
@@ -734,12 +730,9 @@ def league(
     new = run.run_missing(
         league_race,
         lambda race: (race, config.steps, imports),
-        workers,
-        backend,
-        address,
+        pool,
         desc="league",
         unit="race",
-        progress_bar=progress_bar,
         postfix=lambda k, rec: f"{k}:{rec['winner']}",
     )
     board = run.write_outputs()

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
 
 BACKENDS = ("local", "ray")
 
@@ -27,6 +28,23 @@ def check_backend(backend: str, workers) -> None:
         raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
     if not (isinstance(workers, int) and workers >= 1):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
+
+
+@dataclass(frozen=True)
+class Pool:
+    """Where the drivers' tasks run, checked when made (:func:`check_backend`).
+
+    ``backend="local"``: a process pool of ``workers`` (``workers = 1`` runs in this process).
+    ``backend="ray"``: Ray tasks on the cluster at ``address`` (``None`` starts a local Ray
+    with ``workers`` CPUs). ``progress_bar``: show the tqdm bar of the run."""
+
+    workers: int = 2
+    backend: str = "local"
+    address: str | None = None
+    progress_bar: bool = True
+
+    def __post_init__(self) -> None:
+        check_backend(self.backend, self.workers)
 
 
 def pin_worker() -> None:
@@ -52,23 +70,17 @@ def run_tasks(
     fn: Callable,
     tasks: Sequence[tuple[Hashable, tuple]],
     finished: Callable[[Hashable, object], None],
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
+    pool: Pool = Pool(),
 ) -> None:
-    """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks``; call ``finished(key, result)``
-    in this process as results arrive (completion order).
-
-    ``backend="local"``: a process pool of ``workers`` (``workers = 1`` runs in this process).
-    ``backend="ray"``: Ray tasks on the cluster at ``address`` (``None`` starts a local Ray
-    with ``workers`` CPUs). An exception in a task propagates.
+    """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks`` on ``pool`` (its progress bar
+    aside); call ``finished(key, result)`` in this process as results arrive (completion
+    order). An exception in a task propagates.
     """
-    check_backend(backend, workers)
     if not tasks:
         return
-    if backend == "ray":
-        _run_ray(fn, tasks, finished, workers, address)
-    elif workers <= 1:
+    if pool.backend == "ray":
+        _run_ray(fn, tasks, finished, pool.workers, pool.address)
+    elif pool.workers <= 1:
         from agents.threads import limited_threads
 
         for key, args in tasks:
@@ -76,8 +88,8 @@ def run_tasks(
                 result = fn(*args)
             finished(key, result)
     else:
-        with ProcessPoolExecutor(max_workers=workers, initializer=pin_worker) as pool:
-            futures = {pool.submit(fn, *args): key for key, args in tasks}
+        with ProcessPoolExecutor(max_workers=pool.workers, initializer=pin_worker) as ex:
+            futures = {ex.submit(fn, *args): key for key, args in tasks}
             for f in as_completed(futures):
                 finished(futures[f], f.result())
 
@@ -86,25 +98,28 @@ def run_tasks_with_progress(
     fn: Callable,
     tasks: Sequence[tuple[Hashable, tuple]],
     finished: Callable[[Hashable, object], None],
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
+    pool: Pool = Pool(),
     *,
     total: int,
     done: int = 0,
     desc: str,
     unit: str,
-    progress_bar: bool = True,
     count: Callable[[Hashable], int] | None = None,
     postfix: Callable[[Hashable, object], str] | None = None,
 ) -> None:
     """:func:`run_tasks` behind a tqdm bar of ``total`` units (``done`` of them finished
-    before): after ``finished(key, result)`` the bar advances by ``count(key)`` (default 1)
-    and shows ``postfix(key, result)`` as ``last=``. The bar closes even when a task raises."""
+    before; no bar without ``pool.progress_bar``): after ``finished(key, result)`` the bar
+    advances by ``count(key)`` (default 1) and shows ``postfix(key, result)`` as ``last=``.
+    The bar closes even when a task raises."""
     from tqdm import tqdm
 
     with tqdm(
-        total=total, initial=done, unit=unit, desc=desc, disable=not progress_bar, smoothing=0.05
+        total=total,
+        initial=done,
+        unit=unit,
+        desc=desc,
+        disable=not pool.progress_bar,
+        smoothing=0.05,
     ) as bar:
 
         def on_result(key, result):
@@ -113,7 +128,7 @@ def run_tasks_with_progress(
             if postfix is not None:
                 bar.set_postfix(last=postfix(key, result))
 
-        run_tasks(fn, tasks, on_result, workers, backend, address)
+        run_tasks(fn, tasks, on_result, pool)
 
 
 def _run_ray(fn, tasks, finished, workers, address) -> None:

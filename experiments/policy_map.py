@@ -39,12 +39,13 @@ from .artifacts import (
     check_track_specs,
     env_version,
     manifest_config,
+    run_missing,
     slug,
     write_json,
     write_text,
 )
 from .bench import REGIONS, BenchConfig, check_agent_specs
-from .parallel import check_backend
+from .parallel import Pool
 
 SCHEMA_VERSION = 1
 MODES = ("solo", "race")
@@ -603,35 +604,31 @@ def plot_heatmaps(rows: list[dict], path, title: str, low, high, dpi: int = 120)
 
 
 # ---------------------------------------------------------------------------- driver
-def policy_map(
-    config: PolicyMapConfig,
-    out_dir,
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
-    progress_bar: bool = True,
-) -> dict:
+def policy_map(config: PolicyMapConfig, out_dir, pool: Pool = Pool()) -> dict:
     """Run (or resume) the policy map ``config`` into ``out_dir``; returns its summary with
     ``new_rows``, the number of rows computed by this call."""
     from racing_env.tracks import make_track
 
-    check_backend(backend, workers)
     for track in config.tracks:  # a typo fails before any run starts
         make_track(track)
     if "race" in config.modes:
         check_agent_specs([config.opponents], config.tracks)
     run = PolicyMapRun(out_dir, config)
-    new = run.run_missing(
-        map_row,
-        lambda key: (config, *key, run.thetas[key[2]]),
-        workers,
-        backend,
-        address,
-        desc="policy map",
-        unit="run",
-        progress_bar=progress_bar,
-        postfix=lambda key, row: f"{key[0]}:{key[1]}:{key[2]}",
-    )
+    new = run_maps({None: run}, pool)
     summary = run.write_outputs()
     summary["new_rows"] = new
     return summary
+
+
+def run_maps(maps: dict, pool: Pool, desc: str = "policy map") -> int:
+    """Compute the missing rows of every :class:`PolicyMapRun` of ``maps`` (name -> run) in
+    one pool, behind one progress bar ``desc``; returns the number of rows computed."""
+    return run_missing(
+        maps,
+        map_row,
+        lambda run, key: (run.config, *key, run.thetas[key[2]]),
+        pool,
+        desc=desc,
+        unit="run",
+        postfix=lambda key, row: f"{key[1][0]}:{key[1][1]}:{key[1][2]}",
+    )

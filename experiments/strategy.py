@@ -55,7 +55,7 @@ from .artifacts import (
     write_text,
 )
 from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, check_spec_fields
-from .parallel import check_backend
+from .parallel import Pool
 
 SCHEMA_VERSION = 1
 SCENARIOS = ("pass", "equal", "defend", "table1")
@@ -240,25 +240,14 @@ class PaceRun(ResumableRun):
         return (record["spec"], record["track"], record["steps"], record["seed"])
 
 
-def measure_pace(
-    config: StrategyConfig, out, workers: int, backend: str, address, progress_bar: bool
-) -> dict:
+def measure_pace(config: StrategyConfig, out, pool: Pool) -> dict:
     """The defend scenario's solo races (missing ones raced, ``pace.jsonl`` resumed);
     returns per track ``{"progress_m": {spec: m or None}, "reasons": {spec: text},
     "gaps": {capped spec: opponent / capped - 1}, "ok": every measured gap >= PACE_GAP and at
     least one measured}``."""
     run = PaceRun(out, config)
     specs = pace_specs(config)
-    run.run_missing(
-        solo_pace,
-        lambda task: task,
-        workers,
-        backend,
-        address,
-        desc="solo pace",
-        unit="race",
-        progress_bar=progress_bar,
-    )
+    run.run_missing(solo_pace, lambda task: task, pool, desc="solo pace", unit="race")
     done = run.records()
     out_pace = {}
     for track in config.tracks:
@@ -283,16 +272,12 @@ def measure_pace(
 def strategy(
     config: StrategyConfig,
     out_dir="results/strategy",
-    workers: int = 2,
-    backend: str = "local",
-    address: str | None = None,
-    progress_bar: bool = True,
+    pool: Pool = Pool(),
 ) -> dict:
     """Run (or resume) the suite ``config`` into ``out_dir`` (module docstring): the defend
     scenario's solo pace races, then every bench's missing races in one pool; writes
     ``strategy.json`` and ``strategy.md`` and returns the former's content with
     ``new_races``, the bench races this call ran."""
-    check_backend(backend, workers)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     todo_cells = cells(config)
@@ -301,10 +286,10 @@ def strategy(
     runs = {(c.bench, c.track, c.role): BenchRun(c.folder(out), c.config) for c in todo_cells}
     pace = None
     if "defend" in config.scenarios:
-        pace = measure_pace(config, out, workers, backend, address, progress_bar)
+        pace = measure_pace(config, out, pool)
     new = sum(len(run.missing()) for run in runs.values())
     t0 = time.perf_counter()
-    _run_many(runs, workers, backend, address, progress_bar)
+    _run_many(runs, pool)
     wall = time.perf_counter() - t0
     history = out / "runs.jsonl"
     if new:
@@ -314,8 +299,8 @@ def strategy(
                 "config": config.to_dict(),
                 "races_simulated": new,
                 "wall_seconds": wall,
-                "workers": workers,
-                "backend": backend,
+                "workers": pool.workers,
+                "backend": pool.backend,
                 "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
             },
         )

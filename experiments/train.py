@@ -51,16 +51,8 @@ from agents.features import (
 )
 from agents.potential import PotentialModel
 
-from .nets import (
-    TrainConfig,
-    TrainingRun,
-    ValueData,
-    discounted_partial_returns,
-    gap_statistics,
-    paired_rollouts,
-    rollout_statistics,
-    value_samples,
-)
+from . import nets
+from .nets import TrainConfig
 
 # ---------------------------------------------------------------------------- data
 
@@ -91,7 +83,9 @@ def train(
         from .train_general import train_general
     else:
         head = {"feature_version": FEATURE_VERSION}
-    run = TrainingRun.open(data_dir, out_dir, cfg, space, head, torch, progress_bar, log, command)
+    run = nets.TrainingRun.open(
+        data_dir, out_dir, cfg, space, head, torch, progress_bar, log, command
+    )
     if family:
         return train_general(run)
     data = load_races(data_dir)
@@ -144,13 +138,13 @@ def _features_in_chunks(states, thetas, r, t, c, track, chunk=200_000):
     return out
 
 
-def _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg) -> ValueData:
+def _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg) -> nets.ValueData:
     """One track, one field size: every ``value_stride``-th step of the training races (every
     5th at least of the held-out ones), every car."""
     R, T, N = rewards.shape
-    P, tail = discounted_partial_returns(rewards, cfg.gamma)
-    tr = value_samples(states, thetas, train_idx, cfg.value_stride, T, N)
-    va = value_samples(states, thetas, val_idx, max(cfg.value_stride, 5), T, N)
+    P, tail = nets.discounted_partial_returns(rewards, cfg.gamma)
+    tr = nets.value_samples(states, thetas, train_idx, cfg.value_stride, T, N)
+    va = nets.value_samples(states, thetas, val_idx, max(cfg.value_stride, 5), T, N)
     X_tr = _features_in_chunks(states, thetas, *tr, track)
     X_va = _features_in_chunks(states, thetas, *va, track)
     # features of every race's final state, for the truncation bootstrap
@@ -159,7 +153,7 @@ def _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg) -> Valu
         np.float32
     )
     parts = lambda smp: (P[smp[0], smp[1], smp[2]], tail[smp[1]], smp[0] * N + smp[2])
-    return ValueData(X_tr, X_va, X_end, *parts(tr), *parts(va))
+    return nets.ValueData(X_tr, X_va, X_end, *parts(tr), *parts(va))
 
 
 def sample_deviations(states, thetas, races, n: int, rng, own_theta_fraction: float = 0.5):
@@ -236,7 +230,7 @@ def validate_gaps(model, states, thetas, val_idx, track, cfg) -> dict:
         states, thetas, val_idx, cfg.val_pairs, rng, cfg.own_theta_fraction
     )
     _, _, dphi, dv = relative_gaps(model, x, th1, th2, i, track, vr)
-    return {"value_range": vr, "val_pairs": int(cfg.val_pairs), **gap_statistics(dphi, dv, vr)}
+    return {"value_range": vr, "val_pairs": int(cfg.val_pairs), **nets.gap_statistics(dphi, dv, vr)}
 
 
 def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_bar) -> dict:
@@ -250,14 +244,14 @@ def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_b
         for k in range(n)
         for th in (th1[k], th2[k])
     ]
-    res = paired_rollouts(jobs, cfg.threads, progress_bar)
+    res = nets.paired_rollouts(jobs, cfg.threads, progress_bar)
     G = np.array([r[0] for r in res]).reshape(n, 2)
     x_end = np.array([r[1] for r in res]).reshape(n, 2, *x.shape[1:])
     boot = cfg.gamma**cfg.rollout_steps
     v_end = np.stack([model.value(x_end[:, k], (th1, th2)[k], track, i) for k in range(2)], axis=1)
     dG = (G[:, 1] + boot * v_end[:, 1]) - (G[:, 0] + boot * v_end[:, 0])
     dphi, dv = approximation_gaps(model, x, th1, th2, i, track)
-    return rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
+    return nets.rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
 
 
 def _box_text(meta: dict) -> str:

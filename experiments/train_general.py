@@ -33,16 +33,8 @@ from agents.features import theta_space
 from agents.general_features import TrackSet
 from agents.potential import PotentialModel
 
+from . import nets
 from .family import RaceGroup, load_family
-from .nets import (
-    TrainingRun,
-    ValueData,
-    discounted_partial_returns,
-    gap_statistics,
-    paired_rollouts,
-    rollout_statistics,
-    value_samples,
-)
 
 
 class FamilyData:
@@ -172,7 +164,7 @@ class FamilyDeviations:
         )
 
 
-def _value_data(data: FamilyData, train_idx, val_idx, cfg, chunk: int = 100_000) -> ValueData:
+def _value_data(data: FamilyData, train_idx, val_idx, cfg, chunk: int = 100_000) -> nets.ValueData:
     """The value dataset over every field size: features with each race's own track and N,
     targets' parts from each race's own rewards."""
     train_set, val_set = set(train_idx.tolist()), set(val_idx.tolist())
@@ -181,13 +173,13 @@ def _value_data(data: FamilyData, train_idx, val_idx, cfg, chunk: int = 100_000)
     for N in data.cars:
         b = data.buckets[N]
         R = len(b["race"])
-        P, tail = discounted_partial_returns(b["rewards"], cfg.gamma)
+        P, tail = nets.discounted_partial_returns(b["rewards"], cfg.gamma)
         for key, chosen, stride in (
             ("tr", train_set, cfg.value_stride),
             ("va", val_set, max(cfg.value_stride, 5)),
         ):
             local = np.array([k for k, g in enumerate(b["race"]) if g in chosen], dtype=np.int64)
-            r, t, c = value_samples(None, None, local, stride, data.T, N)
+            r, t, c = nets.value_samples(None, None, local, stride, data.T, N)
             X = np.empty((len(r), gf.value_dim(space=data.space)), dtype=np.float32)
             for lo in range(0, len(r), chunk):
                 sl = slice(lo, lo + chunk)
@@ -212,7 +204,7 @@ def _value_data(data: FamilyData, train_idx, val_idx, cfg, chunk: int = 100_000)
         )
         offset += R * N
     cat = lambda key, j: np.concatenate([p[j] for p in parts[key]])
-    return ValueData(
+    return nets.ValueData(
         cat("tr", 0),
         cat("va", 0),
         np.concatenate(ends),
@@ -259,12 +251,12 @@ def family_gaps(
         "value_range": vr,
         "value_range_measured": measured,
         "val_pairs": int(pairs),
-        **gap_statistics(dphi, dv, vr),
+        **nets.gap_statistics(dphi, dv, vr),
         "by_cars": {},
     }
     for N in np.unique(b["cars"]):
         m = b["cars"] == N
-        s = gap_statistics(dphi[m], dv[m], vr)
+        s = nets.gap_statistics(dphi[m], dv[m], vr)
         out["by_cars"][str(int(N))] = {
             "pairs": int(m.sum()),
             **{
@@ -296,7 +288,7 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
         for k in range(n)
         for th in thetas[k]
     ]
-    res = paired_rollouts(jobs, cfg.threads, progress_bar)
+    res = nets.paired_rollouts(jobs, cfg.threads, progress_bar)
     boot = cfg.gamma**cfg.rollout_steps
     dG, dphi, dv = np.empty(n), np.empty(n), np.empty(n)
     for k in range(n):
@@ -309,7 +301,7 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
         dG[k] = g[1] - g[0]
         dv[k] = float(model.value(x, th2, tr, i)[0] - model.value(x, th1, tr, i)[0])
         dphi[k] = float(model.potential(x, th2, tr)[0] - model.potential(x, th1, tr)[0])
-    return rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
+    return nets.rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
 
 
 # ---------------------------------------------------------------------------- training
@@ -317,7 +309,7 @@ GENERAL_HEAD = {"feature_set": "general", "feature_version": gf.FEATURE_VERSION}
 """What ties a training run to the general features (its ``train_config.json``'s head)."""
 
 
-def train_general(run: TrainingRun) -> dict:
+def train_general(run: nets.TrainingRun) -> dict:
     """Run (or resume) the three stages of the training ``run`` (opened by
     :func:`experiments.train.train` with :data:`GENERAL_HEAD`) on its family collection;
     returns the metrics (also in ``metrics.json``); writes ``model.npz`` and ``model_card.md``

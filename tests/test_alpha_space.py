@@ -277,6 +277,7 @@ def test_tiny_extended_pipeline_collect_train_race(extended_run):
 def test_training_names_a_space_mismatch(extended_run, tmp_path):
     from experiments.collect import CollectConfig, collect
     from experiments.nets import TrainConfig
+    from experiments.parallel import Pool
     from experiments.train import train
 
     cfg = TrainConfig(
@@ -299,7 +300,9 @@ def test_training_names_a_space_mismatch(extended_run, tmp_path):
     # continuing the extended run's folder on races of the paper's space
     paper = tmp_path / "paper"
     collect(
-        CollectConfig(races=2, steps=3, races_per_shard=2), paper, workers=1, progress_bar=False
+        CollectConfig(races=2, steps=3, races_per_shard=2),
+        paper,
+        pool=Pool(workers=1, progress_bar=False),
     )
     with pytest.raises(
         ValueError,

@@ -16,6 +16,7 @@ from experiments.analyze import (
     slice_state,
 )
 from experiments.cli import main  # noqa: E402
+from experiments.parallel import Pool
 from racing_env.tracks import make_track  # noqa: E402
 
 TINY = AnalyzeConfig(
@@ -89,7 +90,7 @@ def test_bad_config_is_refused():
 
 @pytest.mark.slow
 def test_tiny_analysis_end_to_end(tmp_path):
-    s = analyze(TINY, tmp_path, workers=1, progress_bar=False)
+    s = analyze(TINY, tmp_path, pool=Pool(workers=1, progress_bar=False))
     for name in (
         "track.png",
         "fig2a_approximation_gap.png",
@@ -114,11 +115,11 @@ def test_tiny_analysis_end_to_end(tmp_path):
         assert 1 <= d["maximiser_progress_rank"] <= 4
     # rerun: every part is already there, nothing is recomputed
     mtime = (tmp_path / "regret.jsonl").stat().st_mtime
-    analyze(TINY, tmp_path, workers=1, progress_bar=False)
+    analyze(TINY, tmp_path, pool=Pool(workers=1, progress_bar=False))
     assert (tmp_path / "regret.jsonl").stat().st_mtime == mtime
     # another config is refused
     with pytest.raises(ValueError, match="another config"):
-        analyze(AnalyzeConfig(regret_states=3), tmp_path, workers=1, progress_bar=False)
+        analyze(AnalyzeConfig(regret_states=3), tmp_path, pool=Pool(workers=1, progress_bar=False))
 
 
 @pytest.mark.slow

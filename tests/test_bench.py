@@ -19,6 +19,7 @@ from experiments.bench import (
     wilson_interval,
 )
 from experiments.cli import main  # noqa: E402
+from experiments.parallel import Pool
 
 TINY = BenchConfig(ego="mpc:zeta=0.95", opponents="raceline", races=4, steps=15, seed=3)
 
@@ -99,7 +100,7 @@ def test_a_4_car_benchmark_places_every_car_in_its_region_and_summarises(tmp_pat
     progress = np.array(rec["progress_m"])
     assert rec["margin_m"] == pytest.approx(progress[0] - progress[1:].max(), abs=1e-3)
     assert states.shape == (11, 4, 6) and np.isfinite(states).all()
-    s = bench(cfg, tmp_path, workers=1, progress_bar=False)
+    s = bench(cfg, tmp_path, pool=Pool(workers=1, progress_bar=False))
     check_summary_invariants(s, 4)
     assert sorted(s["by_region"]) == ["R1", "R2", "R3", "R4"]
     assert set(s["wins"]) == {"ego", "O1", "O2", "O3"}
@@ -146,7 +147,7 @@ def check_summary_invariants(s: dict, races: int) -> None:
 
 
 def test_bench_writes_consistent_outputs_and_resumes_after_a_kill(tmp_path):
-    summary = bench(TINY, tmp_path, workers=1, progress_bar=False)
+    summary = bench(TINY, tmp_path, pool=Pool(workers=1, progress_bar=False))
     check_summary_invariants(summary, 4)
     lines = (tmp_path / "races.jsonl").read_text().splitlines()
     assert sorted(json.loads(line)["race"] for line in lines) == [0, 1, 2, 3]
@@ -157,7 +158,7 @@ def test_bench_writes_consistent_outputs_and_resumes_after_a_kill(tmp_path):
     lost = json.loads(lines[3])["race"]
     run = BenchRun(tmp_path, TINY)
     assert run.missing() == [lost]
-    again = bench(TINY, tmp_path, workers=1, progress_bar=False)
+    again = bench(TINY, tmp_path, pool=Pool(workers=1, progress_bar=False))
     check_summary_invariants(again, 4)
     redone = BenchRun(tmp_path, TINY).records()[lost]
     assert redone["progress_m"] == first[lost]["progress_m"]  # deterministic per race
@@ -184,8 +185,8 @@ def test_unknown_paper_case_is_refused(tmp_path):
 def test_ray_backend_gives_the_same_races_as_the_local_pool(tmp_path):
     pytest.importorskip("ray")
     cfg = BenchConfig(ego="mpc:zeta=0.95", opponents="raceline", races=3, steps=10, seed=5)
-    a = bench(cfg, tmp_path / "local", workers=2, progress_bar=False)
-    b = bench(cfg, tmp_path / "ray", workers=2, backend="ray", progress_bar=False)
+    a = bench(cfg, tmp_path / "local", pool=Pool(workers=2, progress_bar=False))
+    b = bench(cfg, tmp_path / "ray", pool=Pool(workers=2, backend="ray", progress_bar=False))
     ra, rb = BenchRun(tmp_path / "local", cfg).records(), BenchRun(tmp_path / "ray", cfg).records()
     assert sorted(ra) == sorted(rb) == [0, 1, 2]
     assert all(ra[k]["progress_m"] == rb[k]["progress_m"] for k in ra)
@@ -211,7 +212,7 @@ def test_tasks_run_on_one_native_thread_in_workers_and_in_the_driver():
     before = {p["filepath"]: p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"}
     for workers in (1, 2):
         out = {}
-        run_tasks(_native_threads, [(k, (k,)) for k in range(2)], out.__setitem__, workers)
+        run_tasks(_native_threads, [(k, (k,)) for k in range(2)], out.__setitem__, Pool(workers))
         assert all(blas and set(blas) == {1} for blas, _ in out.values()), out
         if workers == 2:
             assert all(var == "1" for _, var in out.values())
@@ -221,8 +222,8 @@ def test_tasks_run_on_one_native_thread_in_workers_and_in_the_driver():
 
 def test_alpha_races_are_the_same_with_1_and_2_workers(tmp_path):
     cfg = BenchConfig(ego="alpha", opponents="mpc", races=2, steps=15, seed=1)
-    bench(cfg, tmp_path / "one", workers=1, progress_bar=False)
-    bench(cfg, tmp_path / "two", workers=2, progress_bar=False)
+    bench(cfg, tmp_path / "one", pool=Pool(workers=1, progress_bar=False))
+    bench(cfg, tmp_path / "two", pool=Pool(workers=2, progress_bar=False))
     one, two = BenchRun(tmp_path / "one", cfg), BenchRun(tmp_path / "two", cfg)
     r1, r2 = one.records(), two.records()
     assert sorted(r1) == sorted(r2) == [0, 1]
@@ -319,7 +320,7 @@ def test_ego_regions_fix_the_egos_seat_and_keep_the_default_manifest():
 def test_records_carry_the_metrics_of_their_stored_states_and_old_folders_get_them(tmp_path):
     from experiments.metrics import RECORD_KEYS, record_metrics
 
-    summary = bench(TINY, tmp_path, workers=1, progress_bar=False)
+    summary = bench(TINY, tmp_path, pool=Pool(workers=1, progress_bar=False))
     run = BenchRun(tmp_path, TINY)
     for k, rec in run.records().items():
         assert {key: rec[key] for key in RECORD_KEYS} == record_metrics(run.states(k))

@@ -18,12 +18,13 @@ from experiments.collect import (
     simulate_shard,
     write_shard,
 )
+from experiments.parallel import Pool  # noqa: E402
 
 CFG = CollectConfig(races=4, n_cars=3, steps=15, seed=7, races_per_shard=2)
 
 
 def test_collect_writes_shards_with_the_documented_schema(tmp_path):
-    summary = collect(CFG, tmp_path, workers=1, progress_bar=False)
+    summary = collect(CFG, tmp_path, pool=Pool(workers=1, progress_bar=False))
     assert summary["simulated"] == 4
     data = load_races(tmp_path)
     assert data["states"].shape == (4, 16, 3, 6) and data["states"].dtype == np.float32
@@ -43,8 +44,8 @@ def test_collect_writes_shards_with_the_documented_schema(tmp_path):
 
 
 def test_same_seed_same_data_with_any_worker_count(tmp_path):
-    collect(CFG, tmp_path / "one", workers=1, progress_bar=False)
-    collect(CFG, tmp_path / "two", workers=2, progress_bar=False)
+    collect(CFG, tmp_path / "one", pool=Pool(workers=1, progress_bar=False))
+    collect(CFG, tmp_path / "two", pool=Pool(workers=2, progress_bar=False))
     a, b = load_races(tmp_path / "one"), load_races(tmp_path / "two")
     for key in ("states", "thetas", "rewards", "start_order"):
         np.testing.assert_array_equal(a[key], b[key])
@@ -56,16 +57,18 @@ def test_a_killed_run_resumes_without_losing_finished_races(tmp_path):
     # a run killed after its first shard: that shard finished, the next one half written
     write_shard(simulate_shard(CFG, 0), 0, out)
     (out / "shard_00001.npz").write_bytes(b"truncated")
-    summary = collect(CFG, out, workers=1, progress_bar=False)
+    summary = collect(CFG, out, pool=Pool(workers=1, progress_bar=False))
     assert summary["resumed"] == 2 and summary["simulated"] == 2
     assert load_races(out)["race_index"].tolist() == [0, 1, 2, 3]
 
 
 def test_manifest_mismatch_is_refused(tmp_path):
-    collect(CFG, tmp_path, workers=1, progress_bar=False)
+    collect(CFG, tmp_path, pool=Pool(workers=1, progress_bar=False))
     with pytest.raises(ValueError, match="another configuration"):
         collect(
-            CollectConfig(**{**CFG.__dict__, "seed": 8}), tmp_path, workers=1, progress_bar=False
+            CollectConfig(**{**CFG.__dict__, "seed": 8}),
+            tmp_path,
+            pool=Pool(workers=1, progress_bar=False),
         )
 
 
@@ -94,8 +97,8 @@ def test_collect_command(tmp_path, capsys):
 @pytest.mark.slow
 def test_ray_backend_gives_the_same_data_as_the_local_pool(tmp_path):
     pytest.importorskip("ray")
-    collect(CFG, tmp_path / "local", workers=1, progress_bar=False)
-    collect(CFG, tmp_path / "ray", workers=2, progress_bar=False, backend="ray")
+    collect(CFG, tmp_path / "local", pool=Pool(workers=1, progress_bar=False))
+    collect(CFG, tmp_path / "ray", pool=Pool(workers=2, progress_bar=False, backend="ray"))
     a, b = load_races(tmp_path / "local"), load_races(tmp_path / "ray")
     for key in ("states", "thetas", "rewards", "start_order", "race_index"):
         np.testing.assert_array_equal(a[key], b[key])
@@ -103,7 +106,7 @@ def test_ray_backend_gives_the_same_data_as_the_local_pool(tmp_path):
 
 def test_unknown_backend_is_refused(tmp_path):
     with pytest.raises(ValueError, match="backend must be 'local' or 'ray', got 'spark'"):
-        collect(CFG, tmp_path, backend="spark")
+        collect(CFG, tmp_path, pool=Pool(backend="spark"))
 
 
 def test_rollout_from_a_stored_state_continues_the_race(tmp_path):
@@ -113,8 +116,7 @@ def test_rollout_from_a_stored_state_continues_the_race(tmp_path):
     collect(
         CollectConfig(races=1, n_cars=3, steps=10, seed=3, races_per_shard=1),
         tmp_path,
-        workers=1,
-        progress_bar=False,
+        pool=Pool(workers=1, progress_bar=False),
     )
     d = load_races(tmp_path)
     states, rewards = rollout_from_state("default", d["states"][0, 5], d["thetas"][0], 8)
@@ -132,7 +134,7 @@ def test_an_extended_close_collection_draws_six_parameters_and_starts_close(tmp_
     cfg = CollectConfig(
         races=2, n_cars=3, steps=5, seed=7, races_per_shard=2, space="extended", start="close"
     )
-    collect(cfg, tmp_path, workers=1, progress_bar=False)
+    collect(cfg, tmp_path, pool=Pool(workers=1, progress_bar=False))
     data = load_races(tmp_path)
     th = data["thetas"]
     assert th.shape == (2, 3, 6)
@@ -146,7 +148,7 @@ def test_an_extended_close_collection_draws_six_parameters_and_starts_close(tmp_
 
 
 def load_races_of(cfg, out):
-    collect(cfg, out, workers=1, progress_bar=False)
+    collect(cfg, out, pool=Pool(workers=1, progress_bar=False))
     return load_races(out)
 
 

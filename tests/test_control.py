@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from experiments.artifacts import claim_best_thetas
+from experiments.parallel import Pool
 
 pytest.importorskip("daqp")
 
@@ -317,7 +318,7 @@ def test_ensure_selects_only_missing_tracks_and_claim_refuses_a_changed_table(ta
     cfg = ct.ControlConfig(thetas=2, candidates=1, races=3, steps=20)
     _write(table, _entry("oval", _theta(1)))
     got = ct.ensure_best_thetas(
-        ["oval", "default"], cfg, tmp_path / "ctl", workers=1, progress_bar=False
+        ["oval", "default"], cfg, tmp_path / "ctl", pool=Pool(workers=1, progress_bar=False)
     )
     assert got["oval"]["theta"] == _theta(1) and got["default"]["selection"]["index"] in (0, 1)
     assert [p.parent.name for p in (tmp_path / "ctl").glob("*/selection.json")] == ["default"]
@@ -349,7 +350,7 @@ def test_one_theta_best_player_races_each_track_of_a_league_with_its_own_theta(t
     cfg = LeagueConfig(
         agents=("mpc:theta=best", "raceline"), tracks=("default", "oval"), cars=2, steps=20
     )
-    board = league(cfg, tmp_path / "lg", workers=1, progress_bar=False)
+    board = league(cfg, tmp_path / "lg", pool=Pool(workers=1, progress_bar=False))
     recs = [json.loads(x) for x in (tmp_path / "lg" / "races.jsonl").read_text().splitlines()]
     assert {r["track"] for r in recs} == {"default", "oval"} and board["new_races"] == len(recs)
     # the same theta alone on each track: the progress of the theta=best car in the league
@@ -372,4 +373,4 @@ def test_one_theta_best_player_races_each_track_of_a_league_with_its_own_theta(t
         assert round(float(res.progress[car]), 4) == r["progress_m"][car]
     _write(table, _entry("default", a))
     with pytest.raises(ValueError, match="'mpc:theta=best': no best fixed theta for track 'oval'"):
-        league(cfg, tmp_path / "lg2", workers=1, progress_bar=False)
+        league(cfg, tmp_path / "lg2", pool=Pool(workers=1, progress_bar=False))

@@ -22,6 +22,7 @@ from experiments.family import (
     parse_cars,
     simulate_family_shard,
 )
+from experiments.parallel import Pool
 from racing_env import make_track
 
 TRACK = make_track("default")
@@ -307,8 +308,8 @@ TINY_FAMILY = FamilyConfig(
 
 @needs_mpc
 def test_family_collection_is_the_same_with_1_and_2_workers_and_records_each_shard(tmp_path):
-    collect_family(TINY_FAMILY, tmp_path / "one", workers=1, progress_bar=False)
-    collect_family(TINY_FAMILY, tmp_path / "two", workers=2, progress_bar=False)
+    collect_family(TINY_FAMILY, tmp_path / "one", pool=Pool(workers=1, progress_bar=False))
+    collect_family(TINY_FAMILY, tmp_path / "two", pool=Pool(workers=2, progress_bar=False))
     m1 = json.loads((tmp_path / "one" / "manifest.json").read_text())
     assert m1 == json.loads((tmp_path / "two" / "manifest.json").read_text())
     assert m1["schema_version"] == 2 and m1["kind"] == "family" and len(m1["shards"]) == 4
@@ -332,8 +333,10 @@ def test_family_collection_is_the_same_with_1_and_2_workers_and_records_each_sha
 @pytest.mark.slow
 def test_ray_backend_gives_the_same_family_data_as_the_local_pool(tmp_path):
     pytest.importorskip("ray")
-    collect_family(TINY_FAMILY, tmp_path / "local", workers=1, progress_bar=False)
-    collect_family(TINY_FAMILY, tmp_path / "ray", workers=2, progress_bar=False, backend="ray")
+    collect_family(TINY_FAMILY, tmp_path / "local", pool=Pool(workers=1, progress_bar=False))
+    collect_family(
+        TINY_FAMILY, tmp_path / "ray", pool=Pool(workers=2, progress_bar=False, backend="ray")
+    )
     for k in range(TINY_FAMILY.n_shards):
         with (
             np.load(tmp_path / "local" / f"shard_{k:05d}.npz") as a,
@@ -362,7 +365,7 @@ def test_a_killed_family_collection_resumes_and_a_bad_track_fails_before_any_rac
     out.mkdir()
     write_npz(out / "shard_00000.npz", schema_version=2, **simulate_family_shard(TINY_FAMILY, 0))
     (out / "shard_00001.npz").write_bytes(b"truncated")
-    s = collect_family(TINY_FAMILY, out, workers=1, progress_bar=False)
+    s = collect_family(TINY_FAMILY, out, pool=Pool(workers=1, progress_bar=False))
     assert s["resumed"] == 1 and s["simulated"] == 3
     assert sum(len(g.states) for g in load_family(out)[0]) == 4
     (out / "shard_00003.npz").unlink()  # training refuses an unfinished collection
@@ -372,7 +375,7 @@ def test_a_killed_family_collection_resumes_and_a_bad_track_fails_before_any_rac
         load_family(out)
     bad = FamilyConfig(races=2, tracks=("default", "nosuch"), cars=(2,), steps=5)
     with pytest.raises(ValueError, match="track spec 'nosuch'"):
-        collect_family(bad, tmp_path / "bad", workers=1, progress_bar=False)
+        collect_family(bad, tmp_path / "bad", pool=Pool(workers=1, progress_bar=False))
     assert not (tmp_path / "bad").exists()
 
 
@@ -595,7 +598,7 @@ def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_p
         control_thetas=2,
         control_races=3,
     )
-    s = general_report(cfg, tmp_path, workers=1, progress_bar=False)
+    s = general_report(cfg, tmp_path, pool=Pool(workers=1, progress_bar=False))
     # the control: the best fixed theta on the held-out track, selected first into control/
     sel = json.loads((tmp_path / "control" / "random_10000" / "selection.json").read_text())
     assert (
@@ -632,7 +635,9 @@ def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_p
     ):
         assert part in text
     lines = (tmp_path / "bench" / "random_10000_2cars" / "alpha" / "races.jsonl").read_text()
-    again = general_report(cfg, tmp_path, workers=1, progress_bar=False)  # nothing left to race
+    again = general_report(
+        cfg, tmp_path, pool=Pool(workers=1, progress_bar=False)
+    )  # nothing left to race
     assert (
         tmp_path / "bench" / "random_10000_2cars" / "alpha" / "races.jsonl"
     ).read_text() == lines
@@ -641,10 +646,9 @@ def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_p
         general_report(
             GeneralReportConfig(model=path, tracks=("random:3",)),
             tmp_path / "x",
-            workers=1,
-            progress_bar=False,
+            pool=Pool(workers=1, progress_bar=False),
         )
     held = default_heldout_tracks(["default", "random:10003", "tumftm:Monza"])
     assert "random:10000" in held and "random:10003" not in held and "tumftm:Monza" not in held
     with pytest.raises(ValueError, match="single-track model"):
-        general_report(GeneralReportConfig(model="races400"), tmp_path / "y", workers=1)
+        general_report(GeneralReportConfig(model="races400"), tmp_path / "y", pool=Pool(workers=1))

@@ -17,6 +17,7 @@ pytest.importorskip("openskill")
 from experiments import league as lg  # noqa: E402
 from experiments.artifacts import read_jsonl  # noqa: E402
 from experiments.cli import main  # noqa: E402
+from experiments.parallel import Pool  # noqa: E402
 
 RACELINES = (
     "raceline",
@@ -40,7 +41,7 @@ def _untimed(board: dict) -> dict:
 @pytest.fixture(scope="module")
 def tiny_league(tmp_path_factory):
     out = tmp_path_factory.mktemp("league") / "tiny"
-    board = lg.league(TINY, out, workers=1, progress_bar=False)
+    board = lg.league(TINY, out, pool=Pool(workers=1, progress_bar=False))
     return out, board
 
 
@@ -149,7 +150,7 @@ def test_a_clearly_slower_agent_is_rated_lower(tmp_path):
     cfg = lg.LeagueConfig(
         agents=("mpc", "raceline", "raceline:speed_scale=0.5"), cars=2, steps=60, seed=1
     )
-    board = lg.league(cfg, tmp_path / "slow", workers=1, progress_bar=False)
+    board = lg.league(cfg, tmp_path / "slow", pool=Pool(workers=1, progress_bar=False))
     rows = {r["agent"]: r for r in board["standings"]}
     slow = rows["raceline:speed_scale=0.5"]
     assert slow["rank"] == 3
@@ -226,13 +227,13 @@ def test_resume_after_a_kill_runs_only_the_missing_races(tiny_league, tmp_path):
     lines = (copy / "races.jsonl").read_text().splitlines(keepends=True)
     kept = lines[:9]
     (copy / "races.jsonl").write_text("".join(kept) + lines[9][:25])  # a torn last line
-    again = lg.league(TINY, copy, workers=1, progress_bar=False)
+    again = lg.league(TINY, copy, pool=Pool(workers=1, progress_bar=False))
     assert again["new_races"] == len(lines) - 9
     done = {json.loads(line)["race"] for line in kept}
     appended = [r["race"] for r in read_jsonl(copy / "races.jsonl")][9:]
     assert sorted(appended) == sorted(set(range(len(lines))) - done)
     assert _untimed(again) == _untimed(board)
-    assert lg.league(TINY, copy, workers=1, progress_bar=False)["new_races"] == 0
+    assert lg.league(TINY, copy, pool=Pool(workers=1, progress_bar=False))["new_races"] == 0
 
 
 def test_a_folder_of_another_config_is_refused(tiny_league, capsys):
@@ -240,7 +241,9 @@ def test_a_folder_of_another_config_is_refused(tiny_league, capsys):
     before = (out / "races.jsonl").read_text()
     with pytest.raises(ValueError, match="holds a league of another configuration"):
         lg.league(
-            lg.LeagueConfig(**{**TINY.__dict__, "seed": 5}), out, workers=1, progress_bar=False
+            lg.LeagueConfig(**{**TINY.__dict__, "seed": 5}),
+            out,
+            pool=Pool(workers=1, progress_bar=False),
         )
     assert (
         main(
@@ -275,7 +278,7 @@ def test_records_of_another_schedule_are_refused(tiny_league, tmp_path):
     records[0]["seed"] += 1
     (copy / "races.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
     with pytest.raises(ValueError, match=f"race {records[0]['race']} is not the race"):
-        lg.league(TINY, copy, workers=1, progress_bar=False)
+        lg.league(TINY, copy, pool=Pool(workers=1, progress_bar=False))
 
 
 # ---------------------------------------------------------------------------- input

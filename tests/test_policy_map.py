@@ -10,6 +10,7 @@ pytest.importorskip("daqp")
 from experiments import policy_map as pm  # noqa: E402
 from experiments.artifacts import read_jsonl  # noqa: E402
 from experiments.cli import main  # noqa: E402
+from experiments.parallel import Pool  # noqa: E402
 
 TINY = [
     "policy-map",
@@ -160,7 +161,7 @@ def test_tiny_map_writes_rows_summary_and_heat_maps(tiny_map):
 def test_rerun_resumes_without_recomputing(tiny_map):
     before = (tiny_map / "rows.jsonl").read_bytes()
     cfg = pm.PolicyMapConfig(thetas=4, tracks=("default",), steps=30, seed=5)
-    s = pm.policy_map(cfg, tiny_map, workers=1, progress_bar=False)
+    s = pm.policy_map(cfg, tiny_map, pool=Pool(workers=1, progress_bar=False))
     assert s["new_rows"] == 0
     assert (tiny_map / "rows.jsonl").read_bytes() == before
 
@@ -177,20 +178,20 @@ def test_a_map_of_another_theta_box_is_refused(tiny_map, monkeypatch):
     monkeypatch.setattr(reference, "THETA_HIGH", np.array(reference.THETA_HIGH) + 0.05)
     cfg = pm.PolicyMapConfig(thetas=4, tracks=("default",), steps=30, seed=5)
     with pytest.raises(ValueError, match="another configuration.*theta_box"):
-        pm.policy_map(cfg, tiny_map, workers=1, progress_bar=False)
+        pm.policy_map(cfg, tiny_map, pool=Pool(workers=1, progress_bar=False))
 
 
 @pytest.mark.slow
 def test_same_seed_same_rows_and_a_torn_row_is_redone(tiny_map, tmp_path):
     out = tmp_path / "again"
     cfg = pm.PolicyMapConfig(thetas=4, tracks=("default",), steps=30, seed=5)
-    pm.policy_map(cfg, out, workers=1, progress_bar=False)
+    pm.policy_map(cfg, out, pool=Pool(workers=1, progress_bar=False))
     first = read_jsonl(tiny_map / "rows.jsonl")
     assert _untimed(read_jsonl(out / "rows.jsonl")) == _untimed(first)
     # a kill while writing the last row: a torn line; the rerun computes that row only
     lines = (out / "rows.jsonl").read_text().splitlines()
     (out / "rows.jsonl").write_text("\n".join(lines[:-1]) + "\n" + lines[-1][:25])
-    s = pm.policy_map(cfg, out, workers=1, progress_bar=False)
+    s = pm.policy_map(cfg, out, pool=Pool(workers=1, progress_bar=False))
     assert s["new_rows"] == 1
     assert _untimed(read_jsonl(out / "rows.jsonl")) == _untimed(first)
 

@@ -12,6 +12,7 @@ from experiments import artifacts
 from experiments import league as lg
 from experiments.artifacts import read_jsonl
 from experiments.bench import BenchConfig, bench
+from experiments.parallel import Pool
 
 pytest.importorskip("stable_baselines3")
 
@@ -51,7 +52,7 @@ def _bench_config(checkpoint):
 def test_resumed_bench_with_a_changed_checkpoint_is_refused(tmp_path, checkpoint):
     out = tmp_path / "bench"
     cfg = _bench_config(checkpoint)
-    bench(cfg, out, workers=1, progress_bar=False)
+    bench(cfg, out, pool=Pool(workers=1, progress_bar=False))
     lines = (out / "races.jsonl").read_text().splitlines(keepends=True)
     (out / "races.jsonl").write_text("".join(lines[:1]))  # killed after one race
     manifest = json.loads((out / "manifest.json").read_text())
@@ -73,11 +74,11 @@ def test_resumed_bench_with_a_changed_checkpoint_is_refused(tmp_path, checkpoint
             match=r"raced with other weights.*ppo:checkpoint=.*mine\.zip.*"
             r"was sha256 [0-9a-f]{12}\.\.\., now [0-9a-f]{12}",
         ):
-            bench(cfg, out, workers=1, progress_bar=False)
+            bench(cfg, out, pool=Pool(workers=1, progress_bar=False))
         assert (out / "races.jsonl").read_text() == before  # nothing raced
     finally:
         checkpoint.write_bytes(original)
-    summary = bench(cfg, out, workers=1, progress_bar=False)  # the same weights: resumes
+    summary = bench(cfg, out, pool=Pool(workers=1, progress_bar=False))  # the same weights: resumes
     assert len(read_jsonl(out / "races.jsonl")) == 3 and summary
 
 
@@ -101,7 +102,7 @@ def test_collect_manifest_records_provenance(tmp_path):
     from experiments.collect import CollectConfig, collect
 
     cfg = CollectConfig(races=1, steps=3)
-    collect(cfg, tmp_path / "c", workers=1, progress_bar=False)
+    collect(cfg, tmp_path / "c", pool=Pool(workers=1, progress_bar=False))
     prov = json.loads((tmp_path / "c" / "manifest.json").read_text())["provenance"]
     assert prov["model_files"] == {} and "package_version" in prov and "git_commit" in prov
 
@@ -129,10 +130,10 @@ def test_schedule_of_one_stage_is_unchanged_and_a_join_adds_only_new_groups():
 
 def test_an_agent_joins_a_finished_league_and_only_its_races_run(tmp_path):
     out = tmp_path / "league"
-    board = lg.league(CFG, out, workers=1, progress_bar=False)
+    board = lg.league(CFG, out, pool=Pool(workers=1, progress_bar=False))
     n_before = len(read_jsonl(out / "races.jsonl"))
     full = lg.LeagueConfig(**{**CFG.__dict__, "agents": BASE + (NEW,)})
-    joined = lg.league(full, out, workers=1, progress_bar=False)
+    joined = lg.league(full, out, pool=Pool(workers=1, progress_bar=False))
     records = read_jsonl(out / "races.jsonl")
     new = records[n_before:]
     assert joined["new_races"] == len(new) == 3 * CFG.cars  # 3 new pairs x 2 rotations
@@ -141,7 +142,7 @@ def test_an_agent_joins_a_finished_league_and_only_its_races_run(tmp_path):
     assert sum(row["races"] for row in joined["standings"]) == CFG.cars * len(records)
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["stages"] == [3, 4] and manifest["config"]["agents"] == list(full.agents)
-    assert lg.league(full, out, workers=1, progress_bar=False)["new_races"] == 0
+    assert lg.league(full, out, pool=Pool(workers=1, progress_bar=False))["new_races"] == 0
     # the ratings are a replay over all races, in race order
     replay = lg.rate(sorted(records, key=lambda r: r["race"]), full.agents)
     for row in joined["standings"]:
@@ -153,6 +154,5 @@ def test_an_agent_joins_a_finished_league_and_only_its_races_run(tmp_path):
                 **{**full.__dict__, "agents": BASE + (NEW, "raceline:grip=0.7"), "steps": 21}
             ),
             out,
-            workers=1,
-            progress_bar=False,
+            pool=Pool(workers=1, progress_bar=False),
         )

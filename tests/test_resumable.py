@@ -6,6 +6,7 @@ import json
 import pytest
 
 from experiments.artifacts import ResumableRun, as_stored, claim
+from experiments.parallel import Pool
 
 
 class Squares(ResumableRun):
@@ -44,9 +45,7 @@ def _square(k: int) -> dict:
 def test_run_missing_runs_and_stores_only_the_missing_tasks(tmp_path):
     run = Squares(tmp_path, {"n": 4})
     run.add({"k": 1, "v": 1})
-    kw = dict(
-        workers=1, backend="local", address=None, desc="squares", unit="task", progress_bar=False
-    )
+    kw = dict(pool=Pool(workers=1, progress_bar=False), desc="squares", unit="task")
     assert run.run_missing(_square, lambda task: (task[1],), **kw) == 3
     assert {k: rec["v"] for (_, k), rec in run.records().items()} == {0: 0, 1: 1, 2: 4, 3: 9}
     assert run.run_missing(_square, lambda task: (task[1],), **kw) == 0
@@ -83,3 +82,11 @@ def test_a_record_can_be_dropped_or_refused(tmp_path):
     run.add({"k": -1})
     with pytest.raises(ValueError, match="record -1 is not of this run"):
         run.records()
+
+
+def test_a_pool_is_checked_when_made():
+    assert Pool() == Pool(workers=2, backend="local", address=None, progress_bar=True)
+    with pytest.raises(ValueError, match="workers must be a positive integer, got 0"):
+        Pool(workers=0)
+    with pytest.raises(ValueError, match="backend must be 'local' or 'ray', got 'spark'"):
+        Pool(backend="spark")

@@ -13,6 +13,7 @@ from experiments import strategy as sg  # noqa: E402
 from experiments.bench import BenchRun  # noqa: E402
 from experiments.cli import build_parser, main  # noqa: E402
 from experiments.metrics import RECORD_KEYS, record_metrics  # noqa: E402
+from experiments.parallel import Pool  # noqa: E402
 
 TINY = sg.StrategyConfig(
     ego="alpha", control="mpc:zeta=1.02", tracks=("default",), races=3, steps=20, seed=7
@@ -148,7 +149,7 @@ def test_defend_measures_the_pace_gap_and_flags_a_small_one(tiny_suite):
 def test_a_resumed_suite_runs_no_race_and_writes_the_same_table(tiny_suite):
     out, table = tiny_suite
     lines = {p: p.read_text() for p in out.rglob("*.jsonl")}
-    again = sg.strategy(TINY, out, workers=1, progress_bar=False)
+    again = sg.strategy(TINY, out, pool=Pool(workers=1, progress_bar=False))
     assert again["new_races"] == 0
     assert {p: p.read_text() for p in out.rglob("*.jsonl")} == lines
     assert again["rows"] == table["rows"] and again["pace"] == table["pace"]
