@@ -134,26 +134,37 @@ def approximation_gap(model, heldout_dir, pairs: int, seed: int) -> dict:
     }
 
 
+def _histograms(ax, bins, *layers) -> None:
+    """Overlaid histograms on ``bins``, drawn in order. Each layer is ``(values, colour, alpha,
+    label)``: filled with that alpha, or a step outline (line width 1.2) where alpha is None."""
+    for values, colour, alpha, label in layers:
+        if alpha is None:
+            ax.hist(values, bins=bins, histtype="step", color=colour, lw=1.2, label=label)
+        else:
+            ax.hist(values, bins=bins, color=colour, alpha=alpha, label=label)
+
+
 def plot_gap(gap: dict, path: Path) -> None:
     fig, ax = _figure((6, 4))
     rel = 100 * np.asarray(gap["rel"])
     const = 100 * np.asarray(gap["const_rel"])
     hi = max(20.0, float(np.percentile(const, 99)))
     bins = np.linspace(0, hi, 41)
-    ax.hist(
-        np.clip(const, 0, hi),
-        bins=bins,
-        histtype="step",
-        color="0.5",
-        lw=1.2,
-        label=f"constant potential (median {100 * gap['const_median']:.1f}%)",
-    )
-    ax.hist(
-        np.clip(rel, 0, hi),
-        bins=bins,
-        color="tab:blue",
-        alpha=0.8,
-        label=f"learned Phi (median {100 * gap['median']:.1f}%, 95th {100 * gap['p95']:.1f}%)",
+    _histograms(
+        ax,
+        bins,
+        (
+            np.clip(const, 0, hi),
+            "0.5",
+            None,
+            f"constant potential (median {100 * gap['const_median']:.1f}%)",
+        ),
+        (
+            np.clip(rel, 0, hi),
+            "tab:blue",
+            0.8,
+            f"learned Phi (median {100 * gap['median']:.1f}%, 95th {100 * gap['p95']:.1f}%)",
+        ),
     )
     ax.axvline(100 * gap["median"], color="k", ls="--", lw=1)
     ax.set_xlabel("|dPhi - dV_i| / range(V)  [%]")
@@ -341,21 +352,17 @@ def plot_regret(reg: dict, path: Path) -> None:
     v = 100 * np.asarray(reg["value_regret_rel"])
     hi = max(5.0, float(max(a.max(), v.max())) * 1.05)
     bins = np.linspace(0, hi, 31)
-    ax.hist(
-        a,
-        bins=bins,
-        color="tab:orange",
-        alpha=0.85,
-        label=f"simulated (median {100 * reg['regret_median']:.2f}%, max "
-        f"{100 * reg['regret_max']:.2f}%)",
-    )
-    ax.hist(
-        v,
-        bins=bins,
-        histtype="step",
-        color="k",
-        lw=1.2,
-        label=f"learned V (median {100 * reg['value_regret_median']:.2f}%)",
+    _histograms(
+        ax,
+        bins,
+        (
+            a,
+            "tab:orange",
+            0.85,
+            f"simulated (median {100 * reg['regret_median']:.2f}%, max "
+            f"{100 * reg['regret_max']:.2f}%)",
+        ),
+        (v, "k", None, f"learned V (median {100 * reg['value_regret_median']:.2f}%)"),
     )
     ax.axvline(3.0, color="0.4", ls=":", lw=1, label="paper: within 3%")
     ax.set_xlabel("Nash regret / range(V)  [%]")
