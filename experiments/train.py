@@ -264,6 +264,10 @@ def _space(meta: dict):
     return policy_space(meta.get("space", "paper"))
 
 
+#: Collection options a model card names where the collection changed them from these defaults.
+COLLECT_DEFAULTS = {"space": "paper", "start": "paper", "pace": "box"}
+
+
 def model_card_text(meta: dict) -> str:
     """A short Markdown model card from a model's metadata."""
     m, c, d = meta["metrics"], meta["config"], meta["data"]
@@ -275,9 +279,14 @@ def model_card_text(meta: dict) -> str:
             f"* **Data:** {d['races']} races x {d['steps']} steps x {meta['n_cars']} cars on "
             f"`{meta['track']}` (`alpha-racer collect --races {col.get('races', d['races'])} "
             f"--seed {col.get('seed', 0)}"
-            + (f" --space {col['space']}" if col.get("space", "paper") != "paper" else "")
-            + "`; every car an MPC with theta uniform in its bounds); "
-            f"{100 * c['val_fraction']:.0f}% of the races held out.",
+            + "".join(f" --{k} {col[k]}" for k, v in COLLECT_DEFAULTS.items() if col.get(k, v) != v)
+            + (
+                "`; every car an MPC with theta uniform in its bounds, zeta close to the "
+                "race's own, drawn over the box); "
+                if col.get("pace") == "close"
+                else "`; every car an MPC with theta uniform in its bounds); "
+            )
+            + f"{100 * c['val_fraction']:.0f}% of the races held out.",
             *(
                 [
                     f"* **Theta box** ({', '.join(_space(meta).names)}"
