@@ -530,7 +530,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from .analyze import AnalyzeConfig
     from .bench import BenchConfig
-    from .collect import PACES, START_REGIONS, CollectConfig
+    from .collect import PACE_SPREAD, PACES, START_REGIONS, CollectConfig
     from .control import ControlConfig
     from .general import GeneralReportConfig
     from .league import LeagueConfig
@@ -670,7 +670,8 @@ def build_parser() -> argparse.ArgumentParser:
         (
             "--pace",
             "the cars' zeta: each drawn over the box (the paper's), or close: one zeta per "
-            "race over the box and every car's within 0.03 of it (the field stays together)",
+            f"race over the box and every car's within {PACE_SPREAD:g} of it (the field stays "
+            "together)",
             {"choices": list(PACES)},
         ),
         (

@@ -52,6 +52,7 @@ from agents.features import (
 from agents.potential import PotentialModel
 
 from . import nets
+from .collect import ADDED_FIELDS  # the collection options a card names where they differ
 from .nets import TrainConfig
 
 # ---------------------------------------------------------------------------- data
@@ -264,10 +265,6 @@ def _space(meta: dict):
     return policy_space(meta.get("space", "paper"))
 
 
-#: Collection options a model card names where the collection changed them from these defaults.
-COLLECT_DEFAULTS = {"space": "paper", "start": "paper", "pace": "box"}
-
-
 def model_card_text(meta: dict) -> str:
     """A short Markdown model card from a model's metadata."""
     m, c, d = meta["metrics"], meta["config"], meta["data"]
@@ -279,7 +276,7 @@ def model_card_text(meta: dict) -> str:
             f"* **Data:** {d['races']} races x {d['steps']} steps x {meta['n_cars']} cars on "
             f"`{meta['track']}` (`alpha-racer collect --races {col.get('races', d['races'])} "
             f"--seed {col.get('seed', 0)}"
-            + "".join(f" --{k} {col[k]}" for k, v in COLLECT_DEFAULTS.items() if col.get(k, v) != v)
+            + "".join(f" --{k} {col[k]}" for k, v in ADDED_FIELDS.items() if col.get(k, v) != v)
             + (
                 "`; every car an MPC with theta uniform in its bounds, zeta close to the "
                 "race's own, drawn over the box); "

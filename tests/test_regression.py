@@ -6,7 +6,7 @@ off-track steps, passes), their first 1.5 s of states, and the numeric platform 
 * The first 1.5 s are checked on every machine, to 1e-5 (m, rad, m/s): that far, the races
   agree on every BLAS kernel set tried to 2e-6 (OpenBLAS's SkylakeX and Haswell kernels, numpy
   with and without AVX-512, torch at AVX-512 and AVX2). Later a race at the limit amplifies a
-  last bit by about 10 per step (docs "Which machine").
+  last bit about a thousandfold per second (docs "Which machine").
 * The whole race is checked bit for bit where the platform is the one that made the records
   (the same BLAS kernels, numpy, numba, CasADi and torch builds): elsewhere it is skipped,
   saying which platform made them.
@@ -53,8 +53,12 @@ def numeric_platform() -> dict:
     the numeric packages. Call it after a race, so that every BLAS the race uses is loaded."""
     import casadi
     import numba
-    from numpy._core._multiarray_umath import __cpu_features__ as cpu
     from threadpoolctl import threadpool_info
+
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__ as cpu
+    except ImportError:  # numpy < 2
+        from numpy.core._multiarray_umath import __cpu_features__ as cpu
 
     key = {
         "machine": platform.machine(),
