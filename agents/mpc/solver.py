@@ -443,6 +443,7 @@ class MPC:
             lifted = U.copy()
             lifted[0] = np.clip(lifted[0] - SECOND_START_LIFT, -1.0, 1.0)
             for U2 in (self._follower_warm_start(x0), lifted):
+                self._s_nom = s_nom  # each start guesses progress along the first plan
                 X2, A2, B2 = self._plan(x0, U2)
                 J2, edges2 = score(X2, U2)
                 plan = self._sqp(consts, U2, X2, A2, B2, J2, edges2)
