@@ -403,12 +403,13 @@ def _cmd_policy_map(args) -> int:
 
 
 def _cmd_control(args) -> int:
-    from .control import ControlConfig, select_best_thetas
+    from .control import ControlConfig, default_out, select_best_thetas
     from .family import expand_tracks
 
-    out = Path(args.out)
+    cfg = _config(ControlConfig, args)
+    out = Path(args.out or default_out(cfg.space))
     s = select_best_thetas(
-        _config(ControlConfig, args),
+        cfg,
         expand_tracks(args.tracks),
         out,
         install_table=not args.no_install,
@@ -1017,7 +1018,7 @@ def build_parser() -> argparse.ArgumentParser:
         _cmd_control,
         "choose the best fixed theta per track by a rule from measurements "
         "(policy map, top candidates, seeded playoff) and install it for "
-        "mpc:theta=best (resumable)",
+        "mpc:theta=best, or mpc:space=extended,theta=best with --space extended (resumable)",
     )
     _add_options(
         ct,
@@ -1044,7 +1045,18 @@ def build_parser() -> argparse.ArgumentParser:
             "seed of the Sobol sample, the map's starts and the playoff races "
             "(not 0, the benchmarks' seed)",
         ),
-        ("--out", _RESUME_HELP, {"default": "results/control"}),
+        (
+            "--space",
+            "policy space whose box is searched (extended adds b, the weight of the "
+            "lap-time line; its winner is raced by mpc:space=extended,theta=best)",
+            {"choices": sorted(SPACES)},
+        ),
+        (
+            "--out",
+            _RESUME_HELP
+            + " (default results/control, results/control_extended for --space extended)",
+            {"default": None},
+        ),
         ("--no-install", "only measure: leave the best-theta table unchanged", _SWITCH),
         (
             "--table",
