@@ -146,7 +146,8 @@ def git_commit() -> str | None:
 def agent_model_files(spec: str, agent=None) -> list[Path]:
     """The model and checkpoint files the agent of ``spec`` loads: its ``model_files()`` if it
     has one (``ppo``: the checkpoint and a ``vecnormalize`` file); for ``alpha``, the shipped
-    model its ``model`` names (both candidates of ``model=auto``) or the path; and any spec
+    model its ``model`` names (every candidate of ``model=auto`` in the agent's policy space,
+    :data:`agents.alpha_agent.AUTO_MODELS`) or the path; and any spec
     parameter value that is an existing file (a plugin's ``weights=...``)."""
     from agents import make_agent_spec
 
@@ -156,9 +157,11 @@ def agent_model_files(spec: str, agent=None) -> list[Path]:
         files += [Path(f) for f in agent.model_files()]
     name = getattr(agent, "model_name", None)
     if spec.partition(":")[0] == "alpha" and isinstance(name, str):
+        from agents.alpha_agent import AUTO_MODELS
         from agents.potential import MODEL_DIR, SHIPPED
 
-        names = ["default", "general"] if name == "auto" else [name]
+        auto = [n for n in AUTO_MODELS[getattr(agent, "space", "paper")] if n is not None]
+        names = auto if name == "auto" else [name]
         files += [MODEL_DIR / SHIPPED[n] if n in SHIPPED else Path(n) for n in names]
     for item in filter(None, spec.partition(":")[2].split(",")):
         value = item.partition("=")[2].strip()
