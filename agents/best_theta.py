@@ -195,8 +195,9 @@ def lookup(track: str | Track, path: str | os.PathLike | None = None, space: str
                 f"this track's {fp}); run `{control_command(same[0], space)}` to choose it again"
             )
         raise ValueError(
-            f"no best fixed theta{_in_space(space)} for track {spec!r} in {path} (it has: "
-            f"{', '.join(sorted(entries)) or 'no tracks'}{_in_space(space)}); run "
+            f"no best fixed theta{_in_space(space)} for track {spec!r} in {path} (it has"
+            f"{'' if space == PAPER else ' in that space'}: "
+            f"{', '.join(sorted(entries)) or 'no tracks'}); run "
             f"`{control_command(spec, space)}` to choose and install it"
         )
     key, entry = found[0]
