@@ -31,19 +31,28 @@ if TYPE_CHECKING:
     from racing_env.track import Track
 
 AUTO = "auto"
+AUTO_MODELS = {"paper": ("default", "general"), "extended": ("extended", None)}
+"""The shipped models ``model="auto"`` chooses from, per policy space: ``(single-track,
+track-general)`` (names of :data:`agents.potential.SHIPPED`; no general model of the extended
+space is shipped)."""
 
 
-def auto_model(track_name: str, n_cars: int) -> str:
-    """The shipped model that ``model="auto"`` races with: the paper's single-track
-    ``default`` model on the track and field size it was trained for (``default``, 3 cars),
-    where specialisation is possible; the track-general ``general`` model everywhere else
-    (``default`` again if ``general`` is not installed, which then refuses or warns)."""
+def auto_model(track_name: str, n_cars: int, space: str = "paper") -> str:
+    """The shipped model that ``model="auto"`` races with in policy space ``space``
+    (:data:`AUTO_MODELS`): the space's single-track model on the track and field size it was
+    trained for (``default`` and ``extended``: track ``default``, 3 cars), where
+    specialisation is possible; the space's track-general model everywhere else (the
+    single-track model again if the space has none or it is not installed, which then
+    refuses another field size and warns on another track)."""
     from .potential import MODEL_DIR, SHIPPED
 
-    single = cached_model("default")
+    single_name, general = AUTO_MODELS[policy_space(space).name]
+    single = cached_model(single_name)
     if track_name == single.meta.get("track") and n_cars == single.n_cars:
-        return "default"
-    return "general" if (MODEL_DIR / SHIPPED["general"]).exists() else "default"
+        return single_name
+    if general is not None and (MODEL_DIR / SHIPPED[general]).exists():
+        return general
+    return single_name
 
 
 @register_agent("alpha")
@@ -66,11 +75,14 @@ class AlphaAgent(MPCAgent):
 
     ``space``: the policy space maximised over and driven in (``"paper"`` or ``"extended"``,
     :data:`agents.theta.SPACES`); by default the model's (:attr:`PotentialModel.space
-    <agents.potential.PotentialModel.space>`). A model of another space than the one asked
-    for is a ``ValueError`` naming both. The shipped models (and so ``model="auto"``) are
-    the paper's; ``space="extended"`` races a model trained on an extended collection
-    (``alpha-racer collect --space extended``, then ``alpha-racer train``), maximising over
-    the six-dimensional box (``b`` in [0, 1]) with its MPC built for the extended space.
+    <agents.potential.PotentialModel.space>`), the paper's with ``model="auto"``. A model of
+    another space than the one asked for is a ``ValueError`` naming both. With
+    ``model="auto"`` the space picks the shipped models (:data:`AUTO_MODELS`):
+    ``space="extended"`` races the shipped ``extended`` model (trained on
+    ``alpha-racer collect --space extended --start close --pace close`` races on ``default``,
+    3 cars; agents/models/MODEL_CARD.md), maximising over the six-dimensional box (``b`` in
+    [0, 1]) with its MPC built for the extended space; ``model=PATH`` races another model
+    of that space.
     """
 
     param_notes = {
@@ -102,11 +114,12 @@ class AlphaAgent(MPCAgent):
         if space is None:  # the model's (the shipped ones: the paper's)
             space = "paper" if self.auto else self.model.space.name
         space = policy_space(space).name  # names the choices if unknown
-        if self.auto and space != "paper":
+        if self.auto and space not in AUTO_MODELS:
             raise ValueError(
-                f"model='auto' races the shipped models, of the 'paper' policy "
-                f"space; space={space!r} needs model=<the model.npz of a model "
-                f"trained on races of the {space!r} space>"
+                f"model='auto' races the shipped models of the "
+                f"{', '.join(map(repr, AUTO_MODELS))} policy spaces; space={space!r} "
+                f"needs model=<the model.npz of a model trained on races of the "
+                f"{space!r} space>"
             )
         if not self.auto:
             self._check_space(space)
@@ -205,7 +218,7 @@ class AlphaAgent(MPCAgent):
         cold = self._theta_joint is None
         if cold:
             if self.model is None:  # model="auto"
-                self.model = cached_model(auto_model(self.track.name, len(joint)))
+                self.model = cached_model(auto_model(self.track.name, len(joint), self.space))
                 self._check_space(self.space)
                 self._check_track()
             self._check_field(len(joint))

@@ -74,8 +74,9 @@ class MPCAgent:
 
     ``theta`` keywords ``q, zeta, s1, s2, s3`` (each defaults to :data:`DEFAULT_THETA`'s: a
     mid-range, safe setting, zeta 0.9), or ``theta="best"``: at every ``reset(track)`` the
-    track's best fixed theta from the table of :mod:`agents.best_theta` (chosen by
-    ``alpha-racer control``; a track missing from the table, or chosen on another env version,
+    track's best fixed theta of the agent's policy space (``space``) from the table of
+    :mod:`agents.best_theta` (chosen by ``alpha-racer control``, over the extended box with
+    ``--space extended``; a track missing from the table, or chosen on another env version,
     is a ``ValueError`` naming the track and the command that adds it; with ``theta="best"``
     the theta keywords must not be given). Further: an
     :class:`MPCConfig`, :class:`VehicleParams`, and the env's ``n_preview`` (to read the
@@ -99,7 +100,10 @@ class MPCAgent:
     }
     #: what ``alpha-racer agents`` shows for the theta keywords (their signature default is None)
     param_defaults = {k: getattr(DEFAULT_THETA, k) for k in EXTENDED_NAMES}
-    param_notes = {"theta": "'best': the track's best fixed theta, chosen by alpha-racer control"}
+    param_notes = {
+        "theta": "'best': the track's best fixed theta of the agent's space, chosen by "
+        "alpha-racer control"
+    }
 
     def __init__(
         self,
@@ -165,7 +169,7 @@ class MPCAgent:
 
         track = make_track(track)
         if self.best:  # before anything is built: a missing entry fails fast
-            self.theta = best_theta(track)
+            self.theta = best_theta(track, space=self.space)
         if self.mpc is None or self.track is not track:
             self.mpc = MPC(track, self.vehicle, self.config, line=self.line)
         self.track = track
@@ -179,7 +183,7 @@ class MPCAgent:
         """Raise the ``ValueError`` that ``reset(track)`` would for a track without a best
         theta (``theta="best"`` only; nothing is built), so a run fails before its races."""
         if self.best:
-            best_theta(track)
+            best_theta(track, space=self.space)
 
     def _pass_side(self) -> str | None:
         """The overtake shift's side rule for :func:`reference_trajectory`: ``"room"`` in the

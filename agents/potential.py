@@ -38,6 +38,7 @@ SHIPPED = {
     "gamma0.995": "alpha_gamma0995.npz",
     "races400": "alpha_races400.npz",
     "general": "alpha_general.npz",
+    "extended": "alpha_extended.npz",
 }
 #: How to make a shipped model that is missing (the general model is trained by the user).
 HOW_TO_TRAIN = {
@@ -338,7 +339,7 @@ _LOADED: dict = {}
 
 def load_model(name_or_path: str | os.PathLike = "default") -> PotentialModel:
     """A shipped model by name (``default``, ``gamma0.98``, ``gamma0.995``, ``races400``,
-    ``general``) or a path to a ``model.npz``."""
+    ``general``, ``extended``: the extended policy space's) or a path to a ``model.npz``."""
     if str(name_or_path) in SHIPPED:
         path = MODEL_DIR / SHIPPED[str(name_or_path)]
         if not path.exists():

@@ -101,6 +101,33 @@ def _value_range(model) -> float:
 
 
 # ---------------------------------------------------------------------------- Figure 2a
+def heldout_config(model, cfg: AnalyzeConfig, workers: int):
+    """The :class:`~experiments.collect.CollectConfig` of the approximation gap's held-out
+    races: ``cfg.heldout_races`` fresh races (seed ``cfg.heldout_seed``) of ``cfg.steps``
+    steps on the model's track with its number of cars, drawn as its training races were:
+    the policy space, start regions and paces of the collection in its metadata (the
+    collection's defaults, the paper's, for what it does not name). So an extended model is
+    measured on thetas of its own six-parameter box, from its own starts."""
+    from experiments.collect import ADDED_FIELDS, CollectConfig
+
+    trained_on = model.meta.get("data", {}).get("collect", {})
+    drawn = {k: trained_on.get(k, v) for k, v in ADDED_FIELDS.items()}
+    if drawn["space"] != model.space.name:
+        raise ValueError(
+            f"model {cfg.model!r} is of the {model.space.name!r} policy space but its "
+            f"metadata names a collection of the {drawn['space']!r} space"
+        )
+    return CollectConfig(
+        races=cfg.heldout_races,
+        n_cars=model.n_cars,
+        steps=cfg.steps,
+        track=model.meta["track"],
+        seed=cfg.heldout_seed,
+        races_per_shard=max(1, min(10, cfg.heldout_races // workers)),
+        **drawn,
+    )
+
+
 def approximation_gap(model, heldout_dir, pairs: int, seed: int) -> dict:
     """Gaps |dPhi - dV_i| / range(V) of ``pairs`` unilateral deviations at states of the
     held-out races in ``heldout_dir``, and those of a constant potential."""
@@ -626,7 +653,7 @@ def analyze(
 ) -> dict:
     """Run every analysis into ``out_dir`` (skipping parts whose outputs exist unless
     ``force``); returns ``summary.json``'s content."""
-    from experiments.collect import CollectConfig, collect
+    from experiments.collect import collect
     from racing_env.tracks import make_track
 
     model = _model(cfg.model)
@@ -648,15 +675,7 @@ def analyze(
 
     # Figure 2a: approximation gap on fresh held-out races
     if force or not (out / "gap.json").exists():
-        ccfg = CollectConfig(
-            races=cfg.heldout_races,
-            n_cars=model.n_cars,
-            steps=cfg.steps,
-            track=model.meta["track"],
-            seed=cfg.heldout_seed,
-            races_per_shard=max(1, min(10, cfg.heldout_races // pool.workers)),
-        )
-        collect(ccfg, out / "heldout", pool)
+        collect(heldout_config(model, cfg, pool.workers), out / "heldout", pool)
         gap = approximation_gap(model, out / "heldout", cfg.gap_pairs, cfg.seed)
         gap["seconds"] = time.perf_counter() - t0
         write_json(out / "gap.json", gap)

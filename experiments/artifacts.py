@@ -146,7 +146,8 @@ def git_commit() -> str | None:
 def agent_model_files(spec: str, agent=None) -> list[Path]:
     """The model and checkpoint files the agent of ``spec`` loads: its ``model_files()`` if it
     has one (``ppo``: the checkpoint and a ``vecnormalize`` file); for ``alpha``, the shipped
-    model its ``model`` names (both candidates of ``model=auto``) or the path; and any spec
+    model its ``model`` names (every candidate of ``model=auto`` in the agent's policy space,
+    :data:`agents.alpha_agent.AUTO_MODELS`) or the path; and any spec
     parameter value that is an existing file (a plugin's ``weights=...``)."""
     from agents import make_agent_spec
 
@@ -156,9 +157,11 @@ def agent_model_files(spec: str, agent=None) -> list[Path]:
         files += [Path(f) for f in agent.model_files()]
     name = getattr(agent, "model_name", None)
     if spec.partition(":")[0] == "alpha" and isinstance(name, str):
+        from agents.alpha_agent import AUTO_MODELS
         from agents.potential import MODEL_DIR, SHIPPED
 
-        names = ["default", "general"] if name == "auto" else [name]
+        auto = [n for n in AUTO_MODELS[getattr(agent, "space", "paper")] if n is not None]
+        names = auto if name == "auto" else [name]
         files += [MODEL_DIR / SHIPPED[n] if n in SHIPPED else Path(n) for n in names]
     for item in filter(None, spec.partition(":")[2].split(",")):
         value = item.partition("=")[2].strip()
@@ -285,24 +288,49 @@ def check_track_specs(tracks) -> None:
         raise ValueError(f"tracks must be distinct track specs, got {list(tracks)}")
 
 
+def best_theta_spaces(specs) -> list[str]:
+    """The policy spaces whose best-theta entries the agent specs of ``specs`` race
+    (``theta=best``; the spec's ``space``, the paper's when it names none), in order of first
+    use."""
+    spaces = []
+    for spec in specs:
+        items = spec.replace(" ", "").partition(":")[2].split(",")
+        params = dict(item.partition("=")[::2] for item in items if item)
+        if params.get("theta") == "best":
+            spaces.append(params.get("space", "paper"))
+    return list(dict.fromkeys(spaces))
+
+
 def uses_best_theta(specs) -> bool:
     """Whether any agent spec of ``specs`` races the best-theta table (``theta=best``)."""
-    return any("theta=best" in spec.replace(" ", "") for spec in specs)
+    return bool(best_theta_spaces(specs))
 
 
-def claim_best_thetas(folder, tracks, table=None) -> dict:
-    """Tie ``folder`` (a run whose races use ``mpc:theta=best``) to the thetas the table now
-    holds for ``tracks``: ``folder/best_fixed_theta.json`` records them, and a later run after
-    the table changed is refused (its races would mix two controls). Returns the entries."""
+def claim_best_thetas(folder, tracks, table=None, spaces=("paper",)) -> dict:
+    """Tie ``folder`` (a run whose races use ``mpc:theta=best``, or ``theta=best`` in another
+    policy space of ``spaces``) to the thetas the table now holds for ``tracks``:
+    ``folder/best_fixed_theta.json`` records them (the paper's under ``config``, as before
+    policy spaces; another space's under ``spaces``), and a later run after the table
+    changed is refused (its races would mix two controls). Returns the entries by space and
+    track."""
     from agents.best_theta import lookup
 
-    entries = {t: lookup(t, table) for t in dict.fromkeys(tracks)}
+    tracks = list(dict.fromkeys(tracks))
+    entries = {s: {t: lookup(t, table, s) for t in tracks} for s in dict.fromkeys(spaces)}
+    meta = {
+        "config": {
+            t: {"theta": e["theta"], "env": e["env"]} for t, e in entries.get("paper", {}).items()
+        }
+    }
+    others = {
+        s: {t: {"theta": e["theta"], "env": e["env"]} for t, e in by_track.items()}
+        for s, by_track in entries.items()
+        if s != "paper"
+    }
+    if others:
+        meta["spaces"] = others
     Path(folder).mkdir(parents=True, exist_ok=True)
-    claim(
-        Path(folder) / "best_fixed_theta.json",
-        {"config": {t: {"theta": e["theta"], "env": e["env"]} for t, e in entries.items()}},
-        "races of a best fixed theta",
-    )
+    claim(Path(folder) / "best_fixed_theta.json", meta, "races of a best fixed theta")
     return entries
 
 
@@ -350,8 +378,9 @@ class ResumableRun:
             claim(self.manifest_path, stored, self.what, provenance=prov)
             merged = json.loads(self.manifest_path.read_text()).get("provenance")
             write_json(self.manifest_path, meta if prov is None else {**meta, "provenance": merged})
-        if agents is not None and uses_best_theta(agents):  # a changed table never mixes in
-            claim_best_thetas(self.out, tracks)
+        spaces = best_theta_spaces(agents or ())
+        if spaces:  # a changed table never mixes in
+            claim_best_thetas(self.out, tracks, spaces=spaces)
 
     def tasks(self) -> list:
         """Every task of the run, in order."""

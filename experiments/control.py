@@ -5,7 +5,8 @@ A learned potential that chooses theta online is only worth something against th
 *fixed* theta in the same seat. This module finds that theta on each track, never by hand:
 
 1. **Map** (:mod:`experiments.policy_map`): ``thetas`` scrambled-Sobol thetas (seed ``seed``)
-   of the theta box, each alone from the grid (``solo``) and as car_0 against two
+   of the theta box of policy space ``space`` (the paper's five parameters by default; the
+   extended space's six with ``b``, ``--space extended``), each alone from the grid (``solo``) and as car_0 against two
    ``opponents`` from the start regions (``race``, theta k from R(k mod 3 + 1)), ``steps``
    control periods each.
 2. **Candidates** (:func:`choose_candidates`): among the thetas on track in both modes (at
@@ -26,7 +27,8 @@ A learned potential that chooses theta online is only worth something against th
    every candidate with its map and playoff scores, the winner, the env version
    (``RacingParallelEnv.metadata["name"]``), the track's geometry fingerprint and the package
    version; with ``install`` the winner goes into the table that ``mpc:theta=best`` races
-   (:mod:`agents.best_theta`).
+   (:mod:`agents.best_theta`; an extended selection into the table's extended entries, raced
+   by ``mpc:space=extended,theta=best``).
 
 Opponents (default ``raceline``, for both the map's race mode and the playoff): the
 raceline follower is the strongest simple baseline. It drives the racing line at the car's
@@ -36,7 +38,8 @@ Seeds: ``seed`` (default 100) seeds the Sobol sample, the map's start positions 
 playoff's races; the benchmarks (``bench``, ``league``, ``general-report``) use seed 0 by
 default, and seed 0 is refused here, so the playoff never races a benchmark's races.
 
-Output folder (resumable; run the same command again, also with more tracks):
+Output folder (resumable; run the same command again, also with more tracks; default
+``results/control``, ``results/control_extended`` for the extended space):
 
 * ``manifest.json``: schema version, the :class:`ControlConfig` (without tracks) and the
   env version; a folder of another config or env is refused.
@@ -52,12 +55,20 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .artifacts import append_jsonl, claim, read_jsonl, slug, write_json, write_text
+from .artifacts import (
+    append_jsonl,
+    claim,
+    manifest_config,
+    read_jsonl,
+    slug,
+    write_json,
+    write_text,
+)
 from .bench import REGIONS, BenchConfig, BenchRun, _run_many, check_agent_specs
 from .parallel import Pool
 from .policy_map import MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, run_maps, theta_spec
@@ -65,6 +76,30 @@ from .policy_map import MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, r
 SCHEMA_VERSION = 1
 BEST_FIXED_SPEC = "mpc:theta=best"
 """The control's agent spec: the ``mpc`` agent with the track's best fixed theta."""
+ADDED_FIELDS = {"space": "paper"}
+"""Config fields added after selections were first made, with their defaults: a manifest and a
+``selection.json`` record them only when they differ
+(:func:`experiments.artifacts.manifest_config`), so paper folders resume unchanged."""
+DEFAULT_OUT = {"paper": "results/control", "extended": "results/control_extended"}
+"""The default output folder per policy space (a folder holds the selections of one space)."""
+
+
+def best_fixed_spec(space: str = "paper") -> str:
+    """The control's agent spec in policy space ``space``: :data:`BEST_FIXED_SPEC` for the
+    paper's, ``mpc:space=<space>,theta=best`` for another."""
+    from agents.theta import policy_space
+
+    name = policy_space(space).name
+    return BEST_FIXED_SPEC if name == "paper" else f"mpc:space={name},theta=best"
+
+
+def default_out(space: str = "paper") -> str:
+    """The control folder of policy space ``space`` (:data:`DEFAULT_OUT`)."""
+    from agents.theta import policy_space
+
+    return DEFAULT_OUT.get(policy_space(space).name, f"results/control_{space}")
+
+
 RULE = (
     "map: Sobol thetas of the box, solo and as car_0 against two opponents (race); "
     f"candidates: thetas with at most {100 * OFF_TRACK_LIMIT:g}% of the steps off track in both modes, the top "
@@ -87,8 +122,9 @@ class ControlConfig:
     3: every start region equally often), ``steps`` control periods of 0.1 s per run (map and
     playoff), ``opponents`` the agent spec of the two other cars (map and playoff), ``seed``
     the seed of the Sobol sample, the map's starts and the playoff races (not 0, the
-    benchmarks' seed). Defaults: about 6 CPU-minutes per track (256 map runs, up to 180
-    playoff races)."""
+    benchmarks' seed), ``space`` the policy space whose box is mapped (``"paper"`` or
+    ``"extended"``, :data:`agents.theta.SPACES`). Defaults: about 6 CPU-minutes per track
+    (256 map runs, up to 180 playoff races)."""
 
     thetas: int = 128
     candidates: int = 5
@@ -96,8 +132,12 @@ class ControlConfig:
     steps: int = 500
     opponents: str = "raceline"
     seed: int = 100
+    space: str = "paper"
 
     def __post_init__(self):
+        from agents.theta import policy_space
+
+        policy_space(self.space)  # names the choices if unknown
         for name in ("thetas", "candidates", "races", "steps"):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
@@ -131,10 +171,12 @@ class ControlConfig:
             steps=self.steps,
             seed=self.seed,
             opponents=self.opponents,
+            space=self.space,
         )
 
     def playoff_config(self, track: str, theta) -> BenchConfig:
-        """The playoff races of the candidate ``theta`` (5,) on ``track``."""
+        """The playoff races of the candidate ``theta`` (dim,) of the config's space on
+        ``track``."""
         return BenchConfig(
             ego=theta_spec(theta),
             opponents=self.opponents,
@@ -268,10 +310,16 @@ def track_dir(out_dir, track: str) -> Path:
     return Path(out_dir) / slug(track)
 
 
-def _theta_array(theta: dict) -> np.ndarray:
-    from agents.reference import THETA_NAMES
+def _theta_array(theta: dict, space: str = "paper") -> np.ndarray:
+    """A stored theta (name -> value) as an array (dim,) in policy space ``space``'s order."""
+    from agents.theta import policy_space
 
-    return np.array([theta[n] for n in THETA_NAMES], dtype=float)
+    return np.array([theta[n] for n in policy_space(space).names], dtype=float)
+
+
+def stored_config(cfg: ControlConfig) -> dict:
+    """The config as a manifest and ``selection.json`` record it (:data:`ADDED_FIELDS`)."""
+    return manifest_config(cfg, ADDED_FIELDS)
 
 
 def _run_key(track: str, index: int) -> str:
@@ -283,7 +331,8 @@ def _playoff_runs(cfg: ControlConfig, out: Path, track: str, cands) -> dict:
     folder = track_dir(out, track) / "playoff"
     return {
         _run_key(track, c["index"]): BenchRun(
-            folder / f"theta_{c['index']:04d}", cfg.playoff_config(track, _theta_array(c["theta"]))
+            folder / f"theta_{c['index']:04d}",
+            cfg.playoff_config(track, _theta_array(c["theta"], cfg.space)),
         )
         for c in cands
     }
@@ -317,7 +366,7 @@ def _selection(cfg: ControlConfig, track: str, map_run: PolicyMapRun, cands, run
         "env": env_name(),
         "package_version": __version__,
         "rule": RULE,
-        "config": asdict(cfg),
+        "config": stored_config(cfg),
         "map": {
             "rows": len(rows),
             "errors": sum("error" in r for r in rows),
@@ -334,14 +383,23 @@ def selection_sha256(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def selection_space(selection: dict) -> str:
+    """The policy space of a ``selection.json``'s content (``"paper"`` when its config does
+    not name one: every selection made before policy spaces)."""
+    return selection["config"].get("space", "paper")
+
+
 def install(selection_path, table=None) -> dict:
     """Put the winner of ``selection_path`` (a ``selection.json``) into the best-theta table
-    ``table`` (default :func:`agents.best_theta.table_path`), replacing the track's entry
-    (and any entry of the same geometry under another spec); returns the new entry."""
-    from agents.best_theta import read_table, table_path
+    ``table`` (default :func:`agents.best_theta.table_path`) among the entries of the
+    selection's policy space, replacing the track's entry there (and any entry of the same
+    geometry under another spec); the other spaces' entries are kept. Returns the new entry
+    (with ``space`` unless it is the paper's)."""
+    from agents.best_theta import read_table, set_space_entries, space_entries, table_path
 
     selection_path = Path(selection_path)
     sel = json.loads(selection_path.read_text())
+    space = selection_space(sel)
     path = Path(table) if table is not None else table_path()
     current = read_table(path)
     w = sel["winner"]
@@ -364,13 +422,15 @@ def install(selection_path, table=None) -> dict:
             "candidates": len(sel["candidates"]),
         },
     }
+    if space != "paper":
+        entry["space"] = space
     tracks = {
         k: e
-        for k, e in current["tracks"].items()
+        for k, e in space_entries(current, space).items()
         if k != sel["track"] and e["fingerprint"] != sel["fingerprint"]
     }
     tracks[sel["track"]] = entry
-    current["tracks"] = dict(sorted(tracks.items()))
+    set_space_entries(current, space, tracks)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json(path, current)
     return entry
@@ -380,7 +440,7 @@ def install(selection_path, table=None) -> dict:
 def select_best_thetas(
     cfg: ControlConfig,
     tracks,
-    out_dir="results/control",
+    out_dir=None,
     pool: Pool = Pool(),
     install_table: bool = True,
     table=None,
@@ -388,8 +448,9 @@ def select_best_thetas(
     """Run (or resume) the selection ``cfg`` on every track of ``tracks`` into ``out_dir``
     (maps of all tracks in one pool, then all playoffs in one pool), write every track's
     ``selection.json`` and, with ``install_table``, put the winners into the best-theta table
-    ``table`` (default: the one ``mpc:theta=best`` reads). Returns ``summary.json``'s content
-    with ``new_map_runs``, ``new_races`` and ``wall_seconds_this_run``."""
+    ``table`` (default: the one ``mpc:theta=best`` reads). ``out_dir`` defaults to
+    :func:`default_out` of the config's space. Returns ``summary.json``'s content with
+    ``new_map_runs``, ``new_races`` and ``wall_seconds_this_run``."""
     from agents.best_theta import env_name
     from racing_env.tracks import make_track
 
@@ -399,11 +460,11 @@ def select_best_thetas(
     for track in tracks:  # a typo fails before any run starts
         make_track(track)
     check_agent_specs([cfg.opponents], tracks)
-    out = Path(out_dir)
+    out = Path(out_dir if out_dir is not None else default_out(cfg.space))
     out.mkdir(parents=True, exist_ok=True)
     claim(
         out / "manifest.json",
-        {"schema_version": SCHEMA_VERSION, "config": asdict(cfg), "env": env_name()},
+        {"schema_version": SCHEMA_VERSION, "config": stored_config(cfg), "env": env_name()},
         "a best-fixed-theta selection",
     )
     t0 = time.perf_counter()
@@ -477,22 +538,25 @@ def write_summary(out_dir) -> dict:
 
 
 def summary_markdown(summary: dict, selections) -> str:
-    from agents.reference import THETA_NAMES
+    from agents.theta import policy_space
 
     c = summary["config"]
+    space = c.get("space", "paper")
+    names = policy_space(space).names
+    head = "" if space == "paper" else f" of the {space} policy space"
     lines = [
-        "# The best fixed theta per track (the control)",
+        f"# The best fixed theta{head} per track (the control)",
         "",
         f"Env `{summary['env']}`. Rule: {summary['rule']}. Map: {c['thetas']} thetas "
         f"(seed {c['seed']}), {c['steps']} steps per run; K = {c['candidates']}; playoff: "
         f"{c['races']} races per candidate against two `{c['opponents']}`.",
         "",
-        "| track | winner (q, zeta, s1, s2, s3) | wins | margin m | candidates | eligible "
+        f"| track | winner ({', '.join(names)}) | wins | margin m | candidates | eligible "
         "thetas | worker min |",
         "|---|---|---|---|---|---|---|",
     ]
     for t, r in summary["tracks"].items():
-        th = ", ".join(f"{r['theta'][n]:.3g}" for n in THETA_NAMES)
+        th = ", ".join(f"{r['theta'][n]:.3g}" for n in names)
         lines.append(
             f"| `{t}` | {th} | {r['wins']}/{r['races']} | {r['margin_m_mean']:+.2f} "
             f"| {r['candidates']} | {r['eligible_thetas']} "
@@ -503,15 +567,15 @@ def summary_markdown(summary: dict, selections) -> str:
             "",
             f"## Playoff on `{s['track']}`",
             "",
-            "| rank | index | " + " | ".join(THETA_NAMES) + " | why | map: race adj. m "
+            "| rank | index | " + " | ".join(names) + " | why | map: race adj. m "
             "| wins (R1/R2/R3) | margin m | progress m |",
-            "|" + "---|" * (len(THETA_NAMES) + 7),
+            "|" + "---|" * (len(names) + 7),
         ]
         for cand in s["candidates"]:
             reg = "/".join(str(cand["wins_by_region"].get(r, "-")) for r in REGIONS)
             lines.append(
                 f"| {cand['rank']} | {cand['index']} | "
-                + " | ".join(f"{cand['theta'][n]:.3g}" for n in THETA_NAMES)
+                + " | ".join(f"{cand['theta'][n]:.3g}" for n in names)
                 + f" | {'+'.join(cand['reasons'])} | {cand['race_adjusted_m']:+.2f} "
                 f"| {cand['wins']} ({reg}) | {cand['margin_m_mean']:+.2f} "
                 f"| {cand['progress_m_mean']:.2f} |"
@@ -529,21 +593,22 @@ def summary_markdown(summary: dict, selections) -> str:
 def ensure_best_thetas(
     tracks,
     cfg: ControlConfig,
-    out_dir="results/control",
+    out_dir=None,
     pool: Pool = Pool(),
     table=None,
 ) -> dict:
-    """The best-theta table entry of every track of ``tracks``; tracks the table lacks (or
-    holds for another env version or geometry) are selected first with ``cfg`` into
-    ``out_dir`` (resumable) and installed. Returns ``{track: entry}``."""
+    """The best-theta table entry of every track of ``tracks`` in the policy space of ``cfg``;
+    tracks the table lacks there (or holds for another env version or geometry) are selected
+    first with ``cfg`` into ``out_dir`` (resumable; default :func:`default_out`) and
+    installed. Returns ``{track: entry}``."""
     from agents.best_theta import lookup
 
     missing = []
     for t in dict.fromkeys(tracks):
         try:
-            lookup(t, table)
+            lookup(t, table, cfg.space)
         except ValueError:
             missing.append(t)
     if missing:
         select_best_thetas(cfg, missing, out_dir, pool, True, table)
-    return {t: lookup(t, table) for t in dict.fromkeys(tracks)}
+    return {t: lookup(t, table, cfg.space) for t in dict.fromkeys(tracks)}

@@ -4,10 +4,14 @@
 
 Each shipped ``.npz`` carries its training config, data, command and held-out metrics
 (written by ``alpha-racer train``); this file only lays them out, so the card cannot drift
-from the models.
+from the models. A model with measured races (:data:`MEASURED`: committed strategy
+benchmarks of ``results/``) gets a section read from their ``strategy.json`` files.
 """
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 from agents.potential import MODEL_DIR, SHIPPED, PotentialModel
 from experiments.train import model_card_text
@@ -19,12 +23,88 @@ Each model is a value network V and a potential network Phi (see `agents/potenti
 trained by `alpha-racer train` on races collected by `alpha-racer collect`: `default`,
 `gamma0.98`, `gamma0.995` and `races400` on the `default` track with 3 cars (the paper's
 single-track models), `general` on a family of tracks with 2 to 6 cars (any track, 2..8
-cars). `agents.potential.load_model(NAME)` loads one. The `alpha` agent's default,
+cars), and `extended` on the `default` track with 3 cars in the extended policy space (the
+paper's five parameters and `b`, the lap-time line's weight).
+`agents.potential.load_model(NAME)` loads one. The `alpha` agent's default,
 `model="auto"`, races `default` on the track and field it was trained for (`default`, 3
-cars) and `general` everywhere else; `model=NAME` picks one. Race data of the same seed are
-identical for any worker count, so `alpha-racer collect --races 400` gives exactly the first
-400 races of the 4000 (and a family collection's first K races are those of K races).
+cars) and `general` everywhere else; with `space=extended` it races `extended` (which
+warns on another track and refuses another field size); `model=NAME` picks one. Race data
+of the same seed are identical for any worker count, so `alpha-racer collect --races 400`
+gives exactly the first 400 races of the 4000 (and a family collection's first K races are
+those of K races).
 """
+
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Shipped models with measured races: name -> (the folder of strategy benchmarks under the
+#: repository, one suite with its ``strategy.json`` per sub-folder; the headline bench, the
+#: maneuver the model was trained for).
+MEASURED = {"extended": ("results/strategy_alpha_extended_close", "pass")}
+
+
+def _wins(rows, side: str) -> tuple[int, int]:
+    """Total wins and races of ``side`` (``"ego"`` or ``"control"``) over table rows."""
+    return sum(r[side]["wins"] for r in rows), sum(r[side]["races"] for r in rows)
+
+
+def suite_command(config: dict, out: str) -> str:
+    """The ``alpha-racer strategy`` command of a suite's stored config writing into ``out``."""
+    cmd = (
+        f"alpha-racer strategy --ego {config['ego']} --control {config['control']} "
+        f"--tracks {' '.join(config['tracks'])} --scenarios {' '.join(config['scenarios'])} "
+        f"--races {config['races']} --steps {config['steps']} --seed {config['seed']}"
+    )
+    if "defend" in config["scenarios"]:
+        cmd += f" --zeta-max {config['zeta_max']:g}"
+    return f"{cmd} --out {out}"
+
+
+def measured_text(folder, headline: str) -> str:
+    """The card's section on a model's measured strategy benchmarks: per suite folder of
+    ``folder`` (``strategy.json``) and bench, the ego's wins beside the control's, summed
+    over the tracks, with each suite's command; first a sentence on the ``headline``
+    bench. ``FileNotFoundError`` naming the folder when it holds no suite, ``ValueError``
+    when no suite has the headline bench."""
+    folder = ROOT / folder
+    tables = [(p, json.loads(p.read_text())) for p in sorted(folder.glob("*/strategy.json"))]
+    if not tables:
+        raise FileNotFoundError(f"no strategy benchmark (*/strategy.json) in {folder}")
+    rows, commands, head = [], [], None
+    for path, t in tables:
+        out = str(path.parent.relative_to(ROOT))
+        commands.append(f"* `{suite_command(t['config'], out)}`")
+        for bench in dict.fromkeys(r["bench"] for r in t["rows"]):
+            mine = [r for r in t["rows"] if r["bench"] == bench]
+            (ew, n), (cw, _) = _wins(mine, "ego"), _wins(mine, "control")
+            rows.append(
+                f"| `{path.parent.name}` | {bench} | {', '.join(r['track'] for r in mine)} "
+                f"| {ew}/{n} | {cw}/{n} | {ew - cw:+d} |"
+            )
+            if bench == headline and head is None:
+                head = (ew, cw, n, t["config"])
+    if head is None:
+        raise ValueError(f"no suite in {folder} has the {headline!r} bench")
+    ew, cw, n, c = head
+    verdict = "beats" if ew > cw else "does not beat"
+    return "\n".join(
+        [
+            "### Measured: strategy benchmark",
+            "",
+            f"Ego `{c['ego']}` (this model) against the fixed extended theta `{c['control']}` "
+            f"in the same seats and races. In `{headline}`, the maneuver the model was "
+            f"trained for, the ego wins {ew}/{n} races and the fixed theta {cw}/{n}: the "
+            f"model **{verdict}** the fixed extended theta. Wins summed over the tracks:",
+            "",
+            "| suite | bench | tracks | ego wins | control wins | ego - control |",
+            "|---|---|---|---|---|---|",
+            *rows,
+            "",
+            "Commands (the ego's model.npz is this file):",
+            "",
+            *commands,
+            "",
+        ]
+    )
 
 
 def card() -> str:
@@ -39,6 +119,8 @@ def card() -> str:
         body = text(meta).split("\n", 1)[1]
         body = body.replace("\n## ", "\n### ")
         parts.append(f"## `{name}` (`{file}`)\n{body}")
+        if name in MEASURED:
+            parts.append(measured_text(*MEASURED[name]))
     return "\n".join(parts)
 
 

@@ -436,7 +436,7 @@ def summary_markdown(s: dict) -> str:
         f"thetas on track, by progress. Best lap: fastest lap after the first.",
         "",
         "| mode | track | thetas | off-track share | progress p5 / p50 / p95 [m] "
-        "| best theta (q, zeta, s1, s2, s3) | its progress [m] | errors |",
+        f"| best theta ({', '.join(names)}) | its progress [m] | errors |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for mode, per in s["maps"].items():

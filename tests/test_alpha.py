@@ -369,6 +369,27 @@ def test_auto_races_the_single_track_model_where_it_was_trained_and_the_general_
     assert auto_model("oval", 3) == "default" and auto_model("default", 5) == "default"
 
 
+def test_auto_in_the_extended_space_races_the_shipped_extended_model():
+    """``alpha:space=extended`` (model=auto) races the shipped extended model on the track
+    and field it was trained for; elsewhere the same model (no general extended model is
+    shipped), which warns on another track and refuses another field size."""
+    from agents import make_agent_spec
+    from agents.alpha_agent import auto_model
+    from agents.potential import cached_model
+
+    model = cached_model("extended")
+    assert model.space.name == "extended" and model.meta["track"] == "default"
+    assert auto_model("default", 3, "extended") == "extended"
+    assert auto_model("oval", 3, "extended") == "extended"
+    agent = make_agent_spec("alpha:space=extended")
+    assert _first_decision(agent, "default", 3) is model
+    assert agent._theta_joint.shape == (3, 6)
+    with pytest.warns(UserWarning, match="trained on track 'default', racing on 'oval'"):
+        _first_decision(make_agent_spec("alpha:space=extended"), "oval", 3)
+    with pytest.raises(ValueError, match="trained for 3 cars, the race has 2"):
+        _first_decision(make_agent_spec("alpha:space=extended"), "default", 2)
+
+
 def test_shipped_models_load_and_race():
     from agents.potential import MODEL_DIR, SHIPPED, PotentialModel, load_model
     from experiments.race import run_race

@@ -170,8 +170,8 @@ def test_alpha_takes_its_models_space_and_names_a_mismatch():
         AlphaAgent(model=model, space="paper")
     with pytest.raises(ValueError, match="trained on the 'paper' policy space.*space='extended'"):
         make_agent_spec("alpha:model=default,space=extended")
-    with pytest.raises(ValueError, match="model='auto' races the shipped models"):
-        make_agent_spec("alpha:space=extended")
+    shipped = make_agent_spec("alpha:space=extended")  # model=auto: the shipped extended model
+    assert shipped.space == "extended" and shipped.auto
     assert make_agent_spec("alpha").space == "paper"
     # racing: the joint theta lives in the 6-dimensional box, the MPC drives the ego's part
     from racing_env import RacingParallelEnv

@@ -226,8 +226,8 @@ def test_explicit_theta_keywords_and_the_listing_keep_their_defaults(capsys):
     assert main(["agents"]) == 0
     text = capsys.readouterr().out
     assert (
-        "theta = None  ('best': the track's best fixed theta, chosen by alpha-racer control)"
-        in text
+        "theta = None  ('best': the track's best fixed theta of the agent's space, chosen by "
+        "alpha-racer control)" in text
     )
 
 
