@@ -13,6 +13,7 @@ from racing_env.vehicle import VehicleParams
 from .base import median_p99, register_agent
 from .best_theta import best_theta
 from .mpc import MPC, MPCConfig
+from .opponent_prediction import PREDICTIONS, LinePrediction
 from .reference import (
     EXTENDED_HIGH,
     EXTENDED_LOW,
@@ -120,6 +121,7 @@ class MPCAgent:
         n_preview: int = 10,
         line: str = "curvature",
         zeta_max: float | None = None,
+        predict: str = "constant",
     ):
         from racing_env.raceline import RacelineConfig
 
@@ -158,6 +160,9 @@ class MPCAgent:
                 f"b = {self.theta.b!r} blends the lap-time line into the "
                 f"minimum-curvature line; it needs line='curvature', got {line!r}"
             )
+        if predict not in PREDICTIONS:
+            raise ValueError(f"predict must be one of {PREDICTIONS}, got {predict!r}")
+        self.predict = predict
         self.n_preview = n_preview  # the env's RaceConfig.n_preview (observation layout)
         self.config = config or MPCConfig()
         self.vehicle = vehicle or VehicleParams()
@@ -175,6 +180,11 @@ class MPCAgent:
         self.track = track
         self.raceline = get_raceline(track, self.vehicle, self.raceline_config)
         self.blend_line = None  # the lap-time line, built at the first b > 0
+        self.prediction = (  # the other cars along the track's minimum-curvature line
+            LinePrediction(track, get_raceline(track, self.vehicle))
+            if self.predict == "line"
+            else None
+        )
         self.mpc.reset()
         self.agent_id = agent_id
         self._u_prev = np.zeros(2)
@@ -251,6 +261,8 @@ class MPCAgent:
             if neighbours:
                 o = others[neighbours]
                 opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, self.track)])
+                if self.prediction is not None:
+                    opp = self.prediction.paths(*opp.T, self.config.horizon, self.config.dt)
             u = self.mpc.solve(ego, ref.s_ref, ref.n_ref, theta.q, opp, self._u_prev)
             self._u_prev = u
             return u.astype(np.float32)

@@ -17,7 +17,14 @@ import numpy as np
 from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
 
-from .mpc import EdgeBounds, MPCConfig, kappa_at_substeps, separation_choice, stage_function
+from .mpc import (
+    EdgeBounds,
+    MPCConfig,
+    kappa_at_substeps,
+    opponent_paths,
+    separation_choice,
+    stage_function,
+)
 
 
 class IpoptMPC:
@@ -155,13 +162,13 @@ class IpoptMPC:
         sep = np.zeros((3, self._m * K))
         sep[2] = -1e3  # inactive rows
         if opponents is not None:
-            for r, opp in enumerate(np.asarray(opponents, dtype=float)[: self._m]):
-                near, lat, sign, s_jk = separation_choice(X0[0, 1:], X0[1, 1:], opp, cfg)
+            for r, path in enumerate(opponent_paths(opponents, K, cfg.dt)[: self._m]):
+                near, lat, sign, s_jk, n_jk = separation_choice(X0[0, 1:], X0[1, 1:], path, cfg)
                 cols = slice(r * K, (r + 1) * K)
                 sep[0, cols] = np.where(near & ~lat, sign, 0.0)
                 sep[1, cols] = np.where(near & lat, sign, 0.0)
                 sep[2, cols] = np.where(
-                    near, np.where(lat, cfg.sep_n + sign * opp[1], cfg.sep_s + sign * s_jk), -1e3
+                    near, np.where(lat, cfg.sep_n + sign * n_jk, cfg.sep_s + sign * s_jk), -1e3
                 )
         p = np.concatenate(
             [

@@ -63,7 +63,7 @@ def test_qp_rows_follow_the_separation_rule_and_the_cost():
     """The compiled QP builder imposes, per opponent and nearby stage, the separation that
     :func:`separation_choice` picks (sign, side and need), and its cost is q||G du + e||^2 +
     ||D(u + du)||^2 up to a constant."""
-    from agents.mpc import ProblemConstants, qp_arrays, separation_choice
+    from agents.mpc import ProblemConstants, opponent_paths, qp_arrays, separation_choice
 
     rng = np.random.default_rng(3)
     cfg = MPCConfig()
@@ -75,6 +75,8 @@ def test_qp_rows_follow_the_separation_rule_and_the_cost():
     u = rng.uniform(-1, 1, 2 * K)
     D = np.diff(np.eye(2 * K).reshape(K, 2, 2 * K), axis=0).reshape(-1, 2 * K)
     opps = np.array([[5.9, 0.02, 1.5], [4.8, -0.1, 2.5], [40.0, 0.0, 1.0]])  # last: far away
+    paths = opponent_paths(opps, K, cfg.dt)
+    paths[0, :, 1] += 0.01 * np.arange(K)  # the first car drifts sideways: a path, not a row
     p = ProblemConstants(
         s_ref=s_ref,
         n_ref=n_ref,
@@ -86,7 +88,7 @@ def test_qp_rows_follow_the_separation_rule_and_the_cost():
         hi_tab=np.empty(0),
         ds=1.0,
         length=1.0,
-        opponents=opps,
+        opponents=paths,
         dt=cfg.dt,
         sep_s=cfg.sep_s,
         sep_n=cfg.sep_n,
@@ -96,10 +98,10 @@ def test_qp_rows_follow_the_separation_rule_and_the_cost():
     H, f, A, blo, bhi, sense = qp_arrays(G, s_pred, n_pred, u, np.full(K, -0.2), np.full(K, 0.2), p)
     rows = [A[2 * K :]]
     r = 0
-    for opp in opps:
-        near, lat, sign, s_jk = separation_choice(s_pred, n_pred, opp, cfg)
+    for path in paths:
+        near, lat, sign, s_jk, n_jk = separation_choice(s_pred, n_pred, path, cfg)
         for k in np.flatnonzero(near):
-            gap = n_pred[k] - opp[1] if lat[k] else s_pred[k] - s_jk[k]
+            gap = n_pred[k] - n_jk[k] if lat[k] else s_pred[k] - s_jk[k]
             row = G[2 * k + 1] if lat[k] else G[2 * k]
             np.testing.assert_allclose(rows[0][r], sign[k] * row)
             assert blo[2 * K + 2 * K + r] == pytest.approx(
@@ -264,3 +266,19 @@ def test_the_second_start_keeps_no_costlier_plan_and_finds_cheaper_ones():
     assert len(costs) >= 50
     assert np.all(second <= plain * (1 + 1e-12))
     assert np.sum(second < 0.99 * plain) >= 1 and twin.stats["second_starts"] >= 1
+
+
+def test_opponent_rows_become_constant_velocity_paths_and_paths_pass_through():
+    """(M, 3) rows (s, n, s_dot) keep their progress rate and lateral offset over the stages;
+    an (M, K, 2) prediction is used as given; any other shape is refused naming it."""
+    from agents.mpc import opponent_paths
+
+    K, dt = 4, 0.1
+    paths = opponent_paths(np.array([[10.0, 0.05, 2.0]]), K, dt)
+    np.testing.assert_allclose(paths[0, :, 0], 10.0 + 2.0 * dt * np.arange(1, K + 1))
+    np.testing.assert_array_equal(paths[0, :, 1], 0.05)
+    given = np.random.default_rng(0).normal(size=(2, K, 2))
+    np.testing.assert_array_equal(opponent_paths(given, K, dt), given)
+    assert opponent_paths(None, K, dt).shape == (0, K, 2)
+    with pytest.raises(ValueError, match=r"\(2, 5, 2\)"):
+        opponent_paths(np.zeros((2, 5, 2)), K, dt)

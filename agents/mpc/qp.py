@@ -4,7 +4,7 @@ corrections that one SQP iteration solves with DAQP."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -14,9 +14,6 @@ from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
 
 from .config import MPCConfig
-
-if TYPE_CHECKING:
-    from collections.abc import Sequence
 
 
 class ProblemConstants(NamedTuple):
@@ -34,7 +31,7 @@ class ProblemConstants(NamedTuple):
     hi_tab: np.ndarray  # upper bound on n per grid station [m]
     ds: float  # track grid spacing [m]
     length: float  # track length [m]
-    opponents: np.ndarray  # (M, 3) rows (s, n, s_dot) of the nearby cars
+    opponents: np.ndarray  # (M, K, 2) predicted (s, n) of the nearby cars at stages 1..K
     dt: float  # stage length [s]
     sep_s: float  # longitudinal separation [m]
     sep_n: float  # lateral separation [m]
@@ -107,24 +104,47 @@ class EdgeBounds:
         )
 
 
+def opponent_paths(opponents, K: int, dt: float) -> np.ndarray:
+    """The nearby cars' predicted positions, ``(M, K, 2)``: ``(s, n)`` [m] of each at stages
+    1..K (``dt`` [s] apart). ``opponents`` is either ``(M, 3)`` rows ``(s, n, s_dot)``, which
+    move at constant progress rate and lateral offset (the paper's prediction), or already
+    an ``(M, K, 2)`` prediction (returned as a contiguous float array); ``None`` is no car."""
+    if opponents is None:
+        return np.zeros((0, K, 2))
+    o = np.asarray(opponents, dtype=float)
+    if o.ndim == 3 and o.shape[1:] == (K, 2):
+        return np.ascontiguousarray(o)
+    o = o.reshape(-1, 3) if o.size % 3 == 0 and o.ndim <= 2 else None
+    if o is None:
+        raise ValueError(
+            f"opponents must be (M, 3) rows (s, n, s_dot) or an (M, {K}, 2) prediction, "
+            f"got shape {np.shape(opponents)}"
+        )
+    paths = np.empty((o.shape[0], K, 2))
+    for k in range(K):  # the compiled kernels' arithmetic of old: s_j + v_j * dt * (k + 1)
+        paths[:, k, 0] = o[:, 0] + o[:, 2] * dt * (k + 1)
+        paths[:, k, 1] = o[:, 1]
+    return paths
+
+
 def separation_choice(
-    s_pred: np.ndarray, n_pred: np.ndarray, opponent: Sequence[float] | np.ndarray, cfg: MPCConfig
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    s_pred: np.ndarray, n_pred: np.ndarray, path: np.ndarray, cfg: MPCConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Which separation to impose against one opponent at each predicted stage k = 1..K.
 
-    ``opponent = (s_j, n_j, s_dot_j)`` moves at constant progress rate and lateral position.
-    Returns ``(near, lateral, sign, s_jk)`` (K,) each: constrain only ``near`` stages
-    (``|s - s_j^k| < sep_window``); there impose ``sign * (n - n_j) >= sep_n`` where
-    ``lateral`` else ``sign * (s - s_j^k) >= sep_s``: the separation the nominal prediction
-    satisfies with the larger margin, on the side where the nominal is.
+    ``path`` (K, 2) is the opponent's predicted ``(s, n)`` at the stages (a row of
+    :func:`opponent_paths`). Returns ``(near, lateral, sign, s_jk, n_jk)`` (K,) each: constrain
+    only ``near`` stages (``|s - s_j^k| < sep_window``); there impose
+    ``sign * (n - n_j^k) >= sep_n`` where ``lateral`` else ``sign * (s - s_j^k) >= sep_s``: the
+    separation the nominal prediction satisfies with the larger margin, on the side where the
+    nominal is.
     """
-    s_j, n_j, v_j = opponent
-    s_jk = s_j + v_j * cfg.dt * np.arange(1, len(s_pred) + 1)
-    ds, dn = s_pred - s_jk, n_pred - n_j
+    s_jk, n_jk = path[:, 0], path[:, 1]
+    ds, dn = s_pred - s_jk, n_pred - n_jk
     near = np.abs(ds) < cfg.sep_window
     lateral = np.abs(dn) / cfg.sep_n >= np.abs(ds) / cfg.sep_s
     sign = np.where(np.where(lateral, dn, ds) >= 0.0, 1.0, -1.0)
-    return near, lateral, sign, s_jk
+    return near, lateral, sign, s_jk, n_jk
 
 
 def input_rate_matrix(K: int) -> np.ndarray:
@@ -150,7 +170,7 @@ def qp_arrays(G, s_pred, n_pred, u_vec, nlo, nhi, p):
     ``sense`` is DAQP's (0 hard, 8 soft).
     """
     s_ref, n_ref, q, DtD, opponents = p.s_ref, p.n_ref, p.q, p.DtD, p.opponents
-    rate, dt, sep_s, sep_n, sep_window = p.rate, p.dt, p.sep_s, p.sep_n, p.sep_window
+    rate, sep_s, sep_n, sep_window = p.rate, p.sep_s, p.sep_n, p.sep_window
     K = s_pred.shape[0]
     nv = 2 * K
     sn_err = np.empty(nv)
@@ -182,11 +202,9 @@ def qp_arrays(G, s_pred, n_pred, u_vec, nlo, nhi, p):
         soft[K + k] = 8
     r = 2 * K
     for m in range(M):
-        s_j, n_j, v_j = opponents[m, 0], opponents[m, 1], opponents[m, 2]
         for k in range(K):
-            s_jk = s_j + v_j * dt * (k + 1)
-            ds = s_pred[k] - s_jk
-            dn = n_pred[k] - n_j
+            ds = s_pred[k] - opponents[m, k, 0]
+            dn = n_pred[k] - opponents[m, k, 1]
             if not abs(ds) < sep_window:
                 continue
             lateral = abs(dn) / sep_n >= abs(ds) / sep_s
@@ -218,7 +236,7 @@ def plan_cost(s_pred, n_pred, u_vec, nlo, nhi, p):
     ``q ||(s, n) - ref||^2 + ||D u||^2 + w_soft * (sum of squared violations of the track
     edges and of the separations, chosen per stage as in qp_arrays)``."""
     s_ref, n_ref, q, opponents, w_soft = p.s_ref, p.n_ref, p.q, p.opponents, p.w_soft
-    dt, sep_s, sep_n, sep_window = p.dt, p.sep_s, p.sep_n, p.sep_window
+    sep_s, sep_n, sep_window = p.sep_s, p.sep_n, p.sep_window
     K = s_pred.shape[0]
     J = 0.0
     for k in range(K):
@@ -228,10 +246,9 @@ def plan_cost(s_pred, n_pred, u_vec, nlo, nhi, p):
     for k in range(1, K):
         J += (u_vec[2 * k] - u_vec[2 * k - 2]) ** 2 + (u_vec[2 * k + 1] - u_vec[2 * k - 1]) ** 2
     for m in range(opponents.shape[0]):
-        s_j, n_j, v_j = opponents[m, 0], opponents[m, 1], opponents[m, 2]
         for k in range(K):
-            ds = s_pred[k] - (s_j + v_j * dt * (k + 1))
-            dn = n_pred[k] - n_j
+            ds = s_pred[k] - opponents[m, k, 0]
+            dn = n_pred[k] - opponents[m, k, 1]
             if not abs(ds) < sep_window:
                 continue
             if abs(dn) / sep_n >= abs(ds) / sep_s:

@@ -29,6 +29,7 @@ from .qp import (
     ProblemConstants,
     input_rate_matrix,
     linearised_qp,
+    opponent_paths,
     predicted_decrease,
     score_rollout,
 )
@@ -160,8 +161,10 @@ class MPC:
 
     ``solve(x0, s_ref, n_ref, q, opponents, u_prev)``: ``x0`` (6,) the car's Frenet state,
     ``s_ref, n_ref`` (K,) references for the predicted states 1..K, ``q`` the tracking
-    weight, ``opponents`` (M, 3) rows ``(s, n, s_dot)`` of the cars just ahead / behind
-    (progress on the same unwrapped scale as ``x0[0]``), ``u_prev`` (2,) the input applied
+    weight, ``opponents`` the cars just ahead / behind: (M, 3) rows ``(s, n, s_dot)`` that
+    keep their progress rate and lateral offset (the paper's prediction), or their predicted
+    ``(s, n)`` at stages 1..K, (M, K, 2) (:func:`~agents.mpc.qp.opponent_paths`; progress on
+    the same unwrapped scale as ``x0[0]``), ``u_prev`` (2,) the input applied
     last (physical ``d, delta``). Returns the physical input ``(d, delta)`` to apply now.
     """
 
@@ -287,7 +290,8 @@ class MPC:
 
     def _problem(self, s_ref, n_ref, q, opp, u_prev) -> ProblemConstants:
         """The :class:`~agents.mpc.qp.ProblemConstants` of a solve: references ``s_ref, n_ref``
-        (K,), tracking weight ``q``, opponents ``opp`` (M, 3), the input ``u_prev`` (2,) applied
+        (K,), tracking weight ``q``, opponents ``opp`` (any form :func:`opponent_paths` takes),
+        the input ``u_prev`` (2,) applied
         last."""
         cfg, b, t = self.cfg, self._bounds_n, self.track
         return ProblemConstants(
@@ -301,7 +305,7 @@ class MPC:
             b.hi_table,
             t.ds,
             t.length,
-            opp,
+            opponent_paths(opp, cfg.horizon, cfg.dt),
             cfg.dt,
             cfg.sep_s,
             cfg.sep_n,
@@ -405,11 +409,7 @@ class MPC:
         s_ref = np.asarray(s_ref, dtype=float)
         n_ref = np.asarray(n_ref, dtype=float)
         u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
-        opp = (
-            np.zeros((0, 3))
-            if opponents is None
-            else np.ascontiguousarray(opponents, dtype=float).reshape(-1, 3)
-        )
+        opp = opponent_paths(opponents, cfg.horizon, cfg.dt)
 
         problem = self._problem(s_ref, n_ref, q, opp, u_prev)
 
