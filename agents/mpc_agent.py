@@ -103,7 +103,9 @@ class MPCAgent:
     param_defaults = {k: getattr(DEFAULT_THETA, k) for k in EXTENDED_NAMES}
     param_notes = {
         "theta": "'best': the track's best fixed theta of the agent's space, chosen by "
-        "alpha-racer control"
+        "alpha-racer control",
+        "predict": "where the separation rows expect the other cars: 'constant' progress rate "
+        "and offset (the paper's) or along the racing 'line'",
     }
 
     def __init__(
