@@ -51,7 +51,9 @@ class LinePrediction:
         t = self.track
         return _grid_interp(table, np.ascontiguousarray(s, dtype=float), t.ds, t.length)
 
-    def paths(self, s: np.ndarray, n: np.ndarray, s_dot: np.ndarray, K: int, dt: float):
+    def paths(
+        self, s: np.ndarray, n: np.ndarray, s_dot: np.ndarray, K: int, dt: float
+    ) -> np.ndarray:
         """``(M, K, 2)`` predicted ``(s, n)`` [m] at stages 1..K (``dt`` [s] apart) of cars at
         unwrapped progress ``s``, offset ``n`` and progress rate ``s_dot`` [m/s] (each (M,)).
 

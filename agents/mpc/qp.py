@@ -104,7 +104,7 @@ class EdgeBounds:
         )
 
 
-def opponent_paths(opponents, K: int, dt: float) -> np.ndarray:
+def opponent_paths(opponents: np.ndarray | None, K: int, dt: float) -> np.ndarray:
     """The nearby cars' predicted positions, ``(M, K, 2)``: ``(s, n)`` [m] of each at stages
     1..K (``dt`` [s] apart). ``opponents`` is either ``(M, 3)`` rows ``(s, n, s_dot)``, which
     move at constant progress rate and lateral offset (the paper's prediction), or already
