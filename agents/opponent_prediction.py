@@ -15,6 +15,9 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numba import njit
+
+from racing_env.simulator import _lookup
 
 from .mpc import _grid_interp
 
@@ -46,6 +49,7 @@ class LinePrediction:
         ds_track = np.diff(np.append(raceline.s_track, track.length))
         self.rate = np.ascontiguousarray(raceline.vx * ds_track / ds_line)
         self.n = np.ascontiguousarray(raceline.n, dtype=float)
+        self._decays: dict = {}
 
     def _at(self, table: np.ndarray, s: np.ndarray) -> np.ndarray:
         t = self.track
@@ -61,16 +65,38 @@ class LinePrediction:
         ``c = s_dot / rate(s)`` now, clipped to :data:`RATE_SCALE`. Offset: the line's at
         ``s_k`` plus the car's offset from the line now, decayed by
         ``exp(-t_k / SETTLE_TIME)``."""
-        s = np.asarray(s, dtype=float)
-        n = np.asarray(n, dtype=float)
+        s, n, s_dot = (np.asarray(a, dtype=float).reshape(-1) for a in (s, n, s_dot))
+        if not s.size == n.size == s_dot.size:
+            raise ValueError(
+                f"s, n and s_dot must hold one value per car, got sizes {s.size}, {n.size} "
+                f"and {s_dot.size}"
+            )
         rate0 = self._at(self.rate, s)
-        c = np.clip(np.asarray(s_dot, dtype=float) / rate0, *RATE_SCALE)
+        c = np.clip(s_dot / rate0, *RATE_SCALE)
         off = n - self._at(self.n, s)
-        out = np.empty((s.size, K, 2))
-        sk = s.copy()
+        t = self.track
+        return _line_paths(self.rate, self.n, s, off, c, self._decay(K, dt), dt, t.ds, t.length)
+
+    def _decay(self, K: int, dt: float) -> np.ndarray:
+        """``exp(-t_k / SETTLE_TIME)`` at the stages ``t_k = k dt``, k = 1..K (cached)."""
+        key = (K, dt)
+        if key not in self._decays:
+            self._decays[key] = np.array([np.exp(-(k + 1) * dt / SETTLE_TIME) for k in range(K)])
+        return self._decays[key]
+
+
+@njit(cache=True)
+def _line_paths(rate, n_line, s, off, c, decay, dt, ds, length):
+    """:meth:`LinePrediction.paths`' stages, compiled: ``(M, K, 2)`` from the line's progress
+    rate and offset tables, the cars' progress ``s``, offsets from the line ``off`` and rate
+    factors ``c`` (M,), the offsets' decay (K,)."""
+    M, K = s.shape[0], decay.shape[0]
+    out = np.empty((M, K, 2))
+    for m in range(M):
+        sk = s[m]
         for k in range(K):
-            mid = sk + 0.5 * dt * c * self._at(self.rate, sk)
-            sk = sk + dt * c * self._at(self.rate, mid)
-            out[:, k, 0] = sk
-            out[:, k, 1] = self._at(self.n, sk) + off * np.exp(-(k + 1) * dt / SETTLE_TIME)
-        return out
+            mid = sk + 0.5 * dt * c[m] * _lookup(rate, sk, ds, length)
+            sk = sk + dt * c[m] * _lookup(rate, mid, ds, length)
+            out[m, k, 0] = sk
+            out[m, k, 1] = _lookup(n_line, sk, ds, length) + off[m] * decay[k]
+    return out

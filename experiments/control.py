@@ -80,8 +80,6 @@ ADDED_FIELDS = {"space": "paper"}
 """Config fields added after selections were first made, with their defaults: a manifest and a
 ``selection.json`` record them only when they differ
 (:func:`experiments.artifacts.manifest_config`), so paper folders resume unchanged."""
-DEFAULT_OUT = {"paper": "results/control", "extended": "results/control_extended"}
-"""The default output folder per policy space (a folder holds the selections of one space)."""
 
 
 def best_fixed_spec(space: str = "paper") -> str:
@@ -94,10 +92,12 @@ def best_fixed_spec(space: str = "paper") -> str:
 
 
 def default_out(space: str = "paper") -> str:
-    """The control folder of policy space ``space`` (:data:`DEFAULT_OUT`)."""
+    """The control folder of policy space ``space`` (a folder holds the selections of one
+    space): ``results/control``, ``results/control_<space>`` for another than the paper's."""
     from agents.theta import policy_space
 
-    return DEFAULT_OUT.get(policy_space(space).name, f"results/control_{space}")
+    name = policy_space(space).name
+    return "results/control" if name == "paper" else f"results/control_{name}"
 
 
 RULE = (

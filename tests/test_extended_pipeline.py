@@ -49,6 +49,16 @@ def _old_table(path, *entries) -> None:
     path.write_text(json.dumps({"schema_version": 1, "tracks": {e["track"]: e for e in entries}}))
 
 
+def _both_spaces_table(path) -> None:
+    """A table with a paper and an extended entry for ``default``."""
+    _old_table(path, _entry("default", PAPER_THETA))
+    t = best_theta.read_table(path)
+    best_theta.set_space_entries(
+        t, "extended", {"default": _entry("default", EXTENDED_THETA, "extended")}
+    )
+    path.write_text(json.dumps(t))
+
+
 # ---------------------------------------------------------------------------- the table
 def test_an_old_table_still_reads_and_names_the_command_for_the_extended_entry(table):
     _old_table(table, _entry("default", PAPER_THETA))
@@ -64,12 +74,7 @@ def test_an_old_table_still_reads_and_names_the_command_for_the_extended_entry(t
 
 
 def test_entries_of_each_space_are_kept_apart_and_raced_by_their_own_spec(table):
-    _old_table(table, _entry("default", PAPER_THETA))
-    t = best_theta.read_table()
-    best_theta.set_space_entries(
-        t, "extended", {"default": _entry("default", EXTENDED_THETA, "extended")}
-    )
-    table.write_text(json.dumps(t))
+    _both_spaces_table(table)
     # a reader that knows only "tracks" (the schema before spaces) sees the paper entries
     raw = json.loads(table.read_text())
     assert raw["schema_version"] == 1 and raw["tracks"]["default"]["theta"] == PAPER_THETA
@@ -175,12 +180,7 @@ def test_control_command_defaults_to_its_own_folder_per_space():
 
 # ---------------------------------------------------------------------------- strategy
 def test_a_tiny_strategy_suite_with_the_extended_ego_and_control(table, tmp_path, capsys):
-    _old_table(table, _entry("default", PAPER_THETA))
-    t = best_theta.read_table()
-    best_theta.set_space_entries(
-        t, "extended", {"default": _entry("default", EXTENDED_THETA, "extended")}
-    )
-    table.write_text(json.dumps(t))
+    _both_spaces_table(table)
     out = tmp_path / "strategy"
     args = [
         "strategy",
@@ -220,12 +220,7 @@ def test_reproduce_on_the_extended_space_writes_every_table_tiny(table, tmp_path
     """``reproduce --space extended`` end to end, tiny: the extended ego and control in
     Table 1 and the comparison, the analyses of the extended model, the strategy suite and
     the extended policy map; every number finite."""
-    _old_table(table, _entry("default", PAPER_THETA))
-    t = best_theta.read_table()
-    best_theta.set_space_entries(
-        t, "extended", {"default": _entry("default", EXTENDED_THETA, "extended")}
-    )
-    table.write_text(json.dumps(t))
+    _both_spaces_table(table)
     out = tmp_path / "rep"
     tiny = ["--races", "1", "--steps", "22", "--heldout-races", "1", "--gap-pairs", "40"]
     tiny += ["--regret-states", "1", "--regret-horizon", "2", "--cem-iterations", "1"]

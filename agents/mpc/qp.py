@@ -121,9 +121,9 @@ def opponent_paths(opponents: np.ndarray | None, K: int, dt: float) -> np.ndarra
             f"got shape {np.shape(opponents)}"
         )
     paths = np.empty((o.shape[0], K, 2))
-    for k in range(K):  # the compiled kernels' arithmetic of old: s_j + v_j * dt * (k + 1)
-        paths[:, k, 0] = o[:, 0] + o[:, 2] * dt * (k + 1)
-        paths[:, k, 1] = o[:, 1]
+    # s_j + (v_j dt) (k + 1), in the order the compiled kernels computed it before paths
+    paths[:, :, 0] = o[:, :1] + o[:, 2:] * dt * np.arange(1.0, K + 1.0)
+    paths[:, :, 1] = o[:, 1:2]
     return paths
 
 

@@ -409,9 +409,7 @@ class MPC:
         s_ref = np.asarray(s_ref, dtype=float)
         n_ref = np.asarray(n_ref, dtype=float)
         u_prev = np.zeros(2) if u_prev is None else np.asarray(u_prev, dtype=float)
-        opp = opponent_paths(opponents, cfg.horizon, cfg.dt)
-
-        problem = self._problem(s_ref, n_ref, q, opp, u_prev)
+        problem = self._problem(s_ref, n_ref, q, opponents, u_prev)
 
         def score(X_, U_):
             return self._score(X_, U_, problem)
