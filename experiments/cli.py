@@ -1131,6 +1131,11 @@ def build_parser() -> argparse.ArgumentParser:
             "playoff races per candidate, a multiple of 3 (every start region equally often)",
         ),
         ("--steps", "steps of 0.1 s per run (map and playoff)"),
+        (
+            "--refine",
+            "rounds of the compass search from the playoff's winner: each parameter moved "
+            "to the box's faces (then half as far), raced in the playoff's races; 0 for none",
+        ),
         ("--opponents", "agent spec of the two other cars (map race mode and playoff)"),
         (
             "--seed",

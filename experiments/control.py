@@ -76,7 +76,7 @@ from .policy_map import MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, r
 SCHEMA_VERSION = 1
 BEST_FIXED_SPEC = "mpc:theta=best"
 """The control's agent spec: the ``mpc`` agent with the track's best fixed theta."""
-ADDED_FIELDS = {"space": "paper"}
+ADDED_FIELDS = {"space": "paper", "refine": 0}
 """Config fields added after selections were first made, with their defaults: a manifest and a
 ``selection.json`` record them only when they differ
 (:func:`experiments.artifacts.manifest_config`), so paper folders resume unchanged."""
@@ -107,8 +107,13 @@ RULE = (
     "progress minus that region's median, then by the lower Sobol index, plus the best "
     "solo theta by progress; playoff: each candidate as ego in the "
     "same seeded races from every start region against two opponents, ranked by wins, then "
-    "mean margin over the best opponent, then the lower Sobol index; the winner is the "
-    "first"
+    "mean margin over the best opponent, then the lower Sobol index; refine (R rounds, the "
+    "config's refine): from the playoff's first, each parameter moved down and up by step "
+    "times its range (step 1, clipped to the box, then halved after a round without a better "
+    "theta), plus the pattern move of every parameter whose best move beat the incumbent, "
+    "each raced in the playoff's races; a theta with at most "
+    f"{100 * OFF_TRACK_LIMIT:g}% of its steps off track that ranks above the incumbent by the "
+    "playoff's order replaces it; the winner is the last incumbent"
 )
 """The selection rule in one sentence (stored in every ``selection.json``)."""
 
@@ -123,8 +128,10 @@ class ControlConfig:
     playoff), ``opponents`` the agent spec of the two other cars (map and playoff), ``seed``
     the seed of the Sobol sample, the map's starts and the playoff races (not 0, the
     benchmarks' seed), ``space`` the policy space whose box is mapped (``"paper"`` or
-    ``"extended"``, :data:`agents.theta.SPACES`). Defaults: about 6 CPU-minutes per track
-    (256 map runs, up to 180 playoff races)."""
+    ``"extended"``, :data:`agents.theta.SPACES`), ``refine`` the rounds of the compass search
+    from the playoff's winner (:mod:`experiments.refine`; 0: none, the rule before it
+    existed). Defaults: about 6 CPU-minutes per track for the map and playoff (256 map runs,
+    up to 180 playoff races), and up to 2 (2 dim + 1) x 30 races more for the search."""
 
     thetas: int = 128
     candidates: int = 5
@@ -133,6 +140,7 @@ class ControlConfig:
     opponents: str = "raceline"
     seed: int = 100
     space: str = "paper"
+    refine: int = 2
 
     def __post_init__(self):
         from agents.theta import policy_space
@@ -142,6 +150,11 @@ class ControlConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
                 raise ValueError(f"ControlConfig.{name} must be a positive integer, got {v!r}")
+        if isinstance(self.refine, bool) or not (isinstance(self.refine, int) and self.refine >= 0):
+            raise ValueError(
+                f"ControlConfig.refine must be a non-negative integer (rounds of the local "
+                f"search; 0 = none), got {self.refine!r}"
+            )
         if self.races % len(REGIONS):
             raise ValueError(
                 f"ControlConfig.races must be a multiple of {len(REGIONS)} (every "
@@ -338,27 +351,35 @@ def _playoff_runs(cfg: ControlConfig, out: Path, track: str, cands) -> dict:
     }
 
 
-def _selection(cfg: ControlConfig, track: str, map_run: PolicyMapRun, cands, runs) -> dict:
+def _ranked_playoff(cfg: ControlConfig, track: str, cands, runs) -> list[dict]:
+    """The playoff's candidates of ``track`` with their scores, ranked (:func:`rank_playoff`)."""
+    scores = []
+    for c in cands:
+        s = runs[_run_key(track, c["index"])].write_summary()
+        scores.append({**c, **_playoff_score(s)})
+    return rank_playoff(scores)
+
+
+def _seconds(runs) -> float:
+    return sum(rec["seconds"] for run in runs for rec in run.records().values())
+
+
+def _selection(
+    cfg: ControlConfig, track: str, map_run: PolicyMapRun, ranked, refined: dict, seconds
+) -> dict:
     """The content of ``selection.json`` (a function of the stored rows only, so a resume
-    that runs nothing writes the same bytes)."""
+    that runs nothing writes the same bytes). ``ranked``: the playoff (:func:`_ranked_playoff`),
+    ``refined``: the search's rounds and winner (:func:`_refine`), ``seconds``: the worker
+    seconds of the playoff's and the search's races."""
     from agents.best_theta import env_name
     from racing_env.tracks import make_track
 
     from . import __version__
 
     t = make_track(track)
-    scores = []
-    for c in cands:
-        s = runs[_run_key(track, c["index"])].write_summary()
-        scores.append({**c, **_playoff_score(s)})
-    ranked = rank_playoff(scores)
     rows = list(map_run.rows().values())
-    seconds = sum(r.get("seconds", 0.0) for r in rows) + sum(
-        rec["seconds"]
-        for c in cands
-        for rec in runs[_run_key(track, c["index"])].records().values()
-    )
-    return {
+    seconds += sum(r.get("seconds", 0.0) for r in rows)
+    out = {
         "schema_version": SCHEMA_VERSION,
         "track": track,
         "name": t.name,
@@ -373,9 +394,12 @@ def _selection(cfg: ControlConfig, track: str, map_run: PolicyMapRun, cands, run
             "eligible_thetas": len(eligible_indices(rows)),
         },
         "candidates": ranked,
-        "winner": ranked[0],
+        "winner": refined["winner"],
         "worker_seconds": round(float(seconds), 3),
     }
+    if cfg.refine:
+        out["refine"] = refined["rounds"]
+    return out
 
 
 def selection_sha256(path) -> str:
@@ -436,6 +460,82 @@ def install(selection_path, table=None) -> dict:
     return entry
 
 
+# ---------------------------------------------------------------------------- the search
+def _refine_races(out: Path, tracks) -> int:
+    """Races stored by the search of ``tracks`` in ``out`` (to count the new ones)."""
+    return sum(
+        len(read_jsonl(f))
+        for t in tracks
+        for f in (track_dir(out, t) / "refine").glob("theta_*/races.jsonl")
+    )
+
+
+def _refine_folder(out: Path, track: str, index: int) -> Path:
+    return track_dir(out, track) / "refine" / f"theta_{index:04d}"
+
+
+def _refine(cfg: ControlConfig, out: Path, ranked: dict, pool: Pool) -> dict:
+    """``cfg.refine`` rounds of the compass search (:func:`experiments.refine.compass_search`)
+    from the playoff's first on every track of ``ranked`` (track -> its ranked playoff), the
+    proposals of all tracks raced in one pool. A new theta gets the next index after the
+    map's (``cfg.thetas``, ...), in the order the moves are made, so a resume names the same
+    folders (``<track>/refine/theta_<index>``); a theta raced before (in the playoff or an
+    earlier round) is not raced again. Returns, per track, ``rounds`` and ``winner`` (the
+    search's result) and ``runs`` (the search's benchmark runs)."""
+    from agents.theta import policy_space
+
+    from .refine import compass_search
+
+    space = policy_space(cfg.space)
+
+    def key(theta):
+        return tuple(float(v) for v in theta)
+
+    def theta_of(score):
+        return _theta_array(score["theta"], cfg.space)
+
+    raced = {t: {key(theta_of(c)): c for c in r} for t, r in ranked.items()}
+    runs = {t: [] for t in ranked}
+    index = dict.fromkeys(ranked, cfg.thetas)
+    searches = {
+        t: compass_search(r[0], theta_of, space.low, space.high, space.names, cfg.refine, cfg.steps)
+        for t, r in ranked.items()
+    }
+    results, pending = {}, {}
+
+    def advance(t, scored=None):
+        try:
+            pending[t] = searches[t].send(scored)
+        except StopIteration as done:
+            results[t] = done.value
+            pending.pop(t, None)
+
+    for t in searches:
+        advance(t)
+    while pending:
+        batch, new = {}, []
+        for t, (props, round_no) in pending.items():
+            for label, theta in props:
+                if key(theta) in raced[t]:
+                    continue
+                i, index[t] = index[t], index[t] + 1
+                run = BenchRun(_refine_folder(out, t, i), cfg.playoff_config(t, theta))
+                batch[_run_key(t, i)] = run
+                new.append((t, i, f"refine {round_no}: {label}", run, theta))
+        _run_many(batch, pool)
+        for t, i, reason, run, theta in new:
+            runs[t].append(run)
+            raced[t][key(theta)] = {
+                "index": i,
+                "theta": {n: float(v) for n, v in zip(space.names, theta)},
+                "reasons": [reason],
+                **_playoff_score(run.write_summary()),
+            }
+        for t, (props, _) in list(pending.items()):
+            advance(t, [(label, raced[t][key(theta)]) for label, theta in props])
+    return {t: {**results[t], "runs": runs[t]} for t in ranked}
+
+
 # ---------------------------------------------------------------------------- drivers
 def select_best_thetas(
     cfg: ControlConfig,
@@ -478,9 +578,15 @@ def select_best_thetas(
         runs.update(_playoff_runs(cfg, out, t, cands[t]))
     todo = sum(len(run.missing()) for run in runs.values())
     _run_many(runs, pool)
+    ranked = {t: _ranked_playoff(cfg, t, cands[t], runs) for t in tracks}
+    raced_before = _refine_races(out, tracks)
+    refined = _refine(cfg, out, ranked, pool)
+    todo += _refine_races(out, tracks) - raced_before
     for t in tracks:
         path = track_dir(out, t) / "selection.json"
-        write_json(path, _selection(cfg, t, maps[t], cands[t], runs))
+        playoff_runs = [runs[_run_key(t, c["index"])] for c in cands[t]]
+        seconds = _seconds(playoff_runs + refined[t]["runs"])
+        write_json(path, _selection(cfg, t, maps[t], ranked[t], refined[t], seconds))
         if install_table:
             install(path, table)
     wall = time.perf_counter() - t0
@@ -580,6 +686,35 @@ def summary_markdown(summary: dict, selections) -> str:
                 f"| {cand['wins']} ({reg}) | {cand['margin_m_mean']:+.2f} "
                 f"| {cand['progress_m_mean']:.2f} |"
             )
+        rounds = s.get("refine", [])
+        if rounds:
+            lines += [
+                "",
+                f"Compass search from the playoff's first on `{s['track']}` (wins of "
+                f"{s['winner']['races']}, mean margin m; * off track on more than "
+                f"{100 * OFF_TRACK_LIMIT:g}% of the steps, not eligible):",
+                "",
+                "| round | step | from | moves: index move wins/margin | to |",
+                "|---|---|---|---|---|",
+            ]
+            for r in rounds:
+                moves = ", ".join(
+                    f"{m['index']} {m['move']} {m['wins']}/{m['margin_m_mean']:+.2f}"
+                    + ("" if m["eligible"] else "*")
+                    for m in r["moves"]
+                )
+                lines.append(
+                    f"| {r['round']} | {r['step']:g} | {r['from']} | {moves} | {r['to']} |"
+                )
+            w = s["winner"]
+            lines += [
+                "",
+                f"Winner: index {w['index']} ("
+                + ", ".join(f"{n} {w['theta'][n]:.3g}" for n in names)
+                + f"), {w['wins']} wins (R1/R2/R3 "
+                + "/".join(str(w["wins_by_region"].get(r, "-")) for r in REGIONS)
+                + f"), mean margin {w['margin_m_mean']:+.2f} m.",
+            ]
     runs = summary["runs"]
     if runs:
         lines += [

@@ -145,6 +145,9 @@ def test_config_rejects_bad_values():
         ct.ControlConfig(races=10)
     with pytest.raises(ValueError, match="candidates must be a positive integer, got 0"):
         ct.ControlConfig(candidates=0)
+    for bad in (-1, True, 1.5):
+        with pytest.raises(ValueError, match="refine must be a non-negative integer"):
+            ct.ControlConfig(refine=bad)
     assert ct.ControlConfig().playoff_config("oval", np.array([5, 1.0, 0.2, 3, 1])).seed == 100
 
 
@@ -293,8 +296,22 @@ def test_control_command_selects_installs_and_resumes(table, tmp_path, capsys):
     sel_path = out / "default" / "selection.json"
     sel = json.loads(sel_path.read_text())
     assert sel["env"] == best_theta.env_name() and sel["config"]["thetas"] == 2
-    assert sel["winner"] == sel["candidates"][0] and sel["winner"]["rank"] == 1
+    # the playoff's first starts the compass search (2 rounds by default); its last
+    # incumbent wins, and ranks at least as high as the playoff's first
+    assert sel["candidates"][0]["rank"] == 1 and sel["config"]["refine"] == 2
+    rounds = sel["refine"]
+    assert [r["round"] for r in rounds] == [1, 2]
+    assert rounds[0]["from"] == sel["candidates"][0]["index"]
+    assert rounds[1]["from"] == rounds[0]["to"] and rounds[1]["to"] == sel["winner"]["index"]
+    first = sel["candidates"][0]
+    assert (-sel["winner"]["wins"], -sel["winner"]["margin_m_mean"]) <= (
+        -first["wins"],
+        -first["margin_m_mean"],
+    )
     assert {c["index"] for c in sel["candidates"]} <= {0, 1}
+    refined = {m["index"] for r in rounds for m in r["moves"]}
+    assert min(refined) == 2  # after the map's indices
+    assert len(list((out / "default" / "refine").glob("theta_*/races.jsonl"))) == len(refined)
     for c in sel["candidates"]:
         assert c["races"] == 3 and sum(c["wins_by_region"].values()) == c["wins"]
         assert np.isfinite(c["margin_m_mean"])
@@ -315,7 +332,7 @@ def test_control_command_selects_installs_and_resumes(table, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_ensure_selects_only_missing_tracks_and_claim_refuses_a_changed_table(table, tmp_path):
-    cfg = ct.ControlConfig(thetas=2, candidates=1, races=3, steps=20)
+    cfg = ct.ControlConfig(thetas=2, candidates=1, races=3, steps=20, refine=0)
     _write(table, _entry("oval", _theta(1)))
     got = ct.ensure_best_thetas(
         ["oval", "default"], cfg, tmp_path / "ctl", pool=Pool(workers=1, progress_bar=False)
