@@ -374,7 +374,11 @@ def _cmd_reproduce(args) -> int:
     # the control: the same races with the best fixed theta on the track as ego, selected
     # first (resumable, into out/control) if the best-theta table lacks the track
     ctl = ControlConfig(
-        thetas=args.control_thetas, races=args.control_races, steps=args.steps, space=space
+        thetas=args.control_thetas,
+        races=args.control_races,
+        steps=args.steps,
+        space=space,
+        refine=args.control_refine,
     )
     pool = _pool(args)
     entry = ensure_best_thetas([track], ctl, out / "control", pool)[track]
@@ -1030,6 +1034,11 @@ def build_parser() -> argparse.ArgumentParser:
             "--control-races",
             "if the best-theta table lacks the track: playoff races per candidate",
             {"default": ControlConfig.races},
+        ),
+        (
+            "--control-refine",
+            "if the best-theta table lacks the track: rounds of the control's compass search",
+            {"default": ControlConfig.refine},
         ),
         (
             "--policy-thetas",

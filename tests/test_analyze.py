@@ -157,6 +157,8 @@ def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys, monkeypa
                 "2",
                 "--control-races",
                 "3",
+                "--control-refine",
+                "1",
                 "--workers",
                 "1",
             ]
@@ -177,6 +179,7 @@ def test_reproduce_writes_every_table_and_figure_tiny(tmp_path, capsys, monkeypa
     # chosen from map rows that ran: not vacuous if every row had errored
     assert sel["map"]["rows"] > 0 and sel["map"]["errors"] == 0
     assert 1 <= sel["map"]["eligible_thetas"] <= sel["map"]["rows"]
+    assert sel["config"]["refine"] == 1 and [r["round"] for r in sel["refine"]] == [1]
     control = json.loads((tmp_path / "paper_table_control" / "paper_table.json").read_text())
     assert control["ego"] == "mpc:theta=best" and list(control["cases"]) == list(table["cases"])
     for case in control["cases"].values():  # and its races were raced, every one

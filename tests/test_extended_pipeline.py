@@ -163,6 +163,11 @@ def test_control_on_the_extended_space_picks_a_theta_in_the_extended_box_with_b(
     # the playoff raced the extended spec of the candidate
     manifest = json.loads(next((out / "default" / "playoff").glob("*/manifest.json")).read_text())
     assert manifest["config"]["ego"].startswith("mpc:space=extended,")
+    # the compass search moves b too, and races extended specs
+    moves = {m["move"] for m in sel["refine"][0]["moves"]}
+    assert moves & {"b-", "b+"} and moves & {"q-", "q+"}
+    for f in (out / "default" / "refine").glob("*/manifest.json"):
+        assert json.loads(f.read_text())["config"]["ego"].startswith("mpc:space=extended,")
     # a paper folder is not resumed with the extended config, nor the other way round
     with pytest.raises(ValueError, match="another configuration"):
         ct.select_best_thetas(

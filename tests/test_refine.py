@@ -56,7 +56,11 @@ def test_the_first_step_puts_each_parameter_on_a_face_of_the_box():
     assert moves["zeta+"][1] == 1.05 and moves["s3-"][4] == 0.0
     corner = THETA_LOW.copy()
     assert [label for label, _ in compass_moves(corner, 1.0, THETA_LOW, THETA_HIGH, NAMES)] == [
-        "q+", "zeta+", "s1+", "s2+", "s3+"
+        "q+",
+        "zeta+",
+        "s1+",
+        "s2+",
+        "s3+",
     ]
 
 
