@@ -225,12 +225,14 @@ def test_extended_space_agent_checks_and_chooses_the_pass_side_by_room():
 
 
 @pytest.mark.slow
-def test_the_extended_space_passes_racing_line_followers_the_paper_s_best_theta_cannot():
+def test_the_extended_space_passes_racing_line_followers_more_often_than_the_paper_s_best():
     """From R2 behind two ``raceline`` followers on ``default`` (8 races of 30 s, seeds
     7000-7007), a fixed theta of the extended space passes in several races, mostly through
-    free space; the track's best fixed theta of the paper's space passes in none (docs: "The
-    extended policy space"). Counted over races, not asserted of one: a race at the limit
-    differs from machine to machine in its last bits (docs "Which machine")."""
+    free space, and in more races than the track's best fixed theta of the paper's space
+    (which, since the control's compass search moved it to s1 0.3 and s2 0.5, passes in some:
+    3 of 8 against 6 of 8 on the AVX-512 machine; before, none; docs: "The extended policy
+    space"). Counted over races, not asserted of one: a race at the limit differs from machine
+    to machine in its last bits (docs "Which machine")."""
     from experiments.metrics import race_metrics
     from experiments.race import run_race
 
@@ -253,4 +255,4 @@ def test_the_extended_space_passes_racing_line_followers_the_paper_s_best_theta_
             through_contact += m["passes_contact"][0]
         counts[spec] = (races_with_a_pass, clean, through_contact)
     assert counts[ext][0] >= 3 and counts[ext][1] > counts[ext][2], counts
-    assert counts["mpc:theta=best"][:2] == (0, 0), counts
+    assert counts[ext][0] > counts["mpc:theta=best"][0], counts
