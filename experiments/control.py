@@ -291,7 +291,9 @@ def rank_playoff(scores) -> list[dict]:
     bad = [s["index"] for s in scores if not np.isfinite(s["margin_m_mean"])]
     if bad:
         raise ValueError(f"non-finite playoff margin of candidate(s) {bad}")
-    ranked = sorted(scores, key=lambda s: (-s["wins"], -s["margin_m_mean"], s["index"]))
+    from .refine import score_key
+
+    ranked = sorted(scores, key=score_key)
     return [{**s, "rank": r} for r, s in enumerate(ranked, 1)]
 
 

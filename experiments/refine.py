@@ -47,8 +47,9 @@ def compass_moves(theta, step: float, low, high, names) -> list[tuple[str, np.nd
 
 
 def score_key(score: dict) -> tuple:
-    """The playoff's order (:func:`experiments.control.rank_playoff`): more wins, then the
-    larger mean margin [m], then the lower index. Smaller keys rank higher."""
+    """The playoff's order, used by :func:`experiments.control.rank_playoff` and the search:
+    more wins, then the larger mean margin [m], then the lower index. Smaller keys rank
+    higher."""
     return (-score["wins"], -score["margin_m_mean"], score["index"])
 
 
@@ -102,8 +103,9 @@ def compass_search(incumbent: dict, theta_of, low, high, names, rounds: int, ste
         x = theta_of(inc)
         moves = yield compass_moves(x, step, low, high, names), round_no
         ordered = sorted(moves, key=lambda m: score_key(m[1]))
+        inc_key = score_key(inc)
         improving = [
-            (label, theta_of(sc), eligible(sc, steps) and score_key(sc) < score_key(inc))
+            (label, theta_of(sc), eligible(sc, steps) and score_key(sc) < inc_key)
             for label, sc in ordered
         ]
         p = pattern_move(x, improving)
