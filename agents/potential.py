@@ -39,6 +39,9 @@ SHIPPED = {
     "races400": "alpha_races400.npz",
     "general": "alpha_general.npz",
     "extended": "alpha_extended.npz",
+    "extended_gamma0.98": "alpha_extended_gamma098.npz",
+    "extended_gamma0.995": "alpha_extended_gamma0995.npz",
+    "extended_races400": "alpha_extended_races400.npz",
 }
 #: How to make a shipped model that is missing (the general model is trained by the user).
 HOW_TO_TRAIN = {
@@ -339,7 +342,8 @@ _LOADED: dict = {}
 
 def load_model(name_or_path: str | os.PathLike = "default") -> PotentialModel:
     """A shipped model by name (``default``, ``gamma0.98``, ``gamma0.995``, ``races400``,
-    ``general``, ``extended``: the extended policy space's) or a path to a ``model.npz``."""
+    ``general``; ``extended`` and its variants ``extended_gamma0.98``, ``extended_gamma0.995``,
+    ``extended_races400``: the extended policy space's) or a path to a ``model.npz``."""
     if str(name_or_path) in SHIPPED:
         path = MODEL_DIR / SHIPPED[str(name_or_path)]
         if not path.exists():

@@ -95,6 +95,31 @@ PAPER_CASES = {
 }
 
 
+def paper_cases(space: str = "paper") -> dict[str, PaperCase]:
+    """The paper's five cases in policy space ``space``: :data:`PAPER_CASES` in the paper's
+    space; in another, the learned opponents of cases I-III are that space's variants of the
+    same kind (``alpha:model=gamma0.98`` becomes ``alpha:space=extended,model=
+    extended_gamma0.98``: same discount or data, trained on the space's races), while IBR
+    and PPO stay as they are."""
+    from agents.reference import policy_space
+
+    space = policy_space(space).name  # names the choices if unknown
+    if space == "paper":
+        return dict(PAPER_CASES)
+    prefix = "alpha:model="
+    out = {}
+    for name, case in PAPER_CASES.items():
+        if case.opponents.startswith(prefix):
+            model = case.opponents[len(prefix) :]
+            case = PaperCase(
+                f"alpha:space={space},model={space}_{model}",
+                case.title.replace("(alpha,", f"(alpha, {space} space,"),
+                case.paper_wins,
+            )
+        out[name] = case
+    return out
+
+
 @dataclass(frozen=True)
 class BenchConfig:
     """One head-to-head benchmark: ``ego`` (an agent spec) against ``n_cars - 1``
@@ -551,19 +576,22 @@ def paper_table(
     seed: int = 0,
     cases=None,
     pool: Pool = Pool(),
+    space: str = "paper",
 ) -> dict:
-    """The paper's five cases (or ``cases``, names of :data:`PAPER_CASES`) in
-    ``out_dir/case_<name>``, all races in one pool; writes ``out_dir/paper_table.md`` and
-    ``paper_table.json`` and returns the latter's content."""
-    cases = list(PAPER_CASES) if cases is None else list(cases)
-    unknown = [c for c in cases if c not in PAPER_CASES]
+    """The paper's five cases (or ``cases``, names of :data:`PAPER_CASES`) with the
+    opponents of policy space ``space`` (:func:`paper_cases`) in ``out_dir/case_<name>``, all
+    races in one pool; writes ``out_dir/paper_table.md`` and ``paper_table.json`` and returns
+    the latter's content."""
+    table_cases = paper_cases(space)
+    cases = list(table_cases) if cases is None else list(cases)
+    unknown = [c for c in cases if c not in table_cases]
     if unknown:
-        raise ValueError(f"unknown paper cases {unknown}; choose from {list(PAPER_CASES)}")
+        raise ValueError(f"unknown paper cases {unknown}; choose from {list(table_cases)}")
     out = Path(out_dir)
     configs = {
         c: BenchConfig(
             ego=ego,
-            opponents=PAPER_CASES[c].opponents,
+            opponents=table_cases[c].opponents,
             races=races,
             steps=steps,
             track=track,
@@ -593,6 +621,7 @@ def paper_table(
     past = read_jsonl(history)
     table = {
         "ego": ego,
+        "space": space,
         "races": races,
         "steps": steps,
         "track": track,
@@ -603,9 +632,9 @@ def paper_table(
         "runs": past,
         "cases": {
             c: {
-                "opponents": PAPER_CASES[c].opponents,
-                "title": PAPER_CASES[c].title,
-                "paper_wins": list(PAPER_CASES[c].paper_wins),
+                "opponents": table_cases[c].opponents,
+                "title": table_cases[c].title,
+                "paper_wins": list(table_cases[c].paper_wins),
                 "summary": runs[c].write_summary(),
             }
             for c in cases

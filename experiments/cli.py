@@ -221,6 +221,8 @@ def _cmd_bench(args) -> int:
     from .artifacts import slug
     from .bench import BenchConfig, bench, paper_table
 
+    if args.space is not None and not args.paper_table:
+        raise ValueError(f"--space {args.space} chooses the opponents of --paper-table; add it")
     if args.paper_table:
         if args.cars != 3:
             raise ValueError(f"--paper-table is the paper's 3-car protocol; got --cars {args.cars}")
@@ -234,6 +236,7 @@ def _cmd_bench(args) -> int:
             seed=args.seed,
             cases=args.cases,
             pool=_pool(args),
+            space=args.space or "paper",
         )
         print((Path(out) / "paper_table.md").read_text())
         print(
@@ -383,17 +386,21 @@ def _cmd_reproduce(args) -> int:
     pool = _pool(args)
     entry = ensure_best_thetas([track], ctl, out / "control", pool)[track]
     ego = _reproduce_ego(args)
-    paper_table(out / "paper_table", ego=ego, races=args.races, steps=args.steps, pool=pool)
+    paper_table(
+        out / "paper_table", ego=ego, races=args.races, steps=args.steps, pool=pool, space=space
+    )
     tables = [out / "paper_table" / "paper_table.md"]
     compared = {"alpha": out / "paper_table"}
     control = out / "paper_table_control"
     best_fixed = best_fixed_spec(space)
-    paper_table(control, ego=best_fixed, races=args.races, steps=args.steps, pool=pool)
+    paper_table(control, ego=best_fixed, races=args.races, steps=args.steps, pool=pool, space=space)
     tables.append(control / "paper_table.md")
     compared["best fixed"] = control
     if args.control_ego != "none":  # an extra row: the same races with another fixed ego
         extra = out / f"paper_table_{slug(args.control_ego)}_ego"
-        paper_table(extra, ego=args.control_ego, races=args.races, steps=args.steps, pool=pool)
+        paper_table(
+            extra, ego=args.control_ego, races=args.races, steps=args.steps, pool=pool, space=space
+        )
         tables.append(extra / "paper_table.md")
         compared[args.control_ego] = extra
     comparison = write_text(
@@ -874,6 +881,12 @@ def build_parser() -> argparse.ArgumentParser:
             "--cases",
             "with --paper-table: a subset of I II III IV V (default: all)",
             {"nargs": "+", "default": None},
+        ),
+        (
+            "--space",
+            "with --paper-table: the policy space of cases I-III's learned opponents (paper: "
+            "the paper's models; extended: the extended space's models of the same kinds)",
+            {"choices": ["paper", "extended"], "default": None},
         ),
         (
             "--races",

@@ -15,6 +15,7 @@ from experiments.bench import (
     BenchRun,
     bench,
     bench_race,  # noqa: E402
+    paper_cases,
     summarise,
     wilson_interval,
 )
@@ -112,6 +113,30 @@ def test_paper_cases_are_the_papers_table():
     assert list(PAPER_CASES) == ["I", "II", "III", "IV", "V"]
     assert [c.paper_wins[0] for c in PAPER_CASES.values()] == [61, 52, 76, 73, 91]
     assert all(sum(c.paper_wins) == 99 for c in PAPER_CASES.values())
+
+
+def test_paper_cases_of_the_extended_space_swap_only_the_learned_opponents():
+    from agents.potential import SHIPPED
+
+    assert paper_cases("paper") == PAPER_CASES
+    ext = paper_cases("extended")
+    assert [c.opponents for c in ext.values()] == [
+        "alpha:space=extended,model=extended_gamma0.98",
+        "alpha:space=extended,model=extended_gamma0.995",
+        "alpha:space=extended,model=extended_races400",
+        "ibr",
+        "ppo",
+    ]
+    models = [c.opponents.split("model=")[1] for c in ext.values() if "model=" in c.opponents]
+    assert models and all(m in SHIPPED for m in models)
+    assert [c.paper_wins for c in ext.values()] == [c.paper_wins for c in PAPER_CASES.values()]
+    with pytest.raises(ValueError, match="space"):
+        paper_cases("wide")
+
+
+def test_bench_space_needs_the_paper_table(capsys):
+    assert main(["bench", "--space", "extended"]) == 2
+    assert "--paper-table" in capsys.readouterr().err
 
 
 def test_bench_race_places_cars_in_their_regions_and_names_the_winner():

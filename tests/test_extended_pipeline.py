@@ -239,6 +239,10 @@ def test_reproduce_on_the_extended_space_writes_every_table_tiny(table, tmp_path
     assert table1["ego"] == "alpha:space=extended"
     assert control["ego"] == "mpc:space=extended,theta=best"
     assert list(table1["cases"]) == list(control["cases"]) == ["I", "II", "III", "IV", "V"]
+    for t in (table1, control):  # cases I-III against the extended space's own models
+        assert t["space"] == "extended"
+        assert t["cases"]["I"]["opponents"] == "alpha:space=extended,model=extended_gamma0.98"
+        assert t["cases"]["IV"]["opponents"] == "ibr"
     for case in control["cases"]:  # each case's folder records the extended theta it raced
         claimed = json.loads(
             (out / "paper_table_control" / f"case_{case}" / "best_fixed_theta.json").read_text()
