@@ -569,14 +569,14 @@ def find_overtake(bench_dirs) -> dict | None:
     """The benchmark race to animate: the ego starting behind (R2 or R3) and winning, at the
     median margin among such races, preferring the first directory that has one; the window
     is around the ego's first gain of a position."""
-    from .bench import BenchConfig, BenchRun
+    from .bench import BenchRun
 
     for d in bench_dirs:
         d = Path(d)
         if not (d / "manifest.json").exists():
             continue
-        cfg = BenchConfig(**json.loads((d / "manifest.json").read_text())["config"])
-        run = BenchRun(d, cfg)
+        run = BenchRun.open(d)  # read-only: the folder's manifest stays as it was made
+        cfg = run.config
         recs = [
             r for r in run.records().values() if r["ego_region"] != "R1" and r["winner"] == "ego"
         ]

@@ -36,6 +36,7 @@ pool over all their races and writes ``paper_table.md`` beside the paper's numbe
 
 from __future__ import annotations
 
+import json
 import time
 import warnings
 from collections.abc import Sequence
@@ -293,6 +294,17 @@ class BenchRun(ResumableRun):
             config.agents,
             [config.track],
         )
+
+    @classmethod
+    def open(cls, out_dir) -> BenchRun:
+        """The benchmark stored in ``out_dir``, to read (its races and states): the config
+        comes from its manifest and nothing is written, where constructing a run claims the
+        folder and records this commit's provenance in it."""
+        out = Path(out_dir)
+        config = BenchConfig(**json.loads((out / cls.manifest_name).read_text())["config"])
+        run = cls.__new__(cls)
+        ResumableRun.__init__(run, out, config)
+        return run
 
     def tasks(self) -> list[int]:
         return list(range(self.config.races))

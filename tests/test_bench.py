@@ -189,6 +189,24 @@ def test_bench_writes_consistent_outputs_and_resumes_after_a_kill(tmp_path):
     assert redone["progress_m"] == first[lost]["progress_m"]  # deterministic per race
 
 
+def test_opening_a_stored_benchmark_to_read_writes_nothing(tmp_path):
+    """The analyses read other folders' races (the overtake animation): a folder made
+    before manifests recorded provenance must not gain this commit's."""
+    from experiments.analyze import find_overtake
+
+    bench(TINY, tmp_path, pool=Pool(workers=1, progress_bar=False))
+    manifest = tmp_path / "manifest.json"
+    old = json.loads(manifest.read_text())
+    old.pop("provenance")
+    manifest.write_text(json.dumps(old))
+    before = manifest.read_bytes()
+    run = BenchRun.open(tmp_path)
+    assert run.config == TINY and sorted(run.records()) == [0, 1, 2, 3]
+    assert run.states(0).shape == (TINY.steps + 1, 3, 6)
+    find_overtake([tmp_path])
+    assert manifest.read_bytes() == before
+
+
 def test_a_folder_of_another_config_is_refused(tmp_path):
     BenchRun(tmp_path, TINY)
     with pytest.raises(ValueError, match="another config"):
