@@ -9,7 +9,9 @@ collection worker runs; a collection of R races on W cores takes about R x s/rac
 little more when both cores race: they share memory bandwidth and turbo). Printed per
 collection: seconds per race, the ratio to the paper's collection, the projected minutes for
 4000 races on 2 workers against the 45-minute goal, and the share of the MPC's decision time
-spent in its compiled predictions (rollouts, with and without Jacobians) and in DAQP's QPs.
+spent in its compiled SQP steps and plan rollouts (the horizon predictions with and without
+Jacobians, with their merit checks: :func:`agents.mpc.solver.sqp_step` and ``MPC._plan``) and
+in DAQP's QPs.
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ class _Timed:
 
 def seconds_per_race(config, races: int) -> tuple[float, Counter]:
     """Mean seconds per race over ``races`` races (after one warm-up race), and the seconds
-    spent in the MPC's decisions, compiled predictions and QPs during them."""
+    spent in the MPC's decisions, compiled SQP steps and plan rollouts, and QPs during them."""
     import daqp
 
     import agents.mpc.solver as solver
@@ -62,8 +64,8 @@ def seconds_per_race(config, races: int) -> tuple[float, Counter]:
     totals: Counter = Counter()
     with (
         _Timed(MPCAgent, "act", "decisions", totals),
-        _Timed(solver, "sqp_step", "predictions", totals),
-        _Timed(solver.MPC, "_plan", "predictions", totals),
+        _Timed(solver, "sqp_step", "sqp", totals),
+        _Timed(solver.MPC, "_plan", "sqp", totals),
         _Timed(daqp, "solve", "qp", totals),
     ):
         t0 = time.perf_counter()
@@ -85,7 +87,7 @@ def main() -> None:
 
     print(
         f"{'collection':18s} {'s/race':>7s} {'ratio':>6s} {'4000 on 2 cores':>16s} "
-        f"{'in predictions':>15s} {'in QPs':>7s}"
+        f"{'in SQP steps':>13s} {'in QPs':>7s}"
     )
     base = None
     with single_blas_thread():
@@ -97,7 +99,7 @@ def main() -> None:
             dec = t["decisions"] or 1.0
             print(
                 f"{name:18s} {s:7.2f} {s / base:5.2f}x {minutes:12.1f} min{flag} "
-                f"{100 * t['predictions'] / dec:14.0f}% {100 * t['qp'] / dec:6.0f}%"
+                f"{100 * t['sqp'] / dec:12.0f}% {100 * t['qp'] / dec:6.0f}%"
             )
 
 

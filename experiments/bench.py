@@ -594,6 +594,9 @@ def paper_table(
     opponents of policy space ``space`` (:func:`paper_cases`) in ``out_dir/case_<name>``, all
     races in one pool; writes ``out_dir/paper_table.md`` and ``paper_table.json`` and returns
     the latter's content."""
+    from agents.reference import policy_space
+
+    space = policy_space(space).name  # the name, as paper_table.json records it
     table_cases = paper_cases(space)
     cases = list(table_cases) if cases is None else list(cases)
     unknown = [c for c in cases if c not in table_cases]

@@ -72,6 +72,7 @@ from .artifacts import (
 from .bench import REGIONS, BenchConfig, BenchRun, _run_many, check_agent_specs
 from .parallel import Pool
 from .policy_map import MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, run_maps, theta_spec
+from .refine import compass_search, score_key
 
 SCHEMA_VERSION = 1
 BEST_FIXED_SPEC = "mpc:theta=best"
@@ -291,8 +292,6 @@ def rank_playoff(scores) -> list[dict]:
     bad = [s["index"] for s in scores if not np.isfinite(s["margin_m_mean"])]
     if bad:
         raise ValueError(f"non-finite playoff margin of candidate(s) {bad}")
-    from .refine import score_key
-
     ranked = sorted(scores, key=score_key)
     return [{**s, "rank": r} for r, s in enumerate(ranked, 1)]
 
@@ -485,8 +484,6 @@ def _refine(cfg: ControlConfig, out: Path, ranked: dict, pool: Pool) -> dict:
     earlier round) is not raced again. Returns, per track, ``rounds`` and ``winner`` (the
     search's result) and ``runs`` (the search's benchmark runs)."""
     from agents.theta import policy_space
-
-    from .refine import compass_search
 
     space = policy_space(cfg.space)
 
