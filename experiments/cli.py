@@ -159,11 +159,6 @@ def _cmd_collect(args) -> int:
                 f"give either --track ({args.track!r}) or --tracks "
                 f"({' '.join(args.tracks)}), not both"
             )
-        if (args.space, args.start, args.pace) != ("paper", "paper", "box"):
-            raise ValueError(
-                f"--space {args.space} / --start {args.start} / --pace {args.pace} are "
-                f"options of a one-track collection; a family collection races the paper's"
-            )
         cfg = _config(
             FamilyConfig,
             args,

@@ -2,7 +2,9 @@
 
 ``alpha-racer collect --tracks default oval random:0-299 tumftm:Monza --cars 2-6 --races 6000``
 simulates the races of :mod:`experiments.collect` (MPC cars with theta uniform in its bounds,
-from the start regions in a random order) on many tracks and with 2..8 cars. Every shard is
+from the start regions in a random order) on many tracks and with 2..8 cars, in the paper's
+policy space or the extended one, with the paper's or close starts and paces (``space``,
+``start``, ``pace`` as in :class:`experiments.collect.CollectConfig`). Every shard is
 homogeneous: one track and one number of cars N, assigned by :meth:`FamilyConfig.assignment`
 from the seed and the shard index alone, and recorded in the shard (``track``, ``n_cars``)
 and in ``manifest.json`` (one entry per shard). Tracks and field sizes are dealt out in cycles
@@ -24,12 +26,13 @@ from __future__ import annotations
 
 import json
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .artifacts import claim, write_npz
+from .artifacts import claim, manifest_config, write_npz
+from .collect import ADDED_FIELDS
 from .collect import SCHEMA_VERSION as SINGLE_SCHEMA_VERSION
 from .collect import (
     CollectConfig,
@@ -136,8 +139,13 @@ class FamilyConfig(ShardedRaces):
     seed: int = 0
     races_per_shard: int = 4
     start_jitter: float = 0.8
+    space: str = "paper"  # as CollectConfig: the policy space, start regions and paces
+    start: str = "paper"
+    pace: str = "box"
 
     def __post_init__(self):
+        # the single-track config checks space, start and pace (naming the choices)
+        CollectConfig(space=self.space, start=self.start, pace=self.pace)
         for name in ("races", "steps", "races_per_shard"):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, (int, np.integer)) and v >= 1):
@@ -178,6 +186,9 @@ class FamilyConfig(ShardedRaces):
             seed=self.seed,
             races_per_shard=self.races_per_shard,
             start_jitter=self.start_jitter,
+            space=self.space,
+            start=self.start,
+            pace=self.pace,
         )
 
     def manifest(self) -> dict:
@@ -193,7 +204,7 @@ class FamilyConfig(ShardedRaces):
         return {
             "schema_version": SCHEMA_VERSION,
             "kind": "family",
-            "config": json.loads(json.dumps(asdict(self))),
+            "config": json.loads(json.dumps(manifest_config(self, ADDED_FIELDS))),
             "shards": shards,
         }
 

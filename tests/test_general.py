@@ -358,6 +358,31 @@ def test_a_family_race_is_the_single_track_race_of_the_same_seed_and_index():
 
 
 @needs_mpc
+def test_an_extended_close_family_race_is_the_single_track_race_and_the_paper_manifest_keeps_its_keys():
+    from dataclasses import replace
+
+    from experiments.collect import CollectConfig, simulate_race
+
+    # the paper's family records no new keys, so folders written before space/start/pace resume
+    assert {"space", "start", "pace"}.isdisjoint(TINY_FAMILY.manifest()["config"])
+    ext = replace(TINY_FAMILY, space="extended", start="close", pace="close")
+    assert ext.manifest()["config"]["space"] == "extended"
+    shard = simulate_family_shard(ext, 1)
+    track, n = ext.assignment(1)
+    single = simulate_race(
+        CollectConfig(
+            races=4, n_cars=n, steps=10, track=track, space="extended", start="close", pace="close"
+        ),
+        1,
+    )
+    assert shard["thetas"].shape == (1, n, 6)
+    assert shard["states"][0].tobytes() == single["states"].tobytes()
+    assert shard["thetas"][0].tobytes() == single["thetas"].tobytes()
+    with pytest.raises(ValueError, match="start must be one of"):
+        replace(TINY_FAMILY, start="far")
+
+
+@needs_mpc
 def test_a_killed_family_collection_resumes_and_a_bad_track_fails_before_any_race(tmp_path):
     from experiments.artifacts import write_npz
 
