@@ -1118,6 +1118,13 @@ def build_parser() -> argparse.ArgumentParser:
             "folder of that selection (default OUT/control); run again to resume",
             {"default": None},
         ),
+        (
+            "--control",
+            "an agent spec raced as the control ego on every held-out track instead "
+            "of the per-track selection (default: the best fixed theta of each track in "
+            "the model's policy space)",
+            {"default": None, "metavar": "SPEC"},
+        ),
         ("--out", _RESUME_HELP, {"default": "results/general"}),
         *_PARALLEL_OPTIONS,
     )

@@ -32,15 +32,15 @@ from pathlib import Path
 import numpy as np
 
 from .artifacts import claim, manifest_config, write_npz
-from .collect import ADDED_FIELDS
-from .collect import SCHEMA_VERSION as SINGLE_SCHEMA_VERSION
 from .collect import (
+    ADDED_FIELDS,
     CollectConfig,
     ShardedRaces,
     shard_path,
     simulate_missing_shards,
     simulate_race,
 )
+from .collect import SCHEMA_VERSION as SINGLE_SCHEMA_VERSION
 from .parallel import Pool
 
 SCHEMA_VERSION = 2

@@ -12,15 +12,21 @@ a held-out track among them is refused), except the last part, which is about ``
    cars (:class:`experiments.bench.BenchConfig` with ``n_cars = N``): on every held-out track
    and N, ``rounds`` rounds of N races (the ego from each start region once per round)
    against N - 1 ``mpc`` cars (the MPC at its fixed default theta, zeta 0.9). The control
-   runs the same races with the best fixed theta on that track as ego (``mpc:theta=best``,
-   chosen per held-out track by ``alpha-racer control`` with ``control_thetas`` and
-   ``control_races``, into ``control/`` unless the best-theta table has the track; about 6
-   CPU-minutes per track with the defaults); an extra row runs them with an ``mpc`` ego at
-   its default theta. ``bench/<track>_<N>cars/{alpha,control,mpc_default}/``;
+   runs the same races with the best fixed theta on that track as ego, in the model's policy
+   space (``mpc:theta=best`` or ``mpc:space=extended,theta=best``, chosen per held-out track
+   by ``alpha-racer control`` with ``control_thetas`` and ``control_races``, into
+   ``control/`` unless the best-theta table has the track; about 6 CPU-minutes per track
+   with the defaults in the paper's space), or with ``control``, one agent spec on every
+   track; an extra row runs them with an ``mpc`` ego at its default theta.
+   ``bench/<track>_<N>cars/{alpha,control,mpc_default}/``;
    ``bench/best_fixed_theta.json`` ties the races to the thetas they used.
-3. **alpha (general) against the single-track default model on default**: the general model
-   against two ``alpha:model=default`` cars in the paper's 3-car protocol; the control runs
-   the same races with the default model as ego. ``default/{general,control}/``.
+3. **alpha (general) against the single-track model on default**: the general model against
+   two cars of the shipped single-track model of its space (``alpha:model=default``, or
+   ``alpha:model=extended``) in the paper's 3-car protocol; the control runs the same races
+   with that model as ego. ``default/{general,control}/``.
+
+Part 1's held-out races are drawn as the model's training races were: in its policy space,
+with its collection's start regions and paces (``start``, ``pace``).
 
 ``summary.md`` and ``summary.json`` collect the three. The folder is claimed by its config
 (``manifest.json``); every part resumes (the collection by shards, the races by race), so a
@@ -36,9 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import claim, slug, write_json, write_text
+from .artifacts import claim, manifest_config, slug, write_json, write_text
 from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, win_share
-from .control import BEST_FIXED_SPEC, ControlConfig, ensure_best_thetas
+from .control import ControlConfig, best_fixed_spec, ensure_best_thetas
 from .family import FamilyConfig, collect_family, expand_tracks, load_family, parse_cars
 from .parallel import Pool
 
@@ -71,7 +77,9 @@ class GeneralReportConfig:
     N-car protocol, ``bench_rounds`` rounds of N races per track and N. ``default_races``
     races of the comparison on ``default`` (0 skips it). ``control_thetas`` and
     ``control_races``: the :class:`experiments.control.ControlConfig` of the selection of
-    the best fixed theta on held-out tracks the best-theta table lacks."""
+    the best fixed theta on held-out tracks the best-theta table lacks. ``control``: an agent
+    spec that replaces that per-track selection as the control ego on every held-out track
+    (empty: the per-track best fixed theta of the model's policy space)."""
 
     model: str = "general"
     tracks: tuple = ()
@@ -86,9 +94,14 @@ class GeneralReportConfig:
     seed: int = 0
     control_thetas: int = ControlConfig.thetas
     control_races: int = ControlConfig.races
+    control: str = ""
 
     def __post_init__(self):
         self.control_config()  # names a bad control_thetas / control_races
+        if not isinstance(self.control, str):
+            raise ValueError(
+                f"GeneralReportConfig.control must be an agent spec, got {self.control!r}"
+            )
         for name in ("gap_races", "gap_pairs", "bench_rounds", "steps"):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
@@ -111,9 +124,17 @@ class GeneralReportConfig:
                 f"(it goes into an agent spec)"
             )
 
-    def control_config(self) -> ControlConfig:
-        """The selection of the best fixed theta on a held-out track (this report's steps)."""
-        return ControlConfig(thetas=self.control_thetas, races=self.control_races, steps=self.steps)
+    def control_config(self, space: str = "paper") -> ControlConfig:
+        """The selection of the best fixed theta on a held-out track in policy space ``space``
+        (this report's steps)."""
+        return ControlConfig(
+            thetas=self.control_thetas, races=self.control_races, steps=self.steps, space=space
+        )
+
+
+ADDED_FIELDS = {"control": ""}
+"""Config fields added after reports were first made, with their defaults: the manifest records
+them only when they differ, so earlier report folders resume."""
 
 
 ROLES = ("alpha", "control", "mpc_default")
@@ -189,13 +210,27 @@ def gap_by_cars(model, heldout_dir, cfg: GeneralReportConfig) -> dict:
 
 
 # ---------------------------------------------------------------------------- 2, 3. races
-def _bench_runs(cfg: GeneralReportConfig, tracks, out: Path) -> dict:
-    """name -> BenchRun of every race set of parts 2 and 3."""
+def control_spec(cfg: GeneralReportConfig, space: str = "paper") -> str:
+    """The control ego of part 2: ``cfg.control``, else the best fixed theta of the track in
+    policy space ``space`` (:func:`experiments.control.best_fixed_spec`)."""
+    return cfg.control or best_fixed_spec(space)
+
+
+def single_track_model(space: str = "paper") -> str:
+    """The shipped single-track model of policy space ``space`` (part 3's opponents)."""
+    from agents.alpha_agent import AUTO_MODELS
+
+    return AUTO_MODELS[space][0]
+
+
+def _bench_runs(cfg: GeneralReportConfig, tracks, out: Path, space: str = "paper") -> dict:
+    """name -> BenchRun of every race set of parts 2 and 3 (the control and part 3's
+    single-track model of policy space ``space``, the general model's)."""
     ego = f"alpha:model={cfg.model}"
     runs = {}
     for track in tracks:
         for N in cfg.bench_cars:
-            for role, who in zip(ROLES, (ego, BEST_FIXED_SPEC, "mpc")):
+            for role, who in zip(ROLES, (ego, control_spec(cfg, space), "mpc")):
                 bc = BenchConfig(
                     ego=who,
                     opponents="mpc",
@@ -209,10 +244,11 @@ def _bench_runs(cfg: GeneralReportConfig, tracks, out: Path) -> dict:
                     out / "bench" / f"{slug(track)}_{N}cars" / role, bc
                 )
     if cfg.default_races:
-        for role, who in (("general", ego), ("control", "alpha:model=default")):
+        single = f"alpha:model={single_track_model(space)}"
+        for role, who in (("general", ego), ("control", single)):
             bc = BenchConfig(
                 ego=who,
-                opponents="alpha:model=default",
+                opponents=single,
                 races=cfg.default_races,
                 steps=cfg.steps,
                 track="default",
@@ -279,23 +315,29 @@ def general_report(
     of a held-out track the best-theta table lacks is selected into ``control_dir`` (default
     ``out_dir/control``) and installed first."""
     model = _model(cfg.model)
+    space = model.space.name
     tracks = heldout_tracks(cfg, model)
+    specs = [f"alpha:model={cfg.model}", "mpc"] + ([cfg.control] if cfg.control else [])
     check_agent_specs(
-        [f"alpha:model={cfg.model}", "mpc", "alpha:model=default"]
-        if cfg.default_races
-        else [f"alpha:model={cfg.model}", "mpc"]
+        specs + [f"alpha:model={single_track_model(space)}"] if cfg.default_races else specs
     )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     claim(
         out / "manifest.json",
-        {"config": asdict(cfg), "heldout_tracks": tracks},
+        {"config": manifest_config(cfg, ADDED_FIELDS), "heldout_tracks": tracks},
         "a general-model report",
     )
     t0 = time.perf_counter()
     # the control on every held-out track: selected first where the table lacks it
     control_dir = Path(control_dir) if control_dir is not None else out / "control"
-    best = ensure_best_thetas(tracks, cfg.control_config(), control_dir, pool)
+    best = (
+        {}
+        if cfg.control
+        else ensure_best_thetas(tracks, cfg.control_config(space), control_dir, pool)
+    )
+    # the held-out races are drawn as the model's own were (space, start regions, paces)
+    collected = model.meta.get("data", {}).get("collect", {})
     fam = FamilyConfig(
         races=cfg.gap_races * len(cfg.gap_cars),
         tracks=tuple(tracks),
@@ -303,14 +345,20 @@ def general_report(
         steps=cfg.steps,
         seed=cfg.heldout_seed,
         races_per_shard=1,
+        space=space,
+        start=collected.get("start", "paper"),
+        pace=collected.get("pace", "box"),
     )
     collect_family(fam, out / "heldout", pool)
     gap = gap_by_cars(model, out / "heldout", cfg)
     write_json(out / "gap.json", gap)
-    runs = _bench_runs(cfg, tracks, out)
+    runs = _bench_runs(cfg, tracks, out, space)
     _run_many(runs, pool)
     summary = {
         "config": json.loads(json.dumps(asdict(cfg))),
+        "space": space,
+        "control": control_spec(cfg, space),
+        "single_track_model": single_track_model(space),
         "model": _model_info(model),
         "heldout_tracks": tracks,
         "gap": gap,
@@ -356,10 +404,14 @@ def _pct(w: dict) -> str:
 def summary_markdown(s: dict) -> str:
     c, m, g = s["config"], s["model"], s["gap"]
     tracks = s["heldout_tracks"]
+    space = s.get("space", "paper")
+    ctrl = s.get("control", best_fixed_spec(space))
+    ctrl_name = f"`{ctrl}`" if c.get("control") else "best fixed theta"
+    single = s.get("single_track_model", "default")
     lines = [
         f"# General alpha-potential on held-out tracks (`{c['model']}`)",
         "",
-        f"Model: trained on {m['races']} races on {m['tracks']} tracks "
+        f"Model ({space} policy space): trained on {m['races']} races on {m['tracks']} tracks "
         f"({' '.join(m['track_specs'] or [])}) with {m['n_cars_range'][0]}.."
         f"{m['n_cars_range'][1]} cars. Held out (never used in training or tuning): "
         f"{len(tracks)} tracks: {', '.join(tracks)}.",
@@ -387,12 +439,17 @@ def summary_markdown(s: dict) -> str:
         f"On every held-out track, {c['bench_rounds']} round(s) of N races of "
         f"{c['steps']} steps: the ego from each of the N start regions once per round, "
         f"N - 1 `mpc` opponents (fixed default theta, zeta 0.9) in the other regions "
-        f"front to back. The control races the same races with the best fixed theta on "
-        f"that track as ego (`{BEST_FIXED_SPEC}`, chosen by `alpha-racer control`); the "
-        f"extra row with an `mpc` ego at its default theta (zeta 0.9). Ego wins with "
-        f"Wilson 95% intervals; margin = ego minus the best opponent.",
+        f"front to back. The control races the same races with "
+        + (
+            f"`{ctrl}` as ego on every track"
+            if c.get("control")
+            else f"the best fixed theta on that track as ego (`{ctrl}`, chosen by "
+            f"`alpha-racer control`)"
+        )
+        + "; the extra row with an `mpc` ego at its default theta (zeta 0.9). Ego wins with "
+        "Wilson 95% intervals; margin = ego minus the best opponent.",
         "",
-        "| cars | alpha (general) ego wins | margin m | best fixed theta ego wins (control) "
+        f"| cars | alpha (general) ego wins | margin m | {ctrl_name} ego wins (control) "
         "| margin m | `mpc` (zeta 0.9) ego wins | margin m | chance |",
         "|---|---|---|---|---|---|---|---|",
     ]
@@ -404,8 +461,8 @@ def summary_markdown(s: dict) -> str:
         )
     lines += [
         "",
-        "Ego wins per track (alpha / best fixed theta / `mpc` at zeta 0.9, of the races "
-        "per track), and the best fixed theta (q, zeta, s1, s2, s3):",
+        f"Ego wins per track (alpha / {ctrl_name} / `mpc` at zeta 0.9, of the races "
+        "per track), and the best fixed theta (its parameters in the order of the space):",
         "",
         "| track | " + " | ".join(f"{N} cars" for N in s["field"]) + " | best fixed theta |",
         "|---" * (len(s["field"]) + 2) + "|",
@@ -426,11 +483,11 @@ def summary_markdown(s: dict) -> str:
     if d:
         lines += [
             "",
-            "## alpha (general) against the single-track default model on `default`",
+            f"## alpha (general) against the single-track `{single}` model on `default`",
             "",
             f"The paper's 3-car protocol ({c['default_races']} races of {c['steps']} "
-            f"steps): the ego against two `alpha:model=default` cars; the control "
-            f"races the same races with the default model as ego.",
+            f"steps): the ego against two `alpha:model={single}` cars; the control "
+            f"races the same races with the `{single}` model as ego.",
             "",
             "| ego | ego wins | O1 wins | O2 wins | ego margin m |",
             "|---|---|---|---|---|",

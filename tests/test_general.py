@@ -656,7 +656,7 @@ def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_p
     for part in (
         "## Approximation gap",
         "against the best fixed theta",
-        "against the single-track default model",
+        "against the single-track `default` model",
     ):
         assert part in text
     lines = (tmp_path / "bench" / "random_10000_2cars" / "alpha" / "races.jsonl").read_text()
@@ -667,6 +667,8 @@ def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_p
         tmp_path / "bench" / "random_10000_2cars" / "alpha" / "races.jsonl"
     ).read_text() == lines
     assert again["gap"] == s["gap"] and again["field"] == s["field"]
+    # a report made before --control existed keeps its manifest (and so resumes)
+    assert "control" not in json.loads((tmp_path / "manifest.json").read_text())["config"]
     with pytest.raises(ValueError, match=r"\['random:3'\] were used to train the model"):
         general_report(
             GeneralReportConfig(model=path, tracks=("random:3",)),
@@ -677,3 +679,55 @@ def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_p
     assert "random:10000" in held and "random:10003" not in held and "tumftm:Monza" not in held
     with pytest.raises(ValueError, match="single-track model"):
         general_report(GeneralReportConfig(model="races400"), tmp_path / "y", pool=Pool(workers=1))
+
+
+@needs_mpc
+@pytest.mark.slow
+def test_an_extended_general_model_is_collected_trained_and_reported_in_its_space(tmp_path):
+    """The extended space end to end at a tiny scale: a family collection with close starts
+    and paces, a general model of six-parameter thetas, and the report on a held-out track,
+    whose held-out races, control and single-track opponents are the extended space's."""
+    pytest.importorskip("torch")
+    from agents.potential import load_model
+    from experiments.cli import main
+    from experiments.general import ROLES, GeneralReportConfig, general_report
+
+    data, model_dir = tmp_path / "data", tmp_path / "model"
+    collect = ["collect", "--tracks", "default", "random:3", "--cars", "2-3", "--races", "8"]
+    collect += ["--steps", "40", "--shard-size", "2", "--workers", "1", "--out", str(data)]
+    collect += ["--space", "extended", "--start", "close", "--pace", "close"]
+    assert main(collect) == 0
+    manifest = json.loads((data / "manifest.json").read_text())
+    assert manifest["kind"] == "family" and manifest["config"]["space"] == "extended"
+    train = ["train", "--data", str(data), "--out", str(model_dir), "--rollout-pairs", "1"]
+    assert main(train + ["--rollout-steps", "5"] + TRAIN_ARGS) == 0
+    path = str(model_dir / "model.npz")
+    model = load_model(path)
+    assert model.general and model.space.name == "extended" and model.space.dim == 6
+    control = "mpc:space=extended,q=5,zeta=1.05,s1=0.3,s2=0.5,s3=0,b=1"
+    cfg = GeneralReportConfig(
+        model=path,
+        tracks=("random:10000",),
+        gap_cars=(2,),
+        gap_races=1,
+        gap_pairs=200,
+        bench_cars=(2,),
+        default_races=3,
+        steps=15,
+        control=control,
+    )
+    s = general_report(cfg, tmp_path / "report", pool=Pool(workers=1, progress_bar=False))
+    out = tmp_path / "report"
+    assert s["space"] == "extended" and s["control"] == control and s["best_fixed_theta"] == {}
+    assert not (out / "control").exists()  # a given control selects nothing
+    held = json.loads((out / "heldout" / "manifest.json").read_text())["config"]
+    assert (held["space"], held["start"], held["pace"]) == ("extended", "close", "close")
+    with np.load(out / "heldout" / "shard_00000.npz") as z:
+        assert z["thetas"].shape[-1] == 6
+    bench = out / "bench" / "random_10000_2cars"
+    ego = {r: json.loads((bench / r / "manifest.json").read_text())["config"]["ego"] for r in ROLES}
+    assert ego == {"alpha": f"alpha:model={path}", "control": control, "mpc_default": "mpc"}
+    opponents = json.loads((out / "default" / "control" / "manifest.json").read_text())["config"]
+    assert opponents["ego"] == opponents["opponents"] == "alpha:model=extended"
+    assert json.loads((out / "manifest.json").read_text())["config"]["control"] == control
+    assert f"`{control}` as ego on every track" in (out / "summary.md").read_text()
