@@ -33,8 +33,11 @@ if TYPE_CHECKING:
 AUTO = "auto"
 AUTO_MODELS = {"paper": ("default", "general"), "extended": ("extended", None)}
 """The shipped models ``model="auto"`` chooses from, per policy space: ``(single-track,
-track-general)`` (names of :data:`agents.potential.SHIPPED`; no general model of the extended
-space is shipped)."""
+track-general)`` (names of :data:`agents.potential.SHIPPED`). The extended space's
+track-general model, ``extended_general``, ships but is not raced by ``auto``: on held-out
+tracks and on the strategy benchmark it races worse than the single-track ``extended`` model
+and the fixed theta at the limit (docs: the alpha-potential page); ``model=extended_general``
+races it."""
 
 
 def auto_model(track_name: str, n_cars: int, space: str = "paper") -> str:

@@ -42,6 +42,7 @@ SHIPPED = {
     "extended_gamma0.98": "alpha_extended_gamma098.npz",
     "extended_gamma0.995": "alpha_extended_gamma0995.npz",
     "extended_races400": "alpha_extended_races400.npz",
+    "extended_general": "alpha_extended_general.npz",
 }
 #: How to make a shipped model that is missing (the general model is trained by the user).
 HOW_TO_TRAIN = {
@@ -50,6 +51,12 @@ HOW_TO_TRAIN = {
     "--out data/family && alpha-racer train --data data/family --out "
     "data/model_general`, then copy data/model_general/model.npz to {path} (the "
     "README's section on the general model has the full plan and its compute)",
+    "extended_general": "collect races of the extended space over a family of tracks and "
+    "field sizes and train on them, e.g. `alpha-racer collect --tracks default oval "
+    "random:0-299 --cars 2-6 --races 2000 --space extended --start close --pace close --out "
+    "data/family_extended && alpha-racer train --data data/family_extended --out "
+    "data/model_extended_general`, then copy data/model_extended_general/model.npz to {path} "
+    "(the docs' page on the alpha-potential agent has the full plan and its compute)",
 }
 
 
@@ -343,7 +350,8 @@ _LOADED: dict = {}
 def load_model(name_or_path: str | os.PathLike = "default") -> PotentialModel:
     """A shipped model by name (``default``, ``gamma0.98``, ``gamma0.995``, ``races400``,
     ``general``; ``extended`` and its variants ``extended_gamma0.98``, ``extended_gamma0.995``,
-    ``extended_races400``: the extended policy space's) or a path to a ``model.npz``."""
+    ``extended_races400`` and the track-general ``extended_general``: the extended policy
+    space's) or a path to a ``model.npz``."""
     if str(name_or_path) in SHIPPED:
         path = MODEL_DIR / SHIPPED[str(name_or_path)]
         if not path.exists():

@@ -26,7 +26,9 @@ single-track models), `general` on a family of tracks with 2 to 6 cars (any trac
 cars), and `extended` on the `default` track with 3 cars in the extended policy space (the
 paper's five parameters and `b`, the lap-time line's weight), with its variants of the paper's
 kinds, `extended_gamma0.98`, `extended_gamma0.995` and `extended_races400` (the learned
-opponents of Table 1 in that space, `alpha-racer bench --paper-table --space extended`).
+opponents of Table 1 in that space, `alpha-racer bench --paper-table --space extended`), and
+`extended_general`, the extended space's track-general model (a family of tracks with 2 to 6
+cars, close starts and paces; `alpha:space=extended,model=extended_general`).
 `agents.potential.load_model(NAME)` loads one. The `alpha` agent's default,
 `model="auto"`, races `default` on the track and field it was trained for (`default`, 3
 cars) and `general` everywhere else; with `space=extended` it races `extended` (which
@@ -41,7 +43,10 @@ ROOT = Path(__file__).resolve().parent.parent
 #: Shipped models with measured races: name -> (the folder of strategy benchmarks under the
 #: repository, one suite with its ``strategy.json`` per sub-folder; the headline bench, the
 #: maneuver the model was trained for).
-MEASURED = {"extended": ("results/strategy_alpha_extended4000", "pass")}
+MEASURED = {
+    "extended": ("results/strategy_alpha_extended4000", "pass"),
+    "extended_general": ("results/strategy_alpha_extended_general", "pass"),
+}
 
 
 def _wins(rows, side: str) -> tuple[int, int]:

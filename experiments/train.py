@@ -52,7 +52,7 @@ from agents.features import (
 from agents.potential import PotentialModel
 
 from . import nets
-from .collect import ADDED_FIELDS  # the collection options a card names where they differ
+from .card_lines import added_options_text, theta_box_lines
 from .nets import TrainConfig
 
 # ---------------------------------------------------------------------------- data
@@ -255,16 +255,6 @@ def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_b
     return nets.rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
 
 
-def _box_text(meta: dict) -> str:
-    return ", ".join(f"{lo:g}..{hi:g}" for lo, hi in zip(meta["theta_low"], meta["theta_high"]))
-
-
-def _space(meta: dict):
-    from agents.theta import policy_space
-
-    return policy_space(meta.get("space", "paper"))
-
-
 def model_card_text(meta: dict) -> str:
     """A short Markdown model card from a model's metadata."""
     m, c, d = meta["metrics"], meta["config"], meta["data"]
@@ -275,8 +265,7 @@ def model_card_text(meta: dict) -> str:
             "",
             f"* **Data:** {d['races']} races x {d['steps']} steps x {meta['n_cars']} cars on "
             f"`{meta['track']}` (`alpha-racer collect --races {col.get('races', d['races'])} "
-            f"--seed {col.get('seed', 0)}"
-            + "".join(f" --{k} {col[k]}" for k, v in ADDED_FIELDS.items() if col.get(k, v) != v)
+            f"--seed {col.get('seed', 0)}{added_options_text(col)}"
             + (
                 "`; every car an MPC with theta uniform in its bounds, zeta close to the "
                 "race's own, drawn over the box); "
@@ -284,19 +273,7 @@ def model_card_text(meta: dict) -> str:
                 else "`; every car an MPC with theta uniform in its bounds); "
             )
             + f"{100 * c['val_fraction']:.0f}% of the races held out.",
-            *(
-                [
-                    f"* **Theta box** ({', '.join(_space(meta).names)}"
-                    + (
-                        ""
-                        if _space(meta).name == "paper"
-                        else f"; the {_space(meta).name} policy space"
-                    )
-                    + f"): {_box_text(meta)}."
-                ]
-                if "theta_low" in meta
-                else []
-            ),
+            *theta_box_lines(meta),
             f"* **Discount:** gamma = {meta['gamma']}.",
             f"* **Networks:** value {list(c['value_hidden'])} ({c['value_epochs']} epochs), potential "
             f"{list(c['potential_hidden'])} ({c['potential_steps']} steps of {c['potential_batch']} "

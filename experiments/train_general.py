@@ -34,6 +34,7 @@ from agents.general_features import TrackSet
 from agents.potential import PotentialModel
 
 from . import nets
+from .card_lines import added_options_text, theta_box_lines
 from .family import RaceGroup, load_family
 
 
@@ -378,8 +379,9 @@ def general_model_card_text(meta: dict) -> str:
             f"* **Data:** {d['races']} races x {d['steps']} steps on {len(meta['tracks'])} tracks "
             f"({' '.join(meta['track_specs'])}) with {lo}..{hi} cars (`alpha-racer collect --races "
             f"{col['races']} --tracks {' '.join(col['tracks'])} --cars "
-            f"{','.join(map(str, col['cars']))} --seed {col['seed']}`); "
+            f"{','.join(map(str, col['cars']))} --seed {col['seed']}{added_options_text(col)}`); "
             f"{100 * c['val_fraction']:.0f}% of the races held out.",
+            *theta_box_lines(meta),
             f"* **Features:** cars sorted by progress and padded to {meta['n_max']} slots with a "
             f"presence flag; curvature preview and half widths at each car (`agents/general_features.py`).",
             f"* **Discount:** gamma = {meta['gamma']}.",

@@ -399,7 +399,11 @@ def test_shipped_models_load_and_race():
     for name in shipped:
         m = load_model(name)
         assert m.meta["metrics"]["gap_rel_p95"] < 0.10
-        assert (m.general and m.trained_cars == (2, 6)) if name == "general" else m.n_cars == 3
+        if name.endswith("general"):
+            assert m.general and m.trained_cars == (2, 6)
+        else:
+            assert not m.general and m.n_cars == 3
+        assert m.space.name == ("extended" if name.startswith("extended") else "paper")
     m = load_model("races400")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

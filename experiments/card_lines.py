@@ -1,0 +1,28 @@
+"""Lines that the model cards of single-track and general models share (the collection's
+options, the theta box), read from a model's metadata."""
+
+from __future__ import annotations
+
+from agents.theta import policy_space
+
+from .collect import ADDED_FIELDS
+
+
+def added_options_text(collect: dict) -> str:
+    """The ``collect`` options of a model's data that differ from their defaults, as they
+    are written on the command line (`` --space extended --start close``...; empty for the
+    paper's collection)."""
+    return "".join(
+        f" --{k} {collect[k]}" for k, v in ADDED_FIELDS.items() if collect.get(k, v) != v
+    )
+
+
+def theta_box_lines(meta: dict) -> list[str]:
+    """The model card's line on the theta box the model's features were normalised with (none
+    for a model that predates recording it)."""
+    if "theta_low" not in meta:
+        return []
+    space = policy_space(meta.get("space", "paper"))
+    named = "" if space.name == "paper" else f"; the {space.name} policy space"
+    box = ", ".join(f"{lo:g}..{hi:g}" for lo, hi in zip(meta["theta_low"], meta["theta_high"]))
+    return [f"* **Theta box** ({', '.join(space.names)}{named}): {box}."]
