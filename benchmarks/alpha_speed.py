@@ -35,10 +35,14 @@ def _stats(x) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", default="default")
-    ap.add_argument("--steps", type=int, default=300)
-    ap.add_argument("--seed", type=int, default=0)
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument(
+        "--model",
+        default="default",
+        help="the alpha cars' model: a shipped name or the path of a model.npz (default: default)",
+    )
+    ap.add_argument("--steps", type=int, default=300, help="steps of the race (default: 300)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the race (default: 0)")
     ap.add_argument(
         "--iterations",
         type=int,

@@ -72,7 +72,7 @@ def bench_batched(n_races: int, n_cars: int, steps: int, threads: int) -> tuple[
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="short runs (smoke check)")
     args = ap.parse_args(argv)
     steps = 500 if args.quick else 5000

@@ -98,7 +98,7 @@ def _row(spec: str, n: int, r: dict) -> str:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="40 steps per race instead of 300")
     ap.add_argument("--steps", type=int, default=None, help="steps per race (overrides --quick)")
     ap.add_argument("--agents", nargs="+", default=list(AGENTS), help="agent specs to measure")

@@ -51,7 +51,7 @@ def race(agents, steps: int, seed: int = 0):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="60 steps instead of 300")
     ap.add_argument("--all-ibr", action="store_true", help="three IBR cars instead of IBR vs 2 MPC")
     ap.add_argument("--rounds", type=int, default=6)

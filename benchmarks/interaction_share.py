@@ -41,7 +41,7 @@ def one_race(args):
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--races", type=int, default=30, help="races per setting")
     p.add_argument("--seed", type=int, default=0, help="collection seed")
     p.add_argument("--workers", type=int, default=2, help="worker processes")

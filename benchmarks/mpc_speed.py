@@ -221,7 +221,7 @@ def parse_config(pairs) -> MPCConfig:
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument(
         "--quality-only", action="store_true", help="only part 3, the plan quality against IPOPT"

@@ -28,7 +28,7 @@ TARGETS = {"default": 10.0, "tumftm:Monza": 15.0, "tumftm:Monza@1": 20.0}
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument(
         "--tracks",
         nargs="+",

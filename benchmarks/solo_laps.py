@@ -60,7 +60,7 @@ def solo(spec: str, track: str, steps: int, seed: int = 0) -> dict:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tracks", nargs="+", default=TRACKS)
     ap.add_argument("--agents", nargs="+", default=AGENTS)
     ap.add_argument("--steps", type=int, default=500)

@@ -38,7 +38,7 @@ def race(config: CollectConfig, index: int, python_step: bool) -> tuple[dict, fl
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--races", type=int, default=3)
     ap.add_argument("--steps", type=int, default=300)
     args = ap.parse_args(argv)
