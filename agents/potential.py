@@ -50,7 +50,7 @@ HOW_TO_TRAIN = {
     "`alpha-racer collect --tracks default oval random:0-299 --cars 2-6 --races 7000 "
     "--out data/family && alpha-racer train --data data/family --out "
     "data/model_general`, then copy data/model_general/model.npz to {path} (the "
-    "README's section on the general model has the full plan and its compute)",
+    "docs' page on the alpha-potential agent has the full plan and its compute)",
     "extended_general": "collect races of the extended space over a family of tracks and "
     "field sizes and train on them, e.g. `alpha-racer collect --tracks default oval "
     "random:0-299 --cars 2-6 --races 2000 --space extended --start close --pace close --out "
@@ -58,6 +58,12 @@ HOW_TO_TRAIN = {
     "data/model_extended_general`, then copy data/model_extended_general/model.npz to {path} "
     "(the docs' page on the alpha-potential agent has the full plan and its compute)",
 }
+
+
+def model_space(meta: dict) -> PolicySpace:
+    """The policy space of a model's thetas from its metadata (a model without a recorded
+    ``space``, trained before spaces existed, is the paper's)."""
+    return policy_space(meta.get("space", "paper"))
 
 
 class PotentialModel:
@@ -80,7 +86,7 @@ class PotentialModel:
                 f"{self.features.version}; retrain it"
             )
         #: the policy space of the model's thetas (a model without one is the paper's)
-        self.space: PolicySpace = policy_space(meta.get("space", "paper"))
+        self.space: PolicySpace = model_space(meta)
         sp = self.space
         box = (meta.get("theta_low"), meta.get("theta_high"))
         if box[0] is None or box[1] is None:

@@ -3,7 +3,7 @@ options, the theta box), read from a model's metadata."""
 
 from __future__ import annotations
 
-from agents.theta import policy_space
+from agents.potential import model_space
 
 from .collect import ADDED_FIELDS
 
@@ -22,7 +22,7 @@ def theta_box_lines(meta: dict) -> list[str]:
     for a model that predates recording it)."""
     if "theta_low" not in meta:
         return []
-    space = policy_space(meta.get("space", "paper"))
+    space = model_space(meta)
     named = "" if space.name == "paper" else f"; the {space.name} policy space"
     box = ", ".join(f"{lo:g}..{hi:g}" for lo, hi in zip(meta["theta_low"], meta["theta_high"]))
     return [f"* **Theta box** ({', '.join(space.names)}{named}): {box}."]
