@@ -48,7 +48,7 @@ def _pool(args):
 
 
 def _cmd_race(args) -> int:
-    from .race import check_animation_format, run_race, write_outputs
+    from .race import check_animation_format, run_race, start_order, write_outputs
 
     if not args.no_animation:
         check_animation_format(args.format)  # before the race, not after it
@@ -60,6 +60,7 @@ def _cmd_race(args) -> int:
         start=args.start,
         laps=args.laps,
         render=not args.no_animation,
+        order=start_order(args.regions, len(args.agents), args.start),
     )
     print(result.table())
     paths = write_outputs(result, frames, Path(args.out), animation=args.format)
@@ -647,6 +648,12 @@ def build_parser() -> argparse.ArgumentParser:
             "--start",
             "start positions: the paper's start regions, a grid, or random",
             {"choices": ["regions", "grid", "random"], "default": "regions"},
+        ),
+        (
+            "--regions",
+            "with --start regions: each car's start region, in the order of --agents "
+            "(R1 the front-most), e.g. R2 R1 R3 (default: an order drawn from the seed)",
+            {"nargs": "+", "default": None},
         ),
         ("--out", "output folder", {"default": "results/race"}),
         (

@@ -267,6 +267,19 @@ def _ego_wins(summaries) -> dict:
     return {**win_share(wins, races), "margin_m_mean": float(margin)}
 
 
+def _wins_by_start(summaries) -> dict:
+    """Ego wins split by start order, summed over benchmark summaries: ``front`` from R1,
+    ``behind`` from every later region (pace wins from the front; from behind a car must
+    pass), each ``{"wins", "races"}``."""
+    out = {"front": {"wins": 0, "races": 0}, "behind": {"wins": 0, "races": 0}}
+    for s in summaries:
+        for region, w in s["by_region"].items():
+            key = "front" if region == "R1" else "behind"
+            out[key]["wins"] += int(w["ego"]["wins"])
+            out[key]["races"] += int(w["ego"]["races"])
+    return out
+
+
 def field_results(runs: dict, cfg: GeneralReportConfig, tracks) -> dict:
     """Part 2: per N, the ego's wins of alpha and of the control over all held-out tracks,
     and per track."""
@@ -278,6 +291,7 @@ def field_results(runs: dict, cfg: GeneralReportConfig, tracks) -> dict:
         out[str(N)] = {
             "chance": 1.0 / N,
             **{role: _ego_wins(per[role].values()) for role in per},
+            "by_start": {role: _wins_by_start(per[role].values()) for role in per},
             "by_track": {
                 t: {role: per[role][t]["wins"]["ego"]["wins"] for role in per}
                 | {"races": per["alpha"][t]["races"]}
@@ -459,6 +473,26 @@ def summary_markdown(s: dict) -> str:
             + " | ".join(f"{_pct(r[role])} | {r[role]['margin_m_mean']:+.2f}" for role in ROLES)
             + f" | {100 * r['chance']:.0f}% |"
         )
+    if all("by_start" in r for r in s["field"].values()):
+        lines += [
+            "",
+            "The same wins by start order: from R1 (pace alone can win there) and from behind "
+            "(R2 and later: the ego must pass).",
+            "",
+            f"| cars | alpha (general): from R1 | from behind | {ctrl_name}: from R1 "
+            "| from behind | `mpc` (zeta 0.9): from R1 | from behind |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for N, r in s["field"].items():
+            lines.append(
+                f"| {N} | "
+                + " | ".join(
+                    f"{b['wins']}/{b['races']}"
+                    for role in ROLES
+                    for b in (r["by_start"][role]["front"], r["by_start"][role]["behind"])
+                )
+                + " |"
+            )
     lines += [
         "",
         f"Ego wins per track (alpha / {ctrl_name} / `mpc` at zeta 0.9, of the races "

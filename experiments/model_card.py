@@ -42,7 +42,7 @@ those of K races).
 ROOT = Path(__file__).resolve().parent.parent
 #: Shipped models with measured races: name -> (the folder of strategy benchmarks under the
 #: repository, one suite with its ``strategy.json`` per sub-folder; the headline bench, the
-#: maneuver the model was trained for).
+#: maneuver the model's policy space was built for).
 MEASURED = {
     "extended": ("results/strategy_alpha_extended4000", "pass"),
     "extended_general": ("results/strategy_alpha_extended_general", "pass"),
@@ -63,6 +63,8 @@ def suite_command(config: dict, out: str) -> str:
     )
     if "defend" in config["scenarios"]:
         cmd += f" --zeta-max {config['zeta_max']:g}"
+    if "pass" in config["scenarios"] and config.get("pass_opponents", "raceline") != "raceline":
+        cmd += f" --pass-opponents {config['pass_opponents']}"
     return f"{cmd} --out {out}"
 
 
@@ -83,8 +85,12 @@ def measured_text(folder, headline: str) -> str:
         for bench in dict.fromkeys(r["bench"] for r in t["rows"]):
             mine = [r for r in t["rows"] if r["bench"] == bench]
             (ew, n), (cw, _) = _wins(mine, "ego"), _wins(mine, "control")
+            c = t["config"]
+            opp = c.get("pass_opponents", "raceline") if bench == "pass" else None
             rows.append(
-                f"| `{path.parent.name}` | {bench} | {', '.join(r['track'] for r in mine)} "
+                f"| `{path.parent.name}` | {bench}"
+                + (f" (`{opp}`)" if opp and opp != "raceline" else "")
+                + f" | {', '.join(r['track'] for r in mine)} | `{c['control']}` "
                 f"| {ew}/{n} | {cw}/{n} | {ew - cw:+d} |"
             )
             if bench == headline and head is None:
@@ -97,13 +103,14 @@ def measured_text(folder, headline: str) -> str:
         [
             "### Measured: strategy benchmark",
             "",
-            f"Ego `{c['ego']}` (this model) against the fixed extended theta `{c['control']}` "
-            f"in the same seats and races. In `{headline}`, the maneuver the model was "
-            f"trained for, the ego wins {ew}/{n} races and the fixed theta {cw}/{n}: the "
+            f"Ego `{c['ego']}` (this model) against a fixed extended theta (the control) "
+            f"in the same seats and races. In `{headline}` against `{c['control']}`, the "
+            f"maneuver its policy space "
+            f"was built for, the ego wins {ew}/{n} races and the fixed theta {cw}/{n}: the "
             f"model **{verdict}** the fixed extended theta. Wins summed over the tracks:",
             "",
-            "| suite | bench | tracks | ego wins | control wins | ego - control |",
-            "|---|---|---|---|---|---|",
+            "| suite | bench | tracks | control | ego wins | control wins | ego - control |",
+            "|---|---|---|---|---|---|---|",
             *rows,
             "",
             "Commands (the ego's model.npz is this file):",

@@ -10,6 +10,7 @@ import numpy as np
 from tqdm import tqdm
 
 from agents import check_field_size, make_agent_spec
+from agents.theta import policy_space
 from racing_env import RacingParallelEnv
 from racing_env.config import RulesConfig
 from racing_env.gym_env import act_named
@@ -35,6 +36,10 @@ class RaceResult:
     env_step_ms: float  # mean env.step wall time [ms]
     agent_stats: list[dict] = field(default_factory=list)
     contact_dn: float = RulesConfig().contact_dn  # [m] the race's lateral contact box
+    #: per car, the theta it drove at every step, (T, D) in its policy space's order
+    #: (``theta_names``), or None for an agent without a theta (IBR, PPO, raceline)
+    thetas: list = field(default_factory=list)
+    theta_names: list = field(default_factory=list)
 
     @property
     def metrics(self) -> dict:
@@ -106,6 +111,25 @@ class RaceResult:
         }
 
 
+def start_order(regions, n_cars: int, start: str = "regions") -> list[int] | None:
+    """``run_race``'s ``order`` from region names, one per car (``["R2", "R1", "R3"]``: car 0
+    starts in R2, ...; R1 is the front-most), or None for ``regions=None`` (an order drawn
+    from the seed). ``ValueError`` naming the value unless the names are a permutation of
+    R1..R<n_cars> and ``start`` is ``"regions"``."""
+    if regions is None:
+        return None
+    regions = list(regions)
+    if start != "regions":
+        raise ValueError(f"start regions {regions} need start='regions', got start={start!r}")
+    names = [f"R{k + 1}" for k in range(n_cars)]
+    if sorted(regions, key=str) != sorted(names) or len(regions) != n_cars:
+        raise ValueError(
+            f"start regions must name each of {' '.join(names)} once, one per car "
+            f"({n_cars} cars), got {' '.join(map(str, regions))}"
+        )
+    return [names.index(r) for r in regions]
+
+
 def run_race(
     agent_names: list[str],
     track: str = "default",
@@ -139,6 +163,7 @@ def run_race(
     states = [env.core.state[0].copy()]
     frames = [env.render_frame()] if render else []
     decide = np.zeros(n)
+    thetas = [[] if hasattr(a, "driven_theta") else None for a in agents]
     env_time = 0.0
     steps = 0
     with tqdm(
@@ -150,6 +175,8 @@ def run_race(
                 t0 = time.perf_counter()
                 actions[agent_id] = act_named(agents[k], obs[agent_id], agent_id, agent_names[k])
                 decide[k] += time.perf_counter() - t0
+                if thetas[k] is not None:
+                    thetas[k].append(agents[k].driven_theta.as_array(agents[k].space))
             t0 = time.perf_counter()
             obs, _, _, _, _ = env.step(actions)
             env_time += time.perf_counter() - t0
@@ -173,6 +200,11 @@ def run_race(
         env_step_ms=1e3 * env_time / max(steps, 1),
         agent_stats=[dict(getattr(a, "stats", {}) or {}) for a in agents],
         contact_dn=env.config.rules.contact_dn,
+        thetas=[None if t is None else np.array(t).reshape(steps, -1) for t in thetas],
+        theta_names=[
+            list(policy_space(a.space).names) if t is not None else None
+            for a, t in zip(agents, thetas)
+        ],
     )
     env.close()
     return result, frames
@@ -186,6 +218,11 @@ def write_outputs(result: RaceResult, frames: list, out: Path, animation: str = 
 
     out.mkdir(parents=True, exist_ok=True)
     paths = {"summary": out / "result.json", "trajectories": out / "trajectories.png"}
+    from .theta_plot import plot_thetas, varying_cars
+
+    if varying_cars(result.thetas):  # a car that chose its theta during the race
+        paths["thetas"] = out / "thetas.png"
+        plot_thetas(result, paths["thetas"])
     write_json(paths["summary"], result.summary())
     track = make_track(result.track)
     rl = get_raceline(track)

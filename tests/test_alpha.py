@@ -517,3 +517,23 @@ def test_the_shipped_model_card_is_laid_out_from_the_shipped_models():
     from experiments.model_card import card
 
     assert (MODEL_DIR / "MODEL_CARD.md").read_text() == card()
+
+
+def test_a_cards_suite_command_gives_back_the_options_of_its_suite():
+    from experiments.model_card import suite_command
+
+    c = {
+        "ego": "alpha",
+        "control": "mpc:theta=best",
+        "tracks": ["default"],
+        "scenarios": ["pass"],
+        "races": 4,
+        "steps": 50,
+        "seed": 1,
+        "zeta_max": 0.94,
+        "pass_opponents": "raceline",
+    }
+    assert "--pass-opponents" not in suite_command(c, "out")
+    cmd = suite_command({**c, "pass_opponents": "raceline:grip=0.85"}, "out")
+    assert cmd.endswith("--pass-opponents raceline:grip=0.85 --out out")
+    assert "--zeta-max 0.97" in suite_command({**c, "scenarios": ["defend"], "zeta_max": 0.97}, "o")

@@ -272,6 +272,11 @@ def test_tiny_extended_pipeline_collect_train_race(extended_run):
     st = result.agent_stats[0]
     assert st["solves"] == 5 and np.isfinite(st["potential"])
     assert list(st["theta"]) == list(EXTENDED.names) and 0 <= st["theta"]["b"] <= 1
+    # the race records the theta chosen at every step; the last one is the agent's last
+    th = result.thetas[0]
+    assert th.shape == (5, 6) and result.theta_names[0] == list(EXTENDED.names)
+    assert np.all((EXTENDED.low <= th) & (th <= EXTENDED.high))
+    assert th[-1].tolist() == list(st["theta"].values())
 
 
 def test_training_names_a_space_mismatch(extended_run, tmp_path):

@@ -127,3 +127,16 @@ def test_every_option_has_help_and_shows_its_default(name):
             assert f"(default: {action.default})" in " ".join(text.split()), (
                 f"{name} {action.option_strings}: default not shown"
             )
+
+
+def test_start_regions_of_a_race_are_checked_before_it_and_map_to_the_order(capsys, monkeypatch):
+    from experiments.race import start_order
+
+    assert start_order(["R2", "R1", "R3"], 3) == [1, 0, 2]
+    assert start_order(None, 3) is None
+    monkeypatch.setattr(experiments.race, "run_race", _no_race)
+    base = ["race", "--agents", "mpc", "raceline", "--steps", "5", "--no-animation"]
+    err = _one_line_error(capsys, base + ["--regions", "R2", "R3"])
+    assert "must name each of R1 R2 once" in err and "got R2 R3" in err
+    err = _one_line_error(capsys, base + ["--regions", "R2", "R1", "--start", "grid"])
+    assert "need start='regions'" in err

@@ -650,6 +650,11 @@ def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_p
     assert f["alpha"]["races"] == f["control"]["races"] == f["mpc_default"]["races"] == 2
     assert f["chance"] == 0.5
     assert f["by_track"]["random:10000"]["races"] == 2
+    # wins by start order: one race from R1, one from behind, and they add up to the wins
+    for role in ("alpha", "control", "mpc_default"):
+        b = f["by_start"][role]
+        assert b["front"]["races"] == b["behind"]["races"] == 1
+        assert b["front"]["wins"] + b["behind"]["wins"] == f[role]["wins"]
     d = s["default"]["general"]
     assert sum(w["wins"] for w in d["wins"].values()) == 3
     text = (tmp_path / "summary.md").read_text()
@@ -657,6 +662,7 @@ def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_p
         "## Approximation gap",
         "against the best fixed theta",
         "against the single-track `default` model",
+        "The same wins by start order",
     ):
         assert part in text
     lines = (tmp_path / "bench" / "random_10000_2cars" / "alpha" / "races.jsonl").read_text()

@@ -188,6 +188,10 @@ def test_a_zeta_ceiling_drives_the_capped_theta_and_names_bad_values():
     )
     b, _ = run_race(["mpc:zeta=0.95", "raceline"], seed=3, max_cycles=25, progress_bar=False)
     assert a.states.tobytes() == b.states.tobytes()
+    # the race records the theta each car drove: the capped one; none for the follower
+    assert a.thetas[0].shape == (25, 5) and a.thetas[1] is None
+    assert a.theta_names[0] == ["q", "zeta", "s1", "s2", "s3"] and a.theta_names[1] is None
+    assert np.all(a.thetas[0][:, 1] == 0.95) and np.array_equal(a.thetas[0], b.thetas[0])
     agent = make_agent_spec("mpc:zeta=0.9,zeta_max=1.0")
     assert agent.driven_theta is agent.theta
     for bad, shown in (("0.5", "0.5"), ("1.1", "1.1"), ("true", "True")):
