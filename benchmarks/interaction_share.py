@@ -26,6 +26,8 @@ SETTINGS = (
     ("extended", "close", "box"),
     ("paper", "close", "close"),
     ("extended", "close", "close"),
+    ("extended", "close", "spread"),
+    ("extended", "close", "overtake"),
 )
 
 

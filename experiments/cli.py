@@ -603,7 +603,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from .analyze import AnalyzeConfig
     from .bench import BenchConfig
-    from .collect import PACE_SPREAD, PACES, START_REGIONS, CollectConfig
+    from .collect import PACE_SPREAD, PACE_SPREADS, PACES, START_REGIONS, CollectConfig
     from .control import ControlConfig
     from .general import GeneralReportConfig
     from .league import LeagueConfig
@@ -750,7 +750,9 @@ def build_parser() -> argparse.ArgumentParser:
             "--pace",
             "the cars' zeta: each drawn over the box (the paper's), or close: one zeta per "
             f"race over the box and every car's within {PACE_SPREAD:g} of it (the field stays "
-            "together)",
+            f"together), or spread: within {PACE_SPREADS['spread']:g} (faster cars among "
+            "slower ones: more passes), or overtake: spread, the slowest car in front and the "
+            "fastest at the back",
             {"choices": list(PACES)},
         ),
         (

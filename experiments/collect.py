@@ -37,10 +37,15 @@ SCHEMA_VERSION = 1
 START_REGIONS = {"paper": (0.4, 0.6), "close": (0.2, 0.1)}
 #: How a race's paces are drawn: ``"box"``, every car's zeta over the whole box (the paper);
 #: ``"close"``, one zeta for the race drawn over the box and every car's within
-#: ``PACE_SPREAD`` of it (clipped to the box), so that the field stays together and passes and
-#: blocks are frequent while the collection still spans the box's paces.
-PACES = ("box", "close")
+#: ``PACE_SPREAD`` of it (clipped to the box), so that the field stays together while the
+#: collection still spans the box's paces; ``"spread"``, the same with every car's zeta within
+#: ``PACE_SPREADS["spread"]``, so that cars a few percent faster start among slower ones and
+#: passes happen (at ``"close"`` cars of nearly equal pace rarely get past one another);
+#: ``"overtake"``, the paces of ``"spread"`` dealt slowest to R1 and fastest to the last region,
+#: so that every faster car starts behind every slower one and must pass to gain.
+PACES = ("box", "close", "spread", "overtake")
 PACE_SPREAD = 0.03  # half-width of a "close" race's zeta spread (absolute, zeta units)
+PACE_SPREADS = {"close": PACE_SPREAD, "spread": 0.08, "overtake": 0.08}
 #: Config fields added after collections were first made, with their paper defaults: a manifest
 #: records them only when they differ (:func:`experiments.artifacts.manifest_config`).
 ADDED_FIELDS = {"space": "paper", "start": "paper", "pace": "box"}
@@ -75,7 +80,7 @@ class CollectConfig(ShardedRaces):
     space: str = "paper"  # policy space the thetas are drawn from (agents.reference)
     start: str = "paper"  # start regions: "paper" (0.4 m long, 0.6 m apart) or
     # "close" (0.2 m long, 0.1 m apart: pass and block at once)
-    pace: str = "box"  # the cars' zeta: "box" (each over the box) or "close" (PACES)
+    pace: str = "box"  # the cars' zeta: "box" (each over the box), or as PACES says
 
     def __post_init__(self):
         from agents.reference import policy_space
@@ -132,8 +137,10 @@ def simulate_race(config: CollectConfig, race_index: int) -> dict:
     obs, _ = env.reset(seed=int(rng.integers(2**31)), options={"order": order.tolist()})
     space = policy_space(config.space)  # the paper's draws are Theta.sample's, bit for bit
     thetas = np.array([space.sample(rng) for _ in range(config.n_cars)])
-    if config.pace == "close":
-        thetas = close_paces(thetas, space, rng)
+    if config.pace in PACE_SPREADS:
+        thetas = close_paces(thetas, space, rng, PACE_SPREADS[config.pace])
+    if config.pace == "overtake":  # car i starts in region order[i]: R1 gets the slowest
+        thetas = thetas[np.argsort(thetas[:, space.names.index("zeta")], kind="stable")][order]
     agents = _mpc_agents(env.track, thetas, rng, env.possible_agents, config.space)
     fallbacks0 = [a.stats["fallbacks"] for a in agents]
     states = np.empty((config.steps + 1, config.n_cars, 6), dtype=np.float32)
@@ -160,14 +167,17 @@ def simulate_race(config: CollectConfig, race_index: int) -> dict:
     }
 
 
-def close_paces(thetas: np.ndarray, space, rng: np.random.Generator) -> np.ndarray:
-    """``thetas`` (N, dim) with every car's zeta replaced by one drawn within ``PACE_SPREAD``
-    of a zeta for the race, itself drawn uniformly over ``space``'s zeta bounds (a copy)."""
+def close_paces(
+    thetas: np.ndarray, space, rng: np.random.Generator, spread: float = PACE_SPREAD
+) -> np.ndarray:
+    """``thetas`` (N, dim) with every car's zeta replaced by one drawn within ``spread``
+    (zeta units) of a zeta for the race, itself drawn uniformly over ``space``'s zeta bounds,
+    clipped to them (a copy)."""
     z = space.names.index("zeta")
     lo, hi = space.low[z], space.high[z]
     centre = rng.uniform(lo, hi)
     out = thetas.copy()
-    out[:, z] = np.clip(centre + rng.uniform(-PACE_SPREAD, PACE_SPREAD, len(out)), lo, hi)
+    out[:, z] = np.clip(centre + rng.uniform(-spread, spread, len(out)), lo, hi)
     return out
 
 

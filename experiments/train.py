@@ -269,7 +269,7 @@ def model_card_text(meta: dict) -> str:
             + (
                 "`; every car an MPC with theta uniform in its bounds, zeta close to the "
                 "race's own, drawn over the box); "
-                if col.get("pace") == "close"
+                if col.get("pace") in ("close", "spread", "overtake")
                 else "`; every car an MPC with theta uniform in its bounds); "
             )
             + f"{100 * c['val_fraction']:.0f}% of the races held out.",

@@ -157,7 +157,10 @@ def test_collect_config_names_bad_space_and_start():
         CollectConfig(space="wide")
     with pytest.raises(ValueError, match=r"start must be one of \['close', 'paper'\], got 'near'"):
         CollectConfig(start="near")
-    with pytest.raises(ValueError, match=r"pace must be one of \['box', 'close'\], got 'even'"):
+    with pytest.raises(
+        ValueError,
+        match=r"pace must be one of \['box', 'close', 'spread', 'overtake'\], got 'even'",
+    ):
         CollectConfig(pace="even")
 
 
@@ -190,3 +193,25 @@ def test_a_close_pace_collection_differs_from_the_box_only_in_zeta(tmp_path):
     assert np.ptp(box["thetas"][:, :, z], axis=1).max() > 2 * PACE_SPREAD  # seed 5: a wide draw
     np.testing.assert_array_equal(np.delete(close["thetas"], z, 2), np.delete(box["thetas"], z, 2))
     np.testing.assert_array_equal(close["states"][:, 0], box["states"][:, 0])  # same starts
+
+
+def test_an_overtake_collection_deals_the_spread_paces_slowest_first(tmp_path):
+    """``pace="overtake"``: the zetas of ``"spread"`` (within 0.08 of the race's), dealt so
+    that progress order at the start is the reverse of pace order (the slowest car in front);
+    the other parameters are those of the same race's spread draw, dealt with their zeta."""
+    from agents.theta import policy_space
+    from experiments.collect import PACE_SPREADS
+
+    kw = dict(races=3, n_cars=3, steps=3, seed=5, races_per_shard=3, space="extended")
+    kw["start"] = "close"
+    spread = load_races_of(CollectConfig(pace="spread", **kw), tmp_path / "spread")
+    over = load_races_of(CollectConfig(pace="overtake", **kw), tmp_path / "overtake")
+    z = policy_space("extended").names.index("zeta")
+    assert np.ptp(spread["thetas"][:, :, z], axis=1).max() <= 2 * PACE_SPREADS["spread"] + 1e-6
+    np.testing.assert_array_equal(over["states"][:, 0], spread["states"][:, 0])  # same starts
+    for r in range(3):
+        front_to_back = np.argsort(-over["states"][r, 0, :, 0])
+        assert np.all(np.diff(over["thetas"][r, front_to_back, z]) >= 0)
+        # the same thetas as the spread race, only dealt to other cars
+        key = lambda a: a[np.lexsort(a.T[::-1])]
+        np.testing.assert_array_equal(key(over["thetas"][r]), key(spread["thetas"][r]))
