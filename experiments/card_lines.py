@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from agents.potential import model_space
 
-from .collect import ADDED_FIELDS
+from .collect import ADDED_FIELDS, PACE_SPREADS
 
 
 def added_options_text(collect: dict) -> str:
@@ -26,3 +26,15 @@ def theta_box_lines(meta: dict) -> list[str]:
     named = "" if space.name == "paper" else f"; the {space.name} policy space"
     box = ", ".join(f"{lo:g}..{hi:g}" for lo, hi in zip(meta["theta_low"], meta["theta_high"]))
     return [f"* **Theta box** ({', '.join(space.names)}{named}): {box}."]
+
+
+def pace_text(collect: dict) -> str:
+    """How the collection drew the cars' paces, after "every car an MPC with theta uniform in
+    its bounds" (empty for the paper's draw over the box)."""
+    pace = collect.get("pace", "box")
+    if pace == "close":
+        return ", zeta close to the race's own, drawn over the box"
+    if pace in PACE_SPREADS:
+        text = f", zeta within {PACE_SPREADS[pace]:g} of the race's own, drawn over the box"
+        return text + (", the slowest car in front" if pace == "overtake" else "")
+    return ""

@@ -11,6 +11,7 @@ ahead), with the race's passes (:mod:`experiments.metrics`) as vertical lines.
 from __future__ import annotations
 
 import os
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -63,7 +64,7 @@ def plot_thetas(result, path: str | os.PathLike, dpi: int = 120) -> Path:
                 )
         gap.axhline(0.0, color="0.5", lw=0.6)
         gap.set_ylabel("s_j - s_i [m]", fontsize=8)
-        gap.set_title(f"car_{i} ({result.agents[i]})", fontsize=9)
+        gap.set_title(textwrap.fill(f"car_{i} ({result.agents[i]})", 60), fontsize=9)
         gap.legend(loc="best", fontsize=7, framealpha=0.8)
         for r, name in enumerate(names, 1):
             ax = axes[r]

@@ -52,7 +52,7 @@ from agents.features import (
 from agents.potential import PotentialModel
 
 from . import nets
-from .card_lines import added_options_text, theta_box_lines
+from .card_lines import added_options_text, pace_text, theta_box_lines
 from .nets import TrainConfig
 
 # ---------------------------------------------------------------------------- data
@@ -266,12 +266,9 @@ def model_card_text(meta: dict) -> str:
             f"* **Data:** {d['races']} races x {d['steps']} steps x {meta['n_cars']} cars on "
             f"`{meta['track']}` (`alpha-racer collect --races {col.get('races', d['races'])} "
             f"--seed {col.get('seed', 0)}{added_options_text(col)}"
-            + (
-                "`; every car an MPC with theta uniform in its bounds, zeta close to the "
-                "race's own, drawn over the box); "
-                if col.get("pace") in ("close", "spread", "overtake")
-                else "`; every car an MPC with theta uniform in its bounds); "
-            )
+            + "`; every car an MPC with theta uniform in its bounds"
+            + pace_text(col)
+            + "); "
             + f"{100 * c['val_fraction']:.0f}% of the races held out.",
             *theta_box_lines(meta),
             f"* **Discount:** gamma = {meta['gamma']}.",

@@ -537,3 +537,15 @@ def test_a_cards_suite_command_gives_back_the_options_of_its_suite():
     cmd = suite_command({**c, "pass_opponents": "raceline:grip=0.85"}, "out")
     assert cmd.endswith("--pass-opponents raceline:grip=0.85 --out out")
     assert "--zeta-max 0.97" in suite_command({**c, "scenarios": ["defend"], "zeta_max": 0.97}, "o")
+
+
+def test_a_model_card_says_how_its_collection_drew_the_paces():
+    from experiments.card_lines import pace_text
+
+    assert pace_text({}) == pace_text({"pace": "box"}) == ""
+    assert pace_text({"pace": "close"}) == ", zeta close to the race's own, drawn over the box"
+    assert "within 0.08" in pace_text({"pace": "spread"})
+    assert "slowest car in front" not in pace_text({"pace": "spread"})
+    assert pace_text({"pace": "overtake"}).endswith(
+        "within 0.08 of the race's own, drawn over the box, the slowest car in front"
+    )
