@@ -43,7 +43,14 @@ class RacelineFollower:
     is right at the grip the speed profile uses). ``line_fraction`` scales the racing line's
     offsets towards the centre line to keep a margin from the edges. Throttle is a
     feed-forward of rolling resistance and drag plus ``k_speed`` times the error to the
-    profile speed ``speed_preview`` s ahead (so it brakes before corners). Ignores other cars.
+    profile speed ``speed_preview`` s ahead (so it brakes before corners).
+
+    By default it ignores other cars (it never yields). ``yield_gap`` [m] > 0 makes it leave
+    room: while another car is between ``yield_behind`` [m] behind it and ``yield_ahead`` [m]
+    ahead of it (progress difference), the follower's lateral target keeps at least
+    ``yield_gap`` from that car's lateral offset on the follower's own side of it (its line is
+    shifted away where it would run closer). ``n_preview`` is the env's curvature preview
+    length, to read the other cars from the observation.
     """
 
     #: shown by ``alpha-racer agents`` beside the deprecated keyword
@@ -60,6 +67,10 @@ class RacelineFollower:
         speed_preview: float = 0.3,
         k_speed: float = 2.0,
         line: str = "curvature",
+        yield_gap: float = 0.0,
+        yield_behind: float = 0.2,
+        yield_ahead: float = 0.4,
+        n_preview: int = 10,
         *,
         mu: float | None = None,
     ):
@@ -78,6 +89,17 @@ class RacelineFollower:
                 f"speed_preview non-negative; got {preview_min}, {k_speed}, "
                 f"{preview_time}, {speed_preview}"
             )
+        for name, v, hi in (
+            ("yield_gap", yield_gap, 0.3),
+            ("yield_behind", yield_behind, 2.0),
+            ("yield_ahead", yield_ahead, 2.0),
+        ):
+            if not (isinstance(v, (int, float)) and 0.0 <= v <= hi):
+                raise ValueError(f"{name} must be a number in [0, {hi}] m, got {v!r}")
+        if not (isinstance(n_preview, int) and n_preview >= 0):
+            raise ValueError(f"n_preview must be a non-negative integer, got {n_preview!r}")
+        self.yield_gap, self.yield_behind, self.yield_ahead = yield_gap, yield_behind, yield_ahead
+        self.n_preview = n_preview
         self.vehicle = vehicle or VehicleParams()
         self.grip = grip
         self.speed_scale = speed_scale
@@ -159,9 +181,14 @@ class RacelineFollower:
         """Normalised ``[throttle, steering]`` (float32, in [-1, 1]) from an env observation."""
         if self.track is None:
             raise RuntimeError("RacelineFollower.act() before reset(track, ...)")
+        n_ref = self._n_ref
+        if self.yield_gap > 0.0:
+            shift = self.yield_shift(np.asarray(observation, dtype=np.float64))
+            if shift != 0.0:
+                n_ref = n_ref + shift
         a = follower_action(
             np.asarray(observation[:6], dtype=np.float64),
-            self._n_ref,
+            n_ref,
             self._mu_ref,
             self._kappa_ref,
             self._v_ref,
@@ -170,6 +197,28 @@ class RacelineFollower:
             self._gains,
         )
         return np.array(a, dtype=np.float32)
+
+    def yield_shift(self, observation: np.ndarray) -> float:
+        """The lateral shift [m] of the follower's target that leaves ``yield_gap`` to every car
+        in its yield window (0 when none is there or the line already keeps clear)."""
+        n_cars, rest = divmod(len(observation) - self.n_preview, 6)
+        if rest or n_cars < 1:
+            raise ValueError(
+                f"observation of length {len(observation)} does not fit 6 N + n_preview "
+                f"with n_preview = {self.n_preview}"
+            )
+        s, n = observation[0], observation[1]
+        t = self.track
+        line = _lookup(self._n_ref, s, t.ds, t.length)
+        target = line
+        rel = observation[6 : 6 * n_cars].reshape(n_cars - 1, 6)  # others minus ego
+        for ds, dn in rel[:, :2]:
+            if -self.yield_behind <= ds <= self.yield_ahead:
+                side = 1.0 if dn <= 0.0 else -1.0  # the follower's side of the other car
+                keep = n + dn + side * self.yield_gap
+                if side * (target - keep) < 0.0:
+                    target = keep
+        return target - line
 
 
 @njit(cache=True)
