@@ -49,8 +49,8 @@ class RacelineFollower:
     room: while another car is between ``yield_behind`` [m] behind it and ``yield_ahead`` [m]
     ahead of it (progress difference), the follower's lateral target keeps at least
     ``yield_gap`` from that car's lateral offset on the follower's own side of it (its line is
-    shifted away where it would run closer). ``n_preview`` is the env's curvature preview
-    length, to read the other cars from the observation.
+    shifted away where it would run closer, never past the track's edges). ``n_preview`` is
+    the env's curvature preview length, to read the other cars from the observation.
     """
 
     #: shown by ``alpha-racer agents`` beside the deprecated keyword
@@ -218,6 +218,10 @@ class RacelineFollower:
                 keep = n + dn + side * self.yield_gap
                 if side * (target - keep) < 0.0:
                     target = keep
+        if target != line:  # never past the track's edges (its body inside them)
+            w_left, w_right = t.widths(s)
+            half = 0.5 * self.vehicle.width
+            target = min(max(target, -float(w_right) + half), float(w_left) - half)
         return target - line
 
 
