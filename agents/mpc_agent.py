@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from racing_env.observation import joint_state_from_observation, split_observation  # noqa: F401
 from racing_env.track import Track
 from racing_env.tracks import make_track
 from racing_env.vehicle import VehicleParams
@@ -25,32 +26,6 @@ from .reference import (
     reference_trajectory,
 )
 from .threads import single_blas_thread
-
-
-def joint_state_from_observation(obs: np.ndarray, n_cars: int) -> tuple[np.ndarray, np.ndarray]:
-    """(ego (6,), others (N-1, 6)) Frenet states from an env observation.
-
-    The ego's ``s`` is its wrapped arc length; the others' are ego ``s`` plus their unwrapped
-    progress difference, so every longitudinal difference stays on unwrapped progress.
-    """
-    ego = np.asarray(obs[:6], dtype=float)
-    rel = np.asarray(obs[6 : 6 * n_cars], dtype=float).reshape(n_cars - 1, 6)
-    others = rel + ego[None, :]
-    others[:, 2] = np.angle(np.exp(1j * others[:, 2]))
-    return ego, others
-
-
-def split_observation(observation: np.ndarray, n_preview: int) -> tuple[np.ndarray, np.ndarray]:
-    """(ego (6,), others (N-1, 6)) from an env observation whose curvature preview has
-    ``n_preview`` entries; ``ValueError`` when the length does not fit ``6 N + n_preview``."""
-    obs = np.asarray(observation, dtype=float)
-    n_cars, rest = divmod(len(obs) - n_preview, 6)
-    if rest or n_cars < 1:
-        raise ValueError(
-            f"observation of length {len(obs)} does not fit 6 N + n_preview "
-            f"with n_preview = {n_preview}"
-        )
-    return joint_state_from_observation(obs, n_cars)
 
 
 def progress_rate(state: np.ndarray, track: Track) -> np.ndarray:

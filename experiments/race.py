@@ -122,7 +122,7 @@ def start_order(regions, n_cars: int, start: str = "regions") -> list[int] | Non
     if start != "regions":
         raise ValueError(f"start regions {regions} need start='regions', got start={start!r}")
     names = [f"R{k + 1}" for k in range(n_cars)]
-    if sorted(regions, key=str) != sorted(names) or len(regions) != n_cars:
+    if sorted(regions, key=str) != sorted(names):
         raise ValueError(
             f"start regions must name each of {' '.join(names)} once, one per car "
             f"({n_cars} cars), got {' '.join(map(str, regions))}"

@@ -12,6 +12,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .config import RaceConfig
+from .observation import split_observation
 from .simulator import _lookup
 from .track import Track
 from .tracks import make_track
@@ -70,7 +72,7 @@ class RacelineFollower:
         yield_gap: float = 0.0,
         yield_behind: float = 0.2,
         yield_ahead: float = 0.4,
-        n_preview: int = 10,
+        n_preview: int = RaceConfig.n_preview,
         *,
         mu: float | None = None,
     ):
@@ -183,8 +185,8 @@ class RacelineFollower:
             raise RuntimeError("RacelineFollower.act() before reset(track, ...)")
         n_ref = self._n_ref
         if self.yield_gap > 0.0:
-            shift = self.yield_shift(np.asarray(observation, dtype=np.float64))
-            if shift != 0.0:
+            shift = self.yield_shift(observation)
+            if shift != 0.0:  # the table, not the looked-up value: the measured races are so
                 n_ref = n_ref + shift
         a = follower_action(
             np.asarray(observation[:6], dtype=np.float64),
@@ -201,21 +203,15 @@ class RacelineFollower:
     def yield_shift(self, observation: np.ndarray) -> float:
         """The lateral shift [m] of the follower's target that leaves ``yield_gap`` to every car
         in its yield window (0 when none is there or the line already keeps clear)."""
-        n_cars, rest = divmod(len(observation) - self.n_preview, 6)
-        if rest or n_cars < 1:
-            raise ValueError(
-                f"observation of length {len(observation)} does not fit 6 N + n_preview "
-                f"with n_preview = {self.n_preview}"
-            )
-        s, n = observation[0], observation[1]
+        ego, others = split_observation(observation, self.n_preview)
+        s, n = ego[0], ego[1]
         t = self.track
         line = _lookup(self._n_ref, s, t.ds, t.length)
         target = line
-        rel = observation[6 : 6 * n_cars].reshape(n_cars - 1, 6)  # others minus ego
-        for ds, dn in rel[:, :2]:
-            if -self.yield_behind <= ds <= self.yield_ahead:
-                side = 1.0 if dn <= 0.0 else -1.0  # the follower's side of the other car
-                keep = n + dn + side * self.yield_gap
+        for s_j, n_j in others[:, :2]:
+            if -self.yield_behind <= s_j - s <= self.yield_ahead:
+                side = 1.0 if n_j <= n else -1.0  # the follower's side of the other car
+                keep = n_j + side * self.yield_gap
                 if side * (target - keep) < 0.0:
                     target = keep
         if target != line:  # never past the track's edges (its body inside them)
