@@ -54,10 +54,30 @@ def _readme_paths() -> set[str]:
         if not re.match(r"[a-z]+:|#", target):
             paths.add(target.split("#")[0])
     for token in re.split(r"[\s`'\"(),\[\]]+", README):
-        token = token.split("::")[0].rstrip(".:;")
+        token = token.split("::")[0].split("#")[0].rstrip(".:;")
         if token.startswith(tuple(d + "/" for d in REPO_DIRS)) or token in ROOT_FILES:
             paths.add(token)
     return paths
+
+
+def _heading_slugs(markdown: str) -> set[str]:
+    """The anchors MkDocs gives a page's headings (the toc extension's default slugs)."""
+    slugs = set()
+    for heading in re.findall(r"^#{1,6} (.+?)\s*$", markdown, re.M):
+        text = re.sub(r"[^\w\s-]", "", heading.replace("`", "")).strip().lower()
+        slugs.add(re.sub(r"[-\s]+", "-", text))
+    return slugs
+
+
+def test_readme_anchors_name_headings_of_their_pages():
+    links = re.findall(r"\]\((docs/[^)\s#]+\.md)#([^)\s]+)\)", README)
+    assert links, "the README links to sections of the docs"
+    bad = [
+        f"{page}#{anchor}"
+        for page, anchor in links
+        if anchor not in _heading_slugs((ROOT / page).read_text())
+    ]
+    assert not bad, f"README links to sections that do not exist: {bad}"
 
 
 def test_readme_points_only_inside_the_repository():
