@@ -124,6 +124,10 @@ def test_config_names_bad_sqp_settings():
         ({"merit_rtol": -0.1}, "merit_rtol"),
         ({"step_sizes": (1.0, 0.0)}, "step_sizes"),
         ({"step_sizes": ()}, "step_sizes"),
+        ({"step_damping": (1.0, -10.0)}, "step_damping"),
+        ({"step_damping": (float("nan"),)}, "step_damping"),
+        ({"step_damping": 10.0}, "step_damping"),
+        ({"step_damping": (True,)}, "step_damping"),
     ):
         with pytest.raises(ValueError, match=name):
             MPCConfig(**kw)
@@ -231,6 +235,54 @@ def test_the_public_prediction_is_the_mpcs_own(mpc):
     np.testing.assert_array_equal(
         states[0], mpc._plan(x0, U, s_prev=nodes, jacobians=False, passes=0)[0]
     )
+
+
+def test_damped_steps_keep_no_costlier_plan_and_find_cheaper_ones():
+    """``MPCConfig(step_damping=...)`` re-solves a QP whose step no step length lets lower the
+    cost with a damped Hessian. From the same warm start and problem in a 3-car race at the
+    top of the box, its plan is the plain SQP's where no damped step was accepted, never
+    costs more (a damped step continues from the plan the plain SQP stops at), and in some
+    states costs less."""
+    from agents import make_agent_spec
+    from racing_env import RacingParallelEnv
+
+    env = RacingParallelEnv(n_cars=3, max_cycles=50, start="regions")
+    obs, _ = env.reset(seed=0)
+    spec = "mpc:q=5,zeta=1.05,s1=0.3,s2=0.5,s3=0"
+    cars = [make_agent_spec(spec) for _ in range(3)]
+    for car, aid in zip(cars, env.possible_agents):
+        car.reset(env.track, aid, 0)
+    twins = [MPC(env.track, config=MPCConfig(step_damping=(0.1, 1.0, 10.0, 100.0))) for _ in cars]
+    costs = []
+
+    def twin_solve(car, twin):
+        plain_solve = car.mpc.solve
+
+        def solve(*args):
+            twin._U = None if car.mpc._U is None else car.mpc._U.copy()
+            twin._s_nom = None if car.mpc._s_nom is None else car.mpc._s_nom.copy()
+            damped_before = twin.stats["damped_steps"]
+            twin.solve(*args)
+            u = plain_solve(*args)
+            if car.mpc.last_status == twin.last_status == "ok":
+                damped = twin.stats["damped_steps"] > damped_before
+                costs.append((car.mpc.last_plan[1], twin.last_plan[1], damped))
+            return u
+
+        return solve
+
+    for car, twin in zip(cars, twins):
+        car.mpc.solve = twin_solve(car, twin)
+    while env.agents:
+        obs, *_ = env.step({a: c.act(obs[a]) for a, c in zip(env.possible_agents, cars)})
+    plain, damped_cost, damped = np.array(costs).T
+    damped = damped.astype(bool)
+    assert len(costs) >= 100
+    # the plain SQP and the damped one differ only after a rejected step
+    np.testing.assert_array_equal(plain[~damped], damped_cost[~damped])
+    assert np.all(damped_cost <= plain * (1 + 1e-12))
+    assert damped.sum() >= 3
+    assert np.sum(damped_cost[damped] < 0.99 * plain[damped]) >= 1
 
 
 @pytest.mark.slow

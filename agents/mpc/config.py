@@ -34,6 +34,10 @@ class MPCConfig:
     # leaves the track by more than this [m]
     qp_iter_limit: int = 300  # DAQP active-set iterations; a QP that needs more (rare
     # cycling) falls back instead of spinning for 10 ms
+    step_damping: tuple = ()  # where no step length of a QP step lowers the cost, solve the
+    # QP again with lam * mean(diag H) added to its Hessian, for each lam in turn, until a
+    # step is accepted (Levenberg-Marquardt: a shorter step turned toward steepest descent);
+    # () keeps the plain line search. Opt-in; see docs "The MPC's plans against IPOPT"
     second_start: bool = False  # where the SQP's plan still pays the soft rows' penalty (a
     # track edge or a separation violated), solve again from the raceline follower's
     # rollout and from the plan with less throttle, and keep the cheapest (a local solution
@@ -73,6 +77,17 @@ class MPCConfig:
             )
         if not (np.isfinite(self.merit_rtol) and self.merit_rtol >= 0):
             raise ValueError(f"MPCConfig.merit_rtol must be >= 0, got {self.merit_rtol!r}")
+        try:
+            damping = tuple(self.step_damping)
+        except TypeError:
+            damping = (None,)
+        if any(
+            isinstance(lam, bool) or not isinstance(lam, (int, float)) or not (0 < lam < np.inf)
+            for lam in damping
+        ):
+            raise ValueError(
+                f"MPCConfig.step_damping must be positive finite factors, got {self.step_damping!r}"
+            )
         steps = tuple(self.step_sizes)
         if not steps or any(not (0 < a <= 1) for a in steps):
             raise ValueError(

@@ -203,6 +203,7 @@ class MPC:
             "fallbacks": 0,
             "restarts": 0,
             "second_starts": 0,
+            "damped_steps": 0,
             "qp_iterations": 0,
             "rejected_steps": 0,
             "extra_iterations": 0,
@@ -349,17 +350,7 @@ class MPC:
             if not ok:
                 status = "nonfinite prediction"
                 break
-            du, _, exitflag, info = daqp.solve(
-                H,
-                f,
-                Acon,
-                bhi,
-                blo,
-                sense,
-                rho_soft=cfg.soft_rho_at(q),
-                iter_limit=cfg.qp_iter_limit,
-            )
-            self.stats["qp_iterations"] += int(info.get("iterations", 0))
+            du, exitflag = self._qp(daqp, H, f, Acon, blo, bhi, sense, q)
             if exitflag < 0 or not np.all(np.isfinite(du)):
                 status = f"qp exitflag {exitflag}" if it == 0 else status
                 break
@@ -368,7 +359,11 @@ class MPC:
             # merit check on the nonlinear rollout: the full step, else shorter ones, each
             # with the curvature along its own linearised progress (no extra rollout)
             ds_lin = G[0::2] @ du
-            step = self._step(consts, u_vec, du, ds_lin, s_pred, J, it + 1 < cfg.sqp_iterations)
+            relinearise = it + 1 < cfg.sqp_iterations
+            step = self._step(consts, u_vec, du, ds_lin, s_pred, J, relinearise)
+            if step.code == StepCode.REJECTED and cfg.step_damping:
+                qp = (G, H, f, Acon, blo, bhi, sense, q)
+                step = self._damped_step(daqp, consts, u_vec, s_pred, J, relinearise, qp, step)
             if step.code == StepCode.FAILED:
                 raise RuntimeError("compiled MPC prediction failed")
             if step.code == StepCode.REJECTED:  # no step improves the plan: keep it
@@ -385,6 +380,45 @@ class MPC:
             self.stats["extra_iterations"] += 1
             A, B = step.A, step.B
         return U, X, J, edges, status
+
+    def _qp(self, daqp, H, f, Acon, blo, bhi, sense, q: float):
+        """DAQP's step ``(du, exitflag)`` of the QP ``H, f`` with rows ``Acon`` (soft rows
+        weighted as the solve's tracking weight ``q`` asks)."""
+        du, _, exitflag, info = daqp.solve(
+            H,
+            f,
+            Acon,
+            bhi,
+            blo,
+            sense,
+            rho_soft=self.cfg.soft_rho_at(q),
+            iter_limit=self.cfg.qp_iter_limit,
+        )
+        self.stats["qp_iterations"] += int(info.get("iterations", 0))
+        return du, exitflag
+
+    def _damped_step(
+        self, daqp, consts, u_vec, s_pred, J, relinearise, qp, rejected: StepResult
+    ) -> StepResult:
+        """After a QP step that no step length lets lower the cost (``rejected``): the QP
+        ``qp = (G, H, f, Acon, blo, bhi, sense, q)`` again with ``lam * mean(diag H) I`` added
+        to ``H`` for each ``lam`` of ``cfg.step_damping`` in turn (Levenberg-Marquardt), and
+        the first of their steps that the merit check accepts; else ``rejected``. A damped
+        step is shorter and turned toward the model's steepest descent, which the line search
+        along the first step cannot reach where the linearisation of the soft rows (a track
+        edge, a separation) misleads it."""
+        G, H, f, Acon, blo, bhi, sense, q = qp
+        scale = float(np.mean(np.diag(H)))
+        eye = np.eye(H.shape[0])
+        for lam in self.cfg.step_damping:
+            du, exitflag = self._qp(daqp, H + (lam * scale) * eye, f, Acon, blo, bhi, sense, q)
+            if exitflag < 0 or not np.all(np.isfinite(du)):
+                continue
+            step = self._step(consts, u_vec, du, G[0::2] @ du, s_pred, J, relinearise)
+            if step.code != StepCode.REJECTED:
+                self.stats["damped_steps"] += 1
+                return step
+        return rejected
 
     @staticmethod
     def _pays_penalty(X, U, J: float, p: ProblemConstants) -> bool:
