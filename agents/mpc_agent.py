@@ -13,7 +13,7 @@ from racing_env.vehicle import VehicleParams
 
 from .base import median_p99, register_agent
 from .best_theta import best_theta
-from .mpc import MPC, MPCConfig
+from .mpc import MPC, PLANS, MPCConfig
 from .opponent_prediction import PREDICTIONS, LinePrediction
 from .reference import (
     EXTENDED_HIGH,
@@ -62,7 +62,10 @@ class MPCAgent:
     restarts from the follower rollout, and solve times. A decision runs numpy's BLAS on one
     thread (:func:`agents.threads.single_blas_thread`), so its results cannot depend on the
     process's thread count (OpenBLAS measured different last bits with two threads for a
-    100 x 100 float64 product with a transposed operand, the MPC's sizes).
+    100 x 100 float64 product with a transposed operand, the MPC's sizes). ``plan``
+    (:data:`agents.mpc.PLANS`): ``"rti"`` (default) solves with ``config`` as given,
+    ``"damped"`` with damped SQP steps and 20 SQP iterations, whose plans are closer to
+    IPOPT's in traffic.
 
     ``zeta_max`` (default ``None``: no ceiling), a speed-scale ceiling in the theta box's
     zeta range [0.8, 1.05]: the MPC drives with ``min(zeta, zeta_max)`` whatever its theta
@@ -81,6 +84,8 @@ class MPCAgent:
         "alpha-racer control",
         "predict": "where the separation rows expect the other cars: 'constant' progress rate "
         "and offset (the paper's) or along the racing 'line'",
+        "plan": "'rti' (the RTI-SQP as configured) or 'damped' (damped SQP steps, 20 "
+        "iterations: closer to IPOPT in traffic, 1.4x the solve time)",
     }
 
     def __init__(
@@ -99,6 +104,7 @@ class MPCAgent:
         line: str = "curvature",
         zeta_max: float | None = None,
         predict: str = "constant",
+        plan: str = "rti",
     ):
         from racing_env.raceline import RacelineConfig
 
@@ -141,7 +147,10 @@ class MPCAgent:
             raise ValueError(f"predict must be one of {PREDICTIONS}, got {predict!r}")
         self.predict = predict
         self.n_preview = n_preview  # the env's RaceConfig.n_preview (observation layout)
-        self.config = config or MPCConfig()
+        if plan not in PLANS:
+            raise ValueError(f"plan must be one of {tuple(PLANS)}, got {plan!r}")
+        self.plan = plan
+        self.config = replace(config or MPCConfig(), **PLANS[plan])
         self.vehicle = vehicle or VehicleParams()
         self.mpc: MPC | None = None
         self.track: Track | None = None

@@ -334,3 +334,20 @@ def test_opponent_rows_become_constant_velocity_paths_and_paths_pass_through():
     assert opponent_paths(None, K, dt).shape == (0, K, 2)
     with pytest.raises(ValueError, match=r"\(2, 5, 2\)"):
         opponent_paths(np.zeros((2, 5, 2)), K, dt)
+
+
+def test_the_mpc_agent_plans_with_damped_steps_when_asked():
+    """``mpc:plan=damped`` (and the alpha agent, which passes it on) solves with
+    :data:`agents.mpc.PLANS`' damped settings over the config given; the default keeps the
+    config as it is; any other plan is refused naming it and the choices."""
+    from agents import make_agent_spec
+    from agents.mpc import PLANS
+    from agents.mpc_agent import MPCAgent
+
+    assert make_agent_spec("mpc").config == MPCConfig()
+    damped = make_agent_spec("mpc:plan=damped").config
+    assert damped == MPCConfig(**PLANS["damped"]) and damped.step_damping
+    assert make_agent_spec("alpha:plan=damped").config == damped
+    assert MPCAgent(config=MPCConfig(sep_s=0.3), plan="damped").config.sep_s == 0.3
+    with pytest.raises(ValueError, match=r"plan must be one of \('rti', 'damped'\), got 'ipopt'"):
+        make_agent_spec("mpc:plan=ipopt")

@@ -68,7 +68,7 @@ model's stage and horizon, curvature along a plan, the follower's warm start), :
 cost of a plan and its condensed QP), :mod:`.solver` (:class:`MPC` and the SQP step).
 """
 
-from .config import MPCConfig
+from .config import PLANS, MPCConfig
 from .prediction import (
     follower_rollout,
     kappa_at_substeps,
@@ -100,6 +100,7 @@ __all__ = [
     "MPC",
     "EdgeBounds",
     "MPCConfig",
+    "PLANS",
     "ProblemConstants",
     "StepCode",
     "StepConstants",

@@ -98,3 +98,13 @@ class MPCConfig:
         """DAQP's ``rho_soft`` for tracking weight ``q``: ``soft_rho * min(1, soft_q_ref / q)``,
         so the soft rows (track edges, separations) keep their weight relative to tracking."""
         return self.soft_rho * min(1.0, self.soft_q_ref / float(q))
+
+
+PLANS = {
+    "rti": {},
+    "damped": {"step_damping": (1.0, 10.0, 100.0), "sqp_iterations": 20},
+}
+"""The MPC agent's ``plan`` choices, as :class:`MPCConfig` fields over the config given:
+``"rti"``, the RTI-SQP as configured (default); ``"damped"``, damped SQP steps and up to 20
+SQP iterations (plans within 5% of IPOPT's cost in 94% of the states of 3-car races at the
+top of the box against 81%, at 1.4x the median solve time; docs "Damped steps")."""
