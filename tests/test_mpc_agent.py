@@ -149,9 +149,18 @@ def test_mpc_speed_config_pairs_set_numeric_fields_and_name_bad_ones():
     assert cfg == MPCConfig(sqp_iterations=4, merit_rtol=0.0, restart_offtrack=-1.0)
     assert isinstance(cfg.sqp_iterations, int)
     assert parse_config([]) == MPCConfig()
-    for bad in ("foo=1", "sqp_iterations", "step_sizes=1"):
+    # tuple fields: comma-separated numbers
+    cfg = parse_config(["step_damping=1,10,100", "step_sizes=1,0.5"])
+    assert cfg == MPCConfig(step_damping=(1.0, 10.0, 100.0), step_sizes=(1.0, 0.5))
+    for bad in ("foo=1", "sqp_iterations"):
         with pytest.raises(SystemExit, match="KEY=VALUE"):
             parse_config([bad])
+    with pytest.raises(SystemExit, match="step_sizes takes comma-separated numbers, got 'a'"):
+        parse_config(["step_sizes=a"])
+    with pytest.raises(
+        SystemExit, match=r"step_damping must be positive finite factors, got \(-1.0,\)"
+    ):
+        parse_config(["step_damping=-1"])
 
 
 @pytest.mark.slow
