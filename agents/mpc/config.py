@@ -37,7 +37,7 @@ class MPCConfig:
     step_damping: tuple = ()  # where no step length of a QP step lowers the cost, solve the
     # QP again with lam * mean(diag H) added to its Hessian, for each lam in turn, until a
     # step is accepted (Levenberg-Marquardt: a shorter step turned toward steepest descent);
-    # () keeps the plain line search. Opt-in; see docs "The MPC's plans against IPOPT"
+    # () keeps the plain line search. Opt-in: docs/policy-space.md, "Damped steps"
     second_start: bool = False  # where the SQP's plan still pays the soft rows' penalty (a
     # track edge or a separation violated), solve again from the raceline follower's
     # rollout and from the plan with less throttle, and keep the cheapest (a local solution
