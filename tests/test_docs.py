@@ -60,13 +60,13 @@ def _readme_paths() -> set[str]:
     return paths
 
 
-def _heading_slugs(markdown: str) -> set[str]:
-    """The anchors MkDocs gives a page's headings (the toc extension's default slugs)."""
-    slugs = set()
-    for heading in re.findall(r"^#{1,6} (.+?)\s*$", markdown, re.M):
-        text = re.sub(r"[^\w\s-]", "", heading.replace("`", "")).strip().lower()
-        slugs.add(re.sub(r"[-\s]+", "-", text))
-    return slugs
+def _heading_slugs(page: str) -> set[str]:
+    """The anchors MkDocs gives a page's headings (the toc extension's own ``slugify``, on the
+    heading's text without its code marks)."""
+    from markdown.extensions.toc import slugify
+
+    headings = re.findall(r"^#{1,6} (.+?)\s*$", page, re.M)
+    return {slugify(heading.replace("`", ""), "-") for heading in headings}
 
 
 def test_readme_anchors_name_headings_of_their_pages():

@@ -237,45 +237,59 @@ def test_the_public_prediction_is_the_mpcs_own(mpc):
     )
 
 
+def _twin_costs(config: MPCConfig, stat: str, n_twins: int, seed: int, **env_kwargs):
+    """Race three `mpc` cars at the top of the box; before every solve of the first
+    ``n_twins`` cars, a twin :class:`MPC` with ``config`` solves the same problem from the same
+    warm start. Returns ``(costs, twins)``: ``costs`` (M, 3) holds, for every solve both ended
+    "ok", the car's plan cost, its twin's, and whether the twin's ``stats[stat]`` rose in it."""
+    from agents import make_agent_spec
+    from racing_env import RacingParallelEnv
+
+    env = RacingParallelEnv(n_cars=3, **env_kwargs)
+    obs, _ = env.reset(seed=seed)
+    cars = [make_agent_spec("mpc:q=5,zeta=1.05,s1=0.3,s2=0.5,s3=0") for _ in range(3)]
+    for car, aid in zip(cars, env.possible_agents):
+        car.reset(env.track, aid, 0)
+    twins = [MPC(env.track, config=config) for _ in range(n_twins)]
+    costs = []
+
+    def twin_solve(mpc, twin):
+        plain_solve = mpc.solve
+
+        def solve(*args):
+            twin._U = None if mpc._U is None else mpc._U.copy()
+            twin._s_nom = None if mpc._s_nom is None else mpc._s_nom.copy()
+            before = twin.stats[stat]
+            twin.solve(*args)
+            u = plain_solve(*args)
+            if mpc.last_status == twin.last_status == "ok":
+                costs.append((mpc.last_plan[1], twin.last_plan[1], twin.stats[stat] > before))
+            return u
+
+        return solve
+
+    for car, twin in zip(cars, twins):
+        car.mpc.solve = twin_solve(car.mpc, twin)
+    while env.agents:
+        obs, *_ = env.step({a: c.act(obs[a]) for a, c in zip(env.possible_agents, cars)})
+    return np.array(costs), twins
+
+
 def test_damped_steps_keep_no_costlier_plan_and_find_cheaper_ones():
     """``MPCConfig(step_damping=...)`` re-solves a QP whose step no step length lets lower the
     cost with a damped Hessian. From the same warm start and problem in a 3-car race at the
     top of the box, its plan is the plain SQP's where no damped step was accepted, never
     costs more (a damped step continues from the plan the plain SQP stops at), and in some
     states costs less."""
-    from agents import make_agent_spec
-    from racing_env import RacingParallelEnv
-
-    env = RacingParallelEnv(n_cars=3, max_cycles=50, start="regions")
-    obs, _ = env.reset(seed=0)
-    spec = "mpc:q=5,zeta=1.05,s1=0.3,s2=0.5,s3=0"
-    cars = [make_agent_spec(spec) for _ in range(3)]
-    for car, aid in zip(cars, env.possible_agents):
-        car.reset(env.track, aid, 0)
-    twins = [MPC(env.track, config=MPCConfig(step_damping=(0.1, 1.0, 10.0, 100.0))) for _ in cars]
-    costs = []
-
-    def twin_solve(car, twin):
-        plain_solve = car.mpc.solve
-
-        def solve(*args):
-            twin._U = None if car.mpc._U is None else car.mpc._U.copy()
-            twin._s_nom = None if car.mpc._s_nom is None else car.mpc._s_nom.copy()
-            damped_before = twin.stats["damped_steps"]
-            twin.solve(*args)
-            u = plain_solve(*args)
-            if car.mpc.last_status == twin.last_status == "ok":
-                damped = twin.stats["damped_steps"] > damped_before
-                costs.append((car.mpc.last_plan[1], twin.last_plan[1], damped))
-            return u
-
-        return solve
-
-    for car, twin in zip(cars, twins):
-        car.mpc.solve = twin_solve(car, twin)
-    while env.agents:
-        obs, *_ = env.step({a: c.act(obs[a]) for a, c in zip(env.possible_agents, cars)})
-    plain, damped_cost, damped = np.array(costs).T
+    costs, _ = _twin_costs(
+        MPCConfig(step_damping=(0.1, 1.0, 10.0, 100.0)),
+        "damped_steps",
+        n_twins=3,
+        seed=0,
+        max_cycles=50,
+        start="regions",
+    )
+    plain, damped_cost, damped = costs.T
     damped = damped.astype(bool)
     assert len(costs) >= 100
     # the plain SQP and the damped one differ only after a rejected step
@@ -290,31 +304,10 @@ def test_the_second_start_keeps_no_costlier_plan_and_finds_cheaper_ones():
     """From the same warm start and problem, ``MPCConfig(second_start=True)`` ends with a plan
     that costs at most what the plain SQP's costs, and less in some states of a 3-car race
     at the top of the box (where the plain SQP's plan pays the soft rows' penalty)."""
-    from agents import make_agent_spec
-    from racing_env import RacingParallelEnv
-
-    env = RacingParallelEnv(n_cars=3, max_cycles=60)
-    obs, _ = env.reset(seed=3)
-    cars = [make_agent_spec("mpc:q=5,zeta=1.05,s1=0.3,s2=0.5,s3=0") for _ in range(3)]
-    for car, aid in zip(cars, env.possible_agents):
-        car.reset(env.track, aid, 0)
-    ego = cars[0].mpc
-    twin = MPC(env.track, config=MPCConfig(second_start=True))
-    plain_solve, costs = ego.solve, []
-
-    def solve(*args):
-        twin._U = None if ego._U is None else ego._U.copy()
-        twin._s_nom = None if ego._s_nom is None else ego._s_nom.copy()
-        twin.solve(*args)
-        u = plain_solve(*args)
-        if ego.last_status == twin.last_status == "ok":
-            costs.append((ego.last_plan[1], twin.last_plan[1]))
-        return u
-
-    ego.solve = solve
-    while env.agents:
-        obs, *_ = env.step({a: c.act(obs[a]) for a, c in zip(env.possible_agents, cars)})
-    plain, second = np.array(costs).T
+    costs, (twin,) = _twin_costs(
+        MPCConfig(second_start=True), "second_starts", n_twins=1, seed=3, max_cycles=60
+    )
+    plain, second = costs[:, 0], costs[:, 1]
     assert len(costs) >= 50
     assert np.all(second <= plain * (1 + 1e-12))
     assert np.sum(second < 0.99 * plain) >= 1 and twin.stats["second_starts"] >= 1

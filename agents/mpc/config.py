@@ -79,9 +79,9 @@ class MPCConfig:
             raise ValueError(f"MPCConfig.merit_rtol must be >= 0, got {self.merit_rtol!r}")
         try:
             damping = tuple(self.step_damping)
-        except TypeError:
-            damping = (None,)
-        if any(
+        except TypeError:  # not a sequence of factors
+            damping = None
+        if damping is None or any(
             isinstance(lam, bool) or not isinstance(lam, (int, float)) or not (0 < lam < np.inf)
             for lam in damping
         ):
