@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .config import RaceConfig
+from .config import RaceConfig, _is_int
 from .observation import split_observation
 from .simulator import _lookup
 from .track import Track
@@ -96,9 +96,9 @@ class RacelineFollower:
             ("yield_behind", yield_behind, 2.0),
             ("yield_ahead", yield_ahead, 2.0),
         ):
-            if not (isinstance(v, (int, float)) and 0.0 <= v <= hi):
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0.0 <= v <= hi):
                 raise ValueError(f"{name} must be a number in [0, {hi}] m, got {v!r}")
-        if not (isinstance(n_preview, int) and n_preview >= 0):
+        if not (_is_int(n_preview) and n_preview >= 0):
             raise ValueError(f"n_preview must be a non-negative integer, got {n_preview!r}")
         self.yield_gap, self.yield_behind, self.yield_ahead = yield_gap, yield_behind, yield_ahead
         self.n_preview = n_preview

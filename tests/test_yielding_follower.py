@@ -70,6 +70,12 @@ def test_bad_yield_options_name_the_value():
         RacelineFollower(yield_behind=-1)
     with pytest.raises(ValueError, match="n_preview must be a non-negative integer, got 1.5"):
         RacelineFollower(n_preview=1.5)
+    # a bool is no distance and no count, although Python counts it an int
+    with pytest.raises(ValueError, match="yield_behind must be a number .* got True"):
+        RacelineFollower(yield_behind=True)
+    with pytest.raises(ValueError, match="n_preview must be a non-negative integer, got True"):
+        RacelineFollower(n_preview=True)
+    assert RacelineFollower(n_preview=np.int64(2)).n_preview == 2
     f = _follower(yield_gap=0.1)
     with pytest.raises(ValueError, match=r"does not fit 6 N \+ n_preview with n_preview = 10"):
         f.act(np.zeros(13))
