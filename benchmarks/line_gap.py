@@ -41,8 +41,7 @@ def line_gap(track_name: str) -> dict:
     track = make_track(track_name)
     curvature = get_raceline(track)
     lap_time = get_raceline(track, config=RacelineConfig(objective="lap_time"))
-    n_lap = np.interp(curvature.s_track, lap_time.s_track, lap_time.n, period=track.length)
-    gap = np.abs(curvature.n - n_lap)
+    gap = np.abs(curvature.n - lap_time.offset_at(curvature.s_track))
     return {
         "track": track_name,
         "lap_curvature_s": curvature.lap_time,
