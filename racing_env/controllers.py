@@ -51,7 +51,10 @@ class RacelineFollower:
     room: while another car is between ``yield_behind`` [m] behind it and ``yield_ahead`` [m]
     ahead of it (progress difference), the follower's lateral target keeps at least
     ``yield_gap`` from that car's lateral offset on the follower's own side of it (its line is
-    shifted away where it would run closer, never past the track's edges). ``n_preview`` is
+    shifted away where it would run closer, never past the track's edges). The window is
+    closed and read from the observation's relative progress ``s_j - s``, as the env computed
+    it; at equal lateral offsets the follower keeps to the left of the other car (``n``
+    larger). ``n_preview`` is
     the env's curvature preview length, to read the other cars from the observation.
     """
 
@@ -208,9 +211,12 @@ class RacelineFollower:
         t = self.track
         line = _lookup(self._n_ref, s, t.ds, t.length)
         target = line
-        for s_j, n_j in others[:, :2]:
-            if -self.yield_behind <= s_j - s <= self.yield_ahead:
-                side = 1.0 if n_j <= n else -1.0  # the follower's side of the other car
+        # the gap as observed (relative progress), not rebuilt from absolute s: at the window's
+        # edge the rebuilt s_j - s can differ from it in the last bit
+        gaps = np.asarray(observation, dtype=float)[6 : 6 * (len(others) + 1) : 6]
+        for gap, n_j in zip(gaps, others[:, 1]):
+            if -self.yield_behind <= gap <= self.yield_ahead:
+                side = 1.0 if n_j <= n else -1.0  # its side of the other car; a tie goes left
                 keep = n_j + side * self.yield_gap
                 if side * (target - keep) < 0.0:
                     target = keep

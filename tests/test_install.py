@@ -347,7 +347,7 @@ def test_race_without_the_learn_extra(tmp_path):
         BLOCK_LEARN
         + """
 import racing_env, agents, agents.mpc_agent, agents.alpha_agent, agents.ibr
-from experiments.race import run_race
+from experiments.evaluation.race import run_race
 result, _ = run_race(["alpha", "mpc", "mpc:zeta=0.8"], max_cycles=2, render=False)
 print("raced", len(result.table().splitlines()))
 from agents import make_agent_spec
@@ -477,6 +477,41 @@ def _read_only_runner(paths: list[Path]) -> list[str] | None:
     return ["unshare", "-m", "sh", "-c", mounts + ' && exec "$@"', "sh"]
 
 
+def _inherit_site_packages(python: Path) -> None:
+    """Let the venv of ``python`` import this test run's dependencies: a ``.pth`` file in its
+    site-packages names the running interpreter's site-packages, wherever they are (a user's
+    virtual environment, CI's, or the machine's own). Paths a ``.pth`` file adds come after the
+    venv's own site-packages, and ``.pth`` files inside them are not run, so an editable
+    install of this tree there cannot shadow the wheel."""
+    import sysconfig
+
+    ours = {sysconfig.get_paths()[k] for k in ("purelib", "platlib")}
+    theirs = subprocess.run(
+        [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    (Path(theirs) / "_test_run_site_packages.pth").write_text("\n".join(sorted(ours)) + "\n")
+
+
+def test_a_venv_sees_the_running_environment_s_packages_but_not_this_tree(tmp_path):
+    """The wheel test's venv gets its dependencies from the environment the tests run in,
+    even when that is itself a virtual environment (no ``--system-site-packages``), and
+    ``racing_env`` is not importable there until the wheel is installed."""
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    python = venv / "bin" / "python"
+    _inherit_site_packages(python)
+    code = (
+        "import importlib.util as u, platformdirs, numpy\n"
+        "print(u.find_spec('racing_env') is None)"
+    )
+    r = subprocess.run([str(python), "-c", code], cwd=tmp_path, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "True"
+
+
 @pytest.mark.slow
 def test_wheel_races_from_a_read_only_install_without_home(tmp_path):
     """The issue's "done when": a wheel of this tree, installed into a venv whose site-packages
@@ -502,8 +537,9 @@ def test_wheel_races_from_a_read_only_install_without_home(tmp_path):
         check=True,
         cwd=tmp_path,
     )
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True)
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
     python = venv / "bin" / "python"
+    _inherit_site_packages(python)
     subprocess.run(
         [
             str(python),
