@@ -167,7 +167,7 @@ def agent_parameters(name: str) -> tuple[list[AgentParameter], bool]:
     sources = [factory]
     if inspect.isclass(factory):
         sources += [
-            base.__init__
+            vars(base)["__init__"]
             for base in factory.__mro__[1:]
             if "__init__" in vars(base) and base is not object
         ]
@@ -256,6 +256,8 @@ def import_agent_modules(modules: Iterable[str]) -> None:
                 if not path.is_file():
                     raise FileNotFoundError(f"no file {module}")
                 spec = importlib.util.spec_from_file_location(path.stem, path)
+                if spec is None or spec.loader is None:
+                    raise ImportError(f"cannot load {module} as a module")
                 mod = importlib.util.module_from_spec(spec)
                 sys.modules[path.stem] = mod
                 spec.loader.exec_module(mod)

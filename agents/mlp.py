@@ -35,11 +35,11 @@ class MLP:
             for W, b in layers
         ]
         self._WT = [np.ascontiguousarray(W.T) for W, _ in self.layers]
-        self.mean = np.asarray(mean, dtype=_F)
-        self.inv_std = (1.0 / np.asarray(std, dtype=np.float64)).astype(_F)
+        # None in a restricted() network, which takes its inputs unnormalised
+        self.mean: np.ndarray | None = np.asarray(mean, dtype=_F)
+        self.inv_std: np.ndarray | None = (1.0 / np.asarray(std, dtype=np.float64)).astype(_F)
         self.y_scale = float(y_scale)
         self.y_shift = float(y_shift)
-        self._normalise = True
         if self.layers[-1][0].shape[1] != 1:
             raise ValueError(f"the last layer must have one output, got {self.layers[-1][0].shape}")
 
@@ -51,7 +51,15 @@ class MLP:
         x = np.asarray(x, dtype=_F)
         if x.shape[-1] != self.in_dim:
             raise ValueError(f"input has {x.shape[-1]} features, this network takes {self.in_dim}")
-        return (x - self.mean) * self.inv_std if self._normalise else x
+        if self.mean is None or self.inv_std is None:
+            return x
+        return (x - self.mean) * self.inv_std
+
+    def _scaling(self) -> tuple[np.ndarray, np.ndarray]:
+        """(mean, inv_std) of the input normalisation (a restricted() network has none)."""
+        if self.mean is None or self.inv_std is None:
+            raise ValueError("a restricted network has no input normalisation")
+        return self.mean, self.inv_std
 
     def __call__(self, x) -> np.ndarray:
         h = self._check(x)
@@ -74,7 +82,7 @@ class MLP:
         g = W[:, 0] * _F(self.y_scale)
         for WT, d in zip(reversed(self._WT[:-1]), reversed(dsilu)):
             g = (g * d) @ WT
-        if self._normalise:
+        if self.inv_std is not None:
             g = g * self.inv_std
         if g.shape != h.shape[:-1] + (self.in_dim,):  # no hidden layer: g is constant
             g = np.broadcast_to(g, h.shape[:-1] + (self.in_dim,))
@@ -91,22 +99,23 @@ class MLP:
         if x.shape != (self.in_dim,):
             raise ValueError(f"x must have shape ({self.in_dim},), got {x.shape}")
         W0, b0 = self.layers[0]
-        xn = (x - self.mean) * self.inv_std
+        mean, inv_std = self._scaling()
+        xn = (x - mean) * inv_std
         xn[free] = 0.0
-        W0f = self.inv_std[free, None] * W0[free]  # (F, out0)
-        b0f = xn @ W0 + b0 - (self.mean[free] * self.inv_std[free]) @ W0[free]
+        W0f = inv_std[free, None] * W0[free]  # (F, out0)
+        b0f = xn @ W0 + b0 - (mean[free] * inv_std[free]) @ W0[free]
         out = MLP.__new__(MLP)
         out.layers = [(W0f, b0f.astype(_F))] + self.layers[1:]
         out._WT = [np.ascontiguousarray(W0f.T)] + self._WT[1:]
         out.mean, out.inv_std = None, None
         out.y_scale, out.y_shift = self.y_scale, self.y_shift
-        out._normalise = False
         return out
 
     def to_arrays(self, prefix: str) -> dict:
+        mean, inv_std = self._scaling()
         out = {
-            f"{prefix}mean": self.mean,
-            f"{prefix}std": 1.0 / self.inv_std.astype(np.float64),
+            f"{prefix}mean": mean,
+            f"{prefix}std": 1.0 / inv_std.astype(np.float64),
             f"{prefix}y": np.array([self.y_scale, self.y_shift]),
             f"{prefix}n_layers": np.array(len(self.layers)),
         }

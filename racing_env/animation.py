@@ -129,10 +129,12 @@ def _write_mp4(frames: list[np.ndarray], tmp: str, fps: float, ffmpeg: str) -> N
                 stdout=subprocess.DEVNULL,
                 stderr=err,
             )
+            stdin = proc.stdin
+            assert stdin is not None  # stdin=PIPE
             try:
                 for f in frames:
-                    proc.stdin.write(np.ascontiguousarray(f).tobytes())
-                proc.stdin.close()
+                    stdin.write(np.ascontiguousarray(f).tobytes())
+                stdin.close()
             except (BrokenPipeError, OSError):
                 pass
             rc = proc.wait()
@@ -188,5 +190,6 @@ def save_animation(frames: Sequence[np.ndarray], path: str | os.PathLike, fps: f
         if suffix == ".gif":
             _write_gif(frames, str(tmp), fps)
         else:
+            assert ffmpeg is not None  # found above
             _write_mp4(frames, str(tmp), fps, ffmpeg)
     return path

@@ -233,7 +233,9 @@ def _configure() -> None:
     if not os.environ.get("NUMBA_CACHE_DIR"):
         import numba
 
-        numba.config.CACHE_DIR = str(cache_dir("numba", quiet=True) / kernel_sources_hash())
+        folder = cache_dir("numba", quiet=True) / kernel_sources_hash()
+        # numba.config sets its names at run time (from the environment): none are declared
+        numba.config.CACHE_DIR = str(folder)  # type: ignore[attr-defined]
 
 
 _configure()

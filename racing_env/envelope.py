@@ -43,6 +43,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 from numba import njit
@@ -57,6 +58,12 @@ N_FRACTIONS = 41
 """Points of the lateral-fraction grid ``r`` of :func:`ggv`."""
 
 
+@overload
+def grip_arg(grip: float | None, mu: float | None, where: str, default: float) -> float: ...
+@overload
+def grip_arg(
+    grip: float | None, mu: float | None, where: str, default: None = None
+) -> float | None: ...
 def grip_arg(
     grip: float | None, mu: float | None, where: str, default: float | None = None
 ) -> float | None:

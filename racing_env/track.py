@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
+from typing import overload
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -278,15 +279,28 @@ class Track:
         return h.hexdigest()[:16]
 
     # ------------------------------------------------------------------ lookups
+    # (the lookups return a float for a float ``s`` and an array for an array ``s``)
+    @overload
+    def wrap(self, s: float) -> float: ...
+    @overload
+    def wrap(self, s: np.ndarray) -> np.ndarray: ...
     def wrap(self, s: float | np.ndarray) -> float | np.ndarray:
         """Map unwrapped arc length to [0, length)."""
         return np.mod(s, self.length)
 
+    @overload
+    def interp(self, table: np.ndarray, s: float) -> float: ...
+    @overload
+    def interp(self, table: np.ndarray, s: np.ndarray) -> np.ndarray: ...
     def interp(self, table: np.ndarray, s: float | np.ndarray) -> float | np.ndarray:
         """Periodic linear interpolation of a grid table (M,) at (unwrapped) ``s`` [m], any
         shape (:func:`racing_env.interp.periodic_interp`)."""
         return periodic_interp(table, s, self.length, self.ds)
 
+    @overload
+    def curvature(self, s: float) -> float: ...
+    @overload
+    def curvature(self, s: np.ndarray) -> np.ndarray: ...
     def curvature(self, s: float | np.ndarray) -> float | np.ndarray:
         """kappa(s) [1/m] from the spline's second derivative, any shape of s."""
         sw = np.mod(np.asarray(s, dtype=float), self.length)
@@ -294,17 +308,25 @@ class Track:
         ddx, ddy = self._sx(sw, 2), self._sy(sw, 2)
         return (dx * ddy - dy * ddx) / np.maximum(np.hypot(dx, dy), 1e-12) ** 3
 
+    @overload
+    def heading(self, s: float) -> float: ...
+    @overload
+    def heading(self, s: np.ndarray) -> np.ndarray: ...
     def heading(self, s: float | np.ndarray) -> float | np.ndarray:
         """psi(s) [rad] in (-pi, pi], any shape of s."""
         sw = np.mod(np.asarray(s, dtype=float), self.length)
         return np.arctan2(self._sy(sw, 1), self._sx(sw, 1))
 
+    @overload
+    def widths(self, s: float) -> tuple[float, float]: ...
+    @overload
+    def widths(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
     def widths(self, s: float | np.ndarray) -> tuple[float | np.ndarray, float | np.ndarray]:
         """(w_left(s), w_right(s)) [m]."""
         return self.interp(self.w_left, s), self.interp(self.w_right, s)
 
-    def position(self, s: float | np.ndarray) -> tuple[float | np.ndarray, float | np.ndarray]:
-        """Centre-line point (x, y) [m] at s."""
+    def position(self, s: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Centre-line point (x, y) [m] at s (arrays of the shape of s)."""
         sw = np.mod(np.asarray(s, dtype=float), self.length)
         return self._sx(sw), self._sy(sw)
 

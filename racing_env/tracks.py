@@ -6,12 +6,22 @@
 * ``make_track("oval")`` a simple oval, handy for tests.
 * ``make_track("random:SEED")`` / :func:`random_track` a random closed track from a seed.
 * ``load_tumftm_csv(path, scale=...)`` reads the TUMFTM racetrack-database format
-  (``# x_m,y_m,w_tr_right_m,w_tr_left_m``).
+  (``# x_m,y_m,w_tr_right_m,w_tr_left_m``); ``make_track("tumftm:NAME")`` a circuit of the
+  database, found by :func:`tumftm_file`.
+
+Tracks are sized for a vehicle class (:data:`VEHICLE_CLASSES`): ``"orca"``, the paper's 1:43
+car (the default, unchanged), or ``"fullsize"``, a full-size car (4.7 m x 2.0 m).
+``make_track(spec, vehicle_class="fullsize")`` gives the real circuits at full scale
+(:func:`track_scale`: 1/43 for ``"orca"``, 1 for ``"fullsize"``) and procedural tracks of
+realistic size (:data:`RANDOM_TRACKS`: 4.5 km long and 12 m wide instead of 30 m and 0.5 m).
+The built-in ``default`` and ``oval`` exist for the ``"orca"`` class only.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -131,12 +141,15 @@ def random_track(
     half_width: float = DEFAULT_HALF_WIDTH,
     n_control: int | None = None,
     max_tries: int = 50,
+    control_range: tuple[int, int] = (8, 14),
 ) -> Track:
     """A random closed track from ``seed``: a star-shaped loop of random radii, smoothed.
 
     The loop is scaled to ``length`` m (approximately) and redrawn until the inner edge stays
     clear of every centre of curvature (tightest radius > 1.5 * half_width). Same seed, same
-    track.
+    track. The loop has ``n_control`` control points, or a random number in
+    ``[control_range[0], control_range[1])``: more points, more and tighter corners for the
+    length (:data:`RANDOM_TRACKS` holds each vehicle class's settings).
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"random track seed must be a non-negative integer, got {seed!r}")
@@ -144,9 +157,14 @@ def random_track(
         raise ValueError(
             f"random_track needs positive length and half_width, got {length}, {half_width}"
         )
+    if not (len(control_range) == 2 and 3 <= control_range[0] < control_range[1]):
+        raise ValueError(
+            f"random_track control_range must be (low, high) with 3 <= low < high, "
+            f"got {control_range!r}"
+        )
     rng = np.random.default_rng(seed)
     for _ in range(max_tries):
-        k = n_control or int(rng.integers(8, 14))
+        k = n_control or int(rng.integers(control_range[0], control_range[1]))
         angles = np.sort(rng.uniform(0, 2 * np.pi, k))
         angles += np.linspace(0, 2 * np.pi, k, endpoint=False) - angles  # keep ordered,
         angles += rng.uniform(-0.3, 0.3, k) * (2 * np.pi / k)  # jittered spacing
@@ -175,6 +193,50 @@ def random_track(
         f"random_track(seed={seed}) found no valid track in {max_tries} tries; "
         f"try a larger length ({length}) or smaller half_width ({half_width})"
     )
+
+
+VEHICLE_CLASSES = ("orca", "fullsize")
+"""Vehicle classes the tracks are sized for: ``"orca"``, the paper's 1:43 car (0.12 m x
+0.06 m, the default), and ``"fullsize"``, a full-size car (4.7 m x 2.0 m)."""
+
+TUMFTM_SCALES = {"orca": 1 / 43, "fullsize": 1.0}
+"""Scale of the TUMFTM circuits (surveyed at full size) for each vehicle class."""
+
+
+@dataclass(frozen=True)
+class RandomTrackConfig:
+    """Size of the procedural tracks ``random:SEED`` of a vehicle class (see
+    :func:`random_track`): lap ``length`` [m], constant ``half_width`` [m] and the range of the
+    number of control points ``control_range`` (low inclusive, high exclusive)."""
+
+    length: float
+    half_width: float
+    control_range: tuple[int, int]
+
+
+RANDOM_TRACKS = {
+    "orca": RandomTrackConfig(length=30.0, half_width=DEFAULT_HALF_WIDTH, control_range=(8, 14)),
+    "fullsize": RandomTrackConfig(length=4500.0, half_width=6.0, control_range=(14, 20)),
+}
+"""Procedural tracks per vehicle class. ``"orca"``: the paper's 30 m x 0.5 m (250 car lengths,
+8 car widths). ``"fullsize"``: 4.5 km x 12 m (about 960 car lengths, 6 car widths, like the
+F1 circuits of the TUMFTM database: 4.3-7 km, 9-14 m wide), with 14-19 control points so that
+the tightest corners have radii of 12-70 m (median about 26 m over seeds 0-29) rather than the
+100-250 m that the ORCA layout scaled to 4.5 km would give."""
+
+
+def _check_class(vehicle_class: str) -> str:
+    if vehicle_class not in VEHICLE_CLASSES:
+        raise ValueError(
+            f"unknown vehicle class {vehicle_class!r}; expected one of {VEHICLE_CLASSES}"
+        )
+    return vehicle_class
+
+
+def track_scale(vehicle_class: str = "orca") -> float:
+    """Scale of the real (TUMFTM) circuits for ``vehicle_class``: 1/43 for ``"orca"`` (the
+    paper's 1:43 car), 1.0 for ``"fullsize"``."""
+    return TUMFTM_SCALES[_check_class(vehicle_class)]
 
 
 def load_tumftm_csv(
@@ -217,15 +279,61 @@ def load_tumftm_csv(
     )
 
 
-def tumftm_dir() -> Path | None:
-    """Folder of TUMFTM circuits if present: $ALPHA_RACER_TUMFTM or ../shared/tracks/tumftm."""
+def _database_dirs() -> list[Path]:
+    """Candidate folders of the whole TUMFTM database, in lookup order (existing or not)."""
     env = os.environ.get("ALPHA_RACER_TUMFTM")
     cands = [Path(env)] if env else []
     here = Path(__file__).resolve()
     cands += [p / "shared" / "tracks" / "tumftm" for p in here.parents[:4]]
-    for c in cands:
+    try:
+        from .circuits.download import default_dest
+
+        cands.append(default_dest())
+    except OSError:  # no writable cache folder at all: no downloads either
+        pass
+    return cands
+
+
+def tumftm_dir() -> Path | None:
+    """The first folder of the whole TUMFTM database that exists (see :func:`tumftm_dirs`,
+    the shipped circuits excluded), or None."""
+    for c in _database_dirs():
         if c.is_dir():
             return c
+    return None
+
+
+def tumftm_dirs() -> list[Path]:
+    """The existing folders that ``tumftm:NAME`` is looked up in, in this order:
+
+    1. ``$ALPHA_RACER_TUMFTM``, if set (a folder of TUMFTM CSVs of your choice);
+    2. ``shared/tracks/tumftm`` beside a repository checkout (the project's copy of the
+       database: the tests and the published results use it);
+    3. ``<cache folder>/tumftm``, where :func:`racing_env.circuits.download.download_racetrack_database`
+       stores the database (``alpha-racer circuits download``);
+    4. the circuits shipped with the package, ``racing_env/circuits/`` (Monza, Spa,
+       Silverstone, Catalunya, Spielberg).
+
+    2, 3 and 4 hold byte-identical files (checked by the download's SHA-256 table and the
+    tests), so a circuit is the same track wherever it is found. A name missing from one
+    folder is looked up in the next.
+    """
+    from .circuits import shipped_dir
+
+    found = []
+    for c in [*_database_dirs(), shipped_dir()]:
+        if c.is_dir() and c not in found:
+            found.append(c)
+    return found
+
+
+def tumftm_file(name: str) -> Path | None:
+    """``NAME.csv`` in the first of :func:`tumftm_dirs` that holds it, or None."""
+    if not name or "/" in name or "\\" in name or name.startswith("."):
+        return None
+    for d in tumftm_dirs():
+        if (d / f"{name}.csv").is_file():
+            return d / f"{name}.csv"
     return None
 
 
@@ -233,15 +341,14 @@ CROSSING_CIRCUITS = {"Suzuka"}
 """TUMFTM circuits whose centre line crosses itself on a bridge (contact uses Frenet
 distance, so cars on the bridge and under it do not touch)."""
 
-BUILTIN = {"default": default_track, "oval": oval_track}
+BUILTIN: dict[str, Callable[[], Track]] = {"default": default_track, "oval": oval_track}
 
 
 def track_names() -> list[str]:
     """Names accepted by :func:`make_track` (plus ``random:SEED`` and TUMFTM names/paths)."""
     names = sorted(BUILTIN)
-    d = tumftm_dir()
-    if d is not None:
-        names += [f"tumftm:{p.stem}" for p in sorted(d.glob("*.csv"))]
+    circuits = {p.stem for d in tumftm_dirs() for p in d.glob("*.csv")}
+    names += [f"tumftm:{name}" for name in sorted(circuits)]
     return names
 
 

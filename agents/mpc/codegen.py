@@ -211,13 +211,9 @@ class CompiledTrajectory:
         """What :func:`~agents.mpc.solver.sqp_step` needs to call this prediction."""
         import ctypes
 
-        return KernelHandle(
-            self.ws,
-            self.ptrs,
-            self.iw,
-            ctypes.cast(self._fn, ctypes.c_void_p).value,
-            8 * self.n_arg,
-        )
+        address = ctypes.cast(self._fn, ctypes.c_void_p).value
+        assert address is not None  # a loaded function's address is never NULL
+        return KernelHandle(self.ws, self.ptrs, self.iw, address, 8 * self.n_arg)
 
     def _run(self, x0, u_vec, kap_flat) -> None:
         """Write the inputs into the buffers and run the C function on them."""

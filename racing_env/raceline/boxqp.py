@@ -129,25 +129,31 @@ def box_qp_active_set(
     solve is not finite (the caller falls back to a general QP solver)."""
     from scipy.sparse.linalg import splu
 
-    h = sparse.csc_matrix(h)
+    hs = sparse.csc_matrix(h)
     n = len(g)
     x = np.clip(np.zeros(n) if x0 is None else np.asarray(x0, float), lo, hi)
-    c = 1.0 / max(float(np.abs(h.diagonal()).max()), 1e-300)
-    at_lo = at_hi = None
+    c = 1.0 / max(float(np.abs(hs.diagonal()).max()), 1e-300)
+    at_lo: np.ndarray | None = None
+    at_hi: np.ndarray | None = None
     for _ in range(int(max_iter)):
-        grad = h @ x + g
+        grad = hs @ x + g
         step = x - c * grad
         new_lo, new_hi = step < lo, step > hi
-        if at_lo is not None and np.array_equal(new_lo, at_lo) and np.array_equal(new_hi, at_hi):
+        if (
+            at_lo is not None
+            and at_hi is not None
+            and np.array_equal(new_lo, at_lo)
+            and np.array_equal(new_hi, at_hi)
+        ):
             return np.clip(x, lo, hi)
         at_lo, at_hi = new_lo, new_hi
         free = ~(at_lo | at_hi)
         x = np.where(at_lo, lo, np.where(at_hi, hi, x))
         if free.any():
             fi = np.flatnonzero(free)
-            rhs = -(g[fi] + h[fi][:, ~free] @ x[~free])
+            rhs = -(g[fi] + hs[fi][:, ~free] @ x[~free])
             try:
-                x[fi] = splu(h[fi][:, fi].tocsc()).solve(rhs)
+                x[fi] = splu(hs[fi][:, fi].tocsc()).solve(rhs)
             except RuntimeError:  # singular: let a general solver try
                 return None
             if not np.all(np.isfinite(x)):
