@@ -4,7 +4,7 @@ paper's collection (baseline) and the extended space's close races, and where th
     python benchmarks/collect_speed.py             # 6 races per collection, about a minute
     python benchmarks/collect_speed.py --races 2   # a smoke check
 
-Each race is :func:`experiments.collect.simulate_race` (3 MPC cars, 500 steps), the unit a
+Each race is :func:`experiments.potential.collect.simulate_race` (3 MPC cars, 500 steps), the unit a
 collection worker runs; a collection of R races on W cores takes about R x s/race / W (a
 little more when both cores race: they share memory bandwidth and turbo). Printed per
 collection: seconds per race, the ratio to the paper's collection, the projected minutes for
@@ -58,7 +58,7 @@ def seconds_per_race(config, races: int) -> tuple[float, Counter]:
 
     import agents.mpc.solver as solver
     from agents.mpc_agent import MPCAgent
-    from experiments.collect import simulate_race
+    from experiments.potential.collect import simulate_race
 
     simulate_race(config, 0)  # compiles and caches everything
     totals: Counter = Counter()
@@ -83,7 +83,7 @@ def main() -> None:
         raise SystemExit(f"--races must be a positive integer, got {args.races}")
 
     from agents.threads import single_blas_thread
-    from experiments.collect import CollectConfig
+    from experiments.potential.collect import CollectConfig
 
     print(
         f"{'collection':18s} {'s/race':>7s} {'ratio':>6s} {'4000 on 2 cores':>16s} "

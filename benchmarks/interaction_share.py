@@ -1,5 +1,5 @@
 """How much interaction a collection holds: the share of steps with a car within 1 m behind or
-beside another (:func:`experiments.metrics.interaction_share`), and the passes, for the first
+beside another (:func:`experiments.evaluation.metrics.interaction_share`), and the passes, for the first
 races of ``alpha-racer collect`` in each policy space, start geometry and pace draw.
 
     python benchmarks/interaction_share.py               # 30 races per setting
@@ -32,8 +32,8 @@ SETTINGS = (
 
 
 def one_race(args):
-    from experiments.collect import CollectConfig, simulate_race
-    from experiments.metrics import interaction_share, race_metrics
+    from experiments.evaluation.metrics import interaction_share, race_metrics
+    from experiments.potential.collect import CollectConfig, simulate_race
 
     space, start, pace, seed, i, races = args
     warnings.simplefilter("ignore")

@@ -18,7 +18,7 @@ import warnings
 import numpy as np
 
 from agents import make_agent_spec
-from experiments.policy_map import DEFAULT_TRACKS
+from experiments.evaluation.policy_map import DEFAULT_TRACKS
 from racing_env import RacingParallelEnv
 from racing_env.raceline import RacelineConfig, get_raceline
 

@@ -3,7 +3,7 @@
     python benchmarks/sqp_step.py               # 3 races of the collection, 300 steps each
     python benchmarks/sqp_step.py --races 1 --steps 50
 
-Runs the first races of ``alpha-racer collect`` (:func:`experiments.collect.simulate_race`:
+Runs the first races of ``alpha-racer collect`` (:func:`experiments.potential.collect.simulate_race`:
 3 MPC cars with thetas drawn from the box, seed 0) twice: with :func:`agents.mpc.sqp_step`,
 the numba kernel that calls the compiled predictions itself, and with
 :meth:`agents.mpc.MPC._step_python`, the same step in Python (what runs when the prediction
@@ -23,7 +23,7 @@ import warnings
 
 import numpy as np
 
-from experiments.collect import CollectConfig, _agents, simulate_race
+from experiments.potential.collect import CollectConfig, _agents, simulate_race
 
 
 def race(config: CollectConfig, index: int, python_step: bool) -> tuple[dict, float]:

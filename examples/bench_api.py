@@ -7,9 +7,9 @@ run, with tiny settings (a 2 s race, a benchmark of 3 races of 2 s).
 import sys
 from pathlib import Path
 
-from experiments.bench import BenchConfig, bench
-from experiments.parallel import Pool
-from experiments.race import run_race, write_outputs
+from experiments.evaluation.bench import BenchConfig, bench
+from experiments.evaluation.race import run_race, write_outputs
+from experiments.infra.parallel import Pool
 
 
 def main(out: Path) -> dict:

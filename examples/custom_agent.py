@@ -3,7 +3,7 @@
 import numpy as np
 
 from agents import register_agent
-from experiments.race import run_race
+from experiments.evaluation.race import run_race
 
 
 @register_agent("wiggle")

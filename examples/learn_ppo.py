@@ -75,7 +75,7 @@ def main(argv=None) -> dict:
     from stable_baselines3.common.vec_env import VecEnvWrapper, VecMonitor, VecNormalize
 
     from agents.ppo_agent import save_checkpoint
-    from experiments.race import run_race
+    from experiments.evaluation.race import run_race
     from racing_env.vec_env import HeadToHeadVecEnv
 
     torch.set_num_threads(args.threads)

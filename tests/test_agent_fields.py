@@ -11,7 +11,7 @@ import torch  # noqa: E402
 
 import agents  # noqa: E402
 from agents import make_agent_spec  # noqa: E402
-from experiments.race import run_race  # noqa: E402
+from experiments.evaluation.race import run_race  # noqa: E402
 
 torch.set_num_threads(1)
 

@@ -19,7 +19,7 @@ from agents.features import (
 )
 from agents.mlp import MLP
 from agents.reference import THETA_HIGH, THETA_LOW
-from experiments.nets import TrainConfig, discounted_partial_returns, split_races
+from experiments.potential.nets import TrainConfig, discounted_partial_returns, split_races
 from racing_env import make_track
 
 TRACK = make_track("default")
@@ -89,8 +89,8 @@ def test_bad_feature_input_is_refused():
 
 def test_numpy_network_matches_torch_and_its_input_gradient_matches_finite_differences():
     torch = pytest.importorskip("torch")
-    from experiments.nets import to_numpy_mlp as _to_numpy_mlp
-    from experiments.nets import torch_mlp as _torch_mlp
+    from experiments.potential.nets import to_numpy_mlp as _to_numpy_mlp
+    from experiments.potential.nets import torch_mlp as _torch_mlp
 
     torch.manual_seed(0)
     net = _torch_mlp(7, (16, 8), torch)
@@ -239,7 +239,7 @@ def test_tiny_pipeline_end_to_end(tmp_path):
     from agents.alpha_agent import AlphaAgent
     from agents.potential import load_model
     from experiments.cli import main
-    from experiments.race import run_race
+    from experiments.evaluation.race import run_race
 
     data, out = tmp_path / "races", tmp_path / "model"
     assert (
@@ -392,7 +392,7 @@ def test_auto_in_the_extended_space_races_the_shipped_extended_model():
 
 def test_shipped_models_load_and_race():
     from agents.potential import MODEL_DIR, SHIPPED, PotentialModel, load_model
-    from experiments.race import run_race
+    from experiments.evaluation.race import run_race
 
     shipped = [n for n, f in SHIPPED.items() if (MODEL_DIR / f).exists()]
     assert "races400" in shipped
@@ -470,7 +470,7 @@ _RACE_SCRIPT = """
 import sys, warnings
 import numpy as np
 warnings.simplefilter("ignore")
-from experiments.race import run_race
+from experiments.evaluation.race import run_race
 result, _ = run_race(["alpha", "mpc:zeta=0.85", "mpc:zeta=0.8"], seed=0, max_cycles=60,
                      progress_bar=False)
 np.save(sys.argv[1], result.states)
@@ -511,16 +511,16 @@ def test_a_race_with_the_alpha_agent_is_identical_with_1_and_2_threads(tmp_path)
 
 
 def test_the_shipped_model_card_is_laid_out_from_the_shipped_models():
-    """`python -m experiments.model_card` writes MODEL_CARD.md from the models' metadata;
+    """`python -m experiments.potential.model_card` writes MODEL_CARD.md from the models' metadata;
     the committed card is that output, so it cannot drift from the models."""
     from agents.potential import MODEL_DIR
-    from experiments.model_card import card
+    from experiments.potential.model_card import card
 
     assert (MODEL_DIR / "MODEL_CARD.md").read_text() == card()
 
 
 def test_a_cards_suite_command_gives_back_the_options_of_its_suite():
-    from experiments.model_card import suite_command
+    from experiments.potential.model_card import suite_command
 
     c = {
         "ego": "alpha",
@@ -540,7 +540,7 @@ def test_a_cards_suite_command_gives_back_the_options_of_its_suite():
 
 
 def test_a_model_card_says_how_its_collection_drew_the_paces():
-    from experiments.card_lines import pace_text
+    from experiments.potential.card_lines import pace_text
 
     assert pace_text({}) == pace_text({"pace": "box"}) == ""
     assert pace_text({"pace": "close"}) == ", zeta close to the race's own, drawn over the box"

@@ -249,7 +249,7 @@ def extended_run(tmp_path_factory):
 
 def test_tiny_extended_pipeline_collect_train_race(extended_run):
     from agents.potential import load_model
-    from experiments.race import run_race
+    from experiments.evaluation.race import run_race
 
     model = load_model(extended_run / "model" / "model.npz")
     meta = model.meta
@@ -280,10 +280,10 @@ def test_tiny_extended_pipeline_collect_train_race(extended_run):
 
 
 def test_training_names_a_space_mismatch(extended_run, tmp_path):
-    from experiments.collect import CollectConfig, collect
-    from experiments.nets import TrainConfig
-    from experiments.parallel import Pool
-    from experiments.train import train
+    from experiments.infra.parallel import Pool
+    from experiments.potential.collect import CollectConfig, collect
+    from experiments.potential.nets import TrainConfig
+    from experiments.potential.train import train
 
     cfg = TrainConfig(
         value_epochs=1,

@@ -8,7 +8,7 @@ import pytest
 pytest.importorskip("daqp")
 
 from agents.potential import load_model  # noqa: E402
-from experiments.analyze import (
+from experiments.analysis.nash import (
     AnalyzeConfig,
     analyze,
     maximiser,
@@ -16,7 +16,7 @@ from experiments.analyze import (
     slice_state,
 )
 from experiments.cli import main  # noqa: E402
-from experiments.parallel import Pool
+from experiments.infra.parallel import Pool
 from racing_env.tracks import make_track  # noqa: E402
 
 TINY = AnalyzeConfig(

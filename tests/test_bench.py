@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 
 pytest.importorskip("daqp")
 
-from experiments.bench import (
+from experiments.cli import main  # noqa: E402
+from experiments.evaluation.bench import (
     PAPER_CASES,
     BenchConfig,
     BenchRun,
@@ -19,8 +20,7 @@ from experiments.bench import (
     summarise,
     wilson_interval,
 )
-from experiments.cli import main  # noqa: E402
-from experiments.parallel import Pool
+from experiments.infra.parallel import Pool
 
 TINY = BenchConfig(ego="mpc:zeta=0.95", opponents="raceline", races=4, steps=15, seed=3)
 
@@ -192,7 +192,7 @@ def test_bench_writes_consistent_outputs_and_resumes_after_a_kill(tmp_path):
 def test_opening_a_stored_benchmark_to_read_writes_nothing(tmp_path):
     """The analyses read other folders' races (the overtake animation): a folder made
     before manifests recorded provenance must not gain this commit's."""
-    from experiments.analyze import find_overtake
+    from experiments.analysis.nash import find_overtake
 
     bench(TINY, tmp_path, pool=Pool(workers=1, progress_bar=False))
     manifest = tmp_path / "manifest.json"
@@ -250,7 +250,7 @@ def _native_threads(_):
 def test_tasks_run_on_one_native_thread_in_workers_and_in_the_driver():
     from threadpoolctl import threadpool_info
 
-    from experiments.parallel import run_tasks
+    from experiments.infra.parallel import run_tasks
 
     before = {p["filepath"]: p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"}
     for workers in (1, 2):
@@ -323,8 +323,8 @@ def test_batched_races_are_identical_with_1_and_2_numba_threads(tmp_path):
 
 def test_a_folder_of_another_env_version_is_refused(tmp_path):
     # races of env v1 (manifests without "env") and v2 never mix in one folder
-    from experiments.artifacts import env_version
-    from experiments.bench import SCHEMA_VERSION, BenchRun
+    from experiments.evaluation.bench import SCHEMA_VERSION, BenchRun
+    from experiments.infra.artifacts import env_version
 
     cfg = BenchConfig(ego="raceline", opponents="raceline", races=3, steps=5)
     BenchRun(tmp_path / "new", cfg)
@@ -361,7 +361,7 @@ def test_ego_regions_fix_the_egos_seat_and_keep_the_default_manifest():
 
 
 def test_records_carry_the_metrics_of_their_stored_states_and_old_folders_get_them(tmp_path):
-    from experiments.metrics import RECORD_KEYS, record_metrics
+    from experiments.evaluation.metrics import RECORD_KEYS, record_metrics
 
     summary = bench(TINY, tmp_path, pool=Pool(workers=1, progress_bar=False))
     run = BenchRun(tmp_path, TINY)
@@ -381,7 +381,7 @@ def test_records_carry_the_metrics_of_their_stored_states_and_old_folders_get_th
     # records without metrics and without states: missing, said so, never zeros
     s = summarise(old, TINY)
     assert s["strategy"]["races"] == 0 and s["strategy"]["passes"] is None
-    from experiments.bench import summary_markdown
+    from experiments.evaluation.bench import summary_markdown
 
     md = summary_markdown(s)
     assert "| passes per race (held 1 s, clear sideways) | - | - | - |" in md

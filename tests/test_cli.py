@@ -11,8 +11,8 @@ import pytest
 
 from agents import make_agent_spec
 from experiments.cli import main
-from experiments.fuzz import run_fuzz
-from experiments.race import run_race
+from experiments.evaluation.fuzz import run_fuzz
+from experiments.evaluation.race import run_race
 from racing_env.tracks import tumftm_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,7 +103,7 @@ def test_short_fuzz_finds_nothing():
 
 
 def test_fuzz_catches_a_drive_through_and_nothing_else():
-    from experiments.fuzz import drive_through
+    from experiments.evaluation.fuzz import drive_through
 
     L = 20.0
     before = np.array([[[5.0, 0.0, 0, 0, 0, 0], [4.8, 0.02, 0, 0, 0, 0], [4.9, 0.2, 0, 0, 0, 0]]])

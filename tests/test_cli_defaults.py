@@ -6,17 +6,17 @@ import dataclasses
 
 import pytest
 
-from experiments.analyze import AnalyzeConfig
-from experiments.bench import BenchConfig
+from experiments.analysis.general import GeneralReportConfig
+from experiments.analysis.nash import AnalyzeConfig
 from experiments.cli import build_parser
-from experiments.collect import CollectConfig
-from experiments.control import ControlConfig
-from experiments.general import GeneralReportConfig
-from experiments.league import LeagueConfig
-from experiments.nets import TrainConfig
-from experiments.policy_map import PolicyMapConfig
-from experiments.selfplay import SelfPlayConfig
-from experiments.strategy import StrategyConfig
+from experiments.evaluation.bench import BenchConfig
+from experiments.evaluation.control import ControlConfig
+from experiments.evaluation.league import LeagueConfig
+from experiments.evaluation.policy_map import PolicyMapConfig
+from experiments.evaluation.strategy import StrategyConfig
+from experiments.learning.selfplay import SelfPlayConfig
+from experiments.potential.collect import CollectConfig
+from experiments.potential.nets import TrainConfig
 
 # command -> (its config dataclass, {option dest: field} where the names differ)
 COMMANDS = {

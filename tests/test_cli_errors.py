@@ -5,7 +5,7 @@ import argparse
 
 import pytest
 
-import experiments.race
+import experiments.evaluation.race
 from experiments.cli import build_parser, main
 
 
@@ -98,7 +98,7 @@ def test_mp4_without_ffmpeg_fails_before_the_race(capsys, monkeypatch, tmp_path)
     import racing_env.animation
 
     monkeypatch.setattr(racing_env.animation, "_find_ffmpeg", lambda: None)
-    monkeypatch.setattr(experiments.race, "run_race", _no_race)
+    monkeypatch.setattr(experiments.evaluation.race, "run_race", _no_race)
     err = _one_line_error(
         capsys,
         ["race", "--agents", "raceline", "--steps", "5", "--format", "mp4", "--out", str(tmp_path)],
@@ -130,11 +130,11 @@ def test_every_option_has_help_and_shows_its_default(name):
 
 
 def test_start_regions_of_a_race_are_checked_before_it_and_map_to_the_order(capsys, monkeypatch):
-    from experiments.race import start_order
+    from experiments.evaluation.race import start_order
 
     assert start_order(["R2", "R1", "R3"], 3) == [1, 0, 2]
     assert start_order(None, 3) is None
-    monkeypatch.setattr(experiments.race, "run_race", _no_race)
+    monkeypatch.setattr(experiments.evaluation.race, "run_race", _no_race)
     base = ["race", "--agents", "mpc", "raceline", "--steps", "5", "--no-animation"]
     err = _one_line_error(capsys, base + ["--regions", "R2", "R3"])
     assert "must name each of R1 R2 once" in err and "got R2 R3" in err

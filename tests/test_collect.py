@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 pytest.importorskip("daqp")
 
 from experiments.cli import main  # noqa: E402
-from experiments.collect import (
+from experiments.infra.parallel import Pool  # noqa: E402
+from experiments.potential.collect import (
     CollectConfig,
     collect,
     load_races,
@@ -18,7 +19,6 @@ from experiments.collect import (
     simulate_shard,
     write_shard,
 )
-from experiments.parallel import Pool  # noqa: E402
 
 CFG = CollectConfig(races=4, n_cars=3, steps=15, seed=7, races_per_shard=2)
 
@@ -168,7 +168,7 @@ def test_collect_config_names_bad_space_and_start():
 @given(seed=st.integers(0, 2**32 - 1), space=st.sampled_from(["paper", "extended"]))
 def test_close_paces_keep_every_zeta_in_the_box_and_within_the_spread(seed, space):
     from agents.theta import policy_space
-    from experiments.collect import PACE_SPREAD, close_paces
+    from experiments.potential.collect import PACE_SPREAD, close_paces
 
     box = policy_space(space)
     rng = np.random.default_rng(seed)
@@ -186,7 +186,7 @@ def test_a_close_pace_collection_differs_from_the_box_only_in_zeta(tmp_path):
     box = load_races_of(CollectConfig(**kw), tmp_path / "box")
     close = load_races_of(CollectConfig(pace="close", **kw), tmp_path / "close")
     from agents.theta import policy_space
-    from experiments.collect import PACE_SPREAD
+    from experiments.potential.collect import PACE_SPREAD
 
     z = policy_space("extended").names.index("zeta")
     assert np.ptp(close["thetas"][:, :, z], axis=1).max() <= 2 * PACE_SPREAD + 1e-6
@@ -200,7 +200,7 @@ def test_an_overtake_collection_deals_the_spread_paces_slowest_first(tmp_path):
     that progress order at the start is the reverse of pace order (the slowest car in front);
     the other parameters are those of the same race's spread draw, dealt with their zeta."""
     from agents.theta import policy_space
-    from experiments.collect import PACE_SPREADS
+    from experiments.potential.collect import PACE_SPREADS
 
     kw = dict(races=3, n_cars=3, steps=3, seed=5, races_per_shard=3, space="extended")
     kw["start"] = "close"

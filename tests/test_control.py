@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from experiments.artifacts import claim_best_thetas
-from experiments.parallel import Pool
+from experiments.infra.artifacts import claim_best_thetas
+from experiments.infra.parallel import Pool
 
 pytest.importorskip("daqp")
 
@@ -347,7 +347,7 @@ def test_ensure_selects_only_missing_tracks_and_claim_refuses_a_changed_table(ta
     with pytest.raises(ValueError, match="races of a best fixed theta of another configuration"):
         claim_best_thetas(tmp_path / "run", ["oval", "default"])
     # a bench that races mpc:theta=best claims its folder the same way
-    from experiments.bench import BenchConfig, BenchRun
+    from experiments.evaluation.bench import BenchConfig, BenchRun
 
     cfg = BenchConfig(ego="mpc:theta=best", opponents="raceline", races=3, steps=5, track="oval")
     with pytest.raises(ValueError, match="races of a best fixed theta of another configuration"):
@@ -359,7 +359,7 @@ def test_ensure_selects_only_missing_tracks_and_claim_refuses_a_changed_table(ta
 
 
 def test_one_theta_best_player_races_each_track_of_a_league_with_its_own_theta(table, tmp_path):
-    from experiments.league import LeagueConfig, league
+    from experiments.evaluation.league import LeagueConfig, league
 
     a = {"q": 5.0, "zeta": 1.04, "s1": 0.3, "s2": 0.5, "s3": 4.0}
     b = {"q": 300.0, "zeta": 0.85, "s1": 0.0, "s2": 10.0, "s3": 0.0}
@@ -371,7 +371,7 @@ def test_one_theta_best_player_races_each_track_of_a_league_with_its_own_theta(t
     recs = [json.loads(x) for x in (tmp_path / "lg" / "races.jsonl").read_text().splitlines()]
     assert {r["track"] for r in recs} == {"default", "oval"} and board["new_races"] == len(recs)
     # the same theta alone on each track: the progress of the theta=best car in the league
-    from experiments.race import run_race
+    from experiments.evaluation.race import run_race
 
     for r in recs:
         car = r["agents"].index("mpc:theta=best")

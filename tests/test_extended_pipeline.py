@@ -15,7 +15,7 @@ from agents.best_theta import TABLE_ENV_VAR  # noqa: E402
 from agents.theta import EXTENDED_HIGH, EXTENDED_LOW, EXTENDED_NAMES, THETA_NAMES  # noqa: E402
 from experiments import control as ct  # noqa: E402
 from experiments.cli import main  # noqa: E402
-from experiments.parallel import Pool  # noqa: E402
+from experiments.infra.parallel import Pool  # noqa: E402
 
 PAPER_THETA = {"q": 20.0, "zeta": 0.95, "s1": 0.1, "s2": 4.0, "s3": 1.0}
 EXTENDED_THETA = {**PAPER_THETA, "zeta": 1.0, "b": 0.6}

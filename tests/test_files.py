@@ -47,7 +47,7 @@ def test_failed_atomic_write_leaves_nothing(tmp_path):
 
 def test_written_outputs_get_the_same_mode_as_result_json(tmp_path, umask):
     """race.gif / trajectories.png were 0600 (mkstemp) while result.json was 0644."""
-    from experiments.artifacts import write_json, write_npz
+    from experiments.infra.artifacts import write_json, write_npz
     from racing_env.render import Renderer, save_animation
     from racing_env.tracks import make_track
 

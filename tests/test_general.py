@@ -14,7 +14,8 @@ from agents import general_features as gf
 from agents.feature_sets import feature_set
 from agents.features import scale_theta
 from agents.reference import THETA_HIGH, THETA_LOW
-from experiments.family import (
+from experiments.infra.parallel import Pool
+from experiments.potential.family import (
     FamilyConfig,
     collect_family,
     expand_tracks,
@@ -22,7 +23,6 @@ from experiments.family import (
     parse_cars,
     simulate_family_shard,
 )
-from experiments.parallel import Pool
 from racing_env import make_track
 
 TRACK = make_track("default")
@@ -146,8 +146,8 @@ def test_local_track_matches_the_tracks_own_lookups_for_a_mix_of_tracks():
 def test_a_track_named_otherwise_than_its_spec_is_rebuilt_from_its_spec(tmp_path):
     """A TUMFTM circuit ('tumftm:Spa' is named 'Spa') or a CSV track (named by its stem): the
     training data, the rollouts and the model's list of training tracks use the spec."""
-    from experiments.family import RaceGroup
-    from experiments.train_general import FamilyData
+    from experiments.potential.family import RaceGroup
+    from experiments.potential.train_general import FamilyData
 
     a = np.linspace(0, 2 * np.pi, 120, endpoint=False)
     csv = tmp_path / "ring.csv"
@@ -348,7 +348,7 @@ def test_ray_backend_gives_the_same_family_data_as_the_local_pool(tmp_path):
 
 @needs_mpc
 def test_a_family_race_is_the_single_track_race_of_the_same_seed_and_index():
-    from experiments.collect import CollectConfig, simulate_race
+    from experiments.potential.collect import CollectConfig, simulate_race
 
     shard = simulate_family_shard(TINY_FAMILY, 2)
     track, n = TINY_FAMILY.assignment(2)
@@ -361,7 +361,7 @@ def test_a_family_race_is_the_single_track_race_of_the_same_seed_and_index():
 def test_an_extended_close_family_race_is_the_single_track_race_and_the_paper_manifest_keeps_its_keys():
     from dataclasses import replace
 
-    from experiments.collect import CollectConfig, simulate_race
+    from experiments.potential.collect import CollectConfig, simulate_race
 
     # the paper's family records no new keys, so folders written before space/start/pace resume
     assert {"space", "start", "pace"}.isdisjoint(TINY_FAMILY.manifest()["config"])
@@ -384,7 +384,7 @@ def test_an_extended_close_family_race_is_the_single_track_race_and_the_paper_ma
 
 @needs_mpc
 def test_a_killed_family_collection_resumes_and_a_bad_track_fails_before_any_race(tmp_path):
-    from experiments.artifacts import write_npz
+    from experiments.infra.artifacts import write_npz
 
     out = tmp_path / "run"
     out.mkdir()
@@ -577,7 +577,7 @@ def test_the_same_family_data_and_config_give_the_same_general_model(general_mod
 
 @pytest.mark.parametrize("agents,track", [(2, "random:10000"), (4, "default")])
 def test_a_general_model_races_any_field_size(general_model, agents, track):
-    from experiments.race import run_race
+    from experiments.evaluation.race import run_race
 
     spec = f"alpha:model={general_model / 'model' / 'model.npz'}"
     with warnings.catch_warnings(record=True) as caught:
@@ -607,7 +607,11 @@ def test_model_general_is_refused_with_how_to_train_it_when_missing(monkeypatch,
 @pytest.mark.slow
 def test_the_report_measures_on_held_out_tracks_and_resumes(general_model, tmp_path, monkeypatch):
     from agents.best_theta import TABLE_ENV_VAR, lookup
-    from experiments.general import GeneralReportConfig, default_heldout_tracks, general_report
+    from experiments.analysis.general import (
+        GeneralReportConfig,
+        default_heldout_tracks,
+        general_report,
+    )
 
     monkeypatch.setenv(TABLE_ENV_VAR, str(tmp_path / "best_fixed_theta.json"))  # empty table
     path = str(general_model / "model" / "model.npz")
@@ -695,8 +699,8 @@ def test_an_extended_general_model_is_collected_trained_and_reported_in_its_spac
     whose held-out races, control and single-track opponents are the extended space's."""
     pytest.importorskip("torch")
     from agents.potential import load_model
+    from experiments.analysis.general import ROLES, GeneralReportConfig, general_report
     from experiments.cli import main
-    from experiments.general import ROLES, GeneralReportConfig, general_report
 
     data, model_dir = tmp_path / "data", tmp_path / "model"
     collect = ["collect", "--tracks", "default", "random:3", "--cars", "2-3", "--races", "8"]

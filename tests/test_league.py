@@ -15,9 +15,9 @@ from hypothesis import strategies as st
 pytest.importorskip("openskill")
 
 from experiments import league as lg  # noqa: E402
-from experiments.artifacts import read_jsonl  # noqa: E402
 from experiments.cli import main  # noqa: E402
-from experiments.parallel import Pool  # noqa: E402
+from experiments.infra.artifacts import read_jsonl  # noqa: E402
+from experiments.infra.parallel import Pool  # noqa: E402
 
 RACELINES = (
     "raceline",
@@ -193,7 +193,7 @@ def test_tiny_league_writes_consistent_outputs(tiny_league):
 
 
 def test_leaderboard_reports_strategy_metrics_and_says_when_old_records_lack_them(tiny_league):
-    from experiments.metrics import RECORD_KEYS
+    from experiments.evaluation.metrics import RECORD_KEYS
 
     out, board = tiny_league
     records = read_jsonl(out / "races.jsonl")

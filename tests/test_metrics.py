@@ -5,7 +5,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from experiments.metrics import behind_time, hold_steps, pass_events, race_metrics, winner_and_front
+from experiments.evaluation.metrics import (
+    behind_time,
+    hold_steps,
+    pass_events,
+    race_metrics,
+    winner_and_front,
+)
 
 DT = 0.1
 
@@ -221,7 +227,7 @@ def test_passes_of_a_pair_alternate_and_net_to_its_change_of_order(data, n_cars)
 
 
 def test_metrics_of_a_real_race_are_consistent_with_its_result():
-    from experiments.race import run_race
+    from experiments.evaluation.race import run_race
 
     result, _ = run_race(
         ["mpc:zeta=1.0", "raceline", "raceline"],

@@ -190,7 +190,7 @@ def test_a_zeta_ceiling_drives_the_capped_theta_and_names_bad_values():
     """``zeta_max`` caps the zeta the MPC drives with: ``zeta=1.02,zeta_max=0.95`` races as
     ``zeta=0.95`` bit for bit; a ceiling above the zeta leaves the agent as it was."""
     from agents import make_agent_spec
-    from experiments.race import run_race
+    from experiments.evaluation.race import run_race
 
     a, _ = run_race(
         ["mpc:zeta=1.02,zeta_max=0.95", "raceline"], seed=3, max_cycles=25, progress_bar=False
@@ -216,7 +216,7 @@ def test_extended_space_agent_checks_and_chooses_the_pass_side_by_room():
     """``space='extended'`` takes ``b``; ``b`` needs that space and the curvature base line;
     with ``b = 0`` and no car near, the extended agent races as the paper's bit for bit; its
     pass side is the room rule's at every step, the paper's agent keeps the paper's rule."""
-    from experiments.race import run_race
+    from experiments.evaluation.race import run_race
 
     with pytest.raises(ValueError, match="b = 0.5 is a parameter of the extended policy space"):
         make_agent_spec("mpc:b=0.5")
@@ -246,8 +246,8 @@ def test_the_extended_space_passes_racing_line_followers_more_often_than_the_pap
     3 of 8 against 6 of 8 on the AVX-512 machine; before, none; docs: "The extended policy
     space"). Counted over races, not asserted of one: a race at the limit differs from machine
     to machine in its last bits (docs "Which machine")."""
-    from experiments.metrics import race_metrics
-    from experiments.race import run_race
+    from experiments.evaluation.metrics import race_metrics
+    from experiments.evaluation.race import run_race
 
     ext = "mpc:space=extended,q=5,zeta=1.05,s1=0.3,s2=0.5,s3=0,b=1"
     counts = {}

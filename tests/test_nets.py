@@ -1,12 +1,12 @@
-"""Training helpers shared by the single-track and general trainings (experiments.nets)."""
+"""Training helpers shared by the single-track and general trainings (experiments.potential.nets)."""
 
 import pytest
 
 
 def test_a_training_checkpoint_resumes_net_optimiser_and_schedule(tmp_path):
-    """The value and potential trainings resume from their checkpoints (experiments.nets)."""
+    """The value and potential trainings resume from their checkpoints (experiments.potential.nets)."""
     torch = pytest.importorskip("torch")
-    from experiments.nets import _resume, _save_atomic_torch
+    from experiments.potential.nets import _resume, _save_atomic_torch
 
     def parts(seed):
         torch.manual_seed(seed)

@@ -8,9 +8,9 @@ import pytest
 pytest.importorskip("daqp")
 
 from experiments import policy_map as pm  # noqa: E402
-from experiments.artifacts import read_jsonl  # noqa: E402
 from experiments.cli import main  # noqa: E402
-from experiments.parallel import Pool  # noqa: E402
+from experiments.infra.artifacts import read_jsonl  # noqa: E402
+from experiments.infra.parallel import Pool  # noqa: E402
 
 TINY = [
     "policy-map",
@@ -96,12 +96,12 @@ def test_binned_means_by_hand():
 
 
 def test_a_failing_run_becomes_an_error_row(monkeypatch):
-    import experiments.race
+    import experiments.evaluation.race
 
     def boom(*a, **k):
         raise FloatingPointError("solver diverged")
 
-    monkeypatch.setattr(experiments.race, "run_race", boom)
+    monkeypatch.setattr(experiments.evaluation.race, "run_race", boom)
     cfg = pm.PolicyMapConfig(thetas=2, tracks=("default",), modes=("race",), steps=5)
     row = pm.map_row(cfg, "race", "default", 1, pm.sample_thetas(2, 0)[1])
     assert row["error"] == "FloatingPointError: solver diverged" and row["start_region"] == "R2"

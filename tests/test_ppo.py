@@ -17,9 +17,9 @@ from agents.ppo_agent import (
     default_checkpoint,
     read_checkpoint_meta,
 )
-from experiments import selfplay as sp
 from experiments.cli import main
-from experiments.selfplay import SelfPlayConfig, selfplay
+from experiments.learning import selfplay as sp
+from experiments.learning.selfplay import SelfPlayConfig, selfplay
 from racing_env import RaceConfig, RacingParallelEnv
 from racing_env.controllers import RacelineFollower
 from racing_env.gym_env import HeadToHeadEnv
@@ -157,7 +157,7 @@ def test_adapt_observation_pads_phantoms_and_keeps_nearest():
 
 # ---------------------------------------------------------------------- the pipeline
 def _assert_learning_curve_drawn(path):
-    """The figure of :func:`experiments.selfplay.plot_learning_curve`: 8 x 9 in at 110 dpi,
+    """The figure of :func:`experiments.learning.selfplay.plot_learning_curve`: 8 x 9 in at 110 dpi,
     three panels with coloured curves on white."""
     from PIL import Image
 

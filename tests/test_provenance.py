@@ -8,11 +8,11 @@ import warnings
 
 import pytest
 
-from experiments import artifacts
-from experiments import league as lg
-from experiments.artifacts import read_jsonl
-from experiments.bench import BenchConfig, bench
-from experiments.parallel import Pool
+from experiments.evaluation import league as lg
+from experiments.evaluation.bench import BenchConfig, bench
+from experiments.infra import artifacts
+from experiments.infra.artifacts import read_jsonl
+from experiments.infra.parallel import Pool
 
 pytest.importorskip("stable_baselines3")
 
@@ -99,7 +99,7 @@ def test_a_changed_version_or_commit_is_warned_about_naming_both(tmp_path):
 
 
 def test_collect_manifest_records_provenance(tmp_path):
-    from experiments.collect import CollectConfig, collect
+    from experiments.potential.collect import CollectConfig, collect
 
     cfg = CollectConfig(races=1, steps=3)
     collect(cfg, tmp_path / "c", pool=Pool(workers=1, progress_bar=False))

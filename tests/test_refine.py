@@ -1,4 +1,4 @@
-"""The control's compass search (experiments.refine): the moves, the pattern move, the order
+"""The control's compass search (experiments.evaluation.refine): the moves, the pattern move, the order
 of scores and the search driven by hand-made score functions."""
 
 import numpy as np
@@ -7,7 +7,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agents.theta import EXTENDED_HIGH, EXTENDED_LOW, THETA_HIGH, THETA_LOW
-from experiments.refine import compass_moves, compass_search, eligible, pattern_move, score_key
+from experiments.evaluation.refine import (
+    compass_moves,
+    compass_search,
+    eligible,
+    pattern_move,
+    score_key,
+)
 
 NAMES = ("q", "zeta", "s1", "s2", "s3")
 EXT_NAMES = NAMES + ("b",)

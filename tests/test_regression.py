@@ -82,7 +82,7 @@ def numeric_platform() -> dict:
 
 
 def bench_config(case: str):
-    from experiments.bench import BenchConfig
+    from experiments.evaluation.bench import BenchConfig
 
     folder = ROOT / "results" / "paper_table" / case
     if not folder.exists():
@@ -96,7 +96,7 @@ def stored() -> dict:
 
 def prefix_states(config, k: int, steps: int = PREFIX_STEPS) -> np.ndarray:
     """States (steps + 1, N, 6) of the first ``steps`` steps of race ``k`` of ``config``."""
-    from experiments.race import run_race
+    from experiments.evaluation.race import run_race
 
     result, _ = run_race(
         config.agents,
@@ -120,7 +120,7 @@ def test_the_first_seconds_of_the_stored_races_on_any_machine(case, k):
 @pytest.mark.slow
 @pytest.mark.parametrize("case, k", RACES)
 def test_table1_races_are_the_stored_races(case, k):
-    from experiments.bench import bench_race
+    from experiments.evaluation.bench import bench_race
 
     records = stored()
     want = next(r for r in records["races"] if (r["case"], r["k"]) == (case, k))["record"]
@@ -137,7 +137,7 @@ def test_table1_races_are_the_stored_races(case, k):
 
 def write_records() -> None:
     """Run the races and write ``RECORDS`` (after a deliberate change of the races)."""
-    from experiments.bench import bench_race
+    from experiments.evaluation.bench import bench_race
 
     races = []
     for case, k in RACES:

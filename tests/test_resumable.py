@@ -1,12 +1,12 @@
-"""experiments.artifacts.ResumableRun: the one claim / records / missing / add of bench,
+"""experiments.infra.artifacts.ResumableRun: the one claim / records / missing / add of bench,
 league, policy map and the strategy suite's pace races."""
 
 import json
 
 import pytest
 
-from experiments.artifacts import ResumableRun, as_stored, claim
-from experiments.parallel import Pool
+from experiments.infra.artifacts import ResumableRun, as_stored, claim
+from experiments.infra.parallel import Pool
 
 
 class Squares(ResumableRun):

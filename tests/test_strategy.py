@@ -10,10 +10,10 @@ import pytest
 pytest.importorskip("daqp")
 
 from experiments import strategy as sg  # noqa: E402
-from experiments.bench import BenchRun  # noqa: E402
 from experiments.cli import build_parser, main  # noqa: E402
-from experiments.metrics import RECORD_KEYS, record_metrics  # noqa: E402
-from experiments.parallel import Pool  # noqa: E402
+from experiments.evaluation.bench import BenchRun  # noqa: E402
+from experiments.evaluation.metrics import RECORD_KEYS, record_metrics  # noqa: E402
+from experiments.infra.parallel import Pool  # noqa: E402
 
 TINY = sg.StrategyConfig(
     ego="alpha", control="mpc:zeta=1.02", tracks=("default",), races=3, steps=20, seed=7

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from experiments.race import RaceResult, write_outputs
-from experiments.theta_plot import plot_thetas, varying_cars
+from experiments.evaluation.race import RaceResult, write_outputs
+from experiments.evaluation.theta_plot import plot_thetas, varying_cars
 
 
 def _result(thetas, names, T=40, n=3):

@@ -59,10 +59,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from experiments.infra.artifacts import claim, write_json, write_text
+from experiments.learning.imitation import behaviour_cloning
 from racing_env.files import atomic_path
-
-from .artifacts import claim, write_json, write_text
-from .imitation import behaviour_cloning
 
 SCHEMA_VERSION = 1
 VEC_ENVS = ("batched", "dummy", "subproc")
@@ -582,7 +581,7 @@ def _new_model(cfg: SelfPlayConfig, env, seed: int):
 
 
 def _behaviour_cloned_init(cfg: SelfPlayConfig, out: Path, state: SelfPlayState, bar) -> str:
-    """``init="bc"``: one behaviour-cloned PPO model (:func:`~experiments.imitation.behaviour_cloning`), the
+    """``init="bc"``: one behaviour-cloned PPO model (:func:`~experiments.learning.imitation.behaviour_cloning`), the
     starting point of every car; saved as ``checkpoints/bc_init.zip`` and evaluated alone."""
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 

@@ -11,12 +11,11 @@ from tqdm import tqdm
 
 from agents import check_field_size, make_agent_spec
 from agents.theta import policy_space
+from experiments.evaluation.metrics import race_metrics
+from experiments.infra.artifacts import write_json
 from racing_env import RacingParallelEnv
 from racing_env.config import RulesConfig
 from racing_env.gym_env import act_named
-
-from .artifacts import write_json
-from .metrics import race_metrics
 
 
 @dataclass
@@ -43,7 +42,7 @@ class RaceResult:
 
     @property
     def metrics(self) -> dict:
-        """Strategy metrics of the race (:func:`experiments.metrics.race_metrics`): passes
+        """Strategy metrics of the race (:func:`experiments.evaluation.metrics.race_metrics`): passes
         per car, passes through contact, wins from behind, time within 1 m behind."""
         return race_metrics(self.states, self.dt, self.contact_dn)
 
@@ -218,7 +217,7 @@ def write_outputs(result: RaceResult, frames: list, out: Path, animation: str = 
 
     out.mkdir(parents=True, exist_ok=True)
     paths = {"summary": out / "result.json", "trajectories": out / "trajectories.png"}
-    from .theta_plot import plot_thetas, varying_cars
+    from experiments.evaluation.theta_plot import plot_thetas, varying_cars
 
     if varying_cars(result.thetas):  # a car that chose its theta during the race
         paths["thetas"] = out / "thetas.png"

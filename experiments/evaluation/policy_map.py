@@ -34,7 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import (
+from experiments.evaluation.bench import REGIONS, BenchConfig, check_agent_specs
+from experiments.infra.artifacts import (
     ResumableRun,
     check_track_specs,
     env_version,
@@ -44,8 +45,7 @@ from .artifacts import (
     write_json,
     write_text,
 )
-from .bench import REGIONS, BenchConfig, check_agent_specs
-from .parallel import Pool
+from experiments.infra.parallel import Pool
 
 SCHEMA_VERSION = 1
 MODES = ("solo", "race")
@@ -154,7 +154,7 @@ def _theta_dict(theta) -> dict:
 
 def best_flying_lap(lap_times) -> float | None:
     """Fastest lap [s] after the first from cumulative lap completion times [s] (the env's
-    ``core.lap_times``, as ``experiments.race`` reads them); ``None`` with fewer than 2 laps."""
+    ``core.lap_times``, as ``experiments.evaluation.race`` reads them); ``None`` with fewer than 2 laps."""
     if len(lap_times) < 2:
         return None
     return float(np.diff(np.asarray(lap_times, dtype=float)).min())
@@ -163,7 +163,7 @@ def best_flying_lap(lap_times) -> float | None:
 # ---------------------------------------------------------------------------- one row
 def map_row(config: PolicyMapConfig, mode: str, track: str, k: int, theta) -> dict:
     """Run theta k on ``track`` in ``mode`` (pure: no file access) and return its row."""
-    from .race import run_race
+    from experiments.evaluation.race import run_race
 
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()

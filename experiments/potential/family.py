@@ -1,10 +1,10 @@
 """Race data over a family of tracks and field sizes, for the track-general alpha-potential.
 
 ``alpha-racer collect --tracks default oval random:0-299 tumftm:Monza --cars 2-6 --races 6000``
-simulates the races of :mod:`experiments.collect` (MPC cars with theta uniform in its bounds,
+simulates the races of :mod:`experiments.potential.collect` (MPC cars with theta uniform in its bounds,
 from the start regions in a random order) on many tracks and with 2..8 cars, in the paper's
 policy space or the extended one, with the paper's or close starts and paces (``space``,
-``start``, ``pace`` as in :class:`experiments.collect.CollectConfig`). Every shard is
+``start``, ``pace`` as in :class:`experiments.potential.collect.CollectConfig`). Every shard is
 homogeneous: one track and one number of cars N, assigned by :meth:`FamilyConfig.assignment`
 from the seed and the shard index alone, and recorded in the shard (``track``, ``n_cars``)
 and in ``manifest.json`` (one entry per shard). Tracks and field sizes are dealt out in cycles
@@ -17,7 +17,7 @@ Track specs: anything :func:`racing_env.tracks.make_track` takes (``default``, `
 ``random:SEED``, ``tumftm:NAME``, a ``.csv`` path), plus ``random:A-B`` for the procedural
 seeds A..B (inclusive). Field sizes: ``2-6`` (a range), ``2,3,5`` (a list) or one number.
 
-Shard arrays (R races, T steps, N cars of the shard): those of :mod:`experiments.collect`
+Shard arrays (R races, T steps, N cars of the shard): those of :mod:`experiments.potential.collect`
 plus ``track`` (a string) and ``n_cars``; the schema is :data:`SCHEMA_VERSION` (2). A
 single-track collection (schema 1) loads here too, as a family of one track and one N.
 """
@@ -31,8 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import claim, manifest_config, write_npz
-from .collect import (
+from experiments.infra.artifacts import claim, manifest_config, write_npz
+from experiments.infra.parallel import Pool
+from experiments.potential.collect import (
     ADDED_FIELDS,
     CollectConfig,
     ShardedRaces,
@@ -40,8 +41,7 @@ from .collect import (
     simulate_missing_shards,
     simulate_race,
 )
-from .collect import SCHEMA_VERSION as SINGLE_SCHEMA_VERSION
-from .parallel import Pool
+from experiments.potential.collect import SCHEMA_VERSION as SINGLE_SCHEMA_VERSION
 
 SCHEMA_VERSION = 2
 MIN_CARS, MAX_CARS = 2, 8
@@ -236,7 +236,7 @@ def shard_is_complete(path: Path, config: FamilyConfig, shard: int) -> bool:
 
 def collect_family(config: FamilyConfig, out_dir, pool: Pool = Pool()) -> dict:
     """Simulate every missing shard of the family on ``pool``; returns a summary (as
-    :func:`experiments.collect.collect`). Every track is built first, so a bad spec fails
+    :func:`experiments.potential.collect.collect`). Every track is built first, so a bad spec fails
     before any race."""
     check_tracks(config.track_list)
     out = Path(out_dir)
@@ -283,7 +283,7 @@ def load_family(out_dir) -> tuple[list[RaceGroup], dict]:
             f"{SINGLE_SCHEMA_VERSION} (one track) and {SCHEMA_VERSION} (a family)"
         )
     if version == SINGLE_SCHEMA_VERSION:
-        from .collect import load_races
+        from experiments.potential.collect import load_races
 
         d = load_races(out)
         c = d["config"]

@@ -1,5 +1,5 @@
-"""Network training and checkpointing shared by :mod:`experiments.train` (one track, one
-field size) and :mod:`experiments.train_general` (a family of tracks and field sizes): the
+"""Network training and checkpointing shared by :mod:`experiments.potential.train` (one track, one
+field size) and :mod:`experiments.potential.train_general` (a family of tracks and field sizes): the
 :class:`TrainConfig`, the discounted-return targets, the value and potential stages (each
 checkpointed every epoch / ``save_every`` steps and resumed from its checkpoint), the numpy
 model they turn into, the policy space of a collection and of a training run
@@ -21,10 +21,9 @@ from tqdm import tqdm
 from agents.mlp import MLP
 from agents.potential import PotentialModel
 from agents.theta import PolicySpace, policy_space
+from experiments.infra.artifacts import claim, write_json, write_text
+from experiments.infra.parallel import pin_worker
 from racing_env.files import atomic_path
-
-from .artifacts import claim, write_json, write_text
-from .parallel import pin_worker
 
 OBJECTIVES = ("mse", "smoothmax", "tail")
 
@@ -485,7 +484,7 @@ def discounted_rollout(track: str, x, thetas, car: int, steps: int, gamma: float
     """``(G, x_end)``: car ``car``'s gamma-discounted return over ``steps`` of MPC cars with
     ``thetas`` (N, dim) of one policy space from the joint state ``x`` (N, 6) on ``track`` (a
     name), and the joint state after them (N, 6) for a bootstrap with V."""
-    from experiments.collect import rollout_from_state
+    from experiments.potential.collect import rollout_from_state
 
     states, rewards = rollout_from_state(track, x, thetas, steps)
     disc = gamma ** np.arange(len(rewards))
@@ -497,8 +496,8 @@ def paired_rollouts(jobs: list[tuple], threads: int, progress_bar: bool) -> list
     pool of ``threads`` worker processes, each pinned to one thread per library; the
     ``(G, x_end)`` of each job, in the jobs' order. The thetas (N, dim) are the caller's
     deviations, drawn in the box of the data's policy space (by
-    :func:`experiments.train.sample_deviations` or
-    :class:`experiments.train_general.FamilyDeviations`)."""
+    :func:`experiments.potential.train.sample_deviations` or
+    :class:`experiments.potential.train_general.FamilyDeviations`)."""
     with ProcessPoolExecutor(max_workers=threads, initializer=pin_worker) as pool:
         return list(
             tqdm(

@@ -34,8 +34,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import append_jsonl, claim, read_jsonl, write_json, write_npz, write_text
-from .parallel import Pool, run_tasks_with_progress
+from experiments.infra.artifacts import (
+    append_jsonl,
+    claim,
+    read_jsonl,
+    write_json,
+    write_npz,
+    write_text,
+)
+from experiments.infra.parallel import Pool, run_tasks_with_progress
 
 DT = 0.1  # control period of the races [s]
 
@@ -102,13 +109,13 @@ def _value_range(model) -> float:
 
 # ---------------------------------------------------------------------------- Figure 2a
 def heldout_config(model, cfg: AnalyzeConfig, workers: int):
-    """The :class:`~experiments.collect.CollectConfig` of the approximation gap's held-out
+    """The :class:`~experiments.potential.collect.CollectConfig` of the approximation gap's held-out
     races: ``cfg.heldout_races`` fresh races (seed ``cfg.heldout_seed``) of ``cfg.steps``
     steps on the model's track with its number of cars, drawn as its training races were:
     the policy space, start regions and paces of the collection in its metadata (the
     collection's defaults, the paper's, for what it does not name). So an extended model is
     measured on thetas of its own six-parameter box, from its own starts."""
-    from experiments.collect import ADDED_FIELDS, CollectConfig
+    from experiments.potential.collect import ADDED_FIELDS, CollectConfig
 
     trained_on = model.meta.get("data", {}).get("collect", {})
     drawn = {k: trained_on.get(k, v) for k, v in ADDED_FIELDS.items()}
@@ -131,8 +138,8 @@ def heldout_config(model, cfg: AnalyzeConfig, workers: int):
 def approximation_gap(model, heldout_dir, pairs: int, seed: int) -> dict:
     """Gaps |dPhi - dV_i| / range(V) of ``pairs`` unilateral deviations at states of the
     held-out races in ``heldout_dir``, and those of a constant potential."""
-    from experiments.collect import load_races
-    from experiments.train import relative_gaps, sample_deviations
+    from experiments.potential.collect import load_races
+    from experiments.potential.train import relative_gaps, sample_deviations
     from racing_env.tracks import make_track
 
     data = load_races(heldout_dir)
@@ -223,7 +230,7 @@ def maximiser(model, state, track, seed: int):
 
 def simulated_value(model, track, state, thetas, car: int, horizon: int) -> float:
     """G_car = discounted rollout return over ``horizon`` steps + gamma^H V_car(x_H, thetas)."""
-    from experiments.nets import discounted_rollout
+    from experiments.potential.nets import discounted_rollout
 
     gamma = float(model.meta["gamma"])
     g, x_end = discounted_rollout(track.name, state, thetas, car, horizon, gamma)
@@ -294,7 +301,7 @@ def regret_task(
 def race_states(model_name: str, track: str, n_states: int, seed: int, steps: int):
     """States (n_states, N, 6) sampled evenly from a race of ``alpha`` cars (the model's
     number of cars) from the start regions."""
-    from .race import run_race
+    from experiments.evaluation.race import run_race
 
     n = _model(model_name).n_cars
     result, _ = run_race(
@@ -416,7 +423,7 @@ def slice_state(X: np.ndarray) -> tuple[int, int]:
 def potential_slices(model, track, state, ego: int, theta_star, cfg: AnalyzeConfig) -> dict:
     """Phi and V_ego along each of the ego's parameters (others at theta*), and the ego's
     trajectories (x, y) over ``slice_steps`` for ``slice_rollouts`` values per parameter."""
-    from experiments.collect import rollout_from_state
+    from experiments.potential.collect import rollout_from_state
 
     sp = model.space
     out = {"ego": int(ego), "theta_star": np.asarray(theta_star).tolist(), "params": {}}
@@ -569,7 +576,7 @@ def find_overtake(bench_dirs) -> dict | None:
     """The benchmark race to animate: the ego starting behind (R2 or R3) and winning, at the
     median margin among such races, preferring the first directory that has one; the window
     is around the ego's first gain of a position."""
-    from .bench import BenchRun
+    from experiments.evaluation.bench import BenchRun
 
     for d in bench_dirs:
         d = Path(d)
@@ -653,7 +660,7 @@ def analyze(
 ) -> dict:
     """Run every analysis into ``out_dir`` (skipping parts whose outputs exist unless
     ``force``); returns ``summary.json``'s content."""
-    from experiments.collect import collect
+    from experiments.potential.collect import collect
     from racing_env.tracks import make_track
 
     model = _model(cfg.model)

@@ -4,8 +4,7 @@ options, the theta box), read from a model's metadata."""
 from __future__ import annotations
 
 from agents.potential import model_space
-
-from .collect import ADDED_FIELDS, PACE_SPREADS
+from experiments.potential.collect import ADDED_FIELDS, PACE_SPREADS
 
 
 def added_options_text(collect: dict) -> str:

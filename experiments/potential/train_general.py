@@ -2,7 +2,7 @@
 
 ``alpha-racer train --data data/family --out data/model_general`` on a folder written by
 ``alpha-racer collect --tracks ... --cars ...`` runs the three stages of
-:mod:`experiments.train` (value network, potential network, validation; the same loops,
+:mod:`experiments.potential.train` (value network, potential network, validation; the same loops,
 objectives and checkpoints) on the ``general`` features (:mod:`agents.general_features`):
 
 1. **Value**: targets are every race's gamma-discounted returns, as for one track (each race
@@ -16,7 +16,7 @@ objectives and checkpoints) on the ``general`` features (:mod:`agents.general_fe
    rollouts on each race's own track.
 
 The thetas are those of the collection's policy space (read from its manifest and checked
-against the thetas as in :mod:`experiments.train`; family collections race the paper's), and
+against the thetas as in :mod:`experiments.potential.train`; family collections race the paper's), and
 the model records it.
 
 Torch is seeded with the config's seed, so the same data and config give the same model.
@@ -32,15 +32,14 @@ from agents import general_features as gf
 from agents.features import theta_space
 from agents.general_features import TrackSet
 from agents.potential import PotentialModel
-
-from . import nets
-from .card_lines import added_options_text, theta_box_lines
-from .family import RaceGroup, load_family
+from experiments.potential import nets
+from experiments.potential.card_lines import added_options_text, theta_box_lines
+from experiments.potential.family import RaceGroup, load_family
 
 
 class FamilyData:
     """The races of a family collection, numbered 0..R-1 in the order of
-    :func:`experiments.family.load_family`'s groups, stored by field size N (one bucket per N:
+    :func:`experiments.potential.family.load_family`'s groups, stored by field size N (one bucket per N:
     ``states`` (R_N, T + 1, N, 6), ``thetas`` (R_N, N, dim), ``rewards`` (R_N, T, N),
     ``track_id`` (R_N,) into :attr:`tracks`, ``race`` (R_N,) the global numbers); ``space``
     the thetas' policy space (one for every group)."""
@@ -92,7 +91,7 @@ class FamilyData:
 
 class FamilyDeviations:
     """Unilateral deviations at states of ``races`` (global numbers) of a :class:`FamilyData`:
-    the family counterpart of :class:`experiments.train._Deviations` (same interface).
+    the family counterpart of :class:`experiments.potential.train._Deviations` (same interface).
 
     A batch holds per sample the race ``r``, the step ``t``, theta and theta' (n, N_MAX, dim)
     (rows beyond the race's field unused) and the deviating car ``i`` (in 0..N_r - 1)."""
@@ -230,7 +229,7 @@ def family_gaps(
     value_range: float | None = None,
 ) -> dict:
     """Approximation gaps of ``pairs`` unilateral deviations at states of ``races``:
-    :func:`experiments.nets.gap_statistics` relative to ``value_range`` (default: the range
+    :func:`experiments.potential.nets.gap_statistics` relative to ``value_range`` (default: the range
     of V over 20000 states of these races with uniform thetas, as for one track), overall and
     per field size (``by_cars``: pairs, median, p95, max and the constant potential's median
     and p95). Also ``value_range_measured``, the range of V over these races."""
@@ -276,7 +275,7 @@ def family_gaps(
 
 def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> dict:
     """Paired rollouts from held-out states on each race's own track (as
-    :func:`experiments.train.validate_rollouts` for one track)."""
+    :func:`experiments.potential.train.validate_rollouts` for one track)."""
     rng = np.random.default_rng(cfg.seed + 3)
     n = cfg.rollout_pairs
     dev = FamilyDeviations(data, val_idx, own_theta_fraction=1.0)
@@ -312,7 +311,7 @@ GENERAL_HEAD = {"feature_set": "general", "feature_version": gf.FEATURE_VERSION}
 
 def train_general(run: nets.TrainingRun) -> dict:
     """Run (or resume) the three stages of the training ``run`` (opened by
-    :func:`experiments.train.train` with :data:`GENERAL_HEAD`) on its family collection;
+    :func:`experiments.potential.train.train` with :data:`GENERAL_HEAD`) on its family collection;
     returns the metrics (also in ``metrics.json``); writes ``model.npz`` and ``model_card.md``
     beside them."""
     cfg, data_dir = run.cfg, run.data_dir

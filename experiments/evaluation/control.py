@@ -4,13 +4,13 @@
 A learned potential that chooses theta online is only worth something against the best
 *fixed* theta in the same seat. This module finds that theta on each track, never by hand:
 
-1. **Map** (:mod:`experiments.policy_map`): ``thetas`` scrambled-Sobol thetas (seed ``seed``)
+1. **Map** (:mod:`experiments.evaluation.policy_map`): ``thetas`` scrambled-Sobol thetas (seed ``seed``)
    of the theta box of policy space ``space`` (the paper's five parameters by default; the
    extended space's six with ``b``, ``--space extended``), each alone from the grid (``solo``) and as car_0 against two
    ``opponents`` from the start regions (``race``, theta k from R(k mod 3 + 1)), ``steps``
    control periods each.
 2. **Candidates** (:func:`choose_candidates`): among the thetas on track in both modes (at
-   most :data:`experiments.policy_map.OFF_TRACK_LIMIT` of the steps off track, no error),
+   most :data:`experiments.evaluation.policy_map.OFF_TRACK_LIMIT` of the steps off track, no error),
    the top ``candidates`` by their rank among the thetas that started their race from the
    same region (by race progress), then by *region-adjusted race progress* (race progress
    minus the median of that region), then by the lower Sobol index: the best of R1, of R2
@@ -19,7 +19,7 @@ A learned potential that chooses theta online is only worth something against th
    behind two cars that never yield). The best solo theta (most progress alone) joins if it
    is not among them.
 3. **Playoff** (:func:`rank_playoff`): each candidate as the ego of the same ``races`` seeded
-   races (:class:`experiments.bench.BenchConfig`: race k from R(k mod 3 + 1), so every
+   races (:class:`experiments.evaluation.bench.BenchConfig`: race k from R(k mod 3 + 1), so every
    region equally often, the same start positions for every candidate) against two
    ``opponents``, ``steps`` each. Scored by wins, then mean progress margin over the best
    opponent [m], then the lower Sobol index (a deterministic order for exact ties).
@@ -43,9 +43,9 @@ Output folder (resumable; run the same command again, also with more tracks; def
 
 * ``manifest.json``: schema version, the :class:`ControlConfig` (without tracks) and the
   env version; a folder of another config or env is refused.
-* ``<track>/map/``: the track's policy map (:class:`experiments.policy_map.PolicyMapRun`).
+* ``<track>/map/``: the track's policy map (:class:`experiments.evaluation.policy_map.PolicyMapRun`).
 * ``<track>/playoff/theta_<index>/``: the playoff races of one candidate
-  (:class:`experiments.bench.BenchRun`).
+  (:class:`experiments.evaluation.bench.BenchRun`).
 * ``<track>/selection.json`` and ``summary.md``, ``summary.json`` (every track);
   ``runs.jsonl``: the wall time of every invocation that ran something.
 """
@@ -60,7 +60,23 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import (
+from experiments.evaluation.bench import (
+    REGIONS,
+    BenchConfig,
+    BenchRun,
+    _run_many,
+    check_agent_specs,
+)
+from experiments.evaluation.policy_map import (
+    MODES,
+    OFF_TRACK_LIMIT,
+    PolicyMapConfig,
+    PolicyMapRun,
+    run_maps,
+    theta_spec,
+)
+from experiments.evaluation.refine import compass_search, score_key
+from experiments.infra.artifacts import (
     append_jsonl,
     claim,
     manifest_config,
@@ -69,10 +85,7 @@ from .artifacts import (
     write_json,
     write_text,
 )
-from .bench import REGIONS, BenchConfig, BenchRun, _run_many, check_agent_specs
-from .parallel import Pool
-from .policy_map import MODES, OFF_TRACK_LIMIT, PolicyMapConfig, PolicyMapRun, run_maps, theta_spec
-from .refine import compass_search, score_key
+from experiments.infra.parallel import Pool
 
 SCHEMA_VERSION = 1
 BEST_FIXED_SPEC = "mpc:theta=best"
@@ -80,7 +93,7 @@ BEST_FIXED_SPEC = "mpc:theta=best"
 ADDED_FIELDS = {"space": "paper", "refine": 0}
 """Config fields added after selections were first made, with their defaults: a manifest and a
 ``selection.json`` record them only when they differ
-(:func:`experiments.artifacts.manifest_config`), so paper folders resume unchanged."""
+(:func:`experiments.infra.artifacts.manifest_config`), so paper folders resume unchanged."""
 
 
 def best_fixed_spec(space: str = "paper") -> str:
@@ -130,7 +143,7 @@ class ControlConfig:
     the seed of the Sobol sample, the map's starts and the playoff races (not 0, the
     benchmarks' seed), ``space`` the policy space whose box is mapped (``"paper"`` or
     ``"extended"``, :data:`agents.theta.SPACES`), ``refine`` the rounds of the compass search
-    from the playoff's winner (:mod:`experiments.refine`; 0: none, the rule before it
+    from the playoff's winner (:mod:`experiments.evaluation.refine`; 0: none, the rule before it
     existed). Defaults: about 6 CPU-minutes per track for the map and playoff (256 map runs,
     up to 180 playoff races), and up to 2 (2 dim + 1) x 30 races more for the search."""
 
@@ -208,7 +221,7 @@ def _on_track(row: dict) -> bool:
 
 def eligible_indices(rows) -> list[int]:
     """Sorted indices of the thetas whose solo and race rows are both on track (no
-    ``error``, at most :data:`~experiments.policy_map.OFF_TRACK_LIMIT` of the steps off
+    ``error``, at most :data:`~experiments.evaluation.policy_map.OFF_TRACK_LIMIT` of the steps off
     track)."""
     rows = list(rows)
     solo = {r["index"]: r for r in rows if r["mode"] == "solo"}
@@ -218,10 +231,10 @@ def eligible_indices(rows) -> list[int]:
 
 def choose_candidates(rows, k: int) -> list[dict]:
     """The playoff's candidates from the map rows of one track (both modes; rows as
-    :func:`experiments.policy_map.map_row` writes them).
+    :func:`experiments.evaluation.policy_map.map_row` writes them).
 
     A theta is eligible when its solo and race rows are both on track (no ``error``, at most
-    :data:`~experiments.policy_map.OFF_TRACK_LIMIT` of the steps off track). The top ``k``
+    :data:`~experiments.evaluation.policy_map.OFF_TRACK_LIMIT` of the steps off track). The top ``k``
     eligible thetas by their rank (1 = most race progress) among the eligible thetas from the
     same start region, then by region-adjusted race progress [m] (race progress minus the
     median race progress of all finished race rows from that region), then by the lower
@@ -373,9 +386,8 @@ def _selection(
     ``refined``: the search's rounds and winner (:func:`_refine`), ``seconds``: the worker
     seconds of the playoff's and the search's races."""
     from agents.best_theta import env_name
+    from experiments import __version__
     from racing_env.tracks import make_track
-
-    from . import __version__
 
     t = make_track(track)
     rows = list(map_run.rows().values())
@@ -476,7 +488,7 @@ def _refine_folder(out: Path, track: str, index: int) -> Path:
 
 
 def _refine(cfg: ControlConfig, out: Path, ranked: dict, pool: Pool) -> dict:
-    """``cfg.refine`` rounds of the compass search (:func:`experiments.refine.compass_search`)
+    """``cfg.refine`` rounds of the compass search (:func:`experiments.evaluation.refine.compass_search`)
     from the playoff's first on every track of ``ranked`` (track -> its ranked playoff), the
     proposals of all tracks raced in one pool. A new theta gets the next index after the
     map's (``cfg.thetas``, ...), in the order the moves are made, so a resume names the same

@@ -1,5 +1,5 @@
 """Behaviour cloning (DAgger) of the raceline follower into a PPO actor: the ``init="bc"``
-start of a self-play run (:mod:`experiments.selfplay`)."""
+start of a self-play run (:mod:`experiments.learning.selfplay`)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # annotations only: selfplay imports this module
+    from experiments.learning.selfplay import SelfPlayConfig
     from racing_env import RaceConfig
-
-    from .selfplay import SelfPlayConfig
 
 
 def behaviour_cloning(
@@ -21,7 +20,7 @@ def behaviour_cloning(
     """``init="bc"``: pretrain the PPO actor to imitate the raceline follower (DAgger).
 
     ``model`` an SB3 ``PPO`` with a ``VecNormalize`` env, ``cfg`` the run's
-    :class:`~experiments.selfplay.SelfPlayConfig` (``n_envs``, ``n_cars``, ``track``,
+    :class:`~experiments.learning.selfplay.SelfPlayConfig` (``n_envs``, ``n_cars``, ``track``,
     ``batch_size`` and the ``bc_*`` fields), ``race_config`` the learning env's
     :class:`~racing_env.RaceConfig`, ``opponent_mus`` the envelope scales of the
     raceline-follower opponents by slot (cycled).

@@ -50,10 +50,9 @@ from agents.features import (
     value_features,
 )
 from agents.potential import PotentialModel
-
-from . import nets
-from .card_lines import added_options_text, pace_text, theta_box_lines
-from .nets import TrainConfig
+from experiments.potential import nets
+from experiments.potential.card_lines import added_options_text, pace_text, theta_box_lines
+from experiments.potential.nets import TrainConfig
 
 # ---------------------------------------------------------------------------- data
 
@@ -74,14 +73,14 @@ def train(
     from racing_env.extras import require
 
     torch = require("torch", "training the value and alpha-potential networks (alpha-racer train)")
-    from experiments.collect import load_races
+    from experiments.potential.collect import load_races
     from racing_env.tracks import make_track
 
     cfg = config or TrainConfig()
     family = _is_family(data_dir)  # many tracks and field sizes: the general model
     if family:
-        from .train_general import GENERAL_HEAD as head
-        from .train_general import train_general
+        from experiments.potential.train_general import GENERAL_HEAD as head
+        from experiments.potential.train_general import train_general
     else:
         head = {"feature_version": FEATURE_VERSION}
     run = nets.TrainingRun.open(
@@ -177,7 +176,7 @@ def sample_deviations(states, thetas, races, n: int, rng, own_theta_fraction: fl
 
 class _Deviations:
     """Unilateral deviations at the training states of one track and one field size, and
-    their features (the potential stage's data; :mod:`experiments.train_general` has the one
+    their features (the potential stage's data; :mod:`experiments.potential.train_general` has the one
     for a family of tracks and field sizes). ``draw(n, rng)`` returns a batch;
     ``value_features(batch, k)`` and ``potential_features(batch, k)`` give its features
     (float64) under theta (k = 1) or the deviation theta' (k = 2)."""

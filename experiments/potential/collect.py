@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import claim, manifest_config, provenance, write_npz
-from .parallel import Pool, run_tasks_with_progress
+from experiments.infra.artifacts import claim, manifest_config, provenance, write_npz
+from experiments.infra.parallel import Pool, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
 #: Start-region geometry of a collection's races (``StartConfig`` region_length, region_gap
@@ -47,7 +47,7 @@ PACES = ("box", "close", "spread", "overtake")
 PACE_SPREAD = 0.03  # half-width of a "close" race's zeta spread (absolute, zeta units)
 PACE_SPREADS = {"close": PACE_SPREAD, "spread": 0.08, "overtake": 0.08}
 #: Config fields added after collections were first made, with their paper defaults: a manifest
-#: records them only when they differ (:func:`experiments.artifacts.manifest_config`).
+#: records them only when they differ (:func:`experiments.infra.artifacts.manifest_config`).
 ADDED_FIELDS = {"space": "paper", "start": "paper", "pace": "box"}
 
 

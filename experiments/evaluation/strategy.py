@@ -35,7 +35,7 @@ Output folder (``out``, default ``results/strategy``; run again to resume):
   control: wins (per ego start region), passes, passes through contact, wins from behind,
   mean margin, time within 1 m behind; plus the measured pace gap of ``defend``.
 
-The pass and contact metrics are :mod:`experiments.metrics`'.
+The pass and contact metrics are :mod:`experiments.evaluation.metrics`'.
 """
 
 from __future__ import annotations
@@ -45,7 +45,14 @@ import warnings
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-from .artifacts import (
+from experiments.evaluation.bench import (
+    BenchConfig,
+    BenchRun,
+    _run_many,
+    check_agent_specs,
+    check_spec_fields,
+)
+from experiments.infra.artifacts import (
     ResumableRun,
     append_jsonl,
     check_track_specs,
@@ -54,8 +61,7 @@ from .artifacts import (
     write_json,
     write_text,
 )
-from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, check_spec_fields
-from .parallel import Pool
+from experiments.infra.parallel import Pool
 
 SCHEMA_VERSION = 1
 SCENARIOS = ("pass", "equal", "defend", "table1")
@@ -205,7 +211,7 @@ def cells(config: StrategyConfig) -> list[Cell]:
 def solo_pace(spec: str, track: str, steps: int, seed: int) -> dict:
     """Progress [m] of ``spec`` alone from the grid in ``steps`` control periods (pure: no
     file access); ``progress_m`` None and ``reason`` when the agent cannot race alone."""
-    from .race import run_race
+    from experiments.evaluation.race import run_race
 
     warnings.simplefilter("ignore")
     rec = {"spec": spec, "track": track, "steps": steps, "seed": seed}
@@ -227,7 +233,7 @@ def pace_specs(config: StrategyConfig) -> list[str]:
 class PaceRun(ResumableRun):
     """The defend scenario's solo pace races in the suite's folder: ``pace.jsonl``, one record
     per (spec, track, steps, seed). No manifest of its own: the records carry their settings,
-    and the benches' folders are claimed by :class:`~experiments.bench.BenchRun`."""
+    and the benches' folders are claimed by :class:`~experiments.evaluation.bench.BenchRun`."""
 
     what = "solo pace races"
     records_name = "pace.jsonl"

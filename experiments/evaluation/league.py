@@ -30,7 +30,7 @@ Output directory:
   line is dropped).
 * ``leaderboard.json``, ``leaderboard.md``: :func:`leaderboard` (ratings, wins with Wilson
   95% intervals, mean finish, progress, off-track steps, decision time, the strategy metrics
-  of :mod:`experiments.metrics` (passes, passes through contact, wins from behind, time
+  of :mod:`experiments.evaluation.metrics` (passes, passes through contact, wins from behind, time
   within 1 m behind); the pairwise matrix). A league stores no states: records written
   before the strategy metrics existed lack them, and the leaderboard says so.
 * ``ratings.png`` (:func:`plot_ratings`) and ``pairwise.png`` (:func:`plot_pairwise`).
@@ -48,8 +48,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import metrics as race_metrics
-from .artifacts import (
+from experiments.evaluation import metrics as race_metrics
+from experiments.evaluation.bench import check_agent_specs, wilson_interval
+from experiments.infra.artifacts import (
     ResumableRun,
     as_stored,
     check_track_specs,
@@ -57,8 +58,7 @@ from .artifacts import (
     write_json,
     write_text,
 )
-from .bench import check_agent_specs, wilson_interval
-from .parallel import Pool
+from experiments.infra.parallel import Pool
 
 SCHEMA_VERSION = 1
 #: openskill Plackett-Luce parameters: the package's defaults (mu 25, sigma 25/3, beta 25/6)
@@ -257,7 +257,7 @@ def finish_ranks(progress) -> list[int]:
 
 def league_race(race: ScheduledRace, steps: int, imports=()) -> dict:
     """Run one scheduled race (pure: no file access) and return its record."""
-    from .race import run_race
+    from experiments.evaluation.race import run_race
 
     warnings.simplefilter("ignore")
     _import_once(imports)
@@ -690,7 +690,7 @@ def check_field(agents, cars: int, track: str) -> None:
     """Let each agent take one decision in a field of ``cars`` cars on ``track`` (the others
     raceline followers), so an agent that cannot race that many cars (an alpha-potential model
     trained for another number) fails before any race of the league starts."""
-    from .race import run_race
+    from experiments.evaluation.race import run_race
 
     for spec in agents:
         try:

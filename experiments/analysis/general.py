@@ -9,7 +9,7 @@ a held-out track among them is refused), except the last part, which is about ``
    ``alpha-racer analyze`` does; the range measured on these races is reported beside it):
    median and 95th percentile, against a constant potential. ``gap.json``.
 2. **alpha (general) against the fixed-theta control** in the paper's protocol scaled to N
-   cars (:class:`experiments.bench.BenchConfig` with ``n_cars = N``): on every held-out track
+   cars (:class:`experiments.evaluation.bench.BenchConfig` with ``n_cars = N``): on every held-out track
    and N, ``rounds`` rounds of N races (the ego from each start region once per round)
    against N - 1 ``mpc`` cars (the MPC at its fixed default theta, zeta 0.9). The control
    runs the same races with the best fixed theta on that track as ego, in the model's policy
@@ -42,11 +42,23 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import claim, manifest_config, slug, write_json, write_text
-from .bench import BenchConfig, BenchRun, _run_many, check_agent_specs, win_share
-from .control import ControlConfig, best_fixed_spec, ensure_best_thetas
-from .family import FamilyConfig, collect_family, expand_tracks, load_family, parse_cars
-from .parallel import Pool
+from experiments.evaluation.bench import (
+    BenchConfig,
+    BenchRun,
+    _run_many,
+    check_agent_specs,
+    win_share,
+)
+from experiments.evaluation.control import ControlConfig, best_fixed_spec, ensure_best_thetas
+from experiments.infra.artifacts import claim, manifest_config, slug, write_json, write_text
+from experiments.infra.parallel import Pool
+from experiments.potential.family import (
+    FamilyConfig,
+    collect_family,
+    expand_tracks,
+    load_family,
+    parse_cars,
+)
 
 HELDOUT_RANDOM = "random:10000-10019"
 """Procedural tracks of the default held-out set: seeds outside any training range we use."""
@@ -76,7 +88,7 @@ class GeneralReportConfig:
     ``gap_cars``, ``gap_pairs`` deviations per field size. ``bench_cars`` field sizes of the
     N-car protocol, ``bench_rounds`` rounds of N races per track and N. ``default_races``
     races of the comparison on ``default`` (0 skips it). ``control_thetas`` and
-    ``control_races``: the :class:`experiments.control.ControlConfig` of the selection of
+    ``control_races``: the :class:`experiments.evaluation.control.ControlConfig` of the selection of
     the best fixed theta on held-out tracks the best-theta table lacks. ``control``: an agent
     spec that replaces that per-track selection as the control ego on every held-out track
     (empty: the per-track best fixed theta of the model's policy space)."""
@@ -176,8 +188,8 @@ def heldout_tracks(cfg: GeneralReportConfig, model) -> list[str]:
 # ---------------------------------------------------------------------------- 1. the gap
 def gap_by_cars(model, heldout_dir, cfg: GeneralReportConfig) -> dict:
     """Per field size of the held-out collection: gap statistics relative to the model's
-    value range (:func:`experiments.train_general.family_gaps`)."""
-    from .train_general import FamilyData, family_gaps
+    value range (:func:`experiments.potential.train_general.family_gaps`)."""
+    from experiments.potential.train_general import FamilyData, family_gaps
 
     groups, _ = load_family(heldout_dir)
     data = FamilyData(groups)
@@ -212,7 +224,7 @@ def gap_by_cars(model, heldout_dir, cfg: GeneralReportConfig) -> dict:
 # ---------------------------------------------------------------------------- 2, 3. races
 def control_spec(cfg: GeneralReportConfig, space: str = "paper") -> str:
     """The control ego of part 2: ``cfg.control``, else the best fixed theta of the track in
-    policy space ``space`` (:func:`experiments.control.best_fixed_spec`)."""
+    policy space ``space`` (:func:`experiments.evaluation.control.best_fixed_spec`)."""
     return cfg.control or best_fixed_spec(space)
 
 

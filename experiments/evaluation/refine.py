@@ -11,7 +11,7 @@ together (the pattern move). The best of the round becomes the incumbent; a roun
 nothing better halves the step.
 
 This module holds the search without the races: :func:`compass_search` proposes thetas and
-is sent their scores, so that :func:`experiments.control.select_best_thetas` races the
+is sent their scores, so that :func:`experiments.evaluation.control.select_best_thetas` races the
 proposals of every track in one pool (and a test drives it with a score function).
 """
 
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .policy_map import OFF_TRACK_LIMIT
+from experiments.evaluation.policy_map import OFF_TRACK_LIMIT
 
 
 def compass_moves(theta, step: float, low, high, names) -> list[tuple[str, np.ndarray]]:
@@ -47,7 +47,7 @@ def compass_moves(theta, step: float, low, high, names) -> list[tuple[str, np.nd
 
 
 def score_key(score: dict) -> tuple:
-    """The playoff's order, used by :func:`experiments.control.rank_playoff` and the search:
+    """The playoff's order, used by :func:`experiments.evaluation.control.rank_playoff` and the search:
     more wins, then the larger mean margin [m], then the lower index. Smaller keys rank
     higher."""
     return (-score["wins"], -score["margin_m_mean"], score["index"])
@@ -55,7 +55,7 @@ def score_key(score: dict) -> tuple:
 
 def eligible(score: dict, steps: int) -> bool:
     """A raced theta may win when its races stayed on track: at most
-    :data:`~experiments.policy_map.OFF_TRACK_LIMIT` of its ``steps`` steps per race off track,
+    :data:`~experiments.evaluation.policy_map.OFF_TRACK_LIMIT` of its ``steps`` steps per race off track,
     on average, and a finite margin."""
     return (
         np.isfinite(score["margin_m_mean"])

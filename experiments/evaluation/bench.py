@@ -22,7 +22,7 @@ Output directory:
   for animations of the benchmark's own races.
 * ``summary.json`` and ``summary.md``: :func:`summarise`.
 
-Every record carries the race's strategy metrics (:mod:`experiments.metrics`: passes per car,
+Every record carries the race's strategy metrics (:mod:`experiments.evaluation.metrics`: passes per car,
 passes through contact, whether the winner came from behind, time within 1 m behind),
 computed from the stored float32 states; a folder written before they existed gets them
 recomputed from its ``states/`` when summarised.
@@ -45,8 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import metrics as race_metrics
-from .artifacts import (
+from experiments.evaluation import metrics as race_metrics
+from experiments.infra.artifacts import (
     ResumableRun,
     append_jsonl,
     env_version,
@@ -56,7 +56,7 @@ from .artifacts import (
     write_npz,
     write_text,
 )
-from .parallel import Pool
+from experiments.infra.parallel import Pool
 
 SCHEMA_VERSION = 1
 ROLES = ("ego", "O1", "O2")
@@ -238,7 +238,7 @@ def check_agent_specs(specs, tracks=()) -> None:
 
 def bench_race(config: BenchConfig, k: int) -> dict:
     """Race k of the benchmark (pure: no file access); returns its record and states."""
-    from .race import run_race
+    from experiments.evaluation.race import run_race
 
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
@@ -417,7 +417,7 @@ def summarise(records: list[dict], config: BenchConfig) -> dict:
 
 
 def strategy_summary(records: list[dict], names, region_names) -> dict:
-    """The strategy metrics of benchmark ``records`` (:mod:`experiments.metrics`), per car
+    """The strategy metrics of benchmark ``records`` (:mod:`experiments.evaluation.metrics`), per car
     (``names``: ego, O1, ...): ``passes``, ``passes_contact`` and ``fell_back`` (totals
     and means per race), ``wins_from_behind`` (count), ``behind_1m_s`` (mean seconds per race);
     ``wins_by_start_region`` (races won by the car that started in each region, R2.. being

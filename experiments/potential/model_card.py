@@ -1,6 +1,6 @@
 """Regenerate ``agents/models/MODEL_CARD.md`` from the metadata inside the shipped models.
 
-    python -m experiments.model_card
+    python -m experiments.potential.model_card
 
 Each shipped ``.npz`` carries its training config, data, command and held-out metrics
 (written by ``alpha-racer train``); this file only lays them out, so the card cannot drift
@@ -14,8 +14,8 @@ import json
 from pathlib import Path
 
 from agents.potential import MODEL_DIR, SHIPPED, PotentialModel
-from experiments.train import model_card_text
-from experiments.train_general import general_model_card_text
+from experiments.potential.train import model_card_text
+from experiments.potential.train_general import general_model_card_text
 
 HEADER = """# Shipped alpha-potential models
 

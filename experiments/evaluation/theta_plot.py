@@ -5,7 +5,7 @@ A fixed-theta car drives one theta the whole race; the alpha agent maximises its
 every step and so may attack with one theta and block with another. The plot shows, for every
 car whose theta changed during the race, one panel per parameter of its policy space against
 time, under a panel of its progress gap ``s_j - s_i`` [m] to every other car (positive: car j
-ahead), with the race's passes (:mod:`experiments.metrics`) as vertical lines.
+ahead), with the race's passes (:mod:`experiments.evaluation.metrics`) as vertical lines.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ def varying_cars(thetas) -> list[int]:
 
 
 def plot_thetas(result, path: str | os.PathLike, dpi: int = 120) -> Path:
-    """Plot the thetas of ``result`` (a :class:`experiments.race.RaceResult`) to a PNG: one
+    """Plot the thetas of ``result`` (a :class:`experiments.evaluation.race.RaceResult`) to a PNG: one
     column per car whose theta changed, rows: the gap to every other car, then each
     parameter. ``ValueError`` if no car's theta changed (nothing to show) or ``path`` is not
     a ``.png``."""

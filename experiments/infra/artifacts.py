@@ -19,9 +19,8 @@ from collections.abc import Callable, Hashable
 from pathlib import Path
 from typing import Any
 
+from experiments.infra.parallel import Pool, run_tasks_with_progress
 from racing_env.files import atomic_path
-
-from .parallel import Pool, run_tasks_with_progress
 
 
 def slug(spec: str) -> str:
@@ -452,7 +451,7 @@ def run_missing(
     postfix: Callable[[tuple, dict], str] | None = None,
 ) -> int:
     """Run the :meth:`~ResumableRun.missing` tasks of every run of ``runs`` (name -> run) in
-    one pool, ``fn(*args(run, task))`` each (:func:`experiments.parallel.run_tasks`), storing
+    one pool, ``fn(*args(run, task))`` each (:func:`experiments.infra.parallel.run_tasks`), storing
     each record in its run (:meth:`~ResumableRun.add`) as it arrives, behind one progress bar
     over all the runs' tasks (``desc``, ``unit``; ``postfix((name, key), record)`` with the
     task's :meth:`~ResumableRun.task_key` shows the last one). Returns the number of tasks

@@ -40,15 +40,20 @@ def _config(cls, args, renamed: dict | None = None, **values):
 
 
 def _pool(args):
-    """The drivers' :class:`~experiments.parallel.Pool` of ``--workers``, ``--backend`` and
+    """The drivers' :class:`~experiments.infra.parallel.Pool` of ``--workers``, ``--backend`` and
     ``--address``."""
-    from .parallel import Pool
+    from experiments.infra.parallel import Pool
 
     return Pool(args.workers, args.backend, args.address)
 
 
 def _cmd_race(args) -> int:
-    from .race import check_animation_format, run_race, start_order, write_outputs
+    from experiments.evaluation.race import (
+        check_animation_format,
+        run_race,
+        start_order,
+        write_outputs,
+    )
 
     if not args.no_animation:
         check_animation_format(args.format)  # before the race, not after it
@@ -131,7 +136,7 @@ def _cmd_raceline(args) -> int:
 
 
 def _cmd_fuzz(args) -> int:
-    from .fuzz import run_fuzz
+    from experiments.evaluation.fuzz import run_fuzz
 
     report = run_fuzz(
         steps=args.steps, n_races=args.races, n_cars=args.cars, track=args.track, seed=args.seed
@@ -141,8 +146,8 @@ def _cmd_fuzz(args) -> int:
 
 
 def _cmd_collect(args) -> int:
-    from .collect import CollectConfig, collect
-    from .family import FamilyConfig, collect_family, parse_cars
+    from experiments.potential.collect import CollectConfig, collect
+    from experiments.potential.family import FamilyConfig, collect_family, parse_cars
 
     cars = parse_cars(args.cars)
     if args.tracks is None and len(cars) == 1:  # one track, one field size: as always
@@ -176,7 +181,7 @@ def _cmd_collect(args) -> int:
 
 
 def _cmd_train(args) -> int:
-    from .train import TrainConfig, train
+    from experiments.potential.train import TrainConfig, train
 
     train(
         args.data,
@@ -190,7 +195,7 @@ def _cmd_train(args) -> int:
 
 
 def _cmd_selfplay(args) -> int:
-    from .selfplay import SelfPlayConfig, selfplay
+    from experiments.learning.selfplay import SelfPlayConfig, selfplay
 
     cfg = _config(SelfPlayConfig, args, _SELFPLAY_FIELDS, mpc_reference=not args.no_mpc_reference)
     s = selfplay(cfg, args.out, max_turns=args.max_turns)
@@ -214,8 +219,8 @@ def _cmd_selfplay(args) -> int:
 
 
 def _cmd_bench(args) -> int:
-    from .artifacts import slug
-    from .bench import BenchConfig, bench, paper_table
+    from experiments.evaluation.bench import BenchConfig, bench, paper_table
+    from experiments.infra.artifacts import slug
 
     if args.space is not None and not args.paper_table:
         raise ValueError(f"--space {args.space} chooses the opponents of --paper-table; add it")
@@ -251,7 +256,7 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_league(args) -> int:
-    from .league import LeagueConfig, league
+    from experiments.evaluation.league import LeagueConfig, league
 
     out = Path(args.out)
     board = league(_config(LeagueConfig, args), out, _pool(args), imports=args.imports)
@@ -265,7 +270,7 @@ def _cmd_league(args) -> int:
 
 
 def _cmd_strategy(args) -> int:
-    from .strategy import StrategyConfig, strategy
+    from experiments.evaluation.strategy import StrategyConfig, strategy
 
     out = Path(args.out)
     t = strategy(_config(StrategyConfig, args), out, _pool(args))
@@ -275,13 +280,13 @@ def _cmd_strategy(args) -> int:
 
 
 def _analyze_config(args):
-    from .analyze import AnalyzeConfig
+    from experiments.analysis.nash import AnalyzeConfig
 
     return _config(AnalyzeConfig, args)
 
 
 def _cmd_analyze(args) -> int:
-    from .analyze import analyze
+    from experiments.analysis.nash import analyze
 
     out = Path(args.out)
     analyze(
@@ -339,7 +344,7 @@ def _reproduce_strategy(args, ego: str, control: str, track: str, out: Path, poo
     """The strategy benchmark of ``ego`` against ``control`` on ``track`` into
     ``out/strategy`` (``--strategy-races`` races per bench, ``--strategy-steps`` steps);
     returns its ``strategy.md``, None when ``--strategy-races`` is 0."""
-    from .strategy import StrategyConfig, strategy
+    from experiments.evaluation.strategy import StrategyConfig, strategy
 
     if not args.strategy_races:
         return None
@@ -362,10 +367,10 @@ def _cmd_reproduce(args) -> int:
     benchmark of the ego against the control."""
     import json
 
-    from .analyze import analyze
-    from .artifacts import slug, write_text
-    from .bench import PAPER_CASES, comparison_markdown, paper_table
-    from .control import ControlConfig, best_fixed_spec, ensure_best_thetas
+    from experiments.analysis.nash import analyze
+    from experiments.evaluation.bench import PAPER_CASES, comparison_markdown, paper_table
+    from experiments.evaluation.control import ControlConfig, best_fixed_spec, ensure_best_thetas
+    from experiments.infra.artifacts import slug, write_text
 
     space = args.space
     out = Path(args.out or REPRODUCE_OUT[space])
@@ -425,7 +430,7 @@ def _cmd_reproduce(args) -> int:
         md = _reproduce_strategy(args, ego, best_fixed, track, out, pool)
         parts += [md] if md else []
     if args.policy_thetas:  # the policy space the potential maximises over
-        from .policy_map import PolicyMapConfig, policy_map
+        from experiments.evaluation.policy_map import PolicyMapConfig, policy_map
 
         policy_map(
             PolicyMapConfig(thetas=args.policy_thetas, steps=args.steps, space=space),
@@ -446,7 +451,7 @@ def _cmd_reproduce(args) -> int:
 
 
 def _cmd_general_report(args) -> int:
-    from .general import GeneralReportConfig, general_report
+    from experiments.analysis.general import GeneralReportConfig, general_report
 
     out = Path(args.out)
     general_report(
@@ -462,7 +467,7 @@ def _cmd_general_report(args) -> int:
 
 
 def _cmd_policy_map(args) -> int:
-    from .policy_map import PolicyMapConfig, policy_map
+    from experiments.evaluation.policy_map import PolicyMapConfig, policy_map
 
     out = Path(args.out)
     s = policy_map(_config(PolicyMapConfig, args), out, _pool(args))
@@ -475,8 +480,8 @@ def _cmd_policy_map(args) -> int:
 
 
 def _cmd_control(args) -> int:
-    from .control import ControlConfig, default_out, select_best_thetas
-    from .family import expand_tracks
+    from experiments.evaluation.control import ControlConfig, default_out, select_best_thetas
+    from experiments.potential.family import expand_tracks
 
     cfg = _config(ControlConfig, args)
     out = Path(args.out or default_out(cfg.space))
@@ -568,7 +573,7 @@ _IMPORT_OPTION = (
     "read, so that the agents it registers can race; repeatable",
     {"dest": "imports", "action": "append", "default": [], "metavar": "MODULE"},
 )
-_ANALYZE_OPTIONS = (  # of experiments.analyze.AnalyzeConfig, with default_in_help
+_ANALYZE_OPTIONS = (  # of experiments.analysis.nash.AnalyzeConfig, with default_in_help
     ("--model", "alpha-potential model: shipped name or path (default: {default})"),
     ("--heldout-races", "fresh races for the gap (default {default})"),
     ("--gap-pairs", "deviations for the gap (default {default})"),
@@ -587,7 +592,7 @@ def _version() -> str:
     try:
         return version("alpha-racer")
     except PackageNotFoundError:
-        from . import __version__
+        from experiments import __version__
 
         return __version__
 
@@ -600,17 +605,22 @@ def build_parser() -> argparse.ArgumentParser:
     # the options' defaults are read from the config dataclasses (one place for each default;
     # tests/test_cli_defaults.py checks them)
     from agents.theta import SPACES
-
-    from .analyze import AnalyzeConfig
-    from .bench import BenchConfig
-    from .collect import PACE_SPREAD, PACE_SPREADS, PACES, START_REGIONS, CollectConfig
-    from .control import ControlConfig
-    from .general import GeneralReportConfig
-    from .league import LeagueConfig
-    from .nets import OBJECTIVES, TrainConfig
-    from .policy_map import DEFAULT_TRACKS, MODES, PolicyMapConfig
-    from .selfplay import SelfPlayConfig
-    from .strategy import SCENARIOS, StrategyConfig
+    from experiments.analysis.general import GeneralReportConfig
+    from experiments.analysis.nash import AnalyzeConfig
+    from experiments.evaluation.bench import BenchConfig
+    from experiments.evaluation.control import ControlConfig
+    from experiments.evaluation.league import LeagueConfig
+    from experiments.evaluation.policy_map import DEFAULT_TRACKS, MODES, PolicyMapConfig
+    from experiments.evaluation.strategy import SCENARIOS, StrategyConfig
+    from experiments.learning.selfplay import SelfPlayConfig
+    from experiments.potential.collect import (
+        PACE_SPREAD,
+        PACE_SPREADS,
+        PACES,
+        START_REGIONS,
+        CollectConfig,
+    )
+    from experiments.potential.nets import OBJECTIVES, TrainConfig
 
     p = argparse.ArgumentParser(
         prog="alpha-racer", description=__doc__, formatter_class=_HelpFormatter

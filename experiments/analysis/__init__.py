@@ -1,0 +1,1 @@
+"""Analyses of trained models: the Nash analyses, the general report."""

@@ -1,0 +1,1 @@
+"""Reinforcement and imitation learning: PPO self-play, behaviour cloning."""

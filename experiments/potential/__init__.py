@@ -1,0 +1,1 @@
+"""The alpha-potential's pipeline: race collection, the trainings, the networks, the model cards."""
