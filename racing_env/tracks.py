@@ -327,6 +327,12 @@ def tumftm_dirs() -> list[Path]:
     return found
 
 
+def _shipped() -> tuple[str, ...]:
+    from .circuits import SHIPPED
+
+    return SHIPPED
+
+
 def tumftm_file(name: str) -> Path | None:
     """``NAME.csv`` in the first of :func:`tumftm_dirs` that holds it, or None."""
     if not name or "/" in name or "\\" in name or name.startswith("."):
@@ -355,19 +361,33 @@ def track_names() -> list[str]:
 _CACHE: dict[tuple, Track] = {}
 
 
-def make_track(spec: str | Track, scale: float | None = None) -> Track:
+def make_track(
+    spec: str | Track, scale: float | None = None, vehicle_class: str | None = None
+) -> Track:
     """Build a track from a name: ``default``, ``oval``, ``random:SEED``, ``tumftm:NAME``
-    (a circuit from the TUMFTM folder, default scale 1/43) or a path to a TUMFTM CSV file.
-    A :class:`Track` is returned unchanged. Results are memoised per process.
+    (a circuit of the TUMFTM database, found by :func:`tumftm_file`) or a path to a TUMFTM CSV
+    file. A :class:`Track` is returned unchanged. Results are memoised per process.
+
+    ``vehicle_class`` (default ``"orca"``, the paper's 1:43 car; or ``"fullsize"``) sizes the
+    track for that class: ``tumftm:NAME`` at :func:`track_scale` (1/43 or full size) unless
+    ``scale`` is given, ``random:SEED`` with the class's :data:`RANDOM_TRACKS` settings. The
+    built-in ``default`` and ``oval`` are ORCA tracks only; a CSV path is read at ``scale``
+    (default 1, its own metres) for any class.
     """
     if isinstance(spec, Track):
         return spec
     if not isinstance(spec, str):
         raise ValueError(f"track must be a name or a Track, got {type(spec).__name__}")
-    key = (spec, scale)
+    cls = _check_class("orca" if vehicle_class is None else vehicle_class)
+    key = (spec, scale) if cls == "orca" else (spec, scale, cls)
     if key in _CACHE:
         return _CACHE[key]
     if spec in BUILTIN:
+        if cls != "orca":
+            raise ValueError(
+                f"the built-in track {spec!r} is sized for the 'orca' class (1:43 cars); "
+                f"for {cls!r} use 'random:SEED' or 'tumftm:NAME'"
+            )
         track = BUILTIN[spec]()
     elif spec.startswith("random:"):
         try:
@@ -378,17 +398,23 @@ def make_track(spec: str | Track, scale: float | None = None) -> Track:
             raise ValueError(
                 f"random track seed must be a non-negative integer, e.g. 'random:3', got {spec!r}"
             )
-        track = random_track(seed)
+        rc = RANDOM_TRACKS[cls]
+        track = random_track(
+            seed, length=rc.length, half_width=rc.half_width, control_range=rc.control_range
+        )
     elif spec.startswith("tumftm:"):
-        d = tumftm_dir()
         name = spec.split(":", 1)[1]
-        if d is None or not (d / f"{name}.csv").is_file():
+        path = tumftm_file(name)
+        if path is None:
+            folders = ", ".join(str(d) for d in tumftm_dirs()) or "none"
             raise ValueError(
-                f"TUMFTM track {name!r} not found (folder: {d}); "
-                f"set ALPHA_RACER_TUMFTM to the racetrack-database tracks folder"
+                f"TUMFTM track {name!r} not found (folders: {folders}); the package ships "
+                f"tumftm:{', tumftm:'.join(_shipped())}: for the others run "
+                f"'alpha-racer circuits download' or set ALPHA_RACER_TUMFTM to the "
+                f"racetrack-database tracks folder"
             )
         track = load_tumftm_csv(
-            d / f"{name}.csv", scale=scale or 1 / 43, allow_crossing=name in CROSSING_CIRCUITS
+            path, scale=scale or track_scale(cls), allow_crossing=name in CROSSING_CIRCUITS
         )
     elif spec.endswith(".csv"):
         track = load_tumftm_csv(spec, scale=scale or 1.0)
