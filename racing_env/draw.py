@@ -43,7 +43,7 @@ def car_color(i: int) -> tuple[int, int, int]:
 
 
 # ---------------------------------------------------------------------------- primitives
-def _load_font():
+def _load_font() -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
     """PIL's built-in bitmap font (about 11 px high): ~10x faster to draw than FreeType text."""
     try:
         return ImageFont.load_default_imagefont()  # Pillow >= 10.1

@@ -27,9 +27,10 @@ import os
 import sys
 import warnings
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-from PIL import Image, ImageDraw
+from PIL import Image, ImageDraw, ImageFont
 
 from .animation import ffmpeg_available, save_animation  # noqa: F401 (re-exported)
 from .draw import (
@@ -51,6 +52,12 @@ from .draw import (
 from .track import Track
 from .trajectory_plot import plot_trajectories  # noqa: F401 (re-exported)
 from .vehicle import VehicleParams
+
+if TYPE_CHECKING:
+    from types import ModuleType
+
+    from matplotlib.figure import Figure
+    from matplotlib.image import AxesImage
 
 _SUPERSAMPLE = 3  # background is drawn at 3x and box-filtered down (anti-aliasing)
 
@@ -88,6 +95,23 @@ class Renderer:
         Drawn car size [px].
     """
 
+    track: Track
+    vehicle: VehicleParams
+    width: int
+    height: int
+    raceline_xy: tuple[np.ndarray, np.ndarray] | None
+    scale: float
+    car_length_px: float
+    car_width_px: float
+    background: np.ndarray
+    _cx: float
+    _cy: float
+    _body: np.ndarray
+    _nose: np.ndarray
+    _nose_colors: list[tuple[int, int, int]]
+    _font: ImageFont.ImageFont | ImageFont.FreeTypeFont
+    _line_h: int
+
     def __init__(
         self,
         track: Track,
@@ -99,7 +123,7 @@ class Renderer:
         *,
         margin_px: float = 12.0,
         min_car_length_px: float = 8.0,
-    ):
+    ) -> None:
         if not isinstance(track, Track):
             raise ValueError(f"track must be a Track, got {type(track).__name__}")
         for name, v in (("width", width), ("height", height)):
@@ -279,10 +303,10 @@ class Renderer:
                 )
             if labels is not None:
                 off = 0.5 * self.car_length_px + 2
-                for i in range(n_cars):
-                    if ok[i] and labels[i]:
+                for k in range(n_cars):
+                    if ok[k] and labels[k]:
                         self._draw_text(
-                            out, u[i] + off, v[i] - off - self._line_h, [str(labels[i])], box=False
+                            out, u[k] + off, v[k] - off - self._line_h, [str(labels[k])], box=False
                         )
         if hud:
             self._draw_text(out, 6, 5, [str(line) for line in hud], box=True)
@@ -363,9 +387,9 @@ class HumanViewer:
         self.title = title
         self.pause = max(float(pause), 1e-3)
         self.last_frame: np.ndarray | None = None
-        self._fig = None
-        self._im = None
-        self._plt = None
+        self._fig: Figure | None = None
+        self._im: AxesImage | None = None
+        self._plt: ModuleType | None = None  # matplotlib.pyplot, imported on the first frame
         self._warned = False
         ok, reason = display_available()
         self.available = ok
@@ -405,6 +429,7 @@ class HumanViewer:
                 self._im = ax.imshow(frame, interpolation="nearest")
                 plt.show(block=False)
             else:
+                assert self._im is not None  # drawn with the figure
                 self._im.set_data(frame)
             plt.pause(self.pause)
         except Exception as exc:  # no usable window after all: degrade, don't crash

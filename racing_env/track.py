@@ -331,6 +331,17 @@ class Track:
         return self._sx(sw), self._sy(sw)
 
     # ------------------------------------------------------------------ Frenet <-> Cartesian
+    # (floats for float arguments, arrays once one of ``s`` and ``n`` is an array)
+    @overload
+    def to_cartesian(self, s: float, n: float, mu: float | None = None) -> tuple[float, ...]: ...
+    @overload
+    def to_cartesian(
+        self, s: np.ndarray, n: float | np.ndarray, mu: float | np.ndarray | None = None
+    ) -> tuple[np.ndarray, ...]: ...
+    @overload
+    def to_cartesian(
+        self, s: float | np.ndarray, n: np.ndarray, mu: float | np.ndarray | None = None
+    ) -> tuple[np.ndarray, ...]: ...
     def to_cartesian(
         self, s: float | np.ndarray, n: float | np.ndarray, mu: float | np.ndarray | None = None
     ) -> tuple[float | np.ndarray, ...]:
@@ -415,6 +426,12 @@ class Track:
         return s_out, n_out, np.arctan2(np.sin(mu), np.cos(mu))
 
     # ------------------------------------------------------------------ edges
+    @overload
+    def edges(self, s: float) -> tuple[tuple[float, ...], tuple[float, ...]]: ...
+    @overload
+    def edges(
+        self, s: np.ndarray | None = None
+    ) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]: ...
     def edges(
         self, s: float | np.ndarray | None = None
     ) -> tuple[tuple[float | np.ndarray, ...], tuple[float | np.ndarray, ...]]:

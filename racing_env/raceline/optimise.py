@@ -281,7 +281,9 @@ def lap_time_weight_search(
     """
     vehicle = vehicle or VehicleParams()
     config = config or RacelineConfig()
-    tried, best = [], None
+    tried: list[tuple[float, float]] = []
+    # (lap estimate, weight, stations, offsets, info) of the fastest weight so far
+    best: tuple[float, float, np.ndarray, np.ndarray, dict] | None = None
     n_prev = None
 
     def evaluate(w):
@@ -315,6 +317,7 @@ def lap_time_weight_search(
                     lo, a, fa = a, b, fb
                     b = lo + g * (hi - lo)
                     fb = evaluate(math.exp(b))
+    assert best is not None  # LENGTH_WEIGHTS is not empty
     _, w, s_sub, n_sub, info = best
     if not info["converged"]:
         warnings.warn(

@@ -7,7 +7,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -115,6 +115,8 @@ class Raceline:
     key: str = ""
     from_cache: bool = False
     track: Track | None = field(default=None, repr=False)
+    # the cache format version of a line read by from_npz_dict (None: computed here)
+    _meta_version: int | None = field(default=None, init=False, repr=False)
 
     # ------------------------------------------------------------------ checks
     def validate(self) -> None:
@@ -254,8 +256,11 @@ class Raceline:
         mu: float | None = None,
     ) -> Path:
         """Write a PNG of the track edges, centre line and racing line coloured by speed."""
+        on = track if track is not None else self.track
+        if on is None:
+            raise ValueError("Raceline.plot: give the track (none is attached to this line)")
         return plot_raceline(
-            track if track is not None else self.track,
+            on,
             self,
             path,
             grip=grip_arg(grip, mu, "Raceline.plot"),
@@ -279,7 +284,7 @@ class Raceline:
     def from_npz_dict(cls, d: dict) -> Raceline:
         """Inverse of :meth:`to_npz_dict`; raises ``ValueError``/``KeyError`` on bad content."""
         meta = json.loads(str(d["meta"][()]))
-        kw = {name: np.array(d[name], dtype=float) for name in _ARRAYS}
+        kw: dict[str, Any] = {name: np.array(d[name], dtype=float) for name in _ARRAYS}
         for name in _SCALARS:
             kw[name] = float(d[name][()])
         kw["iterations"] = int(kw["iterations"])
@@ -334,7 +339,7 @@ def plot_raceline(
     ax.plot(close(track.x), close(track.y), color="0.6", lw=0.8, ls="--", label="centre line")
     pts = np.column_stack([close(raceline.x), close(raceline.y)])
     segs = np.stack([pts[:-1], pts[1:]], axis=1)
-    lc = LineCollection(segs, cmap="viridis", linewidths=2.0)
+    lc = LineCollection(list(segs), cmap="viridis", linewidths=2.0)
     lc.set_array(0.5 * (vx + np.roll(vx, -1)))
     ax.add_collection(lc)
     fig.colorbar(lc, ax=ax, label="speed [m/s]")
