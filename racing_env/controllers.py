@@ -8,6 +8,7 @@ It follows the agent protocol of :mod:`agents` (``reset(track, agent_id, seed)``
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
@@ -18,6 +19,9 @@ from .simulator import _lookup
 from .track import Track
 from .tracks import make_track
 from .vehicle import VehicleParams
+
+if TYPE_CHECKING:
+    from .raceline import Raceline
 
 
 def understeer_gradient(v: VehicleParams) -> float:
@@ -115,8 +119,8 @@ class RacelineFollower:
         self.k_speed = k_speed
         self.k_us = understeer_gradient(self.vehicle)
         self.track: Track | None = None
-        self.raceline = None
-        self.agent_id = None
+        self.raceline: Raceline | None = None
+        self.agent_id: str | None = None
 
     @property
     def mu(self) -> float:
@@ -206,9 +210,11 @@ class RacelineFollower:
     def yield_shift(self, observation: np.ndarray) -> float:
         """The lateral shift [m] of the follower's target that leaves ``yield_gap`` to every car
         in its yield window (0 when none is there or the line already keeps clear)."""
+        t = self.track
+        if t is None:
+            raise RuntimeError("RacelineFollower.yield_shift() before reset(track, ...)")
         ego, others = split_observation(observation, self.n_preview)
         s, n = ego[0], ego[1]
-        t = self.track
         line = _lookup(self._n_ref, s, t.ds, t.length)
         target = line
         # the gap as observed (relative progress), not rebuilt from absolute s: at the window's

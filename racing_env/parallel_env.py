@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
@@ -11,6 +13,9 @@ from .config import RaceConfig, RulesConfig, StartConfig
 from .core import BatchedRaces, start_states
 from .track import Track
 from .vehicle import VehicleParams
+
+if TYPE_CHECKING:
+    from .render import HumanViewer, Renderer
 
 RESET_OPTIONS = ("n_cars", "start", "order")
 
@@ -141,7 +146,7 @@ class RacingParallelEnv(ParallelEnv):
       get the rear factor); not kept.
     """
 
-    metadata = {
+    metadata: dict[str, Any] = {
         "name": "alpha_racer_v2",
         "render_modes": ["human", "rgb_array"],
         "render_fps": 10,
@@ -163,7 +168,7 @@ class RacingParallelEnv(ParallelEnv):
         terminate_off_track: bool = False,
     ):
         cfg = config or RaceConfig()
-        changes = {}
+        changes: dict[str, Any] = {}
         if n_cars is not None:
             changes["n_cars"] = n_cars
         if max_cycles is not None:
@@ -188,8 +193,8 @@ class RacingParallelEnv(ParallelEnv):
         self.render_mode = render_mode
         self.core = BatchedRaces(track, cfg, n_races=1)
         self.track = self.core.track
-        self._renderer = None
-        self._viewer = None
+        self._renderer: Renderer | None = None
+        self._viewer: HumanViewer | None = None
         self._was_reset = False
         self.np_random, self.np_random_seed = seeding.np_random()
         self._set_agents()
@@ -365,12 +370,12 @@ class RacingParallelEnv(ParallelEnv):
         trunc_b = bool(trunc[0]) and not term_b
         agents = self.agents
         rew = rew[0].tolist()
-        infos = self._infos()
+        car_infos = self._infos()
         observations = {a: obs[0, self._index[a]] for a in agents}
         rewards = {a: rew[self._index[a]] for a in agents}
         terminations = dict.fromkeys(agents, term_b)
         truncations = dict.fromkeys(agents, trunc_b)
-        infos = {a: infos[self._index[a]] for a in agents}
+        infos = {a: car_infos[self._index[a]] for a in agents}
         if term_b or trunc_b:
             self.agents = []
         if self.render_mode == "human":

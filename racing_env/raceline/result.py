@@ -7,7 +7,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
@@ -157,6 +157,11 @@ class Raceline:
             table, s_track, self.track_length, per_metre=m / self.track_length, size=m, snap=1e-9
         )
 
+    # (the *_at lookups return a float for a float ``s_track``, an array for an array)
+    @overload
+    def offset_at(self, s_track: float) -> float: ...
+    @overload
+    def offset_at(self, s_track: np.ndarray) -> np.ndarray: ...
     def offset_at(self, s_track: float | np.ndarray) -> float | np.ndarray:
         """Racing-line offset ``n`` [m] (left positive) at centre-line arc length ``s_track`` [m]
         (any shape, unwrapped allowed); same shape as ``s_track``."""
@@ -190,6 +195,14 @@ class Raceline:
         ax = (1.0 - w) * self.ax_lib[j] + w * self.ax_lib[j + 1]
         return vx, ax
 
+    @overload
+    def speed_at(
+        self, s_track: float, grip: float | None = None, *, mu: float | None = None
+    ) -> float: ...
+    @overload
+    def speed_at(
+        self, s_track: np.ndarray, grip: float | None = None, *, mu: float | None = None
+    ) -> np.ndarray: ...
     def speed_at(
         self, s_track: float | np.ndarray, grip: float | None = None, *, mu: float | None = None
     ) -> float | np.ndarray:
@@ -199,18 +212,34 @@ class Raceline:
         outside the library range."""
         return self._interp(self.profile(grip_arg(grip, mu, "Raceline.speed_at"))[0], s_track)
 
+    @overload
+    def accel_at(
+        self, s_track: float, grip: float | None = None, *, mu: float | None = None
+    ) -> float: ...
+    @overload
+    def accel_at(
+        self, s_track: np.ndarray, grip: float | None = None, *, mu: float | None = None
+    ) -> np.ndarray: ...
     def accel_at(
         self, s_track: float | np.ndarray, grip: float | None = None, *, mu: float | None = None
     ) -> float | np.ndarray:
         """Reference acceleration ``ax`` [m/s^2] at centre-line ``s_track`` (like :meth:`speed_at`)."""
         return self._interp(self.profile(grip_arg(grip, mu, "Raceline.accel_at"))[1], s_track)
 
+    @overload
+    def heading_at(self, s_track: float) -> float: ...
+    @overload
+    def heading_at(self, s_track: np.ndarray) -> np.ndarray: ...
     def heading_at(self, s_track: float | np.ndarray) -> float | np.ndarray:
         """Racing-line heading ``psi`` [rad], wrapped to (-pi, pi], at centre-line ``s_track`` [m]."""
         c = self._interp(np.cos(self.psi), s_track)
         sn = self._interp(np.sin(self.psi), s_track)
         return np.arctan2(sn, c)
 
+    @overload
+    def kappa_at(self, s_track: float) -> float: ...
+    @overload
+    def kappa_at(self, s_track: np.ndarray) -> np.ndarray: ...
     def kappa_at(self, s_track: float | np.ndarray) -> float | np.ndarray:
         """Racing-line curvature ``kappa`` [1/m] at centre-line ``s_track`` [m]."""
         return self._interp(self.kappa, s_track)
