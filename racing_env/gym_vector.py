@@ -65,7 +65,7 @@ class HeadToHeadVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._time_limit = math.inf if max_episode_steps is None else int(max_episode_steps)
-        self._all_obs = None
+        self._all_obs: np.ndarray | None = None
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
 
     @property

@@ -18,15 +18,19 @@ load this module.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from gymnasium import spaces
 
 from .batched_env import HeadToHeadBatch
 from .extras import require
 
-VecEnv = require("stable_baselines3.common.vec_env.base_vec_env", "racing_env.vec_env").VecEnv
+if TYPE_CHECKING:
+    from stable_baselines3.common.vec_env.base_vec_env import VecEnv
+else:  # stable-baselines3 missing: require names the extra to install
+    VecEnv = require("stable_baselines3.common.vec_env.base_vec_env", "racing_env.vec_env").VecEnv
 
 
 class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
@@ -44,13 +48,15 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
     normalise observations (their scales are in ``HeadToHeadEnv``'s docstring).
     """
 
-    metadata = {"render_modes": []}
+    metadata: dict[str, Any] = {"render_modes": []}
+    observation_space: spaces.Box[np.float32]
+    action_space: spaces.Box[np.float32]
     render_mode = None
 
     # __init__ is HeadToHeadBatch's, which ends in _set_up
     def _set_up(self) -> None:
         VecEnv.__init__(self, self.num_envs, self.observation_space, self.action_space)
-        self._obs = None
+        self._obs: np.ndarray | None = None
 
     # ------------------------------------------------------------------ resets
     def reset(self) -> np.ndarray:
@@ -83,24 +89,24 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
         infos = self._infos(range(self.num_envs))
         for b in range(self.num_envs):
             infos[b]["TimeLimit.truncated"] = bool(trunc[b])
-        for b in np.flatnonzero(dones):
-            infos[b]["terminal_observation"] = obs[b, 0].copy()
-            self._reset_race(int(b), None, None)
+        for d in np.flatnonzero(dones):  # the races that ended
+            infos[d]["terminal_observation"] = obs[d, 0].copy()
+            self._reset_race(int(d), None, None)
         if dones.any():
             obs = self.core.observe()
-            for b in np.flatnonzero(dones):
-                self.reset_infos[b] = self._infos([b])[0]
+            for d in np.flatnonzero(dones):
+                self.reset_infos[d] = self._infos([d])[0]
         self._obs = obs
         return obs[:, 0].copy(), rew.astype(np.float32), dones, infos
 
     def close(self) -> None:
         pass
 
-    def get_attr(self, attr_name: str, indices: int | Sequence[int] | None = None) -> list[Any]:
+    def get_attr(self, attr_name: str, indices: int | Iterable[int] | None = None) -> list[Any]:
         return [getattr(self, attr_name) for _ in self._get_indices(indices)]
 
     def set_attr(
-        self, attr_name: str, value: Any, indices: int | Sequence[int] | None = None
+        self, attr_name: str, value: Any, indices: int | Iterable[int] | None = None
     ) -> None:
         setattr(self, attr_name, value)
 
@@ -108,7 +114,7 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
         self,
         method_name: str,
         *method_args,
-        indices: int | Sequence[int] | None = None,
+        indices: int | Iterable[int] | None = None,
         **method_kwargs,
     ) -> list[Any]:
         return [
@@ -117,7 +123,7 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
         ]
 
     def env_is_wrapped(
-        self, wrapper_class: type, indices: int | Sequence[int] | None = None
+        self, wrapper_class: type, indices: int | Iterable[int] | None = None
     ) -> list[bool]:
         return [False for _ in self._get_indices(indices)]
 
