@@ -251,14 +251,3 @@ def potential_features(
         axis=-1,
     )
     return per_car.reshape(batch + (-1,))
-
-
-def __getattr__(name: str):
-    """``feature_set``, ``FeatureSet``, ``FIXED`` and ``FEATURE_SETS`` moved to
-    :mod:`agents.feature_sets` (which imports this module and :mod:`agents.general_features`);
-    they are still found here, imported on first use, for code that imports them from here."""
-    if name in ("feature_set", "FeatureSet", "FIXED", "FEATURE_SETS"):
-        from . import feature_sets
-
-        return getattr(feature_sets, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

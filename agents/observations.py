@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from racing_env.gym_env import act_named, agent_label  # noqa: F401  (re-exported)
+from racing_env.agent_protocol import act_named, agent_label  # noqa: F401  (re-exported)
 
 if TYPE_CHECKING:
     from typing import Any

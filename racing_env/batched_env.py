@@ -16,9 +16,10 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
+from .agent_protocol import is_agent
 from .config import RaceConfig
 from .core import BatchedRaces
-from .gym_env import _is_agent, default_opponents, make_opponent
+from .gym_env import default_opponents, make_opponent
 from .parallel_env import _start_config, check_reward_options
 from .track import Track
 
@@ -74,7 +75,8 @@ class HeadToHeadBatch:
         self.observation_space = spaces.Box(lo, hi, dtype=np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
         self._install(opponents)
-        self._rngs = [None] * self.num_envs  # per-race generators, as HeadToHeadEnv.np_random
+        # per-race generators, as HeadToHeadEnv.np_random
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
         self._actions = np.zeros((self.num_envs, n_cars, 2))
         self.agent_ids = [f"car_{i}" for i in range(n_cars)]
         self._set_up()
@@ -95,9 +97,11 @@ class HeadToHeadBatch:
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; known: start, order")
         start = _start_config(options["start"], self.config.start) if "start" in options else None
-        if seed is not None or self._rngs[b] is None:
-            self._rngs[b], _ = seeding.np_random(seed)
-        race_seed = int(self._rngs[b].integers(2**31))
+        rng = self._rngs[b]
+        if seed is not None or rng is None:
+            rng, _ = seeding.np_random(seed)
+            self._rngs[b] = rng
+        race_seed = int(rng.integers(2**31))
         self.core.reset(seed=race_seed, races=[b], order=options.get("order"), start=start)
         for k, opp in enumerate(self.opponents):
             agent_id = self.agent_ids[k + 1]
@@ -135,7 +139,7 @@ class HeadToHeadBatch:
         for all races at once as it is; every other opponent gets one agent of its own per race."""
         built, batched = [], []
         for k, opp in enumerate(opponents):
-            if _is_agent(opp) and callable(getattr(opp, "act_batch", None)):
+            if is_agent(opp) and callable(getattr(opp, "act_batch", None)):
                 built.append(opp)
                 batched.append(True)
             else:

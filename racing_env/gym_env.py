@@ -9,6 +9,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from .agent_protocol import act_named, is_agent
 from .config import RaceConfig, StartConfig
 from .parallel_env import RacingParallelEnv, _check_reset_options, check_reward_options
 from .track import Track
@@ -19,44 +20,6 @@ OpponentSpec = Any
 an agent instance (an object with ``reset(track, agent_id, seed)`` and ``act(observation)``)."""
 
 
-def _is_agent(obj) -> bool:
-    """An agent instance (a class with ``act`` and ``reset`` is a factory, not an agent)."""
-    return (
-        not isinstance(obj, type)
-        and callable(getattr(obj, "act", None))
-        and callable(getattr(obj, "reset", None))
-    )
-
-
-def agent_label(agent: object, spec: str | None = None) -> str:
-    """How errors name an agent: its spec string if given, else its ``name`` or class name."""
-    if spec:
-        return repr(spec)
-    return repr(getattr(agent, "name", None) or type(agent).__name__)
-
-
-def act_named(agent: Any, observation: np.ndarray, car: str, spec: str | None = None) -> np.ndarray:
-    """``agent.act(observation)``; a ``ValueError``, ``TypeError`` or ``IndexError`` raised in it
-    (a shape mismatch: "operands could not be broadcast together ...") is raised again, of the
-    same type, with the agent, its car and the observation size named."""
-    try:
-        return agent.act(observation)
-    except (ValueError, TypeError, IndexError) as exc:
-        msg = str(exc)
-        if car in msg:
-            raise
-        size = np.shape(observation)[-1] if np.ndim(observation) else "?"
-        try:
-            named = type(exc)(
-                f"agent {agent_label(agent, spec)} driving {car} (observation of "
-                f"{size} values): {msg}"
-            )
-        except Exception:
-            raise exc from None
-        named.agent_error = exc  # the agent's own error, for callers that name it themselves
-        raise named from exc
-
-
 def make_opponent(spec: OpponentSpec, k: int = 0) -> Any:
     """A fresh opponent agent of its own from ``spec`` (see :data:`OpponentSpec`): a spec string
     is built through the agents registry, a factory is called, an instance is deep-copied, so
@@ -65,11 +28,11 @@ def make_opponent(spec: OpponentSpec, k: int = 0) -> Any:
         import agents  # lazily: racing_env does not depend on agents at import
 
         return agents.make_agent_spec(spec)
-    if _is_agent(spec):
+    if is_agent(spec):
         return copy.deepcopy(spec)
     if callable(spec):
         agent = spec()
-        if not _is_agent(agent):
+        if not is_agent(agent):
             raise ValueError(
                 f"opponent {k}: factory {spec!r} returned {agent!r}, which lacks "
                 f"reset(track, agent_id, seed) and act(observation) methods"
@@ -158,7 +121,7 @@ class HeadToHeadEnv(gym.Env):
     ):
         if opponents is None:
             opponents = default_opponents()
-        if isinstance(opponents, str) or _is_agent(opponents):
+        if isinstance(opponents, str) or is_agent(opponents):
             raise ValueError(
                 f"opponents must be a sequence (one per opponent car), got {opponents!r}"
             )
@@ -184,7 +147,7 @@ class HeadToHeadEnv(gym.Env):
         self.learner = self.race.possible_agents[0]
         self.observation_space = self.race.observation_space(self.learner)
         self.action_space = self.race.action_space(self.learner)
-        self._last_obs = None
+        self._last_obs: dict[str, np.ndarray] | None = None
 
     def reset(
         self, *, seed: int | None = None, options: dict | None = None
