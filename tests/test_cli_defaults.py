@@ -14,7 +14,7 @@ from experiments.evaluation.control import ControlConfig
 from experiments.evaluation.league import LeagueConfig
 from experiments.evaluation.policy_map import PolicyMapConfig
 from experiments.evaluation.strategy import StrategyConfig
-from experiments.learning.selfplay import SelfPlayConfig
+from experiments.learning.config import SelfPlayConfig
 from experiments.potential.collect import CollectConfig
 from experiments.potential.nets import TrainConfig
 

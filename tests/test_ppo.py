@@ -18,8 +18,10 @@ from agents.ppo_agent import (
     read_checkpoint_meta,
 )
 from experiments.cli import main
-from experiments.learning import selfplay as sp
-from experiments.learning.selfplay import SelfPlayConfig, selfplay
+from experiments.learning import config as sp_config
+from experiments.learning import envs as sp_envs
+from experiments.learning.config import SelfPlayConfig
+from experiments.learning.selfplay import selfplay
 from racing_env import RaceConfig, RacingParallelEnv
 from racing_env.controllers import RacelineFollower
 from racing_env.gym_env import HeadToHeadEnv
@@ -157,7 +159,7 @@ def test_adapt_observation_pads_phantoms_and_keeps_nearest():
 
 # ---------------------------------------------------------------------- the pipeline
 def _assert_learning_curve_drawn(path):
-    """The figure of :func:`experiments.learning.selfplay.plot_learning_curve`: 8 x 9 in at 110 dpi,
+    """The figure of :func:`experiments.learning.report.plot_learning_curve`: 8 x 9 in at 110 dpi,
     three panels with coloured curves on white."""
     from PIL import Image
 
@@ -218,17 +220,17 @@ def test_selfplay_tiny_end_to_end(tmp_path, capsys):
 
 def test_selfplay_resumes_from_the_last_checkpoint(tmp_path, monkeypatch):
     cfg = SelfPlayConfig(**{**TINY, "steps_per_turn": 256})  # 2 rollouts per turn
-    real_write = sp.write_json
+    real_write = sp_config.write_json
 
     def interrupt_after_in_turn_checkpoint(path, obj):
         real_write(path, obj)
         if path.name == "state.json" and obj.get("turn") == 1 and obj.get("current"):
             raise KeyboardInterrupt  # killed in the middle of turn 2
 
-    monkeypatch.setattr(sp, "write_json", interrupt_after_in_turn_checkpoint)
+    monkeypatch.setattr(sp_config, "write_json", interrupt_after_in_turn_checkpoint)
     with pytest.raises(KeyboardInterrupt):
         selfplay(cfg, tmp_path, progress_bar=False)
-    monkeypatch.setattr(sp, "write_json", real_write)
+    monkeypatch.setattr(sp_config, "write_json", real_write)
     state = json.loads((tmp_path / "state.json").read_text())
     assert state["turn"] == 1 and state["turn_steps"] == 128 and state["total_steps"] == 384
     first_turn = (tmp_path / "checkpoints" / "turn_000_car_0.zip").stat().st_mtime_ns
@@ -340,7 +342,7 @@ def test_shipped_ppo_agent_meets_the_quality_bar():
     """Alone on the default track for 50 s: >= 80% of the MPC's distance, < 5% off track."""
     pytest.importorskip("daqp")
     cfg = SelfPlayConfig()
-    ppo = sp.evaluate_solo(make_agent_spec("ppo"), cfg, races=3)
-    mpc = sp.mpc_reference(cfg)
+    ppo = sp_envs.evaluate_solo(make_agent_spec("ppo"), cfg, races=3)
+    mpc = sp_envs.mpc_reference(cfg)
     assert ppo["distance_m"] >= 0.8 * mpc["distance_m"]
     assert ppo["off_track_frac"] < 0.05

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from experiments.learning.selfplay import SelfPlayConfig, SelfPlayState
+from experiments.learning.config import SelfPlayConfig, SelfPlayState
 
 
 def test_a_state_survives_a_json_round_trip(tmp_path):

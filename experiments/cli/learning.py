@@ -21,7 +21,8 @@ _SELFPLAY_FIELDS = {
 
 
 def _cmd_selfplay(args) -> int:
-    from experiments.learning.selfplay import SelfPlayConfig, selfplay
+    from experiments.learning.config import SelfPlayConfig
+    from experiments.learning.selfplay import selfplay
 
     cfg = config_from(
         SelfPlayConfig, args, _SELFPLAY_FIELDS, mpc_reference=not args.no_mpc_reference
@@ -48,7 +49,7 @@ def _cmd_selfplay(args) -> int:
 
 def add_selfplay(command) -> None:
     """``alpha-racer selfplay``."""
-    from experiments.learning.selfplay import SelfPlayConfig
+    from experiments.learning.config import SelfPlayConfig
 
     sp = command("selfplay", _cmd_selfplay, "train PPO agents by iterated self-play (resumable)")
     sp.add_argument("--out", default="runs/selfplay", help=RESUME_HELP)

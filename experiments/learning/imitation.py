@@ -9,8 +9,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:  # annotations only: selfplay imports this module
-    from experiments.learning.selfplay import SelfPlayConfig
+from experiments.learning.config import SelfPlayConfig
+
+if TYPE_CHECKING:
     from racing_env import RaceConfig
 
 
@@ -20,7 +21,7 @@ def behaviour_cloning(
     """``init="bc"``: pretrain the PPO actor to imitate the raceline follower (DAgger).
 
     ``model`` an SB3 ``PPO`` with a ``VecNormalize`` env, ``cfg`` the run's
-    :class:`~experiments.learning.selfplay.SelfPlayConfig` (``n_envs``, ``n_cars``, ``track``,
+    :class:`~experiments.learning.config.SelfPlayConfig` (``n_envs``, ``n_cars``, ``track``,
     ``batch_size`` and the ``bc_*`` fields), ``race_config`` the learning env's
     :class:`~racing_env.RaceConfig`, ``opponent_mus`` the envelope scales of the
     raceline-follower opponents by slot (cycled).
