@@ -18,6 +18,11 @@ pressure the follower meets, as TORCS models it) and differ in their amplitude::
     sigma(g)     = SIGMA0 + SPREAD * g                                  [widths]
     factor_e     = (1 - loss_e)^strength
 
+The loss falls with ``|y|`` at every gap, and with the gap for a follower within about half a
+width of the leader's line (``|y| <= 0.55``); a follower further aside meets the widening wake
+only further back (TORCS' cone, below). ``strength`` acts as an exponent so that every factor
+stays in (0, 1] for any strength (for small losses it scales the loss linearly).
+
 Sources and fits (run :func:`print_fit` for the table):
 
 * **Downforce**, FIA (N. Tombazis, FIA Head of Single-Seater Technical Matters, presentation
@@ -26,11 +31,13 @@ Sources and fits (run :func:`print_fit` for the table):
   three points exactly (to 1e-12; :func:`fit_curve`), with ``R = 60`` lengths, where the wake
   ends smoothly (280 m for a full-size car, 3.5 s at 80 m/s). The 2022 cars lose 14, 6 and 2%:
   ``DOWNFORCE_2022 = (A, G0, Q)`` fits those (same ``R``), for a world with 2022-style cars.
-* **Drag**, G. Cerutti, C. Sacco, M. Giacomini et al., "Aerodynamic drag reduction of
-  vehicle platoons", International Journal of Heat and Fluid Flow 2021 (van platoons): at a
-  gap of half a vehicle length the rear van's drag falls by 43% (the front van's by 30%; the
-  push on the leader is not modelled). ``A_DRAG`` puts the drag curve through that point; its
-  decay with the gap is the downforce curve's (the same wake).
+* **Drag**, J. J. Cerutti, G. Cafiero, G. Iuso, "Aerodynamic drag reduction by means of
+  platooning configurations of light commercial vehicles: a flow field analysis",
+  International Journal of Heat and Fluid Flow 90, 108823, 2021 (wind tunnel, van models): at
+  a gap (nose to tail) of half a vehicle length the rear van's drag falls by 43% (the front
+  van's by 30%; the push on the leader is not modelled). ``A_DRAG`` puts the drag curve
+  through that point; its decay with the gap is the downforce curve's (the same wake). The
+  pair's average at 3 lengths, 20% there, is matched by our rear car's 22%.
   Check, not fitted: at the 1 s DRS window (about 16 lengths at 80 m/s) the drag falls by
   8.6%, +3.0% top speed at constant power, i.e. 10 km/h at 330 km/h: the size the FIA gives for
   DRS (10-12 km/h), and at constant power top speed goes as drag^(-1/3) (a 20% cut: +7.7%).
