@@ -7,7 +7,8 @@ run, with tiny settings (a 2 s race, a benchmark of 3 races of 2 s).
 import sys
 from pathlib import Path
 
-from experiments.evaluation.bench import BenchConfig, bench
+from experiments.evaluation.bench import bench
+from experiments.evaluation.bench_config import BenchConfig
 from experiments.evaluation.race import run_race, write_outputs
 from experiments.infra.parallel import Pool
 

@@ -10,16 +10,10 @@ from hypothesis import strategies as st
 pytest.importorskip("daqp")
 
 from experiments.cli import main  # noqa: E402
-from experiments.evaluation.bench import (
-    PAPER_CASES,
-    BenchConfig,
-    BenchRun,
-    bench,
-    bench_race,  # noqa: E402
-    paper_cases,
-    summarise,
-    wilson_interval,
-)
+from experiments.evaluation.bench import BenchRun, bench, bench_race
+from experiments.evaluation.bench_config import BenchConfig
+from experiments.evaluation.bench_summary import summarise, wilson_interval
+from experiments.evaluation.paper_table import PAPER_CASES, paper_cases
 from experiments.infra.parallel import Pool
 
 TINY = BenchConfig(ego="mpc:zeta=0.95", opponents="raceline", races=4, steps=15, seed=3)
@@ -381,7 +375,7 @@ def test_records_carry_the_metrics_of_their_stored_states_and_old_folders_get_th
     # records without metrics and without states: missing, said so, never zeros
     s = summarise(old, TINY)
     assert s["strategy"]["races"] == 0 and s["strategy"]["passes"] is None
-    from experiments.evaluation.bench import summary_markdown
+    from experiments.evaluation.bench_summary import summary_markdown
 
     md = summary_markdown(s)
     assert "| passes per race (held 1 s, clear sideways) | - | - | - |" in md

@@ -9,7 +9,7 @@ import pytest
 from experiments.analysis.general import GeneralReportConfig
 from experiments.analysis.nash import AnalyzeConfig
 from experiments.cli import build_parser
-from experiments.evaluation.bench import BenchConfig
+from experiments.evaluation.bench_config import BenchConfig
 from experiments.evaluation.control import ControlConfig
 from experiments.evaluation.league import LeagueConfig
 from experiments.evaluation.policy_map import PolicyMapConfig

@@ -347,7 +347,8 @@ def test_ensure_selects_only_missing_tracks_and_claim_refuses_a_changed_table(ta
     with pytest.raises(ValueError, match="races of a best fixed theta of another configuration"):
         claim_best_thetas(tmp_path / "run", ["oval", "default"])
     # a bench that races mpc:theta=best claims its folder the same way
-    from experiments.evaluation.bench import BenchConfig, BenchRun
+    from experiments.evaluation.bench import BenchRun
+    from experiments.evaluation.bench_config import BenchConfig
 
     cfg = BenchConfig(ego="mpc:theta=best", opponents="raceline", races=3, steps=5, track="oval")
     with pytest.raises(ValueError, match="races of a best fixed theta of another configuration"):

@@ -9,7 +9,8 @@ import warnings
 import pytest
 
 from experiments.evaluation import league as lg
-from experiments.evaluation.bench import BenchConfig, bench
+from experiments.evaluation.bench import bench
+from experiments.evaluation.bench_config import BenchConfig
 from experiments.infra import artifacts
 from experiments.infra.artifacts import read_jsonl
 from experiments.infra.parallel import Pool

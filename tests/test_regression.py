@@ -82,7 +82,7 @@ def numeric_platform() -> dict:
 
 
 def bench_config(case: str):
-    from experiments.evaluation.bench import BenchConfig
+    from experiments.evaluation.bench_config import BenchConfig
 
     folder = ROOT / "results" / "paper_table" / case
     if not folder.exists():

@@ -9,7 +9,7 @@ a held-out track among them is refused), except the last part, which is about ``
    ``alpha-racer analyze`` does; the range measured on these races is reported beside it):
    median and 95th percentile, against a constant potential. ``gap.json``.
 2. **alpha (general) against the fixed-theta control** in the paper's protocol scaled to N
-   cars (:class:`experiments.evaluation.bench.BenchConfig` with ``n_cars = N``): on every held-out track
+   cars (:class:`experiments.evaluation.bench_config.BenchConfig` with ``n_cars = N``): on every held-out track
    and N, ``rounds`` rounds of N races (the ego from each start region once per round)
    against N - 1 ``mpc`` cars (the MPC at its fixed default theta, zeta 0.9). The control
    runs the same races with the best fixed theta on that track as ego, in the model's policy
@@ -42,13 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.evaluation.bench import (
-    BenchConfig,
-    BenchRun,
-    _run_many,
-    check_agent_specs,
-    win_share,
-)
+from experiments.evaluation.bench import BenchRun, run_many
+from experiments.evaluation.bench_config import BenchConfig, check_agent_specs
+from experiments.evaluation.bench_summary import win_share
 from experiments.evaluation.control import ControlConfig, best_fixed_spec, ensure_best_thetas
 from experiments.infra.artifacts import claim, manifest_config, slug, write_json, write_text
 from experiments.infra.parallel import Pool
@@ -379,7 +375,7 @@ def general_report(
     gap = gap_by_cars(model, out / "heldout", cfg)
     write_json(out / "gap.json", gap)
     runs = _bench_runs(cfg, tracks, out, space)
-    _run_many(runs, pool)
+    run_many(runs, pool)
     summary = {
         "config": json.loads(json.dumps(asdict(cfg))),
         "space": space,
@@ -420,7 +416,7 @@ def _model_info(model) -> dict:
     }
 
 
-def _pct(w: dict) -> str:
+def wins_text(w: dict) -> str:
     return (
         f"{w['wins']}/{w['races']} ({100 * w['fraction']:.0f}%, "
         f"{100 * w['ci95'][0]:.0f}-{100 * w['ci95'][1]:.0f}%)"
@@ -482,7 +478,9 @@ def summary_markdown(s: dict) -> str:
     for N, r in s["field"].items():
         lines.append(
             f"| {N} | "
-            + " | ".join(f"{_pct(r[role])} | {r[role]['margin_m_mean']:+.2f}" for role in ROLES)
+            + " | ".join(
+                f"{wins_text(r[role])} | {r[role]['margin_m_mean']:+.2f}" for role in ROLES
+            )
             + f" | {100 * r['chance']:.0f}% |"
         )
     if all("by_start" in r for r in s["field"].values()):
@@ -541,7 +539,7 @@ def summary_markdown(s: dict) -> str:
         for role in ("general", "control"):
             r = d[role]
             lines.append(
-                f"| `{r['ego']}` | {_pct(r['wins']['ego'])} | {r['wins']['O1']['wins']} "
+                f"| `{r['ego']}` | {wins_text(r['wins']['ego'])} | {r['wins']['O1']['wins']} "
                 f"| {r['wins']['O2']['wins']} | {r['margin_m']['mean']:+.2f} |"
             )
     lines += ["", f"Command: `{s['command']}` (this run: {s['seconds_this_run'] / 60:.1f} min)."]

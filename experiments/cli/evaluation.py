@@ -20,7 +20,9 @@ _BENCH_FIELDS = {"cars": "n_cars"}
 
 
 def _cmd_bench(args) -> int:
-    from experiments.evaluation.bench import BenchConfig, bench, paper_table
+    from experiments.evaluation.bench import bench
+    from experiments.evaluation.bench_config import BenchConfig
+    from experiments.evaluation.paper_table import paper_table
     from experiments.infra.artifacts import slug
 
     if args.space is not None and not args.paper_table:
@@ -121,7 +123,7 @@ def _cmd_control(args) -> int:
 
 def add_bench(command) -> None:
     """``alpha-racer bench``."""
-    from experiments.evaluation.bench import BenchConfig
+    from experiments.evaluation.bench_config import BenchConfig
 
     b = command(
         "bench",

@@ -82,8 +82,8 @@ def _cmd_reproduce(args) -> int:
     import json
 
     from experiments.analysis.nash import analyze
-    from experiments.evaluation.bench import PAPER_CASES, comparison_markdown, paper_table
     from experiments.evaluation.control import ControlConfig, best_fixed_spec, ensure_best_thetas
+    from experiments.evaluation.paper_table import PAPER_CASES, comparison_markdown, paper_table
     from experiments.infra.artifacts import slug, write_text
 
     space = args.space

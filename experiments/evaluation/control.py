@@ -19,7 +19,7 @@ A learned potential that chooses theta online is only worth something against th
    behind two cars that never yield). The best solo theta (most progress alone) joins if it
    is not among them.
 3. **Playoff** (:func:`rank_playoff`): each candidate as the ego of the same ``races`` seeded
-   races (:class:`experiments.evaluation.bench.BenchConfig`: race k from R(k mod 3 + 1), so every
+   races (:class:`experiments.evaluation.bench_config.BenchConfig`: race k from R(k mod 3 + 1), so every
    region equally often, the same start positions for every candidate) against two
    ``opponents``, ``steps`` each. Scored by wins, then mean progress margin over the best
    opponent [m], then the lower Sobol index (a deterministic order for exact ties).
@@ -60,13 +60,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.evaluation.bench import (
-    REGIONS,
-    BenchConfig,
-    BenchRun,
-    _run_many,
-    check_agent_specs,
-)
+from experiments.evaluation.bench import BenchRun, run_many
+from experiments.evaluation.bench_config import REGIONS, BenchConfig, check_agent_specs
 from experiments.evaluation.policy_map import (
     MODES,
     OFF_TRACK_LIMIT,
@@ -533,7 +528,7 @@ def _refine(cfg: ControlConfig, out: Path, ranked: dict, pool: Pool) -> dict:
                 run = BenchRun(_refine_folder(out, t, i), cfg.playoff_config(t, theta))
                 batch[_run_key(t, i)] = run
                 new.append((t, i, f"refine {round_no}: {label}", run, theta))
-        _run_many(batch, pool)
+        run_many(batch, pool)
         for t, i, reason, run, theta in new:
             runs[t].append(run)
             raced[t][key(theta)] = {
@@ -588,7 +583,7 @@ def select_best_thetas(
     for t in tracks:
         runs.update(_playoff_runs(cfg, out, t, cands[t]))
     todo = sum(len(run.missing()) for run in runs.values())
-    _run_many(runs, pool)
+    run_many(runs, pool)
     ranked = {t: _ranked_playoff(cfg, t, cands[t], runs) for t in tracks}
     raced_before = _refine_races(out, tracks)
     refined = _refine(cfg, out, ranked, pool)

@@ -49,7 +49,8 @@ from pathlib import Path
 import numpy as np
 
 from experiments.evaluation import metrics as race_metrics
-from experiments.evaluation.bench import check_agent_specs, wilson_interval
+from experiments.evaluation.bench_config import check_agent_specs
+from experiments.evaluation.bench_summary import wilson_interval
 from experiments.infra.artifacts import (
     ResumableRun,
     as_stored,

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.evaluation.bench import REGIONS, BenchConfig, check_agent_specs
+from experiments.evaluation.bench_config import REGIONS, BenchConfig, check_agent_specs
 from experiments.infra.artifacts import (
     ResumableRun,
     check_track_specs,

@@ -45,13 +45,8 @@ import warnings
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
-from experiments.evaluation.bench import (
-    BenchConfig,
-    BenchRun,
-    _run_many,
-    check_agent_specs,
-    check_spec_fields,
-)
+from experiments.evaluation.bench import BenchRun, run_many
+from experiments.evaluation.bench_config import BenchConfig, check_agent_specs, check_spec_fields
 from experiments.infra.artifacts import (
     ResumableRun,
     append_jsonl,
@@ -295,7 +290,7 @@ def strategy(
         pace = measure_pace(config, out, pool)
     new = sum(len(run.missing()) for run in runs.values())
     t0 = time.perf_counter()
-    _run_many(runs, pool)
+    run_many(runs, pool)
     wall = time.perf_counter() - t0
     history = out / "runs.jsonl"
     if new:

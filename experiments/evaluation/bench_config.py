@@ -1,0 +1,139 @@
+"""What a benchmark is: the cars' roles and start regions, the :class:`BenchConfig`, and the
+checks of agent specs that every race suite runs before its first race."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+ROLES = ("ego", "O1", "O2")
+
+
+REGIONS = ("R1", "R2", "R3")
+
+
+def roles(n_cars: int = 3) -> tuple[str, ...]:
+    """Names of the cars of an N-car benchmark: ``ego``, ``O1`` .. ``O(N-1)``."""
+    return ("ego",) + tuple(f"O{k}" for k in range(1, n_cars))
+
+
+def regions(n_cars: int = 3) -> tuple[str, ...]:
+    """Start regions ``R1`` (front-most) .. ``RN``."""
+    return tuple(f"R{k}" for k in range(1, n_cars + 1))
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """One head-to-head benchmark: ``ego`` (an agent spec) against ``n_cars - 1``
+    ``opponents`` (one agent spec, used for O1, O2, ...) in ``races`` races of ``steps`` steps
+    on ``track``. Race k's start positions and the agents' seeds come from ``(seed, k)``.
+    With N != 3 cars, ``races`` must be a multiple of N (the ego starts from every region
+    equally often); the paper's 3-car benchmark takes any count, as it always has.
+    ``ego_regions`` (region names, e.g. ``("R2", "R3")``) replaces the ego's rotation through
+    every region by a cycle through these (any race count; :meth:`order`)."""
+
+    ego: str = "alpha"
+    opponents: str = "mpc"
+    races: int = 99
+    steps: int = 500
+    track: str = "default"
+    seed: int = 0
+    n_cars: int = 3
+    ego_regions: tuple[str, ...] | None = None
+
+    def __post_init__(self):
+        for name in ("races", "steps"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and v >= 1):
+                raise ValueError(f"BenchConfig.{name} must be a positive integer, got {v!r}")
+        if isinstance(self.n_cars, bool) or not (
+            isinstance(self.n_cars, int) and 2 <= self.n_cars <= 8
+        ):
+            raise ValueError(f"BenchConfig.n_cars must be an integer in 2..8, got {self.n_cars!r}")
+        if self.ego_regions is not None:
+            object.__setattr__(self, "ego_regions", tuple(self.ego_regions))
+            bad = [r for r in self.ego_regions if r not in self.regions]
+            if not self.ego_regions or bad:
+                raise ValueError(
+                    f"BenchConfig.ego_regions must be a non-empty sequence of "
+                    f"start regions of {', '.join(self.regions)}, got "
+                    f"{list(self.ego_regions)}"
+                )
+        elif self.n_cars != 3 and self.races % self.n_cars:
+            raise ValueError(
+                f"BenchConfig.races must be a multiple of n_cars = {self.n_cars} "
+                f"(every start region equally often), got {self.races}"
+            )
+        check_spec_fields(self, ("ego", "opponents"))
+
+    @property
+    def agents(self) -> list[str]:
+        return [self.ego] + [self.opponents] * (self.n_cars - 1)
+
+    @property
+    def roles(self) -> tuple[str, ...]:
+        return roles(self.n_cars)
+
+    @property
+    def regions(self) -> tuple[str, ...]:
+        return regions(self.n_cars)
+
+    def to_dict(self) -> dict:
+        """The config as stored in manifests and summaries; the 3-car default of ``n_cars``
+        is left out, so the paper's benchmarks keep the manifests they always had."""
+        d = asdict(self)
+        if d["n_cars"] == 3:
+            del d["n_cars"]
+        if d["ego_regions"] is None:
+            del d["ego_regions"]
+        else:
+            d["ego_regions"] = list(d["ego_regions"])
+        return d
+
+    def race_seed(self, k: int) -> int:
+        return int(np.random.SeedSequence([self.seed, k]).generate_state(1)[0])
+
+    @staticmethod
+    def start_order(k: int, n_cars: int = 3) -> list[int]:
+        """Start regions (0 = R1) of ego, O1, O2, ... in race k: the ego cycles R1 .. RN and
+        the opponents take the other regions front to back (O1 the front-most)."""
+        ego = k % n_cars
+        return [ego] + [r for r in range(n_cars) if r != ego]
+
+    def order(self, k: int) -> list[int]:
+        """Start regions (0 = R1) of ego, O1, O2, ... in race k of this benchmark:
+        :meth:`start_order`, or with ``ego_regions`` the ego in ``ego_regions[k mod len]``
+        and the opponents in the other regions front to back."""
+        if self.ego_regions is None:
+            return self.start_order(k, self.n_cars)
+        ego = self.regions.index(self.ego_regions[k % len(self.ego_regions)])
+        return [ego] + [r for r in range(self.n_cars) if r != ego]
+
+
+def check_spec_fields(config: object, names: Sequence[str]) -> None:
+    """Raise a ValueError naming the first field of ``config`` among ``names`` that is not
+    an agent spec string (a non-empty ``str``)."""
+    for name in names:
+        if not isinstance(getattr(config, name), str) or not getattr(config, name):
+            raise ValueError(
+                f"{type(config).__name__}.{name} must be an agent spec string, "
+                f"got {getattr(config, name)!r}"
+            )
+
+
+def check_agent_specs(specs, tracks=()) -> None:
+    """Build each agent spec once, so a typo fails before any race starts; an agent with a
+    ``check_track(track)`` method (``mpc:theta=best``: the track's entry in the best-theta
+    table) checks each of ``tracks`` too."""
+    from agents import make_agent_spec
+
+    for spec in dict.fromkeys(specs):
+        agent = make_agent_spec(spec)
+        check = getattr(agent, "check_track", None)
+        for track in dict.fromkeys(tracks) if check is not None else ():
+            try:
+                check(track)
+            except ValueError as exc:
+                raise ValueError(f"agent {spec!r}: {exc}") from None
