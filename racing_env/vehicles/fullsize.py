@@ -50,23 +50,24 @@ Departures from the paper's structure (the ORCA force law), each with its reason
   No load transfer (longitudinal or lateral): it needs the centre-of-gravity height and roll
   split and makes the load depend on the forces it limits; without it the grip is a function
   of speed alone (what the g-g-v envelope and the hand-derived tests rely on). TUM's
-  minimum-time model includes it; ignoring it overstates the grip of a loaded corner by a
-  few percent (the load-sensitivity curvature on the outer tyres).
-* **A friction ellipse on both axles.** The ORCA model has none (its motor cannot spin the
-  wheels: C1 = 0.29 N against about 0.17 N of rear grip it still can, but the paper's
-  law ignores it). Here the drive force (7 kN) exceeds the rear grip at a standing start
-  (5.6 kN) and the front brakes (12 kN) exceed the front grip below about 100 m/s: without
-  a limit the car would launch and brake at 1.7 g with 1 g tyres. The longitudinal demand is
-  saturated at the axle's peak ``D_a`` and the lateral force scaled by the ellipse
-  ``sqrt(1 - (F_x/D)^2)`` (regularised by ``e``, so CasADi's derivative stays finite at
-  full saturation, where 1% of the lateral force is left). The issue asked for the driven
-  (rear) axle; the front brakes need it as much, so both axles have it.
+  minimum-time model includes it; ignoring it overstates the grip of a corner by about 2.5%
+  at 1 g (estimated with its c.g. height 0.38 m, track 1.6 m and roll split 0.5: the loaded
+  outer tyre gains less grip than the inner one loses).
+* **A friction ellipse on both axles.** The ORCA model has none (the paper's law lets its
+  motor force, C1 = 0.29 N, exceed the rear tyre peak, Dr = 0.17 N, without cost). Here the
+  drive force (7 kN) exceeds the rear grip at a standing start (5.6 kN) and the front brakes
+  (12 kN) exceed the front grip at every speed the car reaches (5.0 kN at rest, 6.5 kN at
+  66 m/s): without a limit the car would launch and brake at 1.7 g on 1 g tyres. The
+  longitudinal demand is saturated at the axle's peak ``D_a`` and the lateral force scaled
+  by the ellipse ``sqrt(1 - (F_x/D)^2)`` (regularised by ``e``, so CasADi's derivative stays
+  finite at full saturation, where 1% of the lateral force is left). The issue asked for the
+  driven (rear) axle; the front brakes need it as much, so both axles have it.
 * **Drag and rolling resistance** as in TUM: ``c_drag vx^2`` (``c_drag = 0.5 rho c_w A``)
   times the wake's drag factor, and ``c_roll m g`` with the ORCA model's smooth sign.
 * **``v_low = 0.5 m/s``**, not 0.1: the lateral dynamics' stiffness at rest is about
   ``C_alpha / (m 2 v_low)`` and a full-size car's cornering stiffness per mass is 5x the
   ORCA car's, so 0.1 m/s would need 140 RK4 sub-steps per 0.1 s (more than the simulator's
-  cap of 100); 0.5 m/s needs 28 and changes the slip angles by under 0.5% above 5 m/s.
+  cap of 100); 0.5 m/s needs 31 and changes the slip angles by under 0.5% above 5 m/s.
 
 :func:`frenet_ode_fullsize` is the single source of these equations; like
 :func:`racing_env.vehicle.frenet_ode` it calls its maths through the module global ``M`` and
