@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numba import njit
 
-from racing_env.simulator import _lookup
+from racing_env.interp import periodic_lookup as _lookup
 
 from .mpc import _grid_interp
 

@@ -66,16 +66,17 @@ def default_cache_root() -> Path:
 
 
 def _writable(folder: Path) -> str | None:
-    """None if ``folder`` exists (or can be made) and a file can be written in it, else why not."""
+    """None if ``folder`` exists (or can be made) and a file can be written in it, else why not
+    (without naming the folder: the caller does)."""
     if not folder.is_absolute():  # e.g. "~/.cache" when no home directory can be found
-        return f"{str(folder)!r} is not an absolute path (no home directory?)"
+        return "not an absolute path; no home directory?"
     try:
         folder.mkdir(parents=True, exist_ok=True)
         probe = folder / f".write-test-{uuid.uuid4().hex}"
         probe.write_bytes(b"")
         probe.unlink()
     except OSError as exc:
-        return f"{exc.strerror or exc} ({str(folder)!r})"
+        return str(exc.strerror or exc)
     return None
 
 
@@ -120,9 +121,8 @@ def cache_root(defer_warning: bool = False) -> Path:
         if why_tmp is not None:
             raise OSError(
                 f"alpha-racer has no writable cache folder: {what}: {why}; temporary "
-                f"folder: {why_tmp}. Set {ENV_VAR} to a writable folder."
+                f"folder {str(fallback)!r}: {why_tmp}. Set {ENV_VAR} to a writable folder."
             )
-        why = why.replace(f" ({str(root)!r})", "")
         _pending.append(
             f"alpha-racer cannot write to {what} ({why}): its compiled code and racing "
             f"lines go to the temporary folder {str(fallback)!r} instead. Set "

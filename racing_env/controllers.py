@@ -14,8 +14,8 @@ import numpy as np
 from numba import njit
 
 from .config import RaceConfig, _is_int
+from .interp import periodic_lookup as _lookup
 from .observation import split_observation
-from .simulator import _lookup
 from .track import Track
 from .tracks import make_track
 from .vehicle import VehicleParams

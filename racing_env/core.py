@@ -177,16 +177,17 @@ class BatchedRaces:
         """
         idx = np.arange(self.n_races) if races is None else np.atleast_1d(races)
         start = start or self.config.start
-        if seed is not None:
-            rng = np.random.default_rng(seed)
-        else:  # a copy: a failed draw must not advance the race generator
-            rng = np.random.Generator(type(self.rng.bit_generator)())
-            rng.bit_generator.state = self.rng.bit_generator.state
+        rng = self.rng if seed is None else np.random.default_rng(seed)
+        saved = rng.bit_generator.state
         # every start first (each may raise), then the races change: a failed reset changes nothing
-        starts = [
-            start_states(self.track, self.n_cars, start, self.config.vehicle.width, rng, order)
-            for _ in idx
-        ]
+        try:
+            starts = [
+                start_states(self.track, self.n_cars, start, self.config.vehicle.width, rng, order)
+                for _ in idx
+            ]
+        except BaseException:
+            rng.bit_generator.state = saved  # a failed draw does not advance the race generator
+            raise
         self.rng = rng
         for b, x in zip(idx, starts):
             self.state[b] = x

@@ -44,12 +44,12 @@ from .config import (  # the rule vector's layout, also imported from here
 )
 from .contact import _cut, _lockstep_with_contact, _separate
 from .integrator import (
-    _n_substeps,  # also imported from here by agents.mpc
+    _n_substeps,
     _ode,  # noqa: F401 (re-exported)
     _rk4_substep,
     integrate_car,  # noqa: F401 (re-exported)
 )
-from .interp import periodic_lookup as _lookup  # also imported from here by controllers, agents.mpc
+from .interp import periodic_lookup as _lookup
 from .track import Track
 
 

@@ -11,7 +11,8 @@ import numpy as np
 from numba import njit
 
 from racing_env.controllers import follower_action
-from racing_env.simulator import _lookup, _n_substeps, integrate_car
+from racing_env.integrator import _n_substeps, integrate_car
+from racing_env.interp import periodic_lookup as _lookup
 from racing_env.track import Track
 from racing_env.vehicle import P_VLOW, VehicleParams
 

@@ -9,7 +9,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from racing_env.simulator import _lookup
+from racing_env.interp import periodic_lookup as _lookup
 from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
 
