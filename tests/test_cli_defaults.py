@@ -11,7 +11,7 @@ from experiments.analysis.nash import AnalyzeConfig
 from experiments.cli import build_parser
 from experiments.evaluation.bench_config import BenchConfig
 from experiments.evaluation.control import ControlConfig
-from experiments.evaluation.league import LeagueConfig
+from experiments.evaluation.league_schedule import LeagueConfig
 from experiments.evaluation.policy_map import PolicyMapConfig
 from experiments.evaluation.strategy import StrategyConfig
 from experiments.learning.config import SelfPlayConfig

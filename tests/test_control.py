@@ -12,8 +12,8 @@ pytest.importorskip("daqp")
 
 from agents import best_theta, make_agent_spec  # noqa: E402
 from agents.best_theta import TABLE_ENV_VAR  # noqa: E402
-from experiments import control as ct  # noqa: E402
 from experiments.cli import main  # noqa: E402
+from experiments.evaluation import control as ct  # noqa: E402
 
 NAMES = ("q", "zeta", "s1", "s2", "s3")
 
@@ -360,7 +360,8 @@ def test_ensure_selects_only_missing_tracks_and_claim_refuses_a_changed_table(ta
 
 
 def test_one_theta_best_player_races_each_track_of_a_league_with_its_own_theta(table, tmp_path):
-    from experiments.evaluation.league import LeagueConfig, league
+    from experiments.evaluation.league import league
+    from experiments.evaluation.league_schedule import LeagueConfig
 
     a = {"q": 5.0, "zeta": 1.04, "s1": 0.3, "s2": 0.5, "s3": 4.0}
     b = {"q": 300.0, "zeta": 0.85, "s1": 0.0, "s2": 10.0, "s3": 0.0}

@@ -13,8 +13,8 @@ pytest.importorskip("daqp")
 from agents import best_theta, make_agent_spec  # noqa: E402
 from agents.best_theta import TABLE_ENV_VAR  # noqa: E402
 from agents.theta import EXTENDED_HIGH, EXTENDED_LOW, EXTENDED_NAMES, THETA_NAMES  # noqa: E402
-from experiments import control as ct  # noqa: E402
 from experiments.cli import main  # noqa: E402
+from experiments.evaluation import control as ct  # noqa: E402
 from experiments.infra.parallel import Pool  # noqa: E402
 
 PAPER_THETA = {"q": 20.0, "zeta": 0.95, "s1": 0.1, "s2": 4.0, "s3": 1.0}

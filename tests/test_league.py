@@ -14,8 +14,10 @@ from hypothesis import strategies as st
 
 pytest.importorskip("openskill")
 
-from experiments import league as lg  # noqa: E402
 from experiments.cli import main  # noqa: E402
+from experiments.evaluation import leaderboard as lb  # noqa: E402
+from experiments.evaluation import league as lg  # noqa: E402
+from experiments.evaluation import league_schedule as ls  # noqa: E402
 from experiments.infra.artifacts import read_jsonl  # noqa: E402
 from experiments.infra.parallel import Pool  # noqa: E402
 
@@ -25,7 +27,7 @@ RACELINES = (
     "raceline:speed_scale=0.7",
     "raceline:line_fraction=0.5",
 )
-TINY = lg.LeagueConfig(agents=RACELINES, tracks=("default", "oval"), cars=3, steps=40, seed=4)
+TINY = ls.LeagueConfig(agents=RACELINES, tracks=("default", "oval"), cars=3, steps=40, seed=4)
 
 
 def _untimed(board: dict) -> dict:
@@ -50,7 +52,7 @@ def tiny_league(tmp_path_factory):
 @given(k=st.integers(2, 10), data=st.data())
 def test_schedule_is_balanced(k, data):
     n = data.draw(st.integers(2, min(k, 8)), label="cars")
-    cfg = lg.LeagueConfig(
+    cfg = ls.LeagueConfig(
         agents=tuple(f"a{i}" for i in range(k)),
         cars=n,
         tracks=("default", "oval")[: data.draw(st.integers(1, 2))],
@@ -58,7 +60,7 @@ def test_schedule_is_balanced(k, data):
         max_groups=data.draw(st.integers(1, 40), label="max_groups"),
         seed=data.draw(st.integers(0, 2**32 - 1), label="seed"),
     )
-    races = lg.schedule(cfg)
+    races = ls.schedule(cfg)
     assert [r.index for r in races] == list(range(len(races)))
     assert all(r.seed == cfg.race_seed(r.index) for r in races)
     for r in races:
@@ -72,8 +74,8 @@ def test_schedule_is_balanced(k, data):
     assert set(regions.values()) == {per // n} and per % n == 0
     tracks = Counter((a, r.track) for r in races for a in r.agents)
     assert set(tracks.values()) == {per // len(cfg.tracks)}
-    groups = lg.round_groups(cfg, 0)
-    assert len(races) == sum(len(lg.round_groups(cfg, i)) for i in range(cfg.rounds)) * n * len(
+    groups = ls.round_groups(cfg, 0)
+    assert len(races) == sum(len(ls.round_groups(cfg, i)) for i in range(cfg.rounds)) * n * len(
         cfg.tracks
     )
     if math.comb(k, n) <= cfg.max_groups:  # every subset: every pair alike too
@@ -86,31 +88,31 @@ def test_schedule_is_balanced(k, data):
 
 
 def test_schedule_is_fixed_by_the_seed_and_rounds_differ():
-    cfg = lg.LeagueConfig(
+    cfg = ls.LeagueConfig(
         agents=tuple(f"a{i}" for i in range(7)), cars=3, rounds=2, max_groups=14, seed=3
     )
-    assert lg.schedule(cfg) == lg.schedule(cfg)
-    other = lg.schedule(lg.LeagueConfig(**{**cfg.__dict__, "seed": 4}))
-    assert [r.seed for r in other] != [r.seed for r in lg.schedule(cfg)]
+    assert ls.schedule(cfg) == ls.schedule(cfg)
+    other = ls.schedule(ls.LeagueConfig(**{**cfg.__dict__, "seed": 4}))
+    assert [r.seed for r in other] != [r.seed for r in ls.schedule(cfg)]
     # C(7, 3) = 35 > 14: each round draws its own sample of two blocks of 7 groups
-    assert len(lg.round_groups(cfg, 0)) == 14
-    assert lg.round_groups(cfg, 0) != lg.round_groups(cfg, 1)
+    assert len(ls.round_groups(cfg, 0)) == 14
+    assert ls.round_groups(cfg, 0) != ls.round_groups(cfg, 1)
     # every subset fits: the same groups in every round, the races of a round shuffled
-    full = lg.LeagueConfig(agents=("a", "b", "c", "d"), cars=3, rounds=2)
-    assert lg.round_groups(full, 0) == lg.round_groups(full, 1)
-    races = lg.schedule(full)
+    full = ls.LeagueConfig(agents=("a", "b", "c", "d"), cars=3, rounds=2)
+    assert ls.round_groups(full, 0) == ls.round_groups(full, 1)
+    races = ls.schedule(full)
     assert [r.round for r in races] == [0] * 12 + [1] * 12
     assert [r.rotation for r in races[:12]] != sorted(r.rotation for r in races[:12])
 
 
 def test_balanced_groups_by_hand():
     rng = np.random.default_rng(0)
-    groups = lg.balanced_groups(5, 3, 5, rng)  # lcm(5, 3) / 3 = 5 groups, 3 each
+    groups = ls.balanced_groups(5, 3, 5, rng)  # lcm(5, 3) / 3 = 5 groups, 3 each
     assert len(groups) == 5 and all(len(set(g)) == 3 for g in groups)
     assert Counter(a for g in groups for a in g) == {a: 3 for a in range(5)}
-    assert len(lg.balanced_groups(6, 3, 5, rng)) == 4  # two blocks of 2: 4 <= 5
+    assert len(ls.balanced_groups(6, 3, 5, rng)) == 4  # two blocks of 2: 4 <= 5
     with pytest.raises(ValueError, match="groups of 4"):
-        lg.balanced_groups(3, 4, 5, rng)
+        ls.balanced_groups(3, 4, 5, rng)
 
 
 # ---------------------------------------------------------------------------- rating
@@ -123,31 +125,31 @@ def test_rate_is_openskill_plackett_luce_and_keeps_the_prior_without_races():
     from openskill.models import PlackettLuce
 
     rec = {"race": 0, "agents": ["b", "a"], "ranks": [1, 2]}
-    r = lg.rate([rec], ["a", "b", "idle"])
+    r = lb.rate([rec], ["a", "b", "idle"])
     m = PlackettLuce(tau=0.0)
     (b,), (a,) = m.rate([[m.rating()], [m.rating()]], ranks=[1, 2])
     assert r["b"] == pytest.approx((b.mu, b.sigma)) and r["a"] == pytest.approx((a.mu, a.sigma))
     assert r["b"][0] > 25.0 > r["a"][0]
     assert r["idle"] == (25.0, 25.0 / 3.0)
     with pytest.raises(ValueError, match=r"agents \['x'\] outside the league"):
-        lg.rate([{"race": 0, "agents": ["a", "x"], "ranks": [1, 2]}], ["a", "b"])
+        lb.rate([{"race": 0, "agents": ["a", "x"], "ranks": [1, 2]}], ["a", "b"])
 
 
 def test_ratings_do_not_depend_on_the_completion_order(tiny_league):
     out, _ = tiny_league
     records = read_jsonl(out / "races.jsonl")
-    board = lg.leaderboard(records, TINY)
+    board = lb.leaderboard(records, TINY)
     for seed in range(3):
         shuffled = [records[i] for i in np.random.default_rng(seed).permutation(len(records))]
-        assert lg.leaderboard(shuffled, TINY) == board
+        assert lb.leaderboard(shuffled, TINY) == board
     # the online update itself is order-dependent: replayed backwards the numbers move, so
     # the replay in race-index order is what makes the ratings reproducible
     backwards = [dict(r, race=len(records) - 1 - r["race"]) for r in records]
-    assert lg.rate(backwards, TINY.agents) != lg.rate(records, TINY.agents)
+    assert lb.rate(backwards, TINY.agents) != lb.rate(records, TINY.agents)
 
 
 def test_a_clearly_slower_agent_is_rated_lower(tmp_path):
-    cfg = lg.LeagueConfig(
+    cfg = ls.LeagueConfig(
         agents=("mpc", "raceline", "raceline:speed_scale=0.5"), cars=2, steps=60, seed=1
     )
     board = lg.league(cfg, tmp_path / "slow", pool=Pool(workers=1, progress_bar=False))
@@ -162,7 +164,7 @@ def test_a_clearly_slower_agent_is_rated_lower(tmp_path):
 # ---------------------------------------------------------------------------- outputs
 def test_tiny_league_writes_consistent_outputs(tiny_league):
     out, board = tiny_league
-    races = lg.schedule(TINY)
+    races = ls.schedule(TINY)
     assert len(races) == 4 * 3 * 2 and board["new_races"] == len(races)
     records = read_jsonl(out / "races.jsonl")
     assert sorted(r["race"] for r in records) == list(range(len(races)))
@@ -212,11 +214,11 @@ def test_leaderboard_reports_strategy_metrics_and_says_when_old_records_lack_the
     assert "| passes/race |" in (out / "leaderboard.md").read_text()
     # records of an older league (no metrics, no states): None and a note, never zeros
     old = [{k: v for k, v in r.items() if k not in RECORD_KEYS} for r in records]
-    stale = lg.leaderboard(old[:10] + records[10:], TINY)
+    stale = lb.leaderboard(old[:10] + records[10:], TINY)
     assert all(0 < r["strategy_races"] < r["races"] for r in stale["standings"])
-    none = lg.leaderboard(old, TINY)
+    none = lb.leaderboard(old, TINY)
     assert all(r["passes"] is None and r["wins_from_behind"] is None for r in none["standings"])
-    md = lg.leaderboard_markdown(none)
+    md = lb.leaderboard_markdown(none)
     assert "missing for some races" in md and "over 0 of 18 races" in md
 
 
@@ -241,7 +243,7 @@ def test_a_folder_of_another_config_is_refused(tiny_league, capsys):
     before = (out / "races.jsonl").read_text()
     with pytest.raises(ValueError, match="holds a league of another configuration"):
         lg.league(
-            lg.LeagueConfig(**{**TINY.__dict__, "seed": 5}),
+            ls.LeagueConfig(**{**TINY.__dict__, "seed": 5}),
             out,
             pool=Pool(workers=1, progress_bar=False),
         )
@@ -367,7 +369,7 @@ def test_imported_user_agents_race_in_the_league(tmp_path, monkeypatch):
         # a worker that has not imported the module (spawned, Ray) imports it for its race
         del _REGISTRY["cautious_user"]
         del sys.modules["league_user_agents"]
-        race = lg.schedule(lg.LeagueConfig(agents=("raceline", "cautious_user"), cars=2))[0]
+        race = ls.schedule(ls.LeagueConfig(agents=("raceline", "cautious_user"), cars=2))[0]
         rec = lg.league_race(race, 5, (str(tmp_path / "league_user_agents.py"),))
         assert "cautious_user" in rec["agents"] and "cautious_user" in _REGISTRY
     finally:

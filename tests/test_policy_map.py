@@ -7,8 +7,8 @@ import pytest
 
 pytest.importorskip("daqp")
 
-from experiments import policy_map as pm  # noqa: E402
 from experiments.cli import main  # noqa: E402
+from experiments.evaluation import policy_map as pm  # noqa: E402
 from experiments.infra.artifacts import read_jsonl  # noqa: E402
 from experiments.infra.parallel import Pool  # noqa: E402
 

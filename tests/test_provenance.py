@@ -8,7 +8,9 @@ import warnings
 
 import pytest
 
+from experiments.evaluation import leaderboard as lb
 from experiments.evaluation import league as lg
+from experiments.evaluation import league_schedule as ls
 from experiments.evaluation.bench import bench
 from experiments.evaluation.bench_config import BenchConfig
 from experiments.infra import artifacts
@@ -111,13 +113,13 @@ def test_collect_manifest_records_provenance(tmp_path):
 # ---------------------------------------------------------------------------- league join
 BASE = ("raceline", "raceline:grip=0.6", "raceline:speed_scale=0.7")
 NEW = "raceline:line_fraction=0.5"
-CFG = lg.LeagueConfig(agents=BASE, tracks=("oval",), cars=2, steps=20, seed=1)
+CFG = ls.LeagueConfig(agents=BASE, tracks=("oval",), cars=2, steps=20, seed=1)
 
 
 def test_schedule_of_one_stage_is_unchanged_and_a_join_adds_only_new_groups():
-    full = lg.LeagueConfig(**{**CFG.__dict__, "agents": BASE + (NEW,)})
-    first = lg.schedule(CFG)
-    joined = lg.schedule(full, [3, 4])
+    full = ls.LeagueConfig(**{**CFG.__dict__, "agents": BASE + (NEW,)})
+    first = ls.schedule(CFG)
+    joined = ls.schedule(full, [3, 4])
     assert joined[: len(first)] == first
     added = joined[len(first) :]
     assert added and all(NEW in r.agents for r in added)
@@ -126,14 +128,14 @@ def test_schedule_of_one_stage_is_unchanged_and_a_join_adds_only_new_groups():
     }
     assert [r.index for r in joined] == list(range(len(joined)))
     with pytest.raises(ValueError, match="stages must grow"):
-        lg.schedule(full, [4, 3])
+        ls.schedule(full, [4, 3])
 
 
 def test_an_agent_joins_a_finished_league_and_only_its_races_run(tmp_path):
     out = tmp_path / "league"
     board = lg.league(CFG, out, pool=Pool(workers=1, progress_bar=False))
     n_before = len(read_jsonl(out / "races.jsonl"))
-    full = lg.LeagueConfig(**{**CFG.__dict__, "agents": BASE + (NEW,)})
+    full = ls.LeagueConfig(**{**CFG.__dict__, "agents": BASE + (NEW,)})
     joined = lg.league(full, out, pool=Pool(workers=1, progress_bar=False))
     records = read_jsonl(out / "races.jsonl")
     new = records[n_before:]
@@ -145,13 +147,13 @@ def test_an_agent_joins_a_finished_league_and_only_its_races_run(tmp_path):
     assert manifest["stages"] == [3, 4] and manifest["config"]["agents"] == list(full.agents)
     assert lg.league(full, out, pool=Pool(workers=1, progress_bar=False))["new_races"] == 0
     # the ratings are a replay over all races, in race order
-    replay = lg.rate(sorted(records, key=lambda r: r["race"]), full.agents)
+    replay = lb.rate(sorted(records, key=lambda r: r["race"]), full.agents)
     for row in joined["standings"]:
         assert row["mu"] == pytest.approx(replay[row["agent"]][0])
     assert board["standings"]
     with pytest.raises(ValueError, match="another configuration"):  # other settings: refused
         lg.league(
-            lg.LeagueConfig(
+            ls.LeagueConfig(
                 **{**full.__dict__, "agents": BASE + (NEW, "raceline:grip=0.7"), "steps": 21}
             ),
             out,

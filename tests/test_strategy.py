@@ -9,8 +9,8 @@ import pytest
 
 pytest.importorskip("daqp")
 
-from experiments import strategy as sg  # noqa: E402
 from experiments.cli import build_parser, main  # noqa: E402
+from experiments.evaluation import strategy as sg  # noqa: E402
 from experiments.evaluation.bench import BenchRun  # noqa: E402
 from experiments.evaluation.metrics import RECORD_KEYS, record_metrics  # noqa: E402
 from experiments.infra.parallel import Pool  # noqa: E402

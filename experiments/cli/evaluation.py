@@ -59,7 +59,8 @@ def _cmd_bench(args) -> int:
 
 
 def _cmd_league(args) -> int:
-    from experiments.evaluation.league import LeagueConfig, league
+    from experiments.evaluation.league import league
+    from experiments.evaluation.league_schedule import LeagueConfig
 
     out = Path(args.out)
     board = league(config_from(LeagueConfig, args), out, pool_from(args), imports=args.imports)
@@ -179,7 +180,7 @@ def add_bench(command) -> None:
 
 def add_league(command) -> None:
     """``alpha-racer league``."""
-    from experiments.evaluation.league import LeagueConfig
+    from experiments.evaluation.league_schedule import LeagueConfig
 
     lg = command(
         "league",
