@@ -110,12 +110,11 @@ class AlphaAgent(MPCAgent):
             )
         self.model_name = model
         self.auto = isinstance(model, str) and model == AUTO
-        if self.auto:
-            self.model = None  # chosen at a race's first decision
-        else:
+        self.model: PotentialModel | None = None  # model="auto": chosen at a race's first decision
+        if not self.auto:
             self.model = model if isinstance(model, PotentialModel) else cached_model(model)
         if space is None:  # the model's (the shipped ones: the paper's)
-            space = "paper" if self.auto else self.model.space.name
+            space = "paper" if self.auto else self._model().space.name
         space = policy_space(space).name  # names the choices if unknown
         if self.auto and space not in AUTO_MODELS:
             raise ValueError(
@@ -135,7 +134,7 @@ class AlphaAgent(MPCAgent):
                 raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
         self.restarts, self.iterations = restarts, iterations
         self.cold_restarts, self.cold_iterations = cold_restarts, cold_iterations
-        self._theta_joint = None
+        self._theta_joint: np.ndarray | None = None
         self._max_ms: deque = deque(maxlen=100_000)
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
@@ -148,32 +147,39 @@ class AlphaAgent(MPCAgent):
         self._theta_joint = None
         self.last_potential = float("nan")
 
+    def _model(self) -> PotentialModel:
+        """The potential model (with model="auto", once a race's first decision chose it)."""
+        if self.model is None:
+            raise RuntimeError("alpha's model='auto' is chosen at a race's first decision")
+        return self.model
+
     def _check_space(self, space: str) -> None:
         """Refuse a model of another policy space than ``space`` (naming both)."""
-        have = self.model.space.name
+        have = self._model().space.name
         if have != space:
             name = self.model_name if isinstance(self.model_name, str) else "given"
             raise ValueError(
                 f"alpha-potential model {name!r} was trained on the {have!r} "
-                f"policy space ({self.model.space.dim} parameters), space={space!r} "
+                f"policy space ({self._model().space.dim} parameters), space={space!r} "
                 f"was asked for; train a model on races of the {space!r} space "
                 f"(alpha-racer collect --space {space}) or drop space (alpha then "
                 f"takes its model's)"
             )
 
     def _check_track(self) -> None:
-        trained_on = self.model.meta.get("track")
-        if not self.model.general and trained_on and trained_on != self.track.name:
+        model, track = self._model(), self.track
+        assert track is not None  # after reset()
+        trained_on = model.meta.get("track")
+        if not model.general and trained_on and trained_on != track.name:
             warnings.warn(
-                f"alpha-potential model trained on track {trained_on!r}, racing on "
-                f"{self.track.name!r}",
+                f"alpha-potential model trained on track {trained_on!r}, racing on {track.name!r}",
                 stacklevel=3,
             )
 
     def _check_field(self, n: int) -> None:
         """Refuse a field a single-track model was not trained for; warn when a general
         model races a field size outside its training range."""
-        m = self.model
+        m = self._model()
         if not m.general:
             if n != m.n_cars:
                 raise ValueError(
@@ -181,10 +187,11 @@ class AlphaAgent(MPCAgent):
                 )
             return
         lo, hi = m.trained_cars
-        if not 2 <= n <= m.features.max_cars:
+        max_cars = m.features.max_cars
+        assert max_cars is not None  # general features bound the field
+        if not 2 <= n <= max_cars:
             raise ValueError(
-                f"the general alpha-potential model takes 2..{m.features.max_cars} "
-                f"cars, the race has {n}"
+                f"the general alpha-potential model takes 2..{max_cars} cars, the race has {n}"
             )
         if not lo <= n <= hi:
             warnings.warn(
@@ -219,20 +226,23 @@ class AlphaAgent(MPCAgent):
         ego, others = split_observation(observation, self.n_preview)
         joint = np.vstack([ego[None], others])  # ego first, then the others
         cold = self._theta_joint is None
+        track = self.track
+        assert track is not None  # act() checked reset()
         if cold:
             if self.model is None:  # model="auto"
-                self.model = cached_model(auto_model(self.track.name, len(joint), self.space))
+                self.model = cached_model(auto_model(track.name, len(joint), self.space))
                 self._check_space(self.space)
                 self._check_track()
             self._check_field(len(joint))
-        box = self.model.space
+        model = self._model()
+        box = model.space
         high = None
         if self.zeta_max is not None:  # the ego's zeta ceiling
             high = np.tile(box.high, (len(joint), 1))
             high[0, 1] = self.zeta_max
-        theta, phi = self.model.maximise(
+        theta, phi = model.maximise(
             joint,
-            self.track,
+            track,
             self._theta_joint,
             rng=self._rng,
             restarts=self.cold_restarts if cold else self.restarts,

@@ -108,6 +108,15 @@ class _Plan:
     edge bounds ``lo, hi`` (K,) [m] on ``n`` at its predicted progress."""
 
     __slots__ = ("x0", "U", "kap", "X", "A", "B", "lo", "hi", "ok")
+    x0: np.ndarray
+    U: np.ndarray
+    kap: np.ndarray
+    X: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    ok: bool
 
 
 @dataclass

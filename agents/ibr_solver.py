@@ -69,6 +69,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -88,6 +89,9 @@ from .mpc import (
     trajectory_function,
 )
 from .mpc_agent import progress_rate
+
+if TYPE_CHECKING:
+    from racing_env.controllers import RacelineFollower
 
 # what a best response may raise on a bad solve (counted as a failed QP): a solver's own error
 # (RuntimeError) and numerical errors. Anything else (a TypeError, NameError, ...) is a bug
@@ -128,8 +132,9 @@ class IBR:
         self._H0 = 2.0 * (self.cfg.rate_weight * self._DtD + self.cfg.step_weight * np.eye(2 * K))
         self._bounds_n = EdgeBounds(track, self.vehicle, self._mcfg)
         self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max
-        self._follower = None
-        self.stats = {
+        self._follower: RacelineFollower | None = None
+        # counters and the decision, best-response and round logs (deques) by name
+        self.stats: dict[str, Any] = {
             "decisions": 0,
             "fallbacks": 0,
             "restarts": 0,
@@ -141,12 +146,13 @@ class IBR:
             "br_ms": deque(maxlen=100_000),
             "rounds": deque(maxlen=100_000),
         }
-        self.last = {}
+        self.last: dict[str, Any] = {}  # the last decision's figures, plans and inputs
         self.reset()
 
     def reset(self) -> None:
         """Forget the warm starts (call at the start of every race)."""
-        self._prev = None  # per car: (U (2, K), stage progress (K + 1,) or None)
+        # per car: (U (2, K), stage progress (K + 1,) or None)
+        self._prev: list[tuple[np.ndarray, np.ndarray | None]] | None = None
 
     # ------------------------------------------------------------------ plans
     def _evaluate(self, plan: _Plan) -> None:
@@ -168,10 +174,8 @@ class IBR:
         """Replace the plan by a raceline-follower rollout from its initial state."""
         if self._follower is None:
             self._follower = make_follower(self.track, self.vehicle)
-        cfg = self.cfg
-        plan.U = follower_rollout(
-            self.track, self.vehicle, self._follower, plan.x0, cfg.horizon, cfg.dt
-        )
+        cfg, follower = self.cfg, self._follower
+        plan.U = follower_rollout(self.track, self.vehicle, follower, plan.x0, cfg.horizon, cfg.dt)
         plan.kap = kappa_at_substeps(
             self.track, stage_nodes(None, plan.x0, cfg.horizon, cfg.dt), cfg.substeps
         )

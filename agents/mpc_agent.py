@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,6 +27,9 @@ from .reference import (
     reference_trajectory,
 )
 from .threads import single_blas_thread
+
+if TYPE_CHECKING:
+    from racing_env.raceline import Raceline
 
 
 def progress_rate(state: np.ndarray, track: Track) -> np.ndarray:
@@ -165,7 +169,7 @@ class MPCAgent:
             self.mpc = MPC(track, self.vehicle, self.config, line=self.line)
         self.track = track
         self.raceline = get_raceline(track, self.vehicle, self.raceline_config)
-        self.blend_line = None  # the lap-time line, built at the first b > 0
+        self.blend_line: Raceline | None = None  # the lap-time line, built at the first b > 0
         self.prediction = (  # the other cars along the track's minimum-curvature line
             LinePrediction(track, get_raceline(track, self.vehicle))
             if self.predict == "line"
@@ -189,13 +193,14 @@ class MPCAgent:
         ``None`` (the paper's rule) in the paper's space."""
         return "room" if self.space == "extended" else None
 
-    def _blend_line(self, theta: Theta):
+    def _blend_line(self, theta: Theta) -> Raceline | None:
         """The lap-time race line that ``theta.b`` blends in (None while ``b`` is 0)."""
         if theta.b == 0.0:
             return None
         if self.blend_line is None:
             from racing_env.raceline import RacelineConfig, get_raceline
 
+            assert self.track is not None  # reset() sets it
             self.blend_line = get_raceline(
                 self.track, self.vehicle, RacelineConfig(objective="lap_time")
             )
@@ -228,6 +233,8 @@ class MPCAgent:
     def act(self, observation: np.ndarray) -> np.ndarray:
         if self.mpc is None:
             raise RuntimeError("MPCAgent.act() before reset(track, ...)")
+        track = self.track
+        assert track is not None  # reset() sets it with the MPC
         with single_blas_thread():  # results independent of the BLAS thread count
             ego, others = split_observation(observation, self.n_preview)
             theta = self.driven_theta
@@ -236,7 +243,7 @@ class MPCAgent:
                 ego,
                 others if len(others) else None,
                 self.raceline,
-                self.track,
+                track,
                 K=self.config.horizon,
                 dt=self.config.dt,
                 blend=self._blend_line(theta),
@@ -246,9 +253,10 @@ class MPCAgent:
             opp = None
             if neighbours:
                 o = others[neighbours]
-                opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, self.track)])
+                opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, track)])
                 if self.prediction is not None:
-                    opp = self.prediction.paths(*opp.T, self.config.horizon, self.config.dt)
+                    s, n, s_dot = opp.T
+                    opp = self.prediction.paths(s, n, s_dot, self.config.horizon, self.config.dt)
             u = self.mpc.solve(ego, ref.s_ref, ref.n_ref, theta.q, opp, self._u_prev)
             self._u_prev = u
             return u.astype(np.float32)

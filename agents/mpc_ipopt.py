@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from typing import Any
 
 import numpy as np
 
@@ -100,7 +101,7 @@ class IpoptMPC:
             P_x0, ca.vec(P_ref), ca.vec(P_kap), P_q, P_uprev, P_nlo, P_nhi, ca.vec(P_sep)
         )
         nlp = {"x": w, "p": p, "f": cost, "g": ca.vertcat(*g)}
-        opts = {
+        opts: dict[str, bool | int | float | str] = {
             "expand": True,
             "ipopt.print_level": 0,
             "print_time": False,
@@ -121,12 +122,16 @@ class IpoptMPC:
         )
         self._nx, self._nu, self._m = nx, nu, max_opponents
         self._bounds_n = EdgeBounds(track, v, cfg)
-        self.stats = {"solves": 0, "fallbacks": 0, "solve_ms": deque(maxlen=100_000)}
+        self.stats: dict[str, Any] = {
+            "solves": 0,
+            "fallbacks": 0,
+            "solve_ms": deque(maxlen=100_000),
+        }
         self.reset()
 
     def reset(self) -> None:
-        self._w0 = None
-        self.last_U = None
+        self._w0: np.ndarray | None = None  # the last solution, the next warm start
+        self.last_U: np.ndarray | None = None
 
     def solve(
         self,

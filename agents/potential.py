@@ -111,12 +111,13 @@ class PotentialModel:
         self.meta = meta
         if self.features.general:
             # any field of 2..max_cars; the range it was trained on, for warnings
-            self.n_cars = None
+            self.n_cars: int | None = None
             lo, hi = meta["n_cars_range"]
-            self.trained_cars = (int(lo), int(hi))
+            self.trained_cars: tuple[int, int] = (int(lo), int(hi))
         else:
-            self.n_cars = int(meta["n_cars"])
-            self.trained_cars = (self.n_cars, self.n_cars)
+            n = int(meta["n_cars"])
+            self.n_cars = n
+            self.trained_cars = (n, n)
 
     @property
     def general(self) -> bool:
@@ -236,7 +237,7 @@ class PotentialModel:
         d = sp.dim
         rng, slots, base = self._ascent_setup(state, track, restarts, iterations, rng)
         slots = slots.ravel()  # car-major columns
-        top = 1.0
+        top: float | np.ndarray = 1.0
         if high is not None:
             high = np.asarray(high, dtype=float)
             if high.shape != (N, d) or not (np.all(high >= sp.low) and np.all(high <= sp.high)):

@@ -188,8 +188,8 @@ class FrozenPolicy:
                 np.float32(vec_normalize.clip_obs),
             )
         self.layers = _numpy_actor(policy)
-        self.track_length = None
-        self.agent_id = None
+        self.track_length: float | None = None
+        self.agent_id: str | None = None
 
     @property
     def obs_dim(self) -> int:
@@ -332,7 +332,7 @@ class PPOAgent(FrozenPolicy):
                     f"{str(path)!r}: observation size {dim} is not 6 N + n_preview "
                     f"with n_preview = {n_preview}; pass ppo:...,n_preview=K"
                 )
-            self.meta = {"kind": "sb3", "n_cars": n_cars, "n_preview": int(n_preview)}
+            self.meta: dict = {"kind": "sb3", "n_cars": n_cars, "n_preview": int(n_preview)}
         else:
             if vecnormalize is not None:
                 raise ValueError(

@@ -123,8 +123,8 @@ def reference_trajectory(
     friction: float | None = None,
     integration: str = "exact",
     reachable: bool = True,
-    blend: float | None = None,
-    side: float | None = None,
+    blend: Raceline | None = None,
+    side: float | str | None = None,
 ) -> Reference:
     """The MPC reference of the paper for one car.
 

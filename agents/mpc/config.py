@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -100,7 +101,7 @@ class MPCConfig:
         return self.soft_rho * min(1.0, self.soft_q_ref / float(q))
 
 
-PLANS = {
+PLANS: dict[str, dict[str, Any]] = {
     "rti": {},
     "damped": {"step_damping": (1.0, 10.0, 100.0), "sqp_iterations": 20},
 }

@@ -114,12 +114,12 @@ def opponent_paths(opponents: np.ndarray | None, K: int, dt: float) -> np.ndarra
     o = np.asarray(opponents, dtype=float)
     if o.ndim == 3 and o.shape[1:] == (K, 2):
         return np.ascontiguousarray(o)
-    o = o.reshape(-1, 3) if o.size % 3 == 0 and o.ndim <= 2 else None
-    if o is None:
+    if not (o.size % 3 == 0 and o.ndim <= 2):
         raise ValueError(
             f"opponents must be (M, 3) rows (s, n, s_dot) or an (M, {K}, 2) prediction, "
             f"got shape {np.shape(opponents)}"
         )
+    o = o.reshape(-1, 3)
     paths = np.empty((o.shape[0], K, 2))
     # s_j + (v_j dt) (k + 1), in the order the compiled kernels computed it before paths
     paths[:, :, 0] = o[:, :1] + o[:, 2:] * dt * np.arange(1.0, K + 1.0)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from enum import IntEnum
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -198,7 +198,8 @@ class MPC:
             self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max
         )  # normalised
         self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
-        self.stats = {
+        # counters and the solve times (a deque) by name
+        self.stats: dict[str, Any] = {
             "solves": 0,
             "fallbacks": 0,
             "restarts": 0,
@@ -213,8 +214,8 @@ class MPC:
 
     def reset(self) -> None:
         """Forget the warm start (call at the start of every race)."""
-        self._U = None
-        self._s_nom = None
+        self._U: np.ndarray | None = None  # the shifted plan (2, K), the next warm start
+        self._s_nom: np.ndarray | None = None
         self._follower = getattr(self, "_follower", None)
 
     # -------------------------------------------------------------- internals
@@ -268,7 +269,7 @@ class MPC:
         """:func:`sqp_step` with an interpreted prediction (no C compiler)."""
         K = s_pred.shape[0]
         x0, m, p = c.x0, c.m, c.problem
-        best = None
+        best: tuple[Any, ...] | None = None  # (cost, inputs, states, lo, hi) of the cheapest
         for alpha in c.step_sizes:
             ua, kap_a = trial_step(
                 u_vec, du, alpha, x0[0], s_pred, ds_lin, c.kappa_tab, p.ds, p.length, m
@@ -279,6 +280,7 @@ class MPC:
                 best = (Ja, ua, Xa, lo, hi)
             if Ja <= J:
                 break
+        assert best is not None  # step_sizes is not empty
         Ja, ua, Xa, lo, hi = best
         if Ja > J:
             return StepResult(StepCode.REJECTED, J, u_vec, Xa, None, None, lo, hi, s_pred)
