@@ -9,6 +9,8 @@ pytest.importorskip("daqp")
 
 from experiments.cli import main  # noqa: E402
 from experiments.evaluation import policy_map as pm  # noqa: E402
+from experiments.evaluation import policy_map_summary as pms  # noqa: E402
+from experiments.evaluation import thetas as pm_thetas  # noqa: E402
 from experiments.infra.artifacts import read_jsonl  # noqa: E402
 from experiments.infra.parallel import Pool  # noqa: E402
 
@@ -39,15 +41,15 @@ def _untimed(rows):
 
 # ---------------------------------------------------------------------------- sampling
 def test_sobol_thetas_fill_the_current_box_one_per_stratum():
-    low, high = pm.theta_box()
-    th = pm.sample_thetas(16, seed=3)
+    low, high = pm_thetas.theta_box()
+    th = pm_thetas.sample_thetas(16, seed=3)
     assert th.shape == (16, 5)
     assert np.all(th >= low) and np.all(th < high)
     # a scrambled Sobol set of 2^m points has one point in each 1/2^m slice of every axis
     u = (th - low) / (high - low)
     assert all(sorted(np.floor(16 * u[:, d]).astype(int)) == list(range(16)) for d in range(5))
-    assert np.array_equal(th, pm.sample_thetas(16, seed=3))
-    assert not np.allclose(th, pm.sample_thetas(16, seed=4))
+    assert np.array_equal(th, pm_thetas.sample_thetas(16, seed=3))
+    assert not np.allclose(th, pm_thetas.sample_thetas(16, seed=4))
 
 
 def test_box_is_read_at_run_time(monkeypatch):
@@ -57,7 +59,7 @@ def test_box_is_read_at_run_time(monkeypatch):
     high = np.array([20.0, 1.1, 0.1, 2.0, 1.0])
     monkeypatch.setattr(reference, "THETA_LOW", low)
     monkeypatch.setattr(reference, "THETA_HIGH", high)
-    th = pm.sample_thetas(8, seed=0)
+    th = pm_thetas.sample_thetas(8, seed=0)
     assert np.all(th >= low) and np.all(th < high)
     assert th[:, 1].max() > 1.05  # one point in the top eighth of the new zeta range
 
@@ -65,8 +67,8 @@ def test_box_is_read_at_run_time(monkeypatch):
 def test_theta_spec_is_exact():
     from agents import make_agent_spec
 
-    th = pm.sample_thetas(2, seed=1)[1]
-    agent = make_agent_spec(pm.theta_spec(th))
+    th = pm_thetas.sample_thetas(2, seed=1)[1]
+    agent = make_agent_spec(pm_thetas.theta_spec(th))
     assert np.array_equal(agent.theta.as_array(), th)
 
 
@@ -89,7 +91,7 @@ def test_best_flying_lap_skips_the_standing_start_lap():
 def test_binned_means_by_hand():
     x = [0.1, 0.2, 0.9, 1.0]  # 1.0 sits on the upper edge: last cell
     y = [0.1, 0.1, 0.9, 0.6]
-    xe, ye, m = pm.binned_means(x, y, [1.0, 3.0, 5.0, 7.0], (0, 1), (0, 1), 2)
+    xe, ye, m = pms.binned_means(x, y, [1.0, 3.0, 5.0, 7.0], (0, 1), (0, 1), 2)
     assert xe.tolist() == [0.0, 0.5, 1.0] and ye.tolist() == [0.0, 0.5, 1.0]
     assert m[0, 0] == 2.0 and m[1, 1] == 6.0
     assert np.isnan(m[0, 1]) and np.isnan(m[1, 0])
@@ -103,11 +105,11 @@ def test_a_failing_run_becomes_an_error_row(monkeypatch):
 
     monkeypatch.setattr(experiments.evaluation.race, "run_race", boom)
     cfg = pm.PolicyMapConfig(thetas=2, tracks=("default",), modes=("race",), steps=5)
-    row = pm.map_row(cfg, "race", "default", 1, pm.sample_thetas(2, 0)[1])
+    row = pm.map_row(cfg, "race", "default", 1, pm_thetas.sample_thetas(2, 0)[1])
     assert row["error"] == "FloatingPointError: solver diverged" and row["start_region"] == "R2"
-    s = pm.summarise([row], cfg)
+    s = pms.summarise([row], cfg)
     assert s["maps"]["race"]["default"]["errors"] == 1
-    assert "errors" in pm.summary_markdown(s)
+    assert "errors" in pms.summary_markdown(s)
 
 
 # ---------------------------------------------------------------------------- the command
@@ -122,7 +124,7 @@ def test_tiny_map_writes_rows_summary_and_heat_maps(tiny_map):
     rows = read_jsonl(tiny_map / "rows.jsonl")
     assert len(rows) == 8
     assert {(r["mode"], r["index"]) for r in rows} == {(m, k) for m in pm.MODES for k in range(4)}
-    low, high = pm.theta_box()
+    low, high = pm_thetas.theta_box()
     for r in rows:
         assert "error" not in r
         th = np.array(list(r["theta"].values()))
@@ -259,10 +261,10 @@ def test_an_extended_map_samples_b_and_races_it():
     cfg = pm.PolicyMapConfig(
         thetas=2, tracks=("default",), modes=("solo",), steps=5, space="extended"
     )
-    low, high = pm.theta_box("extended")
+    low, high = pm_thetas.theta_box("extended")
     assert low.shape == (6,) and (low[5], high[5]) == (0.0, 1.0)
-    th = pm.sample_thetas(2, 0, low, high)
-    spec = pm.theta_spec(th[0])
+    th = pm_thetas.sample_thetas(2, 0, low, high)
+    spec = pm_thetas.theta_spec(th[0])
     assert spec.startswith("mpc:space=extended,") and f"b={float(th[0][5])!r}" in spec
     assert make_agent_spec(spec).theta.b == th[0][5]
     row = pm.map_row(cfg, "solo", "default", 0, th[0])

@@ -10,7 +10,7 @@ A learned potential that chooses theta online is only worth something against th
    ``opponents`` from the start regions (``race``, theta k from R(k mod 3 + 1)), ``steps``
    control periods each.
 2. **Candidates** (:func:`choose_candidates`): among the thetas on track in both modes (at
-   most :data:`experiments.evaluation.policy_map.OFF_TRACK_LIMIT` of the steps off track, no error),
+   most :data:`experiments.evaluation.policy_map_summary.OFF_TRACK_LIMIT` of the steps off track, no error),
    the top ``candidates`` by their rank among the thetas that started their race from the
    same region (by race progress), then by *region-adjusted race progress* (race progress
    minus the median of that region), then by the lower Sobol index: the best of R1, of R2
@@ -62,15 +62,10 @@ import numpy as np
 
 from experiments.evaluation.bench import BenchRun, run_many
 from experiments.evaluation.bench_config import REGIONS, BenchConfig, check_agent_specs
-from experiments.evaluation.policy_map import (
-    MODES,
-    OFF_TRACK_LIMIT,
-    PolicyMapConfig,
-    PolicyMapRun,
-    run_maps,
-    theta_spec,
-)
+from experiments.evaluation.policy_map import MODES, PolicyMapConfig, PolicyMapRun, run_maps
+from experiments.evaluation.policy_map_summary import OFF_TRACK_LIMIT
 from experiments.evaluation.refine import compass_search, score_key
+from experiments.evaluation.thetas import theta_spec
 from experiments.infra.artifacts import (
     append_jsonl,
     claim,
@@ -216,7 +211,7 @@ def _on_track(row: dict) -> bool:
 
 def eligible_indices(rows) -> list[int]:
     """Sorted indices of the thetas whose solo and race rows are both on track (no
-    ``error``, at most :data:`~experiments.evaluation.policy_map.OFF_TRACK_LIMIT` of the steps off
+    ``error``, at most :data:`~experiments.evaluation.policy_map_summary.OFF_TRACK_LIMIT` of the steps off
     track)."""
     rows = list(rows)
     solo = {r["index"]: r for r in rows if r["mode"] == "solo"}
@@ -229,7 +224,7 @@ def choose_candidates(rows, k: int) -> list[dict]:
     :func:`experiments.evaluation.policy_map.map_row` writes them).
 
     A theta is eligible when its solo and race rows are both on track (no ``error``, at most
-    :data:`~experiments.evaluation.policy_map.OFF_TRACK_LIMIT` of the steps off track). The top ``k``
+    :data:`~experiments.evaluation.policy_map_summary.OFF_TRACK_LIMIT` of the steps off track). The top ``k``
     eligible thetas by their rank (1 = most race progress) among the eligible thetas from the
     same start region, then by region-adjusted race progress [m] (race progress minus the
     median race progress of all finished race rows from that region), then by the lower

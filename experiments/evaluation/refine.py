@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from experiments.evaluation.policy_map import OFF_TRACK_LIMIT
+from experiments.evaluation.policy_map_summary import OFF_TRACK_LIMIT
 
 
 def compass_moves(theta, step: float, low, high, names) -> list[tuple[str, np.ndarray]]:
@@ -55,7 +55,7 @@ def score_key(score: dict) -> tuple:
 
 def eligible(score: dict, steps: int) -> bool:
     """A raced theta may win when its races stayed on track: at most
-    :data:`~experiments.evaluation.policy_map.OFF_TRACK_LIMIT` of its ``steps`` steps per race off track,
+    :data:`~experiments.evaluation.policy_map_summary.OFF_TRACK_LIMIT` of its ``steps`` steps per race off track,
     on average, and a finite margin."""
     return (
         np.isfinite(score["margin_m_mean"])
