@@ -70,9 +70,9 @@ def theta_space(
                 f"{sp.names}, got thetas of shape {np.shape(thetas)}"
             )
         return sp
-    sp = space_of_dim(dim)
-    if sp is not None:
-        return sp
+    found = space_of_dim(dim)
+    if found is not None:
+        return found
     raise ValueError(
         f"thetas must have {' or '.join(str(sp.dim) for sp in SPACES.values())} "
         f"parameters in the last dimension ("
@@ -100,8 +100,8 @@ def unscale_theta(
 
 def curvature_preview(track: Track, s: float | np.ndarray) -> np.ndarray:
     """Track curvature [1/m] at ``s + PREVIEW``: shape ``s.shape + (len(PREVIEW),)``."""
-    s = np.asarray(s, dtype=float)[..., None] + PREVIEW
-    return track.interp(track.kappa, s)
+    ahead = np.asarray(s, dtype=float)[..., None] + PREVIEW
+    return track.interp(track.kappa, ahead)
 
 
 def check_joint(
@@ -204,7 +204,7 @@ def value_features(
     states: np.ndarray,
     thetas: np.ndarray,
     track: Track,
-    ego: int,
+    ego: int | np.ndarray,
     space: str | PolicySpace | None = None,
 ) -> np.ndarray:
     """Features of car ``ego`` (int or int array broadcast over the batch): (..., value_dim)."""

@@ -225,7 +225,7 @@ def value_features(
     states: np.ndarray,
     thetas: np.ndarray,
     track: Track | TrackSet,
-    ego: int,
+    ego: int | np.ndarray,
     track_id: int | np.ndarray | None = None,
     space: str | PolicySpace | None = None,
 ) -> np.ndarray:
