@@ -32,12 +32,15 @@ def agent_label(agent: object, spec: str | None = None) -> str:
     return repr(getattr(agent, "name", None) or type(agent).__name__)
 
 
-def act_named(agent: Any, observation: np.ndarray, car: str, spec: str | None = None) -> np.ndarray:
-    """``agent.act(observation)``; a ``ValueError``, ``TypeError`` or ``IndexError`` raised in it
-    (a shape mismatch: "operands could not be broadcast together ...") is raised again, of the
-    same type, with the agent, its car and the observation size named."""
+def act_named(
+    agent: Any, observation: np.ndarray, car: str, spec: str | None = None, batch: bool = False
+) -> np.ndarray:
+    """``agent.act(observation)`` (with ``batch``, ``agent.act_batch(observations)``); a
+    ``ValueError``, ``TypeError`` or ``IndexError`` raised in it (a shape mismatch: "operands
+    could not be broadcast together ...") is raised again, of the same type, with the agent, its
+    car and the observation size named."""
     try:
-        return agent.act(observation)
+        return agent.act_batch(observation) if batch else agent.act(observation)
     except (ValueError, TypeError, IndexError) as exc:
         msg = str(exc)
         if car in msg:
@@ -50,5 +53,7 @@ def act_named(agent: Any, observation: np.ndarray, car: str, spec: str | None = 
             )
         except Exception:
             raise exc from None
-        named.agent_error = exc  # the agent's own error, for callers that name it themselves
+        # the agent's own error, for callers that name it themselves (an attribute of the
+        # instance only: the exception classes do not declare it)
+        named.agent_error = exc  # type: ignore[union-attr]
         raise named from exc

@@ -124,7 +124,7 @@ class BatchedRaces:
         self._alloc()
 
     # ------------------------------------------------------------------ set-up
-    def _alloc(self):
+    def _alloc(self) -> None:
         b, n = self.n_races, self.config.n_cars
         self.state = np.zeros((b, n, 6))
         self.start = np.zeros((b, n, 6))
