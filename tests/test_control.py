@@ -14,6 +14,7 @@ from agents import best_theta, make_agent_spec  # noqa: E402
 from agents.best_theta import TABLE_ENV_VAR  # noqa: E402
 from experiments.cli import main  # noqa: E402
 from experiments.evaluation import control as ct  # noqa: E402
+from experiments.evaluation import control_rule as ct_rule  # noqa: E402
 
 NAMES = ("q", "zeta", "s1", "s2", "s3")
 
@@ -72,7 +73,7 @@ def test_candidates_are_ranked_within_their_start_region_then_by_adjusted_progre
         5: ("R3", 91.0),
     }
     solo = {k: 150.0 for k in race}
-    cands = ct.choose_candidates(_rows(race, solo), k=2)
+    cands = ct_rule.choose_candidates(_rows(race, solo), k=2)
     assert [c["index"] for c in cands] == [3, 0]  # +8.0 (99 - 91), +6.0 (110 - 104)
     assert cands[0]["race_adjusted_m"] == pytest.approx(8.0)
     assert [c["region_rank"] for c in cands] == [1, 1]
@@ -89,7 +90,7 @@ def test_candidates_are_ranked_within_their_start_region_then_by_adjusted_progre
         4: ("R3", 95.0),
         5: ("R3", 94.0),
     }
-    cands = ct.choose_candidates(_rows(race, {k: 150.0 for k in race}), k=3)
+    cands = ct_rule.choose_candidates(_rows(race, {k: 150.0 for k in race}), k=3)
     assert [(c["index"], c["region_rank"]) for c in cands] == [(0, 1), (3, 1), (1, 2)]
 
 
@@ -105,18 +106,18 @@ def test_best_solo_theta_joins_and_off_track_or_failed_thetas_never_do():
     solo = {0: 150.0, 1: 140.0, 2: 160.0, 3: 190.0, 4: 145.0, 5: 170.0}
     # theta 0 leaves the track in the race, 3 alone (although best alone), 5 failed its race
     rows = _rows(race, solo, off={0}, solo_off={3}, errors={5})
-    assert ct.eligible_indices(rows) == [1, 2, 4]
-    cands = ct.choose_candidates(rows, k=1)
+    assert ct_rule.eligible_indices(rows) == [1, 2, 4]
+    cands = ct_rule.choose_candidates(rows, k=1)
     assert [(c["index"], c["reasons"]) for c in cands] == [(2, ["race", "solo"])]
-    cands = ct.choose_candidates(_rows(race, solo, off={0}, errors={5}), k=1)
+    cands = ct_rule.choose_candidates(_rows(race, solo, off={0}, errors={5}), k=1)
     assert [(c["index"], c["reasons"]) for c in cands] == [(2, ["race"]), (3, ["solo"])]
     with pytest.raises(ValueError, match="no theta of the map on \\['default'\\] stays on track"):
-        ct.choose_candidates(_rows(race, solo, off=set(race)), k=2)
+        ct_rule.choose_candidates(_rows(race, solo, off=set(race)), k=2)
 
 
 def test_candidate_ties_go_to_the_lower_index():
     race = {4: ("R1", 100.0), 1: ("R1", 100.0), 7: ("R1", 100.0)}
-    cands = ct.choose_candidates(_rows(race, {k: 120.0 for k in race}), k=2)
+    cands = ct_rule.choose_candidates(_rows(race, {k: 120.0 for k in race}), k=2)
     assert [c["index"] for c in cands] == [1, 4]
 
 
@@ -127,15 +128,15 @@ def test_playoff_ranks_wins_then_margin_then_index():
         {"index": 5, "wins": 10, "margin_m_mean": 0.5},
         {"index": 2, "wins": 10, "margin_m_mean": 0.5},
     ]
-    ranked = ct.rank_playoff(scores)
+    ranked = ct_rule.rank_playoff(scores)
     assert [(s["index"], s["rank"]) for s in ranked] == [(3, 1), (2, 2), (5, 3), (9, 4)]
-    assert ct.rank_playoff(list(reversed(scores))) == ranked
+    assert ct_rule.rank_playoff(list(reversed(scores))) == ranked
     with pytest.raises(ValueError, match="non-finite playoff margin of candidate\\(s\\) \\[5\\]"):
-        ct.rank_playoff([{"index": 5, "wins": 1, "margin_m_mean": float("nan")}])
+        ct_rule.rank_playoff([{"index": 5, "wins": 1, "margin_m_mean": float("nan")}])
     with pytest.raises(ValueError, match="repeated candidate index"):
-        ct.rank_playoff([scores[0], scores[0]])
+        ct_rule.rank_playoff([scores[0], scores[0]])
     with pytest.raises(ValueError, match="no playoff scores"):
-        ct.rank_playoff([])
+        ct_rule.rank_playoff([])
 
 
 def test_config_rejects_bad_values():

@@ -15,6 +15,7 @@ from agents.best_theta import TABLE_ENV_VAR  # noqa: E402
 from agents.theta import EXTENDED_HIGH, EXTENDED_LOW, EXTENDED_NAMES, THETA_NAMES  # noqa: E402
 from experiments.cli import main  # noqa: E402
 from experiments.evaluation import control as ct  # noqa: E402
+from experiments.evaluation import control_rule as ct_rule  # noqa: E402
 from experiments.infra.parallel import Pool  # noqa: E402
 
 PAPER_THETA = {"q": 20.0, "zeta": 0.95, "s1": 0.1, "s2": 4.0, "s3": 1.0}
@@ -121,7 +122,7 @@ def test_install_adds_an_extended_winner_beside_the_paper_entries(table, tmp_pat
         "fingerprint": _entry("default", PAPER_THETA)["fingerprint"],
         "env": best_theta.env_name(),
         "package_version": "test",
-        "rule": ct.RULE,
+        "rule": ct_rule.RULE,
         "config": {**ct.stored_config(ct.ControlConfig(space="extended"))},
         "candidates": [{}],
         "winner": {

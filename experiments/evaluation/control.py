@@ -62,18 +62,23 @@ import numpy as np
 
 from experiments.evaluation.bench import BenchRun, run_many
 from experiments.evaluation.bench_config import REGIONS, BenchConfig, check_agent_specs
+from experiments.evaluation.control_rule import (
+    RULE,
+    choose_candidates,
+    eligible_indices,
+    playoff_score,
+    rank_playoff,
+)
+from experiments.evaluation.control_summary import track_dir, write_summary
 from experiments.evaluation.policy_map import MODES, PolicyMapConfig, PolicyMapRun, run_maps
-from experiments.evaluation.policy_map_summary import OFF_TRACK_LIMIT
-from experiments.evaluation.refine import compass_search, score_key
+from experiments.evaluation.refine import compass_search
 from experiments.evaluation.thetas import theta_spec
 from experiments.infra.artifacts import (
     append_jsonl,
     claim,
     manifest_config,
     read_jsonl,
-    slug,
     write_json,
-    write_text,
 )
 from experiments.infra.parallel import Pool
 
@@ -102,24 +107,6 @@ def default_out(space: str = "paper") -> str:
 
     name = policy_space(space).name
     return "results/control" if name == "paper" else f"results/control_{name}"
-
-
-RULE = (
-    "map: Sobol thetas of the box, solo and as car_0 against two opponents (race); "
-    f"candidates: thetas with at most {100 * OFF_TRACK_LIMIT:g}% of the steps off track in both modes, the top "
-    "K by rank of race progress among the thetas from the same start region, then by race "
-    "progress minus that region's median, then by the lower Sobol index, plus the best "
-    "solo theta by progress; playoff: each candidate as ego in the "
-    "same seeded races from every start region against two opponents, ranked by wins, then "
-    "mean margin over the best opponent, then the lower Sobol index; refine (R rounds, the "
-    "config's refine): from the playoff's first, each parameter moved down and up by step "
-    "times its range (step 1, clipped to the box, then halved after a round without a better "
-    "theta), plus the pattern move of every parameter whose best move beat the incumbent, "
-    "each raced in the playoff's races; a theta with at most "
-    f"{100 * OFF_TRACK_LIMIT:g}% of its steps off track that ranks above the incumbent by the "
-    "playoff's order replaces it; the winner is the last incumbent"
-)
-"""The selection rule in one sentence (stored in every ``selection.json``)."""
 
 
 @dataclass(frozen=True)
@@ -205,126 +192,9 @@ class ControlConfig:
 
 
 # ---------------------------------------------------------------------------- the rule
-def _on_track(row: dict) -> bool:
-    return "error" not in row and row["off_track_frac"] <= OFF_TRACK_LIMIT
-
-
-def eligible_indices(rows) -> list[int]:
-    """Sorted indices of the thetas whose solo and race rows are both on track (no
-    ``error``, at most :data:`~experiments.evaluation.policy_map_summary.OFF_TRACK_LIMIT` of the steps off
-    track)."""
-    rows = list(rows)
-    solo = {r["index"]: r for r in rows if r["mode"] == "solo"}
-    race = {r["index"]: r for r in rows if r["mode"] == "race"}
-    return sorted(i for i in set(solo) & set(race) if _on_track(solo[i]) and _on_track(race[i]))
-
-
-def choose_candidates(rows, k: int) -> list[dict]:
-    """The playoff's candidates from the map rows of one track (both modes; rows as
-    :func:`experiments.evaluation.policy_map.map_row` writes them).
-
-    A theta is eligible when its solo and race rows are both on track (no ``error``, at most
-    :data:`~experiments.evaluation.policy_map_summary.OFF_TRACK_LIMIT` of the steps off track). The top ``k``
-    eligible thetas by their rank (1 = most race progress) among the eligible thetas from the
-    same start region, then by region-adjusted race progress [m] (race progress minus the
-    median race progress of all finished race rows from that region), then by the lower
-    index; then the best eligible solo theta by progress if it is not among them. Returns
-    dicts ``index, theta, reasons, solo_progress_m, race_progress_m, race_adjusted_m,
-    region_rank, start_region, race_margin_m``; ``ValueError`` when no theta is eligible."""
-    if not (isinstance(k, int) and k >= 1):
-        raise ValueError(f"candidates must be a positive integer, got {k!r}")
-    rows = list(rows)
-    solo = {r["index"]: r for r in rows if r["mode"] == "solo"}
-    race = {r["index"]: r for r in rows if r["mode"] == "race"}
-    finished = [r for r in race.values() if "error" not in r]
-    median = {
-        reg: float(np.median([r["progress_m"] for r in finished if r["start_region"] == reg]))
-        for reg in {r["start_region"] for r in finished}
-    }
-    eligible = eligible_indices(rows)
-    if not eligible:
-        tracks = sorted({r["track"] for r in rows})
-        raise ValueError(
-            f"no theta of the map on {tracks} stays on track in both modes "
-            f"({len(solo)} solo and {len(race)} race rows); map more thetas"
-        )
-
-    adjusted = {i: race[i]["progress_m"] - median[race[i]["start_region"]] for i in eligible}
-    rank = {}
-    for reg in {race[i]["start_region"] for i in eligible}:
-        mine = sorted(
-            (i for i in eligible if race[i]["start_region"] == reg), key=lambda i: (-adjusted[i], i)
-        )
-        rank.update({i: r for r, i in enumerate(mine, 1)})
-
-    def record(i, reason):
-        s, r = solo[i], race[i]
-        return {
-            "index": i,
-            "theta": r["theta"],
-            "reasons": [reason],
-            "solo_progress_m": s["progress_m"],
-            "race_progress_m": r["progress_m"],
-            "race_adjusted_m": round(adjusted[i], 4),
-            "region_rank": rank[i],
-            "start_region": r["start_region"],
-            "race_margin_m": r["margin_m"],
-        }
-
-    by_race = sorted(eligible, key=lambda i: (rank[i], -adjusted[i], i))
-    out = [record(i, "race") for i in by_race[:k]]
-    best_solo = min(eligible, key=lambda i: (-solo[i]["progress_m"], i))
-    chosen = {c["index"]: c for c in out}
-    if best_solo in chosen:
-        chosen[best_solo]["reasons"].append("solo")
-    else:
-        out.append(record(best_solo, "solo"))
-    return out
-
-
-def rank_playoff(scores) -> list[dict]:
-    """Playoff scores (dicts with ``index``, ``wins``, ``margin_m_mean`` [m]) ranked by wins,
-    then mean margin, then the lower index; returns copies with ``rank`` (1 = the winner).
-    ``ValueError`` for no scores, a repeated index or a non-finite margin."""
-    scores = list(scores)
-    if not scores:
-        raise ValueError("no playoff scores to rank")
-    idx = [s["index"] for s in scores]
-    if len(set(idx)) != len(idx):
-        raise ValueError(f"repeated candidate index in the playoff scores: {idx}")
-    bad = [s["index"] for s in scores if not np.isfinite(s["margin_m_mean"])]
-    if bad:
-        raise ValueError(f"non-finite playoff margin of candidate(s) {bad}")
-    ranked = sorted(scores, key=score_key)
-    return [{**s, "rank": r} for r, s in enumerate(ranked, 1)]
-
-
-def _playoff_score(summary: dict) -> dict:
-    """A candidate's playoff score from its benchmark summary."""
-    return {
-        "wins": summary["wins"]["ego"]["wins"],
-        "races": summary["races"],
-        "wins_by_region": {
-            reg: summary["by_region"][reg]["ego"]["wins"]
-            for reg in REGIONS
-            if reg in summary["by_region"]
-        },
-        "margin_m_mean": summary["margin_m"]["mean"],
-        "margin_m_by_region": {
-            reg: summary["by_region"][reg]["margin_m_mean"]
-            for reg in REGIONS
-            if reg in summary["by_region"]
-        },
-        "progress_m_mean": summary["progress_m"]["ego"],
-        "off_track_steps_mean": summary["off_tracks"]["ego"],
-        "contacts_mean": summary["contacts"]["ego"],
-    }
 
 
 # ---------------------------------------------------------------------------- storage
-def track_dir(out_dir, track: str) -> Path:
-    """The folder of ``track``'s selection inside a control folder."""
-    return Path(out_dir) / slug(track)
 
 
 def _theta_array(theta: dict, space: str = "paper") -> np.ndarray:
@@ -360,7 +230,7 @@ def _ranked_playoff(cfg: ControlConfig, track: str, cands, runs) -> list[dict]:
     scores = []
     for c in cands:
         s = runs[_run_key(track, c["index"])].write_summary()
-        scores.append({**c, **_playoff_score(s)})
+        scores.append({**c, **playoff_score(s)})
     return rank_playoff(scores)
 
 
@@ -530,7 +400,7 @@ def _refine(cfg: ControlConfig, out: Path, ranked: dict, pool: Pool) -> dict:
                 "index": i,
                 "theta": {n: float(v) for n, v in zip(space.names, theta)},
                 "reasons": [reason],
-                **_playoff_score(run.write_summary()),
+                **playoff_score(run.write_summary()),
             }
         for t, (props, _) in list(pending.items()):
             advance(t, [(label, raced[t][key(theta)]) for label, theta in props])
@@ -611,119 +481,6 @@ def select_best_thetas(
         "new_races": todo,
         "wall_seconds_this_run": wall,
     }
-
-
-def write_summary(out_dir) -> dict:
-    """``summary.json`` and ``summary.md`` over every track of the control folder that has a
-    ``selection.json``; returns the former's content."""
-    out = Path(out_dir)
-    sels = [json.loads(p.read_text()) for p in sorted(out.glob("*/selection.json"))]
-    manifest = json.loads((out / "manifest.json").read_text())
-    summary = {
-        "config": manifest["config"],
-        "env": manifest["env"],
-        "rule": RULE,
-        "runs": read_jsonl(out / "runs.jsonl"),
-        "tracks": {
-            s["track"]: {
-                "theta": s["winner"]["theta"],
-                "index": s["winner"]["index"],
-                "wins": s["winner"]["wins"],
-                "races": s["winner"]["races"],
-                "margin_m_mean": s["winner"]["margin_m_mean"],
-                "candidates": len(s["candidates"]),
-                "eligible_thetas": s["map"]["eligible_thetas"],
-                "worker_seconds": s["worker_seconds"],
-                "selection": str(track_dir(out, s["track"]) / "selection.json"),
-            }
-            for s in sels
-        },
-    }
-    write_json(out / "summary.json", summary)
-    write_text(out / "summary.md", summary_markdown(summary, sels))
-    return summary
-
-
-def summary_markdown(summary: dict, selections) -> str:
-    from agents.theta import policy_space
-
-    c = summary["config"]
-    space = c.get("space", "paper")
-    names = policy_space(space).names
-    head = "" if space == "paper" else f" of the {space} policy space"
-    lines = [
-        f"# The best fixed theta{head} per track (the control)",
-        "",
-        f"Env `{summary['env']}`. Rule: {summary['rule']}. Map: {c['thetas']} thetas "
-        f"(seed {c['seed']}), {c['steps']} steps per run; K = {c['candidates']}; playoff: "
-        f"{c['races']} races per candidate against two `{c['opponents']}`.",
-        "",
-        f"| track | winner ({', '.join(names)}) | wins | margin m | candidates | eligible "
-        "thetas | worker min |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for t, r in summary["tracks"].items():
-        th = ", ".join(f"{r['theta'][n]:.3g}" for n in names)
-        lines.append(
-            f"| `{t}` | {th} | {r['wins']}/{r['races']} | {r['margin_m_mean']:+.2f} "
-            f"| {r['candidates']} | {r['eligible_thetas']} "
-            f"| {r['worker_seconds'] / 60:.1f} |"
-        )
-    for s in selections:
-        lines += [
-            "",
-            f"## Playoff on `{s['track']}`",
-            "",
-            "| rank | index | " + " | ".join(names) + " | why | map: race adj. m "
-            "| wins (R1/R2/R3) | margin m | progress m |",
-            "|" + "---|" * (len(names) + 7),
-        ]
-        for cand in s["candidates"]:
-            reg = "/".join(str(cand["wins_by_region"].get(r, "-")) for r in REGIONS)
-            lines.append(
-                f"| {cand['rank']} | {cand['index']} | "
-                + " | ".join(f"{cand['theta'][n]:.3g}" for n in names)
-                + f" | {'+'.join(cand['reasons'])} | {cand['race_adjusted_m']:+.2f} "
-                f"| {cand['wins']} ({reg}) | {cand['margin_m_mean']:+.2f} "
-                f"| {cand['progress_m_mean']:.2f} |"
-            )
-        rounds = s.get("refine", [])
-        if rounds:
-            lines += [
-                "",
-                f"Compass search from the playoff's first on `{s['track']}` (wins of "
-                f"{s['winner']['races']}, mean margin m; * off track on more than "
-                f"{100 * OFF_TRACK_LIMIT:g}% of the steps, not eligible):",
-                "",
-                "| round | step | from | moves: index move wins/margin | to |",
-                "|---|---|---|---|---|",
-            ]
-            for r in rounds:
-                moves = ", ".join(
-                    f"{m['index']} {m['move']} {m['wins']}/{m['margin_m_mean']:+.2f}"
-                    + ("" if m["eligible"] else "*")
-                    for m in r["moves"]
-                )
-                lines.append(
-                    f"| {r['round']} | {r['step']:g} | {r['from']} | {moves} | {r['to']} |"
-                )
-            w = s["winner"]
-            lines += [
-                "",
-                f"Winner: index {w['index']} ("
-                + ", ".join(f"{n} {w['theta'][n]:.3g}" for n in names)
-                + f"), {w['wins']} wins (R1/R2/R3 "
-                + "/".join(str(w["wins_by_region"].get(r, "-")) for r in REGIONS)
-                + f"), mean margin {w['margin_m_mean']:+.2f} m.",
-            ]
-    runs = summary["runs"]
-    if runs:
-        lines += [
-            "",
-            f"Wall time: {sum(r['wall_seconds'] for r in runs) / 60:.1f} min over "
-            f"{len(runs)} invocation(s) (`runs.jsonl`).",
-        ]
-    return "\n".join(lines) + "\n"
 
 
 def ensure_best_thetas(

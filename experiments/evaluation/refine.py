@@ -47,7 +47,7 @@ def compass_moves(theta, step: float, low, high, names) -> list[tuple[str, np.nd
 
 
 def score_key(score: dict) -> tuple:
-    """The playoff's order, used by :func:`experiments.evaluation.control.rank_playoff` and the search:
+    """The playoff's order, used by :func:`experiments.evaluation.control_rule.rank_playoff` and the search:
     more wins, then the larger mean margin [m], then the lower index. Smaller keys rank
     higher."""
     return (-score["wins"], -score["margin_m_mean"], score["index"])
