@@ -167,7 +167,11 @@ def _steps(K: int, dt: float):
 
 
 def _interp1(table: np.ndarray, s_w: float, inv_ds: float) -> float:
-    """Linear interpolation of an extended grid table at one wrapped s in [0, L)."""
+    """Linear interpolation of an extended grid table at one wrapped s in [0, L).
+
+    Not :func:`racing_env.interp.periodic_lookup`: these tables hold M + 1 entries whose last
+    is the lap's end, not a repeat of the first (the race-line time ``tt`` ends at the lap time
+    T), and the look-up runs in plain Python in the reference's per-opponent loop."""
     f = s_w * inv_ds
     i = int(f)
     if i >= len(table) - 1:

@@ -16,7 +16,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import seeding
 
-from .agent_protocol import is_agent
+from .agent_protocol import act_named, is_agent
 from .config import RaceConfig
 from .core import BatchedRaces
 from .gym_env import default_opponents, make_opponent
@@ -109,6 +109,19 @@ class HeadToHeadBatch:
                 opp.reset(self.track, agent_id, race_seed + k + 1)
             else:
                 opp[b].reset(self.track, agent_id, race_seed + k + 1)
+
+    def _opponent_actions(self, obs: np.ndarray, races) -> None:
+        """Every opponent's actions of this step, from the observations ``obs`` (B, N, D), into
+        ``_actions[:, 1:]``: a batched opponent's for all races at once (``act_batch``), every
+        other's race by race for the races ``races``. An error raised in an agent is raised
+        again naming it and its car (:func:`racing_env.agent_protocol.act_named`)."""
+        for k, opp in enumerate(self.opponents):
+            car = self.agent_ids[k + 1]
+            if self._batched[k]:
+                self._actions[:, k + 1] = act_named(opp, obs[:, k + 1], car, batch=True)
+            else:
+                for b in races:
+                    self._actions[b, k + 1] = act_named(opp[b], obs[b, k + 1], car)
 
     def _learner_step(self, rew: np.ndarray, term: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The learner's reward (B,) and termination (B,) of this step, with the off-track

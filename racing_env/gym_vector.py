@@ -106,12 +106,7 @@ class HeadToHeadVectorEnv(VectorEnv):
             )
         acts, obs, done = self._batch._actions, self._all_obs, self._autoreset
         acts[:, 0] = np.where(done[:, None], 0.0, a)  # envs being reset ignore their action
-        for k, opp in enumerate(self.opponents):
-            if self._batch._batched[k]:
-                acts[:, k + 1] = opp.act_batch(obs[:, k + 1])
-            else:
-                for b in np.flatnonzero(~done):
-                    acts[b, k + 1] = opp[b].act(obs[b, k + 1])
+        self._batch._opponent_actions(obs, np.flatnonzero(~done))
         _, rew, term, trunc = self.core.step(acts)
         rew, term = self._batch._learner_step(rew, term)
         trunc = (trunc & ~term) | (self.core.t >= self._time_limit)

@@ -151,11 +151,9 @@ def _step_one_race(b, state, phys, tables, p, dt, rules, reward, contact, offtra
             _lockstep_with_contact(
                 b, state, phys, x0, tables, p, dt, rules, k_max, applied, contact, substeps, ahead
             )
-            _clamp_to_walls(b, state, tables)
-            # a wall may have moved a car sideways into another: keep them apart
-            _separate(b, state, x0, ahead, length, c_ds, c_dn, False)
-    if not possible:
-        _clamp_to_walls(b, state, tables)
+    _clamp_to_walls(b, state, tables)
+    if possible:  # a wall may have moved a car sideways into another: keep them apart
+        _separate(b, state, x0, ahead, length, c_ds, c_dn, False)
     for i in range(n_cars):
         x = state[b, i]
         if x[1] > _lookup(w_left, x[0], ds, length) or x[1] < -_lookup(w_right, x[0], ds, length):

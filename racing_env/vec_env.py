@@ -75,13 +75,7 @@ class HeadToHeadVecEnv(HeadToHeadBatch, VecEnv):
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict]]:
         if self._obs is None:
             raise RuntimeError("step() before reset()")
-        obs = self._obs
-        for k, opp in enumerate(self.opponents):
-            if self._batched[k]:
-                self._actions[:, k + 1] = opp.act_batch(obs[:, k + 1])
-            else:
-                for b in range(self.num_envs):
-                    self._actions[b, k + 1] = opp[b].act(obs[b, k + 1])
+        self._opponent_actions(self._obs, range(self.num_envs))
         obs, rew, term, trunc = self.core.step(self._actions)
         rew, term = self._learner_step(rew, term)
         trunc = trunc & ~term

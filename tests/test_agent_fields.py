@@ -150,6 +150,30 @@ def test_gym_env_opponent_errors_name_the_opponent_and_car():
         env.step(np.zeros(2, np.float32))
 
 
+class BatchUndeclared(Undeclared):
+    def act_batch(self, observations):
+        return np.stack([self.act(o) for o in observations])
+
+
+@pytest.mark.parametrize("opponent", [Undeclared, BatchUndeclared])
+def test_vector_env_opponent_errors_name_the_opponent_and_car(opponent):
+    """Both vector envs take the opponents' actions through one loop that names the agent, per
+    race (act) and batched (act_batch) alike."""
+    from racing_env.gym_vector import HeadToHeadVectorEnv
+
+    env = HeadToHeadVectorEnv(2, opponents=[opponent()])
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"agent 'fixed3' driving car_1 \(observation of 22"):
+        env.step(np.zeros((2, 2), np.float32))
+    pytest.importorskip("stable_baselines3")
+    from racing_env.vec_env import HeadToHeadVecEnv
+
+    venv = HeadToHeadVecEnv(2, opponents=[opponent()])
+    venv.reset()
+    with pytest.raises(ValueError, match=r"agent 'fixed3' driving car_1 \(observation of 22"):
+        venv.step(np.zeros((2, 2), np.float32))
+
+
 def test_adapt_observation_is_public_with_the_old_names():
     from agents import adapt_observation
     from agents.observations import _adapt_observation
