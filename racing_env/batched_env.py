@@ -20,7 +20,7 @@ from .agent_protocol import act_named, is_agent
 from .config import RaceConfig
 from .core import BatchedRaces
 from .gym_env import default_opponents, make_opponent
-from .parallel_env import _start_config, check_reward_options
+from .parallel_env import _check_learner_reset_options, _start_config, check_reward_options
 from .track import Track
 
 
@@ -92,10 +92,7 @@ class HeadToHeadBatch:
     def _reset_race(self, b: int, seed: int | None, options: dict | None) -> None:
         """Reset race ``b`` as ``HeadToHeadEnv.reset(seed=seed, options=options)`` resets its
         race (the options are checked before anything changes)."""
-        options = options or {}
-        unknown = set(options) - {"start", "order"}
-        if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; known: start, order")
+        options = _check_learner_reset_options(options, self.core.n_cars)
         start = _start_config(options["start"], self.config.start) if "start" in options else None
         rng = self._rngs[b]
         if seed is not None or rng is None:

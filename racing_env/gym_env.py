@@ -11,7 +11,12 @@ import numpy as np
 
 from .agent_protocol import act_named, is_agent
 from .config import RaceConfig, StartConfig
-from .parallel_env import RacingParallelEnv, _check_reset_options, check_reward_options
+from .parallel_env import (
+    RacingParallelEnv,
+    _check_learner_reset_options,
+    _check_reset_options,
+    check_reward_options,
+)
 from .track import Track
 
 OpponentSpec = Any
@@ -177,20 +182,11 @@ class HeadToHeadEnv(gym.Env):
             fixed by the opponents). Options are checked first: after the error the env, its
             random stream included, is as it was.
         """
-        options = dict(options or {})
-        if "n_cars" in options and options["n_cars"] != self.race.core.n_cars:
-            raise ValueError(
-                f"reset option n_cars = {options['n_cars']!r}: the Gymnasium env races "
-                f"{self.race.core.n_cars} cars (the learner and {len(self.opponents)} "
-                f"opponents); make a new env to race another number"
-            )
-        unknown = set(options) - {"n_cars", "start", "order"}
-        if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; known: start, order")
-        _check_reset_options(options, self.race.core)
+        options = _check_learner_reset_options(options, self.race.core.n_cars)
+        checked = _check_reset_options(options, self.race.core)  # before np_random moves
         super().reset(seed=seed)
         race_seed = int(self.np_random.integers(2**31))
-        obs, infos = self.race.reset(seed=race_seed, options=options)
+        obs, infos = self.race._reset_checked(race_seed, *checked)
         for k, opp in enumerate(self.opponents):
             opp.reset(self.race.track, self.race.possible_agents[k + 1], race_seed + k + 1)
         self._last_obs = obs

@@ -291,7 +291,13 @@ class RacingParallelEnv(ParallelEnv):
             not a permutation, cars that do not fit on the track). Every option is checked
             before any state changes, so after the error the env is as it was.
         """
-        n_cars, start, order = _check_reset_options(options, self.core)
+        return self._reset_checked(seed, *_check_reset_options(options, self.core))
+
+    def _reset_checked(
+        self, seed: int | None, n_cars: int, start: StartConfig | None, order
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
+        """:meth:`reset` with options already checked by :func:`_check_reset_options`
+        (which placed the cars once on a throwaway generator): the race is started here."""
         if n_cars != self.core.n_cars:
             self.core.set_n_cars(n_cars)
             self._set_agents()
@@ -502,6 +508,23 @@ def _check_reset_options(options: dict | None, core: BatchedRaces, known=RESET_O
         order,
     )
     return cfg.n_cars, start, options.get("order")
+
+
+def _check_learner_reset_options(options: dict | None, n_cars: int) -> dict:
+    """The reset ``options`` of the one-learner envs (``start`` and ``order``; ``n_cars`` only
+    as the race's own ``n_cars``: the opponents fix it), as a dict; any other key or another
+    car count raises ``ValueError`` (the values are checked by :func:`_check_reset_options`, or
+    by the race's own reset)."""
+    options = dict(options or {})
+    if "n_cars" in options and options["n_cars"] != n_cars:
+        raise ValueError(
+            f"reset option n_cars = {options['n_cars']!r}: the env races {n_cars} cars (the "
+            f"learner and {n_cars - 1} opponents); make a new env to race another number"
+        )
+    unknown = set(options) - set(RESET_OPTIONS)
+    if unknown:
+        raise ValueError(f"unknown reset options {sorted(unknown)}; known: start, order")
+    return options
 
 
 def _start_config(start, base: StartConfig) -> StartConfig:
