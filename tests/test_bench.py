@@ -186,7 +186,7 @@ def test_bench_writes_consistent_outputs_and_resumes_after_a_kill(tmp_path):
 def test_opening_a_stored_benchmark_to_read_writes_nothing(tmp_path):
     """The analyses read other folders' races (the overtake animation): a folder made
     before manifests recorded provenance must not gain this commit's."""
-    from experiments.analysis.nash import find_overtake
+    from experiments.analysis.nash_figures import find_overtake
 
     bench(TINY, tmp_path, pool=Pool(workers=1, progress_bar=False))
     manifest = tmp_path / "manifest.json"

@@ -39,7 +39,7 @@ those of K races).
 """
 
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 #: Shipped models with measured races: name -> (the folder of strategy benchmarks under the
 #: repository, one suite with its ``strategy.json`` per sub-folder; the headline bench, the
 #: maneuver the model's policy space was built for).

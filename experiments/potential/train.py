@@ -50,7 +50,7 @@ from agents.features import (
     value_features,
 )
 from agents.potential import PotentialModel
-from experiments.potential import nets
+from experiments.potential import nets, validation
 from experiments.potential.card_lines import added_options_text, pace_text, theta_box_lines
 from experiments.potential.nets import TrainConfig
 
@@ -230,7 +230,11 @@ def validate_gaps(model, states, thetas, val_idx, track, cfg) -> dict:
         states, thetas, val_idx, cfg.val_pairs, rng, cfg.own_theta_fraction
     )
     _, _, dphi, dv = relative_gaps(model, x, th1, th2, i, track, vr)
-    return {"value_range": vr, "val_pairs": int(cfg.val_pairs), **nets.gap_statistics(dphi, dv, vr)}
+    return {
+        "value_range": vr,
+        "val_pairs": int(cfg.val_pairs),
+        **validation.gap_statistics(dphi, dv, vr),
+    }
 
 
 def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_bar) -> dict:
@@ -244,14 +248,14 @@ def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_b
         for k in range(n)
         for th in (th1[k], th2[k])
     ]
-    res = nets.paired_rollouts(jobs, cfg.threads, progress_bar)
+    res = validation.paired_rollouts(jobs, cfg.threads, progress_bar)
     G = np.array([r[0] for r in res]).reshape(n, 2)
     x_end = np.array([r[1] for r in res]).reshape(n, 2, *x.shape[1:])
     boot = cfg.gamma**cfg.rollout_steps
     v_end = np.stack([model.value(x_end[:, k], (th1, th2)[k], track, i) for k in range(2)], axis=1)
     dG = (G[:, 1] + boot * v_end[:, 1]) - (G[:, 0] + boot * v_end[:, 0])
     dphi, dv = approximation_gaps(model, x, th1, th2, i, track)
-    return nets.rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
+    return validation.rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
 
 
 def model_card_text(meta: dict) -> str:

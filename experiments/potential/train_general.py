@@ -32,7 +32,7 @@ from agents import general_features as gf
 from agents.features import theta_space
 from agents.general_features import TrackSet
 from agents.potential import PotentialModel
-from experiments.potential import nets
+from experiments.potential import nets, validation
 from experiments.potential.card_lines import added_options_text, theta_box_lines
 from experiments.potential.family import RaceGroup, load_family
 
@@ -229,7 +229,7 @@ def family_gaps(
     value_range: float | None = None,
 ) -> dict:
     """Approximation gaps of ``pairs`` unilateral deviations at states of ``races``:
-    :func:`experiments.potential.nets.gap_statistics` relative to ``value_range`` (default: the range
+    :func:`experiments.potential.validation.gap_statistics` relative to ``value_range`` (default: the range
     of V over 20000 states of these races with uniform thetas, as for one track), overall and
     per field size (``by_cars``: pairs, median, p95, max and the constant potential's median
     and p95). Also ``value_range_measured``, the range of V over these races."""
@@ -251,12 +251,12 @@ def family_gaps(
         "value_range": vr,
         "value_range_measured": measured,
         "val_pairs": int(pairs),
-        **nets.gap_statistics(dphi, dv, vr),
+        **validation.gap_statistics(dphi, dv, vr),
         "by_cars": {},
     }
     for N in np.unique(b["cars"]):
         m = b["cars"] == N
-        s = nets.gap_statistics(dphi[m], dv[m], vr)
+        s = validation.gap_statistics(dphi[m], dv[m], vr)
         out["by_cars"][str(int(N))] = {
             "pairs": int(m.sum()),
             **{
@@ -288,7 +288,7 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
         for k in range(n)
         for th in thetas[k]
     ]
-    res = nets.paired_rollouts(jobs, cfg.threads, progress_bar)
+    res = validation.paired_rollouts(jobs, cfg.threads, progress_bar)
     boot = cfg.gamma**cfg.rollout_steps
     dG, dphi, dv = np.empty(n), np.empty(n), np.empty(n)
     for k in range(n):
@@ -301,7 +301,7 @@ def family_rollouts(model, vr, data: FamilyData, val_idx, cfg, progress_bar) -> 
         dG[k] = g[1] - g[0]
         dv[k] = float(model.value(x, th2, tr, i)[0] - model.value(x, th1, tr, i)[0])
         dphi[k] = float(model.potential(x, th2, tr)[0] - model.potential(x, th1, tr)[0])
-    return nets.rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
+    return validation.rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
 
 
 # ---------------------------------------------------------------------------- training
