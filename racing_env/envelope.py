@@ -49,6 +49,8 @@ import numpy as np
 from numba import njit
 
 from .vehicle import VehicleParams
+from .vehicles.fullsize import FullSizeParams
+from .vehicles.fullsize_envelope import fullsize_tables
 
 __all__ = ["GGV", "envelope_at", "ggv", "steady_corner"]
 
@@ -283,8 +285,20 @@ def _envelope_many(v, ay, v_tab, ay_tab, r_tab, tab):
 
 
 @functools.lru_cache(maxsize=16)
-def ggv(vehicle: VehicleParams | None = None) -> GGV:
-    """The g-g-v envelope of ``vehicle`` (default :class:`VehicleParams`), cached per vehicle."""
+def ggv(vehicle: VehicleParams | FullSizeParams | None = None) -> GGV:
+    """The g-g-v envelope of ``vehicle`` (default :class:`VehicleParams`), cached per vehicle.
+
+    A :class:`~racing_env.vehicles.fullsize.FullSizeParams` gets the full-size class's
+    envelope (:mod:`racing_env.vehicles.fullsize_envelope`: downforce, power limit, friction
+    ellipse and brake split; clean air) on the same grids."""
+    if isinstance(vehicle, FullSizeParams):
+        tab = fullsize_tables(vehicle, N_SPEEDS, N_FRACTIONS)
+        if not (np.all(np.isfinite(tab["ax_max"])) and np.all(np.isfinite(tab["ax_min"]))):
+            raise RuntimeError("g-g-v envelope: a point inside the lateral limit is infeasible")
+        arrays = {k: a for k, a in tab.items() if isinstance(a, np.ndarray)}
+        for a in arrays.values():
+            a.setflags(write=False)
+        return GGV(**arrays, top_speed=float(tab["top_speed"]))
     p = vehicle or VehicleParams()
     top = p.top_speed
     v = np.linspace(0.0, 1.05 * top, N_SPEEDS)

@@ -202,8 +202,10 @@ def box_qp_interior_point(
         neg = dv < 0
         return min(1.0, float(np.min(-v[neg] / dv[neg]))) if neg.any() else 1.0
 
+    # the slacks are carried, not recomputed as x - lo: near an active bound x - lo rounds to
+    # exactly 0 at full scale (offsets of metres, slacks of 1e-16 m), a singular system
+    d_lo, d_hi = x - lo, hi - x
     for _ in range(int(max_iter)):
-        d_lo, d_hi = x - lo, hi - x
         r_d = h @ x + g - z_lo + z_hi
         mu = float(d_lo @ z_lo + d_hi @ z_hi) / (2 * n)
         if mu < tol * scale * float(w.mean()) and float(np.abs(r_d).max()) < 1e3 * tol * scale:
@@ -235,4 +237,5 @@ def box_qp_interior_point(
         ap = 0.995 * min(to_boundary(d_lo, dx), to_boundary(d_hi, -dx))
         ad = 0.995 * min(to_boundary(z_lo, dz_lo), to_boundary(z_hi, dz_hi))
         x, z_lo, z_hi = x + ap * dx, z_lo + ad * dz_lo, z_hi + ad * dz_hi
+        d_lo, d_hi = d_lo + ap * dx, d_hi - ap * dx
     return None

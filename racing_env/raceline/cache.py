@@ -13,7 +13,8 @@ from ..cache import cache_dir as _cache_folder
 from ..files import atomic_path
 from ..track import Track
 from ..vehicle import VehicleParams
-from .config import CACHE_VERSION, RacelineConfig, cache_key
+from ..vehicles.fullsize import FullSizeParams
+from .config import CACHE_VERSION, AnyVehicle, RacelineConfig, cache_key
 from .optimise import compute_raceline
 from .result import Raceline
 
@@ -27,7 +28,7 @@ def cache_dir() -> Path:
 
 
 def cache_path(
-    track: Track, vehicle: VehicleParams | None = None, config: RacelineConfig | None = None
+    track: Track, vehicle: AnyVehicle | None = None, config: RacelineConfig | None = None
 ) -> Path:
     """The .npz file :func:`get_raceline` uses for these inputs."""
     key = cache_key(track, vehicle or VehicleParams(), config or RacelineConfig())
@@ -58,7 +59,7 @@ def _save(path: Path, rl: Raceline) -> None:
 
 def get_raceline(
     track: Track | str,
-    vehicle: VehicleParams | None = None,
+    vehicle: AnyVehicle | None = None,
     config: RacelineConfig | None = None,
     use_cache: bool = True,
 ) -> Raceline:
@@ -68,15 +69,23 @@ def get_raceline(
     temporary file and moved into place, so readers never see half a file). An unreadable,
     corrupt or mismatched cache file is recomputed and overwritten. ``use_cache=False`` skips
     both caches (and writes nothing).
+
+    ``vehicle``: a :class:`VehicleParams` (the ORCA car, default) or a
+    :class:`~racing_env.vehicles.fullsize.FullSizeParams` (the full-size class: a track named
+    by a string is then built at full scale, and its racing-line settings are best
+    ``racing_env.scaling.scaled_configs(vehicle).raceline``).
     """
     if not isinstance(track, Track):
         from ..tracks import make_track
 
-        track = make_track(track)
+        full = isinstance(vehicle, FullSizeParams)
+        track = make_track(track, vehicle_class="fullsize" if full else None)
     vehicle = vehicle if vehicle is not None else VehicleParams()
     config = config if config is not None else RacelineConfig()
-    if not isinstance(vehicle, VehicleParams):
-        raise ValueError(f"vehicle must be a VehicleParams, got {type(vehicle).__name__}")
+    if not isinstance(vehicle, (VehicleParams, FullSizeParams)):
+        raise ValueError(
+            f"vehicle must be a VehicleParams or a FullSizeParams, got {type(vehicle).__name__}"
+        )
     if not isinstance(config, RacelineConfig):
         raise ValueError(f"config must be a RacelineConfig, got {type(config).__name__}")
     if not use_cache:

@@ -14,6 +14,11 @@ import numpy as np
 from ..cache import sources_hash
 from ..track import Track
 from ..vehicle import VehicleParams
+from ..vehicles.fullsize import FullSizeParams
+
+AnyVehicle = VehicleParams | FullSizeParams
+"""The vehicle parameters a racing line is computed for: the ORCA car's or the full-size
+class's (whose envelope is :mod:`racing_env.vehicles.fullsize_envelope`)."""
 
 CACHE_VERSION = 4
 """Bumped when the saved file's layout changes (invalidates old cache files). An edit of the
@@ -157,18 +162,31 @@ SOURCES = (
 )
 _SOURCES_HASH = sources_hash(SOURCES)
 
+#: the full-size class's own code (force law and envelope): part of its lines' keys only
+FULLSIZE_SOURCES = tuple(
+    Path(__file__).parents[1] / "vehicles" / m for m in ("fullsize.py", "fullsize_envelope.py")
+)
+_FULLSIZE_SOURCES_HASH = sources_hash(FULLSIZE_SOURCES)
 
-def cache_key(track: Track, vehicle: VehicleParams, config: RacelineConfig) -> str:
+
+def cache_key(track: Track, vehicle: AnyVehicle, config: RacelineConfig) -> str:
     """Hash [hex, 24 chars] of the track geometry, the vehicle parameters, the config and the
-    code that computes the line (:data:`SOURCES`)."""
-    blob = json.dumps(
-        {
-            "version": CACHE_VERSION,
-            "sources": _SOURCES_HASH,
-            "track": track.fingerprint(),
-            "vehicle": vehicle.to_dict(),
-            "config": asdict(config),
-        },
-        sort_keys=True,
-    )
+    code that computes the line (:data:`SOURCES`). A full-size car's key also names its class
+    and hashes :data:`FULLSIZE_SOURCES`; an ORCA car's key is made of the same fields as before
+    the class existed, so its cached lines stay valid."""
+    fields_ = {
+        "version": CACHE_VERSION,
+        "sources": _SOURCES_HASH,
+        "track": track.fingerprint(),
+        "vehicle": vehicle.to_dict(),
+        "config": asdict(config),
+    }
+    if isinstance(vehicle, FullSizeParams):
+        fields_["vehicle_class"] = "fullsize"
+        fields_["class_sources"] = _FULLSIZE_SOURCES_HASH
+    elif not isinstance(vehicle, VehicleParams):
+        raise ValueError(
+            f"vehicle must be a VehicleParams or a FullSizeParams, got {type(vehicle).__name__}"
+        )
+    blob = json.dumps(fields_, sort_keys=True)
     return hashlib.sha1(blob.encode()).hexdigest()[:24]

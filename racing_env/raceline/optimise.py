@@ -16,7 +16,13 @@ from scipy import sparse
 from ..track import Track
 from ..vehicle import VehicleParams
 from .boxqp import BoxQP
-from .config import LENGTH_WEIGHTS, RacelineConfig, RacelineConvergenceWarning, cache_key
+from .config import (
+    LENGTH_WEIGHTS,
+    AnyVehicle,
+    RacelineConfig,
+    RacelineConvergenceWarning,
+    cache_key,
+)
 from .path import line_on_grid, offset_bounds
 from .result import Raceline
 from .speed import lap_time_of, speed_profile
@@ -70,7 +76,7 @@ class _Stations:
 
     @classmethod
     def on(
-        cls, track: Track, vehicle: VehicleParams, config: RacelineConfig, w_len: float
+        cls, track: Track, vehicle: AnyVehicle, config: RacelineConfig, w_len: float
     ) -> _Stations:
         """The problem on ``track`` with the shortest-path weight ``w_len`` (0: none)."""
         m_grid = len(track.s_grid)
@@ -194,7 +200,7 @@ class _Stations:
 
 def minimum_curvature_offsets(
     track: Track,
-    vehicle: VehicleParams | None = None,
+    vehicle: AnyVehicle | None = None,
     config: RacelineConfig | None = None,
     length_weight: float | None = None,
     n_init: np.ndarray | None = None,
@@ -267,7 +273,7 @@ def minimum_curvature_offsets(
 
 def lap_time_weight_search(
     track: Track,
-    vehicle: VehicleParams | None = None,
+    vehicle: AnyVehicle | None = None,
     config: RacelineConfig | None = None,
     refine: int = 6,
 ) -> tuple[float, np.ndarray, np.ndarray, dict, list]:
@@ -331,7 +337,7 @@ def lap_time_weight_search(
 
 
 def compute_raceline(
-    track: Track, vehicle: VehicleParams | None = None, config: RacelineConfig | None = None
+    track: Track, vehicle: AnyVehicle | None = None, config: RacelineConfig | None = None
 ) -> Raceline:
     """Compute (no cache) the racing line of ``config.objective`` and its speed library on
     ``track``."""

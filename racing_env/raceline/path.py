@@ -7,13 +7,12 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from ..track import Track
-from ..vehicle import VehicleParams
-from .config import RacelineConfig
+from .config import AnyVehicle, RacelineConfig
 from .speed import lap_time_of, speed_profile
 
 
 def offset_bounds(
-    track: Track, s_track: np.ndarray, vehicle: VehicleParams, margin: float
+    track: Track, s_track: np.ndarray, vehicle: AnyVehicle, margin: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Lower / upper bounds ``(n_lo, n_hi)`` [m] on the racing-line offset at centre-line ``s_track``.
 
@@ -62,7 +61,7 @@ def line_geometry(
 
 def line_on_grid(
     track: Track,
-    vehicle: VehicleParams,
+    vehicle: AnyVehicle,
     config: RacelineConfig,
     s_sub: np.ndarray,
     n_sub: np.ndarray,
