@@ -123,17 +123,21 @@ def check_spec_fields(config: object, names: Sequence[str]) -> None:
             )
 
 
-def check_agent_specs(specs, tracks=()) -> None:
+def check_agent_specs(specs, tracks=()) -> list:
     """Build each agent spec once, so a typo fails before any race starts; an agent with a
     ``check_track(track)`` method (``mpc:theta=best``: the track's entry in the best-theta
-    table) checks each of ``tracks`` too."""
+    table) checks each of ``tracks`` too. Returns the agents built, one per spec of ``specs``
+    (a repeated spec's agent repeated), for :func:`~experiments.infra.artifacts.provenance`."""
     from agents import make_agent_spec
 
+    built = {}
     for spec in dict.fromkeys(specs):
-        agent = make_agent_spec(spec)
+        agent = built[spec] = make_agent_spec(spec)
         check = getattr(agent, "check_track", None)
         for track in dict.fromkeys(tracks) if check is not None else ():
             try:
                 check(track)
             except ValueError as exc:
                 raise ValueError(f"agent {spec!r}: {exc}") from None
+
+    return [built[spec] for spec in specs]

@@ -250,7 +250,7 @@ def _selection(
     from racing_env.tracks import make_track
 
     t = make_track(track)
-    rows = list(map_run.rows().values())
+    rows = list(map_run.records().values())
     seconds += sum(r.get("seconds", 0.0) for r in rows)
     out = {
         "schema_version": SCHEMA_VERSION,
@@ -443,7 +443,7 @@ def select_best_thetas(
     new_map_runs = run_maps(maps, pool, "control: map")
     for run in maps.values():
         run.write_outputs()
-    cands = {t: choose_candidates(maps[t].rows().values(), cfg.candidates) for t in tracks}
+    cands = {t: choose_candidates(maps[t].records().values(), cfg.candidates) for t in tracks}
     runs = {}
     for t in tracks:
         runs.update(_playoff_runs(cfg, out, t, cands[t]))

@@ -141,12 +141,6 @@ def league_race(race: ScheduledRace, steps: int, imports=()) -> dict:
     }
 
 
-# ---------------------------------------------------------------------------- rating
-
-
-# ---------------------------------------------------------------------------- figures
-
-
 # ---------------------------------------------------------------------------- storage
 class LeagueRun(ResumableRun):
     """The output directory of one league (see the module docstring)."""
@@ -154,32 +148,32 @@ class LeagueRun(ResumableRun):
     what = "a league"
     records_name = "races.jsonl"
 
-    def __init__(self, out_dir, config: LeagueConfig):
+    def __init__(self, out_dir, config: LeagueConfig, agents=None):
+        """``agents``: the agents of ``config.agents`` already built (same order; as
+        :func:`~experiments.evaluation.bench_config.check_agent_specs` returns them), so that
+        the provenance does not build them again."""
         super().__init__(out_dir, config)
-        self.stages, joining = self._stages(self.manifest_path, config)
+        stored = json.loads(self.manifest_path.read_text()) if self.manifest_path.exists() else None
+        self.stages, joining = self._stages(stored, config)
         self.races = schedule(config, self.stages)
         meta = {"schema_version": SCHEMA_VERSION, "config": asdict(config), "env": env_version()}
         if len(self.stages) > 1:
             meta["stages"] = self.stages
-        # agents join: the stored manifest is of the league before them
-        stored = None
-        if joining:
-            stored = {
-                k: v
-                for k, v in json.loads(self.manifest_path.read_text()).items()
-                if k != "provenance"
-            }
-        self.claim(meta, config.agents, config.tracks, stored=stored)
+        # agents join: the stored manifest is of the league before them (its config checked
+        # by _stages), and only its provenance is checked before the manifest is rewritten
+        self.claim(
+            meta, config.agents, config.tracks, stored=stored if joining else None, built=agents
+        )
 
     @staticmethod
-    def _stages(manifest: Path, config: LeagueConfig) -> tuple[list[int], bool]:
-        """The league's stages (see :func:`schedule`) and whether agents join now: the stored
-        stages, plus one when ``config`` adds agents to the stored league (its agents first,
-        in their order, every other setting equal); a league of another configuration is left
-        for :func:`claim` to refuse."""
-        if not manifest.exists():
+    def _stages(stored: dict | None, config: LeagueConfig) -> tuple[list[int], bool]:
+        """The league's stages (see :func:`schedule`) and whether agents join now, from the
+        stored manifest (None: a new league): the stored stages, plus one when ``config``
+        adds agents to the stored league (its agents first, in their order, every other
+        setting equal); a league of another configuration is left for :func:`claim` to
+        refuse."""
+        if stored is None:
             return [len(config.agents)], False
-        stored = json.loads(manifest.read_text())
         old = stored.get("config", {})
         stages = list(stored.get("stages") or [len(old.get("agents", []))])
         now = as_stored(asdict(config))
@@ -288,10 +282,10 @@ def league(
     paths, as ``--import``) are imported in every worker before its first race."""
     imports = tuple(str(Path(m).resolve()) if m.endswith(".py") else m for m in imports)
     _import_once(imports)
-    check_agent_specs(config.agents, config.tracks)
+    agents = check_agent_specs(config.agents, config.tracks)
     check_tracks(config.tracks, config.cars)
     check_field(config.agents, config.cars, config.tracks[0])
-    run = LeagueRun(out_dir, config)
+    run = LeagueRun(out_dir, config, agents)
     new = run.run_missing(
         league_race,
         lambda race: (race, config.steps, imports),

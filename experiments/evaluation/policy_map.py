@@ -30,7 +30,6 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -193,25 +192,16 @@ class PolicyMapRun(ResumableRun):
             }
         )
 
-    @property
-    def rows_path(self) -> Path:
-        return self.records_path
-
-    def rows(self) -> dict[tuple, dict]:
-        """Finished rows by (mode, track, index); a torn last line is ignored."""
-        return self.records()
-
     def tasks(self) -> list[tuple]:
+        """Every row of the map as (mode, track, index), the key of its finished record."""
         c = self.config
         return [(m, t, k) for m in c.modes for t in c.tracks for k in range(c.thetas)]
-
-    keys = tasks
 
     def record_key(self, record: dict) -> tuple:
         return (record["mode"], record["track"], record["index"])
 
     def write_outputs(self) -> dict:
-        rows = list(self.rows().values())
+        rows = list(self.records().values())
         summary = summarise(rows, self.config)
         write_json(self.out / "summary.json", summary)
         write_text(self.out / "summary.md", summary_markdown(summary))
@@ -227,12 +217,6 @@ class PolicyMapRun(ResumableRun):
                         high=summary["theta_high"],
                     )
         return summary
-
-
-# ---------------------------------------------------------------------------- statistics
-
-
-# ---------------------------------------------------------------------------- figures
 
 
 # ---------------------------------------------------------------------------- driver

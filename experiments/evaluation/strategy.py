@@ -227,18 +227,22 @@ def pace_specs(config: StrategyConfig) -> list[str]:
 
 class PaceRun(ResumableRun):
     """The defend scenario's solo pace races in the suite's folder: ``pace.jsonl``, one record
-    per (spec, track, steps, seed). No manifest of its own: the records carry their settings,
-    and the benches' folders are claimed by :class:`~experiments.evaluation.bench.BenchRun`."""
+    per (spec, track) of the suite's ``steps`` and ``seed``. No manifest of its own: the
+    records carry their settings (a record of other settings is not this suite's and counts
+    as missing), and the benches' folders are claimed by
+    :class:`~experiments.evaluation.bench.BenchRun`."""
 
     what = "solo pace races"
     records_name = "pace.jsonl"
 
     def tasks(self) -> list[tuple]:
-        c = self.config
-        return [(spec, track, c.steps, c.seed) for track in c.tracks for spec in pace_specs(c)]
+        return [(spec, track) for track in self.config.tracks for spec in pace_specs(self.config)]
 
     def record_key(self, record: dict) -> tuple:
-        return (record["spec"], record["track"], record["steps"], record["seed"])
+        return (record["spec"], record["track"])
+
+    def check_record(self, record: dict) -> bool:
+        return (record["steps"], record["seed"]) == (self.config.steps, self.config.seed)
 
 
 def measure_pace(config: StrategyConfig, out, pool: Pool) -> dict:
@@ -248,11 +252,14 @@ def measure_pace(config: StrategyConfig, out, pool: Pool) -> dict:
     least one measured}``."""
     run = PaceRun(out, config)
     specs = pace_specs(config)
-    run.run_missing(solo_pace, lambda task: task, pool, desc="solo pace", unit="race")
+    steps, seed = config.steps, config.seed
+    run.run_missing(
+        solo_pace, lambda task: (*task, steps, seed), pool, desc="solo pace", unit="race"
+    )
     done = run.records()
     out_pace = {}
     for track in config.tracks:
-        recs = {spec: done[(spec, track, config.steps, config.seed)] for spec in specs}
+        recs = {spec: done[(spec, track)] for spec in specs}
         progress = {spec: r["progress_m"] for spec, r in recs.items()}
         opp = progress[config.control]
         gaps = {

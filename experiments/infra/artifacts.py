@@ -363,20 +363,31 @@ class ResumableRun:
     def records_path(self) -> Path:
         return self.out / self.records_name
 
-    def claim(self, meta: dict, agents=None, tracks=(), stored: dict | None = None) -> None:
+    def claim(
+        self,
+        meta: dict,
+        agents=None,
+        tracks=(),
+        stored: dict | None = None,
+        built=None,
+    ) -> None:
         """Tie the folder to ``meta`` (:func:`claim`). With ``agents``
         (agent specs), the run's :func:`provenance` is stored and checked on a resume, and
         when an agent races the best-theta table, the thetas of ``tracks`` are claimed too
-        (:func:`claim_best_thetas`). ``stored``: the meta the folder must hold when it differs
-        from the one this run writes (a league that agents join holds the league before
-        them); the manifest is then rewritten with ``meta`` and the merged provenance."""
-        prov = None if agents is None else provenance(agents)
+        (:func:`claim_best_thetas`). ``built``: the agents of ``agents`` already built (same
+        order), so that the provenance does not build them again. ``stored``: the manifest
+        the folder holds (as read) when the caller has checked it against this run and it
+        differs from ``meta`` (a league that agents join holds the league before them): its
+        provenance is checked, then the manifest is rewritten with ``meta`` and the merged
+        provenance."""
+        prov = None if agents is None else provenance(agents, built)
         if stored is None:
             claim(self.manifest_path, meta, self.what, provenance=prov)
+        elif prov is None:
+            write_json(self.manifest_path, meta)
         else:
-            claim(self.manifest_path, stored, self.what, provenance=prov)
-            merged = json.loads(self.manifest_path.read_text()).get("provenance")
-            write_json(self.manifest_path, meta if prov is None else {**meta, "provenance": merged})
+            merged = check_provenance(stored.get("provenance"), prov, self.out, self.what)
+            write_json(self.manifest_path, {**meta, "provenance": merged})
         spaces = best_theta_spaces(agents or ())
         if spaces:  # a changed table never mixes in
             claim_best_thetas(self.out, tracks, spaces=spaces)
