@@ -174,6 +174,10 @@ def cache_key(track: Track, vehicle: AnyVehicle, config: RacelineConfig) -> str:
     code that computes the line (:data:`SOURCES`). A full-size car's key also names its class
     and hashes :data:`FULLSIZE_SOURCES`; an ORCA car's key is made of the same fields as before
     the class existed, so its cached lines stay valid."""
+    if not isinstance(vehicle, (VehicleParams, FullSizeParams)):
+        raise ValueError(
+            f"vehicle must be a VehicleParams or a FullSizeParams, got {type(vehicle).__name__}"
+        )
     fields_ = {
         "version": CACHE_VERSION,
         "sources": _SOURCES_HASH,
@@ -184,9 +188,5 @@ def cache_key(track: Track, vehicle: AnyVehicle, config: RacelineConfig) -> str:
     if isinstance(vehicle, FullSizeParams):
         fields_["vehicle_class"] = "fullsize"
         fields_["class_sources"] = _FULLSIZE_SOURCES_HASH
-    elif not isinstance(vehicle, VehicleParams):
-        raise ValueError(
-            f"vehicle must be a VehicleParams or a FullSizeParams, got {type(vehicle).__name__}"
-        )
     blob = json.dumps(fields_, sort_keys=True)
     return hashlib.sha1(blob.encode()).hexdigest()[:24]
