@@ -93,10 +93,10 @@ if TYPE_CHECKING:
 M = math  # the maths backend of frenet_ode_fullsize; replaced per copy by bind()
 
 if sys.version_info >= (3, 11):
-    from math import cbrt
+    from math import cbrt as _cbrt
 else:  # math.cbrt is new in Python 3.11
 
-    def cbrt(x: float) -> float:
+    def _cbrt(x: float) -> float:
         return math.copysign(abs(x) ** (1.0 / 3.0), x)
 
 
@@ -277,7 +277,7 @@ class FullSizeParams:
         r = self.c_roll * self.m * self.g
         p, q = r / c, -self.P_max / c  # v^3 + p v + q = 0, one real root (p > 0)
         disc = math.sqrt(q * q / 4.0 + p**3 / 27.0)
-        v = cbrt(-q / 2.0 + disc) + cbrt(-q / 2.0 - disc)
+        v = _cbrt(-q / 2.0 + disc) + _cbrt(-q / 2.0 - disc)
         if v * self.F_drive_max < self.P_max:
             v = math.sqrt(max(self.F_drive_max - r, 0.0) / c)
         return float(v)
