@@ -417,7 +417,12 @@ def test_learning_packages_are_an_extra_that_dev_includes():
     assert not learn & _names(project["dependencies"])
     assert learn <= _names(project["optional-dependencies"]["dev"])
     assert not [r for r in project["dependencies"] if "==" in r]  # ranges, not pins
-    assert project["license"] == "MIT" and (ROOT / "LICENSE").read_text().startswith("MIT License")
+    # the code is MIT; the circuits shipped as package data keep the racetrack-database's LGPL
+    assert project["license"] == "MIT AND LGPL-3.0-only"
+    assert (ROOT / "LICENSE").read_text().startswith("MIT License")
+    lgpl = ROOT / "racing_env" / "circuits" / "LICENSE"
+    assert "GNU LESSER GENERAL PUBLIC LICENSE" in lgpl.read_text()
+    assert project["license-files"] == ["LICENSE", "racing_env/circuits/LICENSE"]
 
 
 def test_metadata_declares_llvmlite_and_every_supported_python():
