@@ -47,6 +47,7 @@ from experiments.evaluation.bench_config import BenchConfig, check_agent_specs
 from experiments.evaluation.bench_summary import win_share
 from experiments.evaluation.control import ControlConfig, best_fixed_spec, ensure_best_thetas
 from experiments.infra.artifacts import claim, manifest_config, slug, write_json, write_text
+from experiments.infra.checks import check_counts
 from experiments.infra.parallel import Pool
 from experiments.potential.family import (
     FamilyConfig,
@@ -110,12 +111,7 @@ class GeneralReportConfig:
             raise ValueError(
                 f"GeneralReportConfig.control must be an agent spec, got {self.control!r}"
             )
-        for name in ("gap_races", "gap_pairs", "bench_rounds", "steps"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
-                raise ValueError(
-                    f"GeneralReportConfig.{name} must be a positive integer, got {v!r}"
-                )
+        check_counts(self, ("gap_races", "gap_pairs", "bench_rounds", "steps"))
         if isinstance(self.default_races, bool) or not (
             isinstance(self.default_races, int) and self.default_races >= 0
         ):

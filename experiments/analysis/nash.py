@@ -50,6 +50,7 @@ from experiments.infra.artifacts import (
     write_npz,
     write_text,
 )
+from experiments.infra.checks import check_counts
 from experiments.infra.parallel import Pool, run_tasks_with_progress
 
 
@@ -74,22 +75,22 @@ class AnalyzeConfig:
     seed: int = 0
 
     def __post_init__(self):
-        for name in (
-            "heldout_races",
-            "gap_pairs",
-            "regret_states",
-            "regret_horizon",
-            "cem_iterations",
-            "cem_samples",
-            "value_search",
-            "slice_points",
-            "slice_rollouts",
-            "slice_steps",
-            "steps",
-        ):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"AnalyzeConfig.{name} must be a positive integer, got {v!r}")
+        check_counts(
+            self,
+            (
+                "heldout_races",
+                "gap_pairs",
+                "regret_states",
+                "regret_horizon",
+                "cem_iterations",
+                "cem_samples",
+                "value_search",
+                "slice_points",
+                "slice_rollouts",
+                "slice_steps",
+                "steps",
+            ),
+        )
         if self.slice_rollouts > self.slice_points:
             raise ValueError(
                 f"slice_rollouts ({self.slice_rollouts}) must not exceed "

@@ -8,6 +8,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from experiments.infra.checks import check_counts
+
 ROLES = ("ego", "O1", "O2")
 
 
@@ -44,10 +46,7 @@ class BenchConfig:
     ego_regions: tuple[str, ...] | None = None
 
     def __post_init__(self):
-        for name in ("races", "steps"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"BenchConfig.{name} must be a positive integer, got {v!r}")
+        check_counts(self, ("races", "steps"))
         if isinstance(self.n_cars, bool) or not (
             isinstance(self.n_cars, int) and 2 <= self.n_cars <= 8
         ):

@@ -80,6 +80,7 @@ from experiments.infra.artifacts import (
     read_jsonl,
     write_json,
 )
+from experiments.infra.checks import check_counts
 from experiments.infra.parallel import Pool
 
 SCHEMA_VERSION = 1
@@ -137,10 +138,7 @@ class ControlConfig:
         from agents.theta import policy_space
 
         policy_space(self.space)  # names the choices if unknown
-        for name in ("thetas", "candidates", "races", "steps"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"ControlConfig.{name} must be a positive integer, got {v!r}")
+        check_counts(self, ("thetas", "candidates", "races", "steps"))
         if isinstance(self.refine, bool) or not (isinstance(self.refine, int) and self.refine >= 0):
             raise ValueError(
                 f"ControlConfig.refine must be a non-negative integer (rounds of the local "
@@ -151,10 +149,7 @@ class ControlConfig:
                 f"ControlConfig.races must be a multiple of {len(REGIONS)} (every "
                 f"start region equally often), got {self.races}"
             )
-        if isinstance(self.seed, bool) or not (isinstance(self.seed, int) and self.seed >= 0):
-            raise ValueError(
-                f"ControlConfig.seed must be a non-negative integer, got {self.seed!r}"
-            )
+        check_counts(self, ("seed",), minimum=0)
         if self.seed == BenchConfig.seed:
             raise ValueError(
                 f"ControlConfig.seed {self.seed} is the benchmarks' seed; the "

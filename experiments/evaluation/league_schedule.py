@@ -13,6 +13,7 @@ import numpy as np
 from experiments.infra.artifacts import (
     check_track_specs,
 )
+from experiments.infra.checks import check_counts
 
 
 @dataclass(frozen=True)
@@ -36,12 +37,8 @@ class LeagueConfig:
 
         object.__setattr__(self, "agents", tuple(self.agents))
         object.__setattr__(self, "tracks", tuple(self.tracks))
-        for name in ("rounds", "steps", "max_groups"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"LeagueConfig.{name} must be a positive integer, got {v!r}")
-        if not (isinstance(self.seed, int) and self.seed >= 0):
-            raise ValueError(f"LeagueConfig.seed must be a non-negative integer, got {self.seed!r}")
+        check_counts(self, ("rounds", "steps", "max_groups"))
+        check_counts(self, ("seed",), minimum=0)
         if not (isinstance(self.cars, int) and 2 <= self.cars <= MAX_CARS):
             raise ValueError(
                 f"cars per race must be an integer in 2..{MAX_CARS}, got {self.cars!r}"

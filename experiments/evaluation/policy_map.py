@@ -56,6 +56,7 @@ from experiments.infra.artifacts import (
     write_json,
     write_text,
 )
+from experiments.infra.checks import check_counts
 from experiments.infra.parallel import Pool
 
 SCHEMA_VERSION = 1
@@ -86,14 +87,8 @@ class PolicyMapConfig:
         policy_space(self.space)  # names the choices if unknown
         object.__setattr__(self, "tracks", tuple(self.tracks))
         object.__setattr__(self, "modes", tuple(self.modes))
-        for name in ("thetas", "steps"):
-            v = getattr(self, name)
-            if not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"PolicyMapConfig.{name} must be a positive integer, got {v!r}")
-        if not isinstance(self.seed, int) or self.seed < 0:
-            raise ValueError(
-                f"PolicyMapConfig.seed must be a non-negative integer, got {self.seed!r}"
-            )
+        check_counts(self, ("thetas", "steps"))
+        check_counts(self, ("seed",), minimum=0)
         bad = [m for m in self.modes if m not in MODES]
         if bad or not self.modes or len(set(self.modes)) != len(self.modes):
             raise ValueError(f"modes must be distinct values of {MODES}, got {list(self.modes)}")

@@ -56,6 +56,7 @@ from experiments.infra.artifacts import (
     write_json,
     write_text,
 )
+from experiments.infra.checks import check_counts
 from experiments.infra.parallel import Pool
 
 SCHEMA_VERSION = 1
@@ -116,14 +117,8 @@ class StrategyConfig:
     def __post_init__(self):
         object.__setattr__(self, "tracks", tuple(self.tracks))
         object.__setattr__(self, "scenarios", tuple(self.scenarios))
-        for name in ("races", "steps"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, int) and v >= 1):
-                raise ValueError(f"StrategyConfig.{name} must be a positive integer, got {v!r}")
-        if isinstance(self.seed, bool) or not (isinstance(self.seed, int) and self.seed >= 0):
-            raise ValueError(
-                f"StrategyConfig.seed must be a non-negative integer, got {self.seed!r}"
-            )
+        check_counts(self, ("races", "steps"))
+        check_counts(self, ("seed",), minimum=0)
         check_spec_fields(self, ("ego", "control", "pass_opponents"))
         if self.ego == self.control:
             raise ValueError(

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.infra.artifacts import write_json
+from experiments.infra.checks import check_counts
 
 VEC_ENVS = ("batched", "dummy", "subproc")
 WARMUP_OPPONENTS = ("raceline", "initial")
@@ -59,23 +60,23 @@ class SelfPlayConfig:
 
     def __post_init__(self):
         object.__setattr__(self, "net_arch", tuple(self.net_arch))
-        for name in (
-            "cycles",
-            "steps_per_turn",
-            "n_envs",
-            "batch_size",
-            "n_epochs",
-            "n_steps",
-            "max_cycles",
-            "checkpoint_every",
-            "eval_races",
-            "bc_steps",
-            "bc_rounds",
-            "bc_epochs",
-        ):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1):
-                raise ValueError(f"SelfPlayConfig.{name} must be a positive integer, got {v!r}")
+        check_counts(
+            self,
+            (
+                "cycles",
+                "steps_per_turn",
+                "n_envs",
+                "batch_size",
+                "n_epochs",
+                "n_steps",
+                "max_cycles",
+                "checkpoint_every",
+                "eval_races",
+                "bc_steps",
+                "bc_rounds",
+                "bc_epochs",
+            ),
+        )
         if not (isinstance(self.n_cars, (int, np.integer)) and 2 <= self.n_cars <= 8):
             raise ValueError(
                 f"SelfPlayConfig.n_cars must be an integer in 2..8, got {self.n_cars!r}"

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.infra.artifacts import claim, manifest_config, provenance, write_npz
+from experiments.infra.checks import check_counts
 from experiments.infra.parallel import Pool, run_tasks_with_progress
 
 SCHEMA_VERSION = 1
@@ -92,10 +93,7 @@ class CollectConfig(ShardedRaces):
             )
         if self.pace not in PACES:
             raise ValueError(f"CollectConfig.pace must be one of {list(PACES)}, got {self.pace!r}")
-        for name in ("races", "n_cars", "steps", "races_per_shard"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, np.integer)) and v >= 1):
-                raise ValueError(f"CollectConfig.{name} must be a positive integer, got {v!r}")
+        check_counts(self, ("races", "n_cars", "steps", "races_per_shard"))
         if not 2 <= self.n_cars <= 8:
             raise ValueError(f"CollectConfig.n_cars must be in 2..8, got {self.n_cars}")
 

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.infra.artifacts import claim, manifest_config, write_npz
+from experiments.infra.checks import check_counts
 from experiments.infra.parallel import Pool
 from experiments.potential.collect import (
     ADDED_FIELDS,
@@ -146,10 +147,7 @@ class FamilyConfig(ShardedRaces):
     def __post_init__(self):
         # the single-track config checks space, start and pace (naming the choices)
         CollectConfig(space=self.space, start=self.start, pace=self.pace)
-        for name in ("races", "steps", "races_per_shard"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, np.integer)) and v >= 1):
-                raise ValueError(f"FamilyConfig.{name} must be a positive integer, got {v!r}")
+        check_counts(self, ("races", "steps", "races_per_shard"))
         object.__setattr__(self, "tracks", tuple(self.tracks))
         object.__setattr__(self, "cars", parse_cars(self.cars))
         expand_tracks(self.tracks)  # syntax and repeats

@@ -21,6 +21,7 @@ from agents.mlp import MLP
 from agents.potential import PotentialModel
 from agents.theta import PolicySpace, policy_space
 from experiments.infra.artifacts import claim, write_json, write_text
+from experiments.infra.checks import check_counts
 from experiments.potential.validation import summary_text
 from racing_env.files import atomic_path
 
@@ -68,20 +69,20 @@ class TrainConfig:
             raise ValueError(f"val_fraction must be in (0, 1), got {self.val_fraction!r}")
         if self.objective not in OBJECTIVES:
             raise ValueError(f"objective must be one of {OBJECTIVES}, got {self.objective!r}")
-        for name in (
-            "value_epochs",
-            "value_batch",
-            "value_stride",
-            "potential_steps",
-            "potential_batch",
-            "save_every",
-            "val_pairs",
-            "rollout_steps",
-            "threads",
-        ):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, np.integer)) and v >= 1):
-                raise ValueError(f"TrainConfig.{name} must be a positive integer, got {v!r}")
+        check_counts(
+            self,
+            (
+                "value_epochs",
+                "value_batch",
+                "value_stride",
+                "potential_steps",
+                "potential_batch",
+                "save_every",
+                "val_pairs",
+                "rollout_steps",
+                "threads",
+            ),
+        )
         if not (isinstance(self.rollout_pairs, int) and self.rollout_pairs >= 0):
             raise ValueError(
                 f"TrainConfig.rollout_pairs must be an integer >= 0, got {self.rollout_pairs!r}"
