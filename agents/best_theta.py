@@ -1,7 +1,7 @@
 """The table of best fixed thetas per track and policy space that ``mpc:theta=best`` (and
 ``mpc:space=extended,theta=best``) races.
 
-``alpha-racer control`` (:mod:`experiments.control`) chooses, per track, the fixed theta that
+``alpha-racer control`` (:mod:`experiments.evaluation.control`) chooses, per track, the fixed theta that
 races best by a rule from measurements (a policy map, then a playoff) over the box of one
 policy space (:data:`agents.theta.SPACES`: the paper's ``(q, zeta, s1, s2, s3)``, or the
 extended space's six with ``b``) and writes it here. This module only reads the table (agents

@@ -1,6 +1,6 @@
 """The one feature function of the alpha-potential: joint state and thetas -> network inputs.
 
-Training (``experiments/train.py``) and racing (``agents/alpha_agent.py``) both call these
+Training (``experiments/potential/train.py``) and racing (``agents/alpha_agent.py``) both call these
 functions, so the inputs a network sees online are built by the same code as those it was
 trained on (the authors' code used different lookaheads in training and at test time).
 Bump :data:`FEATURE_VERSION` whenever the output changes; checkpoints record it and loading a

@@ -1,6 +1,6 @@
 """Multi-layer perceptrons evaluated in numpy (no torch needed to race).
 
-Weights come from the torch models of ``experiments/train.py``; the layout is a list of
+Weights come from the torch models of ``experiments/potential/train.py``; the layout is a list of
 ``(W (in, out), b (out,))`` with SiLU between layers and a linear output, after an input
 normalisation ``(x - mean) / std`` and followed by an output scale ``y * y_scale + y_shift``.
 :meth:`MLP.value_and_input_grad` gives the output and its gradient with respect to the input,

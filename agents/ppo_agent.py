@@ -1,5 +1,5 @@
 """The PPO self-play agent (paper appendix, "Self-play RL training"): a stable-baselines3 PPO
-policy trained by ``alpha-racer selfplay`` (:mod:`experiments.selfplay`), driving one car.
+policy trained by ``alpha-racer selfplay`` (:mod:`experiments.learning.selfplay`), driving one car.
 
 Checkpoint format: the zip file of ``PPO.save`` with two more members, which SB3 ignores:
 

@@ -509,8 +509,7 @@ def test_a_venv_sees_the_running_environment_s_packages_but_not_this_tree(tmp_pa
     python = venv / "bin" / "python"
     _inherit_site_packages(python)
     code = (
-        "import importlib.util as u, platformdirs, numpy\n"
-        "print(u.find_spec('racing_env') is None)"
+        "import importlib.util as u, platformdirs, numpy\nprint(u.find_spec('racing_env') is None)"
     )
     r = subprocess.run([str(python), "-c", code], cwd=tmp_path, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
