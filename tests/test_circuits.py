@@ -158,7 +158,10 @@ def test_monza_at_full_scale(fresh_cache):
         full = make_track("tumftm:Monza", vehicle_class="fullsize")
         same = make_track("tumftm:Monza", scale=1.0)
         small = make_track("tumftm:Monza")
-    assert full.fingerprint() == same.fingerprint()
+    # the same geometry, but the class travels with the track: the fingerprints differ
+    assert np.array_equal(full.x, same.x) and np.array_equal(full.w_left, same.w_left)
+    assert (full.vehicle_class, same.vehicle_class) == ("fullsize", "orca")
+    assert full.fingerprint() != same.fingerprint()
     assert full.length == pytest.approx(5793, rel=0.005)  # the real lap: 5.793 km
     assert full.length == pytest.approx(43 * small.length, rel=1e-6)
     width = full.w_left + full.w_right
@@ -379,3 +382,20 @@ def test_full_size_race_starts_in_scaled_regions():
         front = s.start.s0 - i * step
         assert front - s.start.region_length <= x[i, 0] <= front
     assert np.all(np.abs(x[:, 1]) <= 6.0 - 1.0)
+
+
+def test_the_command_line_lists_and_downloads(tmp_path, capsys):
+    """``alpha-racer circuits list`` names each circuit's file; ``circuits download`` from an
+    unreachable archive fails with exit status 1 and a message naming the URL."""
+    from experiments.cli import main
+
+    assert main(["circuits", "list"]) == 0
+    out = capsys.readouterr().out
+    monza = next(line for line in out.splitlines() if line.startswith("tumftm:Monza "))
+    assert monza.split()[-1].endswith("Monza.csv")
+    url = (tmp_path / "missing.tar.gz").as_uri()
+    rc = main(["circuits", "download", "--quiet", "--url", url, "--dest", str(tmp_path / "db")])
+    assert rc == 1
+    err = capsys.readouterr().err
+    assert err.startswith("alpha-racer circuits download: error: cannot download " + url)
+    assert not (tmp_path / "db").exists()  # nothing half-written

@@ -1,4 +1,4 @@
-"""The ``alpha-racer`` command line: ``race``, ``agents``, ``tracks``, ``raceline``, ``fuzz``,
+"""The ``alpha-racer`` command line: ``race``, ``agents``, ``tracks``, ``circuits``, ``raceline``, ``fuzz``,
 ``collect``, ``train``, ``selfplay``, ``bench``, ``league``, ``strategy``, ``analyze``,
 ``reproduce``, ``general-report``, ``policy-map``, ``control``."""
 
@@ -18,6 +18,7 @@ COMMANDS = (
     racing.add_race,
     racing.add_agents,
     racing.add_tracks,
+    racing.add_circuits,
     racing.add_raceline,
     racing.add_fuzz,
     potential.add_collect,

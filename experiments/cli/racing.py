@@ -82,6 +82,19 @@ def _cmd_tracks(args) -> int:
     return 0
 
 
+def _cmd_circuits(args) -> int:
+    from racing_env.circuits import download
+
+    if args.action == "download":
+        return download.run(args)
+    from racing_env.tracks import track_names, tumftm_file
+
+    for name in track_names():
+        if name.startswith("tumftm:"):
+            print(f"{name:<24} {tumftm_file(name.split(':', 1)[1])}")
+    return 0
+
+
 def _cmd_raceline(args) -> int:
     from racing_env.raceline import RacelineConfig, get_raceline, plot_raceline
     from racing_env.tracks import make_track
@@ -165,6 +178,21 @@ def add_tracks(command) -> None:
     """``alpha-racer tracks``."""
     t = command("tracks", _cmd_tracks, "list the available tracks")
     t.add_argument("--details", action="store_true", help="build each track and print its size")
+
+
+def add_circuits(command) -> None:
+    """``alpha-racer circuits``."""
+    from racing_env.circuits import download
+
+    c = command(
+        "circuits",
+        _cmd_circuits,
+        "the real circuits (TUMFTM racetrack-database): where each is found, or download all",
+        description="list: every tumftm:NAME circuit and the file it is read from. download: "
+        + download.DESCRIPTION,
+    )
+    c.add_argument("action", choices=("list", "download"), help="list them, or download all")
+    download.add_arguments(c)
 
 
 def add_raceline(command) -> None:

@@ -176,7 +176,21 @@ def _default_opener(url: str) -> AbstractContextManager[IO[bytes]]:
 
 
 def _fetch(url: str, target: Path, opener: Opener, progress: bool) -> None:
-    with opener(url) as response, open(target, "wb") as out:
+    from contextlib import ExitStack
+
+    with ExitStack() as stack:
+        try:
+            response = stack.enter_context(opener(url))
+        except OSError as exc:  # no network, a bad mirror: name what was asked for
+            raise OSError(
+                f"cannot download {url} ({exc}); on a machine without access, fetch that "
+                f"archive elsewhere and pass it as --url file:///path/to/archive.tar.gz"
+            ) from exc
+        _copy(response, target, progress)
+
+
+def _copy(response: IO[bytes], target: Path, progress: bool) -> None:
+    with open(target, "wb") as out:
         total = None
         headers = getattr(response, "headers", None)
         if headers is not None and headers.get("Content-Length"):
@@ -289,19 +303,8 @@ def download_racetrack_database(
     return dest
 
 
-def main(argv: Sequence[str] | None = None, prog: str = "alpha-racer circuits download") -> int:
-    """Command line of :func:`download_racetrack_database` (``alpha-racer circuits download``).
-    Returns the exit status: 0 on success, 1 on a failed download (the message on stderr)."""
-    import sys
-
-    parser = argparse.ArgumentParser(
-        prog=prog,
-        description=(
-            f"Download the circuits of the TUMFTM racetrack-database (LGPL-3.0) at commit "
-            f"{PINNED_COMMIT[:12]}, check every file's SHA-256 and store them in the cache "
-            f"folder, where make_track('tumftm:NAME') finds them."
-        ),
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``alpha-racer circuits download`` (and of :func:`main`) on ``parser``."""
     parser.add_argument(
         "--dest",
         default=None,
@@ -311,7 +314,20 @@ def main(argv: Sequence[str] | None = None, prog: str = "alpha-racer circuits do
     parser.add_argument("--force", action="store_true", help="download again even if present")
     parser.add_argument("--url", default=None, help="archive URL (a mirror); default: GitHub")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    args = parser.parse_args(argv)
+
+
+DESCRIPTION = (
+    f"Download the circuits of the TUMFTM racetrack-database (LGPL-3.0) at commit "
+    f"{PINNED_COMMIT[:12]}, check every file's SHA-256 and store them in the cache "
+    f"folder, where make_track('tumftm:NAME') finds them."
+)
+
+
+def run(args: argparse.Namespace, prog: str = "alpha-racer circuits download") -> int:
+    """Download as the parsed options of :func:`add_arguments` say. Returns the exit status: 0
+    on success, 1 on a failed download (the message on stderr)."""
+    import sys
+
     try:
         folder = download_racetrack_database(
             args.dest, url=args.url, force=args.force, progress=not args.quiet
@@ -321,6 +337,14 @@ def main(argv: Sequence[str] | None = None, prog: str = "alpha-racer circuits do
         return 1
     print(f"{len(TRACK_SHA256)} circuits in {folder} (racetrack-database {PINNED_COMMIT[:12]})")
     return 0
+
+
+def main(argv: Sequence[str] | None = None, prog: str = "alpha-racer circuits download") -> int:
+    """Command line of :func:`download_racetrack_database` (``alpha-racer circuits download``,
+    or ``python -m racing_env.circuits.download``). Returns the exit status (see :func:`run`)."""
+    parser = argparse.ArgumentParser(prog=prog, description=DESCRIPTION)
+    add_arguments(parser)
+    return run(parser.parse_args(argv), prog)
 
 
 if __name__ == "__main__":
