@@ -17,6 +17,7 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 
 from .agent_protocol import act_named, is_agent
+from .class_config import class_race
 from .config import RaceConfig
 from .core import BatchedRaces
 from .gym_env import default_opponents, make_opponent
@@ -31,14 +32,15 @@ class HeadToHeadBatch:
     factories or agents; default two raceline followers), ``track``, ``config`` and the
     :class:`RaceConfig` keywords ``n_cars``, ``max_cycles``, ``laps``, ``start``, ``vehicle``,
     ``rules``, plus the learner's reward options ``offtrack_penalty`` and
-    ``terminate_off_track`` (see ``HeadToHeadEnv``).
+    ``terminate_off_track`` and the class options ``vehicle_class`` and ``wake`` (see
+    ``HeadToHeadEnv``).
     """
 
     def __init__(
         self,
         n_envs: int = 8,
         opponents: Sequence | None = None,
-        track: str | Track = "default",
+        track: str | Track | None = None,
         config: RaceConfig | None = None,
         **kwargs,
     ):
@@ -47,7 +49,13 @@ class HeadToHeadBatch:
         if opponents is None:
             opponents = default_opponents()
         opponents = list(opponents)
-        cfg = config or RaceConfig()
+        cfg, track = class_race(
+            kwargs.pop("vehicle_class", None),
+            track,
+            config,
+            kwargs.get("vehicle"),
+            kwargs.pop("wake", None),
+        )
         changes = {}
         n_cars = kwargs.pop("n_cars", 1 + len(opponents))
         if n_cars != 1 + len(opponents):

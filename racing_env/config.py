@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from .vehicle import VehicleParams
+from .vehicles.fullsize import FullSizeParams
 
 START_MODES = ("grid", "regions", "random")
 MAX_CARS = 8
@@ -23,7 +24,10 @@ MAX_CARS = 8
     R_OFF_FACTOR,
     R_MAX_SUB,
     R_SUB_GAIN,
-) = range(9)
+    R_WAKE,  # from RaceConfig (RaceConfig.pack_rules): the wake's strength, 0 = off
+    R_WAKE_LENGTH,  # the cars' length and width [m], the wake's units
+    R_WAKE_WIDTH,
+) = range(12)
 
 
 def _is_int(v) -> bool:
@@ -139,19 +143,39 @@ class RaceConfig:
     ``max_cycles`` control periods of ``dt`` s (default 500 x 0.1 s = 50 s, the paper's race);
     with ``laps`` set, the race also ends when the first car completes that many laps.
     Observations carry a curvature preview of ``n_preview`` values ``preview_ds`` m apart.
+
+    ``vehicle`` is a :class:`VehicleParams` (the paper's 1:43 ORCA car, the default) or a
+    :class:`~racing_env.vehicles.fullsize.FullSizeParams` (the full-size class; its rules,
+    start and ``preview_ds`` come from :func:`racing_env.scaling.scaled_configs`, see
+    :func:`racing_env.class_config.race_config_for`). ``wake`` is the strength of the wake
+    (:mod:`racing_env.wake`; 0 = off, exactly the world without it; 1 = the published
+    figures): each car's drag and downforce factors are computed from the cars ahead at the
+    start of every control period and held over it. The full-size car takes both; the ORCA
+    car has no downforce and takes the drag factor on its drag term ``C4 vx^2``.
     """
 
     n_cars: int = 3
     dt: float = 0.1
     max_cycles: int = 500
     laps: int | None = None
-    vehicle: VehicleParams = field(default_factory=VehicleParams)
+    vehicle: VehicleParams | FullSizeParams = field(default_factory=VehicleParams)
     rules: RulesConfig = field(default_factory=RulesConfig)
     start: StartConfig = field(default_factory=StartConfig)
     n_preview: int = 10
     preview_ds: float = 0.25
+    wake: float = 0.0
 
     def __post_init__(self):
+        if not isinstance(self.vehicle, (VehicleParams, FullSizeParams)):
+            raise ValueError(
+                f"vehicle must be a VehicleParams or a FullSizeParams, got "
+                f"{type(self.vehicle).__name__}"
+            )
+        w = self.wake
+        if isinstance(w, (bool, np.bool_)) or not (
+            isinstance(w, (int, float, np.integer, np.floating)) and math.isfinite(w) and w >= 0
+        ):
+            raise ValueError(f"RaceConfig.wake must be a finite number >= 0, got {w!r}")
         if not (_is_int(self.n_cars) and 1 <= self.n_cars <= MAX_CARS):
             raise ValueError(f"n_cars must be an integer in 1..{MAX_CARS}, got {self.n_cars!r}")
         if not (_is_int(self.max_cycles) and self.max_cycles >= 1):
@@ -161,6 +185,17 @@ class RaceConfig:
         if not (_is_int(self.n_preview) and self.n_preview >= 0):
             raise ValueError(f"n_preview must be a non-negative integer, got {self.n_preview!r}")
         _positive(self, "dt", "preview_ds")
+
+    @property
+    def vehicle_class(self) -> str:
+        """``"fullsize"`` for a :class:`FullSizeParams` vehicle, else ``"orca"``."""
+        return "fullsize" if isinstance(self.vehicle, FullSizeParams) else "orca"
+
+    def pack_rules(self) -> np.ndarray:
+        """The compiled step's rule vector: :meth:`RulesConfig.pack`, then ``wake`` and the
+        car's length and width (``R_WAKE``, ``R_WAKE_LENGTH``, ``R_WAKE_WIDTH``)."""
+        v = self.vehicle
+        return np.concatenate([self.rules.pack(), [float(self.wake), v.length, v.width]])
 
     def with_(self, **changes) -> RaceConfig:
         """A copy with some fields changed (validated)."""

@@ -142,10 +142,11 @@ def _separate(b, state, x_from, ahead, length, c_ds, c_dn, swept):
 
 @njit(cache=True)
 def _lockstep_with_contact(
-    b, state, phys, x0, tables, p, dt, rules, n_sub, applied, contact, substeps, ahead
+    b, state, phys, x0, tables, p, dt, rules, n_sub, applied, contact, substeps, ahead, wake
 ):
     """Integrate race ``b`` again from ``x0`` (N, 6) with every car in lockstep (``n_sub`` RK4
-    sub-steps on the :class:`racing_env.simulator.TrackTables` ``tables``), applying the
+    sub-steps on the :class:`racing_env.simulator.TrackTables` ``tables``, car i in the wake
+    factors ``wake[i] = (drag, downforce)`` held over the period), applying the
     contact rule of the rule vector ``rules`` at each pair's first moment of contact and
     keeping the bodies apart after every sub-step (:func:`_separate`; ``ahead`` (N, N) is
     filled with the pairs' order)."""
@@ -171,7 +172,18 @@ def _lockstep_with_contact(
                 prev[i, 0] = state[b, i, 0] - x0[i, 0]
                 prev[i, 1] = state[b, i, 1]
                 prev_x[i] = state[b, i]
-                _rk4_substep(state[b, i], phys[i, 0], phys[i, 1], kappa_tab, ds, length, p, h)
+                _rk4_substep(
+                    state[b, i],
+                    phys[i, 0],
+                    phys[i, 1],
+                    kappa_tab,
+                    ds,
+                    length,
+                    p,
+                    h,
+                    wake[i, 0],
+                    wake[i, 1],
+                )
         for i in range(n_cars):
             for j in range(i + 1, n_cars):
                 if hit[i, j]:
@@ -201,12 +213,30 @@ def _lockstep_with_contact(
                         x[:] = prev_x[car]
                         if u > 0.0:
                             _rk4_substep(
-                                x, phys[car, 0], phys[car, 1], kappa_tab, ds, length, p, u * h
+                                x,
+                                phys[car, 0],
+                                phys[car, 1],
+                                kappa_tab,
+                                ds,
+                                length,
+                                p,
+                                u * h,
+                                wake[car, 0],
+                                wake[car, 1],
                             )
                     _cut(x, applied, car, f)
                     if m > 0 and u < 1.0:
                         _rk4_substep(
-                            x, phys[car, 0], phys[car, 1], kappa_tab, ds, length, p, (1.0 - u) * h
+                            x,
+                            phys[car, 0],
+                            phys[car, 1],
+                            kappa_tab,
+                            ds,
+                            length,
+                            p,
+                            (1.0 - u) * h,
+                            wake[car, 0],
+                            wake[car, 1],
                         )
         if m > 0:
             _separate(b, state, prev_x, ahead, length, c_ds, c_dn, True)

@@ -6,6 +6,7 @@ the PettingZoo and Gymnasium environments, which run it with ``n_races=1``.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -18,15 +19,45 @@ PARALLEL_MIN_RACES = 16
 """Batches of at least this many races are stepped by the multi-threaded kernels."""
 from .track import Track  # noqa: E402
 from .tracks import make_track  # noqa: E402
+from .vehicle import VehicleParams  # noqa: E402
+from .vehicles.fullsize import FullSizeParams  # noqa: E402
+from .wake import A_DRAG  # noqa: E402
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
 S_CLIP = 1.0e4
-"""Bound [m] of the relative progress entries of an observation."""
+"""Bound [m] of the relative progress entries of an observation for the ORCA car (333 laps of
+a 30 m track); a class of another size has it times its length ratio (:func:`s_clip`)."""
 
 #: Keys of the envs' per-car info dicts, as :meth:`BatchedRaces.infos` fills them.
-INFO_KEYS = ("contact", "off_track", "laps", "progress", "substeps", "contacts", "off_tracks")
+INFO_KEYS = (
+    "contact",
+    "off_track",
+    "laps",
+    "progress",
+    "substeps",
+    "contacts",
+    "off_tracks",
+    "drag_factor",
+    "downforce_factor",
+)
+
+
+def s_clip(vehicle: VehicleParams | FullSizeParams) -> float:
+    """Bound [m] of the relative progress in an observation: :data:`S_CLIP` times the car's
+    length over the ORCA car's (1e4 m for ORCA; 3.9e5 m, 67 laps of Monza, at full size)."""
+    ratio = vehicle.length / VehicleParams().length
+    return S_CLIP if ratio == 1.0 else S_CLIP * ratio
+
+
+def top_speed(vehicle: VehicleParams | FullSizeParams, drag_factor: float = 1.0) -> float:
+    """Top speed [m/s] of either class on a straight with its drag times ``drag_factor``."""
+    if isinstance(vehicle, FullSizeParams):
+        return vehicle.top_speed(drag_factor)
+    if drag_factor == 1.0:
+        return vehicle.top_speed
+    return replace(vehicle, C4=vehicle.C4 * drag_factor).top_speed
 
 
 def start_states(
@@ -114,12 +145,20 @@ class BatchedRaces:
         if not (isinstance(n_races, (int, np.integer)) and n_races >= 1):
             raise ValueError(f"n_races must be a positive integer, got {n_races!r}")
         notice()  # the cache-fallback warning, if any, once per process
-        self.track = make_track(track)
         self.config = config or RaceConfig()
+        cls = self.config.vehicle_class
+        self.track = make_track(track, vehicle_class=cls)
+        if self.track.vehicle_class != cls:
+            raise ValueError(
+                f"track {self.track.name!r} is sized for the {self.track.vehicle_class!r} "
+                f"class but the race's vehicle is of the {cls!r} class; build the track with "
+                f"make_track(..., vehicle_class={cls!r})"
+            )
         self.n_races = int(n_races)
         self._tables = TrackTables.from_track(self.track, self.config.rules.wall_margin)
         self._params = self.config.vehicle.pack()
-        self._rules = self.config.rules.pack()
+        self._rules = self.config.pack_rules()
+        self._s_clip = s_clip(self.config.vehicle)
         self.rng = np.random.default_rng(seed)
         self._alloc()
 
@@ -138,6 +177,7 @@ class BatchedRaces:
         self.contact = np.zeros((b, n), dtype=np.int8)
         self.offtrack = np.zeros((b, n), dtype=np.int8)
         self.substeps = np.zeros((b, n), dtype=np.int32)
+        self.wake = np.ones((b, n, 2))
         self._obs = np.zeros((b, n, self.obs_dim), dtype=np.float32)
         self._phys = np.zeros((b, n, 2))
         v = self.config.vehicle
@@ -230,6 +270,7 @@ class BatchedRaces:
             self.contact,
             self.offtrack,
             self.substeps,
+            self.wake,
             self._where,
         )
         if code:
@@ -277,7 +318,7 @@ class BatchedRaces:
             self._tables,
             self.config.preview_ds,
             self.config.n_preview,
-            S_CLIP,
+            self._s_clip,
             self._obs,
         )
         return self._obs.copy()
@@ -300,6 +341,8 @@ class BatchedRaces:
             self.substeps[r, c].tolist(),
             self.contacts[r, c].tolist(),
             self.offtracks[r, c].tolist(),
+            self.wake[r, c, 0].tolist(),
+            self.wake[r, c, 1].tolist(),
         )
         return [dict(zip(INFO_KEYS, col)) for col in zip(*cols)]
 
@@ -308,11 +351,15 @@ class BatchedRaces:
 
         ``n`` within the walls, ``mu`` wrapped to [-pi, pi], ``0 <= vx``, ``|vx|, |vy| <=
         1.5 * top speed + 1`` m/s, ``|omega| <= 100`` rad/s; ``s`` is unbounded (unwrapped).
+        The top speed is the car's in the strongest tow the race's ``wake`` gives (drag factor
+        ``(1 - A_DRAG)^wake``, right behind another car): 4.2 m/s for the ORCA car without a
+        wake, 91 m/s for the full-size car at ``wake = 1`` (66 m/s in clean air).
         The fuzz (``alpha-racer fuzz``) checks every state against it.
         """
         tb, v = self._tables, self.config.vehicle
         wall = float(max(tb.wall_left.max(), tb.wall_right.max())) + 1e-6
-        vmax = 1.5 * max(v.top_speed, self.config.start.speed) + 1.0
+        tow = (1.0 - A_DRAG) ** self.config.wake if self.config.wake > 0 else 1.0
+        vmax = 1.5 * max(top_speed(v, tow), self.config.start.speed) + 1.0
         return (
             np.array([-np.inf, -wall, -np.pi, 0.0, -vmax, -100.0]),
             np.array([np.inf, wall, np.pi, vmax, vmax, 100.0]),
@@ -323,7 +370,7 @@ class BatchedRaces:
         lo, hi = self.state_bounds()
         own_lo, own_hi = lo.copy(), hi.copy()
         own_lo[0], own_hi[0] = 0.0, self.track.length  # own s is wrapped
-        rel_hi = np.concatenate([[S_CLIP], hi[1:] - lo[1:]])
+        rel_hi = np.concatenate([[self._s_clip], hi[1:] - lo[1:]])
         rel_hi[2] = np.pi  # wrapped difference
         kmax = float(np.abs(self._tables.kappa).max()) + 1e-6
         n, k = self.n_cars, self.config.n_preview

@@ -116,7 +116,7 @@ class HeadToHeadEnv(gym.Env):
     def __init__(
         self,
         opponents: Sequence | None = None,
-        track: str | Track = "default",
+        track: str | Track | None = None,
         render_mode: str | None = None,
         config: RaceConfig | None = None,
         start: str | StartConfig | None = None,
@@ -275,3 +275,68 @@ class HeadToHeadEnv(gym.Env):
     def close(self) -> None:
         """Close the ``"human"`` window if one is open."""
         self.race.close()
+
+
+class FullSizeEnv(HeadToHeadEnv):
+    """Full-size single-seaters on a real circuit: :class:`HeadToHeadEnv` with
+    ``vehicle_class="fullsize"``, registered as ``alpha_racer/FullSize-v0``.
+
+    The cars are TUM FTM's race car (:class:`racing_env.vehicles.fullsize.FullSizeParams`:
+    1200 kg, 230 kW, downforce, load-dependent tyres, top speed 66.4 m/s in clean air) on
+    Monza at full scale (5.79 km, 7.5-12.4 m wide) by default, with the wake on (strength 1:
+    a car behind another has less drag, up to +15% top speed at one length, and less
+    downforce, so less grip in corners; :mod:`racing_env.wake`). The rules, the start regions
+    and the curvature preview are the paper's scaled to the car's size
+    (:func:`racing_env.scaling.scaled_configs`): contact box 4.7 m x 2.0 m, walls 5 m beyond
+    the edges, start regions 15.7 m long and 23.5 m apart from ``s0`` = 117.5 m, preview
+    every 9.8 m.
+
+    **Action space**: ``Box(-1, 1, (2,), float32)``, ``[throttle, steering]``: throttle +1 full
+    power (power-limited drive, 7 kN cap), -1 full brake (20 kN, 60% front), steering onto
+    +-0.35 rad.
+
+    **Observation space**: ``car_0``'s observation, ``Box`` float32 of ``6 N + n_preview``, the
+    layout of :class:`racing_env.RacingParallelEnv` in SI units at full scale: own ``s`` in
+    [0, 5791) m, ``n`` within the walls (+-11.3 m at Monza), ``mu``, ``vx`` 0..91 m/s (bound
+    137 m/s: 1.5 x the top speed in the strongest tow + 1), ``vy``, ``omega`` (+-100 rad/s),
+    the other cars relative to it (``s`` clipped at +-3.9e5 m), curvature within +-0.1 1/m.
+    Normalise with running statistics, not with the bounds.
+
+    **Reward**, **starting state**, **episode end** (truncated after ``max_cycles`` = 500
+    steps, 50 s: about half a lap of Monza; pass ``max_cycles`` and ``max_episode_steps`` to
+    race longer, or ``laps``) and **info** (with ``drag_factor`` and ``downforce_factor``, the
+    learner's wake factors of the step): as :class:`HeadToHeadEnv`.
+
+    **Arguments**: those of :class:`HeadToHeadEnv` (``opponents``, default two raceline
+    followers on the class's racing line; ``track``, default ``"tumftm:Monza"``, any name is
+    built at full scale: ``"tumftm:NAME"``, ``"random:SEED"``, a CSV path; ``config``,
+    ``n_cars``, ``max_cycles``, ``laps``, ``start``, ``vehicle`` (a ``FullSizeParams``),
+    ``rules``, ``render_mode``, ``offtrack_penalty``, ``terminate_off_track``) and ``wake``
+    (strength, default 1; 0 turns the wake off). A track, vehicle or config of the ORCA class
+    is a ``ValueError``.
+
+    **Version History**: v0, initial version (the world of ``HeadToHead-v2`` at full size).
+    """
+
+    def __init__(
+        self,
+        opponents: Sequence | None = None,
+        track: str | Track | None = "tumftm:Monza",
+        render_mode: str | None = None,
+        config: RaceConfig | None = None,
+        start: str | StartConfig | None = None,
+        offtrack_penalty: float = 0.0,
+        terminate_off_track: bool = False,
+        **kwargs,
+    ):
+        kwargs.setdefault("vehicle_class", "fullsize")
+        super().__init__(
+            opponents,
+            track,
+            render_mode,
+            config,
+            start,
+            offtrack_penalty,
+            terminate_off_track,
+            **kwargs,
+        )

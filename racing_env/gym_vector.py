@@ -51,7 +51,7 @@ class HeadToHeadVectorEnv(VectorEnv):
         self,
         num_envs: int = 8,
         opponents: Sequence | None = None,
-        track: str | Track = "default",
+        track: str | Track | None = None,
         config: RaceConfig | None = None,
         max_episode_steps: int | None = None,
         **kwargs,

@@ -9,10 +9,12 @@ from gymnasium import spaces
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
+from .class_config import class_race
 from .config import RaceConfig, RulesConfig, StartConfig
 from .core import BatchedRaces, start_states
 from .track import Track
 from .vehicle import VehicleParams
+from .vehicles.fullsize import FullSizeParams
 
 if TYPE_CHECKING:
     from .render import HumanViewer, Renderer
@@ -44,6 +46,10 @@ class RacingParallelEnv(ParallelEnv):
     The cars follow the paper's dynamic bicycle model with Pacejka tyres in the Frenet frame
     (:mod:`racing_env.vehicle`), integrated with adaptive RK4 sub-steps inside each 0.1 s
     control period, under the paper's contact and off-track rules (:class:`RulesConfig`).
+    With ``vehicle_class="fullsize"`` they are full-size single-seaters
+    (:mod:`racing_env.vehicles.fullsize`) on a full-scale circuit (default Monza), with the
+    rules at their size and the wake (:mod:`racing_env.wake`: tow and dirty air) on
+    (:mod:`racing_env.class_config`).
 
     **Agents**: ``car_0 .. car_{N-1}`` for N = 1..8 (N = 1 is a time trial).
 
@@ -67,7 +73,7 @@ class RacingParallelEnv(ParallelEnv):
     last ``n_preview``          track curvature [1/m] at ``s_i + k * preview_ds``, k = 0..
     ==========================  =============================================================
 
-    Scales, for normalisation (default track, 38.9 m; default vehicle, top speed 4.2 m/s):
+    Scales, for normalisation (ORCA, default track, 38.9 m; default vehicle, top speed 4.2 m/s):
     own ``s`` in ``[0, L)``; ``n`` within the walls (+-0.40 m; the track edges are at
     +-0.25 m); ``mu`` in ``[-pi, pi]``, a few tenths on track; ``vx`` 0..4.2 m/s; ``vy`` and
     ``omega`` mostly within +-1 m/s and +-6 rad/s; relative ``s`` a few metres in a close race
@@ -76,7 +82,13 @@ class RacingParallelEnv(ParallelEnv):
     ``s``, ``n``, ``mu`` and the curvature are tight, ``vx`` and ``vy`` within 1.5 x top speed
     + 1 m/s, ``omega`` within +-100 rad/s, relative ``s`` within the +-1e4 m at which it is
     clipped (no tighter bound holds for every race: contact can push cars back). Normalise
-    with running statistics (SB3's ``VecNormalize``), not with the bounds.
+    with running statistics (SB3's ``VecNormalize``), not with the bounds. The full-size class
+    (Monza, 5.79 km) has the same layout in the same SI units, at its own scale: own ``s``
+    0..5793 m, ``n`` within the walls (+-(half width + 2.5 m), about +-8 m at Monza), ``vx``
+    0..66 m/s in clean air and up to 91 m/s right behind another car (the bound: 1.5 x that
+    + 1 = 138 m/s), ``vy`` and ``omega`` mostly within +-2 m/s and +-1 rad/s, relative ``s``
+    tens to hundreds of metres, clipped at +-3.9e5 m (:func:`racing_env.core.s_clip`: the ORCA
+    bound times the length ratio, 67 laps), curvature within +-0.1 1/m.
 
     ``state()`` returns the global joint state: every car's ``(s, n, mu, vx, vy, omega)`` with
     unwrapped ``s``, flattened in agent order (``6 N`` float32).
@@ -106,7 +118,8 @@ class RacingParallelEnv(ParallelEnv):
 
     **Info** (per agent): ``contact`` and ``off_track`` (rule applied this step), ``laps``
     (completed), ``progress`` (m driven since the start), ``substeps`` (RK4 sub-steps used),
-    ``contacts`` and ``off_tracks`` (counts so far).
+    ``contacts`` and ``off_tracks`` (counts so far), ``drag_factor`` and ``downforce_factor``
+    (the wake's factors held over this step, 1.0 in clean air or with ``wake=0``).
 
     **Arguments**: ``track`` (name for :func:`racing_env.tracks.make_track` or a
     :class:`Track`, default ``"default"``), ``n_cars`` (3), ``max_cycles`` (500), ``laps``
@@ -115,7 +128,13 @@ class RacingParallelEnv(ParallelEnv):
     :class:`RaceConfig`; the other keywords override its fields), ``render_mode``
     (``"human"`` or ``"rgb_array"``), ``offtrack_penalty`` (0.0) and ``terminate_off_track``
     (False): the reward and episode-end options above (not part of :class:`RaceConfig`; the
-    defaults are the paper's game).
+    defaults are the paper's game), ``vehicle_class`` (``"orca"`` or ``"fullsize"``; default:
+    the class of ``vehicle``, ``config`` or a :class:`Track`, else ``"orca"``): a track name
+    is built at the class's scale (default track ``"default"`` / ``"tumftm:Monza"``), and
+    without ``config`` the vehicle, rules, start and preview are the class's
+    (:func:`racing_env.class_config.race_config_for`); a track, vehicle or config of another
+    class is a ``ValueError``; ``wake`` (the wake's strength, ``RaceConfig.wake``; default
+    the class's: 0 for ORCA, 1 full size).
 
     **Reset options**: ``{"n_cars": int, "start": mode or StartConfig, "order": list}`` where
     ``order[i]`` is the start region of car i (0 = R1, the front-most region). All options are
@@ -155,19 +174,21 @@ class RacingParallelEnv(ParallelEnv):
 
     def __init__(
         self,
-        track: str | Track = "default",
+        track: str | Track | None = None,
         n_cars: int | None = None,
         max_cycles: int | None = None,
         laps: int | None = None,
         start: str | StartConfig | None = None,
-        vehicle: VehicleParams | None = None,
+        vehicle: VehicleParams | FullSizeParams | None = None,
         rules: RulesConfig | None = None,
         config: RaceConfig | None = None,
         render_mode: str | None = None,
         offtrack_penalty: float = 0.0,
         terminate_off_track: bool = False,
+        vehicle_class: str | None = None,
+        wake: float | None = None,
     ):
-        cfg = config or RaceConfig()
+        cfg, track = class_race(vehicle_class, track, config, vehicle, wake)
         changes: dict[str, Any] = {}
         if n_cars is not None:
             changes["n_cars"] = n_cars

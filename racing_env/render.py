@@ -52,6 +52,7 @@ from .draw import (
 from .track import Track
 from .trajectory_plot import plot_trajectories  # noqa: F401 (re-exported)
 from .vehicle import VehicleParams
+from .vehicles.fullsize import FullSizeParams
 
 if TYPE_CHECKING:
     from types import ModuleType
@@ -96,7 +97,7 @@ class Renderer:
     """
 
     track: Track
-    vehicle: VehicleParams
+    vehicle: VehicleParams | FullSizeParams
     width: int
     height: int
     raceline_xy: tuple[np.ndarray, np.ndarray] | None
@@ -115,7 +116,7 @@ class Renderer:
     def __init__(
         self,
         track: Track,
-        vehicle: VehicleParams | None = None,
+        vehicle: VehicleParams | FullSizeParams | None = None,
         raceline_xy=None,
         width: int = 640,
         height: int = 480,

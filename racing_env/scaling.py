@@ -81,8 +81,10 @@ or ``"width"``; every other field does not scale (see the module docstring)."""
 
 
 class _Sized(Protocol):
-    length: float
-    width: float
+    @property
+    def length(self) -> float: ...
+    @property
+    def width(self) -> float: ...
 
 
 def vehicle_size(vehicle: str | tuple[float, float] | _Sized) -> tuple[float, float]:

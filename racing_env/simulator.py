@@ -41,6 +41,9 @@ from .config import (  # the rule vector's layout, also imported from here
     R_OFF_ON,
     R_REAR,  # noqa: F401 (re-exported)
     R_SUB_GAIN,
+    R_WAKE,
+    R_WAKE_LENGTH,
+    R_WAKE_WIDTH,
 )
 from .contact import _cut, _lockstep_with_contact, _separate
 from .integrator import (
@@ -51,6 +54,7 @@ from .integrator import (
 )
 from .interp import periodic_lookup as _lookup
 from .track import Track
+from .wake import wake_of_car
 
 
 class TrackTables(NamedTuple):
@@ -87,9 +91,15 @@ class TrackTables(NamedTuple):
         )
 
 
-def _step_one_race(b, state, phys, tables, p, dt, rules, reward, contact, offtrack, substeps):
+def _step_one_race(b, state, phys, tables, p, dt, rules, reward, contact, offtrack, substeps, wake):
     """Physics, rules and reward of race ``b`` for one control period (inputs ``phys`` (N, 2))
     on the track of the :class:`TrackTables` ``tables``.
+
+    The wake (rule vector's ``R_WAKE`` strength > 0): at the start of the period each car's
+    ``(drag_factor, downforce_factor)`` is computed from the cars ahead
+    (:func:`racing_env.wake.wake_of_car`, cars of ``R_WAKE_LENGTH`` x ``R_WAKE_WIDTH``) and held
+    over the whole period (0.1 s: a gap changes by a few metres in it at full size, the factor
+    by a few per cent at most), written to ``wake[b]`` (N, 2); 1.0 exactly when off.
 
     Contact is checked over the whole period, not only at its end, so that no car can drive
     through another. First every car is integrated on its own (its own number of sub-steps),
@@ -113,6 +123,15 @@ def _step_one_race(b, state, phys, tables, p, dt, rules, reward, contact, offtra
     hi_n = np.empty(n_cars)
     k_max = 2
     max_sub = int(rules[R_MAX_SUB])
+    fac = wake[b]
+    fac[:, :] = 1.0
+    if rules[R_WAKE] > 0.0 and n_cars > 1:
+        s_now = state[b, :, 0].copy()
+        n_now = state[b, :, 1].copy()
+        lens = np.full(n_cars, rules[R_WAKE_LENGTH])
+        wids = np.full(n_cars, rules[R_WAKE_WIDTH])
+        for i in range(n_cars):
+            fac[i, 0], fac[i, 1] = wake_of_car(i, s_now, n_now, lens, wids, length, rules[R_WAKE])
     for i in range(n_cars):
         before[i] = state[b, i, 0]
         x = state[b, i]
@@ -124,7 +143,9 @@ def _step_one_race(b, state, phys, tables, p, dt, rules, reward, contact, offtra
         hi_n[i] = x[1]
         h = dt / k
         for _ in range(k):
-            _rk4_substep(x, phys[i, 0], phys[i, 1], kappa_tab, ds, length, p, h)
+            _rk4_substep(
+                x, phys[i, 0], phys[i, 1], kappa_tab, ds, length, p, h, fac[i, 0], fac[i, 1]
+            )
             lo_s[i] = min(lo_s[i], x[0] - x0[i, 0])
             hi_s[i] = max(hi_s[i], x[0] - x0[i, 0])
             lo_n[i] = min(lo_n[i], x[1])
@@ -149,7 +170,20 @@ def _step_one_race(b, state, phys, tables, p, dt, rules, reward, contact, offtra
         if possible:
             ahead = np.empty((n_cars, n_cars), dtype=np.bool_)
             _lockstep_with_contact(
-                b, state, phys, x0, tables, p, dt, rules, k_max, applied, contact, substeps, ahead
+                b,
+                state,
+                phys,
+                x0,
+                tables,
+                p,
+                dt,
+                rules,
+                k_max,
+                applied,
+                contact,
+                substeps,
+                ahead,
+                fac,
             )
     _clamp_to_walls(b, state, tables)
     if possible:  # a wall may have moved a car sideways into another: keep them apart
@@ -212,6 +246,7 @@ def _advance(
     contact,
     offtrack,
     substeps,
+    wake,
     where,
 ):
     """Advance every race in ``state`` (B, N, 6) by one control period, in place.
@@ -221,7 +256,8 @@ def _advance(
     track of the :class:`TrackTables` ``tables``.
     Per-car outputs (B, N): ``reward`` the change of (s_i - max_{j != i} s_j) (the change of
     s_i when N == 1), ``contact`` / ``offtrack`` 1 if that rule applied this step,
-    ``substeps`` RK4 sub-steps used, ``lap_event`` the race time [s] of a lap completed this
+    ``substeps`` RK4 sub-steps used, ``wake`` (B, N, 2) the wake's (drag, downforce) factors
+    held over this step (1.0 without a wake), ``lap_event`` the race time [s] of a lap completed this
     step or -1. Running totals updated: ``t`` (B,), ``laps``, ``contacts``, ``offtracks``.
     Returns 0, or 1 if an action is bad (NaN; or, for physical inputs, not finite: normalised
     +-inf is clipped like any out-of-range value) / 2 if a state became non-finite, with the
@@ -252,7 +288,7 @@ def _advance(
             phys[i, 0] = a0
             phys[i, 1] = a1
         before = _step_one_race(
-            b, state, phys, tables, p, dt, rules, reward, contact, offtrack, substeps
+            b, state, phys, tables, p, dt, rules, reward, contact, offtrack, substeps, wake
         )
         # bookkeeping: laps (the line is s_line + k L), time of crossing within the period
         for i in range(n_cars):

@@ -169,6 +169,9 @@ class Track:
     _sx: CubicSpline = field(repr=False)
     _sy: CubicSpline = field(repr=False)
     _tree: cKDTree = field(repr=False)
+    vehicle_class: str = "orca"
+    """The vehicle class the track is sized for (``"orca"``, the 1:43 car, or ``"fullsize"``;
+    set by :func:`racing_env.tracks.make_track`): a race refuses a car of another class."""
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -272,11 +275,22 @@ class Track:
         return self.w_left + self.w_right
 
     def fingerprint(self) -> str:
-        """Short hash of the geometry, for cache keys."""
+        """Short hash of the geometry (and of the vehicle class, unless ``"orca"``: the ORCA
+        tracks' fingerprints are those of their geometry alone), for cache keys."""
         h = hashlib.sha1()
         for a in (self.x, self.y, self.w_left, self.w_right):
             h.update(np.ascontiguousarray(np.round(a, 9)).tobytes())
+        if self.vehicle_class != "orca":
+            h.update(f"vehicle_class={self.vehicle_class}".encode())
         return h.hexdigest()[:16]
+
+    def for_class(self, vehicle_class: str) -> Track:
+        """This track labelled for ``vehicle_class`` (the same geometry; itself if already)."""
+        if vehicle_class == self.vehicle_class:
+            return self
+        from dataclasses import replace
+
+        return replace(self, vehicle_class=vehicle_class)
 
     # ------------------------------------------------------------------ lookups
     # (the lookups return a float for a float ``s`` and an array for an array ``s``)

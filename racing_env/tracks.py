@@ -367,6 +367,8 @@ def make_track(
     """Build a track from a name: ``default``, ``oval``, ``random:SEED``, ``tumftm:NAME``
     (a circuit of the TUMFTM database, found by :func:`tumftm_file`) or a path to a TUMFTM CSV
     file. A :class:`Track` is returned unchanged. Results are memoised per process.
+    The track's ``vehicle_class`` is the class it was built for (the fingerprint of a
+    full-size track differs from the same geometry's for ORCA).
 
     ``vehicle_class`` (default ``"orca"``, the paper's 1:43 car; or ``"fullsize"``) sizes the
     track for that class: ``tumftm:NAME`` at :func:`track_scale` (1/43 or full size) unless
@@ -423,5 +425,6 @@ def make_track(
             f"unknown track {spec!r}; expected one of {sorted(BUILTIN)}, "
             f"'random:SEED', 'tumftm:NAME' or a .csv path"
         )
+    track = track.for_class(cls)
     _CACHE[key] = track
     return track

@@ -62,9 +62,15 @@ wake of any car ahead within ``R`` lengths applies. The wake is frozen over a co
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from numpy.typing import ArrayLike
 
 WAKE_RANGE = 60.0  # R [leader lengths]: the wake ends (smoothly) there
 A_DOWNFORCE = 0.8818800581326804  # downforce loss at g = 0 (FIA 2017-21 fit)
@@ -139,7 +145,14 @@ def _check_strength(strength) -> float:
     return float(strength)
 
 
-def wake_factors_cars(s, n, length, width, track_length, strength=1.0):
+def wake_factors_cars(
+    s: ArrayLike,
+    n: ArrayLike,
+    length: float | ArrayLike,
+    width: float | ArrayLike,
+    track_length: float,
+    strength: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Batched wake of N cars: ``(drag_factor, downforce_factor)``, arrays (N,).
 
     ``s`` unwrapped arc lengths [m] (N,), ``n`` lateral offsets [m] (N,), ``length`` and
@@ -173,7 +186,7 @@ def wake_factors_cars(s, n, length, width, track_length, strength=1.0):
     return drag, down
 
 
-def torcs_drag_factor(distance, c_d, speed):
+def torcs_drag_factor(distance: float, c_d: float, speed: float) -> float:
     """TORCS' drag factor ``k^2``, ``k = 1 - exp(-2 d / (C_d v))`` (for comparison only):
     ``distance`` centre to centre [m], ``c_d`` the leader's drag coefficient [kg/m], ``speed``
     the leader's [m/s]."""
@@ -181,7 +194,7 @@ def torcs_drag_factor(distance, c_d, speed):
     return k * k
 
 
-def fit_curve(points):
+def fit_curve(points: Sequence[tuple[float, float]]) -> tuple[float, float, float]:
     """Fit ``(A, G0, Q)`` of ``A * wake_shape(g)`` through three ``(gap, loss)`` points
     (exactly, by least squares on the logs). Reproduces the module's constants."""
     from scipy.optimize import least_squares

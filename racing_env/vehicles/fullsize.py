@@ -357,6 +357,9 @@ frenet_ode_fullsize_numpy = bind(frenet_ode_fullsize, np)
 frenet_ode_fullsize_math = bind(frenet_ode_fullsize, math)
 """:func:`frenet_ode_fullsize` on Python floats with ``math``: the copy numba compiles."""
 
+for _copy in (frenet_ode_fullsize_numpy, frenet_ode_fullsize_math):
+    _copy.__annotations__ = dict(frenet_ode_fullsize.__annotations__)  # bind() copies code only
+
 ode_fullsize = njit(cache=True)(frenet_ode_fullsize_math)
 """The numba-compiled scalar copy (what a simulator kernel calls)."""
 
