@@ -138,6 +138,10 @@ class AlphaAgent(MPCAgent):
         self._max_ms: deque = deque(maxlen=100_000)
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
+        from racing_env.tracks import make_track
+
+        track = make_track(track)
+        self._check_class(track)  # before the MPC is built for it
         super().reset(track, agent_id, seed)
         if self.auto:
             self.model = None
@@ -164,6 +168,26 @@ class AlphaAgent(MPCAgent):
                 f"was asked for; train a model on races of the {space!r} space "
                 f"(alpha-racer collect --space {space}) or drop space (alpha then "
                 f"takes its model's)"
+            )
+
+    def _check_class(self, track: Track) -> None:
+        """Refuse a track of another vehicle class than the model's (``ValueError`` naming the
+        model, its class and the track's): a potential learnt from races of one class knows
+        nothing of another's (DESIGN section 7). ``model="auto"`` races the shipped models,
+        all trained for the ``"orca"`` class."""
+        from racing_env.vehicles import track_class
+
+        cls = track_class(track)
+        if self.auto:
+            have, name = "orca", f"{AUTO!r} (the shipped models)"
+        else:
+            have = self._model().vehicle_class
+            name = repr(self.model_name if isinstance(self.model_name, str) else "given")
+        if have != cls:
+            raise ValueError(
+                f"alpha-potential model {name} was trained for the {have!r} vehicle class; "
+                f"track {track.name!r} is sized for the {cls!r} class. Train a model on "
+                f"races of the {cls!r} class, or race mpc / ibr / raceline there"
             )
 
     def _check_track(self) -> None:

@@ -14,6 +14,7 @@ import numpy as np
 from racing_env.track import Track
 from racing_env.tracks import make_track
 from racing_env.vehicle import VehicleParams
+from racing_env.vehicles import FullSizeParams, vehicle_for_track
 
 from .base import median_p99, register_agent
 from .ibr_data import IBRConfig
@@ -45,7 +46,7 @@ class IBRAgent:
     def __init__(
         self,
         config: IBRConfig | None = None,
-        vehicle: VehicleParams | None = None,
+        vehicle: VehicleParams | FullSizeParams | None = None,
         n_preview: int = 10,
         **config_fields,
     ):
@@ -63,13 +64,15 @@ class IBRAgent:
         if not (isinstance(n_preview, (int, np.integer)) and n_preview >= 0):
             raise ValueError(f"n_preview must be a non-negative integer, got {n_preview!r}")
         self.config = config or IBRConfig(**config_fields)
-        self.vehicle = vehicle or VehicleParams()
+        self.vehicle_given = vehicle
+        self.vehicle: VehicleParams | FullSizeParams = vehicle or VehicleParams()
         self.n_preview = n_preview
         self.ibr: IBR | None = None
         self.track: Track | None = None
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         track = make_track(track)
+        self.vehicle = vehicle_for_track(track, self.vehicle_given, "IBRAgent (ibr)")
         if self.ibr is None or self.track is not track:
             self.ibr = IBR(track, self.vehicle, self.config)
         self.track = track

@@ -75,6 +75,7 @@ import numpy as np
 
 from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
+from racing_env.vehicles import FullSizeParams
 
 from .ibr_data import IBRConfig, _Decision, _Plan
 from .ibr_kernels import _assemble, _merit, _reach, _separation_pairs
@@ -88,6 +89,7 @@ from .mpc import (
     stage_nodes,
     trajectory_function,
 )
+from .mpc.prediction import limited_throttle
 from .mpc_agent import progress_rate
 
 if TYPE_CHECKING:
@@ -118,13 +120,33 @@ class IBR:
     """
 
     def __init__(
-        self, track: Track, vehicle: VehicleParams | None = None, config: IBRConfig | None = None
+        self,
+        track: Track,
+        vehicle: VehicleParams | FullSizeParams | None = None,
+        config: IBRConfig | None = None,
     ):
+        from dataclasses import replace
+
         import daqp  # noqa: F401  (fail early with an ImportError naming the package)
 
+        from racing_env.vehicles import vehicle_for_track
+
+        from .mpc.config import CLASS_SCALED_FIELDS, class_scale
+
         self.track = track
-        self.vehicle = vehicle or VehicleParams()
+        self.vehicle = vehicle_for_track(track, vehicle, "IBR")
         self.cfg = config or IBRConfig()
+        k_len, k_wid = class_scale(self.vehicle)
+        if (k_len, k_wid) != (1.0, 1.0):  # the ORCA car's lengths, scaled to this car's size
+            k = {"length": k_len, "width": k_wid}
+            self.cfg = replace(
+                self.cfg,
+                **{
+                    f: getattr(self.cfg, f) * k[kind]
+                    for f, kind in CLASS_SCALED_FIELDS.items()
+                    if hasattr(self.cfg, f)
+                },
+            )
         self._mcfg = self.cfg.mpc_config()
         K = self.cfg.horizon
         self._traj = trajectory_function(self.vehicle, self._mcfg)
@@ -455,4 +477,10 @@ class IBR:
             "plans": np.stack([p.X for p in plans]),
             "inputs": np.stack([p.U for p in plans]),
         }
+        if isinstance(self.vehicle, FullSizeParams):  # the prediction's throttle share
+            import math
+
+            v = self.vehicle
+            u0 = np.array(u0, dtype=float)
+            u0[0] = limited_throttle(v, float(u0[0]), float(states[0, 3]), math)
         return u0

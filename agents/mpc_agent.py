@@ -11,6 +11,7 @@ from racing_env.observation import joint_state_from_observation, split_observati
 from racing_env.track import Track
 from racing_env.tracks import make_track
 from racing_env.vehicle import VehicleParams
+from racing_env.vehicles import FullSizeParams, vehicle_for_track
 
 from .base import median_p99, register_agent
 from .best_theta import best_theta
@@ -75,6 +76,12 @@ class MPCAgent:
     zeta range [0.8, 1.05]: the MPC drives with ``min(zeta, zeta_max)`` whatever its theta
     says (``alpha-racer strategy``'s defend scenario handicaps the ego with it; the alpha
     agent maximises its potential within the lowered box instead).
+
+    Vehicle class: at ``reset`` the agent races the track's class (``track.vehicle_class``,
+    ``"orca"`` when absent): ``vehicle`` if given (of another class: ``ValueError``), else
+    the class's default car; the prediction model, the input bounds, the racing line (with
+    the class's scaled settings) and, through :func:`agents.mpc.config.class_scale`, the
+    config's lengths, the cost's scale and theta's lengths follow the class.
     """
 
     #: theta's bounds (:data:`agents.reference.THETA_LOW` / ``THETA_HIGH``), for ``alpha-racer agents``
@@ -103,7 +110,7 @@ class MPCAgent:
         theta: str | None = None,
         space: str = "paper",
         config: MPCConfig | None = None,
-        vehicle: VehicleParams | None = None,
+        vehicle: VehicleParams | FullSizeParams | None = None,
         n_preview: int = 10,
         line: str = "curvature",
         zeta_max: float | None = None,
@@ -155,23 +162,30 @@ class MPCAgent:
             raise ValueError(f"plan must be one of {tuple(PLANS)}, got {plan!r}")
         self.plan = plan
         self.config = replace(config or MPCConfig(), **PLANS[plan])
-        self.vehicle = vehicle or VehicleParams()
+        self.vehicle_given = vehicle
+        self.vehicle: VehicleParams | FullSizeParams = vehicle or VehicleParams()
         self.mpc: MPC | None = None
         self.track: Track | None = None
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
+        from racing_env.controllers import raceline_config_for
         from racing_env.raceline import get_raceline
 
         track = make_track(track)
+        self.vehicle = vehicle_for_track(track, self.vehicle_given, f"{type(self).__name__}")
         if self.best:  # before anything is built: a missing entry fails fast
             self.theta = best_theta(track, space=self.space)
         if self.mpc is None or self.track is not track:
             self.mpc = MPC(track, self.vehicle, self.config, line=self.line)
         self.track = track
-        self.raceline = get_raceline(track, self.vehicle, self.raceline_config)
+        self.raceline = get_raceline(
+            track, self.vehicle, raceline_config_for(self.vehicle, self.line)
+        )
         self.blend_line: Raceline | None = None  # the lap-time line, built at the first b > 0
         self.prediction = (  # the other cars along the track's minimum-curvature line
-            LinePrediction(track, get_raceline(track, self.vehicle))
+            LinePrediction(
+                track, get_raceline(track, self.vehicle, raceline_config_for(self.vehicle))
+            )
             if self.predict == "line"
             else None
         )
@@ -198,11 +212,12 @@ class MPCAgent:
         if theta.b == 0.0:
             return None
         if self.blend_line is None:
-            from racing_env.raceline import RacelineConfig, get_raceline
+            from racing_env.controllers import raceline_config_for
+            from racing_env.raceline import get_raceline
 
             assert self.track is not None  # reset() sets it
             self.blend_line = get_raceline(
-                self.track, self.vehicle, RacelineConfig(objective="lap_time")
+                self.track, self.vehicle, raceline_config_for(self.vehicle, "lap_time")
             )
         return self.blend_line
 
@@ -248,6 +263,7 @@ class MPCAgent:
                 dt=self.config.dt,
                 blend=self._blend_line(theta),
                 side=self._pass_side(),
+                vehicle=None if isinstance(self.vehicle, VehicleParams) else self.vehicle,
             )
             neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
             opp = None

@@ -87,6 +87,9 @@ class PotentialModel:
             )
         #: the policy space of the model's thetas (a model without one is the paper's)
         self.space: PolicySpace = model_space(meta)
+        self.vehicle_class: str = str(meta.get("vehicle_class", "orca"))
+        """The vehicle class of the races it was trained on (``"orca"`` when not recorded:
+        every model before the full-size class)."""
         sp = self.space
         box = (meta.get("theta_low"), meta.get("theta_high"))
         if box[0] is None or box[1] is None:

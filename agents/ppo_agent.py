@@ -350,6 +350,29 @@ class PPOAgent(FrozenPolicy):
         )
         self.policy.set_training_mode(False)
 
+    @property
+    def vehicle_class(self) -> str:
+        """The vehicle class the policy was trained for: its checkpoint's ``vehicle_class``
+        (``"orca"`` when not recorded: every checkpoint before the full-size class)."""
+        return str(self.meta.get("vehicle_class", "orca"))
+
+    def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
+        """As :meth:`FrozenPolicy.reset`; a track of another vehicle class than the
+        checkpoint's is a ``ValueError`` naming both (its observations' scales differ)."""
+        from racing_env.tracks import make_track
+        from racing_env.vehicles import track_class
+
+        track = make_track(track)
+        cls = track_class(track)
+        if cls != self.vehicle_class:
+            raise ValueError(
+                f"PPO checkpoint {str(self.checkpoint)!r} was trained for the "
+                f"{self.vehicle_class!r} vehicle class; track {track.name!r} is sized for the "
+                f"{cls!r} class. Train a policy on races of the {cls!r} class "
+                f"(alpha-racer selfplay), or race mpc / ibr / raceline there"
+            )
+        super().reset(track, agent_id, seed)
+
     def model_files(self) -> list[Path]:
         """The files this agent loaded (for a run's provenance: their content hashes)."""
         return [self.checkpoint] + ([self.vecnormalize] if self.vecnormalize else [])

@@ -125,6 +125,7 @@ def reference_trajectory(
     reachable: bool = True,
     blend: Raceline | None = None,
     side: float | str | None = None,
+    vehicle: object | None = None,
 ) -> Reference:
     """The MPC reference of the paper for one car.
 
@@ -150,6 +151,12 @@ def reference_trajectory(
     reachable : bool
         Cap the reference's progress at what the car can reach from its current speed
         (step 1b; default). ``False`` is the paper's reference, literally.
+    vehicle : the car's parameters (default ``None``: the ORCA car)
+        Of another vehicle class, theta's lengths are read in that class's size
+        (:func:`agents.theta.theta_length_scales`: ``s1`` in car widths, ``s2`` in car
+        lengths, ``s3`` per share of the top speed), :data:`PASS_ROOM` is scaled by the width
+        ratio and ``vehicle_width`` defaults to its width. The run-up of step 1b is the
+        track's vehicle class's (``track.vehicle_class``).
 
     Construction (``k = 1..K``, every longitudinal difference on unwrapped progress):
 
@@ -234,6 +241,9 @@ def reference_trajectory(
         m = opp.shape[0]
         if m and not np.isfinite(opp).all():
             _bad_state("opponents", opp)
+    k_s1, k_s2, k_s3 = _theta.theta_length_scales(vehicle)
+    if vehicle_width is None and k_s1 != 1.0:
+        vehicle_width = vehicle.width  # type: ignore[union-attr]
     if vehicle_width is None:
         w_half = _DEFAULT_HALF_WIDTH
     else:
@@ -306,6 +316,8 @@ def reference_trajectory(
         rows = opp.tolist()
         ahead, behind = _neighbours_list([r[0] - s_e for r in rows])
         s1, s2, s3 = th.s1, th.s2, th.s3
+        if k_s1 != 1.0:  # another vehicle class: theta's lengths in its size
+            s1, s2, s3 = s1 * k_s1, s2 * k_s2, s3 * k_s3
         v_min = float(v_pert.min()) if s3 > 0 else math.inf
         for j in (ahead, behind):  # at most 2; vectorised over K
             if j < 0:
@@ -329,7 +341,7 @@ def reference_trajectory(
             #      to the scalar (s1 - |dn|)
             dn = n_e - nj
             if side is not None and j == ahead:  # extended: chosen / held side
-                sgn = _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half)
+                sgn = _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half, PASS_ROOM * k_s1)
                 c = s1 - sgn * dn  # to s1 beside j on that side
                 pass_side = sgn if decay.max() > PASS_HOLD_DECAY else 0.0
             else:
@@ -407,7 +419,7 @@ def _room(tab: _Tables, sj_w: float, inv_ds: float, nj: float) -> tuple[float, f
     return _interp1(tab.wl, sj_w, inv_ds) - nj, _interp1(tab.wr, sj_w, inv_ds) + nj
 
 
-def _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half) -> float:
+def _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half, pass_room=PASS_ROOM) -> float:
     """The side (+1 left, -1 right) of the car ahead to pass on: ``side`` itself when it is
     +-1 (held by the agent), else (``"room"``) the side the ego is on (``sign(dn)``, the one
     with more room when level), unless the room between the car ahead and that edge is below
@@ -421,7 +433,7 @@ def _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half) -> float:
     room_r -= w_half
     sgn = 1.0 if dn > 0 or (dn == 0 and room_l >= room_r) else -1.0
     mine, other = (room_l, room_r) if sgn > 0 else (room_r, room_l)
-    if mine < PASS_ROOM and other > mine:
+    if mine < pass_room and other > mine:
         sgn = -sgn
     return sgn
 

@@ -94,20 +94,27 @@ class _Tables:
         const = np.ptp(wl) == 0 and np.ptp(wr) == 0
         self.w_const = (float(wl[0]), float(wr[0])) if const else None
         self.run_t, self.run_v, self.run_x = _run_up(
-            friction if friction is not None else float(raceline.mu_nominal)
+            friction if friction is not None else float(raceline.mu_nominal),
+            vehicle_class=str(getattr(track, "vehicle_class", "orca")),
         )
         # (not set read-only: np.interp copies read-only tables on every call)
         self.refs = (raceline, track)  # keep them alive so their ids stay unique
 
 
-def _run_up(mu: float, dt: float = 0.005, t_max: float = 60.0):
+def _run_up(mu: float, dt: float = 0.005, t_max: float = 60.0, vehicle_class: str = "orca"):
     """The car's full-throttle run from rest on a straight under the g-g-v envelope scaled by
     ``mu``: times ``t`` [s], speeds ``v`` [m/s] (strictly increasing) and distances ``x`` [m],
     each shape (P,). The drive limit depends on speed only, so the run from any speed ``v0``
-    is this one's tail from the time it passes ``v0``."""
+    is this one's tail from the time it passes ``v0``. The envelope is the default car's of
+    ``vehicle_class`` (the track's); the full-size run takes ``t_max = 120`` s steps of 0.02 s."""
     from racing_env.envelope import ggv
+    from racing_env.vehicles import vehicle_class as _class
 
-    env = ggv()
+    if vehicle_class == "orca":
+        env = ggv()
+    else:
+        env = ggv(_class(vehicle_class)())
+        dt, t_max = max(dt, 0.02), max(t_max, 120.0)
     v_grid = np.linspace(0.0, env.top_speed, 400)
     a_grid = np.maximum(env.longitudinal_limits(v_grid, 0.0, mu)[0], 0.0)
     t, v, x = [0.0], [0.0], [0.0]

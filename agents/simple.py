@@ -18,7 +18,9 @@ register_agent("raceline", RacelineFollower)
 
 @register_agent("random")
 class RandomAgent:
-    """Uniformly random actions in [-1, 1]^2 (seeded by reset)."""
+    """Uniformly random actions in [-1, 1]^2 (seeded by reset): the env's normalised action
+    space, the same in every vehicle class (the env maps it onto the class's throttle and
+    steering bounds)."""
 
     def __init__(self):
         self.rng = np.random.default_rng()
@@ -32,7 +34,8 @@ class RandomAgent:
 
 @register_agent("constant")
 class ConstantAgent:
-    """The same action every step (default: half throttle, straight)."""
+    """The same action every step (default: half throttle, straight), in the env's normalised
+    action space: the same in every vehicle class."""
 
     param_bounds = {"throttle": (-1.0, 1.0), "steering": (-1.0, 1.0)}
 

@@ -29,6 +29,7 @@ __all__ = [
     "policy_space",
     "space_of",
     "space_of_dim",
+    "theta_length_scales",
 ]
 
 # ====================================================================== theta
@@ -232,3 +233,23 @@ def policy_space(name: str | PolicySpace) -> PolicySpace:
         return SPACES[name]
     except (KeyError, TypeError):
         raise ValueError(f"policy space must be one of {sorted(SPACES)}, got {name!r}") from None
+
+
+# ====================================================================== vehicle classes
+def theta_length_scales(vehicle: object | None) -> tuple[float, float, float]:
+    """Factors ``(k_s1, k_s2, k_s3)`` that turn theta's lengths, given for the ORCA car (the
+    box above), into ``vehicle``'s class: ``s1`` [m] times ``k_wid`` (clearance in car
+    widths), ``s2`` [1/m^2] times ``1 / k_len^2`` (decay distance in car lengths), ``s3`` [s/m]
+    times the ORCA car's top speed over ``vehicle``'s (blocking fraction per the same share
+    of the top speed). ``(1, 1, 1)`` for the ORCA car or ``None``. The theta box itself is
+    the same in every class, so a theta, a policy map or a potential names the same
+    behaviour. (:func:`agents.mpc.config.class_scale` lists every length the class scales.)"""
+    from racing_env.scaling import size_ratios
+    from racing_env.vehicle import VehicleParams
+
+    if vehicle is None or isinstance(vehicle, VehicleParams):
+        return 1.0, 1.0, 1.0
+    k_len, k_wid = size_ratios(vehicle)  # type: ignore[arg-type]
+    top = vehicle.top_speed  # type: ignore[attr-defined]
+    top = top() if callable(top) else top
+    return k_wid, 1.0 / (k_len * k_len), VehicleParams().top_speed / float(top)

@@ -19,16 +19,71 @@ from .observation import split_observation
 from .track import Track
 from .tracks import make_track
 from .vehicle import VehicleParams
+from .vehicles import FullSizeParams, vehicle_for_track
+from .vehicles.fullsize import (
+    P_CLF,
+    P_CLR,
+    P_EPSF,
+    P_EPSR,
+    P_FBRAKE,
+    P_FZ0,
+    P_FZSHIFT,
+    P_G,
+    P_KBF,
+    P_MU,
+)
+from .vehicles.fullsize import P_LF as P_LF_FS
+from .vehicles.fullsize import P_LR as P_LR_FS
+from .vehicles.fullsize import P_M as P_M_FS
+from .vehicles.fullsize import P_VLOW as P_VLOW_FS
 
 if TYPE_CHECKING:
-    from .raceline import Raceline
+    from .raceline import Raceline, RacelineConfig
+
+#: where the full-size class's constants start in :meth:`RacelineFollower.gains` (the ORCA
+#: car's gains end there: its feed-forward and its races stay the same bit for bit)
+FULLSIZE_GAINS = 13
+#: shares ``(drive, brake)`` of an axle's peak force the full-size follower asks of it along
+#: the car (its traction and brake limits). At the peak itself (a launch at full throttle:
+#: 7 kN drive on 5.6 kN of rear grip; a stop at full brake: 12 kN front on 5-6.5 kN) the
+#: friction ellipse leaves the axle 1% of its lateral force and the car spins or goes
+#: straight on. The drive share is lower: the rear axle's lateral force is what keeps the
+#: car's yaw stable, and at 90% of its peak along the car (44% left across) the car is
+#: unstable above 22 m/s (measured: it spun at 36 m/s on Monza's straight); at 60% (80%
+#: left) the critical speed is about 50 m/s, where the power limit keeps the drive below it.
+FULLSIZE_GRIP_USE = (0.6, 0.9)
 
 
-def understeer_gradient(v: VehicleParams) -> float:
+def understeer_gradient(v: VehicleParams | FullSizeParams) -> float:
     """Linear-range understeer gradient K_us [rad s^2/m] of the bicycle model:
-    ``delta = L kappa + K_us v^2 kappa`` in steady cornering (cornering stiffness = B C D)."""
-    ca_f, ca_r = v.Bf * v.Cf * v.Df, v.Br * v.Cr * v.Dr
+    ``delta = L kappa + K_us v^2 kappa`` in steady cornering (cornering stiffness = B C D).
+
+    For the full-size class D is each axle's peak force at its static load (no downforce:
+    K_us is then -6.8e-5 rad s^2/m, slightly oversteering; with the downforce of 60 m/s it
+    is nearly neutral, 2e-7, so the steering differs by under 0.1% of ``L kappa``)."""
+    if isinstance(v, FullSizeParams):
+        d_f, d_r = v.axle_grip(0.0)
+        ca_f, ca_r = v.B_f * v.C_f * d_f, v.B_r * v.C_r * d_r
+    else:
+        ca_f, ca_r = v.Bf * v.Cf * v.Df, v.Br * v.Cr * v.Dr
     return v.m / (v.lf + v.lr) * (v.lr / ca_f - v.lf / ca_r)
+
+
+def raceline_config_for(
+    vehicle: VehicleParams | FullSizeParams, objective: str = "curvature"
+) -> RacelineConfig:
+    """The racing-line settings of ``vehicle``'s class with objective ``objective``: the
+    package's defaults for the ORCA car, for another class the same scaled to the car's size
+    (:func:`racing_env.scaling.scaled_configs`, its ``raceline``: edge margin and station
+    spacing). Every agent of a class races on the line of these settings."""
+    from dataclasses import replace
+
+    from .raceline import RacelineConfig
+    from .scaling import scaled_configs
+
+    if isinstance(vehicle, VehicleParams):
+        return RacelineConfig(objective=objective)
+    return replace(scaled_configs(vehicle).raceline, objective=objective)
 
 
 class RacelineFollower:
@@ -49,7 +104,19 @@ class RacelineFollower:
     is right at the grip the speed profile uses). ``line_fraction`` scales the racing line's
     offsets towards the centre line to keep a margin from the edges. Throttle is a
     feed-forward of rolling resistance and drag plus ``k_speed`` times the error to the
-    profile speed ``speed_preview`` s ahead (so it brakes before corners).
+    profile speed ``speed_preview`` s ahead (so it brakes before corners). The feed-forward
+    is the class's force law: ``(C3 + C4 vx^2) / (C1 - C2 vx)`` for the ORCA car; for the
+    full-size class ``(c_drag vx^2 + c_roll m g) / min(F_drive_max, P_max / vx_eff)``, the
+    drag and rolling resistance against the power-limited drive.
+
+    The vehicle class comes from the track at ``reset`` (``track.vehicle_class``, ``"orca"``
+    when absent): without a ``vehicle`` the follower drives the class's default car; a
+    ``vehicle`` of another class than the track's is a ``ValueError``. Its lengths
+    (``preview_min``, ``yield_gap``, ``yield_behind``, ``yield_ahead``) left at their
+    defaults are the ORCA car's and are scaled to the class's size at ``reset``
+    (:func:`racing_env.scaling.scaled_configs`); a length given explicitly is used as given
+    (in metres, bounded by the ORCA bounds times the class's size ratio when ``vehicle`` is
+    given, else by the ORCA bounds).
 
     By default it ignores other cars (it never yields). ``yield_gap`` [m] > 0 makes it leave
     room: while another car is between ``yield_behind`` [m] behind it and ``yield_ahead`` [m]
@@ -67,7 +134,7 @@ class RacelineFollower:
 
     def __init__(
         self,
-        vehicle: VehicleParams | None = None,
+        vehicle: VehicleParams | FullSizeParams | None = None,
         grip: float = 1.0,
         speed_scale: float = 1.0,
         line_fraction: float = 0.9,
@@ -98,10 +165,13 @@ class RacelineFollower:
                 f"speed_preview non-negative; got {preview_min}, {k_speed}, "
                 f"{preview_time}, {speed_preview}"
             )
+        from .scaling import size_ratios
+
+        k_len, k_wid = size_ratios(vehicle) if vehicle is not None else (1.0, 1.0)
         for name, v, hi in (
-            ("yield_gap", yield_gap, 0.3),
-            ("yield_behind", yield_behind, 2.0),
-            ("yield_ahead", yield_ahead, 2.0),
+            ("yield_gap", yield_gap, 0.3 * k_wid),
+            ("yield_behind", yield_behind, 2.0 * k_len),
+            ("yield_ahead", yield_ahead, 2.0 * k_len),
         ):
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and 0.0 <= v <= hi):
                 raise ValueError(f"{name} must be a number in [0, {hi}] m, got {v!r}")
@@ -109,7 +179,14 @@ class RacelineFollower:
             raise ValueError(f"n_preview must be a non-negative integer, got {n_preview!r}")
         self.yield_gap, self.yield_behind, self.yield_ahead = yield_gap, yield_behind, yield_ahead
         self.n_preview = n_preview
-        self.vehicle = vehicle or VehicleParams()
+        self.vehicle_given = vehicle
+        self.vehicle: VehicleParams | FullSizeParams = vehicle or VehicleParams()
+        self._lengths = {  # as given: the ones left at their defaults scale with the class
+            "preview_min": preview_min,
+            "yield_gap": yield_gap,
+            "yield_behind": yield_behind,
+            "yield_ahead": yield_ahead,
+        }
         self.grip = grip
         self.speed_scale = speed_scale
         self.line_fraction = line_fraction
@@ -143,7 +220,10 @@ class RacelineFollower:
         from .raceline import get_raceline
 
         self.track = make_track(track)
-        self.raceline = rl = get_raceline(self.track, self.vehicle, self.raceline_config)
+        self._set_class(self.track)
+        self.raceline = rl = get_raceline(
+            self.track, self.vehicle, raceline_config_for(self.vehicle, self.line)
+        )
         rl.speed_at(0.0, self.grip)  # fail now, with the library's message, if out of range
         f = self.line_fraction
         # reference tables on the track grid: offset, its slope (heading to the centre line), curvature
@@ -161,9 +241,41 @@ class RacelineFollower:
         self._gains = self.gains()
         self.agent_id = agent_id
 
+    def _set_class(self, track: Track) -> None:
+        """The track's vehicle class: its car (unless one was given), the understeer gradient
+        and the lengths left at their defaults scaled to the car's size."""
+        from .scaling import _follower_defaults, scaled_configs
+
+        vehicle = vehicle_for_track(track, self.vehicle_given, "RacelineFollower (raceline)")
+        if vehicle is self.vehicle and getattr(self, "_sized_for", None) is vehicle:
+            return
+        self.vehicle = vehicle
+        self.k_us = understeer_gradient(vehicle)
+        defaults = _follower_defaults()
+        scaled = scaled_configs(vehicle).follower
+        for name, given in self._lengths.items():
+            setattr(self, name, scaled[name] if given == defaults[name] else given)
+        self._sized_for = vehicle
+
     def gains(self) -> np.ndarray:
-        """Packed controller constants for :func:`follower_action`."""
+        """Packed controller constants for :func:`follower_action`: 13 for the ORCA car, and
+        for the full-size class 32 more (from :data:`FULLSIZE_GAINS`: ``c_drag``, ``c_roll m
+        g``, ``F_drive_max``, ``P_max``, ``v_low``, the two :data:`FULLSIZE_GRIP_USE`, then
+        :meth:`FullSizeParams.pack`); the ORCA entries C1..C4 are then 1, 0, 0, 0 (not read)."""
         v = self.vehicle
+        if isinstance(v, FullSizeParams):
+            motor = [1.0, 0.0, 0.0, 0.0]
+            extra = [
+                v.c_drag,
+                v.c_roll * v.m * v.g,
+                v.F_drive_max,
+                v.P_max,
+                v.v_low,
+                *FULLSIZE_GRIP_USE,
+                *v.pack(),
+            ]
+        else:
+            motor, extra = [v.C1, v.C2, v.C3, v.C4], []
         return np.array(
             [
                 self.preview_min,
@@ -172,13 +284,11 @@ class RacelineFollower:
                 self.k_speed,
                 v.lf + v.lr,
                 self.k_us,
-                v.C1,
-                v.C2,
-                v.C3,
-                v.C4,
+                *motor,
                 v.d_min,
                 v.d_max,
                 v.delta_max,
+                *extra,
             ]
         )
 
@@ -234,6 +344,19 @@ class RacelineFollower:
 
 
 @njit(cache=True)
+def _fullsize_axle_peaks(vx, p):
+    """Peak force [N] of the full-size car's (front, rear) axle at speed ``vx`` in clean air
+    (``p`` :meth:`FullSizeParams.pack`; the force law's ``D_a``)."""
+    w = p[P_M_FS] * p[P_G] / (p[P_LF_FS] + p[P_LR_FS])
+    q = vx * vx
+    tf = 0.5 * (w * p[P_LR_FS] + p[P_CLF] * q)
+    tr = 0.5 * (w * p[P_LF_FS] + p[P_CLR] * q)
+    d_f = 2.0 * p[P_MU] * tf * (1.0 + p[P_EPSF] * (tf - p[P_FZSHIFT]) / p[P_FZ0])
+    d_r = 2.0 * p[P_MU] * tr * (1.0 + p[P_EPSR] * (tr - p[P_FZSHIFT]) / p[P_FZ0])
+    return d_f, d_r
+
+
+@njit(cache=True)
 def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
     """The follower's control law (see :class:`RacelineFollower`) for state ``x`` (6,):
     normalised ``(throttle, steering)``. ``g`` from :meth:`RacelineFollower.gains`."""
@@ -247,7 +370,19 @@ def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
     )
     delta = math.atan(g[4] * kappa_cmd) + g[5] * vx * vx * kappa_cmd
     v_target = _lookup(v_ref, s + g[2] * vx, ds, length)
-    d = (g[8] + g[9] * vx * vx) / max(g[6] - g[7] * vx, 1e-6) + g[3] * (v_target - vx)
+    if g.shape[0] > FULLSIZE_GAINS:  # full-size class: resistance over the power-limited drive
+        f = FULLSIZE_GAINS
+        drive = min(g[f + 2], g[f + 3] / math.sqrt(vx * vx + g[f + 4] * g[f + 4]))
+        d = (g[f] * vx * vx + g[f + 1]) / drive + g[3] * (v_target - vx)
+        # traction and brake limits: each axle asked for at most grip_use of its peak
+        p = g[f + 7 :]
+        d_front, d_rear = _fullsize_axle_peaks(vx, p)
+        d_hi = g[f + 5] * d_rear / drive
+        brake = p[P_FBRAKE] * math.tanh(max(vx, 0.0) / p[P_VLOW_FS])
+        d_lo = -g[f + 6] * min(d_front / p[P_KBF], d_rear / (1.0 - p[P_KBF])) / max(brake, 1e-9)
+        d = min(max(d, max(g[10], d_lo)), min(g[11], d_hi))
+    else:
+        d = (g[8] + g[9] * vx * vx) / max(g[6] - g[7] * vx, 1e-6) + g[3] * (v_target - vx)
     d = min(max(d, g[10]), g[11])
     d_norm = (2.0 * d - (g[11] + g[10])) / (g[11] - g[10])
     return d_norm, min(max(delta / g[12], -1.0), 1.0)

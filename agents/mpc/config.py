@@ -101,6 +101,52 @@ class MPCConfig:
         return self.soft_rho * min(1.0, self.soft_q_ref / float(q))
 
 
+CLASS_SCALED_FIELDS: dict[str, str] = {
+    "track_margin": "width",
+    "sep_s": "length",
+    "sep_n": "width",
+    "sep_window": "length",
+    "restart_offtrack": "width",
+}
+"""The :class:`MPCConfig` (and :class:`agents.ibr.IBRConfig`) lengths [m], given for the ORCA
+car, that scale with the car's ``"length"`` or ``"width"`` ratio to it (see
+:func:`class_scale`)."""
+
+
+def class_scale(vehicle: Any) -> tuple[float, float]:
+    """``(k_len, k_wid)``: the car's length and width over the ORCA car's
+    (:func:`racing_env.scaling.size_ratios`; exactly (1, 1) for the ORCA car).
+
+    The one place where the MPC family (``mpc``, ``alpha``, ``ibr``) adapts its metres, tuned
+    to the 0.12 m x 0.06 m ORCA car, to another vehicle class:
+
+    * the config's lengths of :data:`CLASS_SCALED_FIELDS` (:func:`config_for_vehicle`);
+    * the cost: position errors and soft-row violations [m] are measured in ORCA-car widths
+      (divided by ``k_wid``), so ``q``, ``soft_rho`` and the theta box weigh a deviation of
+      one car width alike in every class (``MPC``: ``q / k_wid^2``, ``rho k_wid^2``);
+    * theta's lengths (:func:`agents.theta.theta_in_metres`): ``s1`` [m] times ``k_wid``,
+      ``s2`` [1/m^2] over ``k_len^2``, ``s3`` [s/m] over the ratio of the two classes' top
+      speeds; and the extended space's :data:`agents.reference.PASS_ROOM` times ``k_wid``.
+
+    Times, speeds, input bounds and counts do not scale; the input bounds and the rates are
+    the class's own parameters.
+    """
+    from racing_env.scaling import size_ratios
+
+    return size_ratios(vehicle)
+
+
+def config_for_vehicle(cfg: MPCConfig, vehicle: Any) -> MPCConfig:
+    """``cfg`` with its lengths of :data:`CLASS_SCALED_FIELDS` scaled to ``vehicle``'s size
+    (:func:`class_scale`); ``cfg`` itself for the ORCA car's size."""
+    from dataclasses import replace
+
+    k = dict(zip(("length", "width"), class_scale(vehicle)))
+    if k["length"] == 1.0 and k["width"] == 1.0:
+        return cfg
+    return replace(cfg, **{f: getattr(cfg, f) * k[kind] for f, kind in CLASS_SCALED_FIELDS.items()})
+
+
 PLANS: dict[str, dict[str, Any]] = {
     "rti": {},
     "damped": {"step_damping": (1.0, 10.0, 100.0), "sqp_iterations": 20},

@@ -15,6 +15,9 @@ from racing_env.integrator import _n_substeps, integrate_car
 from racing_env.interp import periodic_lookup as _lookup
 from racing_env.track import Track
 from racing_env.vehicle import P_VLOW, VehicleParams
+from racing_env.vehicles import FullSizeParams
+from racing_env.vehicles.fullsize import P_VLOW as P_VLOW_FULLSIZE
+from racing_env.vehicles.fullsize import n_substeps_fullsize, ode_fullsize
 
 from .codegen import load_prediction
 from .config import MPCConfig
@@ -39,16 +42,22 @@ def prediction_v_low(
     return v_low_sim + (cfg.v_low - v_low_sim) * exp(-((vx / cfg.v_blend) ** 2))
 
 
-def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True) -> Any:
+def stage_function(
+    vehicle: VehicleParams | FullSizeParams, cfg: MPCConfig, jacobians: bool = True
+) -> Any:
     """CasADi ``stage(x[6], u[2], kap[substeps]) -> (x_next, vec(dx_next/dx), vec(dx_next/du))``:
-    one 0.1 s stage of ``substeps`` RK4 steps of the simulator's model (``frenet_ode``) with
-    the prediction's ``v_low``; ``u`` are the env's normalised inputs. Without ``jacobians``
-    it returns ``x_next`` only."""
+    one 0.1 s stage of ``substeps`` RK4 steps of the simulator's model of the car's class
+    (``frenet_ode``, or ``frenet_ode_fullsize`` in clean air: wake factors 1) with the
+    prediction's ``v_low``; ``u`` are the env's normalised inputs. Without ``jacobians`` it
+    returns ``x_next`` only."""
     import casadi as ca
 
     from racing_env.vehicle import frenet_ode_casadi
+    from racing_env.vehicles.fullsize import frenet_ode_fullsize_casadi
 
-    ode = frenet_ode_casadi()
+    full = isinstance(vehicle, FullSizeParams)
+    ode = frenet_ode_fullsize_casadi() if full else frenet_ode_casadi()
+    i_vlow = P_VLOW_FULLSIZE if full else P_VLOW
     p = [float(v) for v in vehicle.pack()]
     x = ca.SX.sym("x", 6)
     u = ca.SX.sym("u", 2)
@@ -57,10 +66,12 @@ def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = Tru
     # throttle swing like a full steering swing); map them to physical (d, delta) here
     d_phys = 0.5 * (vehicle.d_max + vehicle.d_min) + 0.5 * (vehicle.d_max - vehicle.d_min) * u[0]
     delta_phys = vehicle.delta_max * u[1]
+    if isinstance(vehicle, FullSizeParams):  # a share of its traction or brake limit
+        d_phys = limited_throttle(vehicle, u[0], x[3], ca)
 
     def f(xx, kk):
         pp = list(p)
-        pp[P_VLOW] = prediction_v_low(xx[3], vehicle.v_low, cfg, ca.exp)
+        pp[i_vlow] = prediction_v_low(xx[3], vehicle.v_low, cfg, ca.exp)
         return ca.vertcat(*ode(xx[1], xx[2], xx[3], xx[4], xx[5], d_phys, delta_phys, kk, pp))
 
     h = cfg.dt / cfg.substeps
@@ -80,16 +91,61 @@ def stage_function(vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = Tru
     )
 
 
+def throttle_limits(vehicle: FullSizeParams, vx: Any, backend: Any = np) -> tuple[Any, Any]:
+    """Physical throttle bounds ``(d_lo, d_hi)`` of the full-size car at speed ``vx`` [m/s]:
+    the drive asks at most :data:`racing_env.controllers.FULLSIZE_GRIP_USE` ``[0]`` of the rear
+    axle's peak force, the brakes at most ``[1]`` of either axle's, within ``[d_min, d_max]``
+    (the raceline follower's limits: beyond them the friction ellipse leaves the axle no
+    lateral force and the car spins or goes straight on). ``backend``: numpy, math or casadi.
+    The MPC's prediction applies them at each stage's start and :meth:`MPC.solve` to the input
+    it returns, so the plan and the applied throttle agree."""
+    from racing_env.controllers import FULLSIZE_GRIP_USE
+
+    v = vehicle
+    M = backend
+    fmin = getattr(M, "fmin", None) or getattr(M, "minimum", None) or min
+    fmax = getattr(M, "fmax", None) or getattr(M, "maximum", None) or max
+    w = v.m * v.g / v.wheelbase
+    q = vx * vx
+    tf = 0.5 * (w * v.lr + v.c_lift_f * q)
+    tr = 0.5 * (w * v.lf + v.c_lift_r * q)
+    d_f = 2.0 * v.mu * tf * (1.0 + v.eps_f * (tf - v.Fz_shift) / v.Fz0)
+    d_r = 2.0 * v.mu * tr * (1.0 + v.eps_r * (tr - v.Fz_shift) / v.Fz0)
+    drive = fmin(v.F_drive_max, v.P_max / M.sqrt(q + v.v_low * v.v_low))
+    hi = fmin(FULLSIZE_GRIP_USE[0] * d_r / drive, v.d_max)
+    brake = fmax(v.F_brake_max * M.tanh(fmax(vx, 0.0) / v.v_low), 1e-9)
+    lo = fmax(
+        -FULLSIZE_GRIP_USE[1] * fmin(d_f / v.k_brake_front, d_r / (1.0 - v.k_brake_front)) / brake,
+        v.d_min,
+    )
+    return lo, hi
+
+
+def limited_throttle(vehicle: FullSizeParams, u: Any, vx: Any, backend: Any = np) -> Any:
+    """The full-size car's physical throttle for the MPC's normalised throttle ``u`` in [-1, 1]
+    at speed ``vx``: ``u`` times the traction limit ``d_hi`` when positive, times ``-d_lo``
+    (the brake limit) when negative (:func:`throttle_limits`), so ``u = 1`` is the most drive
+    the rear tyres take without the car spinning. A scale, not a clip: a clip's flat part has
+    no gradient, and an SQP plan that strayed into it (measured: braking at -1 where -0.38
+    binds) could never come back. The prediction applies it at each stage's start and
+    :meth:`MPC.solve` to the input it returns, so the plan and the applied throttle agree."""
+    lo, hi = throttle_limits(vehicle, vx, backend)
+    return 0.5 * (u + backend.fabs(u)) * hi - 0.5 * (u - backend.fabs(u)) * lo
+
+
 def trajectory_function(
-    vehicle: VehicleParams, cfg: MPCConfig, jacobians: bool = True
+    vehicle: VehicleParams | FullSizeParams, cfg: MPCConfig, jacobians: bool = True
 ) -> CompiledTrajectory | InterpretedTrajectory:
     """The horizon ``(x0[6], U[2xK], KAP[substeps x K]) -> (X[6xK], A[36xK], B[12xK])`` (numpy
     arrays): the stage function folded K times (mapaccum), compiled to C and cached on disk
     by :func:`~agents.mpc.codegen.load_prediction` (interpreted by CasADi, with a warning, when
     no C compiler works). Without ``jacobians``: ``(X,)`` only, a rollout several times
-    cheaper."""
+    cheaper. The compiled library's name includes the vehicle class (besides the hash of
+    its code, which includes the parameters): ``mpc_traj_fullsize_<hash>.so``."""
     stage = stage_function(vehicle, cfg, jacobians)
     name = "mpc_traj" if jacobians else "mpc_roll"
+    if isinstance(vehicle, FullSizeParams):
+        name += "_fullsize"
     return load_prediction(stage.mapaccum(name, cfg.horizon), cfg.horizon, cfg.substeps, name)
 
 
@@ -143,9 +199,58 @@ def _rollout(x, n_ref, mu_ref, kappa_ref, v_ref, kappa_tab, ds, length, gains, p
         )
 
 
+@njit(cache=True)
+def _integrate_fullsize(x, d, delta, kappa_tab, ds, length, p, dt, n_sub):
+    """The full-size car's state ``x`` (6,) advanced in place over ``dt`` with ``n_sub``
+    classical RK4 steps, the curvature looked up at every stage's progress (as
+    :func:`racing_env.integrator.integrate_car` for the ORCA car; clean air, ``vx >= 0``)."""
+    h = dt / n_sub
+    y = np.empty(6)
+    k = np.empty((4, 6))
+    for _ in range(n_sub):
+        for stage in range(4):
+            a = (0.0, 0.5 * h, 0.5 * h, h)[stage]
+            for j in range(6):
+                y[j] = x[j] + (a * k[stage - 1, j] if stage else 0.0)
+            r = ode_fullsize(
+                y[1], y[2], y[3], y[4], y[5], d, delta, _lookup(kappa_tab, y[0], ds, length), p
+            )
+            for j in range(6):
+                k[stage, j] = r[j]
+        for j in range(6):
+            x[j] += h / 6.0 * (k[0, j] + 2.0 * k[1, j] + 2.0 * k[2, j] + k[3, j])
+        if x[3] < 0.0:
+            x[3] = 0.0
+        if x[2] > np.pi or x[2] < -np.pi:
+            x[2] = (x[2] + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@njit(cache=True)
+def _rollout_fullsize(
+    x, n_ref, mu_ref, kappa_ref, v_ref, kappa_tab, ds, length, gains, p, act_map, dt, U, V
+):
+    """:func:`_rollout` for the full-size class; the speed at each stage's start into V."""
+    for k in range(U.shape[1]):
+        V[k] = x[3]
+        a0, a1 = follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, gains)
+        U[0, k] = a0
+        U[1, k] = a1
+        _integrate_fullsize(
+            x,
+            act_map[0] + act_map[1] * a0,
+            act_map[2] * a1,
+            kappa_tab,
+            ds,
+            length,
+            p,
+            dt,
+            n_substeps_fullsize(x[3], p, dt, 1.0, 100),
+        )
+
+
 def follower_rollout(
     track: Track,
-    vehicle: VehicleParams,
+    vehicle: VehicleParams | FullSizeParams,
     follower: RacelineFollower,
     x0: np.ndarray,
     K: int,
@@ -156,7 +261,7 @@ def follower_rollout(
     ``follower`` is a :class:`racing_env.controllers.RacelineFollower` reset on ``track``."""
     U = np.empty((2, K))
     v = vehicle
-    _rollout(
+    args = (
         np.array(x0, dtype=float),
         *follower.tables(),
         track.kappa,
@@ -168,11 +273,20 @@ def follower_rollout(
         dt,
         U,
     )
+    if not isinstance(v, FullSizeParams):
+        _rollout(*args)
+        return U
+    V = np.empty(K)
+    _rollout_fullsize(*args, V)
+    # the MPC's throttle is a share of the traction / brake limit (limited_throttle)
+    lo, hi = throttle_limits(v, V)
+    d = 0.5 * (v.d_max + v.d_min) + 0.5 * (v.d_max - v.d_min) * U[0]
+    U[0] = np.clip(np.where(d >= 0.0, d / hi, -d / lo), -1.0, 1.0)
     return U
 
 
 def make_follower(
-    track: Track, vehicle: VehicleParams, line: str = "curvature"
+    track: Track, vehicle: VehicleParams | FullSizeParams, line: str = "curvature"
 ) -> RacelineFollower:
     """A raceline follower of racing line ``line`` reset on ``track`` (for
     :func:`follower_rollout`)."""

@@ -14,9 +14,10 @@ from numba import njit
 
 from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
+from racing_env.vehicles import FullSizeParams, vehicle_for_track
 
 from .codegen import CompiledTrajectory, run_prediction, workspace_offsets
-from .config import MPCConfig
+from .config import MPCConfig, class_scale, config_for_vehicle
 from .prediction import (
     follower_rollout,
     kappa_flat,
@@ -166,12 +167,18 @@ class MPC:
     ``(s, n)`` at stages 1..K, (M, K, 2) (:func:`~agents.mpc.qp.opponent_paths`; progress on
     the same unwrapped scale as ``x0[0]``), ``u_prev`` (2,) the input applied
     last (physical ``d, delta``). Returns the physical input ``(d, delta)`` to apply now.
+
+    The car is ``vehicle``, else the default car of the track's class
+    (``track.vehicle_class``; a vehicle of another class is a ``ValueError``). The config's
+    lengths are the ORCA car's, scaled to the car's size, and the cost measures position
+    errors in ORCA-car widths (:func:`~agents.mpc.config.class_scale`); for the ORCA car
+    nothing changes.
     """
 
     def __init__(
         self,
         track: Track,
-        vehicle: VehicleParams | None = None,
+        vehicle: VehicleParams | FullSizeParams | None = None,
         config: MPCConfig | None = None,
         line: str = "curvature",
     ):
@@ -179,8 +186,10 @@ class MPC:
 
         self.track = track
         self.line = line  # the racing line of the follower's warm start
-        self.vehicle = vehicle or VehicleParams()
-        self.cfg = config or MPCConfig()
+        self.vehicle: VehicleParams | FullSizeParams = vehicle_for_track(track, vehicle, "MPC")
+        self.cfg = config_for_vehicle(config or MPCConfig(), self.vehicle)
+        # position errors and soft violations in ORCA-car widths: q / k^2, rho k^2 (1 for ORCA)
+        self._ls2 = class_scale(self.vehicle)[1] ** 2
         self._traj = trajectory_function(self.vehicle, self.cfg)
         self._roll = trajectory_function(self.vehicle, self.cfg, jacobians=False)
         self._step_sizes = np.array(self.cfg.step_sizes, dtype=float)
@@ -300,7 +309,7 @@ class MPC:
         return ProblemConstants(
             s_ref,
             n_ref,
-            float(q),
+            float(q) / self._ls2,
             self._DtD,
             float(u_prev[1]),
             self._rate,
@@ -313,7 +322,7 @@ class MPC:
             cfg.sep_s,
             cfg.sep_n,
             cfg.sep_window,
-            0.5 / cfg.soft_rho_at(q),
+            0.5 / (cfg.soft_rho_at(q) * self._ls2),
         )
 
     @staticmethod
@@ -385,7 +394,8 @@ class MPC:
 
     def _qp(self, daqp, H, f, Acon, blo, bhi, sense, q: float):
         """DAQP's step ``(du, exitflag)`` of the QP ``H, f`` with rows ``Acon`` (soft rows
-        weighted as the solve's tracking weight ``q`` asks)."""
+        weighted as the solve's tracking weight ``q`` asks; ``q`` is the problem's, in the
+        cost's units: theta's ``q / k_wid^2``)."""
         du, _, exitflag, info = daqp.solve(
             H,
             f,
@@ -393,7 +403,7 @@ class MPC:
             bhi,
             blo,
             sense,
-            rho_soft=self.cfg.soft_rho_at(q),
+            rho_soft=self.cfg.soft_rho_at(q * self._ls2) * self._ls2,
             iter_limit=self.cfg.qp_iter_limit,
         )
         self.stats["qp_iterations"] += int(info.get("iterations", 0))
@@ -421,6 +431,19 @@ class MPC:
                 self.stats["damped_steps"] += 1
                 return step
         return rejected
+
+    def _limited_throttle(self, u: float, vx: float) -> float:
+        """The env's normalised throttle for the MPC's throttle ``u`` of the full-size car at
+        speed ``vx``: a share of its traction or brake limit
+        (:func:`~agents.mpc.prediction.limited_throttle`), as its prediction applies it."""
+        import math
+
+        from .prediction import limited_throttle
+
+        v = self.vehicle
+        assert isinstance(v, FullSizeParams)
+        mid, half = 0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min)
+        return (limited_throttle(v, u, vx, math) - mid) / half
 
     @staticmethod
     def _pays_penalty(X, U, J: float, p: ProblemConstants) -> bool:
@@ -495,6 +518,8 @@ class MPC:
             U[0, :] = np.minimum(U[0, :], 0.0)  # fallback: keep the steering plan, lift off
             self._s_nom = None
         u0 = U[:, 0].copy()
+        if isinstance(self.vehicle, FullSizeParams):  # the prediction's throttle limits
+            u0[0] = self._limited_throttle(u0[0], float(x0[3]))
         self._U = np.concatenate([U[:, 1:], U[:, -1:]], axis=1)  # shifted warm start
         self.last_status = status
         self.last_prediction = X if status == "ok" else None

@@ -9,6 +9,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from ..vehicle import VehicleParams
 from .fullsize import FullSizeParams, frenet_ode_fullsize
 
@@ -25,10 +27,47 @@ def vehicle_class(name: str) -> type:
     return VEHICLE_CLASSES[name]
 
 
+def class_of(vehicle: object) -> str:
+    """The vehicle class name of a parameter set (``"orca"`` for a :class:`VehicleParams`)."""
+    for name, cls in VEHICLE_CLASSES.items():
+        if isinstance(vehicle, cls):
+            return name
+    raise ValueError(
+        f"vehicle must be a parameter set of a vehicle class ({', '.join(sorted(VEHICLE_CLASSES))}), "
+        f"got {type(vehicle).__name__}"
+    )
+
+
+def track_class(track: object) -> str:
+    """The vehicle class a track is sized for: its ``vehicle_class`` (``"orca"`` if it has none)."""
+    return str(getattr(track, "vehicle_class", "orca"))
+
+
+def vehicle_for_track(track: object, vehicle: object = None, who: str = "agent") -> Any:
+    """The parameter set an agent ``who`` races with on ``track``: ``vehicle`` if given (a
+    ``ValueError`` naming both classes when it is of another class than the track's), else
+    the track's class's defaults (``vehicle_class(track_class(track))()``)."""
+    cls = track_class(track)
+    if vehicle is None:
+        return vehicle_class(cls)()
+    given = class_of(vehicle)
+    if given != cls:
+        name = getattr(track, "name", None) or "the track"
+        raise ValueError(
+            f"{who}: its vehicle ({type(vehicle).__name__}) is of the {given!r} class, but "
+            f"track {name!r} is sized for the {cls!r} class; give a {cls!r} vehicle or none "
+            f"(the class's defaults)"
+        )
+    return vehicle
+
+
 __all__ = [
     "VEHICLE_CLASSES",
     "FullSizeParams",
     "VehicleParams",
+    "class_of",
     "frenet_ode_fullsize",
+    "track_class",
     "vehicle_class",
+    "vehicle_for_track",
 ]

@@ -1,0 +1,188 @@
+"""Every agent in the full-size class: actions finite and in bounds on a full-size track, the
+follower's feed-forward against the class's drag, alpha and PPO refusing a track of another
+class, a vehicle of another class than the track's refused, the ORCA path unchanged."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agents import make_agent_spec
+from racing_env.controllers import RacelineFollower, follower_action, understeer_gradient
+from racing_env.tracks import make_track
+from racing_env.vehicle import VehicleParams
+from racing_env.vehicles import FullSizeParams, track_class, vehicle_for_track
+from racing_env.vehicles.fullsize import n_substeps_fullsize, rk4_fullsize
+
+MONZA = "tumftm:Monza"
+
+
+@pytest.fixture(scope="module")
+def monza():
+    """Monza at full size, marked as a full-size track (``Track.vehicle_class``; set here
+    until ``make_track(..., vehicle_class="fullsize")`` sets it itself)."""
+    track = make_track(MONZA, vehicle_class="fullsize")
+    if track_class(track) != "fullsize":
+        object.__setattr__(track, "vehicle_class", "fullsize")
+    return track
+
+
+def _obs(x: np.ndarray, length: float, n_preview: int = 10) -> np.ndarray:
+    obs = np.concatenate([x, np.zeros(n_preview)]).astype(np.float32)
+    obs[0] = x[0] % length
+    return obs
+
+
+def _drive(agent, track, steps: int, v0: float = 30.0):
+    """Drive ``agent`` alone from the racing line at ``v0`` for ``steps`` periods of 0.1 s in
+    the full-size model; the actions and the final state."""
+    v = FullSizeParams()
+    p = v.pack()
+    x = np.zeros(6)
+    x[3] = v0
+    actions = []
+    for _ in range(steps):
+        a = agent.act(_obs(x, track.length))
+        actions.append(a)
+        kappa = float(np.interp(x[0] % track.length, track.s_grid, track.kappa))
+        n_sub = n_substeps_fullsize(x[3], p, 0.1, 1.0, 100)
+        rk4_fullsize(x, float(a[0]), float(a[1]) * v.delta_max, kappa, p, 0.1, n_sub)
+    return np.array(actions), x
+
+
+def test_vehicle_for_track(monza):
+    assert isinstance(vehicle_for_track(monza), FullSizeParams)
+    assert isinstance(vehicle_for_track(make_track("default")), VehicleParams)
+    with pytest.raises(ValueError, match=r"'orca' class, but track 'Monza' is sized for the "):
+        vehicle_for_track(monza, VehicleParams(), "mpc")
+    with pytest.raises(ValueError, match="'fullsize' class"):
+        vehicle_for_track(make_track("default"), FullSizeParams(), "mpc")
+
+
+@pytest.mark.parametrize("spec", ["raceline", "mpc", "mpc:space=extended,b=0.5", "mpc:zeta=1.0"])
+def test_vehicle_mismatch_refused(monza, spec):
+    from agents.mpc_agent import MPCAgent
+
+    if spec.startswith("raceline"):
+        agent = RacelineFollower(vehicle=VehicleParams())
+    else:
+        agent = make_agent_spec(spec)
+        assert isinstance(agent, MPCAgent)
+        agent.vehicle_given = VehicleParams()
+    with pytest.raises(ValueError, match="'orca' class"):
+        agent.reset(monza, "car_0", 0)
+
+
+@pytest.mark.parametrize("spec", ["random", "constant:throttle=0.3,steering=-0.2", "raceline"])
+def test_simple_agents_act_in_bounds(monza, spec):
+    agent = make_agent_spec(spec)
+    agent.reset(monza, "car_0", 0)
+    actions, x = _drive(agent, monza, 20)
+    assert np.isfinite(actions).all() and np.abs(actions).max() <= 1.0
+    assert np.isfinite(x).all()
+
+
+def test_follower_scaled_to_the_class(monza):
+    f = RacelineFollower()
+    f.reset(monza)
+    assert isinstance(f.vehicle, FullSizeParams)
+    assert f.preview_min == pytest.approx(0.5 * 4.7 / 0.12)
+    assert f.yield_behind == pytest.approx(0.2 * 4.7 / 0.12)
+    assert f.k_us == pytest.approx(understeer_gradient(FullSizeParams()))
+    explicit = RacelineFollower(preview_min=0.7)
+    explicit.reset(monza)
+    assert explicit.preview_min == 0.7  # given: used as given
+    assert len(f.gains()) == 13 + 7 + 25
+
+
+def test_follower_feed_forward_holds_speed(monza):
+    """On a straight at the profile's speed, the throttle is the class's drag and rolling
+    resistance over the power-limited drive, and holds the speed."""
+    v = FullSizeParams()
+    f = RacelineFollower()
+    f.reset(monza)
+    M = len(monza.s_grid)
+    for speed in (30.0, 45.0, 60.0):  # below the top speed (66 m/s)
+        tables = (np.zeros(M), np.zeros(M), np.zeros(M), np.full(M, speed))
+        x = np.array([100.0, 0.0, 0.0, speed, 0.0, 0.0])
+        d, steer = follower_action(x, *tables, monza.ds, monza.length, f.gains())
+        drive = min(v.F_drive_max, v.P_max / np.hypot(speed, v.v_low))
+        want = (v.c_drag * speed**2 + v.c_roll * v.m * v.g) / drive
+        assert d == pytest.approx(want, rel=1e-12)
+        assert steer == 0.0
+        y = x.copy()
+        p = v.pack()
+        for _ in range(10):  # one second on a straight: the speed stays within 0.1%
+            rk4_fullsize(y, d, 0.0, 0.0, p, 0.1, n_substeps_fullsize(y[3], p, 0.1, 1.0, 100))
+        assert y[3] == pytest.approx(speed, rel=1e-3)
+
+
+def test_follower_orca_gains_unchanged():
+    f = RacelineFollower()
+    f.reset("default")
+    v = VehicleParams()
+    g = f.gains()
+    assert len(g) == 13
+    assert list(g[6:10]) == [v.C1, v.C2, v.C3, v.C4]
+    assert f.preview_min == 0.5 and f.yield_behind == 0.2
+
+
+@pytest.mark.parametrize("spec", ["mpc", "mpc:zeta=1.0,space=extended,b=0.3", "ibr"])
+def test_mpc_family_acts_in_bounds(monza, spec):
+    agent = make_agent_spec(spec)
+    agent.reset(monza, "car_0", 0)
+    actions, x = _drive(agent, monza, 15)
+    assert np.isfinite(actions).all() and np.abs(actions).max() <= 1.0
+    assert np.isfinite(x).all() and x[3] > 20.0  # keeps going
+
+
+def test_mpc_two_cars_full_size(monza):
+    """With a car just ahead, the reference's shifts and separations in the class's metres."""
+    agent = make_agent_spec("mpc:s1=0.2,s2=4.0,s3=1.0")
+    agent.reset(monza, "car_0", 0)
+    ego = np.array([100.0, 0.0, 0.0, 40.0, 0.0, 0.0])
+    other = np.array([130.0, 0.5, 0.0, 35.0, 0.0, 0.0])
+    obs = np.concatenate([ego, other - ego, np.zeros(10)]).astype(np.float32)
+    a = agent.act(obs)
+    assert np.isfinite(a).all() and np.abs(a).max() <= 1.0
+    assert agent.mpc.cfg.sep_s == pytest.approx(0.15 * 4.7 / 0.12)
+
+
+def test_mpc_config_scaled():
+    from agents.mpc import MPCConfig
+    from agents.mpc.config import config_for_vehicle
+
+    cfg = MPCConfig()
+    assert config_for_vehicle(cfg, VehicleParams()) is cfg
+    big = config_for_vehicle(cfg, FullSizeParams())
+    assert big.track_margin == pytest.approx(0.03 * 2.0 / 0.06)
+    assert big.sep_window == pytest.approx(2.0 * 4.7 / 0.12)
+    assert big.horizon == cfg.horizon and big.dt == cfg.dt
+
+
+def test_alpha_refuses_other_class(monza):
+    agent = make_agent_spec("alpha")
+    with pytest.raises(ValueError, match=r"trained for the 'orca' vehicle class; track 'Monza'"):
+        agent.reset(monza, "car_0", 0)
+    auto = make_agent_spec("alpha:model=auto")
+    with pytest.raises(ValueError, match="'fullsize' class"):
+        auto.reset(monza, "car_0", 0)
+
+
+def test_ppo_refuses_other_class(monza):
+    pytest.importorskip("stable_baselines3")
+    agent = make_agent_spec("ppo")
+    assert agent.vehicle_class == "orca"
+    with pytest.raises(ValueError, match=r"'orca' vehicle class; track 'Monza' is sized for"):
+        agent.reset(monza, "car_0", 0)
+    agent.reset("default", "car_0", 0)  # its own class: fine
+
+
+@pytest.mark.slow
+def test_mpc_solo_full_size_stretch(monza):
+    """The MPC at zeta 1 from rest through Monza's first chicane and Curva Grande (60 s)."""
+    agent = make_agent_spec("mpc:zeta=1.0")
+    agent.reset(monza, "car_0", 0)
+    actions, x = _drive(agent, monza, 600, v0=0.0)
+    assert np.isfinite(actions).all()
+    assert x[0] > 2000.0
