@@ -74,7 +74,7 @@ class TrackTables(NamedTuple):
         """Walls sit ``wall_margin`` m beyond each edge, and never closer than 10% of the
         radius of curvature to its centre (keeps ``1 - n kappa >= 0.1``)."""
         k = track.kappa
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", over="ignore"):  # kappa 0 or subnormal: no limit
             lim_l = np.where(k > 0, 0.9 / np.abs(k), np.inf)
             lim_r = np.where(k < 0, 0.9 / np.abs(k), np.inf)
         wall_l = np.minimum(track.w_left + wall_margin, lim_l)
