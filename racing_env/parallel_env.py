@@ -84,11 +84,12 @@ class RacingParallelEnv(ParallelEnv):
     clipped (no tighter bound holds for every race: contact can push cars back). Normalise
     with running statistics (SB3's ``VecNormalize``), not with the bounds. The full-size class
     (Monza, 5.79 km) has the same layout in the same SI units, at its own scale: own ``s``
-    0..5793 m, ``n`` within the walls (+-(half width + 2.5 m), about +-8 m at Monza), ``vx``
-    0..66 m/s in clean air and up to 91 m/s right behind another car (the bound: 1.5 x that
-    + 1 = 138 m/s), ``vy`` and ``omega`` mostly within +-2 m/s and +-1 rad/s, relative ``s``
-    tens to hundreds of metres, clipped at +-3.9e5 m (:func:`racing_env.core.s_clip`: the ORCA
-    bound times the length ratio, 67 laps), curvature within +-0.1 1/m.
+    0..5791 m, ``n`` on track within +-3.6..6.3 m (the walls 5 m beyond the edges: the bound
+    +-11.3 m), ``vx`` 0..66 m/s in clean air and up to 91 m/s right behind another car (the
+    bound: 1.5 x that + 1 = 137 m/s), ``vy`` and ``omega`` a few m/s and tenths of rad/s
+    (bounds as ORCA's), relative ``s`` tens to hundreds of metres, clipped at +-3.9e5 m
+    (:func:`racing_env.core.s_clip`: the ORCA bound times the length ratio, 67 laps),
+    curvature within +-0.12 1/m.
 
     ``state()`` returns the global joint state: every car's ``(s, n, mu, vx, vy, omega)`` with
     unwrapped ``s``, flattened in agent order (``6 N`` float32).

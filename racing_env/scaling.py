@@ -37,9 +37,12 @@ belong to the dynamics, not to the size. ``RacelineConfig.tol`` (None) already f
 track's width. The off-track rule itself (the car's centre beyond an edge) has no length.
 
 Two lengths are constants of the compiled step, not settings, and are *not* scaled here: the
-1 cm margin of the contact pre-check (``racing_env.simulator``; covers the difference between
-two integrations, which grows with speed) and ``racing_env.core.S_CLIP`` (1e4 m, the bound of the
-relative progress in an observation: 333 laps of a 30 m track, 1.7 laps of Monza at full size).
+1 cm margin of the contact pre-check (``racing_env.simulator``; it covers the difference
+between two integrations and between sub-step points, set by the speeds, accelerations and
+the ~25-50 ms sub-steps, which are alike in both classes, not by the car's size: see
+``_step_one_race``) and ``racing_env.core.S_CLIP`` (1e4 m, the bound of the relative progress
+in an observation), which :func:`racing_env.core.s_clip` scales by the length ratio for the
+other classes (3.9e5 m at full size: 67 laps of Monza, instead of 1.7).
 """
 
 from __future__ import annotations
