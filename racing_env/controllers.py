@@ -79,11 +79,30 @@ def raceline_config_for(
     from dataclasses import replace
 
     from .raceline import RacelineConfig
-    from .scaling import scaled_configs
 
     if isinstance(vehicle, VehicleParams):
         return RacelineConfig(objective=objective)
-    return replace(scaled_configs(vehicle).raceline, objective=objective)
+    base = RacelineConfig(objective=objective)
+    k = _size_ratios(vehicle)
+    return replace(base, **{f: getattr(base, f) * k[kind] for f, kind in _RACELINE_LENGTHS.items()})
+
+
+# The lengths of racing_env.scaling.SCALED_FIELDS this module scales itself (scaling reads the
+# follower's defaults from this module, so it cannot import scaling; a test checks they agree)
+_FOLLOWER_LENGTHS = {
+    "preview_min": "length",
+    "yield_gap": "width",
+    "yield_behind": "length",
+    "yield_ahead": "length",
+}
+_RACELINE_LENGTHS = {"margin": "width", "point_spacing": "length"}
+
+
+def _size_ratios(vehicle: VehicleParams | FullSizeParams) -> dict[str, float]:
+    """``{"length": k_len, "width": k_wid}``: the car's size over the ORCA car's (as
+    :func:`racing_env.scaling.size_ratios`)."""
+    ref = VehicleParams()
+    return {"length": vehicle.length / ref.length, "width": vehicle.width / ref.width}
 
 
 class RacelineFollower:
@@ -165,9 +184,8 @@ class RacelineFollower:
                 f"speed_preview non-negative; got {preview_min}, {k_speed}, "
                 f"{preview_time}, {speed_preview}"
             )
-        from .scaling import size_ratios
-
-        k_len, k_wid = size_ratios(vehicle) if vehicle is not None else (1.0, 1.0)
+        k = _size_ratios(vehicle) if vehicle is not None else {"length": 1.0, "width": 1.0}
+        k_len, k_wid = k["length"], k["width"]
         for name, v, hi in (
             ("yield_gap", yield_gap, 0.3 * k_wid),
             ("yield_behind", yield_behind, 2.0 * k_len),
@@ -244,17 +262,19 @@ class RacelineFollower:
     def _set_class(self, track: Track) -> None:
         """The track's vehicle class: its car (unless one was given), the understeer gradient
         and the lengths left at their defaults scaled to the car's size."""
-        from .scaling import _follower_defaults, scaled_configs
+        import inspect
 
         vehicle = vehicle_for_track(track, self.vehicle_given, "RacelineFollower (raceline)")
         if vehicle is self.vehicle and getattr(self, "_sized_for", None) is vehicle:
             return
         self.vehicle = vehicle
         self.k_us = understeer_gradient(vehicle)
-        defaults = _follower_defaults()
-        scaled = scaled_configs(vehicle).follower
+        params = inspect.signature(RacelineFollower.__init__).parameters
+        k = _size_ratios(vehicle)
         for name, given in self._lengths.items():
-            setattr(self, name, scaled[name] if given == defaults[name] else given)
+            default = params[name].default
+            kind = _FOLLOWER_LENGTHS[name]
+            setattr(self, name, default * k[kind] if given == default else given)
         self._sized_for = vehicle
 
     def gains(self) -> np.ndarray:

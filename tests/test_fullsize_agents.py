@@ -186,3 +186,24 @@ def test_mpc_solo_full_size_stretch(monza):
     actions, x = _drive(agent, monza, 600, v0=0.0)
     assert np.isfinite(actions).all()
     assert x[0] > 2000.0
+
+
+def test_follower_and_line_lengths_as_scaling():
+    """The follower scales its lengths and the racing line's itself (racing_env.scaling reads
+    the follower's defaults, so the follower cannot import it): the same as scaled_configs."""
+    from dataclasses import replace
+
+    from racing_env import controllers
+    from racing_env.scaling import SCALED_FIELDS, scaled_configs
+
+    assert controllers._FOLLOWER_LENGTHS == SCALED_FIELDS["RacelineFollower"]
+    assert controllers._RACELINE_LENGTHS == SCALED_FIELDS["RacelineConfig"]
+    v = FullSizeParams()
+    scaled = scaled_configs(v)
+    for objective in ("curvature", "lap_time"):
+        want = replace(scaled.raceline, objective=objective)
+        assert controllers.raceline_config_for(v, objective) == want
+    f = RacelineFollower()
+    f.reset(make_track(MONZA, vehicle_class="fullsize"))
+    for name, value in scaled.follower.items():
+        assert getattr(f, name) == pytest.approx(value, rel=1e-15)
