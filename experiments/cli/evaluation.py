@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from experiments.cli.options import (
+    CLASS_OPTIONS,
     IMPORT_OPTION,
     PARALLEL_OPTIONS,
     RESUME_HELP,
@@ -30,6 +31,8 @@ def _cmd_bench(args) -> int:
     if args.paper_table:
         if args.cars != 3:
             raise ValueError(f"--paper-table is the paper's 3-car protocol; got --cars {args.cars}")
+        if args.vehicle_class != "orca" or args.wake is not None:
+            raise ValueError("--paper-table is the paper's world: no --vehicle-class or --wake")
         out = args.out or "results/paper_table"
         t = paper_table(
             out,
@@ -77,7 +80,7 @@ def _cmd_strategy(args) -> int:
     from experiments.evaluation.strategy import StrategyConfig, strategy
 
     out = Path(args.out)
-    t = strategy(config_from(StrategyConfig, args), out, pool_from(args))
+    t = strategy(config_from(StrategyConfig, args), out, pool_from(args), beside=args.beside)
     print((out / "strategy.md").read_text())
     print(f"{t['new_races']} new races; wrote {out / 'strategy.md'} and {out / 'strategy.json'}")
     return 0
@@ -166,6 +169,7 @@ def add_bench(command) -> None:
         ("--steps", "steps of 0.1 s per race (500 = 50 s)"),
         ("--track", "track spec (as for race)"),
         ("--seed", "seed of the races' start orders and agents"),
+        *CLASS_OPTIONS,
         (
             "--out",
             "output folder (default results/bench/EGO_vs_OPPONENTS, or "
@@ -254,6 +258,13 @@ def add_strategy(command) -> None:
             "(e.g. raceline:grip=0.9 for followers slower in the corners only)",
         ),
         ("--seed", "seed of the races' start positions and agents"),
+        *CLASS_OPTIONS,
+        (
+            "--beside",
+            "with --vehicle-class fullsize: folders of the same suite with another --wake, "
+            "whose pass reports are shown beside this one's",
+            {"nargs": "+", "default": [], "metavar": "DIR"},
+        ),
         ("--out", RESUME_HELP, {"default": "results/strategy"}),
         *PARALLEL_OPTIONS,
     )

@@ -92,6 +92,21 @@ PARALLEL_OPTIONS = (
         {"default": None},
     ),
 )
+# the world of the races: the vehicle class and the wake's strength (rows of add_options)
+CLASS_OPTIONS = (
+    (
+        "--vehicle-class",
+        "the cars and circuits: orca, the paper's 1:43 cars; fullsize, full-size single-seaters "
+        "on full-scale circuits (use a tumftm: track)",
+        {"choices": ["orca", "fullsize"], "default": "orca"},
+    ),
+    (
+        "--wake",
+        "the wake's strength (tow and dirty air behind another car): 0 off, 1 the published "
+        "figures (default: None, the class's: 0 for orca, 1 for fullsize)",
+        {"type": float, "default": None, "metavar": "STRENGTH"},
+    ),
+)
 IMPORT_OPTION = (
     "--import",
     "import MODULE (a module name, or a .py file) before the agent specs are "

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from experiments.cli.options import (
+    CLASS_OPTIONS,
     IMPORT_OPTION,
     SWITCH,
     TRACK_HELP,
@@ -34,6 +35,8 @@ def _cmd_race(args) -> int:
         laps=args.laps,
         render=not args.no_animation,
         order=start_order(args.regions, len(args.agents), args.start),
+        vehicle_class=args.vehicle_class,
+        wake=args.wake,
     )
     print(result.table())
     paths = write_outputs(result, frames, Path(args.out), animation=args.format)
@@ -164,6 +167,7 @@ def add_race(command) -> None:
             {"choices": ["gif", "mp4"], "default": "gif"},
         ),
         ("--no-animation", "write no animation (faster)", SWITCH),
+        *CLASS_OPTIONS,
         IMPORT_OPTION,
     )
 

@@ -74,6 +74,8 @@ def bench_race(config: BenchConfig, k: int) -> dict:
         start="regions",
         order=order,
         progress_bar=False,
+        vehicle_class=config.vehicle_class,
+        wake=config.wake,
     )
     if not np.isfinite(result.states).all():
         raise FloatingPointError(f"benchmark race {k} produced non-finite states")

@@ -34,7 +34,11 @@ class BenchConfig:
     With N != 3 cars, ``races`` must be a multiple of N (the ego starts from every region
     equally often); the paper's 3-car benchmark takes any count, as it always has.
     ``ego_regions`` (region names, e.g. ``("R2", "R3")``) replaces the ego's rotation through
-    every region by a cycle through these (any race count; :meth:`order`)."""
+    every region by a cycle through these (any race count; :meth:`order`).
+    ``vehicle_class`` (``"orca"``, the paper's 1:43 car, or ``"fullsize"``) is the class the
+    races are run in (the track built at its scale, the agents learn it from the track) and
+    ``wake`` the wake's strength (None: the class's, 0 for ORCA and 1 full size; stored
+    resolved). The paper's class without a wake is left out of :meth:`to_dict`."""
 
     ego: str = "alpha"
     opponents: str = "mpc"
@@ -44,9 +48,12 @@ class BenchConfig:
     seed: int = 0
     n_cars: int = 3
     ego_regions: tuple[str, ...] | None = None
+    vehicle_class: str = "orca"
+    wake: float | None = None
 
     def __post_init__(self):
         check_counts(self, ("races", "steps"))
+        check_class_wake(self)
         if isinstance(self.n_cars, bool) or not (
             isinstance(self.n_cars, int) and 2 <= self.n_cars <= 8
         ):
@@ -89,7 +96,7 @@ class BenchConfig:
             del d["ego_regions"]
         else:
             d["ego_regions"] = list(d["ego_regions"])
-        return d
+        return drop_default_class(d)
 
     def race_seed(self, k: int) -> int:
         return int(np.random.SeedSequence([self.seed, k]).generate_state(1)[0])
@@ -109,6 +116,43 @@ class BenchConfig:
             return self.start_order(k, self.n_cars)
         ego = self.regions.index(self.ego_regions[k % len(self.ego_regions)])
         return [ego] + [r for r in range(self.n_cars) if r != ego]
+
+
+def class_wake(vehicle_class: str, wake) -> float:
+    """The wake strength of a race of ``vehicle_class`` (``wake``, or the class's default when
+    None: 0 for ``"orca"``, 1 for ``"fullsize"``); a ValueError naming a bad class or wake."""
+    from racing_env.class_config import CLASS_DEFAULTS
+
+    if vehicle_class not in CLASS_DEFAULTS:
+        raise ValueError(
+            f"vehicle_class must be one of {', '.join(CLASS_DEFAULTS)}, got {vehicle_class!r}"
+        )
+    if wake is None:
+        return float(CLASS_DEFAULTS[vehicle_class]["wake"])
+    if (
+        isinstance(wake, bool)
+        or not isinstance(wake, (int, float))
+        or not np.isfinite(wake)
+        or wake < 0
+    ):
+        raise ValueError(f"wake must be a finite number >= 0, got {wake!r}")
+    return float(wake)
+
+
+def check_class_wake(config) -> None:
+    """Check ``config.vehicle_class`` and resolve ``config.wake`` (None: the class's) in place
+    (a frozen dataclass)."""
+    object.__setattr__(config, "wake", class_wake(config.vehicle_class, config.wake))
+
+
+def drop_default_class(d: dict) -> dict:
+    """Leave ``vehicle_class`` and ``wake`` out of a config's dict ``d`` (in place) while they
+    are the paper's world (the ORCA class without a wake), so that its manifests and stored
+    results keep the keys they always had; any other class or wake is recorded (a resume with
+    another is then refused)."""
+    if d.get("vehicle_class") == "orca" and d.get("wake") == 0.0:
+        del d["vehicle_class"], d["wake"]
+    return d
 
 
 def check_spec_fields(config: object, names: Sequence[str]) -> None:

@@ -39,6 +39,8 @@ class RaceResult:
     #: (``theta_names``), or None for an agent without a theta (IBR, PPO, raceline)
     thetas: list = field(default_factory=list)
     theta_names: list = field(default_factory=list)
+    vehicle_class: str = "orca"  # the class the race was run in
+    wake: float = 0.0  # the wake's strength
 
     @property
     def metrics(self) -> dict:
@@ -107,7 +109,14 @@ class RaceResult:
             "env_step_ms": round(self.env_step_ms, 4),
             "agent_stats": self.agent_stats,
             "metrics": self.metrics,
-        }
+        } | (
+            {}
+            if (self.vehicle_class, self.wake) == ("orca", 0.0)
+            else {
+                "vehicle_class": self.vehicle_class,
+                "wake": self.wake,
+            }
+        )
 
 
 def start_order(regions, n_cars: int, start: str = "regions") -> list[int] | None:
@@ -139,18 +148,28 @@ def run_race(
     render: bool = False,
     progress_bar: bool = True,
     order=None,
+    vehicle_class: str | None = None,
+    wake: float | None = None,
 ):
     """Race ``agent_names`` (agent specs, one per car: a registry name with optional
     parameters, ``"raceline:grip=0.75"``) and return ``(RaceResult, frames)``.
 
     ``order`` (start ``"regions"``): ``order[i]`` is car i's start region (0 = R1, the
     front-most); default a random permutation drawn from ``seed``. ``frames`` is a list of
-    RGB arrays when ``render`` is true, else empty.
+    RGB arrays when ``render`` is true, else empty. ``vehicle_class`` and ``wake``: the env's
+    (:class:`~racing_env.RacingParallelEnv`; default the paper's 1:43 class without a wake);
+    a track name is built at the class's scale and the agents learn the class from it.
     """
     if not agent_names:
         raise ValueError("a race needs at least one agent")
     env = RacingParallelEnv(
-        track=track, n_cars=len(agent_names), max_cycles=max_cycles, laps=laps, start=start
+        track=track,
+        n_cars=len(agent_names),
+        max_cycles=max_cycles,
+        laps=laps,
+        start=start,
+        vehicle_class=vehicle_class,
+        wake=wake,
     )
     agents = [make_agent_spec(spec) for spec in agent_names]
     for agent, spec, agent_id in zip(agents, agent_names, env.possible_agents):
@@ -204,6 +223,8 @@ def run_race(
             list(policy_space(a.space).names) if t is not None else None
             for a, t in zip(agents, thetas)
         ],
+        vehicle_class=env.config.vehicle_class,
+        wake=float(env.config.wake),
     )
     env.close()
     return result, frames
@@ -223,7 +244,7 @@ def write_outputs(result: RaceResult, frames: list, out: Path, animation: str = 
         paths["thetas"] = out / "thetas.png"
         plot_thetas(result, paths["thetas"])
     write_json(paths["summary"], result.summary())
-    track = make_track(result.track)
+    track = make_track(result.track, vehicle_class=result.vehicle_class)
     rl = get_raceline(track)
     plot_trajectories(
         track,

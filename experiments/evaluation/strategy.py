@@ -46,7 +46,13 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from experiments.evaluation.bench import BenchRun, run_many
-from experiments.evaluation.bench_config import BenchConfig, check_agent_specs, check_spec_fields
+from experiments.evaluation.bench_config import (
+    BenchConfig,
+    check_agent_specs,
+    check_class_wake,
+    check_spec_fields,
+    drop_default_class,
+)
 from experiments.infra.artifacts import (
     ResumableRun,
     append_jsonl,
@@ -93,7 +99,9 @@ class StrategyConfig:
     control periods (0.1 s) per bench; ``seed`` fixes every race's start positions and
     agents' seeds (race k of every bench has the seed of ``(seed, k)``); ``zeta_max`` is the
     defend ego's speed-scale ceiling; ``pass_opponents`` the spec of the two non-yielding
-    cars of ``pass`` (default :data:`PASS_OPPONENTS`, the racing-line follower).
+    cars of ``pass`` (default :data:`PASS_OPPONENTS`, the racing-line follower);
+    ``vehicle_class`` and ``wake`` the world of every race (the paper's 1:43 class by default;
+    ``wake`` None: the class's, stored resolved), left out of :meth:`to_dict` for the paper's.
 
     Every scenario runs ``races`` races per track and ego; ``table1`` shares them among its
     three opponents (33 each of 99). ``steps`` defaults to 200 (20 s: long enough for a car
@@ -113,8 +121,11 @@ class StrategyConfig:
     seed: int = 0
     zeta_max: float = ZETA_MAX
     pass_opponents: str = PASS_OPPONENTS
+    vehicle_class: str = "orca"
+    wake: float | None = None
 
     def __post_init__(self):
+        check_class_wake(self)
         object.__setattr__(self, "tracks", tuple(self.tracks))
         object.__setattr__(self, "scenarios", tuple(self.scenarios))
         check_counts(self, ("races", "steps"))
@@ -144,7 +155,7 @@ class StrategyConfig:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["tracks"], d["scenarios"] = list(self.tracks), list(self.scenarios)
-        return d
+        return drop_default_class(d)
 
     def capped(self, spec: str) -> str:
         """``spec`` under the defend ceiling."""
@@ -179,7 +190,14 @@ def cells(config: StrategyConfig) -> list[Cell]:
     for bench in bench_names(config.scenarios):
         for track in config.tracks:
             for role, spec in (("ego", config.ego), ("control", config.control)):
-                kw = dict(races=config.races, steps=config.steps, track=track, seed=config.seed)
+                kw = dict(
+                    races=config.races,
+                    steps=config.steps,
+                    track=track,
+                    seed=config.seed,
+                    vehicle_class=config.vehicle_class,
+                    wake=config.wake,
+                )
                 if bench == "pass":
                     cfg = BenchConfig(
                         ego=spec, opponents=config.pass_opponents, ego_regions=("R2", "R3"), **kw
@@ -198,31 +216,66 @@ def cells(config: StrategyConfig) -> list[Cell]:
 
 
 # ---------------------------------------------------------------------------- pace
-def solo_pace(spec: str, track: str, steps: int, seed: int) -> dict:
+def solo_pace(
+    spec: str,
+    track: str,
+    steps: int,
+    seed: int,
+    vehicle_class: str = "orca",
+    wake: float = 0.0,
+) -> dict:
     """Progress [m] of ``spec`` alone from the grid in ``steps`` control periods (pure: no
-    file access); ``progress_m`` None and ``reason`` when the agent cannot race alone."""
+    file access); ``progress_m`` None and ``reason`` when the agent cannot race alone. A
+    class other than the paper's (or a wake) is recorded in the record."""
     from experiments.evaluation.race import run_race
 
     warnings.simplefilter("ignore")
     rec = {"spec": spec, "track": track, "steps": steps, "seed": seed}
+    rec = drop_default_class({**rec, "vehicle_class": vehicle_class, "wake": wake})
     try:
         result, _ = run_race(
-            [spec], track=track, seed=seed, max_cycles=steps, start="grid", progress_bar=False
+            [spec],
+            track=track,
+            seed=seed,
+            max_cycles=steps,
+            start="grid",
+            progress_bar=False,
+            vehicle_class=vehicle_class,
+            wake=wake,
         )
     except ValueError as exc:
         return {**rec, "progress_m": None, "reason": f"cannot race alone: {exc}"}
     return {**rec, "progress_m": round(float(result.progress[0]), 4)}
 
 
-def pace_specs(config: StrategyConfig) -> list[str]:
+def pass_report_on(config: StrategyConfig) -> bool:
+    """Whether the suite reports its ``pass`` benches in full (:func:`pass_report`: where on
+    the lap the passes happen, the tow, the solo pace gap): for a class other than the paper's,
+    whose summaries stay as they were."""
+    return "pass" in config.scenarios and config.vehicle_class != "orca"
+
+
+def defend_specs(config: StrategyConfig) -> list[str]:
     """The specs measured alone for ``defend``: the capped ego, the capped control, and the
     opponent (the control)."""
     return [config.capped(config.ego), config.capped(config.control), config.control]
 
 
+def pace_specs(config: StrategyConfig) -> list[str]:
+    """The specs the suite measures alone: :func:`defend_specs` when it runs ``defend`` (or
+    runs no ``pass`` report), and the ``pass`` ego, control and opponents with
+    :func:`pass_report_on`."""
+    specs = []
+    if "defend" in config.scenarios or not pass_report_on(config):
+        specs += defend_specs(config)
+    if pass_report_on(config):
+        specs += [config.ego, config.control, config.pass_opponents]
+    return list(dict.fromkeys(specs))
+
+
 class PaceRun(ResumableRun):
-    """The defend scenario's solo pace races in the suite's folder: ``pace.jsonl``, one record
-    per (spec, track) of the suite's ``steps`` and ``seed``. No manifest of its own: the
+    """The suite's solo pace races in its folder: ``pace.jsonl``, one record per (spec,
+    track) of the suite's ``steps``, ``seed``, class and wake. No manifest of its own: the
     records carry their settings (a record of other settings is not this suite's and counts
     as missing), and the benches' folders are claimed by
     :class:`~experiments.evaluation.bench.BenchRun`."""
@@ -237,7 +290,22 @@ class PaceRun(ResumableRun):
         return (record["spec"], record["track"])
 
     def check_record(self, record: dict) -> bool:
-        return (record["steps"], record["seed"]) == (self.config.steps, self.config.seed)
+        c = self.config
+        return (
+            record["steps"],
+            record["seed"],
+            record.get("vehicle_class", "orca"),
+            record.get("wake", 0.0),
+        ) == (c.steps, c.seed, c.vehicle_class, c.wake)
+
+
+def run_pace(config: StrategyConfig, out, pool: Pool) -> dict:
+    """Race the suite's missing solo pace races (``pace.jsonl`` resumed); returns the records
+    by (spec, track)."""
+    run = PaceRun(out, config)
+    args = (config.steps, config.seed, config.vehicle_class, config.wake)
+    run.run_missing(solo_pace, lambda task: (*task, *args), pool, desc="solo pace", unit="race")
+    return run.records()
 
 
 def measure_pace(config: StrategyConfig, out, pool: Pool) -> dict:
@@ -245,13 +313,8 @@ def measure_pace(config: StrategyConfig, out, pool: Pool) -> dict:
     returns per track ``{"progress_m": {spec: m or None}, "reasons": {spec: text},
     "gaps": {capped spec: opponent / capped - 1}, "ok": every measured gap >= PACE_GAP and at
     least one measured}``."""
-    run = PaceRun(out, config)
-    specs = pace_specs(config)
-    steps, seed = config.steps, config.seed
-    run.run_missing(
-        solo_pace, lambda task: (*task, steps, seed), pool, desc="solo pace", unit="race"
-    )
-    done = run.records()
+    done = run_pace(config, out, pool)
+    specs = defend_specs(config)
     out_pace = {}
     for track in config.tracks:
         recs = {spec: done[(spec, track)] for spec in specs}
@@ -276,20 +339,25 @@ def strategy(
     config: StrategyConfig,
     out_dir="results/strategy",
     pool: Pool = Pool(),
+    beside=(),
 ) -> dict:
-    """Run (or resume) the suite ``config`` into ``out_dir`` (module docstring): the defend
-    scenario's solo pace races, then every bench's missing races in one pool; writes
-    ``strategy.json`` and ``strategy.md`` and returns the former's content with
-    ``new_races``, the bench races this call ran."""
+    """Run (or resume) the suite ``config`` into ``out_dir`` (module docstring): the solo pace
+    races, then every bench's missing races in one pool; writes ``strategy.json`` and
+    ``strategy.md`` and returns the former's content with ``new_races``, the bench races this
+    call ran. With :func:`pass_report_on` the table holds the ``pass`` benches' reports
+    (``pass_report``); ``beside``: folders of the same suite with another wake, whose pass
+    reports are shown beside this one's (:func:`beside_reports`)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     todo_cells = cells(config)
     check_agent_specs(dict.fromkeys(a for c in todo_cells for a in c.config.agents))
     # every folder claimed first: one of another config fails before any race
     runs = {(c.bench, c.track, c.role): BenchRun(c.folder(out), c.config) for c in todo_cells}
+    others = beside_reports(config, beside)
     pace = None
     if "defend" in config.scenarios:
         pace = measure_pace(config, out, pool)
+    solo = run_pace(config, out, pool) if pass_report_on(config) else {}
     new = sum(len(run.missing()) for run in runs.values())
     t0 = time.perf_counter()
     run_many(runs, pool)
@@ -330,9 +398,55 @@ def strategy(
         "runs": read_jsonl(history),
         "wall_seconds_this_run": wall,
     }
+    if pass_report_on(config):
+        from experiments.evaluation.pass_report import pass_report
+
+        table["pass_report"] = [
+            {
+                "track": t,
+                "role": role,
+                **pass_report(
+                    runs[("pass", t, role)],
+                    {spec: r["progress_m"] for (spec, tr), r in solo.items() if tr == t},
+                ),
+            }
+            for t in config.tracks
+            for role in ("ego", "control")
+        ]
+        if others:
+            table["beside"] = others
     write_json(out / "strategy.json", table)
     write_text(out / "strategy.md", strategy_markdown(table))
     return {**table, "new_races": new}
+
+
+def beside_reports(config: StrategyConfig, folders) -> list[dict]:
+    """The pass reports of other folders of the same suite (every setting equal but the
+    wake), to show beside this one's: ``[{"folder", "wake", "pass_report"}]``; a ValueError
+    for a folder without a finished report or of another suite."""
+    import json
+
+    out = []
+    mine = {k: v for k, v in config.to_dict().items() if k != "wake"}
+    for folder in folders:
+        path = Path(folder) / "strategy.json"
+        if not path.exists():
+            raise ValueError(f"--beside {folder}: no strategy.json there; run that suite first")
+        other = json.loads(path.read_text())
+        theirs = {k: v for k, v in other["config"].items() if k != "wake"}
+        if theirs != mine or "pass_report" not in other:
+            raise ValueError(
+                f"--beside {folder}: another suite (its config {other['config']}, this one "
+                f"{config.to_dict()}); only the wake may differ, and its pass report must exist"
+            )
+        out.append(
+            {
+                "folder": str(folder),
+                "wake": other["config"]["wake"],
+                "pass_report": other["pass_report"],
+            }
+        )
+    return out
 
 
 def pace_flags(config: StrategyConfig, pace: dict | None) -> list[str]:
@@ -408,7 +522,13 @@ def strategy_markdown(table: dict) -> str:
         "",
         f"Ego `{c['ego']}` and control `{c['control']}` in the same seats and races: "
         f"{c['races']} races per bench of {c['steps']} steps ({c['steps'] / 10:g} s), three "
-        f"cars, seed {c['seed']}. `pass`: behind two "
+        f"cars, seed {c['seed']}"
+        + (
+            f", class `{c['vehicle_class']}` with the wake at {c['wake']:g}"
+            if "vehicle_class" in c
+            else ""
+        )
+        + f". `pass`: behind two "
         f"`{c.get('pass_opponents', PASS_OPPONENTS)}` cars from R2 and R3 "
         f"in turn; `equal`: against two control cars from R1, R2, R3 in turn; `defend`: "
         f"from R1 with a zeta ceiling of {c['zeta_max']:g} against two control cars "
@@ -460,6 +580,27 @@ def strategy_markdown(table: dict) -> str:
                 if spec in p["reasons"]:
                     what = "not measured: " + p["reasons"][spec].split(";")[0]
                 lines.append(f"| `{track}` | `{spec}` | {shown} | {what} |")
+    if table.get("pass_report"):
+        from experiments.evaluation.pass_report import report_markdown
+
+        reports = [table["pass_report"]] + [b["pass_report"] for b in table.get("beside", [])]
+        rows = [(r["track"], r) for rep in reports for r in rep]
+        rows.sort(key=lambda tr: (c["tracks"].index(tr[0]), tr[1]["role"] != "ego", -tr[1]["wake"]))
+        lines += report_markdown(
+            rows,
+            f"Pass report: class {c['vehicle_class']}"
+            + (
+                ", wake "
+                + " and ".join(f"{w:g}" for w in dict.fromkeys(r["wake"] for _, r in rows))
+            ),
+        )
+        if table.get("beside"):
+            lines += [
+                "",
+                "Rows of another wake come from "
+                + ", ".join(f"`{b['folder']}`" for b in table["beside"])
+                + " (the same suite, seeds and seats).",
+            ]
     if table["flags"]:
         lines += ["", "**Flags:**", ""] + [f"- {f}" for f in table["flags"]]
     runs = table.get("runs", [])
