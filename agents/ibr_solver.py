@@ -482,5 +482,7 @@ class IBR:
 
             v = self.vehicle
             u0 = np.array(u0, dtype=float)
-            u0[0] = limited_throttle(v, float(u0[0]), float(states[0, 3]), math)
+            u0[0] = limited_throttle(
+                v, float(u0[0]), float(states[0, 3]), math, float(states[0, 5])
+            )
         return u0

@@ -52,6 +52,9 @@ FULLSIZE_GAINS = 13
 #: unstable above 22 m/s (measured: it spun at 36 m/s on Monza's straight); at 60% (80%
 #: left) the critical speed is about 50 m/s, where the power limit keeps the drive below it.
 FULLSIZE_GRIP_USE = (0.6, 0.9)
+#: least share of an axle's peak force along the car that the full-size follower's friction
+#: ellipse leaves it (:func:`_fullsize_long_room`) where the corner asks all its grip across
+FULLSIZE_LONG_FLOOR = 0.3
 
 
 def understeer_gradient(v: VehicleParams | FullSizeParams) -> float:
@@ -377,6 +380,21 @@ def _fullsize_axle_peaks(vx, p):
 
 
 @njit(cache=True)
+def _fullsize_long_room(a_y, d_front, d_rear, p):
+    """Fractions ``(r_front, r_rear)`` of the full-size car's axle peaks ``d_front, d_rear``
+    [N] left along the car at lateral acceleration ``a_y`` [m/s^2] (steady cornering: the
+    front axle carries ``l_r / L`` of ``m a_y``, the rear ``l_f / L``): ``sqrt(1 - (F_y /
+    D)^2)``, at least :data:`FULLSIZE_LONG_FLOOR` (a car too fast for its corner may still
+    brake)."""
+    lf, lr = p[P_LF_FS], p[P_LR_FS]
+    f_y = p[P_M_FS] * abs(a_y) / (lf + lr)
+    u_f = min(f_y * lr / d_front, 1.0)
+    u_r = min(f_y * lf / d_rear, 1.0)
+    floor = FULLSIZE_LONG_FLOOR
+    return max(math.sqrt(1.0 - u_f * u_f), floor), max(math.sqrt(1.0 - u_r * u_r), floor)
+
+
+@njit(cache=True)
 def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
     """The follower's control law (see :class:`RacelineFollower`) for state ``x`` (6,):
     normalised ``(throttle, steering)``. ``g`` from :meth:`RacelineFollower.gains`."""
@@ -397,9 +415,18 @@ def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
         # traction and brake limits: each axle asked for at most grip_use of its peak
         p = g[f + 7 :]
         d_front, d_rear = _fullsize_axle_peaks(vx, p)
-        d_hi = g[f + 5] * d_rear / drive
+        # friction ellipse: the share of each axle's peak left along the car by the lateral
+        # force the line's curvature here asks of it, or the car's yaw rate if more (front
+        # l_r / L, rear l_f / L of m a_y): a traction and brake control on the ellipse
+        a_y = max(abs(vx * vx * _lookup(kappa_ref, s, ds, length)), abs(vx * x[5]))
+        r_front, r_rear = _fullsize_long_room(a_y, d_front, d_rear, p)
+        d_hi = g[f + 5] * r_rear * d_rear / drive
         brake = p[P_FBRAKE] * math.tanh(max(vx, 0.0) / p[P_VLOW_FS])
-        d_lo = -g[f + 6] * min(d_front / p[P_KBF], d_rear / (1.0 - p[P_KBF])) / max(brake, 1e-9)
+        d_lo = (
+            -g[f + 6]
+            * min(r_front * d_front / p[P_KBF], r_rear * d_rear / (1.0 - p[P_KBF]))
+            / max(brake, 1e-9)
+        )
         d = min(max(d, max(g[10], d_lo)), min(g[11], d_hi))
     else:
         d = (g[8] + g[9] * vx * vx) / max(g[6] - g[7] * vx, 1e-6) + g[3] * (v_target - vx)

@@ -67,7 +67,7 @@ def stage_function(
     d_phys = 0.5 * (vehicle.d_max + vehicle.d_min) + 0.5 * (vehicle.d_max - vehicle.d_min) * u[0]
     delta_phys = vehicle.delta_max * u[1]
     if isinstance(vehicle, FullSizeParams):  # a share of its traction or brake limit
-        d_phys = limited_throttle(vehicle, u[0], x[3], ca)
+        d_phys = limited_throttle(vehicle, u[0], x[3], ca, x[5])
 
     def f(xx, kk):
         pp = list(p)
@@ -91,15 +91,28 @@ def stage_function(
     )
 
 
-def throttle_limits(vehicle: FullSizeParams, vx: Any, backend: Any = np) -> tuple[Any, Any]:
+#: shares ``(drive, brake)`` of what an axle's friction ellipse leaves along the car that the
+#: full-size MPC asks of it (:func:`throttle_limits`). Above the follower's
+#: :data:`racing_env.controllers.FULLSIZE_GRIP_USE`: the MPC predicts with the car's own
+#: model, so it steers the car that a strong drive makes oversteer
+MPC_GRIP_USE = (0.95, 0.97)
+
+
+def throttle_limits(
+    vehicle: FullSizeParams, vx: Any, backend: Any = np, omega: Any = 0.0
+) -> tuple[Any, Any]:
     """Physical throttle bounds ``(d_lo, d_hi)`` of the full-size car at speed ``vx`` [m/s]:
-    the drive asks at most :data:`racing_env.controllers.FULLSIZE_GRIP_USE` ``[0]`` of the rear
-    axle's peak force, the brakes at most ``[1]`` of either axle's, within ``[d_min, d_max]``
-    (the raceline follower's limits: beyond them the friction ellipse leaves the axle no
-    lateral force and the car spins or goes straight on). ``backend``: numpy, math or casadi.
-    The MPC's prediction applies them at each stage's start and :meth:`MPC.solve` to the input
-    it returns, so the plan and the applied throttle agree."""
-    from racing_env.controllers import FULLSIZE_GRIP_USE
+    the drive asks at most :data:`MPC_GRIP_USE` ``[0]`` of what the rear axle's friction
+    ellipse leaves along the car, the brakes at most ``[1]`` of either axle's, within
+    ``[d_min, d_max]`` (beyond them the friction ellipse leaves the axle no lateral force and
+    the car spins or goes straight on). The ellipse's room: at yaw rate ``omega`` [rad/s] the
+    car corners at ``a_y = vx omega``, the front axle carrying ``l_r / L`` of ``m a_y``, the
+    rear ``l_f / L``; an axle of peak ``D`` then has ``sqrt(1 - (F_y / D)^2)`` of it left
+    along the car, at least :data:`racing_env.controllers.FULLSIZE_LONG_FLOOR` (the
+    follower's rule; ``omega = 0``: the straight-line limits). ``backend``: numpy, math or
+    casadi. The MPC's prediction applies them at each stage's start and :meth:`MPC.solve` to
+    the input it returns, so the plan and the applied throttle agree."""
+    from racing_env.controllers import FULLSIZE_LONG_FLOOR
 
     v = vehicle
     M = backend
@@ -112,16 +125,23 @@ def throttle_limits(vehicle: FullSizeParams, vx: Any, backend: Any = np) -> tupl
     d_f = 2.0 * v.mu * tf * (1.0 + v.eps_f * (tf - v.Fz_shift) / v.Fz0)
     d_r = 2.0 * v.mu * tr * (1.0 + v.eps_r * (tr - v.Fz_shift) / v.Fz0)
     drive = fmin(v.F_drive_max, v.P_max / M.sqrt(q + v.v_low * v.v_low))
-    hi = fmin(FULLSIZE_GRIP_USE[0] * d_r / drive, v.d_max)
+    a_y = vx * omega
+    f_y = v.m * a_y / v.wheelbase
+    floor = FULLSIZE_LONG_FLOOR * FULLSIZE_LONG_FLOOR
+    d_f = d_f * M.sqrt(fmax(1.0 - (f_y * v.lr / d_f) ** 2, floor))
+    d_r = d_r * M.sqrt(fmax(1.0 - (f_y * v.lf / d_r) ** 2, floor))
+    hi = fmin(MPC_GRIP_USE[0] * d_r / drive, v.d_max)
     brake = fmax(v.F_brake_max * M.tanh(fmax(vx, 0.0) / v.v_low), 1e-9)
     lo = fmax(
-        -FULLSIZE_GRIP_USE[1] * fmin(d_f / v.k_brake_front, d_r / (1.0 - v.k_brake_front)) / brake,
+        -MPC_GRIP_USE[1] * fmin(d_f / v.k_brake_front, d_r / (1.0 - v.k_brake_front)) / brake,
         v.d_min,
     )
     return lo, hi
 
 
-def limited_throttle(vehicle: FullSizeParams, u: Any, vx: Any, backend: Any = np) -> Any:
+def limited_throttle(
+    vehicle: FullSizeParams, u: Any, vx: Any, backend: Any = np, omega: Any = 0.0
+) -> Any:
     """The full-size car's physical throttle for the MPC's normalised throttle ``u`` in [-1, 1]
     at speed ``vx``: ``u`` times the traction limit ``d_hi`` when positive, times ``-d_lo``
     (the brake limit) when negative (:func:`throttle_limits`), so ``u = 1`` is the most drive
@@ -129,7 +149,7 @@ def limited_throttle(vehicle: FullSizeParams, u: Any, vx: Any, backend: Any = np
     no gradient, and an SQP plan that strayed into it (measured: braking at -1 where -0.38
     binds) could never come back. The prediction applies it at each stage's start and
     :meth:`MPC.solve` to the input it returns, so the plan and the applied throttle agree."""
-    lo, hi = throttle_limits(vehicle, vx, backend)
+    lo, hi = throttle_limits(vehicle, vx, backend, omega)
     return 0.5 * (u + backend.fabs(u)) * hi - 0.5 * (u - backend.fabs(u)) * lo
 
 

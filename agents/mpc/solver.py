@@ -432,7 +432,7 @@ class MPC:
                 return step
         return rejected
 
-    def _limited_throttle(self, u: float, vx: float) -> float:
+    def _limited_throttle(self, u: float, vx: float, omega: float = 0.0) -> float:
         """The env's normalised throttle for the MPC's throttle ``u`` of the full-size car at
         speed ``vx``: a share of its traction or brake limit
         (:func:`~agents.mpc.prediction.limited_throttle`), as its prediction applies it."""
@@ -443,7 +443,7 @@ class MPC:
         v = self.vehicle
         assert isinstance(v, FullSizeParams)
         mid, half = 0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min)
-        return (limited_throttle(v, u, vx, math) - mid) / half
+        return (limited_throttle(v, u, vx, math, omega) - mid) / half
 
     @staticmethod
     def _pays_penalty(X, U, J: float, p: ProblemConstants) -> bool:
@@ -519,7 +519,7 @@ class MPC:
             self._s_nom = None
         u0 = U[:, 0].copy()
         if isinstance(self.vehicle, FullSizeParams):  # the prediction's throttle limits
-            u0[0] = self._limited_throttle(u0[0], float(x0[3]))
+            u0[0] = self._limited_throttle(u0[0], float(x0[3]), float(x0[5]))
         self._U = np.concatenate([U[:, 1:], U[:, -1:]], axis=1)  # shifted warm start
         self.last_status = status
         self.last_prediction = X if status == "ok" else None
