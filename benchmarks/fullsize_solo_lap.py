@@ -4,9 +4,12 @@ at 1/43.
 
     python benchmarks/fullsize_solo_lap.py                          # mpc:zeta=1.0 on Monza
     python benchmarks/fullsize_solo_lap.py --spec raceline --track tumftm:Spa
+    python benchmarks/fullsize_solo_lap.py --spec mpc:zeta=1.0 raceline \
+        --track tumftm:Monza tumftm:Spa --steps 3200 4200             # a table
 
 The car starts from the grid (a standing start), so the first lap includes the launch; the
-following laps are flying ones and the best is compared with the racing line's estimate.
+second lap is a flying one and is compared with the racing line's estimate (the gap in the
+table); the ORCA class's median solve time on the same circuit at 1/43 is beside the MPC's.
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ def solo_env(spec: str, track: str, steps: int, vehicle_class: str = "orca") -> 
         "progress": round(float(core.state[0, 0, 0] - core.s_line[0]), 1),
         "act_ms_median": round(1e3 * float(np.median(times)), 3),
         "solve_ms_median": round(float(stats.get("solve_ms_median", float("nan"))), 3),
+        "solve_ms_p99": round(float(stats.get("solve_ms_p99", float("nan"))), 3),
         "restarts": stats.get("restarts", "-"),
         "fallbacks": stats.get("fallbacks", "-"),
     }
@@ -57,24 +61,49 @@ def solo_env(spec: str, track: str, steps: int, vehicle_class: str = "orca") -> 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--spec", default="mpc:zeta=1.0")
-    ap.add_argument("--track", default="tumftm:Monza")
-    ap.add_argument("--steps", type=int, default=3200, help="control periods at full size")
+    ap.add_argument("--spec", nargs="+", default=["mpc:zeta=1.0"])
+    ap.add_argument("--track", nargs="+", default=["tumftm:Monza"])
+    ap.add_argument(
+        "--steps",
+        type=int,
+        nargs="+",
+        default=[3200],
+        help="control periods at full size (one, or one per track): two laps and a bit",
+    )
     ap.add_argument("--orca-steps", type=int, default=600, help="0: no ORCA comparison")
     args = ap.parse_args()
     v = FullSizeParams()
-    track = make_track(args.track, vehicle_class="fullsize")
-    est = get_raceline(track, v, raceline_config_for(v)).lap_time
-    full = solo_env(args.spec, args.track, args.steps, "fullsize")
-    flying = full["laps"][1:]
-    gap = f"{100 * (min(flying) / est - 1):+.1f}%" if flying else "no flying lap"
-    print(f"full size, {args.spec} on {args.track}: {full}")
-    print(f"  racing line's lap estimate {est:.2f} s; best flying lap vs estimate: {gap}")
-    if args.orca_steps:
-        orca = solo_env(args.spec, args.track, args.orca_steps, "orca")
-        ratio = full["solve_ms_median"] / orca["solve_ms_median"]
-        print(f"ORCA (1/43), {args.orca_steps} steps: {orca}")
-        print(f"  median MPC solve, full size / ORCA: {ratio:.2f}")
+    steps = args.steps * len(args.track) if len(args.steps) == 1 else args.steps
+    if len(steps) != len(args.track):
+        ap.error("--steps takes one count, or one per track")
+    rows = []
+    for name, n_steps in zip(args.track, steps):
+        track = make_track(name, vehicle_class="fullsize")
+        est = get_raceline(track, v, raceline_config_for(v)).lap_time
+        for spec in args.spec:
+            full = solo_env(spec, name, n_steps, "fullsize")
+            flying = full["laps"][1:]
+            print(f"full size, {spec} on {name}: {full}", flush=True)
+            orca_ms = float("nan")
+            if args.orca_steps and spec.startswith("mpc"):
+                orca = solo_env(spec, name, args.orca_steps, "orca")
+                orca_ms = orca["solve_ms_median"]
+                print(f"  ORCA (1/43), {args.orca_steps} steps: {orca}", flush=True)
+            rows.append((name, spec, flying[0] if flying else None, est, full, orca_ms))
+    print()
+    print(
+        "| circuit | driver | flying lap [s] | estimate [s] | gap | off-track steps "
+        "| solve median / p99 [ms] | ORCA median [ms] |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for name, spec, lap, est, full, orca_ms in rows:
+        gap = f"{100 * (lap / est - 1):+.1f}%" if lap else "no flying lap"
+        lap_s = f"{lap:.2f}" if lap else "-"
+        solve = f"{full['solve_ms_median']} / {full['solve_ms_p99']}"
+        print(
+            f"| {name} | {spec} | {lap_s} | {est:.2f} | {gap} | {full['off_track']} "
+            f"| {solve} | {orca_ms} |"
+        )
 
 
 if __name__ == "__main__":

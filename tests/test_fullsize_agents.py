@@ -216,3 +216,55 @@ def test_follower_and_line_lengths_as_scaling():
     f.reset(make_track(MONZA, vehicle_class="fullsize"))
     for name, value in scaled.follower.items():
         assert getattr(f, name) == pytest.approx(value, rel=1e-15)
+
+
+def test_friction_ellipse_room_by_hand():
+    """The full-size throttle limits leave each axle what its friction ellipse has left along
+    the car: at a lateral acceleration whose share on an axle (front l_r / L, rear l_f / L of
+    m a_y) is 60% of its peak, 80% (sqrt(1 - 0.36)) of the peak; the floor where the corner
+    takes it all; the straight-line limits at yaw rate 0."""
+    from agents.mpc.prediction import MPC_GRIP_USE, throttle_limits
+    from racing_env.controllers import FULLSIZE_LONG_FLOOR, _fullsize_long_room
+
+    v = FullSizeParams()
+    p = v.pack()
+    vx = 30.0
+    d_f, d_r = v.axle_grip(vx)
+    a_y = 0.6 * d_r * v.wheelbase / (v.m * v.lf)  # the rear's share: 60% of its peak
+    r_f, r_r = _fullsize_long_room(a_y, d_f, d_r, p)
+    assert r_r == pytest.approx(0.8, rel=1e-12)
+    u_f = v.m * a_y * v.lr / v.wheelbase / d_f
+    assert r_f == pytest.approx(np.sqrt(1 - u_f**2), rel=1e-12)
+    assert _fullsize_long_room(2.0 * a_y, d_f, d_r, p) == (FULLSIZE_LONG_FLOOR,) * 2
+    drive = min(v.F_drive_max, v.P_max / np.hypot(vx, v.v_low))
+    brake = v.F_brake_max * np.tanh(vx / v.v_low)
+    lo0, hi0 = throttle_limits(v, vx)
+    assert hi0 == pytest.approx(min(MPC_GRIP_USE[0] * d_r / drive, 1.0), rel=1e-12)
+    want_lo = -MPC_GRIP_USE[1] * min(d_f / v.k_brake_front, d_r / (1 - v.k_brake_front)) / brake
+    assert lo0 == pytest.approx(max(want_lo, -1.0), rel=1e-12)
+    lo, hi = throttle_limits(v, vx, omega=a_y / vx)  # the same corner, from the yaw rate
+    assert hi == pytest.approx(MPC_GRIP_USE[0] * 0.8 * d_r / drive, rel=1e-12)
+    want_lo = -MPC_GRIP_USE[1] * min(r_f * d_f / v.k_brake_front, 0.8 * d_r / 0.4) / brake
+    assert lo == pytest.approx(want_lo, rel=1e-12)
+    assert throttle_limits(v, vx, omega=-a_y / vx) == (lo, hi)  # either way round
+
+
+def test_follower_traction_control_on_the_ellipse(monza):
+    """The follower's drive on a straight asks FULLSIZE_GRIP_USE[0] of the rear's peak; yawing
+    at the rear's full lateral force, only the floor's share of it."""
+    from racing_env.controllers import FULLSIZE_GRIP_USE, FULLSIZE_LONG_FLOOR
+
+    v = FullSizeParams()
+    f = RacelineFollower()
+    f.reset(monza)
+    M = len(monza.s_grid)
+    vx = 25.0
+    tables = (np.zeros(M), np.zeros(M), np.zeros(M), np.full(M, 60.0))  # far below: full drive
+    drive = min(v.F_drive_max, v.P_max / np.hypot(vx, v.v_low))
+    d_r = v.axle_grip(vx)[1]
+    x = np.array([100.0, 0.0, 0.0, vx, 0.0, 0.0])
+    d, _ = follower_action(x, *tables, monza.ds, monza.length, f.gains())
+    assert d == pytest.approx(FULLSIZE_GRIP_USE[0] * d_r / drive, rel=1e-12)
+    x[5] = 1.1 * d_r * v.wheelbase / (v.m * v.lf) / vx  # the rear's lateral force > its peak
+    d, _ = follower_action(x, *tables, monza.ds, monza.length, f.gains())
+    assert d == pytest.approx(FULLSIZE_GRIP_USE[0] * FULLSIZE_LONG_FLOOR * d_r / drive, rel=1e-12)
