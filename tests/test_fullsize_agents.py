@@ -197,6 +197,33 @@ def test_mpc_solo_full_size_stretch():
     assert float(core.state[0, 0, 0] - core.s_line[0]) > 1500.0
 
 
+@pytest.mark.slow
+def test_mpc_solo_lap_full_size_monza():
+    """The MPC at zeta 1 alone on full-size Monza from the grid (300 s, about 2 min): no
+    off-track step, and its second (flying) lap near the racing line's estimate. Measured
+    +4.8% (146.8 s against 140.0 s): the issue's goal is 3%, not reached yet (the losses are
+    in Roggia, Lesmo and Ascari, docs "Solo laps"); the bound keeps what is reached."""
+    from racing_env import RacingParallelEnv
+    from racing_env.controllers import raceline_config_for
+    from racing_env.raceline import get_raceline
+
+    env = RacingParallelEnv(
+        track=MONZA, n_cars=1, max_cycles=3000, start="grid", vehicle_class="fullsize"
+    )
+    obs, _ = env.reset(seed=0)
+    agent = make_agent_spec("mpc:zeta=1.0")
+    agent.reset(env.track, "car_0", 0)
+    while env.agents:
+        obs, *_ = env.step({"car_0": agent.act(obs["car_0"])})
+    core = env.core
+    laps = np.diff([0.0, *core.lap_times[0][0]])
+    v = FullSizeParams()
+    est = get_raceline(env.track, v, raceline_config_for(v)).lap_time
+    assert int(core.offtracks[0][0]) == 0
+    assert len(laps) >= 2
+    assert laps[1] / est - 1.0 < 0.06
+
+
 def test_follower_and_line_lengths_as_scaling():
     """The follower scales its lengths and the racing line's itself (racing_env.scaling reads
     the follower's defaults, so the follower cannot import it): the same as scaled_configs."""
