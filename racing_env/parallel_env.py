@@ -20,6 +20,8 @@ if TYPE_CHECKING:
     from .render import HumanViewer, Renderer
 
 RESET_OPTIONS = ("n_cars", "start", "order")
+#: Width [car lengths] of the followed view a class other than the paper's is rendered in.
+FOLLOW_VIEW_LENGTHS = 40.0
 
 
 def check_reward_options(offtrack_penalty: float, terminate_off_track: bool) -> tuple[float, bool]:
@@ -469,22 +471,35 @@ class RacingParallelEnv(ParallelEnv):
         self._viewer.show(frame)
         return None
 
-    def render_frame(self) -> np.ndarray:
-        """RGB frame (H, W, 3) uint8 of the current race, whatever the render mode."""
+    def render_frame(self, follow: int | None = None) -> np.ndarray:
+        """RGB frame (H, W, 3) uint8 of the current race, whatever the render mode. A class
+        other than the paper's (circuits of kilometres) is drawn in a view
+        :data:`FOLLOW_VIEW_LENGTHS` car lengths across that follows car ``follow`` (default
+        the lead car); the paper's class shows the whole track."""
         self._require_reset("render_frame()")
         if self._renderer is None:
             from .raceline import get_raceline
             from .render import Renderer
 
             rl = get_raceline(self.track, self.config.vehicle)
+            view = None
+            if self.config.vehicle_class != "orca":
+                view = FOLLOW_VIEW_LENGTHS * self.config.vehicle.length
             self._renderer = Renderer(
-                self.track, vehicle=self.config.vehicle, raceline_xy=(rl.x, rl.y)
+                self.track, vehicle=self.config.vehicle, raceline_xy=(rl.x, rl.y), view_m=view
             )
         c = self.core
         hud = [f"t = {c.t[0] * self.config.dt:5.1f} s"]
         order = np.argsort(-c.state[0, :, 0])
         hud += [f"P{k + 1} car_{i}  lap {c.laps[0, i]}" for k, i in enumerate(order)]
-        return self._renderer.frame(c.state[0], hud=hud)
+        if self._renderer.view_m is not None:  # a followed view: the speeds, the gaps
+            lead = c.state[0, order[0], 0]
+            hud = hud[:1] + [
+                f"P{k + 1} car_{i}  {c.state[0, i, 3] * 3.6:3.0f} km/h  "
+                + (f"+{lead - c.state[0, i, 0]:.0f} m" if k else "")
+                for k, i in enumerate(order)
+            ]
+        return self._renderer.frame(c.state[0], hud=hud, follow=follow)
 
     def close(self) -> None:
         """Close the ``"human"`` window if one is open (the env can still be reset and used)."""

@@ -85,11 +85,16 @@ class Renderer:
         Free border around the track [px].
     min_car_length_px : float
         Smallest drawn car length [px].
+    view_m : float, optional
+        A view that follows a car (a circuit of kilometres, where the whole track leaves a car
+        a pixel long): the image spans ``view_m`` metres across, centred on the car
+        :meth:`frame` follows (default the lead car). None (the default): the whole track.
 
     Attributes
     ----------
     background : np.ndarray
-        The cached static image, (height, width, 3) uint8, read-only.
+        The cached static image, (height, width, 3) uint8, read-only; with ``view_m`` the
+        whole track at the view's scale, which frames crop.
     scale : float
         Pixels per metre.
     car_length_px, car_width_px : float
@@ -124,6 +129,7 @@ class Renderer:
         *,
         margin_px: float = 12.0,
         min_car_length_px: float = 8.0,
+        view_m: float | None = None,
     ) -> None:
         if not isinstance(track, Track):
             raise ValueError(f"track must be a Track, got {type(track).__name__}")
@@ -146,9 +152,20 @@ class Renderer:
         xs, ys = np.concatenate([xl, xr]), np.concatenate([yl, yr])
         x0, x1, y0, y1 = xs.min(), xs.max(), ys.min(), ys.max()
         span_x, span_y = max(x1 - x0, 1e-9), max(y1 - y0, 1e-9)
-        self.scale = float(
-            min((self.width - 2 * margin_px) / span_x, (self.height - 2 * margin_px) / span_y)
-        )
+        self.view_m = view_m
+        if view_m is None:
+            self.scale = float(
+                min((self.width - 2 * margin_px) / span_x, (self.height - 2 * margin_px) / span_y)
+            )
+            self._canvas = (self.width, self.height)
+        else:
+            if not (isinstance(view_m, numbers.Real) and math.isfinite(view_m) and view_m > 0):
+                raise ValueError(f"view_m must be a positive finite number, got {view_m!r}")
+            self.scale = float(self.width / view_m)
+            self._canvas = (
+                int(math.ceil(span_x * self.scale + 2 * margin_px)),
+                int(math.ceil(span_y * self.scale + 2 * margin_px)),
+            )
         self._cx, self._cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
 
         # drawn car size
@@ -182,8 +199,8 @@ class Renderer:
         self, x: float | np.ndarray, y: float | np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """World (x, y) [m] -> pixel (u, v) [px] (column, row; floats, any broadcastable shape)."""
-        u = 0.5 * self.width + self.scale * (np.asarray(x, dtype=float) - self._cx)
-        v = 0.5 * self.height - self.scale * (np.asarray(y, dtype=float) - self._cy)
+        u = 0.5 * self._canvas[0] + self.scale * (np.asarray(x, dtype=float) - self._cx)
+        v = 0.5 * self._canvas[1] - self.scale * (np.asarray(y, dtype=float) - self._cy)
         return u, v
 
     def _car_polygons(self, u, v, phi):
@@ -206,8 +223,11 @@ class Renderer:
 
     # ------------------------------------------------------------------ background
     def _draw_background(self) -> Image.Image:
+        cw, ch = self._canvas
         f = _SUPERSAMPLE
-        img = Image.new("RGB", (self.width * f, self.height * f), GRASS_COLOR)
+        while f > 1 and cw * ch * f * f > 40_000_000:  # a followed view of a large circuit
+            f -= 1
+        img = Image.new("RGB", (cw * f, ch * f), GRASS_COLOR)
         d = ImageDraw.Draw(img)
         tr = self.track
 
@@ -262,6 +282,7 @@ class Renderer:
         state: np.ndarray,
         labels: Sequence[str] | None = None,
         hud: Sequence[str] | None = None,
+        follow: int | None = None,
     ) -> np.ndarray:
         """Render one race state.
 
@@ -276,6 +297,9 @@ class Renderer:
             Text drawn next to each car.
         hud : sequence of str, optional
             Lines of text drawn in a box at the top-left corner (e.g. step, time, order).
+        follow : int, optional
+            With ``view_m``: the car the view is centred on (default the lead car, the
+            largest ``s``); ignored for the whole-track view.
 
         Returns
         -------
@@ -289,10 +313,26 @@ class Renderer:
                 raise ValueError(
                     f"labels must have one entry per car ({n_cars}), got {len(labels)}"
                 )
-        out = self.background.copy()
+        u0 = v0 = 0
+        ok = np.all(np.isfinite(st[:, :3]), axis=1) if n_cars else np.zeros(0, bool)
+        if self.view_m is None:
+            out = self.background.copy()
+        else:
+            out = np.empty((self.height, self.width, 3), np.uint8)
+            out[:] = GRASS_COLOR
+            if ok.any():
+                k = int(np.argmax(np.where(ok, st[:, 0], -np.inf))) if follow is None else follow
+                cu, cv, _ = self.car_pixel_positions(st[k])
+                u0 = int(round(float(cu[0]) - 0.5 * self.width))
+                v0 = int(round(float(cv[0]) - 0.5 * self.height))
+            bh, bw = self.background.shape[:2]
+            a0, b0 = max(u0, 0), max(v0, 0)
+            a1, b1 = min(u0 + self.width, bw), min(v0 + self.height, bh)
+            if a1 > a0 and b1 > b0:
+                out[b0 - v0 : b1 - v0, a0 - u0 : a1 - u0] = self.background[b0:b1, a0:a1]
         if n_cars:
-            ok = np.all(np.isfinite(st[:, :3]), axis=1)
             u, v, phi = self.car_pixel_positions(np.where(ok[:, None], st, 0.0))
+            u, v = u - u0, v - v0
             body, nose = self._car_polygons(u, v, phi)  # (N, 4, 2), (N, 3, 2) [px]
             for i in np.flatnonzero(ok):
                 _fill_convex(

@@ -238,5 +238,40 @@ def print_fit() -> None:
         print(f"| {g:g} | {fd:.3f} | {fz:.3f} | {torcs:.3f} |")
 
 
+def plot_curves(path) -> None:
+    """Figure of the wake's curves: the drag and downforce factors at full strength against
+    the gap (straight behind, and half and one width aside), with the published points."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    g = np.linspace(0.0, 30.0, 301)
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharey=True)
+    for ax, k, name, pts in (
+        (axes[0], 0, "drag factor (tow)", CERUTTI_2021),
+        (axes[1], 1, "downforce factor (dirty air)", FIA_2017_21),
+    ):
+        for y, style in ((0.0, "-"), (0.5, "--"), (1.0, ":")):
+            ax.plot(g, [wake_factors(x, y, 1.0)[k] for x in g], style, label=f"{y:g} width aside")
+        ax.plot([p[0] for p in pts], [1.0 - p[1] for p in pts], "ko", label="published")
+        ax.set_xlabel("gap behind the leader [car lengths, nose to tail]")
+        ax.set_title(name)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("factor (1 = clean air)")
+    axes[1].legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 if __name__ == "__main__":
-    print_fit()
+    import argparse
+
+    ap = argparse.ArgumentParser(description="The wake's fitted curves (print, or --plot a figure)")
+    ap.add_argument("--plot", metavar="PNG", help="write the curves' figure to this file")
+    a = ap.parse_args()
+    if a.plot:
+        plot_curves(a.plot)
+    else:
+        print_fit()

@@ -253,7 +253,7 @@ def test_monza_speed_profile(lines):
 
 def test_lap_estimates_agree_with_a_point_mass(lines):
     """Every shipped circuit's lap estimate is within 3% of the point-mass lap on the same
-    path (they agree to about 0.1-1%: see docs/fullsize-physics-notes.md), at an average
+    path (they agree to about 0.1-1%: see docs/fullsize.md), at an average
     speed of 110-180 km/h."""
     for name, rl in lines.items():
         pm = point_mass_lap(rl.kappa, rl.ds)

@@ -37,6 +37,7 @@ def _cmd_race(args) -> int:
         order=start_order(args.regions, len(args.agents), args.start),
         vehicle_class=args.vehicle_class,
         wake=args.wake,
+        follow=args.follow,
     )
     print(result.table())
     paths = write_outputs(result, frames, Path(args.out), animation=args.format)
@@ -168,6 +169,11 @@ def add_race(command) -> None:
         ),
         ("--no-animation", "write no animation (faster)", SWITCH),
         *CLASS_OPTIONS,
+        (
+            "--follow",
+            "full size: the car index the animation's view follows (default: the lead car)",
+            {"type": int, "default": None},
+        ),
         IMPORT_OPTION,
     )
 

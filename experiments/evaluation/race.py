@@ -150,6 +150,7 @@ def run_race(
     order=None,
     vehicle_class: str | None = None,
     wake: float | None = None,
+    follow: int | None = None,
 ):
     """Race ``agent_names`` (agent specs, one per car: a registry name with optional
     parameters, ``"raceline:grip=0.75"``) and return ``(RaceResult, frames)``.
@@ -159,6 +160,7 @@ def run_race(
     RGB arrays when ``render`` is true, else empty. ``vehicle_class`` and ``wake``: the env's
     (:class:`~racing_env.RacingParallelEnv`; default the paper's 1:43 class without a wake);
     a track name is built at the class's scale and the agents learn the class from it.
+    ``follow``: the car a followed view (full size) is centred on, default the lead car.
     """
     if not agent_names:
         raise ValueError("a race needs at least one agent")
@@ -179,7 +181,7 @@ def run_race(
         a.reset(env.track, agent_id, seed + 1000 * (k + 1))
     n = len(agents)
     states = [env.core.state[0].copy()]
-    frames = [env.render_frame()] if render else []
+    frames = [env.render_frame(follow)] if render else []
     decide = np.zeros(n)
     thetas = [[] if hasattr(a, "driven_theta") else None for a in agents]
     env_time = 0.0
@@ -201,7 +203,7 @@ def run_race(
             steps += 1
             states.append(env.core.state[0].copy())
             if render:
-                frames.append(env.render_frame())
+                frames.append(env.render_frame(follow))
             bar.update(1)
     core = env.core
     result = RaceResult(

@@ -133,7 +133,7 @@ N_PARAMS = 25
 
 ELLIPSE_EPS = 1e-4  # regularisation of the friction ellipse (see the module docstring)
 
-# RK4 sub-step rule (see n_substeps_fullsize and docs/fullsize-physics-notes.md)
+# RK4 sub-step rule (see n_substeps_fullsize and docs/fullsize.md)
 SUBSTEP_STABILITY = 2.5  # h * lambda_max <= 2.5 / gain (RK4 is stable to about 2.8)
 MIN_SUBSTEPS = 4  # accuracy floor at racing speed: 25 ms steps
 
