@@ -16,7 +16,7 @@ from .config import R_CONTACT_DN, R_CONTACT_DS, R_FRONT, R_REAR
 from .integrator import _rk4_substep
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _box_entry(ds0, dn0, ds1, dn1, half_s, half_n):
     """First fraction ``u`` in [0, 1] at which the segment ``(ds0, dn0) -> (ds1, dn1)`` is
     inside the open box ``|ds| < half_s, |dn| < half_n``, or -1 if it never is (slab test)."""
@@ -36,7 +36,7 @@ def _box_entry(ds0, dn0, ds1, dn1, half_s, half_n):
     return lo if lo < hi else -1.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _cut(x, applied, i, f):
     """Slow car ``i`` so that its total cut in this period is ``min(applied[i], f)``."""
     if f < applied[i]:
@@ -44,7 +44,7 @@ def _cut(x, applied, i, f):
         applied[i] = f
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _wrapped(d, length):
     """``d`` wrapped into [-length/2, length/2)."""
     return (d + 0.5 * length) % length - 0.5 * length

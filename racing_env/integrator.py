@@ -44,7 +44,7 @@ from .vehicles.fullsize import n_substeps_fullsize, ode_fullsize
 _ode = njit(cache=True)(bind(frenet_ode, math))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _ode_any(n, mu, vx, vy, omega, d, delta, kappa, p, fw, fd):
     """The force law of the class of ``p`` (its length: 25 full-size, else ORCA) with the
     wake's drag and downforce factors ``fw``, ``fd``; ORCA: ``C4 vx^2`` scaled by ``fw``
@@ -73,7 +73,7 @@ def _n_substeps(vx, p, dt, gain, max_sub):
     return min(max(k, 2), max_sub)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _slope_at(x, k, a, d, delta, kappa_tab, ds, length, p, fw, fd):
     """The ODE's slope at the state ``x + a k`` (an RK4 stage; ``x``, ``k`` (6,))."""
     return _ode_any(
@@ -91,7 +91,7 @@ def _slope_at(x, k, a, d, delta, kappa_tab, ds, length, p, fw, fd):
     )
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _rk4_substep(x, d, delta, kappa_tab, ds, length, p, h, fw, fd):
     """One classical RK4 step of length ``h`` of one car's state ``x`` (6,), in place, with
     the wake's factors ``fw``, ``fd`` (1, 1: clean air)."""

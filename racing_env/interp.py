@@ -56,7 +56,7 @@ def periodic_interp(
     return table[..., offset + i0] * (1.0 - t) + table[..., offset + (i0 + 1) % m] * t
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def periodic_lookup(table, s, ds, length):
     """:func:`periodic_interp` of a 1-D ``table`` at one ``s`` [m] (grid spacing ``ds``, lap
     ``length`` [m]), for numba kernels."""

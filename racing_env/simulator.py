@@ -215,7 +215,7 @@ def _step_one_race(b, state, phys, tables, p, dt, rules, reward, contact, offtra
     return before
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _clamp_to_walls(b, state, tables):
     """A car cannot go further than a wall: it stops sideways there (race ``b``, in place)."""
     ds, length = tables.ds, tables.length
