@@ -416,9 +416,9 @@ def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
         p = g[f + 7 :]
         d_front, d_rear = _fullsize_axle_peaks(vx, p)
         # friction ellipse: the share of each axle's peak left along the car by the lateral
-        # force the line's curvature here asks of it, or the car's yaw rate if more (front
-        # l_r / L, rear l_f / L of m a_y): a traction and brake control on the ellipse
-        a_y = max(abs(vx * vx * _lookup(kappa_ref, s, ds, length)), abs(vx * x[5]))
+        # force the line's curvature here asks of it (front l_r / L, rear l_f / L of m a_y):
+        # a traction and brake control on the ellipse
+        a_y = vx * vx * _lookup(kappa_ref, s, ds, length)
         r_front, r_rear = _fullsize_long_room(a_y, d_front, d_rear, p)
         d_hi = g[f + 5] * r_rear * d_rear / drive
         brake = p[P_FBRAKE] * math.tanh(max(vx, 0.0) / p[P_VLOW_FS])

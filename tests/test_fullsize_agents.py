@@ -277,8 +277,8 @@ def test_friction_ellipse_room_by_hand():
 
 
 def test_follower_traction_control_on_the_ellipse(monza):
-    """The follower's drive on a straight asks FULLSIZE_GRIP_USE[0] of the rear's peak; yawing
-    at the rear's full lateral force, only the floor's share of it."""
+    """The follower's drive on a straight asks FULLSIZE_GRIP_USE[0] of the rear's peak; on a
+    line whose curvature asks more than the rear's peak across, only the floor's share."""
     from racing_env.controllers import FULLSIZE_GRIP_USE, FULLSIZE_LONG_FLOOR
 
     v = FullSizeParams()
@@ -292,6 +292,7 @@ def test_follower_traction_control_on_the_ellipse(monza):
     x = np.array([100.0, 0.0, 0.0, vx, 0.0, 0.0])
     d, _ = follower_action(x, *tables, monza.ds, monza.length, f.gains())
     assert d == pytest.approx(FULLSIZE_GRIP_USE[0] * d_r / drive, rel=1e-12)
-    x[5] = 1.1 * d_r * v.wheelbase / (v.m * v.lf) / vx  # the rear's lateral force > its peak
+    kappa = 1.1 * d_r * v.wheelbase / (v.m * v.lf) / vx**2  # the rear's lateral force > peak
+    tables = (tables[0], tables[1], np.full(M, kappa), tables[3])
     d, _ = follower_action(x, *tables, monza.ds, monza.length, f.gains())
     assert d == pytest.approx(FULLSIZE_GRIP_USE[0] * FULLSIZE_LONG_FLOOR * d_r / drive, rel=1e-12)
