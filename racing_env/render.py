@@ -152,7 +152,8 @@ class Renderer:
         xs, ys = np.concatenate([xl, xr]), np.concatenate([yl, yr])
         x0, x1, y0, y1 = xs.min(), xs.max(), ys.min(), ys.max()
         span_x, span_y = max(x1 - x0, 1e-9), max(y1 - y0, 1e-9)
-        self.view_m = view_m
+        self.view_m: float | None = view_m
+        self._canvas: tuple[int, int]
         if view_m is None:
             self.scale = float(
                 min((self.width - 2 * margin_px) / span_x, (self.height - 2 * margin_px) / span_y)
