@@ -247,3 +247,16 @@ def test_layers_import_downwards_only():
     assert _upwards(import_graph(lazy=False)) == set()
     # the one lazy import back: the Gymnasium env builds its embedded opponents from specs
     assert _upwards(import_graph()) == UPWARD
+
+
+MAX_MODULE_LINES = 600
+
+
+def test_every_module_is_one_a_reader_can_hold_in_mind():
+    """No module of the three packages is over 600 lines (docs/design.md: one job per module)."""
+    long = {
+        str(path.relative_to(ROOT)): n
+        for path in _modules().values()
+        if (n := len(path.read_text().splitlines())) > MAX_MODULE_LINES
+    }
+    assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
