@@ -21,8 +21,10 @@ from .tracks import make_track
 from .vehicle import VehicleParams
 from .vehicles import FullSizeParams, vehicle_for_track
 from .vehicles.fullsize import (
+    P_BR,
     P_CLF,
     P_CLR,
+    P_CR,
     P_EPSF,
     P_EPSR,
     P_FBRAKE,
@@ -51,10 +53,23 @@ FULLSIZE_GAINS = 13
 #: car's yaw stable, and at 90% of its peak along the car (44% left across) the car is
 #: unstable above 22 m/s (measured: it spun at 36 m/s on Monza's straight); at 60% (80%
 #: left) the critical speed is about 50 m/s, where the power limit keeps the drive below it.
-FULLSIZE_GRIP_USE = (0.6, 0.9)
+#: With the yaw-rate damping and the traction rule of :data:`FULLSIZE_STEER` the drive share
+#: is 90% again (at 60% the follower lost 1-2 s a lap at the slow corners' exits).
+FULLSIZE_GRIP_USE = (0.9, 0.9)
 #: least share of an axle's peak force along the car that the full-size follower's friction
 #: ellipse leaves it (:func:`_fullsize_long_room`) where the corner asks all its grip across
 FULLSIZE_LONG_FLOOR = 0.3
+#: the full-size follower's steering law ``(preview_floor [m], preview_time [s], k_yaw [-],
+#: slip_onset [-], speed_preview [s])``: a preview ``D = max(preview_floor, preview_time
+#: vx)`` (the ORCA law's ``preview_min`` scaled by the length ratio, 19.6 m, is 1.6 s at 12 m/s: the car cut
+#: Monza's first chicane); yaw-rate damping ``k_yaw L (vx kappa_cmd - omega) / vx`` added to
+#: the steering (it counter-steers a car that yaws faster than its path asks); and a
+#: traction rule: the drive share falls linearly from ``slip_onset`` of the rear tyre's peak
+#: slip angle to nothing at the peak (the rear's lateral force is what keeps the car's yaw
+#: stable); its speed target is the profile's ``speed_preview`` s ahead (its brakes ask
+#: ``FULLSIZE_GRIP_USE[1]`` of the front's peak where the profile asks all of it: with the
+#: ORCA law's 0.3 s it reached Monza's first chicane 3 m/s too fast)
+FULLSIZE_STEER = (6.0, 0.7, 0.6, 0.3, 0.6)
 
 
 def understeer_gradient(v: VehicleParams | FullSizeParams) -> float:
@@ -130,6 +145,12 @@ class RacelineFollower:
     is the class's force law: ``(C3 + C4 vx^2) / (C1 - C2 vx)`` for the ORCA car; for the
     full-size class ``(c_drag vx^2 + c_roll m g) / min(F_drive_max, P_max / vx_eff)``, the
     drag and rolling resistance against the power-limited drive.
+
+    The full-size class steers by its own law (:data:`FULLSIZE_STEER`; ``preview_min``,
+    ``preview_time`` and ``speed_preview`` are the ORCA car's): the preview is time-based,
+    ``D = max(6 m, 0.7 s vx)``; yaw-rate damping ``0.6 L (vx kappa_cmd - omega) / vx`` is
+    added to ``delta``; the drive fades out as the rear tyre's slip angle goes from 30% of
+    its peak to the peak; the speed target is the profile 0.6 s ahead.
 
     The vehicle class comes from the track at ``reset`` (``track.vehicle_class``, ``"orca"``
     when absent): without a ``vehicle`` the follower drives the class's default car; a
@@ -282,9 +303,10 @@ class RacelineFollower:
 
     def gains(self) -> np.ndarray:
         """Packed controller constants for :func:`follower_action`: 13 for the ORCA car, and
-        for the full-size class 32 more (from :data:`FULLSIZE_GAINS`: ``c_drag``, ``c_roll m
-        g``, ``F_drive_max``, ``P_max``, ``v_low``, the two :data:`FULLSIZE_GRIP_USE`, then
-        :meth:`FullSizeParams.pack`); the ORCA entries C1..C4 are then 1, 0, 0, 0 (not read)."""
+        for the full-size class 37 more (from :data:`FULLSIZE_GAINS`: ``c_drag``, ``c_roll m
+        g``, ``F_drive_max``, ``P_max``, ``v_low``, the two :data:`FULLSIZE_GRIP_USE`, the
+        five :data:`FULLSIZE_STEER`, then :meth:`FullSizeParams.pack`); the ORCA entries
+        C1..C4 are then 1, 0, 0, 0 (not read)."""
         v = self.vehicle
         if isinstance(v, FullSizeParams):
             motor = [1.0, 0.0, 0.0, 0.0]
@@ -295,6 +317,7 @@ class RacelineFollower:
                 v.P_max,
                 v.v_low,
                 *FULLSIZE_GRIP_USE,
+                *FULLSIZE_STEER,
                 *v.pack(),
             ]
         else:
@@ -399,7 +422,12 @@ def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
     """The follower's control law (see :class:`RacelineFollower`) for state ``x`` (6,):
     normalised ``(throttle, steering)``. ``g`` from :meth:`RacelineFollower.gains`."""
     s, n, mu, vx, vy = x[0], x[1], x[2], x[3], x[4]
-    preview = max(g[0], g[1] * vx)
+    fullsize = g.shape[0] > FULLSIZE_GAINS
+    f = FULLSIZE_GAINS
+    if fullsize:  # full-size class: a time-based preview with a small floor
+        preview = max(g[f + 7], g[f + 8] * vx)
+    else:
+        preview = max(g[0], g[1] * vx)
     beta = math.atan2(vy, max(vx, 0.1))
     kappa_cmd = (
         _lookup(kappa_ref, s + 0.5 * preview, ds, length)
@@ -408,19 +436,28 @@ def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
     )
     delta = math.atan(g[4] * kappa_cmd) + g[5] * vx * vx * kappa_cmd
     v_target = _lookup(v_ref, s + g[2] * vx, ds, length)
-    if g.shape[0] > FULLSIZE_GAINS:  # full-size class: resistance over the power-limited drive
-        f = FULLSIZE_GAINS
+    if fullsize:  # full-size class: resistance over the power-limited drive
+        p = g[f + 12 :]
+        v_target = _lookup(v_ref, s + g[f + 11] * vx, ds, length)
+        omega = x[5]
+        vx_eff = max(vx, 1.0)
+        # yaw-rate damping: the yaw rate the commanded path asks less the car's
+        delta += g[f + 9] * g[4] * (vx * kappa_cmd - omega) / vx_eff
         drive = min(g[f + 2], g[f + 3] / math.sqrt(vx * vx + g[f + 4] * g[f + 4]))
         d = (g[f] * vx * vx + g[f + 1]) / drive + g[3] * (v_target - vx)
         # traction and brake limits: each axle asked for at most grip_use of its peak
-        p = g[f + 7 :]
         d_front, d_rear = _fullsize_axle_peaks(vx, p)
         # friction ellipse: the share of each axle's peak left along the car by the lateral
         # force the line's curvature here asks of it (front l_r / L, rear l_f / L of m a_y):
         # a traction and brake control on the ellipse
         a_y = vx * vx * _lookup(kappa_ref, s, ds, length)
         r_front, r_rear = _fullsize_long_room(a_y, d_front, d_rear, p)
-        d_hi = g[f + 5] * r_rear * d_rear / drive
+        # traction rule: the drive fades out as the rear tyre's slip angle nears its peak
+        alpha_peak = math.tan(0.5 * math.pi / p[P_CR]) / p[P_BR]
+        alpha_r = abs(math.atan((omega * p[P_LR_FS] - vy) / vx_eff))
+        onset = g[f + 10]
+        fade = min(max((1.0 - alpha_r / alpha_peak) / (1.0 - onset), 0.0), 1.0)
+        d_hi = g[f + 5] * r_rear * d_rear * fade / drive
         brake = p[P_FBRAKE] * math.tanh(max(vx, 0.0) / p[P_VLOW_FS])
         d_lo = (
             -g[f + 6]

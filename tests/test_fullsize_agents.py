@@ -92,7 +92,7 @@ def test_follower_scaled_to_the_class(monza):
     explicit = RacelineFollower(preview_min=0.7)
     explicit.reset(monza)
     assert explicit.preview_min == 0.7  # given: used as given
-    assert len(f.gains()) == 13 + 7 + 25
+    assert len(f.gains()) == 13 + 12 + 25
 
 
 def test_follower_feed_forward_holds_speed(monza):
