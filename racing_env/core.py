@@ -11,7 +11,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import warmup
 from .cache import notice
 from .config import RaceConfig, StartConfig
 from .simulator import TrackTables, advance, advance_parallel, observe, observe_parallel
@@ -252,7 +251,6 @@ class BatchedRaces:
                 f"actions must have shape {self._phys.shape} (races, cars, 2), got {a.shape}"
             )
         kernel = advance_parallel if self.n_races >= PARALLEL_MIN_RACES else advance
-        warmup.wait()  # a cold cache's kernel compiled in the background (racing_env.warmup)
         code = kernel(
             self.state,
             a,

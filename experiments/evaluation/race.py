@@ -13,7 +13,7 @@ from agents import check_field_size, make_agent_spec
 from agents.theta import policy_space
 from experiments.evaluation.metrics import race_metrics
 from experiments.infra.artifacts import write_json
-from racing_env import RacingParallelEnv, warmup
+from racing_env import RacingParallelEnv
 from racing_env.config import RulesConfig
 from racing_env.gym_env import act_named
 
@@ -164,7 +164,6 @@ def run_race(
     """
     if not agent_names:
         raise ValueError("a race needs at least one agent")
-    warmup.start()  # cold cache: the step kernel compiles on another core meanwhile
     env = RacingParallelEnv(
         track=track,
         n_cars=len(agent_names),
