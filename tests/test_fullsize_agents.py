@@ -296,3 +296,59 @@ def test_follower_traction_control_on_the_ellipse(monza):
     tables = (tables[0], tables[1], np.full(M, kappa), tables[3])
     d, _ = follower_action(x, *tables, monza.ds, monza.length, f.gains())
     assert d == pytest.approx(FULLSIZE_GRIP_USE[0] * FULLSIZE_LONG_FLOOR * d_r / drive, rel=1e-12)
+
+
+def test_follower_full_size_steering_law(monza):
+    """The full-size follower's own law (FULLSIZE_STEER), by hand: the preview max(6 m, 0.7 s
+    vx) on a lateral error, the yaw-rate damping k_yaw L (vx kappa_cmd - omega) / vx, and the
+    drive fading from slip_onset of the rear's peak slip angle to nothing at the peak."""
+    from racing_env.controllers import FULLSIZE_GRIP_USE, FULLSIZE_STEER
+
+    v = FullSizeParams()
+    floor, t_prev, k_yaw, onset, _ = FULLSIZE_STEER
+    f = RacelineFollower()
+    f.reset(monza)
+    M = len(monza.s_grid)
+    L = v.lf + v.lr
+    for vx in (5.0, 30.0):  # the floor, then the time
+        D = max(floor, t_prev * vx)
+        tables = (np.full(M, 0.5), np.zeros(M), np.zeros(M), np.full(M, vx))
+        x = np.array([100.0, 0.0, 0.0, vx, 0.0, 0.0])
+        _, steer = follower_action(x, *tables, monza.ds, monza.length, f.gains())
+        k = 0.5 / D**2  # the lateral error's curvature; no yaw-rate error but vx k
+        delta = np.arctan(L * k) + f.k_us * vx**2 * k + k_yaw * L * (vx * k) / vx
+        assert steer == pytest.approx(delta / v.delta_max, rel=1e-12)
+    # a yaw rate on a straight: counter-steered, k_yaw L omega / vx
+    tables = (np.zeros(M), np.zeros(M), np.zeros(M), np.full(M, 30.0))
+    x = np.array([100.0, 0.0, 0.0, 30.0, 0.0, 0.1])
+    _, steer = follower_action(x, *tables, monza.ds, monza.length, f.gains())
+    assert steer == pytest.approx(-k_yaw * L * 0.1 / 30.0 / v.delta_max, rel=1e-12)
+    # the traction rule: the rear sliding at 65% of its peak slip angle halves the drive
+    vx = 25.0
+    alpha_peak = np.tan(0.5 * np.pi / v.C_r) / v.B_r
+    alpha = onset + 0.5 * (1.0 - onset)
+    tables = (np.zeros(M), np.zeros(M), np.zeros(M), np.full(M, 60.0))
+    x = np.array([100.0, 0.0, 0.0, vx, -vx * np.tan(alpha * alpha_peak), 0.0])
+    d, _ = follower_action(x, *tables, monza.ds, monza.length, f.gains())
+    drive = min(v.F_drive_max, v.P_max / np.hypot(vx, v.v_low))
+    assert d == pytest.approx(0.5 * FULLSIZE_GRIP_USE[0] * v.axle_grip(vx)[1] / drive, rel=1e-9)
+
+
+@pytest.mark.slow
+def test_follower_laps_full_size_monza():
+    """The raceline follower alone on full-size Monza from the grid (a standing start, 170
+    s): one lap without leaving the track (measured 158.4 s; the ORCA law's preview cut the
+    first chicane)."""
+    from racing_env import RacingParallelEnv
+
+    env = RacingParallelEnv(
+        track=MONZA, n_cars=1, max_cycles=1700, start="grid", vehicle_class="fullsize"
+    )
+    obs, _ = env.reset(seed=0)
+    agent = make_agent_spec("raceline")
+    agent.reset(env.track, "car_0", 0)
+    while env.agents:
+        obs, *_ = env.step({"car_0": agent.act(obs["car_0"])})
+    core = env.core
+    assert int(core.offtracks[0][0]) == 0
+    assert len(core.lap_times[0][0]) >= 1
