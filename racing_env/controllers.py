@@ -68,7 +68,8 @@ FULLSIZE_LONG_FLOOR = 0.3
 #: slip angle to nothing at the peak (the rear's lateral force is what keeps the car's yaw
 #: stable); its speed target is the profile's ``speed_preview`` s ahead (its brakes ask
 #: ``FULLSIZE_GRIP_USE[1]`` of the front's peak where the profile asks all of it: with the
-#: ORCA law's 0.3 s it reached Monza's first chicane 3 m/s too fast)
+#: ORCA law's 0.3 s it reached Monza's first chicane 3 m/s too fast); ``slip_onset`` >= 1:
+#: no traction rule
 FULLSIZE_STEER = (6.0, 0.7, 0.6, 0.3, 0.6)
 
 
@@ -236,6 +237,10 @@ class RacelineFollower:
         self.preview_time = preview_time
         self.speed_preview = speed_preview
         self.k_speed = k_speed
+        #: the full-size class's ``(grip_use, steer)`` constants in :meth:`gains`; ``None``:
+        #: :data:`FULLSIZE_GRIP_USE` and :data:`FULLSIZE_STEER` (the MPC's warm start sets
+        #: its own, :func:`agents.mpc.prediction.make_follower`)
+        self.fullsize_law: tuple[tuple[float, ...], tuple[float, ...]] | None = None
         self.k_us = understeer_gradient(self.vehicle)
         self.track: Track | None = None
         self.raceline: Raceline | None = None
@@ -309,6 +314,7 @@ class RacelineFollower:
         C1..C4 are then 1, 0, 0, 0 (not read)."""
         v = self.vehicle
         if isinstance(v, FullSizeParams):
+            grip_use, steer = self.fullsize_law or (FULLSIZE_GRIP_USE, FULLSIZE_STEER)
             motor = [1.0, 0.0, 0.0, 0.0]
             extra = [
                 v.c_drag,
@@ -316,8 +322,8 @@ class RacelineFollower:
                 v.F_drive_max,
                 v.P_max,
                 v.v_low,
-                *FULLSIZE_GRIP_USE,
-                *FULLSIZE_STEER,
+                *grip_use,
+                *steer,
                 *v.pack(),
             ]
         else:
@@ -456,7 +462,9 @@ def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
         alpha_peak = math.tan(0.5 * math.pi / p[P_CR]) / p[P_BR]
         alpha_r = abs(math.atan((omega * p[P_LR_FS] - vy) / vx_eff))
         onset = g[f + 10]
-        fade = min(max((1.0 - alpha_r / alpha_peak) / (1.0 - onset), 0.0), 1.0)
+        fade = 1.0  # slip_onset >= 1: no traction rule
+        if onset < 1.0:
+            fade = min(max((1.0 - alpha_r / alpha_peak) / (1.0 - onset), 0.0), 1.0)
         d_hi = g[f + 5] * r_rear * d_rear * fade / drive
         brake = p[P_FBRAKE] * math.tanh(max(vx, 0.0) / p[P_VLOW_FS])
         d_lo = (

@@ -96,6 +96,9 @@ def stage_function(
 #: :data:`racing_env.controllers.FULLSIZE_GRIP_USE`: the MPC predicts with the car's own
 #: model, so it steers the car that a strong drive makes oversteer
 MPC_GRIP_USE = (0.95, 0.97)
+#: drive and brake shares of the raceline follower whose rollout warm-starts the full-size
+#: MPC (:func:`make_follower`; the follower's shares before its own steering law)
+WARM_START_GRIP_USE = (0.6, 0.9)
 
 
 def throttle_limits(
@@ -314,4 +317,13 @@ def make_follower(
 
     follower = RacelineFollower(vehicle, line=line)
     follower.reset(track)
+    if isinstance(follower.vehicle, FullSizeParams):
+        # the MPC's warm start keeps the ORCA law scaled to the class (the follower's own
+        # law, with its preview, yaw damping, traction rule and 90% drive, left the MPC's
+        # closed loop off the track on Monza: 108 off-track steps where it had none)
+        follower.fullsize_law = (
+            WARM_START_GRIP_USE,
+            (follower.preview_min, follower.preview_time, 0.0, 1.0, follower.speed_preview),
+        )
+        follower._gains = follower.gains()
     return follower
