@@ -514,8 +514,14 @@ class MPC:
         self.stats["solves"] += 1
         if status != "ok":
             self.stats["fallbacks"] += 1
-            U = (U if self._U is None else self._U).copy()  # the plan for now (shifted)
-            U[0, :] = np.minimum(U[0, :], 0.0)  # fallback: keep the steering plan, lift off
+            if x0[3] < 2.0 * cfg.v_low:
+                # (nearly) stopped: lifting off would keep the car where it is, and the same
+                # failed solve would repeat at every step (Silverstone's grid: the QP hit its
+                # iteration limit, the car never left); drive the follower's rollout instead
+                U = self._follower_warm_start(x0)
+            else:
+                U = (U if self._U is None else self._U).copy()  # the plan for now (shifted)
+                U[0, :] = np.minimum(U[0, :], 0.0)  # fallback: keep the steering, lift off
             self._s_nom = None
         u0 = U[:, 0].copy()
         if isinstance(self.vehicle, FullSizeParams):  # the prediction's throttle limits
