@@ -352,3 +352,21 @@ def test_follower_laps_full_size_monza():
     core = env.core
     assert int(core.offtracks[0][0]) == 0
     assert len(core.lap_times[0][0]) >= 1
+
+
+def test_mpc_leaves_silverstone_grid():
+    """From Silverstone's grid the full-size MPC's first solve failed (the QP's iteration
+    limit) and the fallback lifted the throttle to 0 at every step: the car never moved. A
+    failed solve with the car stopped now drives the follower's rollout."""
+    from racing_env import RacingParallelEnv
+
+    env = RacingParallelEnv(
+        track="tumftm:Silverstone", n_cars=1, max_cycles=30, start="grid", vehicle_class="fullsize"
+    )
+    obs, _ = env.reset(seed=0)
+    agent = make_agent_spec("mpc:zeta=1.0")
+    agent.reset(env.track, "car_0", 0)
+    while env.agents:
+        obs, *_ = env.step({"car_0": agent.act(obs["car_0"])})
+    assert float(env.core.state[0, 0, 3]) > 5.0
+    assert int(env.core.offtracks[0][0]) == 0
