@@ -69,6 +69,7 @@ from numba import njit
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
+    from pathlib import Path
 
     from numpy.typing import ArrayLike
 
@@ -238,7 +239,7 @@ def print_fit() -> None:
         print(f"| {g:g} | {fd:.3f} | {fz:.3f} | {torcs:.3f} |")
 
 
-def plot_curves(path) -> None:
+def plot_curves(path: str | Path) -> None:
     """Figure of the wake's curves: the drag and downforce factors at full strength against
     the gap (straight behind, and half and one width aside), with the published points."""
     import matplotlib
