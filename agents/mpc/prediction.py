@@ -17,7 +17,6 @@ from racing_env.track import Track
 from racing_env.vehicle import P_VLOW, VehicleParams
 from racing_env.vehicles import FullSizeParams
 from racing_env.vehicles.fullsize import P_VLOW as P_VLOW_FULLSIZE
-from racing_env.vehicles.fullsize import n_substeps_fullsize, ode_fullsize
 
 from .codegen import load_prediction
 from .config import MPCConfig
@@ -203,9 +202,14 @@ def kappa_flat(table, s_nodes, m, ds, length):
 
 
 @njit(cache=True)
-def _rollout(x, n_ref, mu_ref, kappa_ref, v_ref, kappa_tab, ds, length, gains, p, act_map, dt, U):
-    """Roll the follower law forward from state ``x`` in the simulator's model; inputs into U."""
+def _rollout(
+    x, n_ref, mu_ref, kappa_ref, v_ref, kappa_tab, ds, length, gains, p, act_map, dt, U, V
+):
+    """Roll the follower law forward from state ``x`` in the simulator's model (either class:
+    :func:`racing_env.integrator.integrate_car` dispatches on ``p``, clean air); inputs into U,
+    the speed at each stage's start into V."""
     for k in range(U.shape[1]):
+        V[k] = x[3]
         a0, a1 = follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, gains)
         U[0, k] = a0
         U[1, k] = a1
@@ -222,55 +226,6 @@ def _rollout(x, n_ref, mu_ref, kappa_ref, v_ref, kappa_tab, ds, length, gains, p
         )
 
 
-@njit(cache=True)
-def _integrate_fullsize(x, d, delta, kappa_tab, ds, length, p, dt, n_sub):
-    """The full-size car's state ``x`` (6,) advanced in place over ``dt`` with ``n_sub``
-    classical RK4 steps, the curvature looked up at every stage's progress (as
-    :func:`racing_env.integrator.integrate_car` for the ORCA car; clean air, ``vx >= 0``)."""
-    h = dt / n_sub
-    y = np.empty(6)
-    k = np.empty((4, 6))
-    for _ in range(n_sub):
-        for stage in range(4):
-            a = (0.0, 0.5 * h, 0.5 * h, h)[stage]
-            for j in range(6):
-                y[j] = x[j] + (a * k[stage - 1, j] if stage else 0.0)
-            r = ode_fullsize(
-                y[1], y[2], y[3], y[4], y[5], d, delta, _lookup(kappa_tab, y[0], ds, length), p
-            )
-            for j in range(6):
-                k[stage, j] = r[j]
-        for j in range(6):
-            x[j] += h / 6.0 * (k[0, j] + 2.0 * k[1, j] + 2.0 * k[2, j] + k[3, j])
-        if x[3] < 0.0:
-            x[3] = 0.0
-        if x[2] > np.pi or x[2] < -np.pi:
-            x[2] = (x[2] + np.pi) % (2.0 * np.pi) - np.pi
-
-
-@njit(cache=True)
-def _rollout_fullsize(
-    x, n_ref, mu_ref, kappa_ref, v_ref, kappa_tab, ds, length, gains, p, act_map, dt, U, V
-):
-    """:func:`_rollout` for the full-size class; the speed at each stage's start into V."""
-    for k in range(U.shape[1]):
-        V[k] = x[3]
-        a0, a1 = follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, gains)
-        U[0, k] = a0
-        U[1, k] = a1
-        _integrate_fullsize(
-            x,
-            act_map[0] + act_map[1] * a0,
-            act_map[2] * a1,
-            kappa_tab,
-            ds,
-            length,
-            p,
-            dt,
-            n_substeps_fullsize(x[3], p, dt, 1.0, 100),
-        )
-
-
 def follower_rollout(
     track: Track,
     vehicle: VehicleParams | FullSizeParams,
@@ -282,7 +237,7 @@ def follower_rollout(
     """Normalised inputs (2, K) from rolling the raceline follower's law forward from ``x0``
     (6,) in the simulator's model for ``K`` stages of ``dt`` s: an on-track initial guess.
     ``follower`` is a :class:`racing_env.controllers.RacelineFollower` reset on ``track``."""
-    U = np.empty((2, K))
+    U, V = np.empty((2, K)), np.empty(K)
     v = vehicle
     args = (
         np.array(x0, dtype=float),
@@ -295,12 +250,11 @@ def follower_rollout(
         np.array([0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min), v.delta_max]),
         dt,
         U,
+        V,
     )
+    _rollout(*args)
     if not isinstance(v, FullSizeParams):
-        _rollout(*args)
         return U
-    V = np.empty(K)
-    _rollout_fullsize(*args, V)
     # the MPC's throttle is a share of the traction / brake limit (limited_throttle)
     lo, hi = throttle_limits(v, V)
     d = 0.5 * (v.d_max + v.d_min) + 0.5 * (v.d_max - v.d_min) * U[0]
