@@ -4,6 +4,7 @@ call (:meth:`MPC._step_python` is the same step for an interpreted prediction)."
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from enum import IntEnum
@@ -21,6 +22,7 @@ from .config import MPCConfig, class_scale, config_for_vehicle
 from .prediction import (
     follower_rollout,
     kappa_flat,
+    limited_throttle,
     make_follower,
     stage_nodes,
     trajectory_function,
@@ -436,10 +438,6 @@ class MPC:
         """The env's normalised throttle for the MPC's throttle ``u`` of the full-size car at
         speed ``vx``: a share of its traction or brake limit
         (:func:`~agents.mpc.prediction.limited_throttle`), as its prediction applies it."""
-        import math
-
-        from .prediction import limited_throttle
-
         v = self.vehicle
         assert isinstance(v, FullSizeParams)
         mid, half = 0.5 * (v.d_max + v.d_min), 0.5 * (v.d_max - v.d_min)
