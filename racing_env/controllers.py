@@ -46,15 +46,11 @@ if TYPE_CHECKING:
 #: car's gains end there: its feed-forward and its races stay the same bit for bit)
 FULLSIZE_GAINS = 13
 #: shares ``(drive, brake)`` of an axle's peak force the full-size follower asks of it along
-#: the car (its traction and brake limits). At the peak itself (a launch at full throttle:
-#: 7 kN drive on 5.6 kN of rear grip; a stop at full brake: 12 kN front on 5-6.5 kN) the
-#: friction ellipse leaves the axle 1% of its lateral force and the car spins or goes
-#: straight on. The drive share is lower: the rear axle's lateral force is what keeps the
-#: car's yaw stable, and at 90% of its peak along the car (44% left across) the car is
-#: unstable above 22 m/s (measured: it spun at 36 m/s on Monza's straight); at 60% (80%
-#: left) the critical speed is about 50 m/s, where the power limit keeps the drive below it.
-#: With the yaw-rate damping and the traction rule of :data:`FULLSIZE_STEER` the drive share
-#: is 90% again (at 60% the follower lost 1-2 s a lap at the slow corners' exits).
+#: the car (its traction and brake limits). At the peak itself the friction ellipse leaves the
+#: axle almost no lateral force and the car spins or goes straight on; with the yaw-rate
+#: damping and the traction rule of :data:`FULLSIZE_STEER` 90% holds (a fixed 60% drive, used
+#: before them, lost 1-2 s a lap at slow corners' exits; 90% without them spun the car at
+#: 36 m/s on Monza's straight).
 FULLSIZE_GRIP_USE = (0.9, 0.9)
 #: least share of an axle's peak force along the car that the full-size follower's friction
 #: ellipse leaves it (:func:`_fullsize_long_room`) where the corner asks all its grip across
