@@ -52,8 +52,11 @@ def solo_env(spec: str, track: str, steps: int, vehicle_class: str = "orca") -> 
         "off_track": int(core.offtracks[0][0]),
         "progress": round(float(core.state[0, 0, 0] - core.s_line[0]), 1),
         "act_ms_median": round(1e3 * float(np.median(times)), 3),
-        "solve_ms_median": round(float(stats.get("solve_ms_median", float("nan"))), 3),
-        "solve_ms_p99": round(float(stats.get("solve_ms_p99", float("nan"))), 3),
+        # "-" for a driver without a solver (the follower): no NaN in the table
+        **{
+            k: round(float(stats[k]), 3) if k in stats else "-"
+            for k in ("solve_ms_median", "solve_ms_p99")
+        },
         "restarts": stats.get("restarts", "-"),
         "fallbacks": stats.get("fallbacks", "-"),
     }
@@ -84,7 +87,7 @@ def main() -> None:
             full = solo_env(spec, name, n_steps, "fullsize")
             flying = full["laps"][1:]
             print(f"full size, {spec} on {name}: {full}", flush=True)
-            orca_ms = float("nan")
+            orca_ms: float | str = "-"  # not measured (a follower, or --orca-steps 0)
             if args.orca_steps and spec.startswith("mpc"):
                 orca = solo_env(spec, name, args.orca_steps, "orca")
                 orca_ms = orca["solve_ms_median"]
