@@ -54,12 +54,14 @@ from typing import Any, Protocol
 
 from .config import RaceConfig, RulesConfig, StartConfig
 from .vehicle import VehicleParams
+from .vehicles import VEHICLE_CLASSES
 
 REFERENCE_SIZE = (VehicleParams().length, VehicleParams().width)
 """(length, width) [m] of the car the defaults are tuned to: the ORCA 1:43 car, (0.12, 0.06)."""
 
-VEHICLE_SIZES = {"orca": REFERENCE_SIZE, "fullsize": (4.7, 2.0)}
-"""(length, width) [m] of each vehicle class (see :data:`racing_env.tracks.VEHICLE_CLASSES`)."""
+VEHICLE_SIZES = {name: (cls().length, cls().width) for name, cls in VEHICLE_CLASSES.items()}
+"""(length, width) [m] of each vehicle class, from its parameter set
+(:data:`racing_env.vehicles.VEHICLE_CLASSES`)."""
 
 SCALED_FIELDS: dict[str, dict[str, str]] = {
     "RulesConfig": {"contact_ds": "length", "contact_dn": "width", "wall_margin": "width"},

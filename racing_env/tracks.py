@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .track import Track
+from .vehicles import VEHICLE_CLASSES as _VEHICLE_CLASSES
 
 DEFAULT_HALF_WIDTH = 0.25
 """Half width [m] of the built-in tracks: 0.5 m fits three 0.06 m wide cars abreast with room."""
@@ -195,9 +196,10 @@ def random_track(
     )
 
 
-VEHICLE_CLASSES = ("orca", "fullsize")
-"""Vehicle classes the tracks are sized for: ``"orca"``, the paper's 1:43 car (0.12 m x
-0.06 m, the default), and ``"fullsize"``, a full-size car (4.7 m x 2.0 m)."""
+VEHICLE_CLASSES = tuple(_VEHICLE_CLASSES)
+"""Vehicle classes the tracks are sized for (the names of :data:`racing_env.vehicles.VEHICLE_CLASSES`):
+``"orca"``, the paper's 1:43 car (0.12 m x 0.06 m, the default), and ``"fullsize"``, a
+full-size car (4.7 m x 2.0 m)."""
 
 TUMFTM_SCALES = {"orca": 1 / 43, "fullsize": 1.0}
 """Scale of the TUMFTM circuits (surveyed at full size) for each vehicle class."""
