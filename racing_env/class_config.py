@@ -7,7 +7,8 @@ The envs take ``vehicle_class`` (``"orca"``, the paper's 1:43 car, the default; 
 class       vehicle             rules, start, ``preview_ds``    wake    default track
 ==========  ==================  ==============================  ======  =========================
 orca        VehicleParams()     the package defaults            0.0     ``"default"`` (38.9 m)
-fullsize    FullSizeParams()    scaled to the car's size        1.0     ``"tumftm:Monza"`` (5.8 km)
+fullsize    FullSizeParams()    scaled to the car's size;       1.0     ``"tumftm:Monza"`` (5.8 km)
+                                rejoin at the edge
 ==========  ==================  ==============================  ======  =========================
 
 (scaled by :func:`racing_env.scaling.scaled_configs`: contact box one car length by one car
@@ -18,6 +19,7 @@ of another class than the one asked for is a ``ValueError`` naming both.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from .config import RaceConfig
@@ -29,9 +31,16 @@ if TYPE_CHECKING:
 
 CLASS_DEFAULTS: dict[str, dict] = {
     "orca": {"vehicle": VehicleParams, "wake": 0.0, "track": "default"},
-    "fullsize": {"vehicle": FullSizeParams, "wake": 1.0, "track": "tumftm:Monza"},
+    "fullsize": {
+        "vehicle": FullSizeParams,
+        "wake": 1.0,
+        "track": "tumftm:Monza",
+        "rules": {"offtrack_rejoin": True},
+    },
 }
-"""Per vehicle class: its parameter dataclass, the wake strength and the track of its races."""
+"""Per vehicle class: its parameter dataclass, the wake strength, the track of its races and
+the rules it changes besides their lengths (``rules``; the full-size car rejoins the track at
+the edge it crossed: :class:`~racing_env.config.RulesConfig`)."""
 
 
 def class_of(vehicle: VehicleParams | FullSizeParams) -> str:
@@ -94,7 +103,9 @@ def race_config_for(
     if cls == "orca":
         base = RaceConfig() if vehicle is None else RaceConfig(vehicle=car)
         return base if wake is None else base.with_(wake=strength)
-    return scaled_configs(car).race_config(RaceConfig(vehicle=car), wake=strength)
+    scaled = scaled_configs(car)
+    rules = replace(scaled.rules, **defaults.get("rules", {}))
+    return scaled.race_config(RaceConfig(vehicle=car), wake=strength).with_(rules=rules)
 
 
 def default_track(vehicle_class: str) -> str:

@@ -39,6 +39,7 @@ from .config import (  # the rule vector's layout, also imported from here
     R_MAX_SUB,
     R_OFF_FACTOR,
     R_OFF_ON,
+    R_OFF_REJOIN,
     R_REAR,  # noqa: F401 (re-exported)
     R_SUB_GAIN,
     R_WAKE,
@@ -193,13 +194,17 @@ def _step_one_race(b, state, phys, tables, p, dt, rules, reward, contact, offtra
         _separate(b, state, x0, ahead, length, c_ds, c_dn, False)
     for i in range(n_cars):
         x = state[b, i]
-        if x[1] > _lookup(w_left, x[0], ds, length) or x[1] < -_lookup(w_right, x[0], ds, length):
+        e_left = _lookup(w_left, x[0], ds, length)
+        e_right = -_lookup(w_right, x[0], ds, length)
+        if x[1] > e_left or x[1] < e_right:
             offtrack[b, i] = 1
             if rules[R_OFF_ON] > 0.0:
                 _cut(x, applied, i, rules[R_OFF_FACTOR])
                 x[2] = 0.0
                 x[4] = 0.0
                 x[5] = 0.0
+                if rules[R_OFF_REJOIN] > 0.0:
+                    x[1] = e_left if x[1] > e_left else e_right
     # reward: change of (s_i - max_{j != i} s_j), on unwrapped s
     for i in range(n_cars):
         if n_cars == 1:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -137,7 +138,9 @@ def test_the_class_travels_with_the_track():
     env = racing_env.parallel_env(vehicle_class="fullsize", n_cars=2)
     assert env.track is full and isinstance(env.config.vehicle, FullSizeParams)
     sc = scaled_configs("fullsize")
-    assert env.config.rules == sc.rules and env.config.start == sc.start
+    # the rules at the car's size, and the class's own rule: a car off track rejoins it
+    assert env.config.rules == replace(sc.rules, offtrack_rejoin=True)
+    assert env.config.start == sc.start
     assert env.config.preview_ds == sc.preview_ds and env.config.wake == 1.0
     assert env.core._s_clip == s_clip(P) == pytest.approx(1e4 * 4.7 / 0.12)
     # the class is inferred from a vehicle or a full-size track object

@@ -39,6 +39,11 @@ class MPCConfig:
     # QP again with lam * mean(diag H) added to its Hessian, for each lam in turn, until a
     # step is accepted (Levenberg-Marquardt: a shorter step turned toward steepest descent);
     # () keeps the plain line search. Opt-in: docs/policy-space.md, "Damped steps"
+    slip: float | None = None  # soft bounds on the rear and front slip angles of the
+    # predicted states, as a fraction of each tyre's peak slip angle; None: the class's
+    # default (full size 1.0: its peaky tyre loses 40% of its grip past the peak, and a plan
+    # that slides the rear spins the car after the horizon, one past the front's peak locks
+    # the steering where it no longer turns the car; ORCA: none, the paper's MPC); 0: none
     second_start: bool = False  # where the SQP's plan still pays the soft rows' penalty (a
     # track edge or a separation violated), solve again from the raceline follower's
     # rollout and from the plan with less throttle, and keep the cheapest (a local solution
@@ -88,6 +93,11 @@ class MPCConfig:
         ):
             raise ValueError(
                 f"MPCConfig.step_damping must be positive finite factors, got {self.step_damping!r}"
+            )
+        if self.slip is not None and (isinstance(self.slip, bool) or not (0.0 <= self.slip <= 5.0)):
+            raise ValueError(
+                f"MPCConfig.slip must be None or a fraction in [0, 5] of the peak slip "
+                f"angles, got {self.slip!r}"
             )
         steps = tuple(self.step_sizes)
         if not steps or any(not (0 < a <= 1) for a in steps):
@@ -145,6 +155,29 @@ def config_for_vehicle(cfg: MPCConfig, vehicle: Any) -> MPCConfig:
     if k["length"] == 1.0 and k["width"] == 1.0:
         return cfg
     return replace(cfg, **{f: getattr(cfg, f) * k[kind] for f, kind in CLASS_SCALED_FIELDS.items()})
+
+
+def slip_bound(cfg: MPCConfig, vehicle: Any) -> tuple[float, ...]:
+    """The trailing fields of :class:`agents.mpc.qp.ProblemConstants` for the MPC's soft rows
+    on the slip angles (:func:`agents.mpc.qp.slip_rows`): ``(slip_max, slip_max_f [rad],
+    slip_scale [m/rad], l_f, l_r [m], delta_max [rad], v_low [m/s])``. The bounds are
+    ``cfg.slip`` (None: 1.0 for the full-size class, none for the ORCA car) times each
+    tyre's peak slip angle; a violation of one peak slip angle weighs like a car width beyond
+    a track edge. All zeros (no rows) when there is no bound."""
+    from racing_env.vehicles import FullSizeParams
+
+    full = isinstance(vehicle, FullSizeParams)
+    frac = (1.0 if full else 0.0) if cfg.slip is None else float(cfg.slip)
+    if frac == 0.0:
+        return (0.0,) * 7
+    if not full:
+        raise ValueError(
+            f"MPCConfig.slip={cfg.slip!r} needs a vehicle with Magic Formula tyres "
+            f"(FullSizeParams), got {type(vehicle).__name__}"
+        )
+    rear, front = vehicle.peak_slip("rear"), vehicle.peak_slip("front")
+    v = vehicle
+    return frac * rear, frac * front, v.width / rear, v.lf, v.lr, v.delta_max, v.v_low
 
 
 PLANS: dict[str, dict[str, Any]] = {

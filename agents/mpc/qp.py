@@ -37,6 +37,13 @@ class ProblemConstants(NamedTuple):
     sep_n: float  # lateral separation [m]
     sep_window: float  # progress distance within which an opponent constrains [m]
     w_soft: float  # weight of a soft row's squared violation, 1 / (2 rho)
+    slip_max: float = 0.0  # bound on the rear slip angle [rad] (soft rows); 0: no rows
+    slip_max_f: float = 0.0  # bound on the front slip angle [rad] (soft rows)
+    slip_scale: float = 0.0  # [m/rad] a slip-angle violation's weight, as a track-edge one
+    l_f: float = 0.0  # c.g. to front axle [m]
+    l_r: float = 0.0  # c.g. to rear axle [m]
+    delta_max: float = 0.0  # steering angle of a normalised steering input of 1 [rad]
+    v_low: float = 0.0  # the slip angles' low-speed regularisation [m/s]
 
 
 @njit(cache=True)
@@ -295,9 +302,87 @@ def linearised_qp(X, A, B, u_vec, nlo, nhi, p):
     if not (_all_finite(X) and _all_finite(A) and _all_finite(B)):
         e = np.empty((0, 0))
         return False, e, e, np.empty(0), e, np.empty(0), np.empty(0), np.empty(0, np.int32)
-    G = condense(A, B, K)
+    Gs = condense_states(A, B, K)
+    G = np.ascontiguousarray(Gs[:, :2, :]).reshape(2 * K, 2 * K)  # condense(A, B, K)
     H, f, Acon, blo, bhi, sense = qp_arrays(G, X[0], X[1], u_vec, nlo, nhi, p)
+    if p.slip_max > 0.0:
+        rows, lo, hi = slip_rows(Gs, X, u_vec, p)
+        Acon = np.concatenate((Acon, rows))
+        blo = np.concatenate((blo, lo))
+        bhi = np.concatenate((bhi, hi))
+        sense = np.concatenate((sense, np.full(2 * K, 8, dtype=np.int32)))
     return True, G, H, f, Acon, blo, bhi, sense
+
+
+@njit(cache=True)
+def slip_angles(X, u_vec, p):
+    """The rear and front slip angles [rad] ``(K,), (K,)`` of the predicted states ``X``
+    (6, K), as the force law has them (``w = sqrt(vx^2 + v_low^2)``):
+    ``a_r = atan((omega l_r - vy) / w)``, ``a_f = delta - atan((omega l_f + vy) / w)`` with
+    stage k's steering ``delta = delta_max u_vec[2k + 1]`` (the state at the end of the stage
+    it steers)."""
+    K = X.shape[1]
+    a_r = np.empty(K)
+    a_f = np.empty(K)
+    for k in range(K):
+        w = np.sqrt(X[3, k] ** 2 + p.v_low**2)
+        a_r[k] = np.arctan((X[5, k] * p.l_r - X[4, k]) / w)
+        a_f[k] = p.delta_max * u_vec[2 * k + 1] - np.arctan((X[5, k] * p.l_f + X[4, k]) / w)
+    return a_r, a_f
+
+
+@njit(cache=True)
+def slip_rows(Gs, X, u_vec, p):
+    """Soft rows ``(rows (2K, 2K), lo (2K,), hi (2K,))`` keeping the rear slip angle of the
+    predicted states within ``+-p.slip_max`` (rows 0..K-1) and the front one within
+    ``+-p.slip_max_f`` (rows K..2K-1), linearised through the state sensitivities ``Gs``
+    (K, 6, 2K) of :func:`condense_states` (and the stage's steering, for the front); rows
+    and bounds in metres (``p.slip_scale`` per radian), so that DAQP's one soft weight prices
+    them like a track-edge violation."""
+    K = X.shape[1]
+    nv = Gs.shape[2]
+    rows = np.zeros((2 * K, nv))
+    lo = np.empty(2 * K)
+    hi = np.empty(2 * K)
+    c = p.slip_scale
+    a_r, a_f = slip_angles(X, u_vec, p)
+    for k in range(K):
+        vx, vy, om = X[3, k], X[4, k], X[5, k]
+        w = np.sqrt(vx * vx + p.v_low * p.v_low)
+        dw = vx / w  # d w / d vx
+        for axle in range(2):
+            # a = sgn * atan(num / w) (+ delta for the front): d a / d(vx, vy, omega)
+            if axle == 0:
+                num, d_num_vy, d_num_om, sgn = om * p.l_r - vy, -1.0, p.l_r, 1.0
+            else:
+                num, d_num_vy, d_num_om, sgn = om * p.l_f + vy, 1.0, p.l_f, -1.0
+            z = num / w
+            g = sgn / (1.0 + z * z)
+            d_vx = -g * num * dw / (w * w)
+            d_vy = g * d_num_vy / w
+            d_om = g * d_num_om / w
+            r = axle * K + k
+            for j in range(nv):
+                rows[r, j] = c * (d_vx * Gs[k, 3, j] + d_vy * Gs[k, 4, j] + d_om * Gs[k, 5, j])
+            if axle == 1:
+                rows[r, 2 * k + 1] += c * p.delta_max
+            a = a_r[k] if axle == 0 else a_f[k]
+            bound = p.slip_max if axle == 0 else p.slip_max_f
+            lo[r] = c * (-bound - a)
+            hi[r] = c * (bound - a)
+    return rows, lo, hi
+
+
+@njit(cache=True)
+def slip_penalty(X, u_vec, p):
+    """The slip rows' squared violations summed (m^2, :func:`slip_rows`' units) along ``X``."""
+    a_r, a_f = slip_angles(X, u_vec, p)
+    total = 0.0
+    for k in range(a_r.shape[0]):
+        v = p.slip_scale * max(abs(a_r[k]) - p.slip_max, 0.0)
+        w = p.slip_scale * max(abs(a_f[k]) - p.slip_max_f, 0.0)
+        total += v * v + w * w
+    return total
 
 
 @njit(cache=True)
@@ -314,4 +399,7 @@ def score_rollout(X, u_vec, p):
     for k in range(K):
         lo[k] = _lookup(p.lo_tab, X[0, k], p.ds, p.length)
         hi[k] = _lookup(p.hi_tab, X[0, k], p.ds, p.length)
-    return plan_cost(X[0], X[1], u_vec, lo, hi, p), lo, hi
+    J = plan_cost(X[0], X[1], u_vec, lo, hi, p)
+    if p.slip_max > 0.0:
+        J += p.w_soft * slip_penalty(X, u_vec, p)
+    return J, lo, hi

@@ -18,7 +18,7 @@ from racing_env.vehicle import VehicleParams
 from racing_env.vehicles import FullSizeParams, vehicle_for_track
 
 from .codegen import CompiledTrajectory, run_prediction, workspace_offsets
-from .config import MPCConfig, class_scale, config_for_vehicle
+from .config import MPCConfig, class_scale, config_for_vehicle, slip_bound
 from .prediction import (
     follower_rollout,
     kappa_flat,
@@ -209,6 +209,7 @@ class MPC:
             self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max
         )  # normalised
         self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
+        self._slip = slip_bound(self.cfg, self.vehicle)  # rear slip-angle rows (none: zeros)
         # counters and the solve times (a deque) by name
         self.stats: dict[str, Any] = {
             "solves": 0,
@@ -325,6 +326,7 @@ class MPC:
             cfg.sep_n,
             cfg.sep_window,
             0.5 / (cfg.soft_rho_at(q) * self._ls2),
+            *self._slip,
         )
 
     @staticmethod

@@ -174,6 +174,20 @@ class FullSizeParams:
     delta_max: float = 0.35  # steering bound [rad], symmetric
     delta_rate_max: float = 1.75  # steering-rate bound [rad/s]: delta_max / TUM's t_delta 0.2 s
 
+    def peak_slip(self, axle: str = "rear") -> float:
+        """The slip angle [rad] at which the ``axle``'s ("front" or "rear") Magic Formula
+        ``sin(C atan(B a - E (B a - atan(B a))))`` peaks (0.0889 rad for B 10, C 2.5, E 1);
+        past it the tyre's lateral force falls (to 59% of the peak for these factors)."""
+        if axle not in ("front", "rear"):
+            raise ValueError(f"axle must be 'front' or 'rear', got {axle!r}")
+        B, C, E = (
+            (self.B_f, self.C_f, self.E_f) if axle == "front" else (self.B_r, self.C_r, self.E_r)
+        )
+        a = np.linspace(1e-4, 1.0, 20001)
+        ba = B * a
+        y = np.sin(C * np.arctan(ba - E * (ba - np.arctan(ba))))
+        return float(a[int(np.argmax(y))])
+
     def __post_init__(self):
         for f in fields(self):
             v = getattr(self, f.name)

@@ -1,0 +1,125 @@
+"""The full-size class's driving aids and rules: the tyre's peak slip angle, the MPC's soft
+rows on the slip angles (their linearisation against finite differences of the rollout) and
+the off-track rule's rejoin at the edge (full size) beside the paper's rule (ORCA)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agents.mpc import MPC, MPCConfig
+from agents.mpc.prediction import kappa_flat
+from agents.mpc.qp import condense_states, slip_angles, slip_penalty, slip_rows
+from racing_env import RaceConfig
+from racing_env.class_config import race_config_for
+from racing_env.parallel_env import RacingParallelEnv
+from racing_env.tracks import make_track
+from racing_env.vehicle import VehicleParams
+from racing_env.vehicles.fullsize import FullSizeParams
+
+P = FullSizeParams()
+
+
+def test_peak_slip_of_the_magic_formula_by_hand():
+    # E = 1: sin(C atan(atan(B a))) peaks where C atan(atan(B a)) = pi / 2
+    by_hand = math.tan(math.tan(math.pi / (2 * P.C_r))) / P.B_r
+    assert P.peak_slip("rear") == pytest.approx(by_hand, abs=1e-4)
+    assert by_hand == pytest.approx(0.0889, abs=1e-4)
+    p2 = FullSizeParams(C_f=2.0, B_f=8.0)  # the front peaks at tan(tan(pi / 4)) / 8
+    assert p2.peak_slip("front") == pytest.approx(math.tan(1.0) / 8.0, abs=1e-4)
+    with pytest.raises(ValueError, match="'middle'"):
+        P.peak_slip("middle")
+
+
+MONZA = make_track("tumftm:Monza", vehicle_class="fullsize")
+MPC_MONZA = MPC(MONZA, P, MPCConfig())
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    st.floats(15.0, 60.0),
+    st.floats(-2.0, 2.0),
+    st.floats(-0.3, 0.3),
+    st.floats(-0.3, 0.3),
+    # away from throttle 0, where the throttle map has its kink (drive and brake limits)
+    st.one_of(st.floats(-0.8, -0.05), st.floats(0.05, 0.8)),
+)
+def test_slip_rows_are_the_rollouts_slip_angles_linearised(vx, vy, om, steer, throttle):
+    mpc = MPC_MONZA
+    K, m, t = mpc.cfg.horizon, mpc.cfg.substeps, mpc.track
+    x0 = np.array([1500.0, 0.5, 0.02, vx, vy, om])
+    u_vec = np.ravel(np.column_stack([np.full(K, throttle), np.full(K, steer)]))
+    nodes = x0[0] + vx * mpc.cfg.dt * np.arange(K + 1)
+    kap = kappa_flat(t.kappa, nodes, m, t.ds, t.length)
+    X, A, B = mpc._traj.full(x0, u_vec, kap, K)
+    problem = mpc._problem(X[0], X[1], 5.0, None, np.zeros(2))
+    assert problem.slip_max == pytest.approx(P.peak_slip("rear"))
+    rows, lo, hi = slip_rows(condense_states(A, B, K), X, u_vec, problem)
+    a_r, a_f = slip_angles(X, u_vec, problem)
+    c = problem.slip_scale
+    # the bounds: the room left to +-bound, in metres
+    np.testing.assert_allclose(hi[:K] / c, problem.slip_max - a_r, atol=1e-12)
+    np.testing.assert_allclose(lo[K:] / c, -problem.slip_max_f - a_f, atol=1e-12)
+    # the rows: central differences of the slip angles through the rollout (curvature fixed)
+    du = 1e-6 * np.random.default_rng(0).standard_normal(2 * K)
+    ends = [
+        slip_angles(mpc._traj.states(x0, u_vec + e, kap, K), u_vec + e, problem) for e in (du, -du)
+    ]
+    predicted = rows @ du / c
+    np.testing.assert_allclose(
+        predicted[:K], 0.5 * (ends[0][0] - ends[1][0]), rtol=1e-4, atol=1e-12
+    )
+    np.testing.assert_allclose(
+        predicted[K:], 0.5 * (ends[0][1] - ends[1][1]), rtol=1e-4, atol=1e-12
+    )
+    # the merit counts what the rows bound: zero inside, the squared excess outside
+    inside = max(np.abs(a_r).max() - problem.slip_max, np.abs(a_f).max() - problem.slip_max_f)
+    assert (slip_penalty(X, u_vec, problem) == 0.0) == (inside <= 0.0)
+
+
+def test_the_orca_mpc_has_no_slip_rows():
+    track = make_track("default")
+    mpc = MPC(track, VehicleParams(), MPCConfig())
+    p = mpc._problem(np.zeros(15), np.zeros(15), 5.0, None, np.zeros(2))
+    assert p.slip_max == 0.0 and p.slip_max_f == 0.0
+    with pytest.raises(ValueError, match="Magic Formula"):
+        MPC(track, VehicleParams(), MPCConfig(slip=1.0))
+    with pytest.raises(ValueError, match=r"MPCConfig.slip .* got -0.5"):
+        MPCConfig(slip=-0.5)
+    # slip=0 switches the rows off at full size
+    off = MPC(MONZA, P, MPCConfig(slip=0.0))
+    assert off._problem(np.zeros(15), np.zeros(15), 5.0, None, np.zeros(2)).slip_max == 0.0
+
+
+def _run_wide(config: RaceConfig, n_beyond: float, vx: float):
+    """One period of a car on Monza's main straight, ``n_beyond`` m past the left edge at
+    ``vx`` m/s, heading 0.3 rad to the left; its state after it and its off-track flag."""
+    env = RacingParallelEnv(track=MONZA, n_cars=1, config=config, max_cycles=100)
+    env.reset(seed=0)
+    s0 = 1500.0
+    edge = float(MONZA.interp(MONZA.w_left, s0))
+    env.core.state[0, 0] = [s0, edge + n_beyond, 0.3, vx, 0.0, 0.0]
+    env.step({"car_0": np.array([0.0, 0.0])})
+    x = env.core.state[0, 0].copy()
+    return x, float(MONZA.interp(MONZA.w_left, x[0])), env.core.offtrack[0, 0]
+
+
+def test_a_full_size_car_beyond_the_edge_rejoins_it():
+    cfg = race_config_for("fullsize")
+    assert cfg.rules.offtrack_rejoin
+    assert not RaceConfig().rules.offtrack_rejoin  # the paper's rule is unchanged
+    x, edge, off = _run_wide(cfg, 0.5, 40.0)
+    assert off == 1
+    assert x[1] == pytest.approx(edge)  # back on the edge it crossed, on the track
+    assert (x[2], x[4], x[5]) == (0.0, 0.0, 0.0)  # re-aligned
+    assert 17.0 < x[3] < 20.5  # and slowed to half of its ~40 m/s
+    # the same car under the paper's rule stays beyond the edge, as slow
+    stay = cfg.with_(rules=replace(cfg.rules, offtrack_rejoin=False))
+    x2, edge2, off2 = _run_wide(stay, 0.5, 40.0)
+    assert off2 == 1 and x2[1] > edge2 + 0.5
+    assert x2[3] == pytest.approx(x[3], rel=1e-12)
