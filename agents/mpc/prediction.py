@@ -18,7 +18,7 @@ from racing_env.vehicle import P_VLOW, VehicleParams
 from racing_env.vehicles import FullSizeParams
 from racing_env.vehicles.fullsize import P_VLOW as P_VLOW_FULLSIZE
 
-from .codegen import load_prediction
+from .codegen import PredictionSpec, load_predictions
 from .config import MPCConfig
 
 if TYPE_CHECKING:
@@ -164,11 +164,29 @@ def trajectory_function(
     no C compiler works). Without ``jacobians``: ``(X,)`` only, a rollout several times
     cheaper. The compiled library's name includes the vehicle class (besides the hash of
     its code, which includes the parameters): ``mpc_traj_fullsize_<hash>.so``."""
+    return load_predictions([_prediction_spec(vehicle, cfg, jacobians)])[0]
+
+
+def trajectory_functions(
+    vehicle: VehicleParams | FullSizeParams, cfg: MPCConfig
+) -> tuple[CompiledTrajectory | InterpretedTrajectory, CompiledTrajectory | InterpretedTrajectory]:
+    """``(trajectory_function(vehicle, cfg), trajectory_function(vehicle, cfg, False))``, the
+    MPC's prediction with its jacobians and its rollout, compiled at the same time (one
+    compiler process each, :func:`~agents.mpc.codegen.load_predictions`)."""
+    full, states = load_predictions(
+        [_prediction_spec(vehicle, cfg, True), _prediction_spec(vehicle, cfg, False)]
+    )
+    return full, states
+
+
+def _prediction_spec(
+    vehicle: VehicleParams | FullSizeParams, cfg: MPCConfig, jacobians: bool
+) -> PredictionSpec:
     stage = stage_function(vehicle, cfg, jacobians)
     name = "mpc_traj" if jacobians else "mpc_roll"
     if isinstance(vehicle, FullSizeParams):
         name += "_fullsize"
-    return load_prediction(stage.mapaccum(name, cfg.horizon), cfg.horizon, cfg.substeps, name)
+    return PredictionSpec(stage.mapaccum(name, cfg.horizon), cfg.horizon, cfg.substeps, name)
 
 
 def stage_nodes(s_nominal: np.ndarray | None, x0: np.ndarray, K: int, dt: float) -> np.ndarray:

@@ -25,7 +25,7 @@ from .prediction import (
     limited_throttle,
     make_follower,
     stage_nodes,
-    trajectory_function,
+    trajectory_functions,
 )
 from .qp import (
     EdgeBounds,
@@ -192,8 +192,8 @@ class MPC:
         self.cfg = config_for_vehicle(config or MPCConfig(), self.vehicle)
         # position errors and soft violations in ORCA-car widths: q / k^2, rho k^2 (1 for ORCA)
         self._ls2 = class_scale(self.vehicle)[1] ** 2
-        self._traj = trajectory_function(self.vehicle, self.cfg)
-        self._roll = trajectory_function(self.vehicle, self.cfg, jacobians=False)
+        # with and without the jacobians, compiled at the same time
+        self._traj, self._roll = trajectory_functions(self.vehicle, self.cfg)
         self._step_sizes = np.array(self.cfg.step_sizes, dtype=float)
         if isinstance(self._traj, CompiledTrajectory) and isinstance(
             self._roll, CompiledTrajectory
