@@ -6,8 +6,10 @@ generated and compiled, the racing line computed). Warm: the same cache again. P
 run's wall and CPU (user + sys) time and where the time went: import, env construction, the
 agents (construction and reset), the first step (the agents' first decisions and the env's
 first step), the rest of the race, the outputs (plots and animation) and the interpreter's own
-start-up; with ``--kernels``, the numba compile time per kernel (cold: its own time, nested
-kernels' time left out, top 15) or the cache load time (warm).
+start-up; the time spent in the MPC's C predictions (CasADi's code generation, the C
+compiles, loading the libraries) and computing racing lines, whatever phase they fall in; with
+``--kernels``, the numba compile time per kernel (cold: its own time, nested kernels' time left
+out, top 15 or ``--top``) or the cache load time (warm).
 
     python benchmarks/cold_start.py                 # 1 cold + 2 warm runs
     python benchmarks/cold_start.py --repeat 2 --kernels
@@ -72,9 +74,18 @@ def _child(out: str, race_args: list[str], kernels: bool) -> None:
 
         caching.Cache.load_overload = timed_load  # type: ignore[method-assign]
 
+    import agents.mpc.prediction as prediction
     import experiments.cli as cli
     import experiments.evaluation.race as race_mod
+    import racing_env.raceline.cache as raceline_cache
     from racing_env import RacingParallelEnv
+
+    parts: dict[str, float] = defaultdict(float)  # C predictions, racing lines
+    for mod, attr, part in (
+        (prediction, "load_predictions", "C predictions"),
+        (raceline_cache, "compute_raceline", "racing line"),
+    ):
+        setattr(mod, attr, _timed(getattr(mod, attr), parts, part))
 
     marks["import"] = time.perf_counter()
     init, step = RacingParallelEnv.__init__, RacingParallelEnv.step
@@ -115,8 +126,28 @@ def _child(out: str, race_args: list[str], kernels: bool) -> None:
         prev = marks[name]
     print(
         "COLD_START_JSON "
-        + json.dumps({"phases": phases, "compile": dict(compile_self), "loads": dict(loads)})
+        + json.dumps(
+            {
+                "phases": phases,
+                "parts": dict(parts),
+                "compile": dict(compile_self),
+                "loads": dict(loads),
+            }
+        )
     )
+
+
+def _timed(fn, parts: dict[str, float], part: str):
+    """``fn`` adding its wall time to ``parts[part]``."""
+
+    def timed(*a, **k):
+        t0 = time.perf_counter()
+        try:
+            return fn(*a, **k)
+        finally:
+            parts[part] += time.perf_counter() - t0
+
+    return timed
 
 
 def _run(cache: str, out: str, race_args: list[str], kernels: bool) -> dict:
@@ -144,17 +175,20 @@ def _run(cache: str, out: str, race_args: list[str], kernels: bool) -> dict:
     return data
 
 
-def _report(label: str, d: dict, kernels: bool) -> None:
+def _report(label: str, d: dict, kernels: bool, top: int = 15) -> None:
     phases = "  ".join(f"{k} {v:5.1f}" for k, v in d["phases"].items())
     print(
         f"{label:8s} wall {d['wall']:5.1f} s  user {d['user']:5.1f}  sys {d['sys']:4.1f}  | {phases}"
     )
+    if d["parts"]:
+        parts = ", ".join(f"{k} {v:.1f} s" for k, v in d["parts"].items())
+        print(f"         in all phases: {parts}")
     if kernels:
         table = d["compile"] if d["compile"] else d["loads"]
         what = "compile (own time)" if d["compile"] else "cache load"
         total = sum(table.values())
         print(f"         {what}: {total:.1f} s over {len(table)} kernels; top:")
-        for name, t in sorted(table.items(), key=lambda kv: -kv[1])[:15]:
+        for name, t in sorted(table.items(), key=lambda kv: -kv[1])[:top]:
             print(f"           {t:6.2f}  {name}")
 
 
@@ -163,6 +197,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="cold + warm rounds (default 1)")
     ap.add_argument("--warm", type=int, default=2, help="warm runs per round (default 2)")
     ap.add_argument("--kernels", action="store_true", help="per-kernel compile / load times")
+    ap.add_argument("--top", type=int, default=15, help="kernels listed (default 15)")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--out", default=None, help=argparse.SUPPRESS)
     ap.add_argument("race_args", nargs="*", help="extra arguments of alpha-racer race")
@@ -176,11 +211,11 @@ def main() -> None:
             cache, out = os.path.join(tmp, "cache"), os.path.join(tmp, "out")
             d = _run(cache, out, args.race_args, args.kernels)
             rows["cold"].append(d)
-            _report(f"cold {r + 1}", d, args.kernels)
+            _report(f"cold {r + 1}", d, args.kernels, args.top)
             for w in range(args.warm):
                 d = _run(cache, out, args.race_args, args.kernels and w == 0)
                 rows["warm"].append(d)
-                _report(f"warm {r + 1}", d, args.kernels and w == 0)
+                _report(f"warm {r + 1}", d, args.kernels and w == 0, args.top)
     for line in rows["cold"][-1]["result"]:
         print("  " + line.strip())
     for kind, ds in rows.items():
