@@ -209,7 +209,7 @@ class MPC:
             self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max
         )  # normalised
         self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
-        self._slip = slip_bound(self.cfg, self.vehicle)  # rear slip-angle rows (none: zeros)
+        self._slip = slip_bound(self.cfg, self.vehicle)  # slip-angle rows (none: all zeros)
         # counters and the solve times (a deque) by name
         self.stats: dict[str, Any] = {
             "solves": 0,
