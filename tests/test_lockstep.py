@@ -149,3 +149,22 @@ def test_a_batch_of_mixed_configs_or_tracks_is_refused_naming_the_difference():
         run_lockstep(races + oval)
     with pytest.raises(ValueError, match="race 0 has 1 agents for 2 cars"):
         run_lockstep([LockstepRace(races[0].agents[:1], races[0].track, races[0].config, 1)])
+
+
+@pytest.mark.parametrize("extra", [{}, {"space": "extended", "start": "close", "pace": "overtake"}])
+def test_a_collection_shard_in_lockstep_is_the_shard_raced_one_by_one(tmp_path, extra):
+    from experiments.potential.collect import (
+        CollectConfig,
+        simulate_race,
+        simulate_shard,
+        write_shard,
+    )
+
+    config = CollectConfig(races=3, n_cars=3, steps=15, seed=3, races_per_shard=3, **extra)
+    one_by_one = [simulate_race(config, i) for i in config.shard_races(0)]
+    write_shard({k: np.stack([r[k] for r in one_by_one]) for k in one_by_one[0]}, 0, tmp_path / "a")
+    write_shard(simulate_shard(config, 0), 0, tmp_path / "b")
+    with np.load(tmp_path / "a/shard_00000.npz") as a, np.load(tmp_path / "b/shard_00000.npz") as b:
+        assert sorted(a.files) == sorted(b.files)
+        for key in a.files:
+            assert a[key].dtype == b[key].dtype and np.array_equal(a[key], b[key]), key

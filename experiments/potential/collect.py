@@ -9,7 +9,9 @@ Storage: shards of ``races_per_shard`` races, ``shard_00000.npz`` ..., each writ
 (temporary file, then rename), plus ``manifest.json`` (schema version, config). A killed run
 resumes where it stopped: finished shards are kept and skipped, so no finished race is lost
 or recomputed. Race ``i`` draws everything from ``SeedSequence(seed).spawn`` child ``i``, so the
-same seed gives the same data whatever the worker count or backend.
+same seed gives the same data whatever the worker count or backend. A worker races a shard's
+races in one lockstep batch (:mod:`experiments.infra.lockstep`), each bit for bit the race run
+alone (:func:`simulate_race`).
 
 Shard arrays (R races, T steps, N cars): ``states`` (R, T + 1, N, 6) float32 joint Frenet
 states (unwrapped s); ``thetas`` (R, N, dim) float32 (dim 5 in the paper's policy space, 6 in
@@ -98,12 +100,14 @@ class CollectConfig(ShardedRaces):
             raise ValueError(f"CollectConfig.n_cars must be in 2..8, got {self.n_cars}")
 
 
-def _mpc_agents(track, thetas, rng=None, agent_ids=None, space: str = "paper") -> list:
-    """This process's MPC agents of policy space ``space`` set to ``thetas`` (N, dim) and
-    reset on ``track``."""
+def _mpc_agents(
+    track, thetas, rng=None, agent_ids=None, space: str = "paper", first: int = 0
+) -> list:
+    """This process's MPC agents ``first ..`` of policy space ``space`` set to ``thetas``
+    (N, dim) and reset on ``track``."""
     from agents.reference import Theta
 
-    agents = _agents(len(thetas), space)
+    agents = _agents(first + len(thetas), space)[first:]
     for k, (agent, theta) in enumerate(zip(agents, thetas)):
         agent.theta = Theta.from_array(theta)
         agent.reset(
@@ -114,31 +118,49 @@ def _mpc_agents(track, thetas, rng=None, agent_ids=None, space: str = "paper") -
     return agents
 
 
-def simulate_race(config: CollectConfig, race_index: int) -> dict:
-    """Simulate race ``race_index`` of the config; everything random comes from its own seed."""
+def _env_kwargs(config: CollectConfig) -> dict:
+    """The ``RacingParallelEnv`` keywords of a race of the config."""
+    from racing_env import StartConfig
+
+    length, gap = START_REGIONS[config.start]
+    start = StartConfig(
+        mode="regions", lateral_jitter=config.start_jitter, region_length=length, region_gap=gap
+    )
+    return {
+        "track": config.track,
+        "n_cars": config.n_cars,
+        "max_cycles": config.steps,
+        "start": start,
+    }
+
+
+def _race_draws(config: CollectConfig, race_index: int) -> tuple:
+    """``(rng, order, seed, thetas)`` of race ``race_index``: its generator (the agents' seeds
+    are drawn next), start order (N,), start seed and thetas (N, dim), from its own seed."""
     from agents.reference import policy_space
-    from racing_env import RacingParallelEnv, StartConfig
 
     rng = np.random.default_rng(
         np.random.SeedSequence(config.seed).spawn(race_index + 1)[race_index]
     )
-    length, gap = START_REGIONS[config.start]
-    env = RacingParallelEnv(
-        track=config.track,
-        n_cars=config.n_cars,
-        max_cycles=config.steps,
-        start=StartConfig(
-            mode="regions", lateral_jitter=config.start_jitter, region_length=length, region_gap=gap
-        ),
-    )
     order = rng.permutation(config.n_cars)
-    obs, _ = env.reset(seed=int(rng.integers(2**31)), options={"order": order.tolist()})
+    seed = int(rng.integers(2**31))
     space = policy_space(config.space)  # the paper's draws are Theta.sample's, bit for bit
     thetas = np.array([space.sample(rng) for _ in range(config.n_cars)])
     if config.pace in PACE_SPREADS:
         thetas = close_paces(thetas, space, rng, PACE_SPREADS[config.pace])
     if config.pace == "overtake":  # car i starts in region order[i]: R1 gets the slowest
         thetas = thetas[np.argsort(thetas[:, space.names.index("zeta")], kind="stable")][order]
+    return rng, order, seed, thetas
+
+
+def simulate_race(config: CollectConfig, race_index: int) -> dict:
+    """Simulate race ``race_index`` of the config alone, in its own env (the per-race path);
+    everything random comes from its own seed."""
+    from racing_env import RacingParallelEnv
+
+    env = RacingParallelEnv(**_env_kwargs(config))
+    rng, order, seed, thetas = _race_draws(config, race_index)
+    obs, _ = env.reset(seed=seed, options={"order": order.tolist()})
     agents = _mpc_agents(env.track, thetas, rng, env.possible_agents, config.space)
     fallbacks0 = [a.stats["fallbacks"] for a in agents]
     states = np.empty((config.steps + 1, config.n_cars, 6), dtype=np.float32)
@@ -151,6 +173,31 @@ def simulate_race(config: CollectConfig, race_index: int) -> dict:
         rewards[t] = [rew[a] for a in env.possible_agents]
         t += 1
         states[t] = env.core.state[0]
+    fallbacks = [a.stats["fallbacks"] - f0 for a, f0 in zip(agents, fallbacks0)]
+    return _race_record(config, race_index, states, rewards, thetas, order, fallbacks)
+
+
+def simulate_races(config: CollectConfig, indices) -> list[dict]:
+    """Races ``indices`` of the config in one lockstep batch
+    (:func:`experiments.infra.lockstep.run_lockstep`), each bit for bit :func:`simulate_race`'s."""
+    from experiments.infra.lockstep import LockstepRace, race_setup, run_lockstep
+
+    track, race_config = race_setup(**_env_kwargs(config))
+    races, draws = [], []
+    for k, i in enumerate(indices):
+        rng, order, seed, thetas = _race_draws(config, i)
+        agents = _mpc_agents(track, thetas, rng, None, config.space, first=k * config.n_cars)
+        races.append(LockstepRace(agents, track, race_config, seed, order.tolist()))
+        draws.append((i, order, thetas))
+    return [
+        _race_record(config, i, r.states, r.rewards, thetas, order, r.fallbacks)
+        for r, (i, order, thetas) in zip(run_lockstep(races), draws)
+    ]
+
+
+def _race_record(config, race_index, states, rewards, thetas, order, fallbacks) -> dict:
+    """A race's arrays as a shard stores them (float32 states, rewards and thetas)."""
+    states, rewards = np.asarray(states, np.float32), np.asarray(rewards, np.float32)
     if not (np.isfinite(states).all() and np.isfinite(rewards).all()):
         raise FloatingPointError(f"race {race_index} produced non-finite data")
     return {
@@ -159,9 +206,7 @@ def simulate_race(config: CollectConfig, race_index: int) -> dict:
         "rewards": rewards,
         "race_index": race_index,
         "start_order": order,
-        "fallbacks": np.array(
-            [a.stats["fallbacks"] - f0 for a, f0 in zip(agents, fallbacks0)], dtype=np.int32
-        ),
+        "fallbacks": np.asarray(fallbacks, dtype=np.int32),
     }
 
 
@@ -235,7 +280,7 @@ def simulate_shard(config: CollectConfig, shard: int) -> dict:
     driver writes the result with :func:`write_shard`.
     """
     warnings.simplefilter("ignore")
-    races = [simulate_race(config, i) for i in config.shard_races(shard)]
+    races = simulate_races(config, config.shard_races(shard))  # one lockstep batch
     return {k: np.stack([r[k] for r in races]) for k in races[0]}
 
 
