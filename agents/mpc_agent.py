@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from racing_env.class_config import CLASS_DEFAULTS
 from racing_env.observation import joint_state_from_observation, split_observation  # noqa: F401
 from racing_env.track import Track
 from racing_env.tracks import make_track
@@ -165,6 +166,7 @@ class MPCAgent:
         self.vehicle_given = vehicle
         self.vehicle: VehicleParams | FullSizeParams = vehicle or VehicleParams()
         self.mpc: MPC | None = None
+        self.tow = False  # set at reset: the track's class races with a wake
         self.track: Track | None = None
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
@@ -190,6 +192,8 @@ class MPCAgent:
             else None
         )
         self.mpc.reset()
+        # a world with a wake by default (full size): the reference follows a car in a tow
+        self.tow = float(CLASS_DEFAULTS[track.vehicle_class]["wake"]) > 0.0
         self.agent_id = agent_id
         self._u_prev = np.zeros(2)
 
@@ -264,6 +268,7 @@ class MPCAgent:
                 blend=self._blend_line(theta),
                 side=self._pass_side(),
                 vehicle=None if isinstance(self.vehicle, VehicleParams) else self.vehicle,
+                tow=self.tow,
             )
             neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
             opp = None

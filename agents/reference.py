@@ -126,6 +126,7 @@ def reference_trajectory(
     blend: Raceline | None = None,
     side: float | str | None = None,
     vehicle: object | None = None,
+    tow: bool = False,
 ) -> Reference:
     """The MPC reference of the paper for one car.
 
@@ -157,6 +158,9 @@ def reference_trajectory(
         lengths, ``s3`` per share of the top speed), :data:`PASS_ROOM` is scaled by the width
         ratio and ``vehicle_width`` defaults to its width. The run-up of step 1b is the
         track's vehicle class's (``track.vehicle_class``).
+    tow : bool
+        Do not hold back a car that is faster than the race line (step 1c; default off, the
+        paper's reference; the MPC agent turns it on in a world with a wake).
 
     Construction (``k = 1..K``, every longitudinal difference on unwrapped progress):
 
@@ -190,6 +194,17 @@ def reference_trajectory(
        path and arrives later: ``n_pert^k`` is the uncapped reference's lateral offset at the
        capped progress (interpolated in ``s``), and ``v_pert^k`` at most the run's speed. At
        racing speed the run outpaces the profile and the cap does not bind.
+    1c. *The tow* (``tow=True``, our addition for worlds with a wake). A car in another's
+       wake is faster on a straight than the race line's speed profile, whose top speed is
+       the car's own in clean air; tracking the line would make it lift. With a car ahead
+       within :data:`TOW_RANGE` (15 lengths, 1.5 widths to the side) and the car's progress
+       rate over the line's at its position by :data:`TOW_MARGIN` (1 m/s), the
+       reference is at least a run from the car's current speed: full throttle in clean air
+       (the run-up of 1b, holding the speed above the top speed), never faster than the
+       race line's braking limit (the speed from which the car still brakes for the corners
+       ahead, :meth:`~agents.reference_tables._Tables.braking_sdot2`). Where that run is
+       ahead of the line's progress it replaces it (``v_pert`` likewise, ``n_pert`` the
+       line's offset at the run's progress).
     2. *Opponents* keep their Frenet progress rate ``s_dot_j = (vx cos mu - vy sin mu) /
        (1 - n kappa)`` and lateral position: ``s_j^k = s_j + k dt s_dot_j``, ``n_j^k = n_j``.
        Only ``j^*`` (just ahead) and ``j_*`` (just behind), see :func:`opponent_neighbours`.
@@ -307,6 +322,12 @@ def reference_trajectory(
             )
             s_pert = np.where(capped, s_e + reach, s_pert)
             v_pert = np.where(capped, np.minimum(v_pert, v_run), v_pert)
+
+    if tow and m and _in_a_wake(x, opp, vehicle):  # ---- 1c. not held back in a tow
+        tabs = [(1.0 - th.b, tab)] + ([(th.b, _tables(blend, track, friction))] if th.b > 0 else [])
+        s_pert, n_pert, v_pert = _tow_floor(
+            x, tabs, th.zeta, s_e, s_e_w, base, s_pert, n_pert, v_pert, dt
+        )
 
     n_ref = n_pert.copy()
     n_ot = n_bl = None  # stay None while no shift applies
@@ -436,6 +457,62 @@ def _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half, pass_room=PASS_ROOM) -> 
     if mine < pass_room and other > mine:
         sgn = -sgn
     return sgn
+
+
+#: How much faster [m/s] than the race line's progress rate a car must be for the reference to
+#: follow it rather than hold it back (step 1c of :func:`reference_trajectory`).
+TOW_MARGIN = 1.0
+#: A car is in a wake (step 1c) with another car at most this many car lengths ahead and this
+#: many car widths to the side: where the wake's drag factor is below 0.91 (racing_env.wake).
+TOW_RANGE = (15.0, 1.5)
+
+
+def _in_a_wake(x, opp, vehicle) -> bool:
+    """Whether a car of ``opp`` (m, 6) is ahead of the ego ``x`` (6,) within
+    :data:`TOW_RANGE` (lengths and widths of ``vehicle``; the ORCA car's without one)."""
+    length = float(getattr(vehicle, "length", VehicleParams().length))
+    width = float(getattr(vehicle, "width", VehicleParams().width))
+    gap = opp[:, 0] - float(x[0])
+    side = np.abs(opp[:, 1] - float(x[1]))
+    return bool(np.any((gap > 0) & (gap < TOW_RANGE[0] * length) & (side < TOW_RANGE[1] * width)))
+
+
+def _tow_floor(x, tabs, zeta, s_e, s_e_w, base, s_pert, n_pert, v_pert, dt):
+    """Step 1c of :func:`reference_trajectory`: ``(s_pert, n_pert, v_pert)`` (K,) with the
+    progress raised, where the car outruns the race line, to a run from its current speed
+    under the braking limit. ``tabs``: ``[(weight, tables)]`` of the line (and the blended
+    line), whose weighted progress rates and offsets make the line."""
+    mu, vx, vy = float(x[2]), float(x[3]), float(x[4])
+    v_line = sum(w * float(np.interp(s_e_w, t.st2, t.sdot2)) for w, t in tabs) * zeta
+    tab = tabs[0][1]
+    den = 1.0 - float(x[1]) * _interp1(tab.kap, s_e_w, tab.inv_ds)
+    v = max((vx * math.cos(mu) - vy * math.sin(mu)) / den, 0.0) if den > 0 else 0.0
+    if not v > v_line + TOW_MARGIN:
+        return s_pert, n_pert, v_pert
+    run_t, run_v = tab.run_t, tab.run_v
+    K = s_pert.shape[0]
+    s_f = np.empty(K)
+    v_f = np.empty(K)
+    s = s_e - base  # on the two-lap grid
+    for k in range(K):
+        if v < run_v[-1]:  # full throttle in clean air from v ...
+            v_new = float(np.interp(np.interp(v, run_v, run_t) + dt, run_t, run_v))
+        else:  # ... or hold a speed above the top speed (the tow's)
+            v_new = v
+        v_brk = sum(w * float(np.interp(s, t.st2, t.braking_sdot2())) for w, t in tabs)
+        v_new = min(v_new, v_brk)
+        s += 0.5 * (v + v_new) * dt
+        v = v_new
+        s_f[k], v_f[k] = s + base, v
+    ahead = s_f > s_pert
+    if not ahead.any():
+        return s_pert, n_pert, v_pert
+    n_f = sum(w * np.interp(s_f - base, t.st2, t.nrl2) for w, t in tabs)
+    return (
+        np.where(ahead, s_f, s_pert),
+        np.where(ahead, n_f, n_pert),
+        np.where(ahead, v_f, v_pert),
+    )
 
 
 def _perturbed_line(tab, zeta, s_e, s_e_w, steps, K, dt, exact):

@@ -16,6 +16,10 @@ import numpy as np
 
 __all__ = ["clear_cache"]
 
+#: The braking limit's cap on straights (:meth:`_Tables.braking_sdot2`), a multiple of the
+#: car's top speed: above the tow's +15% at one car length (docs/fullsize.md, the wake).
+TOW_SPEED_CAP = 1.2
+
 
 class _Tables:
     """Per-(race line, track, friction) lookup tables on the track grid, repeated over two laps
@@ -46,6 +50,9 @@ class _Tables:
         "run_t",
         "run_v",
         "run_x",
+        "sfac2",
+        "friction",
+        "_sbrk2",
     )
 
     def __init__(self, raceline, track, friction):
@@ -89,6 +96,7 @@ class _Tables:
         self.T = float(tt[-1])
         self.tt2 = np.concatenate([tt[:-1], tt + self.T])
         self.sdot2, self.ndot2, self.nrl2 = ext2(sdot), ext2(ndot), ext2(n)
+        self.sfac2 = ext2(np.cos(mu_rl) / den)  # centre-line progress rate per path speed
         self.wl2, self.wr2 = ext2(wl), ext2(wr)
         self.nrl, self.kap, self.wl, self.wr = ext(n), ext(kap_c), ext(wl), ext(wr)
         const = np.ptp(wl) == 0 and np.ptp(wr) == 0
@@ -97,8 +105,28 @@ class _Tables:
             friction if friction is not None else float(raceline.mu_nominal),
             vehicle_class=str(getattr(track, "vehicle_class", "orca")),
         )
+        self.friction = friction if friction is not None else float(raceline.mu_nominal)
+        self._sbrk2 = None  # the braking limit, at the first braking_sdot2()
         # (not set read-only: np.interp copies read-only tables on every call)
         self.refs = (raceline, track)  # keep them alive so their ids stay unique
+
+    def braking_sdot2(self) -> np.ndarray:
+        """The race line's braking limit (:func:`racing_env.raceline.speed.braking_limit`,
+        straights capped at :data:`TOW_SPEED_CAP` times the top speed) as centre-line progress
+        rate [m/s] on the two-lap grid (like ``sdot2``); computed at the first call."""
+        if self._sbrk2 is None:
+            from racing_env.envelope import ggv
+            from racing_env.raceline.speed import braking_limit
+            from racing_env.vehicles import vehicle_class as _class
+
+            raceline, track = self.refs
+            vehicle = _class(str(getattr(track, "vehicle_class", "orca")))()
+            s = np.asarray(raceline.s, dtype=float)
+            ds = np.diff(np.append(s, raceline.length))
+            cap = TOW_SPEED_CAP * ggv(vehicle).top_speed
+            vb = braking_limit(np.asarray(raceline.kappa), ds, self.friction, vehicle, cap)
+            self._sbrk2 = np.concatenate([vb, vb, vb[:1]]) * self.sfac2
+        return self._sbrk2
 
 
 def _run_up(mu: float, dt: float = 0.005, t_max: float = 60.0, vehicle_class: str = "orca"):

@@ -123,3 +123,65 @@ def test_a_full_size_car_beyond_the_edge_rejoins_it():
     x2, edge2, off2 = _run_wide(stay, 0.5, 40.0)
     assert off2 == 1 and x2[1] > edge2 + 0.5
     assert x2[3] == pytest.approx(x[3], rel=1e-12)
+
+
+def test_braking_limit_bounds_the_profile_and_follows_the_corners():
+    from racing_env.controllers import raceline_config_for
+    from racing_env.raceline import get_raceline
+    from racing_env.raceline.speed import braking_limit
+
+    line = get_raceline(MONZA, P, raceline_config_for(P))
+    ds = np.diff(np.append(line.s, line.length))
+    cap = 1.2 * P.top_speed()
+    vb = braking_limit(np.asarray(line.kappa), ds, float(line.mu_nominal), P, cap)
+    vx = line.profile()[0]
+    assert np.all(vb >= vx * (1 - 1e-9)) and np.all(vb <= cap * (1 + 1e-9))
+    assert vb.max() == pytest.approx(cap)  # the straights: the tow's cap, not the top speed
+    # never above what a corner can be held at (the cap only on the straights)
+    from racing_env.raceline.speed import speed_limit
+
+    corner = speed_limit(np.asarray(line.kappa), float(line.mu_nominal), P)
+    bent = corner < P.top_speed() * (1 - 1e-9)
+    assert np.all(vb[bent] <= corner[bent] * (1 + 1e-9))
+    # where the profile brakes (speed falling into a corner) it is the braking limit itself
+    braking = np.flatnonzero((np.roll(vx, -1) < vx - 0.5) & (vx < 0.95 * P.top_speed()))
+    np.testing.assert_allclose(vb[braking], vx[braking], rtol=1e-6)
+
+
+def _ref(vx: float, tow: bool, s0: float = 300.0, ahead: float | None = 30.0):
+    from agents.reference import Theta, reference_trajectory
+    from racing_env.controllers import raceline_config_for
+    from racing_env.raceline import get_raceline
+
+    line = get_raceline(MONZA, P, raceline_config_for(P))
+    n0 = float(line.offset_at(s0))
+    ego = np.array([s0, n0, 0.0, vx, 0.0, 0.0])
+    th = Theta(q=5.0, zeta=1.0, s1=0.3, s2=0.5, s3=0.0)
+    # a car ahead in the wake's range (or none), far enough not to shift the reference
+    opp = None if ahead is None else np.array([[s0 + ahead, n0, 0.0, vx, 0.0, 0.0]])
+    th = th if ahead is None else Theta(q=5.0, zeta=1.0, s1=0.0, s2=0.5, s3=0.0)
+    return reference_trajectory(th, ego, opp, line, MONZA, vehicle=P, tow=tow), line
+
+
+def test_the_reference_follows_a_car_in_a_tow_and_brakes_in_time():
+    # Monza's main straight at s = 300 m: the line is at 61 m/s there, a towed car at 75
+    slow, line = _ref(20.0, tow=True)
+    same, _ = _ref(20.0, tow=False)
+    np.testing.assert_array_equal(slow.s_ref, same.s_ref)  # not faster than the line: as before
+    fast, _ = _ref(75.0, tow=True)
+    held, _ = _ref(75.0, tow=False)
+    dt = 0.1
+    k = np.arange(1, 16)
+    # without the tow rule the reference runs at the line's speed (the car would lift) ...
+    assert held.s_ref[-1] - 300.0 < 75.0 * 1.5 - 15.0
+    # ... with it, the car's own 75 m/s (above the top speed: held), no braking zone near
+    v_s = fast.v_pert[0]  # the car's progress rate: 75 m/s along its heading
+    assert v_s == pytest.approx(75.0, rel=1e-3)
+    np.testing.assert_allclose(fast.s_ref, 300.0 + v_s * dt * k, rtol=1e-12)
+    assert np.all(fast.v_pert == v_s)
+    # alone (no car within 15 lengths ahead) it is the line's reference, tow rule or not
+    alone, _ = _ref(75.0, tow=True, ahead=None)
+    np.testing.assert_array_equal(alone.s_ref, _ref(75.0, tow=False, ahead=None)[0].s_ref)
+    # 200 m before the first chicane the braking limit takes over: a towed car slows in time
+    brake, _ = _ref(75.0, tow=True, s0=700.0)
+    assert np.all(np.diff(brake.v_pert) <= 1e-9) and brake.v_pert[-1] < 70.0

@@ -152,6 +152,44 @@ def _profile_sweeps(v2, kab, ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab, start, 
     return False
 
 
+def braking_limit(
+    kappa: np.ndarray,
+    ds: np.ndarray,
+    grip: float,
+    vehicle: AnyVehicle,
+    v_cap: float,
+    max_sweeps: int = 200,
+) -> np.ndarray:
+    """The braking limit [m/s] (M,) on a closed path (``kappa``, ``ds`` as
+    :func:`speed_profile`): the highest speed at each point from which the car can still
+    brake for every corner ahead within its envelope scaled by ``grip``, the speed profile's
+    backward (braking) passes alone, with the top-speed cap of the straights raised to
+    ``v_cap`` [m/s] (a car in another's tow is faster than its own top speed). It is never
+    below :func:`speed_profile`'s speeds."""
+    env = ggv(vehicle)
+    top = env.top_speed
+    v = speed_limit(np.asarray(kappa, dtype=float), grip, vehicle)
+    v = np.where(v >= top * (1.0 - 1e-9), max(float(v_cap), top), v)
+    v2 = v * v
+    v_tab, ay_tab, r_tab, axp_tab, axm_tab = env.tables(grip)
+    free = np.full_like(axp_tab, 1e12)  # the forward pass never binds: braking alone
+    ok = _profile_sweeps(
+        v2,
+        np.abs(np.asarray(kappa, dtype=float)),
+        np.asarray(ds, dtype=float),
+        v_tab,
+        ay_tab,
+        r_tab,
+        free,
+        axm_tab,
+        int(np.argmin(v2)),
+        int(max_sweeps),
+    )
+    if not ok:
+        raise RuntimeError(f"braking limit did not settle in {max_sweeps} sweeps")
+    return np.sqrt(v2)
+
+
 def lap_time_of(vx: np.ndarray, ds: float | np.ndarray) -> float:
     """Lap time [s] of a periodic profile: ``sum 2 ds[k] / (v[k] + v[k+1])``."""
     vx = np.asarray(vx, dtype=float)
