@@ -1,13 +1,13 @@
 """DAQP called from compiled code (:mod:`agents.mpc.daqp_native`) against its Python binding.
 
-    python benchmarks/daqp_native.py                 # a 3-car race, 40 steps, 9 repeats
-    python benchmarks/daqp_native.py --steps 20 --repeats 5
+    python benchmarks/daqp_native.py                 # a 3-car race, 40 steps, 15 repeats
+    python benchmarks/daqp_native.py --steps 20 --repeats 5 --layer workqueue
 
 Captures every QP the MPC solves in a race of three MPC cars (:class:`agents.mpc_agent.MPCAgent`
 at its defaults, the paper's ORCA class) on the default track in
 :class:`racing_env.RacingParallelEnv` (start regions, seed 0): the arguments of each
 ``daqp.solve`` call of :meth:`agents.mpc.MPC._qp`. Then times, over all captured QPs, in
-turns so that load on the machine hits all alike:
+rounds, each in another order, so that load on the machine hits all alike:
 
 * ``daqp.solve``, the Python binding, one call per QP (what the MPC does today);
 * :func:`~agents.mpc.daqp_native.solve_qp`, one compiled call per QP, called from a compiled
@@ -97,8 +97,15 @@ def pad(qps: list[QP]) -> tuple:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=40, help="race steps to capture QPs from")
-    ap.add_argument("--repeats", type=int, default=9, help="timed rounds (median reported)")
+    ap.add_argument("--repeats", type=int, default=15, help="timed rounds (median reported)")
+    ap.add_argument(
+        "--layer",
+        default="default",
+        choices=["default", "workqueue", "omp", "tbb"],
+        help="numba's threading layer for solve_qps (default: numba's choice)",
+    )
     args = ap.parse_args(argv)
+    numba.config.THREADING_LAYER = args.layer  # type: ignore[attr-defined]  # before any prange
     import daqp
     from numba import njit, typed
 
@@ -145,12 +152,28 @@ def main(argv=None) -> None:
     }
     threads = numba.get_num_threads()
     times: dict[str, list[float]] = {k: [] for k in runs}
-    for _ in range(args.repeats):
-        for name, run in runs.items():
+    names = list(runs)
+    for r in range(args.repeats):  # each round in another order: load and spinning threads
+        for name in names[r % len(names) :] + names[: r % len(names)]:  # hit all alike
+            run = runs[name]
             t0 = time.perf_counter()
             run()
             times[name].append((time.perf_counter() - t0) / len(qps))
     numba.set_num_threads(threads)
+    # the fixed cost of a call: a QP of one variable and one row, 1000 times
+    tiny_qp = (np.eye(1), np.ones(1), np.ones((1, 1)), np.ones(1), -np.ones(1))
+    tiny_qp += (np.zeros(1, np.int32), 1e-6, 100)
+    tiny = typed.List([tiny_qp] * 1000)
+    native_loop(tiny)
+    call: dict[str, list[float]] = {"daqp.solve": [], "solve_qp": []}
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        for _ in range(1000):
+            daqp.solve(*tiny_qp[:6], rho_soft=1e-6, iter_limit=100)
+        call["daqp.solve"].append((time.perf_counter() - t0) / 1000)
+        t0 = time.perf_counter()
+        native_loop(tiny)
+        call["solve_qp"].append((time.perf_counter() - t0) / 1000)
     sizes = np.array([(q[1].shape[0], q[3].shape[0]) for q in qps])
     flags = np.array([daqp.solve(*q[:6], rho_soft=q[6], iter_limit=q[7])[2] for q in qps])
     print(
@@ -162,7 +185,20 @@ def main(argv=None) -> None:
     for name, ts in times.items():
         med = float(np.median(ts))
         print(f"  {name:30s} {1e6 * med:8.2f} us per QP   {med / base:5.2f} of daqp.solve's")
+    c_py, c_nat = (1e6 * float(np.median(call[k])) for k in ("daqp.solve", "solve_qp"))
+    print(f"  a 1-variable QP, time per call: daqp.solve {c_py:.2f} us, solve_qp {c_nat:.2f} us")
     print(f"  native == daqp.solve bit for bit (x, exitflag), single and batched: {same}")
+    print(f"  numba threading layer: {numba.threading_layer()}; load average {load()}")
+
+
+def load() -> str:
+    """The machine's 1-minute load average (others' jobs share the cores), or "?"."""
+    try:
+        import os
+
+        return f"{os.getloadavg()[0]:.1f}"
+    except OSError:
+        return "?"
 
 
 if __name__ == "__main__":
