@@ -13,7 +13,8 @@ C symbols. Its file is loaded with :mod:`ctypes` (it is already loaded by ``impo
 same copy is used) and the addresses of ``daqp_quadprog`` and ``daqp_default_settings`` are
 registered with LLVM under the names ``alpha_racer_daqp_quadprog`` and
 ``alpha_racer_daqp_default_settings``; compiled code calls them by name, so the kernels cache on
-disk like any other (the address is looked up again in each process). The C structs are numpy
+disk (the address is looked up again in each process; only where :data:`AVAILABLE`, since a
+cached kernel would otherwise call an unregistered name). The C structs are numpy
 records (:data:`PROBLEM`, :data:`SETTINGS`, :data:`RESULT`) laid out from :mod:`ctypes`
 mirrors of DAQP 0.11.0's ``types.h`` / ``api.h`` (field order, ``int`` as ``c_int``, natural
 alignment: ``DAQPProblem`` 80 bytes, ``DAQPSettings`` 136, ``DAQPResult`` 64 on x86-64, as the
@@ -21,7 +22,8 @@ extension's own debug information has them); compiled code fills them in arrays 
 Python object is touched inside a call, and the GIL is released (``nogil``).
 
 What ``daqp.solve(H, f, A, bupper, blower, sense, rho_soft=r, iter_limit=k)`` does, and so
-what these do: the problem ``n`` = columns of ``A``, ``m`` = length of ``bupper``,
+what these do: the problem ``n`` = columns of ``A`` (here ``len(f)``, the same for any
+``A`` with rows), ``m`` = length of ``bupper``,
 ``ms = m - rows(A)`` (the first ``ms`` entries of the bounds are simple bounds on ``x[:ms]``),
 pointers to the caller's data (``A`` NULL without rows; bounds and ``sense`` NULL if ``m`` is
 0), ``break_points`` NULL, ``nh = 0``, ``problem_type = 0`` (a QP); the settings at DAQP's
