@@ -158,7 +158,13 @@ class RacelineFollower:
     (in metres, bounded by the ORCA bounds times the class's size ratio when ``vehicle`` is
     given, else by the ORCA bounds).
 
-    By default it ignores other cars (it never yields). ``yield_gap`` [m] > 0 makes it leave
+    It never yields by default. At full size it does not run into a car ahead either
+    (``keep_gap``, default None: on for the full-size class, off for the ORCA car, whose
+    follower ignores other cars as it always has): its speed target is at most the speed from
+    which it can still brake (at :data:`KEEP_DECEL`) to a car's speed before it comes within
+    :data:`KEEP_GAP` car lengths of it, for every car ahead within 30 lengths and less than
+    1.2 car widths to the side (:meth:`gap_speed`). In full-size racing the car behind
+    answers for a collision from behind. ``yield_gap`` [m] > 0 makes it leave
     room: while another car is between ``yield_behind`` [m] behind it and ``yield_ahead`` [m]
     ahead of it (progress difference), the follower's lateral target keeps at least
     ``yield_gap`` from that car's lateral offset on the follower's own side of it (its line is
@@ -187,6 +193,7 @@ class RacelineFollower:
         yield_behind: float = 0.2,
         yield_ahead: float = 0.4,
         n_preview: int = RaceConfig.n_preview,
+        keep_gap: bool | None = None,
         *,
         mu: float | None = None,
     ):
@@ -217,6 +224,9 @@ class RacelineFollower:
         if not (_is_int(n_preview) and n_preview >= 0):
             raise ValueError(f"n_preview must be a non-negative integer, got {n_preview!r}")
         self.yield_gap, self.yield_behind, self.yield_ahead = yield_gap, yield_behind, yield_ahead
+        if keep_gap is not None and not isinstance(keep_gap, bool):
+            raise ValueError(f"keep_gap must be True, False or None, got {keep_gap!r}")
+        self.keep_gap = keep_gap
         self.n_preview = n_preview
         self.vehicle_given = vehicle
         self.vehicle: VehicleParams | FullSizeParams = vehicle or VehicleParams()
@@ -353,6 +363,9 @@ class RacelineFollower:
             shift = self.yield_shift(observation)
             if shift != 0.0:  # the table, not the looked-up value: the measured races are so
                 n_ref = n_ref + shift
+        keep = self.keep_gap
+        if keep is None:
+            keep = isinstance(self.vehicle, FullSizeParams)
         a = follower_action(
             np.asarray(observation[:6], dtype=np.float64),
             n_ref,
@@ -362,8 +375,27 @@ class RacelineFollower:
             self.track.ds,
             self.track.length,
             self._gains,
+            self.gap_speed(observation) if keep else NO_SPEED_CAP,
         )
         return np.array(a, dtype=np.float32)
+
+    def gap_speed(self, observation: np.ndarray) -> float:
+        """The highest speed [m/s] from which the follower still brakes, at
+        :data:`KEEP_DECEL`, to the speed of a car ahead before it is :data:`KEEP_GAP` car
+        lengths behind it (progress difference, centre to centre): the least over the cars
+        0 to 30 lengths ahead and under 1.2 widths to the side; a car already closer caps it
+        at that car's speed less 1 m/s per metre too close. :data:`NO_SPEED_CAP` when none."""
+        ego, others = split_observation(observation, self.n_preview)
+        gaps = np.asarray(observation, dtype=float)[6 : 6 * (len(others) + 1) : 6]
+        length, width = self.vehicle.length, self.vehicle.width
+        cap = NO_SPEED_CAP
+        for gap, row in zip(gaps, others):
+            if 0.0 < gap < 30.0 * length and abs(row[1] - ego[1]) < 1.2 * width:
+                room = gap - KEEP_GAP * length
+                v_j = max(float(row[3]), 0.0)
+                v = math.sqrt(v_j * v_j + 2.0 * KEEP_DECEL * room) if room > 0 else v_j + room
+                cap = min(cap, max(v, 0.0))
+        return cap
 
     def yield_shift(self, observation: np.ndarray) -> float:
         """The lateral shift [m] of the follower's target that leaves ``yield_gap`` to every car
@@ -419,10 +451,20 @@ def _fullsize_long_room(a_y, d_front, d_rear, p):
     return max(math.sqrt(1.0 - u_f * u_f), floor), max(math.sqrt(1.0 - u_r * u_r), floor)
 
 
+#: :meth:`RacelineFollower.gap_speed` (``keep_gap``): the gap [car lengths] the follower keeps
+#: to a car ahead on its line, and the deceleration [m/s^2] it plans to brake at for it (0.7 g,
+#: under the full-size car's brake limit of 0.73-1.22 g)
+KEEP_GAP = 1.5
+KEEP_DECEL = 7.0
+#: no speed cap for :func:`follower_action` (no car to keep a gap to)
+NO_SPEED_CAP = 1e30
+
+
 @njit(cache=True)
-def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
+def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g, v_cap=1e30):
     """The follower's control law (see :class:`RacelineFollower`) for state ``x`` (6,):
-    normalised ``(throttle, steering)``. ``g`` from :meth:`RacelineFollower.gains`."""
+    normalised ``(throttle, steering)``. ``g`` from :meth:`RacelineFollower.gains`;
+    ``v_cap`` [m/s] caps the speed target (:meth:`RacelineFollower.gap_speed`)."""
     s, n, mu, vx, vy = x[0], x[1], x[2], x[3], x[4]
     fullsize = g.shape[0] > FULLSIZE_GAINS
     f = FULLSIZE_GAINS
@@ -437,10 +479,10 @@ def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g):
         + 1.0 / preview**2 * (_lookup(n_ref, s, ds, length) - n)
     )
     delta = math.atan(g[4] * kappa_cmd) + g[5] * vx * vx * kappa_cmd
-    v_target = _lookup(v_ref, s + g[2] * vx, ds, length)
+    v_target = min(_lookup(v_ref, s + g[2] * vx, ds, length), v_cap)
     if fullsize:  # full-size class: resistance over the power-limited drive
         p = g[f + 12 :]
-        v_target = _lookup(v_ref, s + g[f + 11] * vx, ds, length)
+        v_target = min(_lookup(v_ref, s + g[f + 11] * vx, ds, length), v_cap)
         omega = x[5]
         vx_eff = max(vx, 1.0)
         # yaw-rate damping: the yaw rate the commanded path asks less the car's

@@ -185,3 +185,39 @@ def test_the_reference_follows_a_car_in_a_tow_and_brakes_in_time():
     # 200 m before the first chicane the braking limit takes over: a towed car slows in time
     brake, _ = _ref(75.0, tow=True, s0=700.0)
     assert np.all(np.diff(brake.v_pert) <= 1e-9) and brake.v_pert[-1] < 70.0
+
+
+def _brake_test(keep_gap):
+    """A raceline follower at 60 m/s 40 m behind a car that brakes as hard as the follower
+    can (throttle -0.4, about 0.9 g: harder and its front tyres saturate) on Monza's main
+    straight, both on the follower's line: the follower's contact steps and the smallest gap
+    [m] (progress difference) over 4 s."""
+    from racing_env.controllers import RacelineFollower
+
+    env = RacingParallelEnv(track=MONZA, n_cars=2, vehicle_class="fullsize", max_cycles=100)
+    env.reset(seed=0)
+    follower = RacelineFollower(keep_gap=keep_gap)
+    follower.reset(MONZA, "car_1")
+    n_line = follower.tables()[0]  # both cars on the follower's line
+    env.core.state[0] = [
+        [340.0, MONZA.interp(n_line, 340.0), 0.0, 60.0, 0.0, 0.0],
+        [300.0, MONZA.interp(n_line, 300.0), 0.0, 60.0, 0.0, 0.0],
+    ]
+    obs = env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})[0]
+    gaps = []
+    for _ in range(40):
+        brake = np.array([-0.4, 0.0], dtype=np.float32)
+        obs = env.step({"car_0": brake, "car_1": follower.act(obs["car_1"])})[0]
+        gaps.append(float(env.core.state[0, 0, 0] - env.core.state[0, 1, 0]))
+    return int(env.core.contacts[0, 1]), min(gaps)
+
+
+def test_the_full_size_follower_does_not_run_into_a_braking_car():
+    contacts, gap = _brake_test(None)  # the class's default: keep the gap
+    assert contacts == 0 and gap > P.length  # never in the contact box (one length)
+    contacts_blind, gap_blind = _brake_test(False)  # the ORCA follower's way: blind
+    assert contacts_blind > 0 and gap_blind < gap
+    with pytest.raises(ValueError, match="keep_gap"):
+        from racing_env.controllers import RacelineFollower
+
+        RacelineFollower(keep_gap=1)
