@@ -101,7 +101,7 @@ def test_races_that_end_at_laps_stop_while_the_others_go_on():
 
 
 class Straight:
-    """A batched agent (one instance in several slots): half throttle, no steering."""
+    """A batched agent (one instance in several slots): half throttle, steering to the centre."""
 
     def __init__(self):
         self.batch_calls = []
@@ -117,21 +117,45 @@ class Straight:
         return np.stack([self.act(o) for o in observations])
 
 
+class Grouped:
+    """Agents of one kind decided as a group (``act_group``), each with its own gain."""
+
+    group_calls: list = []
+
+    def __init__(self, gain):
+        self.gain = gain
+
+    def reset(self, track, agent_id="car_0", seed=None):
+        pass
+
+    def act(self, observation):
+        return np.array([0.4, -self.gain * observation[1]])
+
+    @classmethod
+    def act_group(cls, agents, observations):
+        cls.group_calls.append(len(agents))
+        return np.stack([a.act(o) for a, o in zip(agents, observations)])
+
+
 def test_batched_agents_decide_once_per_period_and_mixed_races_work():
-    env_kwargs = {"n_cars": 2, "max_cycles": 12}
+    env_kwargs = {"n_cars": 3, "max_cycles": 12}
     shared = Straight()
     track, config = race_setup(**env_kwargs)
     races = []
-    for seed in (5, 6, 7):
+    for k, seed in enumerate((5, 6, 7)):
         other = make_agent_spec("raceline")
-        other.reset(track, "car_1", seed)
-        races.append(LockstepRace([shared, other], track, config, seed, [0, 1]))
+        other.reset(track, "car_2", seed)
+        races.append(
+            LockstepRace([shared, Grouped(0.1 * k), other], track, config, seed, [0, 1, 2])
+        )
+    Grouped.group_calls.clear()
     batched = run_lockstep(races)
-    assert shared.batch_calls == [3] * 12  # car_0 of the three races, in one call per period
+    # car_0 and car_1 of the three races, each kind in one call per period
+    assert shared.batch_calls == [3] * 12 and Grouped.group_calls == [3] * 12
     for race in races:
-        race.agents[1].reset(track, "car_1", race.seed)
+        race.agents[2].reset(track, "car_2", race.seed)
     per_car = run_lockstep(races, batch_decisions=False)
-    assert shared.batch_calls == [3] * 12
+    assert shared.batch_calls == [3] * 12 and Grouped.group_calls == [3] * 12
     for a, b in zip(batched, per_car):
         assert np.array_equal(a.states, b.states) and np.array_equal(a.rewards, b.rewards)
     assert live_slots(np.array([True, False, True]), 2).tolist() == [[0, 0], [0, 1], [2, 0], [2, 1]]

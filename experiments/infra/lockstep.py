@@ -19,14 +19,14 @@ races or more are stepped by the multi-threaded kernel (same per-race code, one 
 
 **Decisions.** :func:`decide` is the hook for batched decisions. Today every agent decides car
 by car (``act(observation (D,)) -> (2,)``, the fallback every agent supports, in race-major order
-of the live cars). An agent instance with ``act_batch(observations (M, D)) -> (M, 2)`` placed in
-several slots (of one race or of many) is asked once per period for all its ``M`` cars of all
-races (rows in race-major order of the live cars, as :func:`live_slots` lists them); the PPO
-policy (:class:`agents.ppo_agent.PPOAgent`) is such an agent, and so would be a group of MPC
-solvers of one kind solved in one compiled call (one object in each of its cars' slots, mapping
-rows to its members by :func:`live_slots`). The bit-for-bit promise holds for such an agent when
-its ``act_batch`` gives each row what ``act`` gives it alone; ``batch_decisions=False`` asks every
-car alone. Mixed races (agents of any kinds, batched or not) work.
+of the live cars). Agents of a class with ``act_group(agents, observations (M, D)) -> (M, 2)``
+(a group of one kind, each instance with its own state: MPC steps of many cars solved in one
+compiled call) and one instance with ``act_batch(observations (M, D)) -> (M, 2)`` in several
+slots (a stateless policy such as :class:`agents.ppo_agent.PPOAgent`) are asked once per period
+for all their cars of all races, rows in race-major order (:func:`live_slots`). The bit-for-bit
+promise holds for them when a row's action is what ``act`` gives it alone;
+``batch_decisions=False`` asks every car alone. Mixed races (agents of any kinds, batched or
+not) work.
 
 **Ends.** A race ends at its own step, as the env's: truncated at ``max_cycles`` (shared by the
 batch, the config being the same) or terminated when a car completes ``laps``. An ended race is
@@ -161,25 +161,40 @@ def decide(
     """The hook for batched decisions: every live car's action into ``actions`` (R, N, 2).
 
     ``agents[b][i]`` drives car i of race b; ``obs`` (R, N, D) float32 are the core's
-    observations, ``live`` (R,) bool the races still running. An agent instance with
-    ``act_batch`` (and ``batch_decisions``) decides once for all its live slots, with their
-    observations stacked (M, D) in race-major order (:func:`live_slots`); every other agent decides
-    car by car (``act``: the fallback). An agent's error names it, its car and its race.
+    observations, ``live`` (R,) bool the races still running. With ``batch_decisions``, two
+    kinds of agents decide once per period for all their live cars of all races, observations
+    stacked (M, D) in race-major order (:func:`live_slots`), actions (M, 2) back:
+
+    * a group of agents of one kind: agents whose class has ``act_group(agents, observations)``
+      (a classmethod or staticmethod; ``agents`` the M instances, one per row, each with its
+      own state) are decided in one call per class: the form for a kind of agent whose
+      decisions of many cars can be computed together (MPC steps in one compiled call);
+    * one agent instance with ``act_batch(observations)`` in several slots (a stateless
+      policy: :class:`agents.ppo_agent.PPOAgent`) is called once for its slots.
+
+    Every other agent decides car by car (``act(observation (D,)) -> (2,)``: the fallback, which
+    every agent supports). An agent's error names it, its car and its race.
     """
     n_cars = obs.shape[1]
-    groups: dict[int, tuple[Any, list[tuple[int, int]]]] = {}
+    groups: dict[tuple[str, int], tuple[Any, list[tuple[int, int]]]] = {}
     for b, i in live_slots(live, n_cars).tolist():
         agent = agents[b][i]
-        if batch_decisions and callable(getattr(agent, "act_batch", None)):
-            groups.setdefault(id(agent), (agent, []))[1].append((b, i))
+        if batch_decisions and callable(getattr(type(agent), "act_group", None)):
+            groups.setdefault(("group", id(type(agent))), (type(agent), []))[1].append((b, i))
+        elif batch_decisions and callable(getattr(agent, "act_batch", None)):
+            groups.setdefault(("batch", id(agent)), (agent, []))[1].append((b, i))
         else:
             actions[b, i] = act_named(agent, obs[b, i], f"car_{i} of race {b}")
-    for agent, slots in groups.values():  # batched decisions: one call per agent
+    for (kind, _), (owner, slots) in groups.items():  # batched decisions: one call per group
         rows = np.array(slots, dtype=np.int64)
-        b0, i0 = slots[0]
-        actions[rows[:, 0], rows[:, 1]] = act_named(
-            agent, obs[rows[:, 0], rows[:, 1]], f"car_{i0} of race {b0}", batch=True
-        )
+        x = obs[rows[:, 0], rows[:, 1]]
+        if kind == "batch":
+            b0, i0 = slots[0]
+            actions[rows[:, 0], rows[:, 1]] = act_named(
+                owner, x, f"car_{i0} of race {b0}", batch=True
+            )
+        else:
+            actions[rows[:, 0], rows[:, 1]] = owner.act_group([agents[b][i] for b, i in slots], x)
 
 
 def _fallbacks(agent: Any) -> int:
@@ -190,7 +205,7 @@ def _fallbacks(agent: Any) -> int:
 def _thetas(agents: Sequence[Any]) -> np.ndarray | None:
     try:
         return np.array([a.theta.as_array(a.space) for a in agents], dtype=np.float64)
-    except AttributeError:
+    except (AttributeError, ValueError):
         return None
 
 

@@ -1,0 +1,129 @@
+"""Lockstep races: races per second of ``alpha-racer collect``'s races run one by one and in
+lockstep batches (:mod:`experiments.infra.lockstep`), measured back to back in one process,
+and where the time goes.
+
+    python benchmarks/lockstep_speed.py                 # 2 x 8 races of 500 steps per path, ~3 min
+    python benchmarks/lockstep_speed.py --steps 50      # a smoke check
+
+The same races (the paper's collection: 3 MPC cars, races 1..R of seed 0) are run by each
+path: one by one (:func:`experiments.potential.collect.simulate_race`, one
+``RacingParallelEnv`` per race) and in lockstep batches of 4 and 8
+(:func:`experiments.potential.collect.simulate_races`, one ``BatchedRaces`` core per batch);
+the states of every path are checked equal bit for bit. The paths take turns for ``--rounds``
+rounds (the machine's load shifts alike on each). Printed per path: races/s, the ratio
+to the one-by-one path, and the seconds per race in the agents' ``act`` (the MPC decisions),
+in the core's step (kernel and observations, ``BatchedRaces.step``), in the agents' resets
+and in the rest (glue: the env's dicts, the runner's bookkeeping, the seeds and thetas).
+Every decision is still one car's ``act``: the lockstep path saves env and glue time only, until
+agents decide in batches (:func:`experiments.infra.lockstep.decide`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections import Counter
+
+
+class _Timed:
+    """Wrap ``owner.name`` so that its calls add their seconds to ``totals[key]``."""
+
+    def __init__(self, owner, name: str, key: str, totals: Counter):
+        self.owner, self.name, self.f = owner, name, getattr(owner, name)
+        self.key, self.totals = key, totals
+
+    def __enter__(self):
+        f, key, totals = self.f, self.key, self.totals
+
+        def timed(*args, **kwargs):
+            t0 = time.perf_counter()
+            try:
+                return f(*args, **kwargs)
+            finally:
+                totals[key] += time.perf_counter() - t0
+
+        setattr(self.owner, self.name, timed)
+        return self
+
+    def __exit__(self, *exc):
+        setattr(self.owner, self.name, self.f)
+
+
+def run_path(config, races: list[int], batch: int | None) -> tuple[float, Counter, list]:
+    """Wall seconds to run ``races`` one by one (``batch`` None) or in lockstep batches of
+    ``batch``; the seconds in act, core step and resets; the races' states."""
+    from agents.mpc_agent import MPCAgent
+    from experiments.potential.collect import simulate_race, simulate_races
+    from racing_env import BatchedRaces
+
+    totals: Counter = Counter()
+    with (
+        _Timed(MPCAgent, "act", "act", totals),
+        _Timed(MPCAgent, "reset", "reset", totals),
+        _Timed(BatchedRaces, "step", "step", totals),
+    ):
+        t0 = time.perf_counter()
+        if batch is None:
+            out = [simulate_race(config, i) for i in races]
+        else:
+            out = []
+            for k in range(0, len(races), batch):
+                out += simulate_races(config, races[k : k + batch])
+        wall = time.perf_counter() - t0
+    return wall, totals, [r["states"] for r in out]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--races", type=int, default=8, help="races per path (default 8)")
+    parser.add_argument("--steps", type=int, default=500, help="steps per race (default 500)")
+    parser.add_argument("--rounds", type=int, default=2, help="rounds over the paths (default 2)")
+    args = parser.parse_args()
+    if min(args.races, args.steps, args.rounds) < 1:
+        raise SystemExit(
+            f"--races, --steps and --rounds must be positive, got {args.races}, {args.steps}, "
+            f"{args.rounds}"
+        )
+
+    import numpy as np
+
+    from agents.threads import single_blas_thread
+    from experiments.potential.collect import CollectConfig, simulate_races
+
+    config = CollectConfig(races=args.races + 1, steps=args.steps)
+    races = list(range(1, args.races + 1))
+    paths = {"one by one": None, "lockstep 4": 4, "lockstep 8": 8}
+    with single_blas_thread():
+        simulate_races(config, [0] * 8)  # compiles, builds and resets the 24 agents
+        print(
+            f"{args.races} races of {args.steps} steps (3 MPC cars) per path and round, "
+            f"{args.rounds} rounds"
+        )
+        print(
+            f"{'path':12s} {'races/s':>8s} {'ratio':>6s} {'s/race:':>8s} {'act':>6s} "
+            f"{'step':>6s} {'reset':>6s} {'glue':>6s}"
+        )
+        walls: dict[str, float] = dict.fromkeys(paths, 0.0)
+        parts: dict[str, Counter] = {name: Counter() for name in paths}
+        ref = None
+        for _ in range(args.rounds):  # the paths interleaved, round after round
+            for name, batch in paths.items():
+                wall, t, states = run_path(config, races, batch)
+                ref = ref or states
+                if not all(np.array_equal(a, b) for a, b in zip(ref, states)):
+                    raise SystemExit(f"{name}: the races differ from the races run one by one")
+                walls[name] += wall
+                parts[name].update(t)
+        n = args.races * args.rounds
+        base = n / walls["one by one"]
+        for name in paths:
+            t, wall = parts[name], walls[name]
+            glue = wall - t["act"] - t["step"] - t["reset"]
+            print(
+                f"{name:12s} {n / wall:8.3f} {n / wall / base:5.2f}x {'':8s} {t['act'] / n:6.3f} "
+                f"{t['step'] / n:6.3f} {t['reset'] / n:6.3f} {glue / n:6.3f}"
+            )
+
+
+if __name__ == "__main__":
+    main()
