@@ -25,10 +25,19 @@ from .reference import (
     THETA_HIGH,
     THETA_LOW,
     Theta,
+    in_a_wake,
     policy_space,
     reference_trajectory,
 )
 from .threads import single_blas_thread
+
+#: Dirty air (worlds with a wake): with a car at most this many car lengths ahead and car widths
+#: to the side, the MPC's reference is the race line's speed profile at this share of the
+#: car's grip. Behind another car the follower has lost downforce (the wake's downforce
+#: factor is 0.5 at one length, 0.79 at seven), so it brakes earlier and corners slower than
+#: in clean air; tracking the clean-air profile it arrived 3-6 m/s too fast at Monza's first
+#: chicane after a tow and left the track.
+DIRTY_AIR = (10.0, 1.5, 0.95)
 
 if TYPE_CHECKING:
     from racing_env.raceline import Raceline
@@ -257,6 +266,7 @@ class MPCAgent:
         with single_blas_thread():  # results independent of the BLAS thread count
             ego, others = split_observation(observation, self.n_preview)
             theta = self.driven_theta
+            dirty = self.tow and len(others) and in_a_wake(ego, others, self.vehicle, DIRTY_AIR[:2])
             ref = reference_trajectory(
                 theta,
                 ego,
@@ -269,6 +279,7 @@ class MPCAgent:
                 side=self._pass_side(),
                 vehicle=None if isinstance(self.vehicle, VehicleParams) else self.vehicle,
                 tow=self.tow,
+                friction=DIRTY_AIR[2] if dirty else None,
             )
             neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
             opp = None

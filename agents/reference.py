@@ -323,7 +323,7 @@ def reference_trajectory(
             s_pert = np.where(capped, s_e + reach, s_pert)
             v_pert = np.where(capped, np.minimum(v_pert, v_run), v_pert)
 
-    if tow and m and _in_a_wake(x, opp, vehicle):  # ---- 1c. not held back in a tow
+    if tow and m and in_a_wake(x, opp, vehicle):  # ---- 1c. not held back in a tow
         tabs = [(1.0 - th.b, tab)] + ([(th.b, _tables(blend, track, friction))] if th.b > 0 else [])
         s_pert, n_pert, v_pert = _tow_floor(
             x, tabs, th.zeta, s_e, s_e_w, base, s_pert, n_pert, v_pert, dt
@@ -467,14 +467,15 @@ TOW_MARGIN = 1.0
 TOW_RANGE = (15.0, 1.5)
 
 
-def _in_a_wake(x, opp, vehicle) -> bool:
-    """Whether a car of ``opp`` (m, 6) is ahead of the ego ``x`` (6,) within
-    :data:`TOW_RANGE` (lengths and widths of ``vehicle``; the ORCA car's without one)."""
+def in_a_wake(x, opp, vehicle, reach=TOW_RANGE) -> bool:
+    """Whether a car of ``opp`` (m, 6) is ahead of the ego ``x`` (6,) within ``reach``
+    (default :data:`TOW_RANGE`: lengths and widths of ``vehicle``, the ORCA car's without
+    one)."""
     length = float(getattr(vehicle, "length", VehicleParams().length))
     width = float(getattr(vehicle, "width", VehicleParams().width))
     gap = opp[:, 0] - float(x[0])
     side = np.abs(opp[:, 1] - float(x[1]))
-    return bool(np.any((gap > 0) & (gap < TOW_RANGE[0] * length) & (side < TOW_RANGE[1] * width)))
+    return bool(np.any((gap > 0) & (gap < reach[0] * length) & (side < reach[1] * width)))
 
 
 def _tow_floor(x, tabs, zeta, s_e, s_e_w, base, s_pert, n_pert, v_pert, dt):

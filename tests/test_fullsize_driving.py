@@ -221,3 +221,56 @@ def test_the_full_size_follower_does_not_run_into_a_braking_car():
         from racing_env.controllers import RacelineFollower
 
         RacelineFollower(keep_gap=1)
+
+
+def _two_car_env(gap: float):
+    """Monza's main straight at s = 400 m: car_0 at 50 m/s, car_1 ``gap`` m ahead on the same
+    offset; the env's observations after one period with both coasting."""
+    env = RacingParallelEnv(track=MONZA, n_cars=2, vehicle_class="fullsize", max_cycles=100)
+    env.reset(seed=0)
+    env.core.state[0] = [[400.0, 1.0, 0.0, 50.0, 0.0, 0.0], [400.0 + gap, 1.0, 0.0, 50.0, 0.0, 0.0]]
+    return env, env.step({a: np.zeros(2, dtype=np.float32) for a in env.agents})[0]
+
+
+def test_the_mpc_brakes_for_dirty_air_behind_a_car(monkeypatch):
+    import agents.mpc_agent as mod
+    from agents.mpc_agent import DIRTY_AIR, MPCAgent
+
+    seen = []
+    original = mod.reference_trajectory
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["friction"])
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(mod, "reference_trajectory", spy)
+    agent = MPCAgent(zeta=1.0)
+    for gap, friction in ((20.0, DIRTY_AIR[2]), (DIRTY_AIR[0] * P.length + 10.0, None)):
+        env, obs = _two_car_env(gap)
+        agent.reset(MONZA, "car_0", 0)
+        agent.act(obs["car_0"])
+        assert seen[-1] == friction  # the grip-scaled profile only within the wake's range
+    assert DIRTY_AIR[2] in line_grips()  # a profile of the race line's library, not a blend
+
+
+def line_grips():
+    from racing_env.controllers import raceline_config_for
+    from racing_env.raceline import get_raceline
+
+    return list(get_raceline(MONZA, P, raceline_config_for(P)).mus)
+
+
+def test_a_stopped_full_size_mpc_drives_off_from_a_braking_plan():
+    from agents.mpc_agent import MPCAgent
+
+    env = RacingParallelEnv(track=MONZA, n_cars=1, vehicle_class="fullsize", max_cycles=100)
+    env.reset(seed=0)
+    env.core.state[0, 0] = [484.7, 1.3, 0.026, 0.0, 0.0, 0.0]  # where a car stopped (Monza)
+    obs = env.step({"car_0": np.array([-1.0, 0.0], dtype=np.float32)})[0]
+    agent = MPCAgent(zeta=1.0)
+    agent.reset(MONZA, "car_0", 0)
+    agent.act(obs["car_0"])
+    K = agent.mpc.cfg.horizon
+    agent.mpc._U = np.vstack([np.full(K, -0.74), np.zeros(K)])  # the plan it stayed on
+    a = agent.act(obs["car_0"])
+    assert a[0] > 0.0  # it drives

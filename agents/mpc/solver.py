@@ -210,6 +210,7 @@ class MPC:
         )  # normalised
         self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
         self._slip = slip_bound(self.cfg, self.vehicle)  # slip-angle rows (none: all zeros)
+        self._full = isinstance(self.vehicle, FullSizeParams)
         # counters and the solve times (a deque) by name
         self.stats: dict[str, Any] = {
             "solves": 0,
@@ -488,7 +489,12 @@ class MPC:
                 Uf = self._follower_warm_start(x0)
                 Xf, Af, Bf = self._plan(x0, Uf)
                 Jf, edges_f = score(Xf, Uf)
-                if Jf < J:
+                # a stopped full-size car whose plan brakes starts from the follower: its
+                # reference leaves a car at rest so slowly (a few metres in the horizon, a
+                # tenth of a car width in the cost's units) that staying costs less than the
+                # throttle swing, a local minimum it never left (Monza, after a contact)
+                stuck = self._full and x0[3] < 2.0 * cfg.v_low and U[0, 0] <= 0.0
+                if Jf < J or stuck:
                     U, X, A, B, J, edges = Uf, Xf, Af, Bf, Jf, edges_f
                     self.stats["restarts"] += 1
         consts = StepConstants(x0, self._step_sizes, self.track.kappa, cfg.substeps, problem)
