@@ -11,8 +11,9 @@ compiles, loading the libraries) and computing racing lines, whatever phase they
 ``--kernels``, the numba compile time per kernel (cold: its own time, nested kernels' time left
 out, top 15 or ``--top``) or the cache load time (warm). ``--env-warmup on`` starts
 :func:`racing_env.warmup.start_env_warmup` before the race builds its env (the env's kernels
-compiled by a worker process meanwhile, when a core is idle); ``both`` runs the race without
-and with it, one after the other, in each round.
+compiled by a worker process meanwhile, when a core is idle; ``busy-ok``: even on a busy
+machine); ``both`` (``both-busy-ok``) runs the race without and with it, one after the other,
+in each round.
 
     python benchmarks/cold_start.py                 # 1 cold + 2 warm runs
     python benchmarks/cold_start.py --repeat 2 --kernels
@@ -41,7 +42,7 @@ from collections import defaultdict  # noqa: E402
 PHASES = ("interpreter", "import", "env", "agents", "first step", "race", "outputs")
 
 
-def _child(out: str, race_args: list[str], kernels: bool, env_warmup: bool) -> None:
+def _child(out: str, race_args: list[str], kernels: bool, env_warmup: str) -> None:
     """Run the README race in this process, instrumented; print one JSON line of timings."""
     marks: dict[str, float] = {}
     compile_self: dict[str, float] = defaultdict(float)
@@ -98,10 +99,10 @@ def _child(out: str, race_args: list[str], kernels: bool, env_warmup: bool) -> N
     workers = []
 
     def timed_init(self, *a, **k):
-        if env_warmup:  # the env's kernels compiled by a worker meanwhile (racing_env.warmup)
+        if env_warmup != "off":  # the env's kernels compiled by a worker meanwhile
             from racing_env.warmup import start_env_warmup
 
-            workers.append(start_env_warmup(**k))
+            workers.append(start_env_warmup(busy_ok=env_warmup == "busy-ok", **k))
         init(self, *a, **k)
         marks["env"] = time.perf_counter()
 
@@ -164,7 +165,7 @@ def _timed(fn, parts: dict[str, float], part: str):
     return timed
 
 
-def _run(cache: str, out: str, race_args: list[str], kernels: bool, env_warmup: bool) -> dict:
+def _run(cache: str, out: str, race_args: list[str], kernels: bool, env_warmup: str) -> dict:
     """One race in a fresh interpreter on the cache folder ``cache``: wall, cpu, phases."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # this tree's packages
     path = os.pathsep.join(x for x in (root, os.environ.get("PYTHONPATH")) if x)
@@ -173,8 +174,7 @@ def _run(cache: str, out: str, race_args: list[str], kernels: bool, env_warmup: 
     cmd = [sys.executable, __file__, "--child", "--out", out]
     if kernels:
         cmd.append("--kernels")
-    if env_warmup:
-        cmd.append("--env-warmup=on")
+    cmd.append(f"--env-warmup={env_warmup}")
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run([*cmd, "--", *race_args], env=env, capture_output=True, text=True)
@@ -194,7 +194,7 @@ def _run(cache: str, out: str, race_args: list[str], kernels: bool, env_warmup: 
 def _report(label: str, d: dict, kernels: bool, top: int = 15) -> None:
     phases = "  ".join(f"{k} {v:5.1f}" for k, v in d["phases"].items())
     print(
-        f"{label:16s} wall {d['wall']:5.1f} s  user {d['user']:5.1f}  sys {d['sys']:4.1f}  | {phases}"
+        f"{label:24s} wall {d['wall']:5.1f} s  user {d['user']:5.1f}  sys {d['sys']:4.1f}  | {phases}"
     )
     if d["parts"]:
         parts = ", ".join(f"{k} {v:.1f} s" for k, v in d["parts"].items())
@@ -217,23 +217,26 @@ def main() -> None:
     ap.add_argument("--top", type=int, default=15, help="kernels listed (default 15)")
     ap.add_argument(
         "--env-warmup",
-        choices=("off", "on", "both"),
+        choices=("off", "on", "busy-ok", "both", "both-busy-ok"),
         default="off",
         help="the env's kernels compiled by a worker process meanwhile (racing_env.warmup): "
-        "off (the race as it is), on, or both, one after the other in each round",
+        "off (the race as it is), on (when a core is idle), busy-ok (even on a busy "
+        "machine), both or both-busy-ok: off, then on or busy-ok, in each round",
     )
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--out", default=None, help=argparse.SUPPRESS)
     ap.add_argument("race_args", nargs="*", help="extra arguments of alpha-racer race")
     args = ap.parse_args()
     if args.child:
-        _child(args.out, args.race_args, args.kernels, args.env_warmup == "on")
+        _child(args.out, args.race_args, args.kernels, args.env_warmup)
         return
-    variants = {"off": [False], "on": [True], "both": [False, True]}[args.env_warmup]
+    variants = {"both": ["off", "on"], "both-busy-ok": ["off", "busy-ok"]}.get(
+        args.env_warmup, [args.env_warmup]
+    )
     rows: dict[str, list[dict]] = {}
     for r in range(args.repeat):
         for warmup in variants:
-            tag = " +warmup" if warmup else ""
+            tag = "" if warmup == "off" else f" +warmup {warmup}"
             with tempfile.TemporaryDirectory(prefix="alpha-racer-cold-") as tmp:
                 cache, out = os.path.join(tmp, "cache"), os.path.join(tmp, "out")
                 d = _run(cache, out, args.race_args, args.kernels, warmup)

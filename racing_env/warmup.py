@@ -11,8 +11,10 @@ race get there first, it compiles the kernel itself, as without the worker.
 
 Once the worker has stepped its env it leaves a marker in numba's cache folder (named by a
 hash of the sources, so an edit of either package starts over); with the marker there, no
-worker is started (a warm cache costs one file look-up). Nor is one started when the machine
-has no idle core (the load average): there the worker would only take CPU from the race.
+worker is started, nor when numba's cache holds a kernel of :mod:`racing_env.simulator` (an
+env has stepped there: a warm cache costs a look-up in one folder). Nor is one started when
+the machine has no idle core (the threads running now): there the worker would only take CPU
+from the race.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -33,14 +36,15 @@ def start_env_warmup(*, busy_ok: bool = False, **env_kwargs: Any) -> subprocess.
     """Start a worker process that compiles the kernels of ``RacingParallelEnv(**env_kwargs)``
     into numba's cache (it builds that env, resets it and steps it once with zero actions);
     returns it, or None when there is nothing to do: the kernels were warmed before for these
-    arguments, numba does not cache (``NUMBA_DISABLE_JIT``), an argument is not among
+    arguments, an env has stepped on this cache (numba's cache holds kernels of
+    :mod:`racing_env.simulator`), numba does not cache (``NUMBA_DISABLE_JIT``), an argument is not among
     :data:`WARMUP_ARGS` or not a plain value (a :class:`~racing_env.Track` object), or no core
     is idle (:func:`idle_cores` under 0.5; ``busy_ok`` starts one anyway). The worker's output
     is discarded; the caller need not wait for it (a kernel it has not cached yet is compiled
     by the caller as usual)."""
     marker = _marker(env_kwargs)
-    if marker is None or marker.exists():
-        return None
+    if marker is None or marker.exists() or any(marker.parent.rglob("simulator.*.nbi")):
+        return None  # warmed before, or an env stepped here (numba's index of its kernels)
     if not busy_ok and idle_cores() < 0.5:
         return None
     args = json.dumps(env_kwargs, sort_keys=True)
@@ -52,13 +56,23 @@ def start_env_warmup(*, busy_ok: bool = False, **env_kwargs: Any) -> subprocess.
     )
 
 
-def idle_cores() -> float:
-    """Cores this process may use minus the 1-minute load average (the caller's own process
-    included): about 1 on an otherwise idle 2-core machine, 0 or less when it is busy."""
+def idle_cores(samples: int = 5) -> float:
+    """Cores this process may use minus the threads running now (this one included; Linux's
+    ``/proc/loadavg``, the mean of ``samples`` looks 10 ms apart), elsewhere minus the 1-minute
+    load average: about 1 on an otherwise idle 2-core machine, 0 or less when it is busy."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         cores = os.cpu_count() or 1
+    try:  # "0.52 0.58 0.59 2/345 12345": the 4th field is running/existing threads
+        running = []
+        for i in range(samples):
+            if i:
+                time.sleep(0.01)
+            running.append(int(Path("/proc/loadavg").read_text().split()[3].split("/")[0]))
+        return cores - sum(running) / len(running)
+    except (OSError, IndexError, ValueError):
+        pass
     try:
         return cores - os.getloadavg()[0]
     except (AttributeError, OSError):  # no load average (Windows): assume a free core

@@ -47,6 +47,10 @@ def test_no_worker_on_a_busy_machine_or_once_warmed(no_worker, monkeypatch, tmp_
     marker.touch()
     monkeypatch.setattr(warmup, "_marker", lambda kwargs: marker)
     assert warmup.start_env_warmup(n_cars=2) is None
+    marker.unlink()  # no marker, but an env has stepped on this cache: its kernels are there
+    (tmp_path / "racing_env_1234").mkdir()
+    (tmp_path / "racing_env_1234" / "simulator._advance_serial-233.py311.nbi").touch()
+    assert warmup.start_env_warmup(n_cars=2) is None
 
 
 def test_idle_cores_is_a_number():
