@@ -9,15 +9,10 @@ first step), the rest of the race, the outputs (plots and animation) and the int
 start-up; the time spent in the MPC's C predictions (CasADi's code generation, the C
 compiles, loading the libraries) and computing racing lines, whatever phase they fall in; with
 ``--kernels``, the numba compile time per kernel (cold: its own time, nested kernels' time left
-out, top 15 or ``--top``) or the cache load time (warm). ``--env-warmup on`` starts
-:func:`racing_env.warmup.start_env_warmup` before the race builds its env (the env's kernels
-compiled by a worker process meanwhile, when a core is idle; ``busy-ok``: even on a busy
-machine); ``both`` (``both-busy-ok``) runs the race without and with it, one after the other,
-in each round.
+out, top 15 or ``--top``) or the cache load time (warm).
 
     python benchmarks/cold_start.py                 # 1 cold + 2 warm runs
     python benchmarks/cold_start.py --repeat 2 --kernels
-    python benchmarks/cold_start.py --env-warmup both --warm 1 --repeat 3
     python benchmarks/cold_start.py -- --no-animation   # arguments after -- go to the race
 
 Timings on a shared machine drift: compare figures measured back to back in one session.
@@ -42,7 +37,7 @@ from collections import defaultdict  # noqa: E402
 PHASES = ("interpreter", "import", "env", "agents", "first step", "race", "outputs")
 
 
-def _child(out: str, race_args: list[str], kernels: bool, env_warmup: str) -> None:
+def _child(out: str, race_args: list[str], kernels: bool) -> None:
     """Run the README race in this process, instrumented; print one JSON line of timings."""
     marks: dict[str, float] = {}
     compile_self: dict[str, float] = defaultdict(float)
@@ -96,13 +91,7 @@ def _child(out: str, race_args: list[str], kernels: bool, env_warmup: str) -> No
     init, step = RacingParallelEnv.__init__, RacingParallelEnv.step
     make = race_mod.make_agent_spec
 
-    workers = []
-
     def timed_init(self, *a, **k):
-        if env_warmup != "off":  # the env's kernels compiled by a worker meanwhile
-            from racing_env.warmup import start_env_warmup
-
-            workers.append(start_env_warmup(busy_ok=env_warmup == "busy-ok", **k))
         init(self, *a, **k)
         marks["env"] = time.perf_counter()
 
@@ -129,9 +118,6 @@ def _child(out: str, race_args: list[str], kernels: bool, env_warmup: str) -> No
     race_mod.make_agent_spec = timed_make
     rc = cli.main(["race", "--out", out, *race_args])
     marks["outputs"] = time.perf_counter()
-    for w in workers:  # long done; waited for so that its CPU time counts
-        if w is not None:
-            w.wait()
     if rc:
         raise SystemExit(rc)
     prev, phases = T_START, {}
@@ -144,7 +130,6 @@ def _child(out: str, race_args: list[str], kernels: bool, env_warmup: str) -> No
             {
                 "phases": phases,
                 "parts": dict(parts),
-                "worker": any(w is not None for w in workers),
                 "compile": dict(compile_self),
                 "loads": dict(loads),
             }
@@ -165,7 +150,7 @@ def _timed(fn, parts: dict[str, float], part: str):
     return timed
 
 
-def _run(cache: str, out: str, race_args: list[str], kernels: bool, env_warmup: str) -> dict:
+def _run(cache: str, out: str, race_args: list[str], kernels: bool) -> dict:
     """One race in a fresh interpreter on the cache folder ``cache``: wall, cpu, phases."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # this tree's packages
     path = os.pathsep.join(x for x in (root, os.environ.get("PYTHONPATH")) if x)
@@ -174,7 +159,6 @@ def _run(cache: str, out: str, race_args: list[str], kernels: bool, env_warmup: 
     cmd = [sys.executable, __file__, "--child", "--out", out]
     if kernels:
         cmd.append("--kernels")
-    cmd.append(f"--env-warmup={env_warmup}")
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run([*cmd, "--", *race_args], env=env, capture_output=True, text=True)
@@ -194,12 +178,11 @@ def _run(cache: str, out: str, race_args: list[str], kernels: bool, env_warmup: 
 def _report(label: str, d: dict, kernels: bool, top: int = 15) -> None:
     phases = "  ".join(f"{k} {v:5.1f}" for k, v in d["phases"].items())
     print(
-        f"{label:24s} wall {d['wall']:5.1f} s  user {d['user']:5.1f}  sys {d['sys']:4.1f}  | {phases}"
+        f"{label:8s} wall {d['wall']:5.1f} s  user {d['user']:5.1f}  sys {d['sys']:4.1f}  | {phases}"
     )
     if d["parts"]:
         parts = ", ".join(f"{k} {v:.1f} s" for k, v in d["parts"].items())
-        worker = "; a warm-up worker ran" if d["worker"] else ""
-        print(f"         in all phases: {parts}{worker}")
+        print(f"         in all phases: {parts}")
     if kernels:
         table = d["compile"] if d["compile"] else d["loads"]
         what = "compile (own time)" if d["compile"] else "cache load"
@@ -215,42 +198,26 @@ def main() -> None:
     ap.add_argument("--warm", type=int, default=2, help="warm runs per round (default 2)")
     ap.add_argument("--kernels", action="store_true", help="per-kernel compile / load times")
     ap.add_argument("--top", type=int, default=15, help="kernels listed (default 15)")
-    ap.add_argument(
-        "--env-warmup",
-        choices=("off", "on", "busy-ok", "both", "both-busy-ok"),
-        default="off",
-        help="the env's kernels compiled by a worker process meanwhile (racing_env.warmup): "
-        "off (the race as it is), on (when a core is idle), busy-ok (even on a busy "
-        "machine), both or both-busy-ok: off, then on or busy-ok, in each round",
-    )
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--out", default=None, help=argparse.SUPPRESS)
     ap.add_argument("race_args", nargs="*", help="extra arguments of alpha-racer race")
     args = ap.parse_args()
     if args.child:
-        _child(args.out, args.race_args, args.kernels, args.env_warmup)
+        _child(args.out, args.race_args, args.kernels)
         return
-    variants = {"both": ["off", "on"], "both-busy-ok": ["off", "busy-ok"]}.get(
-        args.env_warmup, [args.env_warmup]
-    )
-    rows: dict[str, list[dict]] = {}
+    rows: dict[str, list[dict]] = {"cold": [], "warm": []}
     for r in range(args.repeat):
-        for warmup in variants:
-            tag = "" if warmup == "off" else f" +warmup {warmup}"
-            with tempfile.TemporaryDirectory(prefix="alpha-racer-cold-") as tmp:
-                cache, out = os.path.join(tmp, "cache"), os.path.join(tmp, "out")
-                d = _run(cache, out, args.race_args, args.kernels, warmup)
-                rows.setdefault(f"cold{tag}", []).append(d)
-                _report(f"cold {r + 1}{tag}", d, args.kernels, args.top)
-                for w in range(args.warm):
-                    d = _run(cache, out, args.race_args, args.kernels and w == 0, warmup)
-                    rows.setdefault(f"warm{tag}", []).append(d)
-                    _report(f"warm {r + 1}{tag}", d, args.kernels and w == 0, args.top)
-    for kind, ds in rows.items():
-        if kind.startswith("cold"):
-            print(f"{kind} race:")
-            for line in ds[-1]["result"]:
-                print("  " + line.strip())
+        with tempfile.TemporaryDirectory(prefix="alpha-racer-cold-") as tmp:
+            cache, out = os.path.join(tmp, "cache"), os.path.join(tmp, "out")
+            d = _run(cache, out, args.race_args, args.kernels)
+            rows["cold"].append(d)
+            _report(f"cold {r + 1}", d, args.kernels, args.top)
+            for w in range(args.warm):
+                d = _run(cache, out, args.race_args, args.kernels and w == 0)
+                rows["warm"].append(d)
+                _report(f"warm {r + 1}", d, args.kernels and w == 0, args.top)
+    for line in rows["cold"][-1]["result"]:
+        print("  " + line.strip())
     for kind, ds in rows.items():
         if ds:
             walls = sorted(d["wall"] for d in ds)
