@@ -61,7 +61,8 @@ class RulesConfig:
     * Off track: a car beyond an edge (``n > w_left`` or ``n < -w_right``) is slowed to
       ``offtrack_factor * vx`` (paper: 1/2) and re-aligned with the track
       (``mu = 0``; we also zero ``vy`` and ``omega``). With ``offtrack_rejoin`` it is also put
-      back onto the edge it crossed, so it rejoins the track (the full-size class's rule:
+      back onto the track at the edge it crossed, its body just inside it (the centre half a
+      car width in), so it rejoins the track (the full-size class's rule:
       re-aligned every period beyond the edge, a full-size car slowed to walking pace cannot
       build the heading to steer back within 0.1 s, and crept along Spa's run-off for 20 to
       100 periods at 0.4 m/s, measured; the paper's 1:43 world keeps the rule as it is).

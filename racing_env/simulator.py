@@ -203,8 +203,9 @@ def _step_one_race(b, state, phys, tables, p, dt, rules, reward, contact, offtra
                 x[2] = 0.0
                 x[4] = 0.0
                 x[5] = 0.0
-                if rules[R_OFF_REJOIN] > 0.0:
-                    x[1] = e_left if x[1] > e_left else e_right
+                if rules[R_OFF_REJOIN] > 0.0:  # back on the track, its body inside the edge
+                    inset = 0.5 * rules[R_WAKE_WIDTH]  # (the cars' width)
+                    x[1] = e_left - inset if x[1] > e_left else e_right + inset
     # reward: change of (s_i - max_{j != i} s_j), on unwrapped s
     for i in range(n_cars):
         if n_cars == 1:

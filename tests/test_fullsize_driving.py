@@ -115,7 +115,7 @@ def test_a_full_size_car_beyond_the_edge_rejoins_it():
     assert not RaceConfig().rules.offtrack_rejoin  # the paper's rule is unchanged
     x, edge, off = _run_wide(cfg, 0.5, 40.0)
     assert off == 1
-    assert x[1] == pytest.approx(edge)  # back on the edge it crossed, on the track
+    assert x[1] == pytest.approx(edge - 0.5 * P.width)  # back on, its body inside the edge
     assert (x[2], x[4], x[5]) == (0.0, 0.0, 0.0)  # re-aligned
     assert 17.0 < x[3] < 20.5  # and slowed to half of its ~40 m/s
     # the same car under the paper's rule stays beyond the edge, as slow
