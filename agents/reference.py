@@ -467,7 +467,12 @@ TOW_MARGIN = 1.0
 TOW_RANGE = (15.0, 1.5)
 
 
-def in_a_wake(x, opp, vehicle, reach=TOW_RANGE) -> bool:
+def in_a_wake(
+    x: np.ndarray,
+    opp: np.ndarray,
+    vehicle: object | None,
+    reach: tuple[float, float] = TOW_RANGE,
+) -> bool:
     """Whether a car of ``opp`` (m, 6) is ahead of the ego ``x`` (6,) within ``reach``
     (default :data:`TOW_RANGE`: lengths and widths of ``vehicle``, the ORCA car's without
     one)."""
