@@ -291,13 +291,7 @@ def reference_trajectory(
         n_pert0 = a * n_pert0 + th.b * n_b0
         v_pert = a * v_pert + th.b * v_b
     if reachable:  # ---- 1b. cap at the run-up
-        den_e = 1.0 - n_e * _interp1(tab.kap, s_e_w, inv_ds)
-        if den_e <= 0:
-            raise ValueError(
-                f"ego at n = {n_e!r} lies beyond the centre line's radius of "
-                f"curvature (1 - n kappa = {den_e:.3g} <= 0)"
-            )
-        v0 = max((x[3] * math.cos(x[2]) - x[4] * math.sin(x[2])) / den_e, 0.0)
+        v0 = _ego_rate(x, tab, s_e_w)
         run_t, run_v, run_x = tab.run_t, tab.run_v, tab.run_x
         if v0 < run_v[-1]:
             t0 = float(np.interp(v0, run_v, run_t))
@@ -325,8 +319,9 @@ def reference_trajectory(
 
     if tow and m and in_a_wake(x, opp, vehicle):  # ---- 1c. not held back in a tow
         tabs = [(1.0 - th.b, tab)] + ([(th.b, _tables(blend, track, friction))] if th.b > 0 else [])
+        v_e = _ego_rate(x, tab, s_e_w)
         s_pert, n_pert, v_pert = _tow_floor(
-            x, tabs, th.zeta, s_e, s_e_w, base, s_pert, n_pert, v_pert, dt
+            v_e, tabs, th.zeta, s_e_w, base, s_pert, n_pert, v_pert, dt
         )
 
     n_ref = n_pert.copy()
@@ -483,23 +478,34 @@ def in_a_wake(
     return bool(np.any((gap > 0) & (gap < reach[0] * length) & (side < reach[1] * width)))
 
 
-def _tow_floor(x, tabs, zeta, s_e, s_e_w, base, s_pert, n_pert, v_pert, dt):
-    """Step 1c of :func:`reference_trajectory`: ``(s_pert, n_pert, v_pert)`` (K,) with the
-    progress raised, where the car outruns the race line, to a run from its current speed
-    under the braking limit. ``tabs``: ``[(weight, tables)]`` of the line (and the blended
-    line), whose weighted progress rates and offsets make the line."""
-    mu, vx, vy = float(x[2]), float(x[3]), float(x[4])
-    v_line = sum(w * float(np.interp(s_e_w, t.st2, t.sdot2)) for w, t in tabs) * zeta
-    tab = tabs[0][1]
+def _ego_rate(x, tab, s_e_w: float) -> float:
+    """The car's progress rate [m/s] along the centre line, at least 0:
+    ``(vx cos mu - vy sin mu) / (1 - n kappa)``; a ``ValueError`` where the car lies beyond the
+    centre line's radius of curvature (``1 - n kappa <= 0``)."""
     den = 1.0 - float(x[1]) * _interp1(tab.kap, s_e_w, tab.inv_ds)
-    v = max((vx * math.cos(mu) - vy * math.sin(mu)) / den, 0.0) if den > 0 else 0.0
+    if den <= 0:
+        raise ValueError(
+            f"ego at n = {float(x[1])!r} lies beyond the centre line's radius of "
+            f"curvature (1 - n kappa = {den:.3g} <= 0)"
+        )
+    return max((x[3] * math.cos(x[2]) - x[4] * math.sin(x[2])) / den, 0.0)
+
+
+def _tow_floor(v, tabs, zeta, s_e_w, base, s_pert, n_pert, v_pert, dt):
+    """Step 1c of :func:`reference_trajectory`: ``(s_pert, n_pert, v_pert)`` (K,) with the
+    progress raised, where the car at progress rate ``v`` [m/s] outruns the race line, to a
+    run from its current speed under the braking limit. ``tabs``: ``[(weight, tables)]`` of
+    the line (and the blended line), whose weighted progress rates and offsets make the line;
+    ``s_e_w`` the car's progress on the lap, ``base`` the lap's start [m]."""
+    v_line = sum(w * float(np.interp(s_e_w, t.st2, t.sdot2)) for w, t in tabs) * zeta
     if not v > v_line + TOW_MARGIN:
         return s_pert, n_pert, v_pert
+    tab = tabs[0][1]
     run_t, run_v = tab.run_t, tab.run_v
     K = s_pert.shape[0]
     s_f = np.empty(K)
     v_f = np.empty(K)
-    s = s_e - base  # on the two-lap grid
+    s = s_e_w  # on the two-lap grid
     for k in range(K):
         if v < run_v[-1]:  # full throttle in clean air from v ...
             v_new = float(np.interp(np.interp(v, run_v, run_t) + dt, run_t, run_v))

@@ -24,29 +24,7 @@ import argparse
 import time
 from collections import Counter
 
-
-class _Timed:
-    """Wrap ``owner.name`` so that its calls add their seconds to ``totals[key]``."""
-
-    def __init__(self, owner, name: str, key: str, totals: Counter):
-        self.owner, self.name, self.f = owner, name, getattr(owner, name)
-        self.key, self.totals = key, totals
-
-    def __enter__(self):
-        f, key, totals = self.f, self.key, self.totals
-
-        def timed(*args, **kwargs):
-            t0 = time.perf_counter()
-            try:
-                return f(*args, **kwargs)
-            finally:
-                totals[key] += time.perf_counter() - t0
-
-        setattr(self.owner, self.name, timed)
-        return self
-
-    def __exit__(self, *exc):
-        setattr(self.owner, self.name, self.f)
+from collect_speed import _Timed  # the sibling benchmark's timer (benchmarks/ runs as scripts)
 
 
 def run_path(config, races: list[int], batch: int | None) -> tuple[float, Counter, list]:

@@ -385,8 +385,7 @@ class RacelineFollower:
         lengths behind it (progress difference, centre to centre): the least over the cars
         0 to 30 lengths ahead and under 1.2 widths to the side; a car already closer caps it
         at that car's speed less 1 m/s per metre too close. :data:`NO_SPEED_CAP` when none."""
-        ego, others = split_observation(observation, self.n_preview)
-        gaps = np.asarray(observation, dtype=float)[6 : 6 * (len(others) + 1) : 6]
+        ego, others, gaps = self._others(observation)
         length, width = self.vehicle.length, self.vehicle.width
         cap = NO_SPEED_CAP
         for gap, row in zip(gaps, others):
@@ -397,19 +396,24 @@ class RacelineFollower:
                 cap = min(cap, max(v, 0.0))
         return cap
 
+    def _others(self, observation: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(ego (6,), others (M, 6), gaps (M,))`` of an observation: ``gaps`` the other cars'
+        relative progress as observed, not rebuilt from absolute s (at a window's edge the
+        rebuilt ``s_j - s`` can differ from it in the last bit)."""
+        ego, others = split_observation(observation, self.n_preview)
+        gaps = np.asarray(observation, dtype=float)[6 : 6 * (len(others) + 1) : 6]
+        return ego, others, gaps
+
     def yield_shift(self, observation: np.ndarray) -> float:
         """The lateral shift [m] of the follower's target that leaves ``yield_gap`` to every car
         in its yield window (0 when none is there or the line already keeps clear)."""
         t = self.track
         if t is None:
             raise RuntimeError("RacelineFollower.yield_shift() before reset(track, ...)")
-        ego, others = split_observation(observation, self.n_preview)
+        ego, others, gaps = self._others(observation)
         s, n = ego[0], ego[1]
         line = _lookup(self._n_ref, s, t.ds, t.length)
         target = line
-        # the gap as observed (relative progress), not rebuilt from absolute s: at the window's
-        # edge the rebuilt s_j - s can differ from it in the last bit
-        gaps = np.asarray(observation, dtype=float)[6 : 6 * (len(others) + 1) : 6]
         for gap, n_j in zip(gaps, others[:, 1]):
             if -self.yield_behind <= gap <= self.yield_ahead:
                 side = 1.0 if n_j <= n else -1.0  # its side of the other car; a tie goes left
@@ -461,7 +465,7 @@ NO_SPEED_CAP = 1e30
 
 
 @njit(cache=True)
-def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g, v_cap=1e30):
+def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g, v_cap=NO_SPEED_CAP):
     """The follower's control law (see :class:`RacelineFollower`) for state ``x`` (6,):
     normalised ``(throttle, steering)``. ``g`` from :meth:`RacelineFollower.gains`;
     ``v_cap`` [m/s] caps the speed target (:meth:`RacelineFollower.gap_speed`)."""

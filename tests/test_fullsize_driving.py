@@ -4,6 +4,7 @@ the off-track rule's rejoin at the edge (full size) beside the paper's rule (ORC
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 
@@ -37,7 +38,12 @@ def test_peak_slip_of_the_magic_formula_by_hand():
 
 
 MONZA = make_track("tumftm:Monza", vehicle_class="fullsize")
-MPC_MONZA = MPC(MONZA, P, MPCConfig())
+
+
+@functools.cache
+def mpc_monza() -> MPC:
+    """One full-size MPC on Monza, built when a test first needs it (not at collection)."""
+    return MPC(MONZA, P, MPCConfig())
 
 
 @settings(max_examples=15, deadline=None)
@@ -50,7 +56,7 @@ MPC_MONZA = MPC(MONZA, P, MPCConfig())
     st.one_of(st.floats(-0.8, -0.05), st.floats(0.05, 0.8)),
 )
 def test_slip_rows_are_the_rollouts_slip_angles_linearised(vx, vy, om, steer, throttle):
-    mpc = MPC_MONZA
+    mpc = mpc_monza()
     K, m, t = mpc.cfg.horizon, mpc.cfg.substeps, mpc.track
     x0 = np.array([1500.0, 0.5, 0.02, vx, vy, om])
     u_vec = np.ravel(np.column_stack([np.full(K, throttle), np.full(K, steer)]))

@@ -77,9 +77,14 @@ def condense_states(A, B, K):
 def condense(A, B, n_steps):
     """Sensitivities of (s, n) at stages 1..K to the inputs: (2K, 2K) rows [s^1, n^1, ...],
     ``G[2k + r, 2j + c] = d x_r^{k+1} / d u_c^j`` (rows r = 0, 1 of :func:`condense_states`)."""
-    return np.ascontiguousarray(condense_states(A, B, n_steps)[:, :2, :]).reshape(
-        2 * n_steps, 2 * n_steps
-    )
+    return _position_rows(condense_states(A, B, n_steps))
+
+
+@njit(cache=True)
+def _position_rows(Gs):
+    """The (s, n) rows (2K, 2K) of the state sensitivities ``Gs`` (K, 6, 2K)."""
+    K = Gs.shape[0]
+    return np.ascontiguousarray(Gs[:, :2, :]).reshape(2 * K, 2 * K)
 
 
 @njit(cache=True)
@@ -302,8 +307,8 @@ def linearised_qp(X, A, B, u_vec, nlo, nhi, p):
     if not (_all_finite(X) and _all_finite(A) and _all_finite(B)):
         e = np.empty((0, 0))
         return False, e, e, np.empty(0), e, np.empty(0), np.empty(0), np.empty(0, np.int32)
-    Gs = condense_states(A, B, K)
-    G = np.ascontiguousarray(Gs[:, :2, :]).reshape(2 * K, 2 * K)  # condense(A, B, K)
+    Gs = condense_states(A, B, K)  # all six rows: the slip rows read vx, vy, omega
+    G = _position_rows(Gs)
     H, f, Acon, blo, bhi, sense = qp_arrays(G, X[0], X[1], u_vec, nlo, nhi, p)
     if p.slip_max > 0.0:
         rows, lo, hi = slip_rows(Gs, X, u_vec, p)

@@ -88,19 +88,57 @@ def speed_profile(
     """
     grip = _required_grip(grip, mu, "speed_profile")
     p = vehicle or VehicleParams()
+    kappa, ds = _checked_path(kappa, ds, grip, "speed_profile")
+    v2 = speed_limit(kappa, grip, p) ** 2
+    vx = _settle(v2, kappa, ds, grip, p, max_sweeps, "speed profile")
+    ax = (np.roll(v2, -1) - v2) / (2.0 * ds)
+    return vx, ax
+
+
+def braking_limit(
+    kappa: np.ndarray,
+    ds: np.ndarray,
+    grip: float,
+    vehicle: AnyVehicle,
+    v_cap: float,
+    max_sweeps: int = 200,
+) -> np.ndarray:
+    """The braking limit [m/s] (M,) on a closed path (``kappa``, ``ds`` as
+    :func:`speed_profile`): the highest speed at each point from which the car can still
+    brake for every corner ahead within its envelope scaled by ``grip``, the speed profile's
+    backward (braking) passes alone, with the top-speed cap of the straights raised to
+    ``v_cap`` [m/s] (a car in another's tow is faster than its own top speed). It is never
+    below :func:`speed_profile`'s speeds."""
+    kappa, ds = _checked_path(kappa, ds, grip, "braking_limit")
+    top = ggv(vehicle).top_speed
+    v = speed_limit(kappa, grip, vehicle)
+    v = np.where(v >= top * (1.0 - 1e-9), max(float(v_cap), top), v)
+    return _settle(v * v, kappa, ds, grip, vehicle, max_sweeps, "braking limit", drive=False)
+
+
+def _checked_path(kappa, ds, grip: float, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(kappa, ds)`` as float arrays, checked: equal 1-D shapes of at least 2 points, finite,
+    ``ds > 0``; ``grip`` in (0, 1.5]."""
     kappa = np.asarray(kappa, dtype=float)
     ds = np.asarray(ds, dtype=float)
     if kappa.shape != ds.shape or kappa.ndim != 1 or len(kappa) < 2:
         raise ValueError(
-            f"speed_profile needs kappa and ds of equal 1-D shape, got {kappa.shape}, {ds.shape}"
+            f"{where} needs kappa and ds of equal 1-D shape, got {kappa.shape}, {ds.shape}"
         )
     if not (np.all(np.isfinite(kappa)) and np.all(np.isfinite(ds)) and np.all(ds > 0)):
-        raise ValueError("speed_profile needs finite kappa and finite positive ds")
+        raise ValueError(f"{where} needs finite kappa and finite positive ds")
     if not (math.isfinite(grip) and 0 < grip <= 1.5):
         raise ValueError(f"envelope scale grip must be in (0, 1.5], got {grip!r}")
-    env = ggv(p)
-    v2 = speed_limit(kappa, grip, p) ** 2
-    v_tab, ay_tab, r_tab, axp_tab, axm_tab = env.tables(grip)
+    return kappa, ds
+
+
+def _settle(v2, kappa, ds, grip, vehicle, max_sweeps, what: str, drive: bool = True):
+    """The speeds [m/s] after :func:`_profile_sweeps` from the squared speeds ``v2`` (changed in
+    place) under ``vehicle``'s envelope scaled by ``grip``; ``drive=False``: the backward
+    (braking) passes alone. A ``RuntimeError`` naming ``what`` if they did not settle."""
+    v_tab, ay_tab, r_tab, axp_tab, axm_tab = ggv(vehicle).tables(grip)
+    if not drive:
+        axp_tab = np.full_like(axp_tab, 1e12)  # the forward pass never binds
     ok = _profile_sweeps(
         v2,
         np.abs(kappa),
@@ -114,10 +152,8 @@ def speed_profile(
         int(max_sweeps),
     )
     if not ok:
-        raise RuntimeError(f"speed profile did not settle in {max_sweeps} sweeps")
-    vx = np.sqrt(v2)
-    ax = (np.roll(v2, -1) - v2) / (2.0 * ds)
-    return vx, ax
+        raise RuntimeError(f"{what} did not settle in {max_sweeps} sweeps")
+    return np.sqrt(v2)
 
 
 @njit(cache=True)
@@ -150,44 +186,6 @@ def _profile_sweeps(v2, kab, ds, v_tab, ay_tab, r_tab, axp_tab, axm_tab, start, 
         if not changed:
             return True
     return False
-
-
-def braking_limit(
-    kappa: np.ndarray,
-    ds: np.ndarray,
-    grip: float,
-    vehicle: AnyVehicle,
-    v_cap: float,
-    max_sweeps: int = 200,
-) -> np.ndarray:
-    """The braking limit [m/s] (M,) on a closed path (``kappa``, ``ds`` as
-    :func:`speed_profile`): the highest speed at each point from which the car can still
-    brake for every corner ahead within its envelope scaled by ``grip``, the speed profile's
-    backward (braking) passes alone, with the top-speed cap of the straights raised to
-    ``v_cap`` [m/s] (a car in another's tow is faster than its own top speed). It is never
-    below :func:`speed_profile`'s speeds."""
-    env = ggv(vehicle)
-    top = env.top_speed
-    v = speed_limit(np.asarray(kappa, dtype=float), grip, vehicle)
-    v = np.where(v >= top * (1.0 - 1e-9), max(float(v_cap), top), v)
-    v2 = v * v
-    v_tab, ay_tab, r_tab, axp_tab, axm_tab = env.tables(grip)
-    free = np.full_like(axp_tab, 1e12)  # the forward pass never binds: braking alone
-    ok = _profile_sweeps(
-        v2,
-        np.abs(np.asarray(kappa, dtype=float)),
-        np.asarray(ds, dtype=float),
-        v_tab,
-        ay_tab,
-        r_tab,
-        free,
-        axm_tab,
-        int(np.argmin(v2)),
-        int(max_sweeps),
-    )
-    if not ok:
-        raise RuntimeError(f"braking limit did not settle in {max_sweeps} sweeps")
-    return np.sqrt(v2)
 
 
 def lap_time_of(vx: np.ndarray, ds: float | np.ndarray) -> float:
