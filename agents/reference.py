@@ -506,12 +506,13 @@ def _tow_floor(v, tabs, zeta, s_e_w, base, s_pert, n_pert, v_pert, dt):
     s_f = np.empty(K)
     v_f = np.empty(K)
     s = s_e_w  # on the two-lap grid
+    brakes = [(w, t, t.braking_sdot2()) for w, t in tabs]
     for k in range(K):
         if v < run_v[-1]:  # full throttle in clean air from v ...
             v_new = float(np.interp(np.interp(v, run_v, run_t) + dt, run_t, run_v))
         else:  # ... or hold a speed above the top speed (the tow's)
             v_new = v
-        v_brk = sum(w * float(np.interp(s, t.st2, t.braking_sdot2())) for w, t in tabs)
+        v_brk = sum(w * float(np.interp(s, t.st2, b)) for w, t, b in brakes)
         v_new = min(v_new, v_brk)
         s += 0.5 * (v + v_new) * dt
         v = v_new
