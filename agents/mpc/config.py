@@ -44,6 +44,10 @@ class MPCConfig:
     # default (full size 1.0: its peaky tyre loses 40% of its grip past the peak, and a plan
     # that slides the rear spins the car after the horizon, one past the front's peak locks
     # the steering where it no longer turns the car; ORCA: none, the paper's MPC); 0: none
+    exact_soft: bool | None = None  # charge every soft row's violation v as the cost does,
+    # v^2 / (2 rho), in the QP (:func:`agents.mpc.qp.exact_soft_qp`; DAQP alone divides it by
+    # the row's squared norm, and its step can raise the cost); None: the class's default
+    # (full size on; ORCA off, the paper's MPC, so that its stored races stay valid)
     second_start: bool = False  # where the SQP's plan still pays the soft rows' penalty (a
     # track edge or a separation violated), solve again from the raceline follower's
     # rollout and from the plan with less throttle, and keep the cheapest (a local solution
@@ -98,6 +102,10 @@ class MPCConfig:
             raise ValueError(
                 f"MPCConfig.slip must be None or a fraction in [0, 5] of the peak slip "
                 f"angles, got {self.slip!r}"
+            )
+        if self.exact_soft is not None and not isinstance(self.exact_soft, bool):
+            raise ValueError(
+                f"MPCConfig.exact_soft must be None, True or False, got {self.exact_soft!r}"
             )
         steps = tuple(self.step_sizes)
         if not steps or any(not (0 < a <= 1) for a in steps):
@@ -178,6 +186,16 @@ def slip_bound(cfg: MPCConfig, vehicle: Any) -> tuple[float, ...]:
     rear, front = vehicle.peak_slip("rear"), vehicle.peak_slip("front")
     v = vehicle
     return frac * rear, frac * front, v.width / rear, v.lf, v.lr, v.delta_max, v.v_low
+
+
+def exact_soft_on(cfg: MPCConfig, vehicle: Any) -> bool:
+    """Whether the MPC's QPs charge the soft rows exactly (``cfg.exact_soft``; None: on for
+    the full-size class, off for the ORCA car)."""
+    from racing_env.vehicles import FullSizeParams
+
+    if cfg.exact_soft is None:
+        return isinstance(vehicle, FullSizeParams)
+    return bool(cfg.exact_soft)
 
 
 PLANS: dict[str, dict[str, Any]] = {

@@ -241,6 +241,41 @@ def qp_arrays(G, s_pred, n_pred, u_vec, nlo, nhi, p):
     return H, f, rows[:r].copy(), blo, bhi, sense
 
 
+def exact_soft_qp(H, f, Acon, blo, bhi, sense, rho: float):
+    """The QP ``(H, f, Acon, blo, bhi, sense)`` (DAQP's form, :func:`qp_arrays`) rewritten so
+    that DAQP charges each soft row's violation ``v`` exactly ``v^2 / (2 rho)``, the penalty
+    of :func:`predicted_decrease` and :func:`score_rollout`: ``(H, f, Acon, blo, bhi, sense,
+    rho)`` of a QP with one more variable, fixed at 0 (its simple bound), whose first
+    ``len(f)`` entries are the step.
+
+    DAQP normalises every constraint row to unit length before it relaxes a soft row, so it
+    charges ``(v / |a|)^2 / (2 rho)``: a row of norm 100 (a slip-angle row late in the
+    horizon) is violated 10^4 times more cheaply than the cost says, and its step can raise
+    the cost it should lower (full size, Monza: the QP's step cost 567 where no step cost 49,
+    and the SQP kept a plan that left the track). Each soft row here gains the coefficient
+    ``sqrt(N^2 - |a|^2)`` on the fixed variable, so every soft row has norm ``N`` and
+    ``rho / N^2`` gives every row the intended weight; the fixed variable leaves every row's
+    value unchanged."""
+    nv = f.shape[0]
+    soft = sense[nv:] == 8
+    norms = np.sqrt(np.einsum("ij,ij->i", Acon, Acon))
+    big = 2.0 * float(norms[soft].max()) if soft.any() else 1.0
+    big = big if big > 0.0 else 1.0
+    column = np.where(soft, np.sqrt(np.maximum(big * big - norms * norms, 0.0)), 0.0)
+    H2 = np.zeros((nv + 1, nv + 1))
+    H2[:nv, :nv] = H
+    H2[nv, nv] = 1.0
+    return (
+        H2,
+        np.append(f, 0.0),
+        np.hstack([Acon, column[:, None]]),
+        np.concatenate([blo[:nv], [0.0], blo[nv:]]),
+        np.concatenate([bhi[:nv], [0.0], bhi[nv:]]),
+        np.concatenate([sense[:nv], [0], sense[nv:]]).astype(np.int32),
+        rho / (big * big),
+    )
+
+
 @njit(cache=True)
 def plan_cost(s_pred, n_pred, u_vec, nlo, nhi, p):
     """The MPC's objective at a plan's rollout (:func:`qp_arrays`' cost before linearisation,

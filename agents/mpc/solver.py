@@ -18,7 +18,7 @@ from racing_env.vehicle import VehicleParams
 from racing_env.vehicles import FullSizeParams, vehicle_for_track
 
 from .codegen import CompiledTrajectory, run_prediction, workspace_offsets
-from .config import MPCConfig, class_scale, config_for_vehicle, slip_bound
+from .config import MPCConfig, class_scale, config_for_vehicle, exact_soft_on, slip_bound
 from .prediction import (
     follower_rollout,
     kappa_flat,
@@ -30,6 +30,7 @@ from .prediction import (
 from .qp import (
     EdgeBounds,
     ProblemConstants,
+    exact_soft_qp,
     input_rate_matrix,
     linearised_qp,
     opponent_paths,
@@ -210,6 +211,7 @@ class MPC:
         )  # normalised
         self._bounds_n = EdgeBounds(track, self.vehicle, self.cfg)
         self._slip = slip_bound(self.cfg, self.vehicle)  # slip-angle rows (none: all zeros)
+        self._exact_soft = exact_soft_on(self.cfg, self.vehicle)
         self._full = isinstance(self.vehicle, FullSizeParams)
         # counters and the solve times (a deque) by name
         self.stats: dict[str, Any] = {
@@ -400,19 +402,18 @@ class MPC:
     def _qp(self, daqp, H, f, Acon, blo, bhi, sense, q: float):
         """DAQP's step ``(du, exitflag)`` of the QP ``H, f`` with rows ``Acon`` (soft rows
         weighted as the solve's tracking weight ``q`` asks; ``q`` is the problem's, in the
-        cost's units: theta's ``q / k_wid^2``)."""
+        cost's units: theta's ``q / k_wid^2``). With ``exact_soft`` (the full-size default)
+        every soft row is charged as the cost charges it (:func:`~agents.mpc.qp.exact_soft_qp`);
+        else DAQP weighs it by ``1 / |row|^2`` (the paper's MPC, as its races were stored)."""
+        rho = self.cfg.soft_rho_at(q * self._ls2) * self._ls2
+        nv = f.shape[0]
+        if self._exact_soft:
+            H, f, Acon, blo, bhi, sense, rho = exact_soft_qp(H, f, Acon, blo, bhi, sense, rho)
         du, _, exitflag, info = daqp.solve(
-            H,
-            f,
-            Acon,
-            bhi,
-            blo,
-            sense,
-            rho_soft=self.cfg.soft_rho_at(q * self._ls2) * self._ls2,
-            iter_limit=self.cfg.qp_iter_limit,
+            H, f, Acon, bhi, blo, sense, rho_soft=rho, iter_limit=self.cfg.qp_iter_limit
         )
         self.stats["qp_iterations"] += int(info.get("iterations", 0))
-        return du, exitflag
+        return du[:nv], exitflag
 
     def _damped_step(
         self, daqp, consts, u_vec, s_pred, J, relinearise, qp, rejected: StepResult
