@@ -35,7 +35,7 @@ CLASS_DEFAULTS: dict[str, dict] = {
         "vehicle": FullSizeParams,
         "wake": 1.0,
         "track": "tumftm:Monza",
-        "rules": {"offtrack_rejoin": True},
+        "rules": {"offtrack_rejoin": True, "contact_repeat": False},
     },
 }
 """Per vehicle class: its parameter dataclass, the wake strength, the track of its races and

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .config import R_CONTACT_DN, R_CONTACT_DS, R_FRONT, R_REAR
+from .config import R_CONTACT_DN, R_CONTACT_DS, R_CONTACT_REPEAT, R_FRONT, R_REAR, TOUCHING
 from .integrator import _rk4_substep
 
 
@@ -153,6 +153,8 @@ def _lockstep_with_contact(
     kappa_tab, ds, length = tables.kappa, tables.ds, tables.length
     c_ds, c_dn = rules[R_CONTACT_DS], rules[R_CONTACT_DN]
     front_f, rear_f = rules[R_FRONT], rules[R_REAR]
+    repeat = rules[R_CONTACT_REPEAT] > 0.0
+    touch_ds, touch_dn = (1.0 + TOUCHING) * c_ds, (1.0 + TOUCHING) * c_dn
     n_cars = x0.shape[0]
     half = 0.5 * length
     h = dt / n_sub
@@ -191,6 +193,12 @@ def _lockstep_with_contact(
                 ds1 = d_start[i, j] + (state[b, i, 0] - x0[i, 0]) - (state[b, j, 0] - x0[j, 0])
                 dn1 = state[b, i, 1] - state[b, j, 1]
                 if m == 0:  # already touching at the start of the period
+                    if not repeat and abs(ds1) < touch_ds and abs(dn1) < touch_dn:
+                        # in touch since the last period: no new slow-down this period
+                        hit[i, j] = True
+                        contact[b, i] = 1
+                        contact[b, j] = 1
+                        continue
                     u = 0.0 if abs(ds1) < c_ds and abs(dn1) < c_dn else -1.0
                     ds_at, ds_from = ds1, ds1
                 else:

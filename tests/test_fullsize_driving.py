@@ -131,6 +131,38 @@ def test_a_full_size_car_beyond_the_edge_rejoins_it():
     assert x2[3] == pytest.approx(x[3], rel=1e-12)
 
 
+def _squeeze(config: RaceConfig, periods: int) -> np.ndarray:
+    """Two cars side by side on Monza's main straight at 30 m/s, the left one (car_0) one
+    car width and a bit to the left of car_1, steering right into it at every period; the
+    cars' speeds after each period, (periods, 2)."""
+    env = RacingParallelEnv(track=MONZA, n_cars=2, config=config, max_cycles=100)
+    env.reset(seed=0)
+    w = config.rules.contact_dn
+    env.core.state[0, 0] = [1500.0, 0.5 * w + 0.05, 0.0, 30.0, 0.0, 0.0]
+    env.core.state[0, 1] = [1500.0, -0.5 * w, 0.0, 30.0, 0.0, 0.0]
+    speeds = []
+    for _ in range(periods):
+        env.step({"car_0": np.array([0.3, -0.2]), "car_1": np.array([0.3, 0.0])})
+        speeds.append(env.core.state[0, :, 3].copy())
+    return np.array(speeds)
+
+
+def test_cars_in_touch_are_slowed_once_at_full_size():
+    cfg = race_config_for("fullsize")
+    assert not cfg.rules.contact_repeat
+    assert RaceConfig().rules.contact_repeat  # the paper's rule is unchanged
+    once = _squeeze(cfg, 10)
+    # they touch in the second period: both are slowed (the front to 1/2, the rear to 1/3 of
+    # ~30 m/s); then they slide along each other and speed up again
+    assert once[0].min() > 29.0
+    assert once[1, 0] == pytest.approx(30.2 / 3, rel=0.02) and once[1].max() < 16.0
+    assert np.all(np.diff(once[1:], axis=0) > 0.0)
+    # the paper's rule slows the pair at every period in touch: they crawl
+    every = _squeeze(cfg.with_(rules=replace(cfg.rules, contact_repeat=True)), 10)
+    assert np.allclose(every[:2], once[:2])
+    assert every[-1].max() < 1.0 and once[-1].min() > 10.0
+
+
 def test_braking_limit_bounds_the_profile_and_follows_the_corners():
     from racing_env.controllers import raceline_config_for
     from racing_env.raceline import get_raceline

@@ -139,7 +139,7 @@ def test_the_class_travels_with_the_track():
     assert env.track is full and isinstance(env.config.vehicle, FullSizeParams)
     sc = scaled_configs("fullsize")
     # the rules at the car's size, and the class's own rule: a car off track rejoins it
-    assert env.config.rules == replace(sc.rules, offtrack_rejoin=True)
+    assert env.config.rules == replace(sc.rules, offtrack_rejoin=True, contact_repeat=False)
     assert env.config.start == sc.start
     assert env.config.preview_ds == sc.preview_ds and env.config.wake == 1.0
     assert env.core._s_clip == s_clip(P) == pytest.approx(1e4 * 4.7 / 0.12)

@@ -69,7 +69,9 @@ def test_step_minimises_the_cost_model(seed, rho):
         for eps in (1e-4, -1e-4):
             y = x.copy()
             y[i] = np.clip(y[i] + eps, -5.0, 5.0)
-            assert best <= penalised(H, f, A, blo, bhi, sense, rho, y) + 1e-4 * (1 + abs(best))  # DAQP tolerances
+            assert best <= penalised(H, f, A, blo, bhi, sense, rho, y) + 1e-4 * (
+                1 + abs(best)
+            )  # DAQP tolerances
 
 
 def test_class_defaults_and_bad_value():

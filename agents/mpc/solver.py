@@ -411,7 +411,11 @@ class MPC:
         if self._exact_soft:
             exact = exact_soft_qp(H, f, Acon, blo, bhi, sense, rho)
             du, _, exitflag, info = daqp.solve(
-                *exact[:3], exact[4], exact[3], exact[5], rho_soft=exact[6],
+                *exact[:3],
+                exact[4],
+                exact[3],
+                exact[5],
+                rho_soft=exact[6],
                 iter_limit=self.cfg.qp_iter_limit,
             )
             self.stats["qp_iterations"] += int(info.get("iterations", 0))
