@@ -40,7 +40,8 @@ CLASS_DEFAULTS: dict[str, dict] = {
 }
 """Per vehicle class: its parameter dataclass, the wake strength, the track of its races and
 the rules it changes besides their lengths (``rules``; the full-size car rejoins the track at
-the edge it crossed: :class:`~racing_env.config.RulesConfig`)."""
+the edge it crossed, and a pair of cars in touch is slowed once, not every period:
+:class:`~racing_env.config.RulesConfig`)."""
 
 
 def class_of(vehicle: VehicleParams | FullSizeParams) -> str:

@@ -50,8 +50,9 @@ class RacingParallelEnv(ParallelEnv):
     control period, under the paper's contact and off-track rules (:class:`RulesConfig`).
     With ``vehicle_class="fullsize"`` they are full-size single-seaters
     (:mod:`racing_env.vehicles.fullsize`) on a full-scale circuit (default Monza), with the
-    rules at their size and the wake (:mod:`racing_env.wake`: tow and dirty air) on
-    (:mod:`racing_env.class_config`).
+    rules at their size and two of their own (a car off the track rejoins it, a pair of cars
+    in touch is slowed once, not every period) and the wake (:mod:`racing_env.wake`: tow
+    and dirty air) on (:mod:`racing_env.class_config`).
 
     **Agents**: ``car_0 .. car_{N-1}`` for N = 1..8 (N = 1 is a time trial).
 
