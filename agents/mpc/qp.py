@@ -241,7 +241,15 @@ def qp_arrays(G, s_pred, n_pred, u_vec, nlo, nhi, p):
     return H, f, rows[:r].copy(), blo, bhi, sense
 
 
-def exact_soft_qp(H, f, Acon, blo, bhi, sense, rho: float):
+def exact_soft_qp(
+    H: np.ndarray,
+    f: np.ndarray,
+    Acon: np.ndarray,
+    blo: np.ndarray,
+    bhi: np.ndarray,
+    sense: np.ndarray,
+    rho: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
     """The QP ``(H, f, Acon, blo, bhi, sense)`` (DAQP's form, :func:`qp_arrays`) rewritten so
     that DAQP charges each soft row's violation ``v`` exactly ``v^2 / (2 rho)``, the penalty
     of :func:`predicted_decrease` and :func:`score_rollout`: ``(H, f, Acon, blo, bhi, sense,
