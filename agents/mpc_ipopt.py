@@ -17,6 +17,7 @@ import numpy as np
 
 from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
+from racing_env.vehicles import FullSizeParams, vehicle_for_track
 
 from .mpc import (
     EdgeBounds,
@@ -26,15 +27,23 @@ from .mpc import (
     separation_choice,
     stage_function,
 )
+from .mpc.config import class_scale, config_for_vehicle, slip_bound
 
 
 class IpoptMPC:
-    """IPOPT solve of the MPC; ``solve(x0, s_ref, n_ref, q, opponents, u_prev)`` like :class:`MPC`."""
+    """IPOPT solve of the MPC; ``solve(x0, s_ref, n_ref, q, opponents, u_prev)`` like :class:`MPC`.
+
+    The car is ``vehicle``, else the track's class's default car, as for :class:`MPC`. For
+    the full-size class the problem is the full-size MPC's: the config's lengths scaled to
+    the car, position errors and soft violations in ORCA-car widths, and soft bounds on the
+    rear and front slip angles of the predicted states (:func:`agents.mpc.qp.slip_rows`;
+    here as slacks, so every soft row is charged ``v^2 / (2 rho)``, as the full-size MPC's
+    ``exact_soft`` QP and the merit charge it)."""
 
     def __init__(
         self,
         track: Track,
-        vehicle: VehicleParams | None = None,
+        vehicle: VehicleParams | FullSizeParams | None = None,
         config: MPCConfig | None = None,
         max_opponents: int = 2,
         tol: float = 1e-8,
@@ -42,14 +51,18 @@ class IpoptMPC:
         import casadi as ca
 
         self.track = track
-        self.vehicle = v = vehicle or VehicleParams()
-        self.cfg = cfg = config or MPCConfig()
+        self.vehicle = v = vehicle_for_track(track, vehicle, "IpoptMPC")
+        self.cfg = cfg = config_for_vehicle(config or MPCConfig(), v)
+        ls2 = class_scale(v)[1] ** 2  # 1 for the ORCA car
+        slip_max, slip_max_f, slip_scale, l_f, l_r, delta_max, v_low = slip_bound(cfg, v)
+        n_slip = 2 * cfg.horizon if slip_max > 0.0 else 0
         K, m = cfg.horizon, cfg.substeps
         stage = stage_function(v, cfg)
         X = ca.MX.sym("X", 6, K + 1)
         U = ca.MX.sym("U", 2, K)
         S_track = ca.MX.sym("St", K)
         S_sep = ca.MX.sym("Ss", max_opponents * K)
+        S_slip = ca.MX.sym("Sa", n_slip)
         P_x0 = ca.MX.sym("x0", 6)
         P_ref = ca.MX.sym("ref", 2, K)
         P_kap = ca.MX.sym("kap", m, K)
@@ -89,14 +102,29 @@ class IpoptMPC:
                 )
                 lbg.append(np.zeros(1))
                 ubg.append(np.full(1, np.inf))
+        for k in range(n_slip // 2):  # |slip angle| <= bound, in metres (slip_scale per rad)
+            x = X[:, k + 1]  # the state at the end of the stage that U[:, k] steers
+            w_v = ca.sqrt(x[3] ** 2 + v_low**2)
+            a_r = ca.atan((x[5] * l_r - x[4]) / w_v)
+            a_f = delta_max * U[1, k] - ca.atan((x[5] * l_f + x[4]) / w_v)
+            for a, bound, col in ((a_r, slip_max, k), (a_f, slip_max_f, K + k)):
+                g.append(S_slip[col] + slip_scale * (bound - a))
+                g.append(S_slip[col] + slip_scale * (bound + a))
+                lbg += [np.zeros(1), np.zeros(1)]
+                ubg += [np.full(1, np.inf), np.full(1, np.inf)]
         err = X[:2, 1:] - P_ref
         du = U[:, 1:] - U[:, :-1]
-        # DAQP's quadratic penalty of soft rows, 1 / (2 rho) with rho = cfg.soft_rho_at(q)
+        # DAQP's quadratic penalty of soft rows, 1 / (2 rho) with rho = cfg.soft_rho_at(q), and
+        # the tracking weight q, both in ORCA-car widths (MPC._problem; ls2 = 1 for ORCA)
         w_soft = 0.5 / cfg.soft_rho * ca.fmax(1.0, P_q / cfg.soft_q_ref)
-        cost = (
-            P_q * ca.sumsqr(err) + ca.sumsqr(du) + w_soft * (ca.sumsqr(S_track) + ca.sumsqr(S_sep))
-        )
-        w = ca.vertcat(ca.vec(X), ca.vec(U), S_track, S_sep)
+        soft = ca.sumsqr(S_track) + ca.sumsqr(S_sep)
+        if n_slip:
+            soft = soft + ca.sumsqr(S_slip)
+        if ls2 != 1.0:
+            cost = (P_q / ls2) * ca.sumsqr(err) + ca.sumsqr(du) + (w_soft / ls2) * soft
+        else:
+            cost = P_q * ca.sumsqr(err) + ca.sumsqr(du) + w_soft * soft
+        w = ca.vertcat(ca.vec(X), ca.vec(U), S_track, S_sep, S_slip)
         p = ca.vertcat(
             P_x0, ca.vec(P_ref), ca.vec(P_kap), P_q, P_uprev, P_nlo, P_nhi, ca.vec(P_sep)
         )
@@ -114,12 +142,12 @@ class IpoptMPC:
         self._lbg = np.concatenate([np.atleast_1d(a) for a in lbg])
         self._ubg = np.concatenate([np.atleast_1d(a) for a in ubg])
         nx, nu = 6 * (K + 1), 2 * K
-        self._lbw = np.concatenate(
-            [np.full(nx, -np.inf), np.full(nu, -1.0), np.zeros(K + max_opponents * K)]
-        )
+        n_slack = K + max_opponents * K + n_slip
+        self._lbw = np.concatenate([np.full(nx, -np.inf), np.full(nu, -1.0), np.zeros(n_slack)])
         self._ubw = np.concatenate(
-            [np.full(nx, np.inf), np.full(nu, 1.0), np.full(K + max_opponents * K, np.inf)]
+            [np.full(nx, np.inf), np.full(nu, 1.0), np.full(n_slack, np.inf)]
         )
+        self._n_slack = n_slack
         self._nx, self._nu, self._m = nx, nu, max_opponents
         self._bounds_n = EdgeBounds(track, v, cfg)
         self.stats: dict[str, Any] = {
@@ -132,6 +160,7 @@ class IpoptMPC:
     def reset(self) -> None:
         self._w0: np.ndarray | None = None  # the last solution, the next warm start
         self.last_U: np.ndarray | None = None
+        self.last_cost = float("nan")  # the NLP's objective at the last solution
 
     def solve(
         self,
@@ -145,7 +174,7 @@ class IpoptMPC:
     ) -> np.ndarray:
         """Like :meth:`MPC.solve`; ``init = (X (6, K + 1), U (2, K))`` replaces the warm start
         by an explicit initial guess (states from ``x0`` on). ``last_U`` (2, K) holds the plan,
-        ``None`` after a failed solve."""
+        ``None`` after a failed solve, and ``last_cost`` its objective."""
         t0 = time.perf_counter()
         cfg, K = self.cfg, self.cfg.horizon
         x0 = np.asarray(x0, dtype=float)
@@ -187,7 +216,7 @@ class IpoptMPC:
                 sep.T.ravel(),
             ]
         )
-        w0 = np.concatenate([X0.T.ravel(), U0.T.ravel(), np.zeros(K + self._m * K)])
+        w0 = np.concatenate([X0.T.ravel(), U0.T.ravel(), np.zeros(self._n_slack)])
         sol = self._solver(x0=w0, p=p, lbx=self._lbw, ubx=self._ubw, lbg=self._lbg, ubg=self._ubg)
         ok = self._solver.stats()["success"]
         w = np.asarray(sol["x"]).ravel()
@@ -200,4 +229,5 @@ class IpoptMPC:
             return np.array([0.0, u_prev[1]])
         self._w0 = w
         self.last_U = w[self._nx : self._nx + self._nu].reshape(K, 2).T.copy()
+        self.last_cost = float(sol["f"])
         return w[self._nx : self._nx + 2].copy()

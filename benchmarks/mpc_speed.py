@@ -8,6 +8,8 @@
                                               # a shorter plan-quality check, one line
     python benchmarks/mpc_speed.py --quality-only --config step_damping=1,10,100 sqp_iterations=20
                                               # damped SQP steps (opt-in): 94% in traffic
+    python benchmarks/mpc_speed.py --quality-only --vehicle-class fullsize --line curvature
+                                              # the full-size MPC on Monza (slip rows too)
 
 Both solve the same MPC (K = 15, 3 RK4 sub-steps per stage, same cost and soft constraints) in
 closed loop on the default track, warm-started from their previous solution:
@@ -39,7 +41,7 @@ from __future__ import annotations
 import argparse
 import time
 import warnings
-from dataclasses import fields
+from dataclasses import fields, replace
 
 import numba
 import numpy as np
@@ -101,26 +103,38 @@ def plan_quality(
     line: str = "curvature",
     seed: int = 0,
     start: str = "grid",
+    vehicle_class: str = "orca",
 ):
-    """``(gaps, solve_ms)``: the relative excess cost RTI / IPOPT - 1 (array) of every car's plan at every
+    """``(gaps, solve_ms, failed)``: the relative excess cost RTI / IPOPT - 1 (array) of every car's plan at every
     ``every``-th state of a race of ``len(thetas)`` cars, car i driven by the RTI (``config``,
     default :class:`MPCConfig`) with ``thetas[i]`` along racing line ``line``. IPOPT solves the
     same problem (same state, reference, opponents) from the RTI's plan and from the
     follower's rollout, and the better of the two is its optimum; both solvers' plans are
     costed by :func:`rollout_cost`; and the RTI's solve times [ms] (all cars, after the first
-    three solves of each)."""
-    from racing_env.raceline import RacelineConfig
+    three solves of each); ``failed``: the compared states where neither IPOPT start
+    converged (left out of ``gaps``). ``vehicle_class``: the env's (full size: ``track`` a circuit
+    name, the start regions at the car's size, the wake on; the reference in the car's
+    lengths)."""
+    from racing_env.controllers import raceline_config_for
 
     n_cars = len(thetas)
-    env = RacingParallelEnv(
-        track=track, n_cars=n_cars, max_cycles=steps, start=StartConfig(mode=start)
-    )
+    if vehicle_class == "orca":
+        env = RacingParallelEnv(
+            track=track, n_cars=n_cars, max_cycles=steps, start=StartConfig(mode=start)
+        )
+    else:
+        env = RacingParallelEnv(
+            track=track, n_cars=n_cars, max_cycles=steps, start=start, vehicle_class=vehicle_class
+        )
     obs, _ = env.reset(seed=seed)
-    rl = get_raceline(env.track, config=RacelineConfig(objective=line))
+    car = env.config.vehicle
+    rl = get_raceline(env.track, car, raceline_config_for(car, line))
     rtis = [MPC(env.track, config=config, line=line) for _ in range(n_cars)]
     ipopt = IpoptMPC(env.track, config=config)
+    ref_vehicle = None if vehicle_class == "orca" else car
     u_prev = [np.zeros(2) for _ in range(n_cars)]
     gaps = []
+    failed = 0  # compared states where no IPOPT start converged
     for k in range(steps):
         if not env.agents:
             break
@@ -128,7 +142,9 @@ def plan_quality(
         for i, agent in enumerate(env.possible_agents):
             theta, rti = thetas[i], rtis[i]
             ego, others = joint_state_from_observation(obs[agent], n_cars)
-            ref = reference_trajectory(theta, ego, others if len(others) else None, rl, env.track)
+            ref = reference_trajectory(
+                theta, ego, others if len(others) else None, rl, env.track, vehicle=ref_vehicle
+            )
             opp = np.zeros((0, 3))
             nb = [j for j in (ref.ahead, ref.behind) if j >= 0]
             if nb:
@@ -161,11 +177,13 @@ def plan_quality(
                         )
                 if costs and np.isfinite(J_rti):
                     gaps.append(J_rti / max(min(costs), 1e-12) - 1.0)
+                elif not costs:
+                    failed += 1
             u_prev[i] = u
             actions[agent] = u.astype(np.float32)
         obs, _, _, _, _ = env.step(actions)
     solve_ms = np.concatenate([list(r.stats["solve_ms"])[3:] for r in rtis])
-    return np.array(gaps), solve_ms
+    return np.array(gaps), solve_ms, failed
 
 
 SOLO_THETA = Theta(q=THETA.q, zeta=1.0, s1=THETA.s1, s2=THETA.s2, s3=THETA.s3)
@@ -259,12 +277,32 @@ def main(argv=None):
         metavar="N",
         help="steps of every plan-quality race (default 500 solo, 300 traffic)",
     )
+    ap.add_argument(
+        "--vehicle-class",
+        choices=("orca", "fullsize"),
+        default="orca",
+        help="the plan-quality races' class (fullsize: with --quality-only, on --track)",
+    )
+    ap.add_argument(
+        "--track",
+        default=None,
+        help="the plan-quality races' track (default: default; tumftm:Monza at full size)",
+    )
     args = ap.parse_args(argv)
     lines = ("curvature", "lap_time") if args.line == "both" else (args.line,)
     config = parse_config(args.config)
     warnings.simplefilter("ignore")
     numba.set_num_threads(1)
-    track = RacingParallelEnv(n_cars=1).track
+    if args.vehicle_class != "orca":
+        if not args.quality_only:
+            raise SystemExit(
+                "--vehicle-class fullsize measures the plan quality only: add --quality-only"
+            )
+        name = args.track or "tumftm:Monza"
+        return report_quality(
+            name, args.quick, config, lines, args.quality_steps, args.vehicle_class
+        )
+    track = RacingParallelEnv(n_cars=1, track=args.track or "default").track
     if args.quality_only:
         return report_quality(track, args.quick, config, lines, args.quality_steps)
     solo_steps, race_steps = (120, 60) if args.quick else (250, 300)
@@ -310,10 +348,23 @@ def main(argv=None):
 
 
 def report_quality(
-    track, quick: bool, config: MPCConfig, lines=("curvature", "lap_time"), steps: int | None = None
+    track,
+    quick: bool,
+    config: MPCConfig,
+    lines=("curvature", "lap_time"),
+    steps: int | None = None,
+    vehicle_class: str = "orca",
 ) -> None:
     """Print part 3: the RTI's plan cost against IPOPT's, alone at zeta = 1 and in 3-car
-    races at the top of the box, along each racing line of ``lines``."""
+    races at the top of the box, along each racing line of ``lines``. At full size the top
+    of the box is at zeta = 1 (at 1.05 the full-size MPC leaves the track; docs "Full-size
+    racing", passes): every traffic theta's zeta capped at 1."""
+    traffic = TRAFFIC_RACES
+    if vehicle_class != "orca":
+        traffic = tuple(
+            (seed, tuple(replace(th, zeta=min(th.zeta, 1.0)) for th in thetas))
+            for seed, thetas in TRAFFIC_RACES
+        )
     changed = {
         f.name: getattr(config, f.name)
         for f in fields(MPCConfig)
@@ -324,31 +375,38 @@ def report_quality(
     print(
         f"\nplan cost, RTI {changed or '(default MPCConfig)'} against IPOPT on the same "
         f"problem, both costed on the same rollout: every 5th state; solo {solo_steps} "
-        f"steps at zeta = 1, traffic {len(TRAFFIC_RACES)} races of 3 cars x {race_steps} "
-        f"steps at the top of the box"
+        f"steps at zeta = 1, traffic {len(traffic)} races of 3 cars x {race_steps} "
+        f"steps at the top of the box, class {vehicle_class}"
     )
     print(
         f"{'line':<10} {'scenario':<8} {'states':>6} {'within 5%':>9} {'median':>8} "
-        f"{'p90':>8} {'solve median ms':>15} {'p99 ms':>7}"
+        f"{'p90':>8} {'solve median ms':>15} {'p99 ms':>7} {'IPOPT failed':>13}"
     )
     for line in lines:
         runs = {
-            "solo": [plan_quality(track, solo_steps, 5, (SOLO_THETA,), config, line)],
+            "solo": [
+                plan_quality(
+                    track, solo_steps, 5, (SOLO_THETA,), config, line, vehicle_class=vehicle_class
+                )
+            ],
             "traffic": [
-                plan_quality(track, race_steps, 5, thetas, config, line, seed, "regions")
-                for seed, thetas in TRAFFIC_RACES
+                plan_quality(
+                    track, race_steps, 5, thetas, config, line, seed, "regions", vehicle_class
+                )
+                for seed, thetas in traffic
             ],
         }
         for scenario, results in runs.items():
-            gaps = np.concatenate([g for g, _ in results])
-            ms = np.concatenate([t for _, t in results])
+            gaps = np.concatenate([g for g, _, _ in results])
+            ms = np.concatenate([t for _, t, _ in results])
+            failed = sum(f for _, _, f in results)
             if not gaps.size:
                 continue
             m, p = summary(ms)
             print(
                 f"{line:<10} {scenario:<8} {gaps.size:>6} {100 * np.mean(gaps <= 0.05):>8.0f}% "
                 f"{100 * np.median(gaps):>+7.2f}% {100 * np.percentile(gaps, 90):>+7.1f}% "
-                f"{m:>15.3f} {p:>7.3f}"
+                f"{m:>15.3f} {p:>7.3f} {failed:>13}"
             )
 
 
