@@ -228,6 +228,28 @@ class MPC:
         }
         self.reset()
 
+    #: what a copy shares with its original (:meth:`__deepcopy__`): the compiled predictions
+    #: (ctypes handles, with work buffers that every call overwrites and copies out of) and
+    #: the constant tables; never written after construction
+    _SHARED = ("track", "vehicle", "cfg", "_traj", "_roll", "_kernels", "_bounds_n", "_DtD")
+
+    def __deepcopy__(self, memo: dict) -> MPC:
+        """A copy with its own warm start, follower and counters that shares the compiled
+        predictions and the constant tables with this MPC (the predictions hold ctypes
+        handles, which cannot be copied). Both then solve bit for bit alike; use them from
+        one thread (the shared predictions' work buffers are overwritten by every call)."""
+        import copy
+
+        new = MPC.__new__(MPC)
+        memo[id(self)] = new
+        for key, value in self.__dict__.items():
+            if key == "_step":
+                continue  # a method bound to this MPC: bound to the copy below
+            setattr(new, key, value if key in self._SHARED else copy.deepcopy(value, memo))
+        compiled = self.__dict__.get("_step") == self._compiled_step
+        new._step = new._compiled_step if compiled else new._step_python
+        return new
+
     def reset(self) -> None:
         """Forget the warm start (call at the start of every race)."""
         self._U: np.ndarray | None = None  # the shifted plan (2, K), the next warm start
