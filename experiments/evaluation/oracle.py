@@ -1,0 +1,138 @@
+"""The room a choice of theta has: a rollout oracle (issue 48, "the room").
+
+Every ``every`` control periods the oracle ego copies the race as it stands (the env and
+every agent, :func:`copy.deepcopy`; a copied race goes on bit for bit,
+``tests/test_agent_copies.py``), drives each of its candidate thetas in its own copy for
+``lookahead`` seconds while the other cars drive their own policies (their agents' copies),
+and keeps, until the next choice, the candidate with the best relative progress at the end:
+its progress minus the best other car's. It sees the exact joint state and the other cars'
+policies, so it is an upper reference for what a state-dependent choice of theta can gain over
+a fixed one, not a racing agent: its margin over the fixed theta in the same seats is the
+room.
+
+Cost: ``M`` candidates times ``lookahead / dt`` periods of every car at every choice, on top of
+the race: with 6 candidates, a 3 s look-ahead and a choice every second, 18 times the race.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+
+from agents import make_agent_spec
+from agents.mpc_agent import MPCAgent
+from racing_env import RacingParallelEnv
+
+
+@dataclass(frozen=True)
+class OracleResult:
+    """One oracle race: ``progress`` (N,) [m] of every car from its start (the oracle is car
+    0), ``winner`` (the car with the most progress), ``choices`` the candidate index kept at
+    each choice, ``scores`` (choices, M) every candidate's relative progress [m] at the end of
+    its look-ahead (-inf where its copy could not run, at the race's end)."""
+
+    progress: np.ndarray
+    winner: int
+    choices: list[int]
+    scores: np.ndarray
+
+
+def relative_progress(env: RacingParallelEnv, car: int = 0) -> float:
+    """Car ``car``'s progress [m] minus the best other car's (its own progress when alone)."""
+    s = env.core.state[0, :, 0] - env.core.s_line[0]
+    others = np.delete(s, car)
+    return float(s[car] - (others.max() if others.size else 0.0))
+
+
+def _candidate_thetas(candidates: list[str]) -> tuple[MPCAgent, list]:
+    """The oracle's agent (the first candidate's) and every candidate's theta; a ValueError
+    unless every candidate is an ``mpc`` agent of the same policy space."""
+    if not candidates:
+        raise ValueError("an oracle needs at least one candidate (an mpc agent spec)")
+    agents = [make_agent_spec(spec) for spec in candidates]
+    for spec, agent in zip(candidates, agents):
+        if type(agent) is not MPCAgent:
+            raise ValueError(
+                f"oracle candidate {spec!r} is not an mpc agent spec (mpc:q=..,zeta=..)"
+            )
+        if agent.space != agents[0].space:
+            raise ValueError(
+                f"oracle candidates must share one policy space: {candidates[0]!r} is "
+                f"{agents[0].space!r}, {spec!r} is {agent.space!r}"
+            )
+    return agents[0], [a.theta for a in agents]
+
+
+def oracle_race(
+    candidates: list[str],
+    opponents: list[str],
+    track: str = "default",
+    seed: int = 0,
+    order: list[int] | None = None,
+    steps: int = 500,
+    lookahead: float = 3.0,
+    every: int = 10,
+    vehicle_class: str | None = None,
+    wake: float | None = None,
+) -> OracleResult:
+    """Race the oracle (car 0, choosing among the thetas of the ``candidates``, ``mpc`` agent
+    specs of one policy space) against ``opponents`` (agent specs) on ``track`` for ``steps``
+    control periods, choosing every ``every`` periods with a look-ahead of ``lookahead``
+    seconds (module docstring). ``seed`` and ``order`` (each car's start region, 0 = R1) as
+    for :func:`experiments.evaluation.race.run_race`, whose agents' seeds it uses too, so
+    that with one candidate the race is ``run_race`` of that candidate, bit for bit."""
+    if not (isinstance(every, int) and every >= 1):
+        raise ValueError(f"every must be a positive number of periods, got {every!r}")
+    if not (np.isfinite(lookahead) and lookahead > 0):
+        raise ValueError(f"lookahead must be a positive time [s], got {lookahead!r}")
+    oracle, thetas = _candidate_thetas(list(candidates))
+    env = RacingParallelEnv(
+        track=track,
+        n_cars=1 + len(opponents),
+        max_cycles=steps,
+        vehicle_class=vehicle_class,
+        wake=wake,
+    )
+    agents = [oracle, *(make_agent_spec(spec) for spec in opponents)]
+    obs, _ = env.reset(seed=seed, options=None if order is None else {"order": list(order)})
+    for k, (a, agent_id) in enumerate(zip(agents, env.possible_agents)):
+        a.reset(env.track, agent_id, seed + 1000 * (k + 1))
+    n_ahead = max(1, int(round(lookahead / env.config.dt)))
+    choices: list[int] = []
+    scores: list[np.ndarray] = []
+    step = 0
+    while env.agents:
+        if step % every == 0 and len(thetas) > 1:
+            row = np.array([_rollout(env, agents, obs, theta, n_ahead) for theta in thetas])
+            best = int(np.argmax(row))  # the first of equals
+            choices.append(best)
+            scores.append(row)
+            oracle.theta = thetas[best]
+        elif step % every == 0:
+            choices.append(0)
+            scores.append(np.zeros(1))
+        actions = {aid: agents[k].act(obs[aid]) for k, aid in enumerate(env.possible_agents)}
+        obs, *_ = env.step(actions)
+        step += 1
+    progress = env.core.state[0, :, 0] - env.core.s_line[0]
+    return OracleResult(
+        progress=progress.copy(),
+        winner=int(np.argmax(progress)),
+        choices=choices,
+        scores=np.array(scores),
+    )
+
+
+def _rollout(env, agents, obs, theta, n_steps: int) -> float:
+    """The oracle's relative progress after ``n_steps`` periods of a copy of the race with its
+    theta set to ``theta`` (-inf when the race has ended)."""
+    env2, agents2, obs2 = copy.deepcopy((env, agents, obs))
+    agents2[0].theta = theta
+    for _ in range(n_steps):
+        if not env2.agents:
+            break
+        actions = {aid: agents2[k].act(obs2[aid]) for k, aid in enumerate(env2.possible_agents)}
+        obs2, *_ = env2.step(actions)
+    return relative_progress(env2)
