@@ -120,10 +120,7 @@ class IpoptMPC:
         soft = ca.sumsqr(S_track) + ca.sumsqr(S_sep)
         if n_slip:
             soft = soft + ca.sumsqr(S_slip)
-        if ls2 != 1.0:
-            cost = (P_q / ls2) * ca.sumsqr(err) + ca.sumsqr(du) + (w_soft / ls2) * soft
-        else:
-            cost = P_q * ca.sumsqr(err) + ca.sumsqr(du) + w_soft * soft
+        cost = (P_q / ls2) * ca.sumsqr(err) + ca.sumsqr(du) + (w_soft / ls2) * soft
         w = ca.vertcat(ca.vec(X), ca.vec(U), S_track, S_sep, S_slip)
         p = ca.vertcat(
             P_x0, ca.vec(P_ref), ca.vec(P_kap), P_q, P_uprev, P_nlo, P_nhi, ca.vec(P_sep)

@@ -118,14 +118,9 @@ def plan_quality(
     from racing_env.controllers import raceline_config_for
 
     n_cars = len(thetas)
-    if vehicle_class == "orca":
-        env = RacingParallelEnv(
-            track=track, n_cars=n_cars, max_cycles=steps, start=StartConfig(mode=start)
-        )
-    else:
-        env = RacingParallelEnv(
-            track=track, n_cars=n_cars, max_cycles=steps, start=start, vehicle_class=vehicle_class
-        )
+    env = RacingParallelEnv(
+        track=track, n_cars=n_cars, max_cycles=steps, start=start, vehicle_class=vehicle_class
+    )
     obs, _ = env.reset(seed=seed)
     car = env.config.vehicle
     rl = get_raceline(env.track, car, raceline_config_for(car, line))

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.evaluation.oracle import oracle_race
+from experiments.evaluation.race import start_order
 from experiments.infra.artifacts import slug
 
 REGIONS = ("R1", "R2", "R3")
@@ -83,7 +84,7 @@ def main(argv=None) -> None:
         if rec["race"] in done:
             rows.append(done[rec["race"]])
             continue
-        order = [REGIONS.index(r) for r in rec["start_regions"]]
+        order = start_order(rec["start_regions"], len(rec["start_regions"]))
         t0 = time.perf_counter()
         res = oracle_race(
             candidates,

@@ -23,6 +23,7 @@ import numpy as np
 
 from agents import make_agent_spec
 from agents.mpc_agent import MPCAgent
+from experiments.evaluation.race import start_race
 from racing_env import RacingParallelEnv
 
 
@@ -81,8 +82,9 @@ def oracle_race(
     specs of one policy space) against ``opponents`` (agent specs) on ``track`` for ``steps``
     control periods, choosing every ``every`` periods with a look-ahead of ``lookahead``
     seconds (module docstring). ``seed`` and ``order`` (each car's start region, 0 = R1) as
-    for :func:`experiments.evaluation.race.run_race`, whose agents' seeds it uses too, so
-    that with one candidate the race is ``run_race`` of that candidate, bit for bit."""
+    for :func:`experiments.evaluation.race.run_race`, and started as it starts its races
+    (:func:`~experiments.evaluation.race.start_race`), so that with one candidate the race is
+    ``run_race`` of that candidate, bit for bit."""
     if not (isinstance(every, int) and every >= 1):
         raise ValueError(f"every must be a positive number of periods, got {every!r}")
     if not (np.isfinite(lookahead) and lookahead > 0):
@@ -96,9 +98,7 @@ def oracle_race(
         wake=wake,
     )
     agents = [oracle, *(make_agent_spec(spec) for spec in opponents)]
-    obs, _ = env.reset(seed=seed, options=None if order is None else {"order": list(order)})
-    for k, (a, agent_id) in enumerate(zip(agents, env.possible_agents)):
-        a.reset(env.track, agent_id, seed + 1000 * (k + 1))
+    obs = start_race(env, agents, seed, order)
     n_ahead = max(1, int(round(lookahead / env.config.dt)))
     choices: list[int] = []
     scores: list[np.ndarray] = []
@@ -110,19 +110,21 @@ def oracle_race(
             choices.append(best)
             scores.append(row)
             oracle.theta = thetas[best]
-        elif step % every == 0:
-            choices.append(0)
-            scores.append(np.zeros(1))
-        actions = {aid: agents[k].act(obs[aid]) for k, aid in enumerate(env.possible_agents)}
-        obs, *_ = env.step(actions)
+        obs = _step(env, agents, obs)
         step += 1
     progress = env.core.state[0, :, 0] - env.core.s_line[0]
     return OracleResult(
         progress=progress.copy(),
         winner=int(np.argmax(progress)),
         choices=choices,
-        scores=np.array(scores),
+        scores=np.array(scores).reshape(len(scores), len(thetas)),
     )
+
+
+def _step(env: RacingParallelEnv, agents: list, obs: dict) -> dict:
+    """One control period: every agent acts on its observation; the next observations."""
+    actions = {aid: agents[k].act(obs[aid]) for k, aid in enumerate(env.possible_agents)}
+    return env.step(actions)[0]
 
 
 def _rollout(env, agents, obs, theta, n_steps: int) -> float:
@@ -133,6 +135,5 @@ def _rollout(env, agents, obs, theta, n_steps: int) -> float:
     for _ in range(n_steps):
         if not env2.agents:
             break
-        actions = {aid: agents2[k].act(obs2[aid]) for k, aid in enumerate(env2.possible_agents)}
-        obs2, *_ = env2.step(actions)
+        obs2 = _step(env2, agents2, obs2)
     return relative_progress(env2)

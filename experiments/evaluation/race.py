@@ -138,6 +138,17 @@ def start_order(regions, n_cars: int, start: str = "regions") -> list[int] | Non
     return [names.index(r) for r in regions]
 
 
+def start_race(env: RacingParallelEnv, agents: list, seed: int, order=None) -> dict:
+    """Reset ``env`` to the start of race ``seed`` (``order`` as :func:`run_race`'s) and
+    every agent on its track, car k's agent with seed ``seed + 1000 (k + 1)``; returns the
+    first observations. Every race that must be :func:`run_race`'s race bit for bit starts
+    here."""
+    obs, _ = env.reset(seed=seed, options=None if order is None else {"order": list(order)})
+    for k, (a, agent_id) in enumerate(zip(agents, env.possible_agents)):
+        a.reset(env.track, agent_id, seed + 1000 * (k + 1))
+    return obs
+
+
 def run_race(
     agent_names: list[str],
     track: str = "default",
@@ -176,9 +187,7 @@ def run_race(
     agents = [make_agent_spec(spec) for spec in agent_names]
     for agent, spec, agent_id in zip(agents, agent_names, env.possible_agents):
         check_field_size(agent, len(agents), agent_id, spec)
-    obs, _ = env.reset(seed=seed, options=None if order is None else {"order": list(order)})
-    for k, (a, agent_id) in enumerate(zip(agents, env.possible_agents)):
-        a.reset(env.track, agent_id, seed + 1000 * (k + 1))
+    obs = start_race(env, agents, seed, order)
     n = len(agents)
     states = [env.core.state[0].copy()]
     frames = [env.render_frame(follow)] if render else []
