@@ -5,9 +5,10 @@ theta (the suite's own races, read from its ``races.jsonl``).
     python benchmarks/oracle_room.py results/fullsize_pass_wake1 --track tumftm:Spa \
         --region R3 --races 4 --out /tmp/room_spa_r3.jsonl
 
-The first candidate is the suite's ego; ``--candidates`` adds others (mpc specs of the same
-policy space; default: the ego with one parameter moved: no overtaking shift, blocking, tight
-tracking, zeta 0.95). Prints per race the ego's margin raced fixed (the suite's record) and as
+The first candidate is the suite's ego, then ``--moves M`` of its one-parameter moves
+(``experiments.evaluation.oracle.MOVES``, nested; default 4: no overtaking shift, tight
+tracking, zeta 0.95, blocking); ``--candidates`` adds others (mpc specs of the same policy
+space). Prints per race the ego's margin raced fixed (the suite's record) and as
 the oracle, the winners, and the oracle's choices; ``--out`` keeps one JSON line per race
 (run again to resume). Expensive: about ``candidates x lookahead / (every x 0.1 s)`` times the
 race per race.
@@ -23,23 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.evaluation.oracle import oracle_race
+from experiments.evaluation.oracle import MOVES, candidate_moves, oracle_race
 from experiments.evaluation.race import start_order
 from experiments.infra.artifacts import slug
 
 REGIONS = ("R1", "R2", "R3")
-
-
-def default_candidates(ego: str) -> list[str]:
-    """The ego and the ego with one parameter moved (each a corner or a step of its box)."""
-    moves = ("s1=0", "s3=5", "q=500", "zeta=0.95")
-    name, _, params = ego.partition(":")
-    out = [ego]
-    for move in moves:
-        key = move.partition("=")[0]
-        kept = [p for p in params.split(",") if p and p.partition("=")[0] != key]
-        out.append(f"{name}:{','.join([*kept, move])}")
-    return out
 
 
 def main(argv=None) -> None:
@@ -48,6 +37,12 @@ def main(argv=None) -> None:
     ap.add_argument("--track", required=True, help="a track of the suite, e.g. tumftm:Spa")
     ap.add_argument("--region", choices=REGIONS, default=None, help="only races from this region")
     ap.add_argument("--races", type=int, default=4, help="the first N races (of the region)")
+    ap.add_argument(
+        "--moves",
+        type=int,
+        default=4,
+        help=f"candidates: the ego and its first M one-parameter moves of {MOVES} (default 4)",
+    )
     ap.add_argument("--candidates", nargs="*", default=None, help="extra candidate mpc specs")
     ap.add_argument("--lookahead", type=float, default=3.0, help="look-ahead [s]")
     ap.add_argument("--every", type=int, default=10, help="periods between choices")
@@ -65,7 +60,7 @@ def main(argv=None) -> None:
     if args.region:
         records = [r for r in records if r["ego_region"] == args.region]
     records = records[: args.races]
-    candidates = [ego, *(args.candidates or default_candidates(ego)[1:])]
+    candidates = [*candidate_moves(ego, args.moves), *(args.candidates or [])]
     done = {}
     if args.out and args.out.exists():
         done = {
@@ -107,6 +102,8 @@ def main(argv=None) -> None:
             "fixed_won": bool(np.argmax(fixed) == 0),
             "oracle_won": res.winner == 0,
             "choices": dict(Counter(res.choices)),
+            "candidates": candidates,
+            "lookahead_s": args.lookahead,
             "seconds": round(time.perf_counter() - t0, 1),
         }
         rows.append(row)

@@ -86,6 +86,16 @@ def _cmd_strategy(args) -> int:
     return 0
 
 
+def _cmd_room(args) -> int:
+    from experiments.evaluation.room import RoomConfig, room
+
+    t = room(args.suite, config_from(RoomConfig, args), pool_from(args))
+    out = Path(t["folder"])
+    print((out / "room.md").read_text())
+    print(f"{t['new_races']} new oracle races; wrote {out / 'room.md'} and {out / 'room.json'}")
+    return 0
+
+
 def _cmd_policy_map(args) -> int:
     from experiments.evaluation.policy_map import PolicyMapConfig, policy_map
 
@@ -266,6 +276,36 @@ def add_strategy(command) -> None:
             {"nargs": "+", "default": [], "metavar": "DIR"},
         ),
         ("--out", RESUME_HELP, {"default": "results/strategy"}),
+        *PARALLEL_OPTIONS,
+    )
+
+
+def add_room(command) -> None:
+    """``alpha-racer room``."""
+    from experiments.evaluation.oracle import MOVES
+    from experiments.evaluation.room import ROOM_BENCHES, RoomConfig
+
+    rm = command(
+        "room",
+        _cmd_room,
+        "the room of a finished strategy suite: a rollout oracle, choosing its theta every "
+        "few periods by simulating each candidate from the race's exact state, in the seats "
+        "of the suite's races, beside its ego and control (resumable; expensive)",
+    )
+    rm.add_argument("suite", help="a finished alpha-racer strategy folder")
+    add_options(
+        rm,
+        RoomConfig,
+        (
+            "--base",
+            "the suite's agent (an mpc spec) whose theta the candidates start from",
+            {"choices": ["control", "ego"]},
+        ),
+        ("--moves", f"one-parameter moves of the base among the candidates, of {' '.join(MOVES)}"),
+        ("--lookahead", "seconds each candidate is simulated for"),
+        ("--every", "control periods between the oracle's choices"),
+        ("--benches", "benches of the suite", {"nargs": "+", "choices": list(ROOM_BENCHES)}),
+        ("--races", "the first N races of each bench (default all)", {"type": int}),
         *PARALLEL_OPTIONS,
     )
 

@@ -26,6 +26,27 @@ from agents.mpc_agent import MPCAgent
 from experiments.evaluation.race import start_race
 from racing_env import RacingParallelEnv
 
+#: One-parameter moves of a candidate theta, in the order :func:`candidate_moves` adds them
+#: (each a face or a step of the box): no overtaking shift, tight tracking, 5% under the
+#: limit, blocking, a sharper shift decay, the paper's line alone, a small shift, loose
+#: tracking. The first four are the room's first measurement's (docs/room.md).
+MOVES = ("s1=0", "q=500", "zeta=0.95", "s3=5", "s2=2", "b=0", "s1=0.1", "q=50")
+
+
+def candidate_moves(spec: str, moves: int = 4) -> list[str]:
+    """``spec`` (an ``mpc`` agent spec) and ``spec`` with one parameter moved, for the first
+    ``moves`` of :data:`MOVES` (nested: the candidates of ``moves = m`` are the first
+    ``m + 1`` of ``moves = m + 1``); a ValueError for ``moves`` outside 0..len(MOVES)."""
+    if not (isinstance(moves, int) and 0 <= moves <= len(MOVES)):
+        raise ValueError(f"moves must be an integer in 0..{len(MOVES)}, got {moves!r}")
+    name, _, params = spec.partition(":")
+    out = [spec]
+    for move in MOVES[:moves]:
+        key = move.partition("=")[0]
+        kept = [p for p in params.split(",") if p and p.partition("=")[0] != key]
+        out.append(f"{name}:{','.join([*kept, move])}")
+    return out
+
 
 @dataclass(frozen=True)
 class OracleResult:

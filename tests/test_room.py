@@ -1,0 +1,113 @@
+"""``alpha-racer room``: the oracle in a finished strategy suite's seats. With no moves the
+oracle is the base raced fixed, so its room is exactly 0 in every race; a killed run resumes;
+candidates move one parameter of the base (its best theta written out); bad settings are
+named."""
+
+import json
+
+import numpy as np
+import pytest
+
+from experiments.cli import main
+from experiments.evaluation.oracle import MOVES, candidate_moves
+from experiments.evaluation.room import RoomConfig, explicit_theta, room
+from experiments.evaluation.strategy import StrategyConfig, strategy
+from experiments.infra.parallel import Pool
+
+EGO = "mpc:q=20,zeta=1.0,s1=0.1,s2=4,s3=1"
+CONTROL = "mpc:q=20,zeta=0.95,s1=0.1,s2=4,s3=1"
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory):
+    out = tmp_path_factory.mktemp("suite")
+    config = StrategyConfig(
+        ego=EGO, control=CONTROL, tracks=("default",), scenarios=("equal",), races=2, steps=40
+    )
+    strategy(config, out, Pool(workers=1, progress_bar=False))
+    return out
+
+
+def test_without_moves_the_room_is_zero_race_by_race(suite):
+    t = room(suite, RoomConfig(moves=0, benches=("equal",)), Pool(workers=1, progress_bar=False))
+    (row,) = t["rows"]
+    assert row["races"] == 2
+    assert row["room_m"]["mean"] == row["room_m"]["min"] == row["room_m"]["max"] == 0.0
+    assert row["oracle_margin_m"] == row["control_margin_m"]
+    assert row["oracle_wins_by_region"] == row["control_wins_by_region"]
+    assert row["ego_share_of_room"] is None  # no room to share
+    folder = suite / "room" / "control_T3_M1_k10"
+    records = [json.loads(line) for line in (folder / "races.jsonl").read_text().splitlines()]
+    control = [
+        json.loads(line)
+        for line in (
+            suite / "equal" / "default" / "mpc_q_20_zeta_0.95_s1_0.1_s2_4_s3_1" / "races.jsonl"
+        )
+        .read_text()
+        .splitlines()
+    ]
+    by_race = {r["race"]: r["progress_m"] for r in control}
+    for rec in records:  # the oracle's progress is the control's, as stored (4 decimals)
+        assert np.allclose(rec["progress_m"], by_race[rec["race"]], atol=1e-4, rtol=0)
+
+
+def test_a_killed_run_resumes_and_a_choice_is_recorded(suite):
+    config = RoomConfig(moves=1, lookahead=0.5, every=20, benches=("equal",), races=1)
+    folder = suite / "room" / config.folder_name()
+    first = room(suite, config, Pool(workers=1, progress_bar=False))
+    assert first["new_races"] == 1
+    (rec,) = [json.loads(line) for line in (folder / "races.jsonl").read_text().splitlines()]
+    assert rec["candidates"] == candidate_moves(CONTROL, 1)
+    assert sum(rec["choices"].values()) == 2  # steps 0 and 20 of 40
+    again = room(suite, config, Pool(workers=1, progress_bar=False))
+    assert again["new_races"] == 0
+    assert (folder / "room.md").read_text().startswith("# The room")
+
+
+def test_candidates_move_one_parameter_each():
+    cands = candidate_moves("mpc:space=extended,q=5,zeta=1.0,s1=0.3,s2=0.5,s3=0,b=1", 3)
+    assert cands[1:] == [
+        "mpc:space=extended,q=5,zeta=1.0,s2=0.5,s3=0,b=1,s1=0",
+        "mpc:space=extended,zeta=1.0,s1=0.3,s2=0.5,s3=0,b=1,q=500",
+        "mpc:space=extended,q=5,s1=0.3,s2=0.5,s3=0,b=1,zeta=0.95",
+    ]
+    assert candidate_moves(EGO, 2)[:2] == candidate_moves(EGO, 1)  # nested
+    with pytest.raises(ValueError, match=f"moves must be an integer in 0..{len(MOVES)}"):
+        candidate_moves(EGO, len(MOVES) + 1)
+
+
+def test_best_theta_is_written_out():
+    from agents.best_theta import best_theta
+
+    spec = explicit_theta("mpc:theta=best", "default")
+    theta = best_theta("default")
+    assert "theta=best" not in spec
+    assert f"q={float(theta.q)!r}" in spec and f"s3={float(theta.s3)!r}" in spec
+    assert explicit_theta(EGO, "default") == EGO
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"base": "alpha"}, "base must be 'control' or 'ego'"),
+        ({"lookahead": 0}, r"lookahead must be a time in \(0, 60\] s, got 0"),
+        ({"every": 0}, "every must be a number of control periods >= 1, got 0"),
+        (
+            {"benches": ("table1_ibr",)},
+            r"benches must be names of pass, equal, defend, got \['table1_ibr'\]",
+        ),
+        ({"races": 0}, "races must be a positive number or None, got 0"),
+    ],
+)
+def test_bad_settings_are_named(kw, match):
+    with pytest.raises(ValueError, match=match):
+        RoomConfig(**kw)
+
+
+def test_a_folder_without_a_suite_or_bench_is_named(suite, tmp_path, capsys):
+    with pytest.raises(ValueError, match="holds no finished strategy suite"):
+        room(tmp_path, RoomConfig())
+    with pytest.raises(ValueError, match=r"ran no pass, defend \(its scenarios: equal\)"):
+        room(suite, RoomConfig(), Pool(workers=1, progress_bar=False))
+    assert main(["room", str(suite), "--benches", "equal", "--moves", "0", "--workers", "1"]) == 0
+    assert "0 new oracle races" in capsys.readouterr().out
