@@ -160,10 +160,12 @@ def read_table(path: str | os.PathLike | None = None) -> dict:
     return table
 
 
-def control_command(spec: str, space: str = PAPER) -> str:
+def control_command(spec: str, space: str = PAPER, vehicle_class: str = "orca") -> str:
     """The command that chooses and installs the best fixed theta of track ``spec`` in policy
-    space ``space``."""
+    space ``space`` for ``vehicle_class``."""
     flag = "" if space == PAPER else f" --space {space}"
+    if vehicle_class != "orca":
+        flag += f" --vehicle-class {vehicle_class}"
     return f"alpha-racer control{flag} --tracks {spec}"
 
 
@@ -182,23 +184,28 @@ def lookup(track: str | Track, path: str | os.PathLike | None = None, space: str
     space = _space_name(space)
     spec = track if isinstance(track, str) else track.name
     track = make_track(track)
+    cls = getattr(track, "vehicle_class", "orca")
     path = Path(path) if path is not None else table_path()
     entries = space_entries(read_table(path), space)
     fp = track.fingerprint()
     found = [(s, e) for s, e in entries.items() if e["fingerprint"] == fp]
     if not found:
-        same = [s for s, e in entries.items() if s == spec or e["name"] == track.name]
+        same = [
+            s
+            for s, e in entries.items()
+            if (s == spec or e["name"] == track.name) and e.get("vehicle_class", "orca") == cls
+        ]
         if same:
             raise ValueError(
                 f"the best fixed theta{_in_space(space)} of track {spec!r} in {path} was "
                 f"chosen on another geometry (fingerprint {entries[same[0]]['fingerprint']}, "
-                f"this track's {fp}); run `{control_command(same[0], space)}` to choose it again"
+                f"this track's {fp}); run `{control_command(entries[same[0]]['track'], space, cls)}` to choose it again"
             )
         raise ValueError(
             f"no best fixed theta{_in_space(space)} for track {spec!r} in {path} (it has"
             f"{'' if space == PAPER else ' in that space'}: "
             f"{', '.join(sorted(entries)) or 'no tracks'}); run "
-            f"`{control_command(spec, space)}` to choose and install it"
+            f"`{control_command(spec, space, cls)}` to choose and install it"
         )
     key, entry = found[0]
     current = env_name()
@@ -206,7 +213,7 @@ def lookup(track: str | Track, path: str | os.PathLike | None = None, space: str
         raise ValueError(
             f"the best fixed theta{_in_space(space)} of track {key!r} in {path} was chosen "
             f"on env {entry['env']!r}, this is {current!r}; run "
-            f"`{control_command(key, space)}` to choose it again"
+            f"`{control_command(entry['track'], space, cls)}` to choose it again"
         )
     return entry
 

@@ -114,7 +114,7 @@ def _cmd_control(args) -> int:
     from experiments.potential.family import expand_tracks
 
     cfg = config_from(ControlConfig, args)
-    out = Path(args.out or default_out(cfg.space))
+    out = Path(args.out or default_out(cfg.space, cfg.vehicle_class))
     s = select_best_thetas(
         cfg,
         expand_tracks(args.tracks),
@@ -358,10 +358,12 @@ def add_control(command) -> None:
             "lap-time line; its winner is raced by mpc:space=extended,theta=best)",
             {"choices": sorted(SPACES)},
         ),
+        *CLASS_OPTIONS,
         (
             "--out",
             RESUME_HELP
-            + " (default results/control, results/control_extended for --space extended)",
+            + " (default results/control, results/control_extended for --space extended; "
+            "with _fullsize added for --vehicle-class fullsize)",
             {"default": None},
         ),
         ("--no-install", "only measure: leave the best-theta table unchanged", SWITCH),
@@ -405,6 +407,7 @@ def add_policy_map(command) -> None:
         ),
         ("--steps", "steps of 0.1 s per run"),
         ("--seed", "Sobol scrambling and start seed"),
+        *CLASS_OPTIONS,
         *PARALLEL_OPTIONS,
         ("--out", RESUME_HELP, {"default": "results/policy_map"}),
     )

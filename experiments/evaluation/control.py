@@ -61,7 +61,12 @@ from pathlib import Path
 import numpy as np
 
 from experiments.evaluation.bench import BenchRun, run_many
-from experiments.evaluation.bench_config import REGIONS, BenchConfig, check_agent_specs
+from experiments.evaluation.bench_config import (
+    REGIONS,
+    BenchConfig,
+    check_agent_specs,
+    check_class_wake,
+)
 from experiments.evaluation.control_rule import (
     RULE,
     choose_candidates,
@@ -86,7 +91,7 @@ from experiments.infra.parallel import Pool
 SCHEMA_VERSION = 1
 BEST_FIXED_SPEC = "mpc:theta=best"
 """The control's agent spec: the ``mpc`` agent with the track's best fixed theta."""
-ADDED_FIELDS = {"space": "paper", "refine": 0}
+ADDED_FIELDS = {"space": "paper", "refine": 0, "vehicle_class": "orca", "wake": 0.0}
 """Config fields added after selections were first made, with their defaults: a manifest and a
 ``selection.json`` record them only when they differ
 (:func:`experiments.infra.artifacts.manifest_config`), so paper folders resume unchanged."""
@@ -101,13 +106,15 @@ def best_fixed_spec(space: str = "paper") -> str:
     return BEST_FIXED_SPEC if name == "paper" else f"mpc:space={name},theta=best"
 
 
-def default_out(space: str = "paper") -> str:
-    """The control folder of policy space ``space`` (a folder holds the selections of one
-    space): ``results/control``, ``results/control_<space>`` for another than the paper's."""
+def default_out(space: str = "paper", vehicle_class: str = "orca") -> str:
+    """The control folder of policy space ``space`` and ``vehicle_class`` (a folder holds the
+    selections of one space and class): ``results/control``, ``results/control_<space>`` for
+    another space than the paper's, with ``_<class>`` for another class than the paper's."""
     from agents.theta import policy_space
 
     name = policy_space(space).name
-    return "results/control" if name == "paper" else f"results/control_{name}"
+    out = "results/control" if name == "paper" else f"results/control_{name}"
+    return out if vehicle_class == "orca" else f"{out}_{vehicle_class}"
 
 
 @dataclass(frozen=True)
@@ -122,8 +129,10 @@ class ControlConfig:
     benchmarks' seed), ``space`` the policy space whose box is mapped (``"paper"`` or
     ``"extended"``, :data:`agents.theta.SPACES`), ``refine`` the rounds of the compass search
     from the playoff's winner (:mod:`experiments.evaluation.refine`; 0: none, the rule before it
-    existed). Defaults: about 6 CPU-minutes per track for the map and playoff (256 map runs,
-    up to 180 playoff races), and up to 2 (2 dim + 1) x 30 races more for the search."""
+    existed), ``vehicle_class`` and ``wake`` the world of every run (the paper's 1:43 class
+    by default; ``wake`` None: the class's). Defaults: about 6 CPU-minutes per track for the
+    map and playoff (256 map runs, up to 180 playoff races) in the paper's world, and up to 2
+    (2 dim + 1) x 30 races more for the search."""
 
     thetas: int = 128
     candidates: int = 5
@@ -133,10 +142,13 @@ class ControlConfig:
     seed: int = 100
     space: str = "paper"
     refine: int = 2
+    vehicle_class: str = "orca"
+    wake: float | None = None
 
     def __post_init__(self):
         from agents.theta import policy_space
 
+        check_class_wake(self)
         policy_space(self.space)  # names the choices if unknown
         check_counts(self, ("thetas", "candidates", "races", "steps"))
         if isinstance(self.refine, bool) or not (isinstance(self.refine, int) and self.refine >= 0):
@@ -171,6 +183,8 @@ class ControlConfig:
             seed=self.seed,
             opponents=self.opponents,
             space=self.space,
+            vehicle_class=self.vehicle_class,
+            wake=self.wake,
         )
 
     def playoff_config(self, track: str, theta) -> BenchConfig:
@@ -183,6 +197,8 @@ class ControlConfig:
             steps=self.steps,
             track=track,
             seed=self.seed,
+            vehicle_class=self.vehicle_class,
+            wake=self.wake,
         )
 
 
@@ -244,7 +260,7 @@ def _selection(
     from experiments import __version__
     from racing_env.tracks import make_track
 
-    t = make_track(track)
+    t = make_track(track, vehicle_class=cfg.vehicle_class)
     rows = list(map_run.records().values())
     seconds += sum(r.get("seconds", 0.0) for r in rows)
     out = {
@@ -285,8 +301,11 @@ def install(selection_path, table=None) -> dict:
     """Put the winner of ``selection_path`` (a ``selection.json``) into the best-theta table
     ``table`` (default :func:`agents.best_theta.table_path`) among the entries of the
     selection's policy space, replacing the track's entry there (and any entry of the same
-    geometry under another spec); the other spaces' entries are kept. Returns the new entry
-    (with ``space`` unless it is the paper's)."""
+    geometry under another spec); the other spaces' entries are kept. A selection of another
+    vehicle class than the paper's is keyed ``"TRACK (CLASS)"`` (its geometry is the
+    circuit at the class's scale, so ``mpc:theta=best`` finds it by fingerprint). Returns the
+    new entry (with ``space`` unless it is the paper's, ``vehicle_class`` unless the ORCA
+    car's)."""
     from agents.best_theta import read_table, set_space_entries, space_entries, table_path
 
     selection_path = Path(selection_path)
@@ -316,12 +335,17 @@ def install(selection_path, table=None) -> dict:
     }
     if space != "paper":
         entry["space"] = space
+    vehicle_class = sel["config"].get("vehicle_class", "orca")
+    key = sel["track"]
+    if vehicle_class != "orca":
+        entry["vehicle_class"] = vehicle_class
+        key = f"{key} ({vehicle_class})"
     tracks = {
         k: e
         for k, e in space_entries(current, space).items()
-        if k != sel["track"] and e["fingerprint"] != sel["fingerprint"]
+        if k != key and e["fingerprint"] != sel["fingerprint"]
     }
-    tracks[sel["track"]] = entry
+    tracks[key] = entry
     set_space_entries(current, space, tracks)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json(path, current)
@@ -415,7 +439,7 @@ def select_best_thetas(
     (maps of all tracks in one pool, then all playoffs in one pool), write every track's
     ``selection.json`` and, with ``install_table``, put the winners into the best-theta table
     ``table`` (default: the one ``mpc:theta=best`` reads). ``out_dir`` defaults to
-    :func:`default_out` of the config's space. Returns ``summary.json``'s content with
+    :func:`default_out` of the config's space and class. Returns ``summary.json``'s content with
     ``new_map_runs``, ``new_races`` and ``wall_seconds_this_run``."""
     from agents.best_theta import env_name
     from racing_env.tracks import make_track
@@ -423,10 +447,9 @@ def select_best_thetas(
     tracks = list(dict.fromkeys(tracks))
     if not tracks or not all(isinstance(t, str) and t for t in tracks):
         raise ValueError(f"tracks must be non-empty track specs, got {tracks!r}")
-    for track in tracks:  # a typo fails before any run starts
-        make_track(track)
-    check_agent_specs([cfg.opponents], tracks)
-    out = Path(out_dir if out_dir is not None else default_out(cfg.space))
+    built = [make_track(t, vehicle_class=cfg.vehicle_class) for t in tracks]  # typos fail now
+    check_agent_specs([cfg.opponents], built)
+    out = Path(out_dir if out_dir is not None else default_out(cfg.space, cfg.vehicle_class))
     out.mkdir(parents=True, exist_ok=True)
     claim(
         out / "manifest.json",
@@ -490,13 +513,17 @@ def ensure_best_thetas(
     first with ``cfg`` into ``out_dir`` (resumable; default :func:`default_out`) and
     installed. Returns ``{track: entry}``."""
     from agents.best_theta import lookup
+    from racing_env.tracks import make_track
+
+    def entry(t):
+        return lookup(make_track(t, vehicle_class=cfg.vehicle_class), table, cfg.space)
 
     missing = []
     for t in dict.fromkeys(tracks):
         try:
-            lookup(t, table, cfg.space)
+            entry(t)
         except ValueError:
             missing.append(t)
     if missing:
         select_best_thetas(cfg, missing, out_dir, pool, True, table)
-    return {t: lookup(t, table, cfg.space) for t in dict.fromkeys(tracks)}
+    return {t: entry(t) for t in dict.fromkeys(tracks)}

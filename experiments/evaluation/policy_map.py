@@ -33,7 +33,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments.evaluation.bench_config import REGIONS, BenchConfig, check_agent_specs
+from experiments.evaluation.bench_config import (
+    REGIONS,
+    BenchConfig,
+    check_agent_specs,
+    check_class_wake,
+    drop_default_class,
+)
 from experiments.evaluation.policy_map_summary import (
     heatmap_name,
     plot_heatmaps,
@@ -71,7 +77,9 @@ class PolicyMapConfig:
     """One policy map: ``thetas`` Sobol points of the theta box (scrambled with ``seed``) on
     each of ``tracks`` in each of ``modes``, ``steps`` control periods of 0.1 s per run.
     ``opponents`` is the agent spec of the two fixed cars of the ``race`` mode; ``space`` the
-    policy space whose box is mapped (``"paper"`` or ``"extended"``, :mod:`agents.reference`)."""
+    policy space whose box is mapped (``"paper"`` or ``"extended"``, :mod:`agents.reference`);
+    ``vehicle_class`` and ``wake`` the world of every run (the paper's 1:43 class by default;
+    ``wake`` None: the class's, stored resolved), left out of the manifest for the paper's."""
 
     thetas: int = 256
     tracks: tuple[str, ...] = DEFAULT_TRACKS
@@ -80,10 +88,13 @@ class PolicyMapConfig:
     seed: int = 0
     opponents: str = "mpc"
     space: str = "paper"
+    vehicle_class: str = "orca"
+    wake: float | None = None
 
     def __post_init__(self):
         from agents.reference import policy_space
 
+        check_class_wake(self)
         policy_space(self.space)  # names the choices if unknown
         object.__setattr__(self, "tracks", tuple(self.tracks))
         object.__setattr__(self, "modes", tuple(self.modes))
@@ -124,7 +135,14 @@ def map_row(config: PolicyMapConfig, mode: str, track: str, k: int, theta) -> di
         agents, kw = [spec], dict(start="grid")
     try:
         res, _ = run_race(
-            agents, track=track, seed=seed, max_cycles=config.steps, progress_bar=False, **kw
+            agents,
+            track=track,
+            seed=seed,
+            max_cycles=config.steps,
+            progress_bar=False,
+            vehicle_class=config.vehicle_class,
+            wake=config.wake,
+            **kw,
         )
     except Exception as exc:  # one failing theta must not end a map of thousands
         row["error"] = f"{type(exc).__name__}: {exc}"
@@ -176,7 +194,7 @@ class PolicyMapRun(ResumableRun):
             {
                 "schema_version": SCHEMA_VERSION,
                 "config": {
-                    **manifest_config(config, {"space": "paper"}),
+                    **drop_default_class(manifest_config(config, {"space": "paper"})),
                     "theta_box": {
                         "names": list(theta_names(config.space)),
                         "low": low.tolist(),
@@ -221,7 +239,7 @@ def policy_map(config: PolicyMapConfig, out_dir, pool: Pool = Pool()) -> dict:
     from racing_env.tracks import make_track
 
     for track in config.tracks:  # a typo fails before any run starts
-        make_track(track)
+        make_track(track, vehicle_class=config.vehicle_class)
     if "race" in config.modes:
         check_agent_specs([config.opponents], config.tracks)
     run = PolicyMapRun(out_dir, config)
