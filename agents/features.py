@@ -74,11 +74,16 @@ def theta_space(
     if found is not None:
         return found
     raise ValueError(
-        f"thetas must have {' or '.join(str(sp.dim) for sp in SPACES.values())} "
+        f"thetas must have {_either([str(sp.dim) for sp in SPACES.values()])} "
         f"parameters in the last dimension ("
         f"{', '.join(f'{sp.name!r}: {sp.names}' for sp in SPACES.values())}), got "
         f"shape {np.shape(thetas)}"
     )
+
+
+def _either(items: list[str]) -> str:
+    """``"a, b or c"``."""
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} or {items[-1]}"
 
 
 def scale_theta(

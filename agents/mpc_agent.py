@@ -19,11 +19,11 @@ from .best_theta import best_theta
 from .mpc import MPC, PLANS, MPCConfig
 from .opponent_prediction import PREDICTIONS, LinePrediction
 from .reference import (
-    EXTENDED_HIGH,
-    EXTENDED_LOW,
-    EXTENDED_NAMES,
     THETA_HIGH,
     THETA_LOW,
+    WAKE_HIGH,
+    WAKE_LOW,
+    WAKE_NAMES,
     Theta,
     in_a_wake,
     policy_space,
@@ -95,11 +95,9 @@ class MPCAgent:
     """
 
     #: theta's bounds (:data:`agents.reference.THETA_LOW` / ``THETA_HIGH``), for ``alpha-racer agents``
-    param_bounds = {
-        k: (float(lo), float(hi)) for k, lo, hi in zip(EXTENDED_NAMES, EXTENDED_LOW, EXTENDED_HIGH)
-    }
+    param_bounds = {k: (float(lo), float(hi)) for k, lo, hi in zip(WAKE_NAMES, WAKE_LOW, WAKE_HIGH)}
     #: what ``alpha-racer agents`` shows for the theta keywords (their signature default is None)
-    param_defaults = {k: getattr(DEFAULT_THETA, k) for k in EXTENDED_NAMES}
+    param_defaults = {k: getattr(DEFAULT_THETA, k) for k in WAKE_NAMES}
     param_notes = {
         "theta": "'best': the track's best fixed theta of the agent's space, chosen by "
         "alpha-racer control",
@@ -117,6 +115,9 @@ class MPCAgent:
         s2: float | None = None,
         s3: float | None = None,
         b: float | None = None,
+        h: float | None = None,
+        p: float | None = None,
+        c: float | None = None,
         theta: str | None = None,
         space: str = "paper",
         config: MPCConfig | None = None,
@@ -129,7 +130,9 @@ class MPCAgent:
     ):
         from racing_env.raceline import RacelineConfig
 
-        given = {k: v for k, v in zip(EXTENDED_NAMES, (q, zeta, s1, s2, s3, b)) if v is not None}
+        given = {
+            k: v for k, v in zip(WAKE_NAMES, (q, zeta, s1, s2, s3, b, h, p, c)) if v is not None
+        }
         if theta is not None and theta != BEST:
             raise ValueError(
                 f"theta must be {BEST!r} (the track's best fixed theta) or left out, got {theta!r}"
@@ -140,7 +143,7 @@ class MPCAgent:
                 f"drop {', '.join(f'{k}={v!r}' for k, v in given.items())}"
             )
         self.best = theta == BEST
-        self.theta = Theta(**{**{k: getattr(DEFAULT_THETA, k) for k in EXTENDED_NAMES}, **given})
+        self.theta = Theta(**{**{k: getattr(DEFAULT_THETA, k) for k in WAKE_NAMES}, **given})
         lo, hi = THETA_LOW[1], THETA_HIGH[1]
         if zeta_max is not None and (
             isinstance(zeta_max, bool)
@@ -157,6 +160,12 @@ class MPCAgent:
             raise ValueError(
                 f"b = {self.theta.b!r} is a parameter of the extended policy "
                 f"space; add space='extended'"
+            )
+        wake = {k: getattr(self.theta, k) for k in ("h", "p", "c") if getattr(self.theta, k)}
+        if self.space != "wake" and wake:
+            raise ValueError(
+                f"{', '.join(f'{k} = {v!r}' for k, v in wake.items())}: parameters of the wake "
+                f"policy space; add space='wake'"
             )
         self.raceline_config = RacelineConfig(objective=line)  # names line and choices if bad
         if line != "curvature" and self.theta.b > 0:

@@ -49,6 +49,7 @@ from .reference_tables import (
 )
 from .theta import *  # noqa: F403 (theta's public names, re-exported: see __all__)
 from .theta import Theta
+from .wake_moves import wake_moves as _wake_moves
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -225,6 +226,17 @@ def reference_trajectory(
        ``exp(-s2 gap^2)`` is near 1), so ``n_bl`` can jump by its full size between two steps.
     5. ``n_ref = clip(n_pert + n_ot + n_bl, -w_right(s_ref) + w/2, w_left(s_ref) - w/2)``
        (the paper clips to the track; we keep the car's body on it); ``s_ref = s_pert``.
+    6. *The wake space* (``h > 0`` or ``c > 0``; our addition, :data:`WAKE_BOUNDS_DOC`), before
+       the clip of 5, with ``L``, ``W`` the car's length and width and ``d_b`` the distance
+       along the track to the next braking point of the race line (the line of the larger
+       blend weight; :meth:`~agents.reference_tables._Tables.brake_points`). *Hold:* with
+       ``j^*`` at most ``h L`` ahead and under ``1.5 W`` aside, the ego on a straight
+       (``|kappa| L < 0.01`` at its ``s``) and ``d_b > p L``, ``n_ref^k = n_j`` (the car
+       ahead's offset, the slipstream) and ``n_ot = n_bl = 0``. *Pull out:* within ``p L``
+       of the braking point the hold lets go and 3-4 apply. *Cover:* with ``d_b <= p L`` and
+       ``j_*`` at most ``15 L`` behind and under ``1.5 W`` aside, ``n_ref`` moves the
+       fraction ``c`` of the way to the inside edge of the coming corner (its apex's side,
+       the body on the track).
 
     Returns a :class:`Reference`. Raises ``ValueError`` on a bad shape, a non-finite state, a
     theta out of bounds, ``K < 1``, ``dt <= 0`` or a car beyond the centre line's radius of
@@ -402,6 +414,11 @@ def reference_trajectory(
         n_ot = np.zeros(K)
     if n_bl is None:
         n_bl = np.zeros(K)
+    if m and (th.h > 0.0 or th.c > 0.0):  # ---- 6. the wake space: hold, pull out, cover
+        tab_w = _tables(blend, track, friction) if th.b >= 0.5 else tab
+        n_ref, n_ot, n_bl = _wake_moves(
+            th, x, rows, ahead, behind, tab_w, vehicle, w_half, s_e_w, n_ref, n_ot, n_bl
+        )
 
     # ---- 5. clip to the track at s_ref
     if tab.w_const is not None:  # constant widths: scalar bounds

@@ -53,6 +53,8 @@ class _Tables:
         "sfac2",
         "friction",
         "_sbrk2",
+        "_vx",
+        "_brake_points",
     )
 
     def __init__(self, raceline, track, friction):
@@ -107,6 +109,8 @@ class _Tables:
         )
         self.friction = friction if friction is not None else float(raceline.mu_nominal)
         self._sbrk2 = None  # the braking limit, at the first braking_sdot2()
+        self._vx = vx
+        self._brake_points = None  # at the first brake_points()
         # (not set read-only: np.interp copies read-only tables on every call)
         self.refs = (raceline, track)  # keep them alive so their ids stay unique
 
@@ -127,6 +131,56 @@ class _Tables:
             vb = braking_limit(np.asarray(raceline.kappa), ds, self.friction, vehicle, cap)
             self._sbrk2 = np.concatenate([vb, vb, vb[:1]]) * self.sfac2
         return self._sbrk2
+
+    def brake_points(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The race line's braking points: ``(s, s_apex, side)``, each (P,), sorted by ``s``
+        in [0, L): where the speed profile starts to fall (a local maximum) and falls by at
+        least :data:`BRAKE_DROP` of its speed before it rises again, the centre-line ``s`` of
+        the lowest speed after it (the apex) and the side of the corner there (+1 left, -1
+        right: the sign of the centre line's curvature at the apex). Computed at the first
+        call."""
+        if self._brake_points is None:
+            v = np.asarray(self._vx, dtype=float)
+            M = len(v)
+            falls = np.roll(v, -1) < v  # v[i + 1] < v[i]
+            starts = np.flatnonzero(falls & ~np.roll(falls, 1))
+            s_b, s_a, side = [], [], []
+            ds = self.L / M
+            kap = self.kap[:M]
+            for i in starts:
+                j = i
+                while falls[j % M] and j < i + M:
+                    j += 1
+                if v[i] - v[j % M] >= BRAKE_DROP * v[i]:
+                    s_b.append(i * ds)
+                    s_a.append((j % M) * ds)
+                    side.append(1.0 if kap[j % M] >= 0 else -1.0)
+            order = np.argsort(s_b)
+            self._brake_points = (
+                np.asarray(s_b)[order],
+                np.asarray(s_a)[order],
+                np.asarray(side)[order],
+            )
+        return self._brake_points
+
+    def next_brake(self, s_w: float) -> tuple[float, float, float]:
+        """``(distance [m], apex distance [m], side)`` from ``s_w`` in [0, L) to the next
+        braking point of :meth:`brake_points` (wrapping over the lap; ``(inf, inf, 0)`` on a
+        line with none)."""
+        s_b, s_a, side = self.brake_points()
+        if not len(s_b):
+            return math.inf, math.inf, 0.0
+        k = int(np.searchsorted(s_b, s_w))
+        wrap = k == len(s_b)
+        k = 0 if wrap else k
+        d = float(s_b[k]) + (self.L if wrap else 0.0) - s_w
+        d_apex = (float(s_a[k]) - float(s_b[k])) % self.L + d
+        return d, d_apex, float(side[k])
+
+
+#: A braking point of :meth:`_Tables.brake_points` takes at least this share off the speed
+#: profile before the next rise (a lift of a few percent in a fast kink is no braking zone).
+BRAKE_DROP = 0.05
 
 
 def _run_up(mu: float, dt: float = 0.005, t_max: float = 60.0, vehicle_class: str = "orca"):

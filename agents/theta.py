@@ -1,6 +1,6 @@
-"""The policy parameters theta and their spaces: the paper's ``(q, zeta, s1, s2, s3)`` and the
-extended space's ``b``, with their bounds, units and validation (:class:`Theta`,
-:class:`PolicySpace`). :mod:`agents.reference` builds the MPC reference from a theta and
+"""The policy parameters theta and their spaces: the paper's ``(q, zeta, s1, s2, s3)``, the
+extended space's ``b`` and the wake space's ``(h, p, c)``, with their bounds, units and
+validation (:class:`Theta`, :class:`PolicySpace`). :mod:`agents.reference` builds the MPC reference from a theta and
 re-exports these names."""
 
 from __future__ import annotations
@@ -24,6 +24,9 @@ __all__ = [
     "EXTENDED_NAMES",
     "EXTENDED_LOW",
     "EXTENDED_HIGH",
+    "WAKE_NAMES",
+    "WAKE_LOW",
+    "WAKE_HIGH",
     "PolicySpace",
     "SPACES",
     "policy_space",
@@ -97,19 +100,32 @@ class Theta:
     s2: float
     s3: float
     b: float = 0.0
+    h: float = 0.0
+    p: float = 0.0
+    c: float = 0.0
 
     __doc__ += "\n" + THETA_BOUNDS_DOC
 
     def __post_init__(self):
-        for i, name in enumerate(EXTENDED_NAMES):
-            v = _check_theta_value(name, getattr(self, name), EXTENDED_LOW[i], EXTENDED_HIGH[i])
+        for i, name in enumerate(WAKE_NAMES):
+            v = _check_theta_value(name, getattr(self, name), WAKE_LOW[i], WAKE_HIGH[i])
             object.__setattr__(self, name, v)
 
     def as_array(self, space: str = "paper") -> np.ndarray:
         """The parameters of policy space ``space`` as a float array: ``[q, zeta, s1, s2, s3]``
-        (shape (5,), ``"paper"``, the default) or ``[q, zeta, s1, s2, s3, b]`` (shape (6,),
-        ``"extended"``). A theta with ``b > 0`` is not in the paper's space (``ValueError``)."""
-        if policy_space(space).dim == 5:
+        (shape (5,), ``"paper"``, the default), ``[q, zeta, s1, s2, s3, b]`` (shape (6,),
+        ``"extended"``) or those and ``[h, p, c]`` (shape (9,), ``"wake"``). A theta with
+        ``b > 0`` is not in the paper's space, one with ``h``, ``p`` or ``c`` not 0 in neither
+        of the two (``ValueError``)."""
+        dim = policy_space(space).dim
+        if dim < 9 and (self.h, self.p, self.c) != (0.0, 0.0, 0.0):
+            raise ValueError(
+                f"theta with h = {self.h!r}, p = {self.p!r}, c = {self.c!r} is outside the "
+                f"{policy_space(space).name!r} space (its wake parameters are all 0)"
+            )
+        if dim == 9:
+            return np.array([getattr(self, n) for n in WAKE_NAMES], dtype=float)
+        if dim == 5:
             if self.b != 0.0:
                 raise ValueError(
                     f"theta with b = {self.b!r} is outside the paper's space "
@@ -120,16 +136,17 @@ class Theta:
 
     @classmethod
     def from_array(cls, a: Sequence[float] | np.ndarray) -> Theta:
-        """Theta from an array-like in :data:`THETA_NAMES` order (length 5, the paper's space)
-        or in the extended space's order (length 6, ``b`` last); ``ValueError`` on a wrong
-        shape or a value outside its bounds (naming parameter, value and bounds)."""
+        """Theta from an array-like in :data:`THETA_NAMES` order (length 5, the paper's space),
+        in the extended space's order (length 6, ``b`` last) or the wake space's (length 9);
+        ``ValueError`` on a wrong shape or a value outside its bounds (naming parameter, value
+        and bounds)."""
         if isinstance(a, Theta):
             return a
         arr = np.asarray(a, dtype=float)
-        if arr.shape not in ((5,), (6,)):
+        if arr.shape not in ((5,), (6,), (9,)):
             raise ValueError(
-                f"theta must have shape (5,) {THETA_NAMES} or (6,) "
-                f"{EXTENDED_NAMES}, got shape {arr.shape}"
+                f"theta must have shape (5,) {THETA_NAMES}, (6,) {EXTENDED_NAMES} or (9,) "
+                f"{WAKE_NAMES}, got shape {arr.shape}"
             )
         return cls(*(float(x) for x in arr))
 
@@ -148,6 +165,29 @@ EXTENDED_LOW = np.append(THETA_LOW, 0.0)
 EXTENDED_HIGH = np.append(THETA_HIGH, 1.0)
 EXTENDED_LOW.setflags(write=False)
 EXTENDED_HIGH.setflags(write=False)
+WAKE_NAMES = EXTENDED_NAMES + ("h", "p", "c")
+"""Names of the wake space's parameters: the extended space's six, then ``h, p, c``."""
+WAKE_LOW = np.append(EXTENDED_LOW, [0.0, 0.0, 0.0])
+WAKE_HIGH = np.append(EXTENDED_HIGH, [10.0, 60.0, 1.0])
+WAKE_LOW.setflags(write=False)
+WAKE_HIGH.setflags(write=False)
+WAKE_BOUNDS_DOC = """Bounds of the wake space's parameters (in car lengths, so that a theta names
+the same behaviour in every class) and why.
+
+* ``h`` in [0, 10] car lengths: hold the tow. While a car ahead is at most ``h`` lengths ahead
+  (centre to centre) and under 1.5 widths aside, on a straight, and the next braking point is
+  more than ``p`` lengths away, the reference's lateral target is that car's offset (the
+  slipstream) and the overtake shift waits. 0 never holds (the extended space's
+  behaviour); 10 lengths is where the wake's drag loss has fallen to about 11% (the
+  wake's curve, :mod:`racing_env.wake`).
+* ``p`` in [0, 60] car lengths: pull out. Within ``p`` lengths before the next braking point the
+  hold lets go and the overtake shift (``s1``, ``s2``) applies; 60 lengths (282 m at full size)
+  is about 3.5 s at 80 m/s, the longest a pass on a straight takes to build.
+* ``c`` in [0, 1]: cover. Within ``p`` lengths before the next braking point, with a car behind
+  under 15 lengths and 1.5 widths aside (in the ego's tow), the reference moves the fraction
+  ``c`` of the way from its line to the inside of the coming corner (the car's body on the
+  track). 0 never covers.
+"""
 
 
 @dataclass(frozen=True)
@@ -163,6 +203,10 @@ class PolicySpace:
       car is motor-limited (above about 2.2 m/s), so a car on it drives another path than a
       car on the curvature line and gains there: that offset is where passes start
       (docs: "Policy spaces").
+    * ``"wake"``: the extended space's six and ``(h, p, c)``: hold the tow, where to pull
+      out before a braking point, and cover the inside (:data:`WAKE_BOUNDS_DOC`;
+      :func:`agents.reference.reference_trajectory`, step 6). With ``h = c = 0`` a wake
+      theta drives as the same extended theta.
     """
 
     name: str
@@ -201,13 +245,16 @@ SPACES = {
     "extended": PolicySpace(
         "extended", EXTENDED_NAMES, EXTENDED_LOW, EXTENDED_HIGH, THETA_UNITS + ("-",)
     ),
+    "wake": PolicySpace(
+        "wake", WAKE_NAMES, WAKE_LOW, WAKE_HIGH, THETA_UNITS + ("-", "L", "L", "-")
+    ),
 }
 """The policy spaces by name."""
 
 
 def space_of_dim(dim: int | None) -> PolicySpace | None:
-    """The policy space of ``dim`` parameters (5 the paper's, 6 the extended one), ``None``
-    for another number."""
+    """The policy space of ``dim`` parameters (5 the paper's, 6 the extended one, 9 the wake
+    space), ``None`` for another number."""
     for space in SPACES.values():
         if space.dim == dim:
             return space
@@ -216,7 +263,7 @@ def space_of_dim(dim: int | None) -> PolicySpace | None:
 
 def space_of(theta: Sequence[float] | np.ndarray) -> PolicySpace:
     """The policy space whose parameters an array-like ``theta`` holds (by its length: 5 the
-    paper's, 6 the extended one); ``ValueError`` for another length."""
+    paper's, 6 the extended one, 9 the wake space); ``ValueError`` for another length."""
     n = len(theta)
     space = space_of_dim(n)
     if space is not None:

@@ -65,7 +65,7 @@ def test_theta_scaling_follows_the_space_of_the_last_dimension():
     np.testing.assert_array_equal(scale_theta(th)[:, :5], scale_theta(th[:, :5]))
     with pytest.raises(ValueError, match=r"'paper' policy space have 5 parameters.*\(7, 6\)"):
         scale_theta(th, "paper")
-    with pytest.raises(ValueError, match="must have 5 or 6 parameters"):
+    with pytest.raises(ValueError, match="must have 5, 6 or 9 parameters"):
         ff.potential_features(np.zeros((3, 6)), np.zeros((3, 4)), TRACK)
     with pytest.raises(ValueError, match="'extended' policy space have 6 parameters"):
         ff.value_features(np.zeros((3, 6)), np.zeros((3, 5)), TRACK, 0, space="extended")

@@ -503,9 +503,9 @@ def test_policy_spaces():
     assert paper.names == THETA_NAMES and paper.dim == 5
     assert ext.names == THETA_NAMES + ("b",) and ext.dim == 6
     assert ext.low[:5].tolist() == THETA_LOW.tolist() and (ext.low[5], ext.high[5]) == (0, 1)
-    assert set(SPACES) == {"paper", "extended"} and policy_space(ext) is ext
+    assert set(SPACES) == {"paper", "extended", "wake"} and policy_space(ext) is ext
     with pytest.raises(
-        ValueError, match=r"policy space must be one of \['extended', 'paper'\], got 'x'"
+        ValueError, match=r"policy space must be one of \['extended', 'paper', 'wake'\], got 'x'"
     ):
         policy_space("x")
     a = ext.sample(3)

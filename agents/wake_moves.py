@@ -1,0 +1,46 @@
+"""Step 6 of :func:`agents.reference.reference_trajectory`, the wake policy space's moves
+(:data:`agents.theta.WAKE_BOUNDS_DOC`): hold the tow, pull out before the braking point,
+cover the inside of the coming corner."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from racing_env.vehicle import VehicleParams
+
+from .reference_tables import _interp1
+
+
+def wake_moves(th, x, rows, ahead, behind, tab, vehicle, w_half, s_e_w, n_ref, n_ot, n_bl):
+    """``(n_ref, n_ot, n_bl)`` (K,) after the wake space's hold, pull-out and cover, for the
+    ego ``x`` (6,), the other cars' states ``rows`` (lists of 6), the neighbours' indices
+    ``ahead`` / ``behind`` (-1: none), the race line's tables ``tab`` (its braking points),
+    the car ``vehicle`` (None: the ORCA car), half its width ``w_half`` [m] and its wrapped
+    progress ``s_e_w`` [m] (:func:`~agents.reference.reference_trajectory`, step 6)."""
+    length = float(getattr(vehicle, "length", VehicleParams().length))
+    width = float(getattr(vehicle, "width", VehicleParams().width))
+    s_e, n_e = float(x[0]), float(x[1])
+    d_b, d_apex, side = tab.next_brake(s_e_w)
+    pull = th.p * length
+    if th.h > 0.0 and ahead >= 0 and d_b > pull:
+        s_j, n_j = rows[ahead][0], rows[ahead][1]
+        straight = abs(_interp1(tab.kap, s_e_w, tab.inv_ds)) * length < STRAIGHT_KAPPA_L
+        if 0.0 < s_j - s_e <= th.h * length and abs(n_j - n_e) < WAKE_SIDE * width and straight:
+            zeros = np.zeros_like(n_ref)
+            return np.full_like(n_ref, n_j), zeros, zeros.copy()
+    if th.c > 0.0 and behind >= 0 and d_b <= pull and side != 0.0:
+        s_j, n_j = rows[behind][0], rows[behind][1]
+        if 0.0 < s_e - s_j <= COVER_RANGE * length and abs(n_j - n_e) < WAKE_SIDE * width:
+            s_apex = (s_e_w + d_apex) % tab.L
+            edge = _interp1(tab.wl if side > 0 else tab.wr, s_apex, tab.inv_ds)
+            inside = side * (edge - w_half)
+            n_ref = n_ref + th.c * (inside - n_ref)
+    return n_ref, n_ot, n_bl
+
+
+#: A straight has ``|kappa| L`` under this (the pass report's straights); a car holds or covers
+#: against a car under this many widths aside, and covers against a car at most this many
+#: lengths behind (the tow's range).
+STRAIGHT_KAPPA_L = 0.01
+WAKE_SIDE = 1.5
+COVER_RANGE = 15.0
