@@ -8,10 +8,24 @@ import numpy as np
 
 from racing_env.vehicle import VehicleParams
 
-from .reference_tables import _interp1
+from .reference_tables import _interp1, _Tables
+from .theta import Theta
 
 
-def wake_moves(th, x, rows, ahead, behind, tab, vehicle, w_half, s_e_w, n_ref, n_ot, n_bl):
+def wake_moves(
+    th: Theta,
+    x: np.ndarray,
+    rows: list,
+    ahead: int,
+    behind: int,
+    tab: _Tables,
+    vehicle: object | None,
+    w_half: float,
+    s_e_w: float,
+    n_ref: np.ndarray,
+    n_ot: np.ndarray,
+    n_bl: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(n_ref, n_ot, n_bl)`` (K,) after the wake space's hold, pull-out and cover, for the
     ego ``x`` (6,), the other cars' states ``rows`` (lists of 6), the neighbours' indices
     ``ahead`` / ``behind`` (-1: none), the race line's tables ``tab`` (its braking points),
