@@ -12,6 +12,7 @@ from agents import best_theta, make_agent_spec  # noqa: E402
 from agents.best_theta import TABLE_ENV_VAR  # noqa: E402
 from experiments.evaluation import control as ct  # noqa: E402
 from experiments.evaluation import control_rule as ct_rule  # noqa: E402
+from experiments.infra.artifacts import claim_best_thetas  # noqa: E402
 from racing_env.tracks import make_track  # noqa: E402
 
 THETA = {"q": 20.0, "zeta": 0.97, "s1": 0.1, "s2": 4.0, "s3": 1.0}
@@ -67,3 +68,8 @@ def test_a_fullsize_winner_is_found_on_the_fullsize_circuit_only(table, tmp_path
     orca = make_agent_spec("mpc:theta=best")
     with pytest.raises(ValueError, match="no best fixed theta"):
         orca.check_track(make_track(TRACK))
+    # a run of the class ties its folder to the full-size entry (a bench, a strategy suite)
+    claimed = claim_best_thetas(tmp_path / "run", [TRACK], vehicle_class="fullsize")
+    assert claimed["paper"][TRACK]["theta"] == THETA
+    with pytest.raises(ValueError, match="no best fixed theta"):
+        claim_best_thetas(tmp_path / "orca_run", [TRACK])

@@ -118,6 +118,7 @@ class BenchRun(ResumableRun):
             {"schema_version": SCHEMA_VERSION, "config": config.to_dict(), "env": env_version()},
             config.agents,
             [config.track],
+            vehicle_class=config.vehicle_class,
         )
 
     @classmethod

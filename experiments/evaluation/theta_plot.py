@@ -20,7 +20,17 @@ from racing_env.draw import car_color
 from racing_env.files import atomic_path
 
 #: the unit of each theta parameter, for the axis labels
-UNITS = {"q": "", "zeta": "", "s1": " [m]", "s2": " [1/m^2]", "s3": " [s/m]", "b": ""}
+UNITS = {
+    "q": "",
+    "zeta": "",
+    "s1": " [m]",
+    "s2": " [1/m^2]",
+    "s3": " [s/m]",
+    "b": "",
+    "h": " [L]",
+    "p": " [L]",
+    "c": "",
+}
 
 
 def varying_cars(thetas) -> list[int]:

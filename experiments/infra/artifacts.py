@@ -305,17 +305,21 @@ def uses_best_theta(specs) -> bool:
     return bool(best_theta_spaces(specs))
 
 
-def claim_best_thetas(folder, tracks, table=None, spaces=("paper",)) -> dict:
+def claim_best_thetas(
+    folder, tracks, table=None, spaces=("paper",), vehicle_class: str = "orca"
+) -> dict:
     """Tie ``folder`` (a run whose races use ``mpc:theta=best``, or ``theta=best`` in another
     policy space of ``spaces``) to the thetas the table now holds for ``tracks``:
     ``folder/best_fixed_theta.json`` records them (the paper's under ``config``, as before
     policy spaces; another space's under ``spaces``), and a later run after the table
-    changed is refused (its races would mix two controls). Returns the entries by space and
-    track."""
+    changed is refused (its races would mix two controls). The entries are those of the
+    circuits at ``vehicle_class``'s scale. Returns the entries by space and track."""
     from agents.best_theta import lookup
+    from racing_env.tracks import make_track
 
     tracks = list(dict.fromkeys(tracks))
-    entries = {s: {t: lookup(t, table, s) for t in tracks} for s in dict.fromkeys(spaces)}
+    built = {t: make_track(t, vehicle_class=vehicle_class) for t in tracks}
+    entries = {s: {t: lookup(built[t], table, s) for t in tracks} for s in dict.fromkeys(spaces)}
     meta = {
         "config": {
             t: {"theta": e["theta"], "env": e["env"]} for t, e in entries.get("paper", {}).items()
@@ -370,10 +374,12 @@ class ResumableRun:
         tracks=(),
         stored: dict | None = None,
         built=None,
+        vehicle_class: str = "orca",
     ) -> None:
         """Tie the folder to ``meta`` (:func:`claim`). With ``agents``
         (agent specs), the run's :func:`provenance` is stored and checked on a resume, and
-        when an agent races the best-theta table, the thetas of ``tracks`` are claimed too
+        when an agent races the best-theta table, the thetas of ``tracks`` (circuits at
+        ``vehicle_class``'s scale) are claimed too
         (:func:`claim_best_thetas`). ``built``: the agents of ``agents`` already built (same
         order), so that the provenance does not build them again. ``stored``: the manifest
         the folder holds (as read) when the caller has checked it against this run and it
@@ -390,7 +396,7 @@ class ResumableRun:
             write_json(self.manifest_path, {**meta, "provenance": merged})
         spaces = best_theta_spaces(agents or ())
         if spaces:  # a changed table never mixes in
-            claim_best_thetas(self.out, tracks, spaces=spaces)
+            claim_best_thetas(self.out, tracks, spaces=spaces, vehicle_class=vehicle_class)
 
     def tasks(self) -> list:
         """Every task of the run, in order."""
