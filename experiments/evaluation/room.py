@@ -113,10 +113,11 @@ def suite_races(suite, config: StrategyConfig, room: RoomConfig) -> dict:
     return out
 
 
-def explicit_theta(spec: str, track: str) -> str:
-    """``spec`` with ``theta=best`` replaced by the best fixed theta of ``track`` written out
-    (``mpc:theta=best`` -> ``mpc:q=..,zeta=..,s1=..,s2=..,s3=..``, the same car), so that its
-    parameters can be moved; other specs unchanged."""
+def explicit_theta(spec: str, track: str, vehicle_class: str = "orca") -> str:
+    """``spec`` with ``theta=best`` replaced by the best fixed theta of ``track`` (the
+    circuit at ``vehicle_class``'s scale) written out (``mpc:theta=best`` ->
+    ``mpc:q=..,zeta=..,s1=..,s2=..,s3=..``, the same car), so that its parameters can be
+    moved; other specs unchanged."""
     name, _, params = spec.partition(":")
     items = [p for p in params.split(",") if p]
     if "theta=best" not in [p.replace(" ", "") for p in items]:
@@ -125,10 +126,11 @@ def explicit_theta(spec: str, track: str) -> str:
     from agents.best_theta import PAPER, best_theta
     from agents.mpc_agent import MPCAgent
     from agents.theta import policy_space
+    from racing_env.tracks import make_track
 
     agent = make_agent_spec(spec)
     space = agent.space if isinstance(agent, MPCAgent) else PAPER
-    theta = best_theta(track, space=space)
+    theta = best_theta(make_track(track, vehicle_class=vehicle_class), space=space)
     kept = [p for p in items if p.replace(" ", "") != "theta=best"]
     values = [f"{k}={float(getattr(theta, k))!r}" for k in policy_space(space).names]
     return f"{name}:{','.join([*kept, *values])}"
@@ -204,7 +206,9 @@ class RoomRun(ResumableRun):
         c = self.suite_config
         return (
             task,
-            candidate_moves(explicit_theta(base["agents"][0], track), self.config.moves),
+            candidate_moves(
+                explicit_theta(base["agents"][0], track, c.vehicle_class), self.config.moves
+            ),
             ego["agents"][1:],
             track,
             ego["seed"],
