@@ -69,9 +69,7 @@ def condense_states(A, B, K):
                         for q in range(6):
                             acc += A[r + 6 * q, k + 1] * M[q, c]
                         T[r, c] = acc
-                for r in range(6):  # element copies: a slice assignment pulls numba's
-                    for c in range(2):  # string formatting into the compile (2 s cold)
-                        M[r, c] = T[r, c]
+                M[:, :] = T
     return G
 
 
