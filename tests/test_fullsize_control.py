@@ -73,3 +73,12 @@ def test_a_fullsize_winner_is_found_on_the_fullsize_circuit_only(table, tmp_path
     assert claimed["paper"][TRACK]["theta"] == THETA
     with pytest.raises(ValueError, match="no best fixed theta"):
         claim_best_thetas(tmp_path / "orca_run", [TRACK])
+
+
+def test_the_defend_ceiling_is_the_class_s():
+    from experiments.evaluation.strategy import ZETA_MAX, StrategyConfig
+
+    assert StrategyConfig().zeta_max == ZETA_MAX == 0.94
+    assert StrategyConfig(vehicle_class="fullsize").zeta_max == 0.88
+    assert StrategyConfig(vehicle_class="fullsize", zeta_max=0.9).zeta_max == 0.9
+    assert StrategyConfig().to_dict()["zeta_max"] == 0.94  # stored suites resume

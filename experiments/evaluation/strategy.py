@@ -80,6 +80,11 @@ DEFAULT_TRACKS = ("default", "random:20001", "random:20002")
 #: 4.6-5.2% more in 12 s and 4.8-5.6% more in 30 s than the same MPC under a 0.94 ceiling;
 #: 0.95 gave 3.2-4.5% (12-30 s), too close to :data:`PACE_GAP` (docs: "Strategy benchmark").
 ZETA_MAX = 0.94
+#: The defend ceiling per vehicle class (``zeta_max`` None takes the class's). The full-size
+#: car is power-limited on the straights, where a zeta ceiling does not slow it: at 0.94 the
+#: opponents (Monza's best fixed theta, 600 steps alone from the grid) are only 1.2% faster,
+#: at 0.90 2.6%, at 0.88 3.4% (docs: "The room", defending at full size).
+ZETA_MAX_CLASS = {"orca": ZETA_MAX, "fullsize": 0.88}
 #: The least solo pace advantage [fraction] of the defend scenario's opponents.
 PACE_GAP = 0.03
 
@@ -99,7 +104,8 @@ class StrategyConfig:
     in ``scenarios`` (of :data:`SCENARIOS`) on ``tracks``, ``races`` races of ``steps``
     control periods (0.1 s) per bench; ``seed`` fixes every race's start positions and
     agents' seeds (race k of every bench has the seed of ``(seed, k)``); ``zeta_max`` is the
-    defend ego's speed-scale ceiling; ``pass_opponents`` the spec of the two non-yielding
+    defend ego's speed-scale ceiling (None: the class's, :data:`ZETA_MAX_CLASS`, stored
+    resolved); ``pass_opponents`` the spec of the two non-yielding
     cars of ``pass`` (default :data:`PASS_OPPONENTS`, the racing-line follower);
     ``vehicle_class`` and ``wake`` the world of every race (the paper's 1:43 class by default;
     ``wake`` None: the class's, stored resolved), left out of :meth:`to_dict` for the paper's.
@@ -120,13 +126,15 @@ class StrategyConfig:
     races: int = 99
     steps: int = 200
     seed: int = 0
-    zeta_max: float = ZETA_MAX
+    zeta_max: float | None = None
     pass_opponents: str = PASS_OPPONENTS
     vehicle_class: str = "orca"
     wake: float | None = None
 
     def __post_init__(self):
         check_class_wake(self)
+        if self.zeta_max is None:  # the class's ceiling, stored resolved
+            object.__setattr__(self, "zeta_max", ZETA_MAX_CLASS[self.vehicle_class])
         object.__setattr__(self, "tracks", tuple(self.tracks))
         object.__setattr__(self, "scenarios", tuple(self.scenarios))
         check_counts(self, ("races", "steps"))
