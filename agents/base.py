@@ -209,6 +209,23 @@ def _parse_value(text: str):
     return {"true": True, "false": False}.get(text.lower(), text)
 
 
+def spec_params(spec: str) -> tuple[str, dict[str, str]]:
+    """``(name, {key: value text})`` of an agent spec ``name:key=value,...``, in the spec's
+    order, spaces around keys and values stripped (the values as written, not parsed)."""
+    name, _, params = spec.partition(":")
+    items = (item.partition("=") for item in params.split(",") if item)
+    return name, {k.strip(): v.strip() for k, _, v in items}
+
+
+def spec_with(spec: str, drop: tuple[str, ...] = (), **params) -> str:
+    """``spec`` with the keys ``drop`` and ``params`` taken out and ``params`` appended, in
+    their order (``spec_with("mpc:q=5,s1=0.3", s1=0)`` is ``"mpc:q=5,s1=0"``)."""
+    name, kept = spec_params(spec)
+    items = [f"{k}={v}" for k, v in kept.items() if k not in drop and k not in params]
+    items += [f"{k}={v}" for k, v in params.items()]
+    return f"{name}:{','.join(items)}" if items else name
+
+
 def make_agent_spec(spec: str) -> Agent:
     """Build an agent from a spec ``name`` or ``name:key=value,key=value`` (command line form),
     e.g. ``"raceline:grip=0.75,line_fraction=0.8"``; values are parsed as int, float, bool or str.

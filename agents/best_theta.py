@@ -196,10 +196,12 @@ def lookup(track: str | Track, path: str | os.PathLike | None = None, space: str
             if (s == spec or e["name"] == track.name) and e.get("vehicle_class", "orca") == cls
         ]
         if same:
+            other = entries[same[0]]
             raise ValueError(
                 f"the best fixed theta{_in_space(space)} of track {spec!r} in {path} was "
-                f"chosen on another geometry (fingerprint {entries[same[0]]['fingerprint']}, "
-                f"this track's {fp}); run `{control_command(entries[same[0]]['track'], space, cls)}` to choose it again"
+                f"chosen on another geometry (fingerprint {other['fingerprint']}, this "
+                f"track's {fp}); run `{control_command(other['track'], space, cls)}` to "
+                f"choose it again"
             )
         raise ValueError(
             f"no best fixed theta{_in_space(space)} for track {spec!r} in {path} (it has"

@@ -24,6 +24,7 @@ from .reference import (
     WAKE_HIGH,
     WAKE_LOW,
     WAKE_NAMES,
+    WAKE_ONLY,
     Theta,
     in_a_wake,
     policy_space,
@@ -161,7 +162,7 @@ class MPCAgent:
                 f"b = {self.theta.b!r} is a parameter of the extended policy "
                 f"space; add space='extended'"
             )
-        wake = {k: getattr(self.theta, k) for k in ("h", "p", "c") if getattr(self.theta, k)}
+        wake = {k: getattr(self.theta, k) for k in WAKE_ONLY if getattr(self.theta, k)}
         if self.space != "wake" and wake:
             raise ValueError(
                 f"{', '.join(f'{k} = {v!r}' for k, v in wake.items())}: parameters of the wake "

@@ -49,6 +49,7 @@ from .reference_tables import (
 )
 from .theta import *  # noqa: F403 (theta's public names, re-exported: see __all__)
 from .theta import Theta
+from .wake_moves import TOW_RANGE  # noqa: F401 (re-exported: the tow's geometry)
 from .wake_moves import wake_moves as _wake_moves
 
 if TYPE_CHECKING:
@@ -474,9 +475,6 @@ def _pass_side(side, dn, nj, sj_w, tab, inv_ds, w_half, pass_room=PASS_ROOM) -> 
 #: How much faster [m/s] than the race line's progress rate a car must be for the reference to
 #: follow it rather than hold it back (step 1c of :func:`reference_trajectory`).
 TOW_MARGIN = 1.0
-#: A car is in a wake (step 1c) with another car at most this many car lengths ahead and this
-#: many car widths to the side: where the wake's drag factor is below 0.91 (racing_env.wake).
-TOW_RANGE = (15.0, 1.5)
 
 
 def in_a_wake(

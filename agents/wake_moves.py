@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from racing_env.track import STRAIGHT_KAPPA_LENGTHS
 from racing_env.vehicle import VehicleParams
 
 from .reference_tables import _interp1, _Tables
@@ -38,13 +39,14 @@ def wake_moves(
     pull = th.p * length
     if th.h > 0.0 and ahead >= 0 and d_b > pull:
         s_j, n_j = rows[ahead][0], rows[ahead][1]
-        straight = abs(_interp1(tab.kap, s_e_w, tab.inv_ds)) * length < STRAIGHT_KAPPA_L
-        if 0.0 < s_j - s_e <= th.h * length and abs(n_j - n_e) < WAKE_SIDE * width and straight:
+        straight = abs(_interp1(tab.kap, s_e_w, tab.inv_ds)) * length < STRAIGHT_KAPPA_LENGTHS
+        if 0.0 < s_j - s_e <= th.h * length and abs(n_j - n_e) < TOW_RANGE[1] * width and straight:
             zeros = np.zeros_like(n_ref)
             return np.full_like(n_ref, n_j), zeros, zeros.copy()
     if th.c > 0.0 and behind >= 0 and d_b <= pull and side != 0.0:
         s_j, n_j = rows[behind][0], rows[behind][1]
-        if 0.0 < s_e - s_j <= COVER_RANGE * length and abs(n_j - n_e) < WAKE_SIDE * width:
+        in_tow = s_e - s_j <= TOW_RANGE[0] * length and abs(n_j - n_e) < TOW_RANGE[1] * width
+        if s_e - s_j > 0.0 and in_tow:
             s_apex = (s_e_w + d_apex) % tab.L
             edge = _interp1(tab.wl if side > 0 else tab.wr, s_apex, tab.inv_ds)
             inside = side * (edge - w_half)
@@ -52,9 +54,7 @@ def wake_moves(
     return n_ref, n_ot, n_bl
 
 
-#: A straight has ``|kappa| L`` under this (the pass report's straights); a car holds or covers
-#: against a car under this many widths aside, and covers against a car at most this many
-#: lengths behind (the tow's range).
-STRAIGHT_KAPPA_L = 0.01
-WAKE_SIDE = 1.5
-COVER_RANGE = 15.0
+#: A car is in a wake (step 1c of :func:`~agents.reference.reference_trajectory`; the wake
+#: space's cover) with another car at most this many car lengths ahead and this many car
+#: widths to the side: where the wake's drag factor is below 0.91 (racing_env.wake).
+TOW_RANGE = (15.0, 1.5)

@@ -24,11 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.evaluation.bench_config import REGIONS
 from experiments.evaluation.oracle import MOVES, candidate_moves, oracle_race
 from experiments.evaluation.race import start_order
-from experiments.infra.artifacts import slug
-
-REGIONS = ("R1", "R2", "R3")
+from experiments.infra.artifacts import append_jsonl, read_jsonl, slug
 
 
 def main(argv=None) -> None:
@@ -55,19 +54,12 @@ def main(argv=None) -> None:
         raise SystemExit(
             f"no pass races of {ego!r} on {args.track!r} in {args.suite} ({records_path})"
         )
-    records = [json.loads(line) for line in records_path.read_text().splitlines() if line]
-    records.sort(key=lambda r: r["race"])
+    records = sorted(read_jsonl(records_path), key=lambda r: r["race"])
     if args.region:
         records = [r for r in records if r["ego_region"] == args.region]
     records = records[: args.races]
     candidates = [*candidate_moves(ego, args.moves), *(args.candidates or [])]
-    done = {}
-    if args.out and args.out.exists():
-        done = {
-            json.loads(line)["race"]: json.loads(line)
-            for line in args.out.read_text().splitlines()
-            if line
-        }
+    done = {r["race"]: r for r in read_jsonl(args.out)} if args.out else {}
     print(
         f"oracle on {args.track}, {len(candidates)} candidates, look-ahead {args.lookahead} s, "
         f"a choice every {args.every} periods; vehicle class {config['vehicle_class']}, wake {config['wake']}"
@@ -108,8 +100,7 @@ def main(argv=None) -> None:
         }
         rows.append(row)
         if args.out:
-            with args.out.open("a") as fh:
-                fh.write(json.dumps(row) + "\n")
+            append_jsonl(args.out, row)
         print(
             f"race {row['race']:>2} {row['region']}: margin fixed {row['fixed_margin_m']:+8.1f} m, "
             f"oracle {row['oracle_margin_m']:+8.1f} m; won fixed {row['fixed_won']}, oracle "

@@ -29,6 +29,9 @@ from .interp import periodic_interp
 
 MIN_POINTS = 8
 """Fewest centre-line points a track may be built from."""
+STRAIGHT_KAPPA_LENGTHS = 0.01
+"""``|kappa| * car length`` below which the track is a straight (a radius over 100 car
+lengths: 470 m at full size): the pass report's sections and the wake space's hold."""
 
 
 def _fail(msg: str) -> None:

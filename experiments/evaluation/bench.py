@@ -190,9 +190,7 @@ def run_many(runs: dict, pool: Pool) -> None:
 
 def bench(config: BenchConfig, out_dir, pool: Pool = Pool()) -> dict:
     """Run (or resume) one benchmark into ``out_dir`` on ``pool``; returns its summary."""
-    from racing_env.tracks import make_track
-
-    check_agent_specs(config.agents, [make_track(config.track, vehicle_class=config.vehicle_class)])
+    check_agent_specs(config.agents, [config.track], config.vehicle_class)
     run = BenchRun(out_dir, config)
     run_many({"bench": run}, pool)
     return run.write_summary()

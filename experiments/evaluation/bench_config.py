@@ -166,18 +166,21 @@ def check_spec_fields(config: object, names: Sequence[str]) -> None:
             )
 
 
-def check_agent_specs(specs, tracks=()) -> list:
+def check_agent_specs(specs, tracks=(), vehicle_class: str = "orca") -> list:
     """Build each agent spec once, so a typo fails before any race starts; an agent with a
     ``check_track(track)`` method (``mpc:theta=best``: the track's entry in the best-theta
-    table) checks each of ``tracks`` too. Returns the agents built, one per spec of ``specs``
-    (a repeated spec's agent repeated), for :func:`~experiments.infra.artifacts.provenance`."""
+    table) checks each of ``tracks`` too, built at ``vehicle_class``'s scale (a typo in a
+    track fails here too). Returns the agents built, one per spec of ``specs`` (a repeated
+    spec's agent repeated), for :func:`~experiments.infra.artifacts.provenance`."""
     from agents import make_agent_spec
+    from racing_env.tracks import make_track
 
+    tracks = [make_track(t, vehicle_class=vehicle_class) for t in dict.fromkeys(tracks)]
     built = {}
     for spec in dict.fromkeys(specs):
         agent = built[spec] = make_agent_spec(spec)
         check = getattr(agent, "check_track", None)
-        for track in dict.fromkeys(tracks) if check is not None else ():
+        for track in tracks if check is not None else ():
             try:
                 check(track)
             except ValueError as exc:

@@ -442,13 +442,11 @@ def select_best_thetas(
     :func:`default_out` of the config's space and class. Returns ``summary.json``'s content with
     ``new_map_runs``, ``new_races`` and ``wall_seconds_this_run``."""
     from agents.best_theta import env_name
-    from racing_env.tracks import make_track
 
     tracks = list(dict.fromkeys(tracks))
     if not tracks or not all(isinstance(t, str) and t for t in tracks):
         raise ValueError(f"tracks must be non-empty track specs, got {tracks!r}")
-    built = [make_track(t, vehicle_class=cfg.vehicle_class) for t in tracks]  # typos fail now
-    check_agent_specs([cfg.opponents], built)
+    check_agent_specs([cfg.opponents], tracks, cfg.vehicle_class)  # typos fail now
     out = Path(out_dir if out_dir is not None else default_out(cfg.space, cfg.vehicle_class))
     out.mkdir(parents=True, exist_ok=True)
     claim(

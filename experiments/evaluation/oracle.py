@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents import make_agent_spec
+from agents.base import spec_with
 from agents.mpc_agent import MPCAgent
 from experiments.evaluation.race import start_race
 from racing_env import RacingParallelEnv
@@ -33,18 +34,21 @@ from racing_env import RacingParallelEnv
 MOVES = ("s1=0", "q=500", "zeta=0.95", "s3=5", "s2=2", "b=0", "s1=0.1", "q=50")
 
 
+def check_moves(moves) -> int:
+    """``moves`` if it is a number of :data:`MOVES` (0..len(MOVES)), else a ValueError."""
+    if isinstance(moves, bool) or not (isinstance(moves, int) and 0 <= moves <= len(MOVES)):
+        raise ValueError(f"moves must be an integer in 0..{len(MOVES)}, got {moves!r}")
+    return moves
+
+
 def candidate_moves(spec: str, moves: int = 4) -> list[str]:
     """``spec`` (an ``mpc`` agent spec) and ``spec`` with one parameter moved, for the first
     ``moves`` of :data:`MOVES` (nested: the candidates of ``moves = m`` are the first
     ``m + 1`` of ``moves = m + 1``); a ValueError for ``moves`` outside 0..len(MOVES)."""
-    if not (isinstance(moves, int) and 0 <= moves <= len(MOVES)):
-        raise ValueError(f"moves must be an integer in 0..{len(MOVES)}, got {moves!r}")
-    name, _, params = spec.partition(":")
     out = [spec]
-    for move in MOVES[:moves]:
-        key = move.partition("=")[0]
-        kept = [p for p in params.split(",") if p and p.partition("=")[0] != key]
-        out.append(f"{name}:{','.join([*kept, move])}")
+    for move in MOVES[: check_moves(moves)]:
+        key, _, value = move.partition("=")
+        out.append(spec_with(spec, **{key: value}))
     return out
 
 
@@ -53,7 +57,7 @@ class OracleResult:
     """One oracle race: ``progress`` (N,) [m] of every car from its start (the oracle is car
     0), ``winner`` (the car with the most progress), ``choices`` the candidate index kept at
     each choice, ``scores`` (choices, M) every candidate's relative progress [m] at the end of
-    its look-ahead (-inf where its copy could not run, at the race's end)."""
+    its look-ahead (cut short where the race ends first)."""
 
     progress: np.ndarray
     winner: int
@@ -150,7 +154,7 @@ def _step(env: RacingParallelEnv, agents: list, obs: dict) -> dict:
 
 def _rollout(env, agents, obs, theta, n_steps: int) -> float:
     """The oracle's relative progress after ``n_steps`` periods of a copy of the race with its
-    theta set to ``theta`` (-inf when the race has ended)."""
+    theta set to ``theta`` (fewer where the race ends first)."""
     env2, agents2, obs2 = copy.deepcopy((env, agents, obs))
     agents2[0].theta = theta
     for _ in range(n_steps):

@@ -18,9 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from experiments.evaluation import metrics as race_metrics
+from racing_env.track import STRAIGHT_KAPPA_LENGTHS
 
-#: ``|kappa| * car length`` below which the track is a straight (radius > 100 car lengths).
-STRAIGHT_KAPPA_LENGTHS = 0.01
 #: Runs of straight or corner shorter than this many car lengths join the section before.
 MIN_SECTION_LENGTHS = 10.0
 

@@ -236,12 +236,11 @@ class PolicyMapRun(ResumableRun):
 def policy_map(config: PolicyMapConfig, out_dir, pool: Pool = Pool()) -> dict:
     """Run (or resume) the policy map ``config`` into ``out_dir``; returns its summary with
     ``new_rows``, the number of rows computed by this call."""
-    from racing_env.tracks import make_track
 
-    for track in config.tracks:  # a typo fails before any run starts
-        make_track(track, vehicle_class=config.vehicle_class)
-    if "race" in config.modes:
-        check_agent_specs([config.opponents], config.tracks)
+    # a typo (in a track or the opponents' spec) fails before any run starts
+    check_agent_specs(
+        [config.opponents] if "race" in config.modes else [], config.tracks, config.vehicle_class
+    )
     run = PolicyMapRun(out_dir, config)
     new = run_maps({None: run}, pool)
     summary = run.write_outputs()

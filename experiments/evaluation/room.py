@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.evaluation.oracle import MOVES, candidate_moves, oracle_race
+from agents.base import spec_params, spec_with
+from experiments.evaluation.oracle import MOVES, candidate_moves, check_moves, oracle_race
 from experiments.evaluation.race import start_order
 from experiments.evaluation.strategy import StrategyConfig, cells
 from experiments.infra.artifacts import ResumableRun, read_jsonl, write_json, write_text
@@ -58,8 +59,7 @@ class RoomConfig:
         object.__setattr__(self, "benches", tuple(self.benches))
         if self.base not in ("control", "ego"):
             raise ValueError(f"base must be 'control' or 'ego', got {self.base!r}")
-        if not (isinstance(self.moves, int) and 0 <= self.moves <= len(MOVES)):
-            raise ValueError(f"moves must be an integer in 0..{len(MOVES)}, got {self.moves!r}")
+        check_moves(self.moves)
         if isinstance(self.lookahead, bool) or not (
             isinstance(self.lookahead, (int, float)) and 0 < self.lookahead <= 60
         ):
@@ -118,9 +118,7 @@ def explicit_theta(spec: str, track: str, vehicle_class: str = "orca") -> str:
     circuit at ``vehicle_class``'s scale) written out (``mpc:theta=best`` ->
     ``mpc:q=..,zeta=..,s1=..,s2=..,s3=..``, the same car), so that its parameters can be
     moved; other specs unchanged."""
-    name, _, params = spec.partition(":")
-    items = [p for p in params.split(",") if p]
-    if "theta=best" not in [p.replace(" ", "") for p in items]:
+    if spec_params(spec)[1].get("theta") != "best":
         return spec
     from agents import make_agent_spec
     from agents.best_theta import PAPER, best_theta
@@ -131,9 +129,8 @@ def explicit_theta(spec: str, track: str, vehicle_class: str = "orca") -> str:
     agent = make_agent_spec(spec)
     space = agent.space if isinstance(agent, MPCAgent) else PAPER
     theta = best_theta(make_track(track, vehicle_class=vehicle_class), space=space)
-    kept = [p for p in items if p.replace(" ", "") != "theta=best"]
-    values = [f"{k}={float(getattr(theta, k))!r}" for k in policy_space(space).names]
-    return f"{name}:{','.join([*kept, *values])}"
+    values = {k: repr(float(getattr(theta, k))) for k in policy_space(space).names}
+    return spec_with(spec, drop=("theta",), **values)
 
 
 def room_race(
@@ -333,8 +330,7 @@ def _short(spec: str, base: str) -> str:
     """A candidate named by its move from the base candidate (``"base"`` for itself)."""
     if spec == base:
         return "base"
-    mine = dict(p.partition("=")[::2] for p in spec.partition(":")[2].split(",") if p)
-    theirs = dict(p.partition("=")[::2] for p in base.partition(":")[2].split(",") if p)
+    mine, theirs = spec_params(spec)[1], spec_params(base)[1]
     moved = [f"{k}={v}" for k, v in mine.items() if theirs.get(k) != v]
     return ",".join(moved) or spec
 
