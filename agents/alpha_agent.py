@@ -17,6 +17,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections import deque
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -56,6 +57,12 @@ def auto_model(track_name: str, n_cars: int, space: str = "paper") -> str:
     if general is not None and (MODEL_DIR / SHIPPED[general]).exists():
         return general
     return single_name
+
+
+def _spec_names(spec: str) -> set[str]:
+    """The names a track built from the spec ``spec`` may have: the spec itself (``default``,
+    ``random:3``), a TUMFTM circuit's name (``tumftm:Monza``: ``Monza``), a CSV file's stem."""
+    return {spec, spec.removeprefix("tumftm:"), Path(spec).stem}
 
 
 @register_agent("alpha")
@@ -193,8 +200,8 @@ class AlphaAgent(MPCAgent):
     def _check_track(self) -> None:
         model, track = self._model(), self.track
         assert track is not None  # after reset()
-        trained_on = model.meta.get("track")
-        if not model.general and trained_on and trained_on != track.name:
+        trained_on = model.meta.get("track")  # a spec: tumftm:Monza builds a track 'Monza'
+        if not model.general and trained_on and track.name not in _spec_names(trained_on):
             warnings.warn(
                 f"alpha-potential model trained on track {trained_on!r}, racing on {track.name!r}",
                 stacklevel=3,

@@ -25,6 +25,16 @@ theta block ``dim`` wide; the paper's features are those of the first release, b
 Thetas enter scaled to [-1, 1] by their space's bounds (:func:`scale_theta`), so the gradient of a
 network with respect to its theta slots is the gradient with respect to the scaled theta.
 
+Vehicle classes: the features are in the race's own units (metres, m/s, rad, 1/m), and the
+networks standardise every input by the mean and spread of their training features
+(:func:`experiments.potential.nets.input_scale`), so a model of the full-size class, trained on
+full-size races, needs no other scale. The one length the features choose, the curvature
+look-ahead :data:`PREVIEW` (0 to 2 m: 0 to 17 lengths of the 1:43 car), is in lengths of the
+1:43 car and scales with the track's class (:func:`preview_distances`: times the car's length
+ratio, 39.2 at full size, so 0 to 78 m); on a 1:43 track it is :data:`PREVIEW` itself, so the
+features there are those of the first release, bit for bit. Theta needs no scaling: the box
+is the same in every class (:func:`agents.theta.theta_length_scales`).
+
 These are the ``fixed`` feature set (one track, a fixed number of cars: the paper's models).
 The ``general`` set (:mod:`agents.general_features`: any track, any N up to 8, sorted and
 padded) is a second feature set; a model records its set's name and version in its metadata and
@@ -33,6 +43,7 @@ padded) is a second feature set; a model records its set's name and version in i
 
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -45,7 +56,7 @@ if TYPE_CHECKING:
     from racing_env.track import Track
 
 FEATURE_VERSION = 1
-PREVIEW = np.array([0.0, 0.5, 1.0, 2.0])  # curvature look-ahead distances [m]
+PREVIEW = np.array([0.0, 0.5, 1.0, 2.0])  # curvature look-ahead distances [m] at 1:43
 N_STATE = 5  # n, mu, vx, vy, omega
 N_THETA = 5  # the paper's space; theta_dim(space) in general
 
@@ -103,9 +114,31 @@ def unscale_theta(
     return sp.low + 0.5 * (np.asarray(z, dtype=float) + 1.0) * (sp.high - sp.low)
 
 
+@functools.cache
+def _preview_of_class(vehicle_class: str) -> np.ndarray:
+    from racing_env.scaling import size_ratios
+
+    if vehicle_class == "orca":
+        return PREVIEW
+    ahead = PREVIEW * size_ratios(vehicle_class)[0]
+    ahead.setflags(write=False)
+    return ahead
+
+
+def preview_distances(track: Track) -> np.ndarray:
+    """The curvature look-ahead distances [m] on ``track``: :data:`PREVIEW` (lengths of the
+    1:43 car) times the length ratio of the track's class's car to it
+    (:func:`racing_env.scaling.size_ratios`); :data:`PREVIEW` itself on a 1:43 track."""
+    from racing_env.vehicles import track_class
+
+    return _preview_of_class(track_class(track))
+
+
 def curvature_preview(track: Track, s: float | np.ndarray) -> np.ndarray:
-    """Track curvature [1/m] at ``s + PREVIEW``: shape ``s.shape + (len(PREVIEW),)``."""
-    ahead = np.asarray(s, dtype=float)[..., None] + PREVIEW
+    """Track curvature [1/m] at ``s`` plus the look-ahead distances of the track's class
+    (:func:`preview_distances`; :data:`PREVIEW` on a 1:43 track): shape
+    ``s.shape + (len(PREVIEW),)``."""
+    ahead = np.asarray(s, dtype=float)[..., None] + preview_distances(track)
     return track.interp(track.kappa, ahead)
 
 

@@ -56,7 +56,7 @@ FULLSIZE_GRIP_USE = (0.9, 0.9)
 #: ellipse leaves it (:func:`_fullsize_long_room`) where the corner asks all its grip across
 FULLSIZE_LONG_FLOOR = 0.3
 #: the full-size follower's steering law ``(preview_floor [m], preview_time [s], k_yaw [-],
-#: slip_onset [-], speed_preview [s])``: a preview ``D = max(preview_floor, preview_time
+#: slip_onset [-], speed_preview [s], k_mu [-])``: a preview ``D = max(preview_floor, preview_time
 #: vx)`` (the ORCA law's ``preview_min`` scaled by the length ratio, 19.6 m, is 1.6 s at 12 m/s: the car cut
 #: Monza's first chicane); yaw-rate damping ``k_yaw L (vx kappa_cmd - omega) / vx`` added to
 #: the steering (it counter-steers a car that yaws faster than its path asks); and a
@@ -65,8 +65,12 @@ FULLSIZE_LONG_FLOOR = 0.3
 #: stable); its speed target is the profile's ``speed_preview`` s ahead (its brakes ask
 #: ``FULLSIZE_GRIP_USE[1]`` of the front's peak where the profile asks all of it: with the
 #: ORCA law's 0.3 s it reached Monza's first chicane 3 m/s too fast); ``slip_onset`` >= 1:
-#: no traction rule
-FULLSIZE_STEER = (6.0, 0.7, 0.6, 0.3, 0.6)
+#: no traction rule. ``k_mu`` is the heading error's gain ``k_mu / D`` (the ORCA law's 2):
+#: at 2 the car lagged its line by up to 1.7 m through Monza's Curva Grande at 49 m/s, on
+#: the inside edge's last 5 cm in clean air, and a follower in dirty air left the track
+#: there about once a race; at 3 it no longer did (4 seeds of two followers, 90 s; lateral
+#: gains of 2 and 4 instead, or a shorter preview, made it weave off the track)
+FULLSIZE_STEER = (6.0, 0.7, 0.6, 0.3, 0.6, 3.0)
 
 
 def understeer_gradient(v: VehicleParams | FullSizeParams) -> float:
@@ -314,9 +318,9 @@ class RacelineFollower:
 
     def gains(self) -> np.ndarray:
         """Packed controller constants for :func:`follower_action`: 13 for the ORCA car, and
-        for the full-size class 37 more (from :data:`FULLSIZE_GAINS`: ``c_drag``, ``c_roll m
+        for the full-size class 38 more (from :data:`FULLSIZE_GAINS`: ``c_drag``, ``c_roll m
         g``, ``F_drive_max``, ``P_max``, ``v_low``, the two :data:`FULLSIZE_GRIP_USE`, the
-        five :data:`FULLSIZE_STEER`, then :meth:`FullSizeParams.pack`); the ORCA entries
+        six :data:`FULLSIZE_STEER`, then :meth:`FullSizeParams.pack`); the ORCA entries
         C1..C4 are then 1, 0, 0, 0 (not read)."""
         v = self.vehicle
         if isinstance(v, FullSizeParams):
@@ -477,15 +481,16 @@ def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g, v_cap=NO_
     else:
         preview = max(g[0], g[1] * vx)
     beta = math.atan2(vy, max(vx, 0.1))
+    k_mu = g[f + 12] if fullsize else 2.0  # the heading error's gain
     kappa_cmd = (
         _lookup(kappa_ref, s + 0.5 * preview, ds, length)
-        + 2.0 / preview * (_lookup(mu_ref, s, ds, length) - (mu + beta))
+        + k_mu / preview * (_lookup(mu_ref, s, ds, length) - (mu + beta))
         + 1.0 / preview**2 * (_lookup(n_ref, s, ds, length) - n)
     )
     delta = math.atan(g[4] * kappa_cmd) + g[5] * vx * vx * kappa_cmd
     v_target = min(_lookup(v_ref, s + g[2] * vx, ds, length), v_cap)
     if fullsize:  # full-size class: resistance over the power-limited drive
-        p = g[f + 12 :]
+        p = g[f + 13 :]
         v_target = min(_lookup(v_ref, s + g[f + 11] * vx, ds, length), v_cap)
         omega = x[5]
         vx_eff = max(vx, 1.0)

@@ -92,7 +92,7 @@ def test_follower_scaled_to_the_class(monza):
     explicit = RacelineFollower(preview_min=0.7)
     explicit.reset(monza)
     assert explicit.preview_min == 0.7  # given: used as given
-    assert len(f.gains()) == 13 + 12 + 25
+    assert len(f.gains()) == 13 + 13 + 25
 
 
 def test_follower_feed_forward_holds_speed(monza):
@@ -291,12 +291,13 @@ def test_follower_traction_control_on_the_ellipse(monza):
 
 def test_follower_full_size_steering_law(monza):
     """The full-size follower's own law (FULLSIZE_STEER), by hand: the preview max(6 m, 0.7 s
-    vx) on a lateral error, the yaw-rate damping k_yaw L (vx kappa_cmd - omega) / vx, and the
-    drive fading from slip_onset of the rear's peak slip angle to nothing at the peak."""
+    vx) on a lateral error, the heading error's gain k_mu / D, the yaw-rate damping k_yaw L
+    (vx kappa_cmd - omega) / vx, and the drive fading from slip_onset of the rear's peak slip
+    angle to nothing at the peak."""
     from racing_env.controllers import FULLSIZE_GRIP_USE, FULLSIZE_STEER
 
     v = FullSizeParams()
-    floor, t_prev, k_yaw, onset, _ = FULLSIZE_STEER
+    floor, t_prev, k_yaw, onset, _, k_mu = FULLSIZE_STEER
     f = RacelineFollower()
     f.reset(monza)
     M = len(monza.s_grid)
@@ -309,6 +310,15 @@ def test_follower_full_size_steering_law(monza):
         k = 0.5 / D**2  # the lateral error's curvature; no yaw-rate error but vx k
         delta = np.arctan(L * k) + f.k_us * vx**2 * k + k_yaw * L * (vx * k) / vx
         assert steer == pytest.approx(delta / v.delta_max, rel=1e-12)
+    # a heading error on a straight: the curvature k_mu / D times it
+    vx = 30.0
+    D = t_prev * vx
+    tables = (np.zeros(M), np.full(M, 0.02), np.zeros(M), np.full(M, vx))
+    x = np.array([100.0, 0.0, 0.0, vx, 0.0, 0.0])
+    _, steer = follower_action(x, *tables, monza.ds, monza.length, f.gains())
+    k = k_mu / D * 0.02
+    delta = np.arctan(L * k) + f.k_us * vx**2 * k + k_yaw * L * (vx * k) / vx
+    assert steer == pytest.approx(delta / v.delta_max, rel=1e-12)
     # a yaw rate on a straight: counter-steered, k_yaw L omega / vx
     tables = (np.zeros(M), np.zeros(M), np.zeros(M), np.full(M, 30.0))
     x = np.array([100.0, 0.0, 0.0, 30.0, 0.0, 0.1])

@@ -295,7 +295,7 @@ def make_follower(
         # closed loop off the track on Monza: 108 off-track steps where it had none)
         follower.fullsize_law = (
             WARM_START_GRIP_USE,
-            (follower.preview_min, follower.preview_time, 0.0, 1.0, follower.speed_preview),
+            (follower.preview_min, follower.preview_time, 0.0, 1.0, follower.speed_preview, 2.0),
         )
         follower._gains = follower.gains()
     return follower

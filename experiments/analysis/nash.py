@@ -423,6 +423,11 @@ def analyze(
             f"analyze studies a single-track model on its own track; {cfg.model!r} "
             f"is a general model: use `alpha-racer general-report` for it"
         )
+    if model.vehicle_class != "orca":  # its races, rollouts and figures are built at 1:43
+        raise ValueError(
+            f"analyze studies a model of the 1:43 'orca' class; {cfg.model!r} was trained "
+            f"for the {model.vehicle_class!r} class"
+        )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     claim(out / "config.json", asdict(cfg), "analyses", overwrite=force)

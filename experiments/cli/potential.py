@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from experiments.cli.options import (
+    CLASS_OPTIONS,
     PARALLEL_OPTIONS,
     RESUME_HELP,
     add_options,
@@ -17,6 +18,7 @@ from experiments.cli.options import (
 def _cmd_collect(args) -> int:
     from experiments.potential.collect import CollectConfig, collect
     from experiments.potential.family import FamilyConfig, collect_family, parse_cars
+    from racing_env.class_config import default_track
 
     cars = parse_cars(args.cars)
     if args.tracks is None and len(cars) == 1:  # one track, one field size: as always
@@ -24,11 +26,17 @@ def _cmd_collect(args) -> int:
             CollectConfig,
             args,
             n_cars=cars[0],
-            track=args.track or "default",
+            track=args.track or default_track(args.vehicle_class),
             races_per_shard=args.shard_size or 25,
         )
         summary = collect(cfg, args.out, pool_from(args))
     else:
+        if args.vehicle_class != "orca" or args.wake is not None:
+            raise ValueError(
+                f"a family collection (--tracks or several --cars) races the 1:43 'orca' "
+                f"class without a wake; --vehicle-class {args.vehicle_class} --wake "
+                f"{args.wake} is for a collection on one track with one field size"
+            )
         if args.track is not None and args.tracks is not None:
             raise ValueError(
                 f"give either --track ({args.track!r}) or --tracks "
@@ -93,7 +101,12 @@ def add_collect(command) -> None:
             {"default": "3"},
         ),
         ("--steps", "steps of 0.1 s per race"),
-        ("--track", "track spec (as for race; default: default)", {"default": None}),
+        (
+            "--track",
+            "track spec (as for race; default: default, and tumftm:Monza with "
+            "--vehicle-class fullsize: the track is built at the class's scale)",
+            {"default": None},
+        ),
         (
             "--tracks",
             "a family collection over these track specs; random:A-B stands for "
@@ -111,7 +124,8 @@ def add_collect(command) -> None:
         (
             "--start",
             "start regions: the paper's (0.4 m long, 0.6 m apart) or close (0.2 m "
-            "long, 0.1 m apart: more passing and blocking)",
+            "long, 0.1 m apart: more passing and blocking); in 1:43 metres, scaled to the "
+            "car's length for --vehicle-class fullsize",
             {"choices": sorted(START_REGIONS)},
         ),
         (
@@ -129,6 +143,7 @@ def add_collect(command) -> None:
             "its shards spread over many tracks)",
             {"type": int, "default": None},
         ),
+        *CLASS_OPTIONS,
         ("--out", RESUME_HELP, {"default": "data/races"}),
         *PARALLEL_OPTIONS,
     )

@@ -4,7 +4,7 @@ options, the theta box), read from a model's metadata."""
 from __future__ import annotations
 
 from agents.potential import model_space
-from experiments.potential.collect import ADDED_FIELDS, PACE_SPREADS
+from experiments.potential.collect import ADDED_FIELDS, PACE_SPREADS, ZETA_CEILING
 
 
 def added_options_text(collect: dict) -> str:
@@ -12,7 +12,9 @@ def added_options_text(collect: dict) -> str:
     are written on the command line (`` --space extended --start close``...; empty for the
     paper's collection)."""
     return "".join(
-        f" --{k} {collect[k]}" for k, v in ADDED_FIELDS.items() if collect.get(k, v) != v
+        f" --{k.replace('_', '-')} {collect[k]}"
+        for k, v in ADDED_FIELDS.items()
+        if collect.get(k, v) != v
     )
 
 
@@ -29,11 +31,18 @@ def theta_box_lines(meta: dict) -> list[str]:
 
 def pace_text(collect: dict) -> str:
     """How the collection drew the cars' paces, after "every car an MPC with theta uniform in
-    its bounds" (empty for the paper's draw over the box)."""
+    its bounds" (empty for the paper's draw over the box); a class's zeta ceiling
+    (:data:`~experiments.potential.collect.ZETA_CEILING`) is named after it."""
     pace = collect.get("pace", "box")
     if pace == "close":
-        return ", zeta close to the race's own, drawn over the box"
-    if pace in PACE_SPREADS:
+        text = ", zeta close to the race's own, drawn over the box"
+    elif pace in PACE_SPREADS:
         text = f", zeta within {PACE_SPREADS[pace]:g} of the race's own, drawn over the box"
-        return text + (", the slowest car in front" if pace == "overtake" else "")
-    return ""
+        text += ", the slowest car in front" if pace == "overtake" else ""
+    else:
+        text = ""
+    vehicle_class = collect.get("vehicle_class", "orca")
+    ceiling = ZETA_CEILING.get(vehicle_class)
+    if ceiling is not None:
+        text += f", zeta at most {ceiling:g} (the {vehicle_class!r} class's ceiling)"
+    return text

@@ -18,6 +18,16 @@ states (unwrapped s); ``thetas`` (R, N, dim) float32 (dim 5 in the paper's polic
 the extended one, ``CollectConfig.space``); ``rewards`` (R, T, N) float32;
 ``race_index`` (R,) int64; ``start_order`` (R, N) int64 (start region of each car);
 ``fallbacks`` (R, N) int32 (MPC fallbacks, to spot bad races).
+
+Vehicle class (``CollectConfig.vehicle_class``, ``wake``): the paper's races are of the 1:43
+``"orca"`` class without a wake; ``"fullsize"`` races full-size single-seaters on a track built
+at full scale (``tumftm:Monza``, ``random:SEED``; the built-in ``default`` and ``oval`` are 1:43
+tracks), with the class's rules and its wake (strength 1 unless ``wake`` says otherwise), from
+the start regions of :data:`START_REGIONS` scaled to the car's length
+(:func:`racing_env.scaling.scaled_configs`), and with every car's zeta drawn below the
+class's ceiling (:data:`ZETA_CEILING`). A shard of another world than the paper's also holds
+``vehicle_class`` and ``wake``, so that a folder is never resumed in another class or wake
+(the manifest refuses it too); the paper's shards are as they always were.
 """
 
 from __future__ import annotations
@@ -27,12 +37,16 @@ import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from experiments.infra.artifacts import claim, manifest_config, provenance, write_npz
 from experiments.infra.checks import check_counts
 from experiments.infra.parallel import Pool, run_tasks_with_progress
+
+if TYPE_CHECKING:
+    from agents.theta import PolicySpace
 
 SCHEMA_VERSION = 1
 #: Start-region geometry of a collection's races (``StartConfig`` region_length, region_gap
@@ -51,7 +65,19 @@ PACE_SPREAD = 0.03  # half-width of a "close" race's zeta spread (absolute, zeta
 PACE_SPREADS = {"close": PACE_SPREAD, "spread": 0.08, "overtake": 0.08}
 #: Config fields added after collections were first made, with their paper defaults: a manifest
 #: records them only when they differ (:func:`experiments.infra.artifacts.manifest_config`).
-ADDED_FIELDS = {"space": "paper", "start": "paper", "pace": "box"}
+ADDED_FIELDS = {
+    "space": "paper",
+    "start": "paper",
+    "pace": "box",
+    "vehicle_class": "orca",
+    "wake": 0.0,
+}
+#: The ceiling of a collection's zeta draws per vehicle class (None: the box's own top, 1.05).
+#: The full-size MPC leaves the track above zeta 1.0 (measured on a lap alone: 14 off-track
+#: steps at 1.05, 5 at 1.02, none at 1.0), so a full-size collection draws every
+#: car's zeta in [box low, 1.0] (:func:`collection_space`); the theta box itself, and the
+#: features' scaling by it, stay the same in every class.
+ZETA_CEILING: dict[str, float | None] = {"orca": None, "fullsize": 1.0}
 
 
 class ShardedRaces:
@@ -84,11 +110,19 @@ class CollectConfig(ShardedRaces):
     start: str = "paper"  # start regions: "paper" (0.4 m long, 0.6 m apart) or
     # "close" (0.2 m long, 0.1 m apart: pass and block at once)
     pace: str = "box"  # the cars' zeta: "box" (each over the box), or as PACES says
+    vehicle_class: str = "orca"  # "orca" (the paper's 1:43 cars) or "fullsize"
+    wake: float | None = None  # the wake's strength; None: the class's (0 orca, 1 fullsize),
+    # stored resolved
 
     def __post_init__(self):
         from agents.reference import policy_space
+        from experiments.evaluation.bench_config import check_class_wake
 
         policy_space(self.space)  # names the choices if unknown
+        try:
+            check_class_wake(self)  # resolves wake (None: the class's)
+        except ValueError as exc:
+            raise ValueError(f"CollectConfig.{exc}") from None
         if self.start not in START_REGIONS:
             raise ValueError(
                 f"CollectConfig.start must be one of {sorted(START_REGIONS)}, got {self.start!r}"
@@ -118,33 +152,72 @@ def _mpc_agents(
     return agents
 
 
+def is_paper_world(config) -> bool:
+    """Whether ``config`` (a :class:`CollectConfig` or its stored dict) races the paper's
+    world: the 1:43 ``"orca"`` class without a wake."""
+    get = config.get if isinstance(config, dict) else lambda k, d: getattr(config, k)
+    return get("vehicle_class", "orca") == "orca" and get("wake", 0.0) == 0.0
+
+
+def collection_class(config: dict) -> tuple[str, float]:
+    """``(vehicle_class, wake)`` of a collection from its stored config (a manifest's
+    ``config``): the paper's ``("orca", 0.0)`` when it records neither."""
+    return str(config.get("vehicle_class", "orca")), float(config.get("wake", 0.0))
+
+
 def _env_kwargs(config: CollectConfig) -> dict:
-    """The ``RacingParallelEnv`` keywords of a race of the config."""
+    """The ``RacingParallelEnv`` keywords of a race of the config: its track, cars, steps and
+    start regions (:data:`START_REGIONS`, metres at 1:43, scaled to the class's car by
+    :func:`racing_env.scaling.scaled_configs`: exactly as given for ``"orca"``), and its class
+    and wake unless they are the paper's (then the keywords are those of the paper's races)."""
     from racing_env import StartConfig
+    from racing_env.scaling import scaled_configs
 
     length, gap = START_REGIONS[config.start]
     start = StartConfig(
         mode="regions", lateral_jitter=config.start_jitter, region_length=length, region_gap=gap
     )
-    return {
+    kwargs = {
         "track": config.track,
         "n_cars": config.n_cars,
         "max_cycles": config.steps,
-        "start": start,
+        "start": scaled_configs(config.vehicle_class, start=start).start,
     }
+    if not is_paper_world(config):
+        kwargs.update(vehicle_class=config.vehicle_class, wake=config.wake)
+    return kwargs
+
+
+def collection_space(space: str, vehicle_class: str = "orca") -> PolicySpace:
+    """The box a collection of policy space ``space`` and ``vehicle_class`` draws its thetas
+    from: the space's box with zeta's top lowered to the class's ceiling
+    (:data:`ZETA_CEILING`) where it has one; the space itself (the same object) for the 1:43
+    class, so the paper's draws are as they always were, bit for bit."""
+    from dataclasses import replace
+
+    from agents.reference import policy_space
+
+    box = policy_space(space)
+    ceiling = ZETA_CEILING.get(vehicle_class)
+    z = box.names.index("zeta")
+    if ceiling is None or ceiling >= box.high[z]:
+        return box
+    high = box.high.copy()
+    high[z] = ceiling
+    high.setflags(write=False)
+    return replace(box, high=high)
 
 
 def _race_draws(config: CollectConfig, race_index: int) -> tuple:
     """``(rng, order, seed, thetas)`` of race ``race_index``: its generator (the agents' seeds
     are drawn next), start order (N,), start seed and thetas (N, dim), from its own seed."""
-    from agents.reference import policy_space
-
     rng = np.random.default_rng(
         np.random.SeedSequence(config.seed).spawn(race_index + 1)[race_index]
     )
     order = rng.permutation(config.n_cars)
     seed = int(rng.integers(2**31))
-    space = policy_space(config.space)  # the paper's draws are Theta.sample's, bit for bit
+    # the paper's draws are Theta.sample's, bit for bit; a class's zeta ceiling lowers the box
+    space = collection_space(config.space, config.vehicle_class)
     thetas = np.array([space.sample(rng) for _ in range(config.n_cars)])
     if config.pace in PACE_SPREADS:
         thetas = close_paces(thetas, space, rng, PACE_SPREADS[config.pace])
@@ -224,20 +297,25 @@ def close_paces(
     return out
 
 
-def rollout_from_state(track, state, thetas, steps: int):
-    """Race MPC cars with ``thetas`` (N, 5) from the joint state ``state`` (N, 6) (s unwrapped)
-    for ``steps`` steps; returns (states (steps + 1, N, 6), rewards (steps, N)).
+def rollout_from_state(
+    track, state, thetas, steps: int, vehicle_class: str = "orca", wake: float | None = None
+):
+    """Race MPC cars with ``thetas`` (N, dim) from the joint state ``state`` (N, 6) (s
+    unwrapped) for ``steps`` steps; returns (states (steps + 1, N, 6), rewards (steps, N)).
 
-    The MPCs start cold (no warm start), as after a reset. Used for the simulated values of
+    The race is of ``vehicle_class`` (the track, a name, built at its scale; its car, rules
+    and wake, ``wake`` None being the class's: a collection's :func:`collection_class`). The
+    MPCs start cold (no warm start), as after a reset. Used for the simulated values of
     paired rollouts (deviations of one car's theta from the same state).
     """
     from racing_env import BatchedRaces
-    from racing_env.config import RaceConfig
+    from racing_env.class_config import race_config_for
     from racing_env.tracks import make_track
 
     state = np.asarray(state, dtype=float)
     N = state.shape[0]
-    core = BatchedRaces(make_track(track), RaceConfig(n_cars=N, max_cycles=steps), n_races=1)
+    config = race_config_for(vehicle_class, wake=wake).with_(n_cars=N, max_cycles=steps)
+    core = BatchedRaces(make_track(track, vehicle_class=vehicle_class), config, n_races=1)
     core.reset(seed=0)
     core.state[0] = state
     core.start[0] = state
@@ -294,11 +372,34 @@ def write_shard(arrays: dict, shard: int, out_dir) -> str:
     return str(write_npz(shard_path(out_dir, shard), schema_version=SCHEMA_VERSION, **arrays))
 
 
+#: The keys of a shard that tag its world (absent from the paper's shards: ``("orca", 0.0)``).
+CLASS_KEYS = ("vehicle_class", "wake")
+
+
+def class_tag(config: CollectConfig) -> dict:
+    """The arrays that tag a shard with the config's class and wake: none for the paper's
+    world (its shards are as they always were)."""
+    if is_paper_world(config):
+        return {}
+    return {"vehicle_class": np.array(config.vehicle_class), "wake": np.array(config.wake)}
+
+
+def shard_class(z) -> tuple[str, float]:
+    """``(vehicle_class, wake)`` of an open shard ``z`` (``("orca", 0.0)`` untagged)."""
+    if "vehicle_class" not in z.files:
+        return "orca", 0.0
+    return str(z["vehicle_class"]), float(z["wake"])
+
+
 def shard_is_complete(path: Path, config: CollectConfig, shard: int) -> bool:
+    """Whether the shard file at ``path`` holds shard ``shard`` of ``config``: its schema, its
+    races and its vehicle class and wake (a shard of another class is redone)."""
     try:
         with np.load(path) as z:
-            return int(z["schema_version"]) == SCHEMA_VERSION and z["race_index"].tolist() == list(
-                config.shard_races(shard)
+            return (
+                int(z["schema_version"]) == SCHEMA_VERSION
+                and z["race_index"].tolist() == list(config.shard_races(shard))
+                and shard_class(z) == (config.vehicle_class, config.wake)
             )
     except Exception:  # truncated, corrupt or foreign file: redo it
         return False
@@ -308,8 +409,13 @@ def collect(config: CollectConfig, out_dir, pool: Pool = Pool()) -> dict:
     """Simulate every missing shard on ``pool``; returns a summary.
 
     Local processes and Ray tasks alike run :func:`simulate_shard` and this process writes
-    the shards, so the data are identical. Resumable: complete shards are skipped.
+    the shards, so the data are identical. Resumable: complete shards are skipped. The track
+    is built at the config's class first, so a track of another class (``default`` for
+    ``"fullsize"``) fails before anything is written.
     """
+    from racing_env.tracks import make_track
+
+    make_track(config.track, vehicle_class=config.vehicle_class)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     claim(
@@ -323,7 +429,7 @@ def collect(config: CollectConfig, out_dir, pool: Pool = Pool()) -> dict:
         out,
         simulate_shard,
         shard_is_complete,
-        lambda k, arrays: write_shard(arrays, k, out),
+        lambda k, arrays: write_shard({**arrays, **class_tag(config)}, k, out),
         "collect",
         pool,
     )
@@ -370,17 +476,25 @@ def simulate_missing_shards(
 
 
 def load_races(out_dir) -> dict:
-    """All shards of a collection concatenated in race order (checks the schema)."""
+    """All shards of a collection concatenated in race order (checks the schema, and every
+    shard's vehicle class and wake against the manifest's)."""
     out = Path(out_dir)
     meta = json.loads((out / "manifest.json").read_text())
     if meta["schema_version"] != SCHEMA_VERSION:
         raise ValueError(
             f"{out}: schema {meta['schema_version']}, this code reads {SCHEMA_VERSION}"
         )
+    world = collection_class(meta["config"])
     parts = []
     for path in sorted(out.glob("shard_*.npz")):
         with np.load(path) as z:
-            parts.append({k: z[k] for k in z.files if k != "schema_version"})
+            if shard_class(z) != world:
+                raise ValueError(
+                    f"{path}: races of the {shard_class(z)[0]!r} class with wake "
+                    f"{shard_class(z)[1]:g}, the manifest says {world[0]!r} with wake {world[1]:g}"
+                )
+            skip = ("schema_version", *CLASS_KEYS)
+            parts.append({k: z[k] for k in z.files if k not in skip})
     if not parts:
         raise ValueError(f"{out}: no shards")
     data = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}

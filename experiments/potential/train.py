@@ -28,6 +28,14 @@ dimension; features, deviations and the model's theta box are that space's, and 
 records it (``space``). Continuing a run in the same ``--out`` on races of another space is
 refused, naming both.
 
+The collection's vehicle class and wake (``alpha-racer collect --vehicle-class fullsize``) are
+read from its manifest too: the track is built at the class's scale, the paired rollouts race
+its cars with its wake, deviations are drawn in the box the collection drew its thetas from
+(:func:`experiments.potential.collect.collection_space`: zeta up to 1.0 at full size) and the
+model records the class and wake (``vehicle_class``, ``wake``, left out for the paper's 1:43
+class without a wake), so that :class:`agents.alpha_agent.AlphaAgent` races it only on tracks
+of its class.
+
 Each stage checkpoints (``value_ckpt.pt``, ``potential_ckpt.pt``, every epoch / ``save_every``
 steps); a killed run resumes from its last checkpoint. The output ``model.npz``
 (:class:`agents.potential.PotentialModel`) carries the config, the feature version, the data
@@ -73,7 +81,12 @@ def train(
     from racing_env.extras import require
 
     torch = require("torch", "training the value and alpha-potential networks (alpha-racer train)")
-    from experiments.potential.collect import load_races
+    from experiments.potential.collect import (
+        collection_class,
+        collection_space,
+        is_paper_world,
+        load_races,
+    )
     from racing_env.tracks import make_track
 
     cfg = config or TrainConfig()
@@ -89,7 +102,8 @@ def train(
     if family:
         return train_general(run)
     data = load_races(data_dir)
-    track = make_track(data["config"]["track"])
+    world = collection_class(data["config"])  # (vehicle_class, wake)
+    track = make_track(data["config"]["track"], vehicle_class=world[0])
     states, thetas, rewards = data["states"], data["thetas"], data["rewards"]
     R, T, N = rewards.shape
     train_idx, val_idx = run.split(R, thetas.shape[-1])
@@ -103,18 +117,23 @@ def train(
         )
     )
 
+    # the box the collection drew from (its class's zeta ceiling): the deviations' box
+    box = collection_space(run.space.name, world[0])
     value, potential = run.fit(
         _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg),
-        _Deviations(states, thetas, train_idx, track, cfg.own_theta_fraction),
+        _Deviations(states, thetas, train_idx, track, cfg.own_theta_fraction, box),
     )
+    meta = {"feature_version": FEATURE_VERSION, "n_cars": N, "track": data["config"]["track"]}
+    if not is_paper_world(data["config"]):
+        meta.update(vehicle_class=world[0], wake=world[1])
     return run.finish(
         value,
         potential,
-        {"feature_version": FEATURE_VERSION, "n_cars": N, "track": data["config"]["track"]},
+        meta,
         {"dir": str(data_dir), "races": R, "steps": T, "collect": data["config"]},
-        lambda model: validate_gaps(model, states, thetas, val_idx, track, cfg),
+        lambda model: validate_gaps(model, states, thetas, val_idx, track, cfg, box),
         lambda model, vr: validate_rollouts(
-            model, vr, states, thetas, val_idx, track, cfg, progress_bar
+            model, vr, states, thetas, val_idx, track, cfg, progress_bar, box, world
         ),
         model_card_text,
     )
@@ -156,12 +175,16 @@ def _value_data(states, thetas, rewards, train_idx, val_idx, track, cfg) -> nets
     return nets.ValueData(X_tr, X_va, X_end, *parts(tr), *parts(va))
 
 
-def sample_deviations(states, thetas, races, n: int, rng, own_theta_fraction: float = 0.5):
+def sample_deviations(
+    states, thetas, races, n: int, rng, own_theta_fraction: float = 0.5, box=None
+):
     """``n`` unilateral deviations at states of ``races``: (x (n, N, 6), theta (n, N, dim),
     theta' (n, N, dim), car i (n,)); theta' differs from theta only in car i's row (uniform in
-    the box of the thetas' policy space, read from their last dimension ``dim``)."""
+    ``box``, a :class:`~agents.theta.PolicySpace`: by default the box of the thetas' policy
+    space, read from their last dimension ``dim``; a collection's
+    :func:`~experiments.potential.collect.collection_space` for one with a zeta ceiling)."""
     R, T1, N, _ = states.shape
-    sp = theta_space(thetas)
+    sp = theta_space(thetas) if box is None else box
     r = rng.choice(races, n)
     t = rng.integers(0, T1 - 1, n)
     x = states[r, t].astype(np.float64)
@@ -183,13 +206,13 @@ class _Deviations:
 
     general = False
 
-    def __init__(self, states, thetas, races, track, own_theta_fraction):
+    def __init__(self, states, thetas, races, track, own_theta_fraction, box=None):
         self.states, self.thetas, self.races, self.track = states, thetas, races, track
-        self.own = own_theta_fraction
+        self.own, self.box = own_theta_fraction, box
         self.potential_dim = potential_dim(states.shape[2], theta_space(thetas))
 
     def draw(self, n, rng):
-        return sample_deviations(self.states, self.thetas, self.races, n, rng, self.own)
+        return sample_deviations(self.states, self.thetas, self.races, n, rng, self.own, self.box)
 
     def value_features(self, batch, k):
         x, th1, th2, i = batch
@@ -215,19 +238,21 @@ def relative_gaps(model: PotentialModel, x, th1, th2, i, track, vr: float):
     return np.abs(dphi - dv) / vr, np.abs(dv) / vr, dphi, dv
 
 
-def value_range(model: PotentialModel, states, thetas, races, track, rng, n=20000) -> float:
-    """Range (max - min) of V_i over held-out states, cars and uniform thetas (the paper's
-    normalisation of the approximation gap)."""
-    x, th, _, i = sample_deviations(states, thetas, races, n, rng)
+def value_range(
+    model: PotentialModel, states, thetas, races, track, rng, n=20000, box=None
+) -> float:
+    """Range (max - min) of V_i over held-out states, cars and thetas uniform in ``box`` (the
+    paper's normalisation of the approximation gap; ``box`` as for :func:`sample_deviations`)."""
+    x, th, _, i = sample_deviations(states, thetas, races, n, rng, box=box)
     v = model.value(x, th, track, i)
     return float(v.max() - v.min())
 
 
-def validate_gaps(model, states, thetas, val_idx, track, cfg) -> dict:
+def validate_gaps(model, states, thetas, val_idx, track, cfg, box=None) -> dict:
     rng = np.random.default_rng(cfg.seed + 2)
-    vr = value_range(model, states, thetas, val_idx, track, rng)
+    vr = value_range(model, states, thetas, val_idx, track, rng, box=box)
     x, th1, th2, i = sample_deviations(
-        states, thetas, val_idx, cfg.val_pairs, rng, cfg.own_theta_fraction
+        states, thetas, val_idx, cfg.val_pairs, rng, cfg.own_theta_fraction, box
     )
     _, _, dphi, dv = relative_gaps(model, x, th1, th2, i, track, vr)
     return {
@@ -237,14 +262,20 @@ def validate_gaps(model, states, thetas, val_idx, track, cfg) -> dict:
     }
 
 
-def validate_rollouts(model, vr, states, thetas, val_idx, track, cfg, progress_bar) -> dict:
+def validate_rollouts(
+    model, vr, states, thetas, val_idx, track, cfg, progress_bar, box=None, world=("orca", 0.0)
+) -> dict:
     """Paired rollouts from held-out states: dG_i (simulated, bootstrapped by V after
-    ``rollout_steps``) against dPhi and dV, relative to the value range ``vr``."""
+    ``rollout_steps``) against dPhi and dV, relative to the value range ``vr``; deviations in
+    ``box`` (as for :func:`sample_deviations`), races of ``world`` (the collection's vehicle
+    class and wake, :func:`~experiments.potential.collect.collection_class`)."""
     rng = np.random.default_rng(cfg.seed + 3)
     n = cfg.rollout_pairs
-    x, th1, th2, i = sample_deviations(states, thetas, val_idx, n, rng, own_theta_fraction=1.0)
+    x, th1, th2, i = sample_deviations(
+        states, thetas, val_idx, n, rng, own_theta_fraction=1.0, box=box
+    )
     jobs = [
-        (model.meta["track"], x[k], th, int(i[k]), cfg.rollout_steps, cfg.gamma)
+        (model.meta["track"], x[k], th, int(i[k]), cfg.rollout_steps, cfg.gamma, *world)
         for k in range(n)
         for th in (th1[k], th2[k])
     ]

@@ -33,22 +33,32 @@ def gap_statistics(dphi, dv, vr: float) -> dict:
     }
 
 
-def discounted_rollout(track: str, x, thetas, car: int, steps: int, gamma: float):
+def discounted_rollout(
+    track: str,
+    x,
+    thetas,
+    car: int,
+    steps: int,
+    gamma: float,
+    vehicle_class: str = "orca",
+    wake: float | None = None,
+):
     """``(G, x_end)``: car ``car``'s gamma-discounted return over ``steps`` of MPC cars with
     ``thetas`` (N, dim) of one policy space from the joint state ``x`` (N, 6) on ``track`` (a
-    name), and the joint state after them (N, 6) for a bootstrap with V."""
+    name, built at ``vehicle_class``'s scale, raced with ``wake``: None the class's), and the
+    joint state after them (N, 6) for a bootstrap with V."""
     from experiments.potential.collect import rollout_from_state
 
-    states, rewards = rollout_from_state(track, x, thetas, steps)
+    states, rewards = rollout_from_state(track, x, thetas, steps, vehicle_class, wake)
     disc = gamma ** np.arange(len(rewards))
     return float(disc @ rewards[:, car]), states[-1]
 
 
 def paired_rollouts(jobs: list[tuple], threads: int, progress_bar: bool) -> list[tuple]:
-    """:func:`discounted_rollout` of every job ``(track, x, thetas, car, steps, gamma)`` on a
-    pool of ``threads`` worker processes, each pinned to one thread per library; the
-    ``(G, x_end)`` of each job, in the jobs' order. The thetas (N, dim) are the caller's
-    deviations, drawn in the box of the data's policy space (by
+    """:func:`discounted_rollout` of every job ``(track, x, thetas, car, steps, gamma)`` (or
+    those and ``vehicle_class, wake``) on a pool of ``threads`` worker processes, each pinned
+    to one thread per library; the ``(G, x_end)`` of each job, in the jobs' order. The thetas
+    (N, dim) are the caller's deviations, drawn in the box of the data's policy space (by
     :func:`experiments.potential.train.sample_deviations` or
     :class:`experiments.potential.train_general.FamilyDeviations`)."""
     with ProcessPoolExecutor(max_workers=threads, initializer=pin_worker) as pool:
