@@ -268,9 +268,12 @@ class AlphaAgent(MPCAgent):
         model = self._model()
         box = model.space
         high = None
-        if self.zeta_max is not None:  # the ego's zeta ceiling
+        if self.zeta_max is not None or model.zeta_ceiling is not None:
             high = np.tile(box.high, (len(joint), 1))
-            high[0, 1] = self.zeta_max
+            if model.zeta_ceiling is not None:  # no car above the model's races
+                high[:, 1] = np.minimum(high[:, 1], model.zeta_ceiling)
+            if self.zeta_max is not None:  # the ego's zeta ceiling
+                high[0, 1] = min(high[0, 1], self.zeta_max)
         theta, phi = model.maximise(
             joint,
             track,

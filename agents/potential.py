@@ -90,6 +90,12 @@ class PotentialModel:
         self.vehicle_class: str = str(meta.get("vehicle_class", "orca"))
         """The vehicle class of the races it was trained on (``"orca"`` when not recorded:
         every model before the full-size class)."""
+        ceiling = meta.get("zeta_ceiling")
+        self.zeta_ceiling: float | None = None if ceiling is None else float(ceiling)
+        """The highest zeta of its races (the class's ceiling, e.g. 1.0 at full size, below
+        the box's top), or None: the box's top. Every car's zeta in :meth:`maximise` should
+        stay under it (:class:`~agents.alpha_agent.AlphaAgent` does), since the potential
+        has seen no race above it."""
         sp = self.space
         box = (meta.get("theta_low"), meta.get("theta_high"))
         if box[0] is None or box[1] is None:

@@ -284,6 +284,16 @@ def test_training_a_fullsize_collection_gives_a_fullsize_model(fullsize_run, tmp
         agent.reset(make_track("tumftm:Monza", vehicle_class="fullsize"), "car_0", 0)
     with pytest.raises(ValueError, match=r"trained for the 'fullsize' vehicle class; track"):
         agent.reset(make_track("tumftm:Monza"), "car_0", 0)
+    # its maximisation keeps every car's zeta under the races' ceiling (the box goes to 1.05)
+    from racing_env import RacingParallelEnv
+
+    assert model.zeta_ceiling == 1.0 and model.space.high[1] > 1.0
+    env = RacingParallelEnv(track="tumftm:Monza", n_cars=3, vehicle_class="fullsize")
+    obs, _ = env.reset(seed=0)
+    agent = AlphaAgent(model=model)
+    agent.reset(env.track, "car_0", 0)
+    agent.act(obs["car_0"])
+    assert agent._theta_joint is not None and np.all(agent._theta_joint[:, 1] <= 1.0)
     # the analyses race at 1:43: refused, not silently wrong
     from experiments.analysis.nash import AnalyzeConfig, analyze
 

@@ -82,6 +82,7 @@ def train(
 
     torch = require("torch", "training the value and alpha-potential networks (alpha-racer train)")
     from experiments.potential.collect import (
+        ZETA_CEILING,
         collection_class,
         collection_space,
         is_paper_world,
@@ -126,6 +127,8 @@ def train(
     meta = {"feature_version": FEATURE_VERSION, "n_cars": N, "track": data["config"]["track"]}
     if not is_paper_world(data["config"]):
         meta.update(vehicle_class=world[0], wake=world[1])
+    if ZETA_CEILING.get(world[0]) is not None:
+        meta["zeta_ceiling"] = ZETA_CEILING[world[0]]
     return run.finish(
         value,
         potential,
