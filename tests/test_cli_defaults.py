@@ -11,6 +11,7 @@ from experiments.analysis.nash import AnalyzeConfig
 from experiments.cli import build_parser
 from experiments.evaluation.bench_config import BenchConfig
 from experiments.evaluation.control import ControlConfig
+from experiments.evaluation.ladder import LadderConfig
 from experiments.evaluation.league_schedule import LeagueConfig
 from experiments.evaluation.policy_map import PolicyMapConfig
 from experiments.evaluation.strategy import StrategyConfig
@@ -35,6 +36,7 @@ COMMANDS = {
     "bench": (BenchConfig, {"cars": "n_cars"}),
     "league": (LeagueConfig, {}),
     "strategy": (StrategyConfig, {}),
+    "ladder": (LadderConfig, {}),
     "analyze": (AnalyzeConfig, {}),
     "general-report": (GeneralReportConfig, {}),
     "control": (ControlConfig, {}),

@@ -1,6 +1,6 @@
 """The ``alpha-racer`` command line: ``race``, ``agents``, ``tracks``, ``circuits``, ``raceline``, ``fuzz``,
-``collect``, ``train``, ``selfplay``, ``bench``, ``league``, ``strategy``, ``room``, ``analyze``,
-``reproduce``, ``general-report``, ``policy-map``, ``control``."""
+``collect``, ``train``, ``selfplay``, ``bench``, ``league``, ``strategy``, ``ladder``, ``room``,
+``analyze``, ``reproduce``, ``general-report``, ``policy-map``, ``control``."""
 
 from __future__ import annotations
 
@@ -27,6 +27,7 @@ COMMANDS = (
     evaluation.add_bench,
     evaluation.add_league,
     evaluation.add_strategy,
+    evaluation.add_ladder,
     evaluation.add_room,
     analysis.add_analyze,
     reproduce.add_reproduce,

@@ -1,5 +1,5 @@
 """The commands that race agents and measure them: ``bench``, ``league``, ``strategy``,
-``control`` (the best fixed theta per track) and ``policy-map``."""
+``ladder``, ``control`` (the best fixed theta per track) and ``policy-map``."""
 
 from __future__ import annotations
 
@@ -83,6 +83,16 @@ def _cmd_strategy(args) -> int:
     t = strategy(config_from(StrategyConfig, args), out, pool_from(args), beside=args.beside)
     print((out / "strategy.md").read_text())
     print(f"{t['new_races']} new races; wrote {out / 'strategy.md'} and {out / 'strategy.json'}")
+    return 0
+
+
+def _cmd_ladder(args) -> int:
+    from experiments.evaluation.ladder import LadderConfig, ladder
+
+    out = Path(args.out)
+    t = ladder(config_from(LadderConfig, args), out, pool_from(args))
+    print((out / "ladder.md").read_text())
+    print(f"{t['new_races']} new races; wrote {out / 'ladder.md'} and {out / 'ladder.json'}")
     return 0
 
 
@@ -281,6 +291,53 @@ def add_strategy(command) -> None:
             {"nargs": "+", "default": [], "metavar": "DIR"},
         ),
         ("--out", RESUME_HELP, {"default": "results/strategy"}),
+        *PARALLEL_OPTIONS,
+    )
+
+
+def add_ladder(command) -> None:
+    """``alpha-racer ladder``."""
+    from experiments.evaluation.ladder import KNOB_RANGES, LADDER_REGIONS, TOLERANCE, LadderConfig
+
+    ld = command(
+        "ladder",
+        _cmd_ladder,
+        "pass ladder: each ego from R2 behind two followers that do not yield, whose solo "
+        "pace is set to each rung's fraction of the ego's own; the highest rung at which "
+        "the ego wins at least half of its races from R2 (resumable)",
+    )
+    add_options(
+        ld,
+        LadderConfig,
+        ("--egos", "the egos' agent specs, each raced up its own ladder", {"nargs": "+"}),
+        ("--tracks", "track specs", {"nargs": "+"}),
+        (
+            "--rungs",
+            "the followers' solo pace as fractions of the ego's, each in (0, 1.5], distinct "
+            f"(calibrated to within {100 * TOLERANCE:g}%% by the followers' --knob)",
+            {"nargs": "+", "type": float},
+        ),
+        ("--races", "races per rung and start region"),
+        (
+            "--regions",
+            "the ego's start regions, in turn (R2 must be one: the ladder is defined from R2)",
+            {"nargs": "+", "choices": list(LADDER_REGIONS)},
+        ),
+        ("--steps", "steps of 0.1 s per race (and per solo race of the calibration)"),
+        ("--seed", "seed of the races' start positions and agents, the same on every rung"),
+        (
+            "--followers",
+            "agent spec of the two cars ahead that do not yield; it must take the --knob "
+            "and not set it (the ladder sets it per rung)",
+        ),
+        (
+            "--knob",
+            "the followers' parameter the ladder sets per rung: speed_scale (a raceline "
+            "follower's speed target over its line's profile) or zeta (an mpc follower's)",
+            {"choices": list(KNOB_RANGES)},
+        ),
+        *CLASS_OPTIONS,
+        ("--out", RESUME_HELP, {"default": "results/ladder"}),
         *PARALLEL_OPTIONS,
     )
 
