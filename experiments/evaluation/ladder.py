@@ -86,7 +86,7 @@ MIN_SCALE, MAX_SCALE = KNOB_RANGES["speed_scale"]
 #: its target (rung x the ego's solo progress).
 TOLERANCE = 0.002
 #: Solo races per rung's calibration at most, beyond the follower at speed_scale 1.
-MAX_SOLO_RACES = 8
+MAX_SOLO_RACES = 12
 #: The start regions the ladder may race from (behind both followers or one).
 LADDER_REGIONS = ("R2", "R3")
 DEFINITION = (
