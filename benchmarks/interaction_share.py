@@ -4,6 +4,10 @@ races of ``alpha-racer collect`` in each policy space, start geometry and pace d
 
     python benchmarks/interaction_share.py               # 30 races per setting
     python benchmarks/interaction_share.py --races 8     # a smoke check
+    python benchmarks/interaction_share.py --data data/fullsize_monza   # a stored collection
+
+With ``--data`` it reads a stored collection instead, of any class: the gap is 1 m at 1:43,
+scaled by the car's length ratio for another class (39.2 m, 8.3 car lengths, at full size).
 
 Settings: the paper's collection (``--space paper --start paper``), close starts
 (``--start close``), the extended space (``--space extended``), both, and both with the
@@ -42,6 +46,24 @@ def one_race(args):
     return interaction_share(race["states"]), sum(race_metrics(race["states"])["passes"])
 
 
+def stored_share(data_dir) -> None:
+    """Print the interaction share of every race of a stored collection (its class's gap)."""
+    from experiments.evaluation.metrics import BEHIND_GAP_M, interaction_share
+    from experiments.potential.collect import collection_class, load_races
+    from racing_env.scaling import size_ratios
+
+    data = load_races(data_dir)
+    vehicle_class, wake = collection_class(data["config"])
+    gap = BEHIND_GAP_M * size_ratios(vehicle_class)[0]
+    share = np.array([interaction_share(st, gap) for st in data["states"]])
+    half = 1.96 * share.std(ddof=1) / np.sqrt(len(share))
+    print(
+        f"{data_dir}: class {vehicle_class}, wake {wake:g}, {len(share)} races; share of steps "
+        f"with a car within {gap:.1f} m behind or beside another: {share.mean():.3f} +- "
+        f"{half:.3f} (95% CI)"
+    )
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--races", type=int, default=30, help="races per setting")
@@ -54,7 +76,11 @@ def main(argv=None) -> None:
         metavar="SPACE/START/PACE",
         help="only these settings, e.g. extended/close/close (default: all)",
     )
+    p.add_argument("--data", default=None, help="a stored collection folder to measure instead")
     args = p.parse_args(argv)
+    if args.data:
+        stored_share(args.data)
+        return
     settings = SETTINGS
     if args.settings:
         settings = [tuple(x.split("/")) for x in args.settings]
