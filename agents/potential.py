@@ -43,6 +43,7 @@ SHIPPED = {
     "extended_gamma0.995": "alpha_extended_gamma0995.npz",
     "extended_races400": "alpha_extended_races400.npz",
     "extended_general": "alpha_extended_general.npz",
+    "fullsize_monza": "alpha_fullsize_monza.npz",
 }
 #: How to make a shipped model that is missing (the general model is trained by the user).
 HOW_TO_TRAIN = {

@@ -403,7 +403,11 @@ def test_shipped_models_load_and_race():
             assert m.general and m.trained_cars == (2, 6)
         else:
             assert not m.general and m.n_cars == 3
-        assert m.space.name == ("extended" if name.startswith("extended") else "paper")
+        extended = name.startswith(("extended", "fullsize"))
+        assert m.space.name == ("extended" if extended else "paper")
+        full = name.startswith("fullsize")
+        assert m.vehicle_class == ("fullsize" if full else "orca")
+        assert m.zeta_ceiling == (1.0 if full else None)
     m = load_model("races400")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

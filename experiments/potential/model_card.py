@@ -28,7 +28,9 @@ paper's five parameters and `b`, the lap-time line's weight), with its variants 
 kinds, `extended_gamma0.98`, `extended_gamma0.995` and `extended_races400` (the learned
 opponents of Table 1 in that space, `alpha-racer bench --paper-table --space extended`), and
 `extended_general`, the extended space's track-general model (a family of tracks with 2 to 6
-cars, close starts and paces; `alpha:space=extended,model=extended_general`).
+cars, close starts and paces; `alpha:space=extended,model=extended_general`); and
+`fullsize_monza`, the full-size class's model (full-size cars with the wake on Monza at full
+scale, 3 cars, the extended space; `alpha:model=fullsize_monza`, refused on a 1:43 track).
 `agents.potential.load_model(NAME)` loads one. The `alpha` agent's default,
 `model="auto"`, races `default` on the track and field it was trained for (`default`, 3
 cars) and `general` everywhere else; with `space=extended` it races `extended` (which

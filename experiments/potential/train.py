@@ -292,6 +292,17 @@ def validate_rollouts(
     return validation.rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
 
 
+def _track_steps_text(collect: dict) -> str:
+    """The collection's ``--track`` and ``--steps`` where they are not the paper's
+    (``default``, 500), as written on the command line (empty for the paper's)."""
+    text = ""
+    if collect.get("track", "default") != "default":
+        text += f" --track {collect['track']}"
+    if collect.get("steps", 500) != 500:
+        text += f" --steps {collect['steps']}"
+    return text
+
+
 def model_card_text(meta: dict) -> str:
     """A short Markdown model card from a model's metadata."""
     m, c, d = meta["metrics"], meta["config"], meta["data"]
@@ -302,7 +313,7 @@ def model_card_text(meta: dict) -> str:
             "",
             f"* **Data:** {d['races']} races x {d['steps']} steps x {meta['n_cars']} cars on "
             f"`{meta['track']}` (`alpha-racer collect --races {col.get('races', d['races'])} "
-            f"--seed {col.get('seed', 0)}{added_options_text(col)}"
+            f"--seed {col.get('seed', 0)}{added_options_text(col)}{_track_steps_text(col)}"
             + "`; every car an MPC with theta uniform in its bounds"
             + pace_text(col)
             + "); "
