@@ -61,10 +61,10 @@ from experiments.evaluation.bench_config import (
 )
 from experiments.evaluation.strategy import PaceRun, solo_pace, with_option
 from experiments.infra.artifacts import (
-    append_jsonl,
     check_track_specs,
     claim,
     env_version,
+    record_run,
     slug,
     write_json,
     write_text,
@@ -528,17 +528,7 @@ def ladder(config: LadderConfig, out_dir="results/ladder", pool: Pool = Pool()) 
     run_many(runs, pool)
     wall = time.perf_counter() - t0
     if new:
-        append_jsonl(
-            out / "runs.jsonl",
-            {
-                "config": config.to_dict(),
-                "races_simulated": new,
-                "wall_seconds": wall,
-                "workers": pool.workers,
-                "backend": pool.backend,
-                "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
-            },
-        )
+        record_run(out / "runs.jsonl", {"config": config.to_dict()}, new, wall, pool)
     for run in runs.values():
         run.write_summary()
     rows = []

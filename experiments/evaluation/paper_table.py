@@ -12,8 +12,8 @@ from experiments.evaluation.bench import BenchRun, run_many
 from experiments.evaluation.bench_config import REGIONS, BenchConfig, check_agent_specs
 from experiments.evaluation.bench_summary import wins_text
 from experiments.infra.artifacts import (
-    append_jsonl,
     read_jsonl,
+    record_run,
     write_json,
     write_text,
 )
@@ -111,17 +111,7 @@ def paper_table(
     wall = time.perf_counter() - t0
     history = out / "runs.jsonl"
     if todo:  # every invocation that raced: the table's total wall time
-        append_jsonl(
-            history,
-            {
-                "cases": cases,
-                "races_simulated": todo,
-                "wall_seconds": wall,
-                "workers": pool.workers,
-                "backend": pool.backend,
-                "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
-            },
-        )
+        record_run(history, {"cases": cases}, todo, wall, pool)
     past = read_jsonl(history)
     table = {
         "ego": ego,

@@ -56,9 +56,9 @@ from experiments.evaluation.bench_config import (
 from experiments.evaluation.strategy_summary import strategy_markdown, table_row
 from experiments.infra.artifacts import (
     ResumableRun,
-    append_jsonl,
     check_track_specs,
     read_jsonl,
+    record_run,
     slug,
     write_json,
     write_text,
@@ -373,17 +373,7 @@ def strategy(
     wall = time.perf_counter() - t0
     history = out / "runs.jsonl"
     if new:
-        append_jsonl(
-            history,
-            {
-                "config": config.to_dict(),
-                "races_simulated": new,
-                "wall_seconds": wall,
-                "workers": pool.workers,
-                "backend": pool.backend,
-                "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
-            },
-        )
+        record_run(history, {"config": config.to_dict()}, new, wall, pool)
     summaries = {k: run.write_summary() for k, run in runs.items()}
     table = {
         "schema_version": SCHEMA_VERSION,

@@ -15,6 +15,7 @@ import functools
 import hashlib
 import json
 import os
+import time
 from collections.abc import Callable, Hashable
 from pathlib import Path
 from typing import Any
@@ -244,6 +245,23 @@ def write_npz(path, compressed: bool = False, **arrays) -> Path:
     ):  # savez would append ".npz" to a name
         (np.savez_compressed if compressed else np.savez)(f, **arrays)
     return path
+
+
+def record_run(path, what: dict, races: int, wall_seconds: float, pool) -> None:
+    """Append one invocation's record to a run history (``runs.jsonl``): ``what`` it ran
+    (e.g. ``{"config": ...}``), the ``races`` it simulated, its wall time [s], the
+    ``pool``'s workers and backend, and when it finished."""
+    append_jsonl(
+        path,
+        {
+            **what,
+            "races_simulated": races,
+            "wall_seconds": wall_seconds,
+            "workers": pool.workers,
+            "backend": pool.backend,
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        },
+    )
 
 
 def append_jsonl(path, obj) -> None:
