@@ -41,6 +41,11 @@ and the fixed theta at the limit (docs: the alpha-potential page); ``model=exten
 races it."""
 
 
+#: The shipped model of a vehicle class other than the paper's (named when ``alpha`` is
+#: asked to race a model of another class there).
+CLASS_MODELS = {"fullsize": "fullsize_monza"}
+
+
 def auto_model(track_name: str, n_cars: int, space: str = "paper") -> str:
     """The shipped model that ``model="auto"`` races with in policy space ``space``
     (:data:`AUTO_MODELS`): the space's single-track model on the track and field size it was
@@ -180,8 +185,9 @@ class AlphaAgent(MPCAgent):
     def _check_class(self, track: Track) -> None:
         """Refuse a track of another vehicle class than the model's (``ValueError`` naming the
         model, its class and the track's): a potential learnt from races of one class knows
-        nothing of another's (DESIGN section 7). ``model="auto"`` races the shipped models,
-        all trained for the ``"orca"`` class."""
+        nothing of another's (DESIGN section 7). ``model="auto"`` races the paper's shipped
+        models, trained for the ``"orca"`` class; a shipped model of the track's class is
+        named in the message (``fullsize_monza`` at full size)."""
         from racing_env.vehicles import track_class
 
         cls = track_class(track)
@@ -191,10 +197,13 @@ class AlphaAgent(MPCAgent):
             have = self._model().vehicle_class
             name = repr(self.model_name if isinstance(self.model_name, str) else "given")
         if have != cls:
+            shipped = CLASS_MODELS.get(cls)
+            hint = f"race alpha:model={shipped}, " if shipped else ""
             raise ValueError(
                 f"alpha-potential model {name} was trained for the {have!r} vehicle class; "
-                f"track {track.name!r} is sized for the {cls!r} class. Train a model on "
-                f"races of the {cls!r} class, or race mpc / ibr / raceline there"
+                f"track {track.name!r} is sized for the {cls!r} class. {hint.capitalize()}"
+                f"{'t' if hint else 'T'}rain a model on races of the {cls!r} class, or race "
+                f"mpc / ibr / raceline there"
             )
 
     def _check_track(self) -> None:

@@ -167,6 +167,10 @@ def test_alpha_refuses_other_class(monza):
     auto = make_agent_spec("alpha:model=auto")
     with pytest.raises(ValueError, match="'fullsize' class"):
         auto.reset(monza, "car_0", 0)
+    # the message names the shipped model of the track's class, and that one races there
+    with pytest.raises(ValueError, match="Race alpha:model=fullsize_monza, train a model"):
+        agent.reset(monza, "car_0", 0)
+    make_agent_spec("alpha:model=fullsize_monza").reset(monza, "car_0", 0)
 
 
 def test_ppo_refuses_other_class(monza):
