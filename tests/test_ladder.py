@@ -152,7 +152,7 @@ def test_slower_followers_are_beaten_more_and_the_report_counts_the_records(tiny
         > (_rung(table, SLOW, 1.0)["wins_by_region"]["R2"])
     )
     md = (out / "ladder.md").read_text()
-    assert "| track | ego | ego solo m | 100% | 96% | 70% | highest rung won at least half |" in md
+    assert "| track | ego | unit's solo m | 100% | 96% | 70% | highest rung won at least half |" in md
     best = slow["highest_rung_won"]
     assert (
         f"| `default` | `{SLOW}` |" in md
@@ -314,3 +314,28 @@ def test_mpc_followers_are_paced_by_their_zeta(tmp_path):
     if c["status"] == "ok":
         assert abs(c["ratio"] - 0.97) <= ld.TOLERANCE * 0.97 + 1e-9
     assert t["config"]["knob"] == "zeta"
+
+
+def test_one_pace_unit_for_every_ego(tmp_path):
+    """With ``pace_of`` the rungs are fractions of that spec's solo pace for every ego (an
+    ego that cannot race alone gets a ladder): both egos' calibrations share the unit's
+    solo progress, the same followers per rung, and the report names the unit."""
+    cfg = ld.LadderConfig(
+        egos=("mpc:zeta=0.9", "alpha:model=races400"),
+        pace_of="mpc:theta=best",
+        rungs=(0.97,),
+        races=1,
+        steps=60,
+    )
+    t = ld.ladder(cfg, tmp_path / "u", POOL)
+    cals = _cals(tmp_path / "u")
+    unit = [json.loads(line) for line in (tmp_path / "u" / "solo.jsonl").read_text().splitlines()]
+    best = next(r for r in unit if r["spec"] == "mpc:theta=best")
+    for ego in cfg.egos:
+        assert cals[(ego, 0.97)]["ego_solo_m"] == best["progress_m"]
+    assert (
+        cals[(cfg.egos[0], 0.97)]["followers_spec"] == cals[(cfg.egos[1], 0.97)]["followers_spec"]
+    )
+    assert not any(r["spec"] == "mpc:zeta=0.9" for r in unit)  # the egos do not race alone
+    assert "fractions of `mpc:theta=best`'s solo pace" in (tmp_path / "u" / "ladder.md").read_text()
+    assert t["config"]["pace_of"] == "mpc:theta=best"

@@ -331,6 +331,11 @@ def add_ladder(command) -> None:
             "and not set it (the ladder sets it per rung)",
         ),
         (
+            "--pace-of",
+            "an agent spec whose solo pace is the unit of every ego's rungs, needed for an ego "
+            "that cannot race alone, such as a 3-car alpha model (default None: each ego's own)",
+        ),
+        (
             "--knob",
             "the followers' parameter the ladder sets per rung: speed_scale (a raceline "
             "follower's speed target over its line's profile) or zeta (an mpc follower's)",

@@ -121,6 +121,7 @@ class LadderConfig:
     seed: int = 0
     followers: str = "raceline"
     knob: str = "speed_scale"
+    pace_of: str | None = None
     vehicle_class: str = "orca"
     wake: float | None = None
 
@@ -138,6 +139,8 @@ class LadderConfig:
         check_counts(self, ("races", "steps"))
         check_counts(self, ("seed",), minimum=0)
         check_spec_fields(self, ("followers",))
+        if self.pace_of is not None:
+            check_spec_fields(self, ("pace_of",))
         bad = [e for e in self.egos if not isinstance(e, str) or not e.strip()]
         if not self.egos or bad:
             raise ValueError(
@@ -188,6 +191,13 @@ class LadderConfig:
         for name in ("egos", "tracks", "rungs", "regions"):
             d[name] = list(d[name])
         return drop_default_class(d)
+
+    def pace_unit(self, ego: str) -> str:
+        """The spec whose solo pace the rungs of ``ego`` are fractions of: ``pace_of`` when
+        set (one unit for every ego: their ladders are raced against the same followers, and
+        an ego that cannot race alone, such as a 3-car alpha model, gets a ladder), else the
+        ego itself."""
+        return self.pace_of if self.pace_of is not None else ego
 
     def follower_spec(self, scale: float) -> str:
         """The followers' spec with the knob at ``scale`` (rounded to 4 decimals, the
@@ -332,13 +342,19 @@ def calibrate(config: LadderConfig, out, pool: Pool) -> dict:
     (``points``: scale, progress, ratio), the scale chosen, its ``ratio`` and ``status``."""
     solo = SoloRun(out, config)
     base = config.follower_spec(1.0)
+    units = list(dict.fromkeys(config.pace_unit(e) for e in config.egos))
     recs = solo.race(
-        [(spec, t) for t in config.tracks for spec in (*config.egos, base)],
+        [(spec, t) for t in config.tracks for spec in (*units, base)],
         pool,
         "solo pace",
     )
     keys = [(t, e, r) for t in config.tracks for e in config.egos for r in config.rungs]
-    ego_m = {(t, e): _progress(recs, e, t, "ego") for t in config.tracks for e in config.egos}
+    role = "ego" if config.pace_of is None else "pace_of"
+    ego_m = {
+        (t, e): _progress(recs, config.pace_unit(e), t, role)
+        for t in config.tracks
+        for e in config.egos
+    }
     base_m = {t: _progress(recs, base, t, "the followers") for t in config.tracks}
     points = {k: [(1.0, base_m[k[0]])] for k in keys}
     target = {k: k[2] * ego_m[k[:2]] for k in keys}
@@ -444,10 +460,15 @@ def ladder_markdown(table: dict) -> str:
         f"rung from {' and '.join(regions)}"
         + (" in turn" if len(regions) > 1 else "")
         + f", {c['steps']} steps ({c['steps'] / 10:g} s), seed {c['seed']}{world}; the same "
-        f"seeds on every rung and for every ego. Cells: wins from R2 / races from R2 "
-        f"(achieved follower / ego solo pace).",
+        f"seeds on every rung and for every ego. "
+        + (
+            f"The rungs are fractions of `{c['pace_of']}`'s solo pace for every ego. "
+            if c.get("pace_of")
+            else ""
+        )
+        + "Cells: wins from R2 / races from R2 (achieved follower / unit solo pace).",
         "",
-        "| track | ego | ego solo m | "
+        "| track | ego | unit's solo m | "
         + " | ".join(pct(r) for r in c["rungs"])
         + " | highest rung won at least half |",
         "|---|---|---|" + "---|" * len(c["rungs"]) + "---|",
@@ -504,7 +525,9 @@ def ladder(config: LadderConfig, out_dir="results/ladder", pool: Pool = Pool()) 
     ``calibration.json``, ``ladder.json`` and ``ladder.md`` and returns the latter's table
     with ``new_races``, the pass races this call ran."""
     check_agent_specs(
-        [*config.egos, config.follower_spec(1.0)], config.tracks, config.vehicle_class
+        [*config.egos, *([config.pace_of] if config.pace_of else []), config.follower_spec(1.0)],
+        config.tracks,
+        config.vehicle_class,
     )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
