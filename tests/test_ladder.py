@@ -152,7 +152,9 @@ def test_slower_followers_are_beaten_more_and_the_report_counts_the_records(tiny
         > (_rung(table, SLOW, 1.0)["wins_by_region"]["R2"])
     )
     md = (out / "ladder.md").read_text()
-    assert "| track | ego | unit's solo m | 100% | 96% | 70% | highest rung won at least half |" in md
+    assert (
+        "| track | ego | unit's solo m | 100% | 96% | 70% | highest rung won at least half |" in md
+    )
     best = slow["highest_rung_won"]
     assert (
         f"| `default` | `{SLOW}` |" in md
