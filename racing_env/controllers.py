@@ -476,12 +476,11 @@ def follower_action(x, n_ref, mu_ref, kappa_ref, v_ref, ds, length, g, v_cap=NO_
     s, n, mu, vx, vy = x[0], x[1], x[2], x[3], x[4]
     fullsize = g.shape[0] > FULLSIZE_GAINS
     f = FULLSIZE_GAINS
-    if fullsize:  # full-size class: a time-based preview with a small floor
-        preview = max(g[f + 7], g[f + 8] * vx)
+    if fullsize:  # full-size class: a time-based preview with a small floor, its heading gain
+        preview, k_mu = max(g[f + 7], g[f + 8] * vx), g[f + 12]
     else:
-        preview = max(g[0], g[1] * vx)
+        preview, k_mu = max(g[0], g[1] * vx), 2.0
     beta = math.atan2(vy, max(vx, 0.1))
-    k_mu = g[f + 12] if fullsize else 2.0  # the heading error's gain
     kappa_cmd = (
         _lookup(kappa_ref, s + 0.5 * preview, ds, length)
         + k_mu / preview * (_lookup(mu_ref, s, ds, length) - (mu + beta))

@@ -145,12 +145,16 @@ def check_class_wake(config) -> None:
     object.__setattr__(config, "wake", class_wake(config.vehicle_class, config.wake))
 
 
+#: The paper's world ``(vehicle_class, wake)``: the 1:43 ORCA class without a wake.
+PAPER_WORLD = ("orca", 0.0)
+
+
 def drop_default_class(d: dict) -> dict:
     """Leave ``vehicle_class`` and ``wake`` out of a config's dict ``d`` (in place) while they
     are the paper's world (the ORCA class without a wake), so that its manifests and stored
     results keep the keys they always had; any other class or wake is recorded (a resume with
     another is then refused)."""
-    if d.get("vehicle_class") == "orca" and d.get("wake") == 0.0:
+    if (d.get("vehicle_class"), d.get("wake")) == PAPER_WORLD:
         del d["vehicle_class"], d["wake"]
     return d
 

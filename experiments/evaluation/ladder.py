@@ -11,18 +11,20 @@ The ego's result is the **highest rung at which it wins at least half of its rac
 Per track and ego:
 
 1. **Calibration.** The ego's solo pace is its progress alone from the grid in ``steps``
-   control periods (:func:`~experiments.evaluation.strategy.solo_pace`, ``seed``). For each
-   rung r, the followers' ``speed_scale`` (their speed target is ``speed_scale`` times their
-   race line's speed profile) is searched so that a follower's solo progress over the same
-   steps is r times the ego's, to within :data:`TOLERANCE` (0.2%) of that target: from the
-   follower at ``speed_scale`` 1, a proportional first guess, then secant steps (regula falsi
-   with a bisection guard once the target is bracketed), at most :data:`MAX_SOLO_RACES` solo
-   races per rung (:func:`propose`). Scales are rounded to 4 decimals. A rung the followers
-   cannot reach (no ``speed_scale`` up to 1.5, the follower's bound, made them that fast:
-   beyond some scale the car, not the speed target, limits them) or that does not converge
-   is reported as such (:func:`calibration_result`) and not raced, with the closest ratio.
+   control periods (:func:`~experiments.evaluation.strategy.solo_pace`, ``seed``); with
+   ``pace_of`` set, that spec's solo pace is the unit of every ego. For each rung r, the
+   followers' pace knob (``knob``: a ``raceline`` follower's ``speed_scale``, its speed
+   target over its race line's speed profile, or an ``mpc`` follower's ``zeta``) is searched
+   so that a follower's solo progress over the same steps is r times the unit's, to within
+   :data:`TOLERANCE` (0.2%) of that target: from the knob at 1, a proportional first guess,
+   then secant steps (regula falsi with a bisection guard once the target is bracketed), at
+   most :data:`MAX_SOLO_RACES` solo races per rung (:func:`propose`), within the knob's
+   range (:data:`KNOB_RANGES`). Values are rounded to 4 decimals. A rung the followers
+   cannot reach (no value in the range made them that fast: beyond some ``speed_scale`` the
+   car, not the speed target, limits them) or that does not converge is reported as such
+   (:func:`calibration_result`) and not raced, with the closest ratio.
 2. **Races.** Each calibrated rung is one ``alpha-racer bench`` folder: the ego against two
-   followers at the rung's ``speed_scale`` from ``regions`` (default R2 only; R2 R3 in turn
+   followers at the rung's knob value from ``regions`` (default R2 only; R2 R3 in turn
    with ``regions=("R2", "R3")``), ``races`` races per region. Race k has the seed of
    ``(seed, k)`` on every rung and for every ego, so the rungs differ only in the followers'
    pace.
@@ -30,14 +32,14 @@ Per track and ego:
 Output folder (``out``, default ``results/ladder``; run again to resume):
 
 * ``manifest.json``: the settings every record of the folder shares (races, regions, steps,
-  seed, followers, class, wake); a run with others is refused. Egos, tracks and rungs may be
+  seed, followers, knob, pace unit, class, wake); a run with others is refused. Egos, tracks and rungs may be
   added to a folder.
-* ``solo.jsonl``: every solo race (ego and followers at each ``speed_scale`` tried), one line
+* ``solo.jsonl``: every solo race (the pace units and the followers at each value tried), one line
   each, appended as it finishes. The calibration is a deterministic function of these
   races, so a resumed run replays it from the file and races only the solo races it lacks.
 * ``races/TRACK/EGO/rung_R/``: one bench folder per rung (manifest, ``races.jsonl``,
   ``states/``, summary); a killed run loses no finished race.
-* ``calibration.json``: per track, ego and rung the solo races tried, the ``speed_scale``
+* ``calibration.json``: per track, ego and rung the solo races tried, the knob value
   chosen and the achieved follower / ego pace ratio.
 * ``ladder.json`` and ``ladder.md``: per track and ego, wins from R2 per rung with the
   achieved ratio, passes and contacts, and the highest rung won at least half.
@@ -51,6 +53,7 @@ import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
+from agents.theta import THETA_HIGH, THETA_LOW
 from experiments.evaluation.bench import BenchRun, run_many
 from experiments.evaluation.bench_config import (
     BenchConfig,
@@ -80,7 +83,7 @@ MAX_RUNG = 1.5
 #: The followers' pace knobs (``LadderConfig.knob``) and the range searched for each: the
 #: ``raceline`` follower's ``speed_scale`` (it takes (0, 1.5]; above 1 it asks more of its
 #: tyres than its own line does), or an ``mpc`` follower's ``zeta`` (the policy box's range).
-KNOB_RANGES = {"speed_scale": (0.05, 1.5), "zeta": (0.8, 1.05)}
+KNOB_RANGES = {"speed_scale": (0.05, 1.5), "zeta": (float(THETA_LOW[1]), float(THETA_HIGH[1]))}
 MIN_SCALE, MAX_SCALE = KNOB_RANGES["speed_scale"]
 #: A calibration is done when the follower's solo progress is within this fraction of
 #: its target (rung x the ego's solo progress).
@@ -246,7 +249,7 @@ def propose(
     tol: float = TOLERANCE,
     bounds: tuple[float, float] = (MIN_SCALE, MAX_SCALE),
 ) -> float | None:
-    """The next ``speed_scale`` to race alone for a follower whose solo progress should be
+    """The next knob value to race alone for a follower whose solo progress should be
     ``target`` [m], given the ``points`` (``(scale, progress)``) raced so far; None when one
     is within ``tol`` of the target or no new scale can come closer (a bracket narrower than
     the rounding, or the scale range's end reached on the wrong side).
@@ -338,8 +341,9 @@ def calibrate(config: LadderConfig, out, pool: Pool) -> dict:
     """Every calibration of ``config`` (module docstring), the solo races it lacks raced
     round by round (one pool per round, every calibration's next scale at once) and stored
     in ``solo.jsonl``; returns ``{(track, ego, rung): calibration}``, each with the ego's
-    and the followers' (at speed_scale 1) solo progress, the target, the solo races tried
-    (``points``: scale, progress, ratio), the scale chosen, its ``ratio`` and ``status``."""
+    (the pace unit's) and the followers' (at the knob's 1) solo progress, the target, the solo
+    races tried (``points``: value, progress, ratio), the value chosen, its ``ratio`` and
+    ``status``."""
     solo = SoloRun(out, config)
     base = config.follower_spec(1.0)
     units = list(dict.fromkeys(config.pace_unit(e) for e in config.egos))

@@ -4,7 +4,7 @@ options, the theta box), read from a model's metadata."""
 from __future__ import annotations
 
 from agents.potential import model_space
-from experiments.potential.collect import ADDED_FIELDS, PACE_SPREADS, ZETA_CEILING
+from experiments.potential.collect import ADDED_FIELDS, PACE_SPREADS, ZETA_CEILING, CollectConfig
 
 
 def added_options_text(collect: dict) -> str:
@@ -16,6 +16,18 @@ def added_options_text(collect: dict) -> str:
         for k, v in ADDED_FIELDS.items()
         if collect.get(k, v) != v
     )
+
+
+def track_steps_text(collect: dict) -> str:
+    """The collection's ``--track`` and ``--steps`` where they differ from
+    :class:`~experiments.potential.collect.CollectConfig`'s defaults (``default``, 500), as
+    written on the command line (empty for the paper's collection)."""
+    text = ""
+    for name in ("track", "steps"):
+        default = getattr(CollectConfig, name)
+        if collect.get(name, default) != default:
+            text += f" --{name} {collect[name]}"
+    return text
 
 
 def theta_box_lines(meta: dict) -> list[str]:

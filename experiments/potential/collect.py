@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from experiments.evaluation.bench_config import PAPER_WORLD
 from experiments.infra.artifacts import claim, manifest_config, provenance, write_npz
 from experiments.infra.checks import check_counts
 from experiments.infra.parallel import Pool, run_tasks_with_progress
@@ -152,17 +153,17 @@ def _mpc_agents(
     return agents
 
 
-def is_paper_world(config) -> bool:
-    """Whether ``config`` (a :class:`CollectConfig` or its stored dict) races the paper's
-    world: the 1:43 ``"orca"`` class without a wake."""
-    get = config.get if isinstance(config, dict) else lambda k, d: getattr(config, k)
-    return get("vehicle_class", "orca") == "orca" and get("wake", 0.0) == 0.0
-
-
 def collection_class(config: dict) -> tuple[str, float]:
     """``(vehicle_class, wake)`` of a collection from its stored config (a manifest's
-    ``config``): the paper's ``("orca", 0.0)`` when it records neither."""
-    return str(config.get("vehicle_class", "orca")), float(config.get("wake", 0.0))
+    ``config``): the paper's world (``PAPER_WORLD``) when it records neither."""
+    cls, wake = PAPER_WORLD
+    return str(config.get("vehicle_class", cls)), float(config.get("wake", wake))
+
+
+def is_paper_world(config) -> bool:
+    """Whether ``config`` (a :class:`CollectConfig` or its stored dict) races the paper's
+    world (``PAPER_WORLD``: the 1:43 class without a wake)."""
+    return collection_class(config if isinstance(config, dict) else vars(config)) == PAPER_WORLD
 
 
 def _env_kwargs(config: CollectConfig) -> dict:
@@ -372,7 +373,7 @@ def write_shard(arrays: dict, shard: int, out_dir) -> str:
     return str(write_npz(shard_path(out_dir, shard), schema_version=SCHEMA_VERSION, **arrays))
 
 
-#: The keys of a shard that tag its world (absent from the paper's shards: ``("orca", 0.0)``).
+#: The keys of a shard that tag its world (absent from the paper's shards).
 CLASS_KEYS = ("vehicle_class", "wake")
 
 
@@ -385,9 +386,9 @@ def class_tag(config: CollectConfig) -> dict:
 
 
 def shard_class(z) -> tuple[str, float]:
-    """``(vehicle_class, wake)`` of an open shard ``z`` (``("orca", 0.0)`` untagged)."""
+    """``(vehicle_class, wake)`` of an open shard ``z`` (``PAPER_WORLD`` untagged)."""
     if "vehicle_class" not in z.files:
-        return "orca", 0.0
+        return PAPER_WORLD
     return str(z["vehicle_class"]), float(z["wake"])
 
 

@@ -58,8 +58,14 @@ from agents.features import (
     value_features,
 )
 from agents.potential import PotentialModel
+from experiments.evaluation.bench_config import PAPER_WORLD
 from experiments.potential import nets, validation
-from experiments.potential.card_lines import added_options_text, pace_text, theta_box_lines
+from experiments.potential.card_lines import (
+    added_options_text,
+    pace_text,
+    theta_box_lines,
+    track_steps_text,
+)
 from experiments.potential.nets import TrainConfig
 
 # ---------------------------------------------------------------------------- data
@@ -266,7 +272,7 @@ def validate_gaps(model, states, thetas, val_idx, track, cfg, box=None) -> dict:
 
 
 def validate_rollouts(
-    model, vr, states, thetas, val_idx, track, cfg, progress_bar, box=None, world=("orca", 0.0)
+    model, vr, states, thetas, val_idx, track, cfg, progress_bar, box=None, world=PAPER_WORLD
 ) -> dict:
     """Paired rollouts from held-out states: dG_i (simulated, bootstrapped by V after
     ``rollout_steps``) against dPhi and dV, relative to the value range ``vr``; deviations in
@@ -292,17 +298,6 @@ def validate_rollouts(
     return validation.rollout_statistics(dphi, dv, dG, vr, cfg.rollout_steps)
 
 
-def _track_steps_text(collect: dict) -> str:
-    """The collection's ``--track`` and ``--steps`` where they are not the paper's
-    (``default``, 500), as written on the command line (empty for the paper's)."""
-    text = ""
-    if collect.get("track", "default") != "default":
-        text += f" --track {collect['track']}"
-    if collect.get("steps", 500) != 500:
-        text += f" --steps {collect['steps']}"
-    return text
-
-
 def model_card_text(meta: dict) -> str:
     """A short Markdown model card from a model's metadata."""
     m, c, d = meta["metrics"], meta["config"], meta["data"]
@@ -313,7 +308,7 @@ def model_card_text(meta: dict) -> str:
             "",
             f"* **Data:** {d['races']} races x {d['steps']} steps x {meta['n_cars']} cars on "
             f"`{meta['track']}` (`alpha-racer collect --races {col.get('races', d['races'])} "
-            f"--seed {col.get('seed', 0)}{added_options_text(col)}{_track_steps_text(col)}"
+            f"--seed {col.get('seed', 0)}{added_options_text(col)}{track_steps_text(col)}"
             + "`; every car an MPC with theta uniform in its bounds"
             + pace_text(col)
             + "); "
