@@ -26,7 +26,6 @@ from .base import median_p99, register_agent
 from .mpc_agent import MPCAgent, split_observation
 from .potential import PotentialModel, cached_model
 from .reference import Theta, policy_space
-from .threads import single_blas_thread
 
 if TYPE_CHECKING:
     from racing_env.track import Track
@@ -255,13 +254,9 @@ class AlphaAgent(MPCAgent):
         )
         return st
 
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        if self.mpc is None:
-            raise RuntimeError("AlphaAgent.act() before reset(track, ...)")
-        with single_blas_thread():
-            return self._act(observation)
-
-    def _act(self, observation) -> np.ndarray:
+    def _before_solve(self, observation: np.ndarray) -> None:
+        """Choose this step's theta: the joint theta that maximises the potential at the
+        observed joint state (warm-started from the last one), the ego's row driven."""
         t0 = time.perf_counter()
         ego, others = split_observation(observation, self.n_preview)
         joint = np.vstack([ego[None], others])  # ego first, then the others
@@ -296,4 +291,3 @@ class AlphaAgent(MPCAgent):
         self.theta = Theta.from_array(np.clip(theta[0], box.low, box.high))
         self.last_potential = phi
         self._max_ms.append(1e3 * (time.perf_counter() - t0))
-        return super().act(observation)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -268,37 +269,73 @@ class MPCAgent:
             "solve_ms_p99": p99,
         }
 
-    def act(self, observation: np.ndarray) -> np.ndarray:
-        if self.mpc is None:
-            raise RuntimeError("MPCAgent.act() before reset(track, ...)")
+    def _before_solve(self, observation: np.ndarray) -> None:
+        """What an agent does before its MPC step (a subclass's hook: the alpha agent chooses
+        its theta here); nothing for the fixed-theta agent."""
+
+    def _solve_args(self, observation: np.ndarray) -> tuple:
+        """The arguments of :meth:`MPC.solve <agents.mpc.solver.MPC.solve>` for this
+        observation: ``(x0, s_ref, n_ref, q, opponents, u_prev)`` (the references of
+        :attr:`driven_theta`, the cars just ahead and behind as the prediction sees them)."""
         track = self.track
         assert track is not None  # reset() sets it with the MPC
+        ego, others = split_observation(observation, self.n_preview)
+        theta = self.driven_theta
+        dirty = self.tow and len(others) and in_a_wake(ego, others, self.vehicle, DIRTY_AIR[:2])
+        ref = reference_trajectory(
+            theta,
+            ego,
+            others if len(others) else None,
+            self.raceline,
+            track,
+            K=self.config.horizon,
+            dt=self.config.dt,
+            blend=self._blend_line(theta),
+            side=self._pass_side(),
+            vehicle=None if isinstance(self.vehicle, VehicleParams) else self.vehicle,
+            tow=self.tow,
+            friction=DIRTY_AIR[2] if dirty else None,
+        )
+        neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
+        opp = None
+        if neighbours:
+            o = others[neighbours]
+            opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, track)])
+            if self.prediction is not None:
+                s, n, s_dot = opp.T
+                opp = self.prediction.paths(s, n, s_dot, self.config.horizon, self.config.dt)
+        return ego, ref.s_ref, ref.n_ref, theta.q, opp, self._u_prev
+
+    def _check_reset(self) -> None:
+        if self.mpc is None:
+            raise RuntimeError(f"{type(self).__name__}.act() before reset(track, ...)")
+
+    def act(self, observation: np.ndarray) -> np.ndarray:
+        self._check_reset()
+        assert self.mpc is not None
         with single_blas_thread():  # results independent of the BLAS thread count
-            ego, others = split_observation(observation, self.n_preview)
-            theta = self.driven_theta
-            dirty = self.tow and len(others) and in_a_wake(ego, others, self.vehicle, DIRTY_AIR[:2])
-            ref = reference_trajectory(
-                theta,
-                ego,
-                others if len(others) else None,
-                self.raceline,
-                track,
-                K=self.config.horizon,
-                dt=self.config.dt,
-                blend=self._blend_line(theta),
-                side=self._pass_side(),
-                vehicle=None if isinstance(self.vehicle, VehicleParams) else self.vehicle,
-                tow=self.tow,
-                friction=DIRTY_AIR[2] if dirty else None,
-            )
-            neighbours = [j for j in (ref.ahead, ref.behind) if j >= 0]
-            opp = None
-            if neighbours:
-                o = others[neighbours]
-                opp = np.column_stack([o[:, 0], o[:, 1], progress_rate(o, track)])
-                if self.prediction is not None:
-                    s, n, s_dot = opp.T
-                    opp = self.prediction.paths(s, n, s_dot, self.config.horizon, self.config.dt)
-            u = self.mpc.solve(ego, ref.s_ref, ref.n_ref, theta.q, opp, self._u_prev)
-            self._u_prev = u
-            return u.astype(np.float32)
+            self._before_solve(observation)
+            u = self.mpc.solve(*self._solve_args(observation))
+        self._u_prev = u
+        return u.astype(np.float32)
+
+    @classmethod
+    def act_group(cls, agents: Sequence[MPCAgent], observations: np.ndarray) -> np.ndarray:
+        """Actions (M, 2) float32 of M agents of this kind, ``observations`` (M, D) one row
+        each: every row what ``agents[row].act(observations[row])`` gives, with the MPC steps
+        of all of them solved together (:func:`agents.mpc.compiled_solve.solve_many`: one
+        compiled call per kind of MPC, split over threads). The lockstep runner's batched
+        decision (:func:`experiments.infra.lockstep.decide`)."""
+        for agent in agents:
+            agent._check_reset()
+        with single_blas_thread():
+            problems = []
+            for agent, obs in zip(agents, observations):
+                agent._before_solve(obs)
+                problems.append(agent._solve_args(obs))
+            inputs = MPC.solve_many([agent.mpc for agent in agents], problems)  # type: ignore[misc]
+        out = np.empty((len(agents), 2), dtype=np.float32)
+        for row, (agent, u) in enumerate(zip(agents, inputs)):
+            agent._u_prev = u
+            out[row] = u.astype(np.float32)
+        return out

@@ -33,10 +33,11 @@ def _numba_launched() -> bool:
     return bool(parallel is not None and parallel._is_initialized)
 
 
-def _set_torch_numba(n: int) -> tuple:
+def _set_torch_numba(n: int, launch: bool = False) -> tuple:
     """Set torch's intra-op threads and numba's threads for parallel kernels to ``n`` where
-    these are loaded and started (neither is imported nor started here: numba's pool started
-    before a fork is unsafe in the children); returns the previous counts. numba's parallel
+    these are loaded and started (neither is imported here, and numba's pool is started only
+    with ``launch``, in a worker process: a pool started before a fork is unsafe in the
+    children); returns the previous counts. numba's parallel
     kernels (the batched simulator over races) give the same result with any thread count:
     each race is one thread's work."""
     old_torch = old_numba = None
@@ -44,7 +45,7 @@ def _set_torch_numba(n: int) -> tuple:
     if torch is not None:
         old_torch = torch.get_num_threads()
         torch.set_num_threads(n)
-    if _numba_launched():
+    if _numba_launched() or (launch and "numba" in sys.modules):
         numba = sys.modules["numba"]
         old_numba = numba.get_num_threads()
         numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
@@ -54,13 +55,15 @@ def _set_torch_numba(n: int) -> tuple:
 def pin_threads(n: int = 1) -> None:
     """Limit every native thread pool of this process to ``n`` threads, for good: the pools
     already loaded (threadpoolctl), the variables for pools started later, torch and numba.
-    Meant for worker processes (a pool initialiser, a Ray task's first call)."""
+    Meant for worker processes (a pool initialiser, a Ray task's first call): numba's pool is
+    started here if numba is loaded, so that its parallel kernels (the MPC steps of a lockstep
+    batch) use ``n`` threads and workers do not oversubscribe the cores."""
     from threadpoolctl import threadpool_limits
 
     for var in THREAD_VARIABLES:
         os.environ[var] = str(n)
     threadpool_limits(n)
-    _set_torch_numba(n)
+    _set_torch_numba(n, launch=True)
 
 
 @contextmanager

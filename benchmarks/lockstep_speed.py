@@ -7,15 +7,17 @@ and where the time goes.
 
 The same races (the paper's collection: 3 MPC cars, races 1..R of seed 0) are run by each
 path: one by one (:func:`experiments.potential.collect.simulate_race`, one
-``RacingParallelEnv`` per race) and in lockstep batches of 4 and 8
-(:func:`experiments.potential.collect.simulate_races`, one ``BatchedRaces`` core per batch);
+``RacingParallelEnv`` per race), first with every MPC solving step by step from Python (the
+baseline: the path before the compiled solve) and then in one compiled call per decision
+(:mod:`agents.mpc.compiled_solve`), and in lockstep batches of 4 and 8
+(:func:`experiments.potential.collect.simulate_races`, one ``BatchedRaces`` core per batch,
+every period's MPC steps of all cars in one call: ``MPCAgent.act_group``, on numba's threads);
 the states of every path are checked equal bit for bit. The paths take turns for ``--rounds``
 rounds (the machine's load shifts alike on each). Printed per path: races/s, the ratio
-to the one-by-one path, and the seconds per race in the agents' ``act`` (the MPC decisions),
+to the baseline, and the seconds per race in the agents' decisions (``act``, ``act_group``),
 in the core's step (kernel and observations, ``BatchedRaces.step``), in the agents' resets
 and in the rest (glue: the env's dicts, the runner's bookkeeping, the seeds and thetas).
-Every decision is still one car's ``act``: the lockstep path saves env and glue time only, until
-agents decide in batches (:func:`experiments.infra.lockstep.decide`).
+``NUMBA_NUM_THREADS=1`` measures the batches on one thread (a collection worker's setting).
 """
 
 from __future__ import annotations
@@ -23,20 +25,39 @@ from __future__ import annotations
 import argparse
 import time
 from collections import Counter
+from contextlib import contextmanager
 
 from collect_speed import _Timed  # the sibling benchmark's timer (benchmarks/ runs as scripts)
 
 
-def run_path(config, races: list[int], batch: int | None) -> tuple[float, Counter, list]:
+@contextmanager
+def python_solve(on: bool):
+    """Inside the block, with ``on``, every MPC solves step by step from Python (the solve
+    before :mod:`agents.mpc.compiled_solve`: the baseline)."""
+    from agents.mpc.solver import MPC
+
+    MPC.compiled_solves = not on
+    try:
+        yield
+    finally:
+        MPC.compiled_solves = True
+
+
+def run_path(
+    config, races: list[int], batch: int | None, python: bool = False
+) -> tuple[float, Counter, list]:
     """Wall seconds to run ``races`` one by one (``batch`` None) or in lockstep batches of
-    ``batch``; the seconds in act, core step and resets; the races' states."""
+    ``batch`` (with ``python``, every MPC solving from Python); the seconds in the decisions
+    (act, act_group), core step and resets; the races' states."""
     from agents.mpc_agent import MPCAgent
     from experiments.potential.collect import simulate_race, simulate_races
     from racing_env import BatchedRaces
 
     totals: Counter = Counter()
     with (
+        python_solve(python),
         _Timed(MPCAgent, "act", "act", totals),
+        _Timed(MPCAgent, "act_group", "act", totals),
         _Timed(MPCAgent, "reset", "reset", totals),
         _Timed(BatchedRaces, "step", "step", totals),
     ):
@@ -70,7 +91,13 @@ def main() -> None:
 
     config = CollectConfig(races=args.races + 1, steps=args.steps)
     races = list(range(1, args.races + 1))
-    paths = {"one by one": None, "lockstep 4": 4, "lockstep 8": 8}
+    paths = {  # name: (batch, python solve)
+        "one by one, python solve": (None, True),
+        "one by one": (None, False),
+        "lockstep 4": (4, False),
+        "lockstep 8": (8, False),
+    }
+    base_name = next(iter(paths))
     with single_blas_thread():
         simulate_races(config, [0] * 8)  # compiles, builds and resets the 24 agents
         print(
@@ -78,27 +105,27 @@ def main() -> None:
             f"{args.rounds} rounds"
         )
         print(
-            f"{'path':12s} {'races/s':>8s} {'ratio':>6s} {'s/race:':>8s} {'act':>6s} "
+            f"{'path':25s} {'races/s':>8s} {'ratio':>6s} {'s/race:':>8s} {'act':>6s} "
             f"{'step':>6s} {'reset':>6s} {'glue':>6s}"
         )
         walls: dict[str, float] = dict.fromkeys(paths, 0.0)
         parts: dict[str, Counter] = {name: Counter() for name in paths}
         ref = None
         for _ in range(args.rounds):  # the paths interleaved, round after round
-            for name, batch in paths.items():
-                wall, t, states = run_path(config, races, batch)
+            for name, (batch, python) in paths.items():
+                wall, t, states = run_path(config, races, batch, python)
                 ref = ref or states
                 if not all(np.array_equal(a, b) for a, b in zip(ref, states)):
-                    raise SystemExit(f"{name}: the races differ from the races run one by one")
+                    raise SystemExit(f"{name}: the races differ from {base_name}'s")
                 walls[name] += wall
                 parts[name].update(t)
         n = args.races * args.rounds
-        base = n / walls["one by one"]
+        base = n / walls[base_name]
         for name in paths:
             t, wall = parts[name], walls[name]
             glue = wall - t["act"] - t["step"] - t["reset"]
             print(
-                f"{name:12s} {n / wall:8.3f} {n / wall / base:5.2f}x {'':8s} {t['act'] / n:6.3f} "
+                f"{name:25s} {n / wall:8.3f} {n / wall / base:5.2f}x {'':8s} {t['act'] / n:6.3f} "
                 f"{t['step'] / n:6.3f} {t['reset'] / n:6.3f} {glue / n:6.3f}"
             )
 

@@ -390,3 +390,47 @@ def test_records_carry_the_metrics_of_their_stored_states_and_old_folders_get_th
     )
     assert half["strategy"]["races"] == 2 and half["strategy"]["missing"] == 2
     assert "over 2 of 4 races" in summary_markdown(half)
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        BenchConfig(ego="alpha", opponents="ibr", races=3, steps=25, seed=4),
+        BenchConfig(ego="mpc:zeta=0.95", opponents="ppo", races=3, steps=25, seed=5),
+        BenchConfig(
+            ego="mpc:zeta=1.0",
+            opponents="raceline",
+            races=2,
+            steps=40,
+            n_cars=2,
+            track="tumftm:Monza",
+            vehicle_class="fullsize",
+        ),
+    ],
+    ids=["alpha-ibr", "mpc-ppo", "fullsize"],
+)
+def test_benchmark_races_in_a_batch_are_the_races_run_alone(config):
+    """The benchmark's lockstep batch (bench_races, what run_many's pool tasks run) gives each
+    race run_race gives alone, bit for bit, with the same record."""
+    from experiments.evaluation.bench import bench_races
+    from experiments.evaluation.race import run_race
+
+    ks = list(range(config.races))
+    batch = bench_races(config, ks)
+    for k, got in zip(ks, batch):
+        alone, _ = run_race(
+            config.agents,
+            track=config.track,
+            seed=config.race_seed(k),
+            max_cycles=config.steps,
+            order=config.order(k),
+            progress_bar=False,
+            vehicle_class=config.vehicle_class,
+            wake=config.wake,
+        )
+        assert np.array_equal(got["states"], alone.states.astype(np.float32))
+        rec = got["record"]
+        assert rec["progress_m"] == [round(float(v), 4) for v in alone.progress]
+        assert rec["contacts"] == alone.contacts.tolist()
+        assert rec["off_tracks"] == alone.off_tracks.tolist()
+    assert bench_race(config, 1)["record"]["progress_m"] == batch[1]["record"]["progress_m"]

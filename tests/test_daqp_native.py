@@ -98,6 +98,7 @@ def mpc_qps():
     K = mpc.cfg.horizon
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(MPC, "_qp", recording_qp)
+        mp.setattr(MPC, "compiled_solves", False)  # the Python solve, whose QPs pass here
         u = np.zeros(2)
         for n0, gap in ((0.05, 0.6), (-0.1, 0.4), (0.12, 0.3)):
             x = np.array([3.0, n0, 0.0, 2.5, 0.0, 0.0])

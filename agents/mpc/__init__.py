@@ -55,17 +55,25 @@ start; above about 2 m/s the two models agree to a few percent. The QP's matrice
 in one compiled pass (:func:`linearised_qp`); DAQP's iterations are capped (``qp_iter_limit``),
 since a rare cycling QP otherwise spends 10k iterations before giving up. The rest of an SQP
 iteration (the trial steps' rollouts and merit checks, the new linearisation) is one numba
-call that calls the compiled predictions itself (:func:`sqp_step`); with an
+call that calls the compiled predictions itself (:func:`sqp_step`, :mod:`.sqp_step`); with an
 interpreted prediction the same step runs in Python. Both do the same arithmetic, so the
 plans are the same bit for bit. With the fused helpers (:func:`trial_step`,
 :func:`score_rollout`, :func:`linearised_qp`) a race of MPC cars takes about 20% less time
 than with the separate numpy and ctypes calls before them; the kernel's own share is about
 6% (``benchmarks/sqp_step.py``: 0.90 against 0.96 ms per decision on the collection's races).
 
+The whole solve (warm start, restart, SQP loop with DAQP's C solver, fallback) also runs as
+one compiled call (:mod:`.compiled_solve`) where the MPC is the paper's (ORCA car, no damped
+steps, no second start): the same plans bit for bit, 1.3x faster per decision, and the
+MPC steps of many cars (a lockstep batch: ``MPCAgent.act_group``) in one call, split over
+threads (:meth:`MPC.solve_many`). The full-size MPC and ``plan=damped`` solve from Python.
+
 Modules, one job each: :mod:`.config` (:class:`MPCConfig`), :mod:`.codegen` (the prediction
 as C: generated, compiled, cached, called from Python and numba), :mod:`.prediction` (the
 model's stage and horizon, curvature along a plan, the follower's warm start), :mod:`.qp` (the
-cost of a plan and its condensed QP), :mod:`.solver` (:class:`MPC` and the SQP step).
+cost of a plan and its condensed QP), :mod:`.solver` (:class:`MPC` and the SQP step),
+:mod:`.compiled_solve` (the solve in one compiled call), :mod:`.daqp_native` (DAQP from
+compiled code).
 """
 
 from .config import PLANS, MPCConfig
@@ -94,7 +102,8 @@ from .qp import (
     score_rollout,
     separation_choice,
 )
-from .solver import MPC, StepCode, StepConstants, StepResult, sqp_step, trial_step
+from .solver import MPC
+from .sqp_step import StepCode, StepConstants, StepResult, sqp_step, trial_step
 
 __all__ = [
     "MPC",

@@ -238,6 +238,19 @@ class KernelHandle(NamedTuple):
     res: int  # byte offset of the result pointers in ptrs
 
 
+class KernelSpec(NamedTuple):
+    """What a compiled kernel needs to give a compiled prediction a workspace of its own
+    (:func:`private_handle`; :meth:`CompiledTrajectory.kernel_spec`): the C function's
+    address, its argument slots, the lengths of the pointer table, of CasADi's integer work
+    vector and of the float workspace (inputs, outputs and CasADi's work vector)."""
+
+    fn: int
+    n_arg: int
+    n_ptrs: int
+    n_iw: int
+    ws_len: int
+
+
 class CompiledTrajectory:
     """Calls the generated C function through ctypes on preallocated numpy buffers (the
     CasADi Python call with DM conversions costs more than the maths itself here).
@@ -245,7 +258,7 @@ class CompiledTrajectory:
     The buffers are views of one workspace array ``ws``: ``x0`` (6), ``U`` (2K), ``kap``
     (substeps K), ``X`` (6K), ``A`` (36K), ``B`` (12K), then CasADi's work vector; ``ptrs``
     holds the argument pointers (``n_arg`` of them) and then the result pointers. The
-    kernel :func:`~agents.mpc.solver.sqp_step` calls the function from numba on the same
+    kernel :func:`~agents.mpc.sqp_step.sqp_step` calls the function from numba on the same
     buffers."""
 
     def __init__(self, lib: Path, horizon: int, substeps: int, name: str = "mpc_traj"):
@@ -286,12 +299,23 @@ class CompiledTrajectory:
         self.K = K
 
     def kernel_args(self) -> KernelHandle:
-        """What :func:`~agents.mpc.solver.sqp_step` needs to call this prediction."""
+        """What :func:`~agents.mpc.sqp_step.sqp_step` needs to call this prediction."""
         import ctypes
 
         address = ctypes.cast(self._fn, ctypes.c_void_p).value
         assert address is not None  # a loaded function's address is never NULL
         return KernelHandle(self.ws, self.ptrs, self.iw, address, 8 * self.n_arg)
+
+    def kernel_spec(self) -> KernelSpec:
+        """What a compiled kernel needs to call this prediction on a workspace of its own
+        (:func:`private_handle`), so that problems solved on several threads never share one."""
+        import ctypes
+
+        address = ctypes.cast(self._fn, ctypes.c_void_p).value
+        assert address is not None  # a loaded function's address is never NULL
+        return KernelSpec(
+            address, self.n_arg, self.ptrs.shape[0], self.iw.shape[0], self.ws.shape[0]
+        )
 
     def _run(self, x0, u_vec, kap_flat) -> None:
         """Write the inputs into the buffers and run the C function on them."""
@@ -351,6 +375,22 @@ def _call_casadi(typingctx, fn, arg, res, iw, w):
         return builder.call(f, ptrs + [ir.Constant(ir.IntType(32), 0)])
 
     return sig, codegen
+
+
+@njit(cache=True, nogil=True)
+def private_handle(spec, K, m):
+    """A :class:`KernelHandle` of the prediction ``spec`` (:class:`KernelSpec`, K stages of m
+    sub-steps) on a fresh workspace of its own: the layout of :class:`CompiledTrajectory`'s
+    buffers, with its pointer table pointing into the new workspace."""
+    ws = np.zeros(spec.ws_len)
+    ptrs = np.zeros(spec.n_ptrs, np.uint64)
+    iw = np.zeros(max(spec.n_iw, 1), np.int64)
+    o = workspace_offsets(K, m)
+    base = ws.ctypes.data
+    for i in range(3):  # arguments x0, U, kap; results X, A, B
+        ptrs[i] = base + np.uint64(8 * o[i])
+        ptrs[spec.n_arg + i] = base + np.uint64(8 * o[3 + i])
+    return KernelHandle(ws, ptrs, iw, spec.fn, 8 * spec.n_arg)
 
 
 @njit(cache=True)

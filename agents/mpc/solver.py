@@ -1,23 +1,24 @@
 """The MPC's solver: :class:`MPC`, the RTI-SQP loop of one car (warm start, QP, merit-checked
-steps, fallback), and :func:`sqp_step`, one iteration's merit-checked step in one compiled
-call (:meth:`MPC._step_python` is the same step for an interpreted prediction)."""
+steps, fallback), run step by step from Python or in one compiled call
+(:mod:`.compiled_solve`); each SQP iteration's merit-checked step is
+:func:`~agents.mpc.sqp_step.sqp_step` (:meth:`MPC._step_python` is the same step for an
+interpreted prediction)."""
 
 from __future__ import annotations
 
 import math
 import time
 from collections import deque
-from enum import IntEnum
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
-from numba import njit
 
 from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
 from racing_env.vehicles import FullSizeParams, vehicle_for_track
 
-from .codegen import CompiledTrajectory, run_prediction, workspace_offsets
+from . import compiled_solve
+from .codegen import CompiledTrajectory
 from .config import MPCConfig, class_scale, config_for_vehicle, exact_soft_on, slip_bound
 from .prediction import (
     follower_rollout,
@@ -37,127 +38,11 @@ from .qp import (
     predicted_decrease,
     score_rollout,
 )
-
-
-class StepCode(IntEnum):
-    """How a merit-checked SQP step ended (:attr:`StepResult.code`)."""
-
-    FAILED = -1  # a prediction failed
-    REJECTED = 0  # no step length lowers the cost: the plan is kept (the rest is meaningless)
-    ACCEPTED = 1  # a step accepted, not linearised again (A, B empty)
-    RELINEARISED = 2  # a step accepted and the plan linearised again
-
+from .sqp_step import StepCode, StepConstants, StepResult, sqp_step, trial_step
 
 #: Throttle taken off the whole plan for the second start's braked candidate
 #: (:attr:`MPCConfig.second_start`; normalised throttle in [-1, 1]).
 SECOND_START_LIFT = 0.5
-
-
-class StepConstants(NamedTuple):
-    """What every SQP step of one :meth:`MPC.solve` shares."""
-
-    x0: np.ndarray  # (6,) the car's Frenet state
-    step_sizes: np.ndarray  # merit-checked step lengths, tried in order
-    kappa_tab: np.ndarray  # track curvature per grid station [1/m] (grid of problem.ds)
-    m: int  # RK4 sub-steps per stage
-    problem: ProblemConstants  # the cost's constants (references, weights, bounds, opponents)
-
-
-class StepResult(NamedTuple):
-    """A merit-checked SQP step (:func:`sqp_step`, :meth:`MPC._step_python`)."""
-
-    code: StepCode
-    J: float  # cost of the plan (the old one unless accepted)
-    u_vec: np.ndarray  # (2K,) inputs [d0, delta0, d1, ...]
-    X: np.ndarray  # (6, K) its rollout
-    A: np.ndarray | None  # (36, K) stage Jacobians when RELINEARISED, else empty (None in Python)
-    B: np.ndarray | None  # (12, K)
-    lo: np.ndarray  # (K,) bounds on n along X
-    hi: np.ndarray  # (K,)
-    s_nominal: np.ndarray  # (K + 1,) progress at the stage boundaries of the plan
-
-
-@njit(cache=True)
-def trial_step(u_vec, du, alpha, s0, s_pred, ds_lin, kappa_tab, ds, length, m):
-    """A trial step's inputs and curvature, in one pass: ``u_vec + alpha du`` clipped to
-    [-1, 1] (2K,), and the curvature (substeps K,) along the step's linearised progress
-    ``[s0, s_pred + alpha ds_lin]``, stage after stage (the compiled prediction's layouts)."""
-    nv = u_vec.shape[0]
-    K = s_pred.shape[0]
-    u_new = np.empty(nv)
-    for i in range(nv):
-        v = u_vec[i] + alpha * du[i]
-        u_new[i] = -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
-    nodes = np.empty(K + 1)
-    nodes[0] = s0
-    for k in range(K):
-        nodes[k + 1] = s_pred[k] + alpha * ds_lin[k]
-    return u_new, kappa_flat(kappa_tab, nodes, m, ds, length)
-
-
-@njit(cache=True)
-def sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, roll, traj):
-    """The merit-checked step of one SQP iteration in one compiled call, for
-    :meth:`MPC.solve`: ``c`` the solve's :class:`StepConstants`, ``u_vec`` (2K,) the plan's
-    inputs with cost ``J``, ``du`` (2K,) the QP's step, ``ds_lin`` (K,) its linearised change
-    of the progress ``s_pred`` (K,). It calls the two compiled predictions itself, the rollout
-    ``roll`` and the one with Jacobians ``traj`` (:class:`~agents.mpc.codegen.KernelHandle`).
-
-    Tries the step lengths ``c.step_sizes`` in order (:func:`trial_step`, the nonlinear
-    rollout, :func:`~agents.mpc.qp.score_rollout` under ``c.problem``), stops at the first that
-    does not raise the cost ``J`` and keeps the cheapest; then, if ``relinearise``, rolls the
-    accepted plan out again with its Jacobians and the curvature along its own progress. Returns a
-    :class:`StepResult` (see :class:`StepCode`). The arithmetic is :meth:`MPC._step_python`'s,
-    kernel for kernel, so the plans are the same bit for bit."""
-    K = s_pred.shape[0]
-    m, p = c.m, c.problem
-    _, o_u, o_kap, o_x, o_a, o_b, o_w = workspace_offsets(K, m)
-    empty = np.empty((0, K))
-    found = False
-    best_J = np.inf
-    best_u = u_vec
-    best_X = np.empty((6, K))
-    best_lo = np.empty(K)
-    best_hi = np.empty(K)
-    for a in range(c.step_sizes.shape[0]):
-        ua, kap_a = trial_step(
-            u_vec, du, c.step_sizes[a], c.x0[0], s_pred, ds_lin, c.kappa_tab, p.ds, p.length, m
-        )
-        roll.ws[:o_u] = c.x0
-        roll.ws[o_u:o_kap] = ua
-        roll.ws[o_kap:o_x] = kap_a
-        if run_prediction(roll, K, m):
-            return StepResult(
-                StepCode.FAILED, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred
-            )
-        Xa = roll.ws[o_x:o_a].reshape(K, 6).T.copy()
-        Ja, lo, hi = score_rollout(Xa, ua, p)
-        if not found or Ja < best_J:
-            found = True
-            best_J, best_u, best_X, best_lo, best_hi = Ja, ua, Xa, lo, hi
-        if Ja <= J:
-            break
-    if best_J > J:
-        return StepResult(
-            StepCode.REJECTED, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred
-        )
-    s_nom = np.empty(K + 1)
-    s_nom[0] = c.x0[0]
-    s_nom[1:] = best_X[0]
-    if not relinearise:
-        return StepResult(
-            StepCode.ACCEPTED, best_J, best_u, best_X, empty, empty, best_lo, best_hi, s_nom
-        )
-    traj.ws[:o_u] = c.x0
-    traj.ws[o_u:o_kap] = best_u
-    traj.ws[o_kap:o_x] = kappa_flat(c.kappa_tab, s_nom, m, p.ds, p.length)
-    if run_prediction(traj, K, m):
-        return StepResult(StepCode.FAILED, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred)
-    X = traj.ws[o_x:o_a].reshape(K, 6).T.copy()
-    A = traj.ws[o_a:o_b].reshape(K, 36).T.copy()
-    B = traj.ws[o_b:o_w].reshape(K, 12).T.copy()
-    J2, lo2, hi2 = score_rollout(X, best_u, p)
-    return StepResult(StepCode.RELINEARISED, J2, best_u, X, A, B, lo2, hi2, s_nom)
 
 
 class MPC:
@@ -213,6 +98,7 @@ class MPC:
         self._slip = slip_bound(self.cfg, self.vehicle)  # slip-angle rows (none: all zeros)
         self._exact_soft = exact_soft_on(self.cfg, self.vehicle)
         self._full = isinstance(self.vehicle, FullSizeParams)
+        self._tables = None  # the compiled solve's constant tables, built on first use
         # counters and the solve times (a deque) by name
         self.stats: dict[str, Any] = {
             "solves": 0,
@@ -231,7 +117,17 @@ class MPC:
     #: what a copy shares with its original (:meth:`__deepcopy__`): the compiled predictions
     #: (ctypes handles, with work buffers that every call overwrites and copies out of) and
     #: the constant tables; never written after construction
-    _SHARED = ("track", "vehicle", "cfg", "_traj", "_roll", "_kernels", "_bounds_n", "_DtD")
+    _SHARED = (
+        "track",
+        "vehicle",
+        "cfg",
+        "_traj",
+        "_roll",
+        "_kernels",
+        "_bounds_n",
+        "_DtD",
+        "_tables",
+    )
 
     def __deepcopy__(self, memo: dict) -> MPC:
         """A copy with its own warm start, follower and counters that shares the compiled
@@ -492,6 +388,100 @@ class MPC:
         J0, _, _ = score_rollout(X, u_vec, p._replace(w_soft=0.0))
         return J > J0 * (1.0 + 1e-9)
 
+    # ------------------------------------------------------- the compiled solve
+    #: whether solves may run in one compiled call (:attr:`compiled`); a process that races
+    #: once sets it False (the ``race`` command): the compiled solve's kernels take about
+    #: 10 s to compile on a cold cache, and save about 0.4 ms per decision after
+    compiled_solves: bool = True
+
+    @property
+    def compiled(self) -> bool:
+        """Whether :meth:`solve` runs in one compiled call
+        (:mod:`agents.mpc.compiled_solve`): :attr:`compiled_solves`, a compiled prediction,
+        the ORCA car, no damped steps, no second start and DAQP's own weighting of the soft
+        rows (the paper's MPC). Otherwise the same solve runs step by step from Python: the
+        same plans, bit for bit."""
+        return (
+            self.compiled_solves
+            and self._step == self._compiled_step
+            and not self._full
+            and not self.cfg.step_damping
+            and not self.cfg.second_start
+            and not self._exact_soft
+        )
+
+    def _solve_tables(self):
+        """The :class:`~agents.mpc.compiled_solve.SolveTables` of this MPC (built on first
+        use, shared by its copies: :func:`~agents.mpc.compiled_solve.tables_for`)."""
+        if getattr(self, "_tables", None) is None:
+            if self._follower is None:
+                self._follower = make_follower(self.track, self.vehicle, self.line)
+            self._tables = compiled_solve.tables_for(self, self._follower)
+        return self._tables
+
+    def batch_key(self) -> tuple:
+        """Solvers with equal keys share their :meth:`_solve_tables` and can be solved in one
+        call (:meth:`solve_many`): the same track, car, config and warm-start line."""
+        if not self.compiled:
+            return (id(self),)
+        specs = (self._roll.kernel_spec().fn, self._traj.kernel_spec().fn)  # type: ignore[union-attr]
+        return (id(self.track), specs, repr(self.vehicle), repr(self.cfg), self.line)
+
+    def _compiled_args(self, x0, s_ref, n_ref, q, opponents, u_prev) -> tuple:
+        """The per-problem arguments of the compiled solve
+        (:func:`~agents.mpc.compiled_solve.problem_args`)."""
+        return compiled_solve.problem_args(self, x0, s_ref, n_ref, q, opponents, u_prev)
+
+    def _warm(self) -> tuple:
+        """``(u_warm (2K,), s_nom (K + 1,), has_nom)``: this MPC's warm start for the compiled
+        solve."""
+        K = self.cfg.horizon
+        u = np.zeros(2 * K) if self._U is None else np.ascontiguousarray(self._U.T).reshape(-1)
+        has_nom = self._s_nom is not None
+        return u, (self._s_nom if has_nom else np.zeros(K + 1)), has_nom
+
+    def _finish(self, x0, result, seconds: float) -> np.ndarray:
+        """Apply one compiled solve's ``result`` (:func:`~agents.mpc.compiled_solve
+        .solve_problem`'s tuple) as :meth:`solve` ends: counters, fallback, shifted plan;
+        returns the input to apply now."""
+        from .compiled_solve import COUNTERS, NONFINITE, OK, PREDICTION_FAILED, QP_FAILED
+
+        code, exitflag, u_vec, X, J, s_nom, has_nom, counters = result
+        if code == PREDICTION_FAILED:
+            raise RuntimeError("compiled MPC prediction failed")
+        for key, n in zip(COUNTERS, counters):
+            self.stats[key] += int(n)
+        self._s_nom = s_nom.copy() if has_nom else None
+        status = {OK: "ok", NONFINITE: "nonfinite prediction"}.get(int(code))
+        if code == QP_FAILED:
+            status = f"qp exitflag {int(exitflag)}"
+        K = self.cfg.horizon
+        U = u_vec.reshape(K, 2).T
+        self.stats["solves"] += 1
+        if status != "ok":
+            self.stats["fallbacks"] += 1
+            if x0[3] < 2.0 * self.cfg.v_low:
+                U = self._follower_warm_start(x0)
+            else:
+                U = (U if self._U is None else self._U).copy()
+                U[0, :] = np.minimum(U[0, :], 0.0)
+            self._s_nom = None
+        u0 = U[:, 0].copy()
+        self._U = np.concatenate([U[:, 1:], U[:, -1:]], axis=1)
+        self.last_status = status
+        self.last_prediction = X if status == "ok" else None
+        self.last_plan = (U, J if status == "ok" else np.inf)
+        self.stats["solve_ms"].append(1e3 * seconds)
+        return u0
+
+    @staticmethod
+    def solve_many(mpcs: list[MPC], problems: list[tuple]) -> list[np.ndarray]:
+        """:meth:`solve` for many MPCs at once (:func:`~agents.mpc.compiled_solve.solve_many`):
+        ``problems[i]`` the arguments ``(x0, s_ref, n_ref, q, opponents, u_prev)`` of
+        ``mpcs[i]``; the inputs to apply, each exactly what ``mpcs[i].solve(*problems[i])``
+        returns."""
+        return compiled_solve.solve_many(mpcs, problems)
+
     def solve(
         self,
         x0: np.ndarray,
@@ -501,6 +491,28 @@ class MPC:
         opponents: np.ndarray | None = None,
         u_prev: np.ndarray | None = None,
     ) -> np.ndarray:
+        """The input ``(d, delta)`` to apply now (see the class docstring): one compiled call
+        where :attr:`compiled`, else the same solve step by step."""
+        if self.compiled:
+            t0 = time.perf_counter()
+            args = self._compiled_args(x0, s_ref, n_ref, q, opponents, u_prev)
+            u_warm, s_nom, has_nom = self._warm()
+            inputs = (self._solve_tables(), *args[:8], u_warm, args[8], s_nom, has_nom)
+            result = compiled_solve.solve_problem(*inputs)
+            return self._finish(args[0], result, time.perf_counter() - t0)
+        return self._solve_python(x0, s_ref, n_ref, q, opponents, u_prev)
+
+    def _solve_python(
+        self,
+        x0: np.ndarray,
+        s_ref: np.ndarray,
+        n_ref: np.ndarray,
+        q: float,
+        opponents: np.ndarray | None = None,
+        u_prev: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """:meth:`solve` step by step from Python (every config; the reference of the compiled
+        solve)."""
         t0 = time.perf_counter()
         cfg = self.cfg
         x0 = np.asarray(x0, dtype=float)

@@ -59,33 +59,67 @@ from experiments.infra.parallel import Pool
 SCHEMA_VERSION = 1
 
 
+#: races of one benchmark raced together in one lockstep batch (a pool task): every period's
+#: MPC steps of all its cars in one compiled call; a killed run loses at most a batch
+BATCH_RACES = 8
+
+
 def bench_race(config: BenchConfig, k: int) -> dict:
-    """Race k of the benchmark (pure: no file access); returns its record and states."""
-    from experiments.evaluation.race import run_race
+    """Race k of the benchmark (pure: no file access); returns its record and states
+    (:func:`bench_races` of one race)."""
+    return bench_races(config, [k])[0]
+
+
+def bench_races(config: BenchConfig, ks) -> list[dict]:
+    """Races ``ks`` of the benchmark (pure: no file access) in one lockstep batch
+    (:func:`experiments.infra.lockstep.run_lockstep`): each race bit for bit the race
+    :func:`~experiments.evaluation.race.run_race` runs alone (the same env, seeds, start orders
+    and agent seeds, :func:`~experiments.evaluation.race.start_race`'s); returns each race's
+    record and states, in order. ``seconds`` is the batch's wall time shared equally, and
+    ``decision_ms`` a batched decision's time shared equally by its cars."""
+    from agents import make_agent_spec
+    from agents.observations import check_field_size
+    from experiments.infra.lockstep import LockstepRace, race_setup, run_lockstep
 
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
-    seed, order = config.race_seed(k), config.order(k)
-    result, _ = run_race(
-        config.agents,
+    track, race_config = race_setup(
         track=config.track,
-        seed=seed,
+        n_cars=len(config.agents),
         max_cycles=config.steps,
         start="regions",
-        order=order,
-        progress_bar=False,
         vehicle_class=config.vehicle_class,
         wake=config.wake,
     )
+    races = []
+    for k in ks:
+        seed, order = config.race_seed(k), config.order(k)
+        agents = [make_agent_spec(spec) for spec in config.agents]
+        for i, (agent, spec) in enumerate(zip(agents, config.agents)):
+            check_field_size(agent, len(agents), f"car_{i}", spec)
+            agent.reset(track, f"car_{i}", seed + 1000 * (i + 1))  # start_race's seeds
+        races.append(LockstepRace(agents, track, race_config, seed, list(order)))
+    results = run_lockstep(races)
+    seconds = (time.perf_counter() - t0) / len(races)
+    return [
+        _record(config, k, race, result, race_config, seconds)
+        for k, race, result in zip(ks, races, results)
+    ]
+
+
+def _record(config: BenchConfig, k: int, race, result, race_config, seconds: float) -> dict:
+    """Race k's record and float32 states from its lockstep result."""
     if not np.isfinite(result.states).all():
         raise FloatingPointError(f"benchmark race {k} produced non-finite states")
     p = result.progress
     winner = int(np.argmax(p))
     states = result.states.astype(np.float32)
     reg = config.regions
+    order = race.order
+    stats = [dict(getattr(a, "stats", {}) or {}) for a in race.agents]
     record = {
         "race": k,
-        "seed": seed,
+        "seed": race.seed,
         "ego_region": reg[order[0]],
         "start_regions": [reg[r] for r in order],
         "agents": config.agents,
@@ -96,10 +130,10 @@ def bench_race(config: BenchConfig, k: int) -> dict:
         "contacts": result.contacts.tolist(),
         "off_tracks": result.off_tracks.tolist(),
         "decision_ms": [round(float(v), 4) for v in result.decision_ms],
-        "fallbacks": [int(st.get("fallbacks", 0)) for st in result.agent_stats],
+        "fallbacks": [int(st.get("fallbacks", 0)) for st in stats],
         # from the states as stored, so a summary recomputing them finds the same numbers
-        **race_metrics.record_metrics(states, result.dt, result.contact_dn),
-        "seconds": round(time.perf_counter() - t0, 3),
+        **race_metrics.record_metrics(states, race_config.dt, race_config.rules.contact_dn),
+        "seconds": round(seconds, 3),
     }
     return {"record": record, "states": states}
 
@@ -176,15 +210,17 @@ class BenchRun(ResumableRun):
 
 # ---------------------------------------------------------------------------- drivers
 def run_many(runs: dict, pool: Pool) -> None:
-    """Run the missing races of every :class:`BenchRun` in ``runs`` (name -> run) in one pool."""
+    """Run the missing races of every :class:`BenchRun` in ``runs`` (name -> run) in one pool,
+    in lockstep batches of up to :data:`BATCH_RACES` races of one run (:func:`bench_races`)."""
     run_missing(
         runs,
-        bench_race,
-        lambda run, k: (run.config, k),
+        bench_races,
+        lambda run, ks: (run.config, ks),
         pool,
         desc="bench",
         unit="race",
         postfix=lambda key, result: f"{key[0]}:{result['record']['winner']}",
+        batch=BATCH_RACES,
     )
 
 

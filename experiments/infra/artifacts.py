@@ -477,20 +477,28 @@ class ResumableRun:
 
 def run_missing(
     runs: dict[Hashable, ResumableRun],
-    fn: Callable[..., dict],
+    fn: Callable[..., Any],
     args: Callable[[Any, Any], tuple],
     pool: Pool,
     *,
     desc: str,
     unit: str,
     postfix: Callable[[tuple, dict], str] | None = None,
+    batch: int = 0,
 ) -> int:
     """Run the :meth:`~ResumableRun.missing` tasks of every run of ``runs`` (name -> run) in
     one pool, ``fn(*args(run, task))`` each (:func:`experiments.infra.parallel.run_tasks`), storing
     each record in its run (:meth:`~ResumableRun.add`) as it arrives, behind one progress bar
     over all the runs' tasks (``desc``, ``unit``; ``postfix((name, key), record)`` with the
     task's :meth:`~ResumableRun.task_key` shows the last one). Returns the number of tasks
-    run."""
+    run.
+
+    ``batch`` > 0: a pool task is up to ``batch`` tasks of one run, ``fn(*args(run, tasks))``
+    with the list of tasks returning their records in order (races raced together); each
+    batch is spread over the workers (at most ``ceil(missing / workers)`` tasks), and a
+    killed run loses at most its unfinished batches."""
+    if batch > 0:
+        return _run_missing_batches(runs, fn, args, pool, desc, unit, postfix, batch)
     tasks = [
         ((name, run.task_key(task)), args(run, task))
         for name, run in runs.items()
@@ -509,3 +517,35 @@ def run_missing(
         postfix=postfix,
     )
     return len(tasks)
+
+
+def _run_missing_batches(runs, fn, args, pool, desc, unit, postfix, batch: int) -> int:
+    """:func:`run_missing` with ``batch`` tasks of one run per pool task."""
+    missing = {name: run.missing() for name, run in runs.items()}
+    n_missing = sum(len(m) for m in missing.values())
+    size = max(1, min(batch, -(-n_missing // max(1, pool.workers))))
+    tasks = []
+    for name, todo in missing.items():
+        run = runs[name]
+        for i in range(0, len(todo), size):
+            chunk = todo[i : i + size]
+            tasks.append(((name, tuple(run.task_key(t) for t in chunk)), args(run, chunk)))
+    total = sum(len(run.tasks()) for run in runs.values())
+
+    def finished(key, records):
+        for record in records:
+            runs[key[0]].add(record)
+
+    run_tasks_with_progress(
+        fn,
+        tasks,
+        finished,
+        pool,
+        total=total,
+        done=total - n_missing,
+        desc=desc,
+        unit=unit,
+        count=lambda key: len(key[1]),
+        postfix=None if postfix is None else lambda key, records: postfix(key, records[-1]),
+    )
+    return n_missing

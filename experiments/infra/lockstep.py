@@ -17,14 +17,16 @@ size and its place in it (``tests/test_lockstep.py`` holds it: states and reward
 ``np.array_equal``, ORCA and full size). Batches of :data:`racing_env.core.PARALLEL_MIN_RACES`
 races or more are stepped by the multi-threaded kernel (same per-race code, one race per thread).
 
-**Decisions.** :func:`decide` is the hook for batched decisions. Today every agent decides car
-by car (``act(observation (D,)) -> (2,)``, the fallback every agent supports, in race-major order
-of the live cars). Agents of a class with ``act_group(agents, observations (M, D)) -> (M, 2)``
-(a group of one kind, each instance with its own state: MPC steps of many cars solved in one
-compiled call) and one instance with ``act_batch(observations (M, D)) -> (M, 2)`` in several
-slots (a stateless policy such as :class:`agents.ppo_agent.PPOAgent`) are asked once per period
-for all their cars of all races, rows in race-major order (:func:`live_slots`). The bit-for-bit
-promise holds for them when a row's action is what ``act`` gives it alone;
+**Decisions.** :func:`decide` is the hook for batched decisions. Agents of a class with
+``act_group(agents, observations (M, D)) -> (M, 2)`` (a group of one kind, each instance with
+its own state: :meth:`agents.mpc_agent.MPCAgent.act_group`, whose MPC steps of all cars of all
+races are solved in one compiled call, and the alpha agent's, which chooses each car's theta
+first) and one instance with ``act_batch(observations (M, D)) -> (M, 2)`` in several slots (a
+stateless policy such as :class:`agents.ppo_agent.PPOAgent`) are asked once per period for
+all their cars of all races, rows in race-major order (:func:`live_slots`). Every other agent
+decides car by car (``act(observation (D,)) -> (2,)``, the fallback every agent supports).
+The bit-for-bit promise holds because a row's action is what ``act`` gives it alone
+(``tests/test_compiled_solve.py`` for the MPC on one and two threads);
 ``batch_decisions=False`` asks every car alone. Mixed races (agents of any kinds, batched or
 not) work.
 
@@ -94,6 +96,8 @@ class LockstepResult:
     (N, dim) float64 or None: each car's ``theta.as_array(space)`` at the start when every agent
     has one. ``lap_times`` per car [s], ``contacts`` and ``off_tracks`` (N,) step counts,
     ``terminated``: a car completed ``laps`` (else truncated at ``max_cycles``).
+    ``decision_ms`` (N,): each car's mean decision time per step [ms] (a batched decision's
+    time shared equally by its cars).
     """
 
     states: np.ndarray
@@ -105,6 +109,13 @@ class LockstepResult:
     contacts: np.ndarray
     off_tracks: np.ndarray
     terminated: bool
+    decision_ms: np.ndarray
+
+    @property
+    def progress(self) -> np.ndarray:
+        """(N,) each car's progress at the end [m] past the start line, the front-most car's
+        start (``RaceResult.progress`` of the race run alone)."""
+        return self.states[-1, :, 0] - self.states[0, :, 0].max()
 
     @property
     def steps(self) -> int:
@@ -157,6 +168,7 @@ def decide(
     live: np.ndarray,
     actions: np.ndarray,
     batch_decisions: bool = True,
+    clock: np.ndarray | None = None,
 ) -> None:
     """The hook for batched decisions: every live car's action into ``actions`` (R, N, 2).
 
@@ -173,7 +185,9 @@ def decide(
       policy: :class:`agents.ppo_agent.PPOAgent`) is called once for its slots.
 
     Every other agent decides car by car (``act(observation (D,)) -> (2,)``: the fallback, which
-    every agent supports). An agent's error names it, its car and its race.
+    every agent supports). An agent's error names it, its car and its race. ``clock`` (R, N),
+    if given, gains each car's decision seconds (a batched call's time shared equally by its
+    rows).
     """
     n_cars = obs.shape[1]
     groups: dict[tuple[str, int], tuple[Any, list[tuple[int, int]]]] = {}
@@ -184,8 +198,12 @@ def decide(
         elif batch_decisions and callable(getattr(agent, "act_batch", None)):
             groups.setdefault(("batch", id(agent)), (agent, []))[1].append((b, i))
         else:
+            t0 = time.perf_counter()
             actions[b, i] = act_named(agent, obs[b, i], f"car_{i} of race {b}")
+            if clock is not None:
+                clock[b, i] += time.perf_counter() - t0
     for (kind, _), (owner, slots) in groups.items():  # batched decisions: one call per group
+        t0 = time.perf_counter()
         rows = np.array(slots, dtype=np.int64)
         x = obs[rows[:, 0], rows[:, 1]]
         if kind == "batch":
@@ -195,6 +213,8 @@ def decide(
             )
         else:
             actions[rows[:, 0], rows[:, 1]] = owner.act_group([agents[b][i] for b, i in slots], x)
+        if clock is not None:
+            clock[rows[:, 0], rows[:, 1]] += (time.perf_counter() - t0) / len(slots)
 
 
 def _fallbacks(agent: Any) -> int:
@@ -242,6 +262,7 @@ def run_lockstep(
     terminated = np.zeros(r, dtype=bool)
     live = np.ones(r, dtype=bool)
     actions = np.zeros((r, n, 2))
+    clock = np.zeros((r, n))  # decision seconds per car
     ends: dict[int, tuple] = {}  # per ended race: lap times, contacts, off-tracks
     obs = core.observe()
     t_act = t_step = 0.0
@@ -249,7 +270,7 @@ def run_lockstep(
     while live.any():
         t0 = time.perf_counter()
         actions[~live] = 0.0
-        decide(agents, obs, live, actions, batch_decisions)
+        decide(agents, obs, live, actions, batch_decisions, clock)
         t1 = time.perf_counter()
         obs, rew, term, trunc = core.step(actions)
         t2 = time.perf_counter()
@@ -282,6 +303,7 @@ def run_lockstep(
                 contacts=contacts,
                 off_tracks=off_tracks,
                 terminated=bool(terminated[b]),
+                decision_ms=1e3 * clock[b] / max(k, 1),
             )
         )
     if timing is not None:
