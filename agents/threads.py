@@ -33,11 +33,11 @@ def _numba_launched() -> bool:
     return bool(parallel is not None and parallel._is_initialized)
 
 
-def _set_torch_numba(n: int, launch: bool = False) -> tuple:
+def _set_torch_numba(n: int) -> tuple:
     """Set torch's intra-op threads and numba's threads for parallel kernels to ``n`` where
-    these are loaded and started (neither is imported here, and numba's pool is started only
-    with ``launch``, in a worker process: a pool started before a fork is unsafe in the
-    children); returns the previous counts. numba's parallel
+    these are loaded and started (neither is imported nor started here: numba's pool started
+    before a fork is unsafe in the children, and numba's OpenMP pool started beside torch's
+    froze a worker in torch's next OpenMP region); returns the previous counts. numba's parallel
     kernels (the batched simulator over races) give the same result with any thread count:
     each race is one thread's work."""
     old_torch = old_numba = None
@@ -45,7 +45,7 @@ def _set_torch_numba(n: int, launch: bool = False) -> tuple:
     if torch is not None:
         old_torch = torch.get_num_threads()
         torch.set_num_threads(n)
-    if _numba_launched() or (launch and "numba" in sys.modules):
+    if _numba_launched():
         numba = sys.modules["numba"]
         old_numba = numba.get_num_threads()
         numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
@@ -55,15 +55,28 @@ def _set_torch_numba(n: int, launch: bool = False) -> tuple:
 def pin_threads(n: int = 1) -> None:
     """Limit every native thread pool of this process to ``n`` threads, for good: the pools
     already loaded (threadpoolctl), the variables for pools started later, torch and numba.
-    Meant for worker processes (a pool initialiser, a Ray task's first call): numba's pool is
-    started here if numba is loaded, so that its parallel kernels (the MPC steps of a lockstep
-    batch) use ``n`` threads and workers do not oversubscribe the cores."""
+    Meant for worker processes (a pool initialiser, a Ray task's first call); sets the
+    process's :func:`thread_budget` to ``n``."""
+    global _budget
     from threadpoolctl import threadpool_limits
 
     for var in THREAD_VARIABLES:
         os.environ[var] = str(n)
     threadpool_limits(n)
-    _set_torch_numba(n, launch=True)
+    _set_torch_numba(n)
+    _budget = n
+
+
+_budget: int | None = None  # the process's thread budget, where set (pin/limited_threads)
+
+
+def thread_budget() -> int:
+    """Threads this process's own parallel work may use (the MPC steps of a lockstep batch,
+    :func:`agents.mpc.compiled_solve.solve_many`): the count of :func:`pin_threads` or the
+    innermost :func:`limited_threads` block, else the machine's cores. Python threads over
+    compiled code that releases the GIL, not an OpenMP pool: safe beside torch's and after a
+    fork."""
+    return _budget or os.cpu_count() or 1
 
 
 @contextmanager
@@ -72,11 +85,14 @@ def limited_threads(n: int = 1) -> Iterator[None]:
     it. Costs about a millisecond (it scans the loaded libraries): once per task, not per step."""
     from threadpoolctl import threadpool_limits
 
+    global _budget
     with threadpool_limits(n):
         old_torch, old_numba = _set_torch_numba(n)
+        old_budget, _budget = _budget, n
         try:
             yield
         finally:
+            _budget = old_budget
             if old_torch is not None:
                 sys.modules["torch"].set_num_threads(old_torch)
             if old_numba is not None:

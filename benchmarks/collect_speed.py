@@ -98,19 +98,17 @@ def main() -> None:
     if args.races < 1:
         raise SystemExit(f"--races must be a positive integer, got {args.races}")
 
-    import numba
     import numpy as np
 
-    from agents.threads import single_blas_thread
+    from agents.threads import limited_threads
     from experiments.potential.collect import CollectConfig, simulate_races
 
-    numba.set_num_threads(1)  # a collection worker's setting
     print(
         f"{'collection':16s} {'path':23s} {'s/race':>7s} {'ratio':>6s} {'4000 on 2 cores':>16s} "
         f"{'in SQP steps':>13s} {'in QPs':>7s}"
     )
     races = list(range(1, args.races + 1))
-    with single_blas_thread():
+    with limited_threads(1):  # a collection worker's setting
         for name, kw in CONFIGS.items():
             config = CollectConfig(races=args.races + 1, **kw)
             simulate_races(config, [0])  # compiles and caches everything

@@ -11,18 +11,20 @@ path: one by one (:func:`experiments.potential.collect.simulate_race`, one
 baseline: the path before the compiled solve) and then in one compiled call per decision
 (:mod:`agents.mpc.compiled_solve`), and in lockstep batches of 4 and 8
 (:func:`experiments.potential.collect.simulate_races`, one ``BatchedRaces`` core per batch,
-every period's MPC steps of all cars in one call: ``MPCAgent.act_group``, on numba's threads);
+every period's MPC steps of all cars in one call: ``MPCAgent.act_group``, on ``--threads`` threads);
 the states of every path are checked equal bit for bit. The paths take turns for ``--rounds``
 rounds (the machine's load shifts alike on each). Printed per path: races/s, the ratio
 to the baseline, and the seconds per race in the agents' decisions (``act``, ``act_group``),
 in the core's step (kernel and observations, ``BatchedRaces.step``), in the agents' resets
 and in the rest (glue: the env's dicts, the runner's bookkeeping, the seeds and thetas).
-``NUMBA_NUM_THREADS=1`` measures the batches on one thread (a collection worker's setting).
+``--threads 1`` measures the batches on one thread (a collection worker's setting; default:
+the machine's cores).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from collections import Counter
 from contextlib import contextmanager
@@ -77,16 +79,19 @@ def main() -> None:
     parser.add_argument("--races", type=int, default=8, help="races per path (default 8)")
     parser.add_argument("--steps", type=int, default=500, help="steps per race (default 500)")
     parser.add_argument("--rounds", type=int, default=2, help="rounds over the paths (default 2)")
+    parser.add_argument(
+        "--threads", type=int, default=os.cpu_count() or 1, help="the batches' threads"
+    )
     args = parser.parse_args()
-    if min(args.races, args.steps, args.rounds) < 1:
+    if min(args.races, args.steps, args.rounds, args.threads) < 1:
         raise SystemExit(
-            f"--races, --steps and --rounds must be positive, got {args.races}, {args.steps}, "
-            f"{args.rounds}"
+            f"--races, --steps, --rounds and --threads must be positive, got {args.races}, "
+            f"{args.steps}, {args.rounds}, {args.threads}"
         )
 
     import numpy as np
 
-    from agents.threads import single_blas_thread
+    from agents.threads import limited_threads
     from experiments.potential.collect import CollectConfig, simulate_races
 
     config = CollectConfig(races=args.races + 1, steps=args.steps)
@@ -98,7 +103,7 @@ def main() -> None:
         "lockstep 8": (8, False),
     }
     base_name = next(iter(paths))
-    with single_blas_thread():
+    with limited_threads(args.threads):
         simulate_races(config, [0] * 8)  # compiles, builds and resets the 24 agents
         print(
             f"{args.races} races of {args.steps} steps (3 MPC cars) per path and round, "

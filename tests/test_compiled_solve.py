@@ -4,7 +4,6 @@ Python solve kept where the compiled one does not apply."""
 
 from contextlib import contextmanager
 
-import numba
 import numpy as np
 import pytest
 
@@ -14,6 +13,7 @@ from agents import make_agent_spec  # noqa: E402
 from agents.mpc import MPCConfig  # noqa: E402
 from agents.mpc.solver import MPC  # noqa: E402
 from agents.mpc_agent import MPCAgent  # noqa: E402
+from agents.threads import limited_threads  # noqa: E402
 from experiments.infra.lockstep import LockstepRace, race_setup, run_lockstep  # noqa: E402
 from racing_env import make_track  # noqa: E402
 
@@ -67,13 +67,9 @@ def test_the_compiled_solve_makes_the_python_solve_s_races_bit_for_bit():
 def test_a_batch_on_any_thread_count_is_the_race_alone(threads):
     seeds, orders = [31, 32, 33], [[0, 1, 2], [1, 2, 0], [2, 0, 1]]
     alone, _ = races(seeds, orders, batch_decisions=False)
-    old = numba.get_num_threads()
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-    try:
+    with limited_threads(threads):  # the batch's MPC steps split over `threads` threads
         batched, _ = races(seeds, orders)
         single, _ = races(seeds[1:2], orders[1:2])  # a batch of one, and another place
-    finally:
-        numba.set_num_threads(old)
     for a, b in zip(alone, batched):
         assert np.array_equal(a.states, b.states) and np.array_equal(a.rewards, b.rewards)
     assert np.array_equal(single[0].states, alone[1].states)

@@ -375,3 +375,16 @@ def test_imported_user_agents_race_in_the_league(tmp_path, monkeypatch):
     finally:
         _REGISTRY.pop("cautious_user", None)
         sys.modules.pop("league_user_agents", None)
+
+
+def test_league_races_in_a_batch_are_the_races_run_alone():
+    """league_races (the pool's task: lockstep batches, one per track) gives each race's record
+    as league_race gives it alone, but for the timings."""
+    races = ls.schedule(TINY)[:5]
+    skip = ("seconds", "decision_ms")
+    batch = lg.league_races(races, 20)
+    alone = [lg.league_race(r, 20) for r in races]
+    for got, ref in zip(batch, alone):
+        assert {k: v for k, v in got.items() if k not in skip} == {
+            k: v for k, v in ref.items() if k not in skip
+        }

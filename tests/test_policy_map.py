@@ -112,6 +112,30 @@ def test_a_failing_run_becomes_an_error_row(monkeypatch):
     assert "errors" in pms.summary_markdown(s)
 
 
+def test_rows_raced_in_a_batch_are_the_rows_raced_alone(monkeypatch):
+    """map_rows (the pool's task: a lockstep batch of both modes) gives each row map_row gives
+    alone; a batch in which one race fails is raced again row by row, the failure an error
+    row."""
+    cfg = pm.PolicyMapConfig(thetas=3, tracks=("default",), steps=20, seed=2)
+    thetas = pm_thetas.sample_thetas(3, 2)
+    items = [(mode, "default", k, thetas[k]) for mode in ("solo", "race") for k in range(3)]
+    skip = ("seconds", "decision_ms")
+    batch = pm.map_rows(cfg, items)
+    alone = [pm.map_row(cfg, *item) for item in items]
+    for got, ref in zip(batch, alone):
+        assert {k: v for k, v in got.items() if k not in skip} == {
+            k: v for k, v in ref.items() if k not in skip
+        }
+    import experiments.evaluation.races
+
+    def boom(specs):
+        raise FloatingPointError("solver diverged")
+
+    monkeypatch.setattr(experiments.evaluation.races, "run_races", boom)
+    again = pm.map_rows(cfg, items[:2])
+    assert [r["progress_m"] for r in again] == [r["progress_m"] for r in alone[:2]]
+
+
 # ---------------------------------------------------------------------------- the command
 @pytest.fixture(scope="module")
 def tiny_map(tmp_path_factory):

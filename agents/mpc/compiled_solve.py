@@ -425,10 +425,10 @@ def _pool(threads: int):
 
 def _solve_group(mpcs: list[MPC], problems: list[tuple]) -> list[tuple]:
     """Solve the problems of MPCs of one ``batch_key`` in compiled calls
-    (:func:`solve_problems`), split over numba's thread count (``numba.get_num_threads()``,
-    which ``agents.threads.pin_threads`` sets to 1 in a worker) in contiguous ranges; the
+    (:func:`solve_problems`), split over the process's thread budget
+    (:func:`agents.threads.thread_budget`: 1 in a pool worker) in contiguous ranges; the
     results, one :func:`solve_problem` tuple per problem."""
-    import numba
+    from agents.threads import thread_budget
 
     args = [m._compiled_args(*p) for m, p in zip(mpcs, problems)]
     warm = [m._warm() for m in mpcs]
@@ -454,7 +454,7 @@ def _solve_group(mpcs: list[MPC], problems: list[tuple]) -> list[tuple]:
         np.array([w[2] for w in warm]),
         solve_outputs(nb, K),
     )
-    threads = min(nb, numba.get_num_threads())
+    threads = min(nb, thread_budget())
     if threads <= 1:
         solve_problems(*stacked, 0, nb)
     else:

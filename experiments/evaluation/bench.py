@@ -72,54 +72,47 @@ def bench_race(config: BenchConfig, k: int) -> dict:
 
 def bench_races(config: BenchConfig, ks) -> list[dict]:
     """Races ``ks`` of the benchmark (pure: no file access) in one lockstep batch
-    (:func:`experiments.infra.lockstep.run_lockstep`): each race bit for bit the race
-    :func:`~experiments.evaluation.race.run_race` runs alone (the same env, seeds, start orders
-    and agent seeds, :func:`~experiments.evaluation.race.start_race`'s); returns each race's
-    record and states, in order. ``seconds`` is the batch's wall time shared equally, and
+    (:func:`experiments.evaluation.races.run_races`): each race bit for bit the race
+    :func:`~experiments.evaluation.race.run_race` runs alone; returns each race's record and
+    states, in order. ``seconds`` is the batch's wall time shared equally, and
     ``decision_ms`` a batched decision's time shared equally by its cars."""
-    from agents import make_agent_spec
-    from agents.observations import check_field_size
-    from experiments.infra.lockstep import LockstepRace, race_setup, run_lockstep
+    from experiments.evaluation.races import RaceSpec, run_races
 
     warnings.simplefilter("ignore")
     t0 = time.perf_counter()
-    track, race_config = race_setup(
-        track=config.track,
-        n_cars=len(config.agents),
-        max_cycles=config.steps,
-        start="regions",
-        vehicle_class=config.vehicle_class,
-        wake=config.wake,
-    )
-    races = []
-    for k in ks:
-        seed, order = config.race_seed(k), config.order(k)
-        agents = [make_agent_spec(spec) for spec in config.agents]
-        for i, (agent, spec) in enumerate(zip(agents, config.agents)):
-            check_field_size(agent, len(agents), f"car_{i}", spec)
-            agent.reset(track, f"car_{i}", seed + 1000 * (i + 1))  # start_race's seeds
-        races.append(LockstepRace(agents, track, race_config, seed, list(order)))
-    results = run_lockstep(races)
-    seconds = (time.perf_counter() - t0) / len(races)
+    specs = [
+        RaceSpec(
+            tuple(config.agents),
+            config.race_seed(k),
+            tuple(config.order(k)),
+            track=config.track,
+            max_cycles=config.steps,
+            vehicle_class=config.vehicle_class,
+            wake=config.wake,
+        )
+        for k in ks
+    ]
+    outcomes = run_races(specs)
+    seconds = (time.perf_counter() - t0) / len(specs)
     return [
-        _record(config, k, race, result, race_config, seconds)
-        for k, race, result in zip(ks, races, results)
+        _record(config, k, spec, outcome, seconds) for k, spec, outcome in zip(ks, specs, outcomes)
     ]
 
 
-def _record(config: BenchConfig, k: int, race, result, race_config, seconds: float) -> dict:
-    """Race k's record and float32 states from its lockstep result."""
+def _record(config: BenchConfig, k: int, spec, outcome, seconds: float) -> dict:
+    """Race k's record and float32 states from its outcome (:func:`run_races`)."""
+    result, race_config = outcome.result, outcome.config
     if not np.isfinite(result.states).all():
         raise FloatingPointError(f"benchmark race {k} produced non-finite states")
     p = result.progress
     winner = int(np.argmax(p))
     states = result.states.astype(np.float32)
     reg = config.regions
-    order = race.order
-    stats = [dict(getattr(a, "stats", {}) or {}) for a in race.agents]
+    order = spec.order
+    stats = [dict(getattr(a, "stats", {}) or {}) for a in outcome.agents]
     record = {
         "race": k,
-        "seed": race.seed,
+        "seed": spec.seed,
         "ego_region": reg[order[0]],
         "start_regions": [reg[r] for r in order],
         "agents": config.agents,

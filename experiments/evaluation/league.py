@@ -92,8 +92,60 @@ def finish_ranks(progress) -> list[int]:
     return [int(r) + 1 for r in np.argsort(np.argsort(-p, kind="stable"), kind="stable")]
 
 
+def _race_failed(race: ScheduledRace, exc: Exception) -> RuntimeError:
+    """The error of a failed league race, naming it (a worker's traceback does not)."""
+    return RuntimeError(
+        f"league race {race.index} ({', '.join(race.agents)} on "
+        f"{race.track!r}, seed {race.seed}) failed: "
+        f"{type(exc).__name__}: {exc}"
+    )
+
+
+def _league_record(
+    race: ScheduledRace,
+    states,
+    progress,
+    contacts,
+    off_tracks,
+    decision_ms,
+    stats,
+    dt,
+    contact_dn,
+    seconds: float,
+) -> dict:
+    """A finished league race's record."""
+    if not np.isfinite(states).all():
+        raise FloatingPointError(
+            f"league race {race.index} ({', '.join(race.agents)} on "
+            f"{race.track!r}) produced non-finite states"
+        )
+    ranks = finish_ranks(progress)
+    return {
+        "race": race.index,
+        "round": race.round,
+        "rotation": race.rotation,
+        "track": race.track,
+        "seed": race.seed,
+        "agents": list(race.agents),
+        "start_regions": [f"R{r + 1}" for r in race.order],
+        "ranks": ranks,
+        "winner": race.agents[ranks.index(1)],
+        "progress_m": [round(float(v), 4) for v in progress],
+        "contacts": contacts.tolist(),
+        "off_tracks": off_tracks.tolist(),
+        "decision_ms": [round(float(v), 4) for v in decision_ms],
+        "fallbacks": [int(st.get("fallbacks", 0)) for st in stats],
+        **race_metrics.record_metrics(states, dt, contact_dn),
+        "seconds": round(seconds, 3),
+    }
+
+
+#: league races raced together in one lockstep batch (a pool task; :func:`league_races`)
+BATCH_RACES = 8
+
+
 def league_race(race: ScheduledRace, steps: int, imports=()) -> dict:
-    """Run one scheduled race (pure: no file access) and return its record."""
+    """Run one scheduled race alone (pure: no file access) and return its record."""
     from experiments.evaluation.race import run_race
 
     warnings.simplefilter("ignore")
@@ -109,36 +161,56 @@ def league_race(race: ScheduledRace, steps: int, imports=()) -> dict:
             order=list(race.order),
             progress_bar=False,
         )
-    except Exception as exc:  # name the race: the traceback of a worker does not
-        raise RuntimeError(
-            f"league race {race.index} ({', '.join(race.agents)} on "
-            f"{race.track!r}, seed {race.seed}) failed: "
-            f"{type(exc).__name__}: {exc}"
-        ) from exc
-    if not np.isfinite(result.states).all():
-        raise FloatingPointError(
-            f"league race {race.index} ({', '.join(race.agents)} on "
-            f"{race.track!r}) produced non-finite states"
+    except Exception as exc:
+        raise _race_failed(race, exc) from exc
+    return _league_record(
+        race,
+        result.states,
+        result.progress,
+        result.contacts,
+        result.off_tracks,
+        result.decision_ms,
+        result.agent_stats,
+        result.dt,
+        result.contact_dn,
+        time.perf_counter() - t0,
+    )
+
+
+def league_races(races: list[ScheduledRace], steps: int, imports=()) -> list[dict]:
+    """Run scheduled races in lockstep batches (one per track,
+    :func:`~experiments.evaluation.races.run_races`; pure: no file access) and return their
+    records, each the record :func:`league_race` gives alone. A batch that fails is raced
+    again one race at a time, so that the error names the race that failed."""
+    from experiments.evaluation.races import RaceSpec, run_races
+
+    warnings.simplefilter("ignore")
+    _import_once(imports)
+    t0 = time.perf_counter()
+    specs = [
+        RaceSpec(tuple(r.agents), r.seed, tuple(r.order), track=r.track, max_cycles=steps)
+        for r in races
+    ]
+    try:
+        outcomes = run_races(specs)
+    except Exception:
+        return [league_race(r, steps, imports) for r in races]
+    seconds = (time.perf_counter() - t0) / len(races)
+    return [
+        _league_record(
+            race,
+            o.result.states,
+            o.result.progress,
+            o.result.contacts,
+            o.result.off_tracks,
+            o.result.decision_ms,
+            [dict(getattr(a, "stats", {}) or {}) for a in o.agents],
+            o.config.dt,
+            o.config.rules.contact_dn,
+            seconds,
         )
-    ranks = finish_ranks(result.progress)
-    return {
-        "race": race.index,
-        "round": race.round,
-        "rotation": race.rotation,
-        "track": race.track,
-        "seed": race.seed,
-        "agents": list(race.agents),
-        "start_regions": [f"R{r + 1}" for r in race.order],
-        "ranks": ranks,
-        "winner": race.agents[ranks.index(1)],
-        "progress_m": [round(float(v), 4) for v in result.progress],
-        "contacts": result.contacts.tolist(),
-        "off_tracks": result.off_tracks.tolist(),
-        "decision_ms": [round(float(v), 4) for v in result.decision_ms],
-        "fallbacks": [int(st.get("fallbacks", 0)) for st in result.agent_stats],
-        **race_metrics.record_metrics(result.states, result.dt, result.contact_dn),
-        "seconds": round(time.perf_counter() - t0, 3),
-    }
+        for race, o in zip(races, outcomes)
+    ]
 
 
 # ---------------------------------------------------------------------------- storage
@@ -287,12 +359,13 @@ def league(
     check_field(config.agents, config.cars, config.tracks[0])
     run = LeagueRun(out_dir, config, agents)
     new = run.run_missing(
-        league_race,
-        lambda race: (race, config.steps, imports),
+        league_races,
+        lambda races: (races, config.steps, imports),
         pool,
         desc="league",
         unit="race",
-        postfix=lambda k, rec: f"{k}:{rec['winner']}",
+        postfix=lambda k, rec: f"{rec['race']}:{rec['winner']}",
+        batch=BATCH_RACES,
     )
     board = run.write_outputs()
     board["new_races"] = new

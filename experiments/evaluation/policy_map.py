@@ -119,63 +119,119 @@ def best_flying_lap(lap_times) -> float | None:
 
 
 # ---------------------------------------------------------------------------- one row
-def map_row(config: PolicyMapConfig, mode: str, track: str, k: int, theta) -> dict:
-    """Run theta k on ``track`` in ``mode`` (pure: no file access) and return its row."""
-    from experiments.evaluation.race import run_race
+def _row_start(config: PolicyMapConfig, mode: str, track: str, k: int, theta) -> tuple:
+    """Row k's first fields and its race (:class:`~experiments.evaluation.races.RaceSpec`)."""
+    from experiments.evaluation.races import RaceSpec
 
-    warnings.simplefilter("ignore")
-    t0 = time.perf_counter()
     spec, seed = theta_spec(theta), config.row_seed(k)
     row = {"mode": mode, "track": track, "index": k, "theta": theta_dict(theta), "seed": seed}
+    order: tuple[int, ...] | None = None
     if mode == "race":
-        order = BenchConfig.start_order(k)
+        order = tuple(BenchConfig.start_order(k))
         row["start_region"] = REGIONS[order[0]]
-        agents, kw = [spec, config.opponents, config.opponents], dict(start="regions", order=order)
+        agents, start = (spec, config.opponents, config.opponents), "regions"
     else:
-        agents, kw = [spec], dict(start="grid")
-    try:
-        res, _ = run_race(
-            agents,
-            track=track,
-            seed=seed,
-            max_cycles=config.steps,
-            progress_bar=False,
-            vehicle_class=config.vehicle_class,
-            wake=config.wake,
-            **kw,
-        )
-    except Exception as exc:  # one failing theta must not end a map of thousands
-        row["error"] = f"{type(exc).__name__}: {exc}"
-        row["seconds"] = round(time.perf_counter() - t0, 3)
-        return row
-    if not np.isfinite(res.states).all():
+        agents, start = (spec,), "grid"
+    race = RaceSpec(
+        agents,
+        seed,
+        order,
+        track=track,
+        max_cycles=config.steps,
+        start=start,
+        vehicle_class=config.vehicle_class,
+        wake=config.wake,
+    )
+    return row, race
+
+
+def _row_end(row: dict, states, progress, lap_times, off_tracks, contacts, stats, decision_ms):
+    """``row`` completed in place from its finished race (the theta's car first)."""
+    if not np.isfinite(states).all():
         row["error"] = "FloatingPointError: non-finite states"
-        row["seconds"] = round(time.perf_counter() - t0, 3)
-        return row
-    steps = len(res.states) - 1
-    st = res.agent_stats[0]
-    p = res.progress
+        return
+    steps = len(states) - 1
+    p = progress
     row.update(
         {
             "steps": steps,
             "progress_m": round(float(p[0]), 4),
-            "laps": len(res.lap_times[0]),
-            "lap_times_s": [round(float(t), 4) for t in res.lap_times[0]],
-            "best_lap_s": best_flying_lap(res.lap_times[0]),
-            "off_track_steps": int(res.off_tracks[0]),
-            "off_track_frac": float(res.off_tracks[0]) / max(steps, 1),
-            "contacts": int(res.contacts[0]),
-            "fallbacks": int(st.get("fallbacks", 0)),
-            "restarts": int(st.get("restarts", 0)),
-            "decision_ms": round(float(res.decision_ms[0]), 4),
+            "laps": len(lap_times[0]),
+            "lap_times_s": [round(float(t), 4) for t in lap_times[0]],
+            "best_lap_s": best_flying_lap(lap_times[0]),
+            "off_track_steps": int(off_tracks[0]),
+            "off_track_frac": float(off_tracks[0]) / max(steps, 1),
+            "contacts": int(contacts[0]),
+            "fallbacks": int(stats.get("fallbacks", 0)),
+            "restarts": int(stats.get("restarts", 0)),
+            "decision_ms": round(float(decision_ms[0]), 4),
         }
     )
-    if mode == "race":
+    if row["mode"] == "race":
         row["opponents_progress_m"] = [round(float(v), 4) for v in p[1:]]
         row["rank"] = int(1 + np.sum(p[1:] > p[0]))
         row["margin_m"] = round(float(p[0] - p[1:].max()), 4)
+
+
+def map_row(config: PolicyMapConfig, mode: str, track: str, k: int, theta) -> dict:
+    """Run theta k on ``track`` in ``mode`` alone (pure: no file access) and return its row."""
+    from experiments.evaluation.race import run_race
+
+    warnings.simplefilter("ignore")
+    t0 = time.perf_counter()
+    row, race = _row_start(config, mode, track, k, theta)
+    try:
+        res, _ = run_race(
+            list(race.agents),
+            track=track,
+            seed=race.seed,
+            max_cycles=config.steps,
+            start=race.start,
+            order=None if race.order is None else list(race.order),
+            progress_bar=False,
+            vehicle_class=config.vehicle_class,
+            wake=config.wake,
+        )
+    except Exception as exc:  # one failing theta must not end a map of thousands
+        row["error"] = f"{type(exc).__name__}: {exc}"
+    else:
+        _row_end(
+            row,
+            res.states,
+            res.progress,
+            res.lap_times,
+            res.off_tracks,
+            res.contacts,
+            res.agent_stats[0],
+            res.decision_ms,
+        )
     row["seconds"] = round(time.perf_counter() - t0, 3)
     return row
+
+
+def map_rows(config: PolicyMapConfig, items) -> list[dict]:
+    """The rows of ``items`` (``(mode, track, k, theta)`` each) raced in lockstep batches
+    (:func:`~experiments.evaluation.races.run_races`; pure: no file access), each the row
+    :func:`map_row` gives alone. A batch in which a race fails is raced again one row at a
+    time, so that the failing theta gets its error row and the others theirs."""
+    from experiments.evaluation.races import run_races
+
+    warnings.simplefilter("ignore")
+    t0 = time.perf_counter()
+    try:
+        starts = [_row_start(config, *item) for item in items]
+        outcomes = run_races([race for _, race in starts])
+    except Exception:  # one failing theta must not end a map of thousands
+        return [map_row(config, *item) for item in items]
+    seconds = round((time.perf_counter() - t0) / len(items), 3)
+    for (row, _), o in zip(starts, outcomes):
+        r = o.result
+        stats = dict(getattr(o.agents[0], "stats", {}) or {})
+        _row_end(
+            row, r.states, r.progress, r.lap_times, r.off_tracks, r.contacts, stats, r.decision_ms
+        )
+        row["seconds"] = seconds
+    return [row for row, _ in starts]
 
 
 # ---------------------------------------------------------------------------- storage
@@ -248,15 +304,20 @@ def policy_map(config: PolicyMapConfig, out_dir, pool: Pool = Pool()) -> dict:
     return summary
 
 
+#: rows raced together in one lockstep batch (a pool task; :func:`map_rows`)
+BATCH_ROWS = 8
+
+
 def run_maps(maps: dict, pool: Pool, desc: str = "policy map") -> int:
     """Compute the missing rows of every :class:`PolicyMapRun` of ``maps`` (name -> run) in
     one pool, behind one progress bar ``desc``; returns the number of rows computed."""
     return run_missing(
         maps,
-        map_row,
-        lambda run, key: (run.config, *key, run.thetas[key[2]]),
+        map_rows,
+        lambda run, keys: (run.config, [(*key, run.thetas[key[2]]) for key in keys]),
         pool,
         desc=desc,
         unit="run",
-        postfix=lambda key, row: f"{key[1][0]}:{key[1][1]}:{key[1][2]}",
+        postfix=lambda key, row: f"{row['mode']}:{row['track']}:{row['index']}",
+        batch=BATCH_ROWS,
     )

@@ -458,12 +458,13 @@ class ResumableRun:
         desc: str,
         unit: str,
         postfix: Callable[[Hashable, dict], str] | None = None,
+        batch: int = 0,
     ) -> int:
         """Run the :meth:`missing` tasks, ``fn(*args(task))`` each, on ``pool``
-        (:func:`run_missing`), storing each record (:meth:`add`) as it arrives, behind a
-        progress bar over all the run's tasks (``desc``, ``unit``; ``postfix(key, record)``
-        with the task's :meth:`task_key` shows the last one). Returns the number of tasks
-        run."""
+        (:func:`run_missing`; with ``batch``, ``fn(*args(tasks))`` for up to ``batch`` tasks
+        at once), storing each record (:meth:`add`) as it arrives, behind a progress bar over
+        all the run's tasks (``desc``, ``unit``; ``postfix(key, record)`` with the task's
+        :meth:`task_key` shows the last one). Returns the number of tasks run."""
         return run_missing(
             {None: self},
             fn,
@@ -472,6 +473,7 @@ class ResumableRun:
             desc=desc,
             unit=unit,
             postfix=None if postfix is None else lambda key, record: postfix(key[1], record),
+            batch=batch,
         )
 
 
