@@ -39,7 +39,8 @@ if TYPE_CHECKING:
 #: :func:`solve_problem`'s status codes (the Python solve's ``last_status`` strings)
 OK, NONFINITE, QP_FAILED, PREDICTION_FAILED = 0, 1, 2, 3
 
-#: :func:`solve_problem`'s counters, in order (the MPC's ``stats`` keys)
+#: :func:`solve_problem`'s counters, in order (the MPC's ``stats`` keys; ``fallbacks`` stays 0
+#: here: the fallback is taken, and counted, by ``MPC._finish``)
 COUNTERS = ("restarts", "fallbacks", "qp_iterations", "rejected_steps", "extra_iterations")
 
 
