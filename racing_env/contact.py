@@ -163,7 +163,8 @@ def _lockstep_with_contact(
     prev = np.empty((n_cars, 2))
     prev_x = np.empty((n_cars, 6))
     for i in range(n_cars):
-        state[b, i] = x0[i]
+        for q in range(6):  # element copies: no slice assignment (a cold race's compile)
+            state[b, i, q] = x0[i, q]
         substeps[b, i] = n_sub
         for j in range(n_cars):
             d_start[i, j] = (x0[i, 0] - x0[j, 0] + half) % length - half
@@ -173,7 +174,8 @@ def _lockstep_with_contact(
             for i in range(n_cars):
                 prev[i, 0] = state[b, i, 0] - x0[i, 0]
                 prev[i, 1] = state[b, i, 1]
-                prev_x[i] = state[b, i]
+                for q in range(6):
+                    prev_x[i, q] = state[b, i, q]
                 _rk4_substep(
                     state[b, i],
                     phys[i, 0],
@@ -218,7 +220,8 @@ def _lockstep_with_contact(
                         continue
                     x = state[b, car]
                     if m > 0:  # redo the sub-step: up to the moment of contact, cut, on
-                        x[:] = prev_x[car]
+                        for q in range(x.shape[0]):  # no slice assignment (cold compile)
+                            x[q] = prev_x[car, q]
                         if u > 0.0:
                             _rk4_substep(
                                 x,

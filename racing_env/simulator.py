@@ -136,7 +136,8 @@ def _step_one_race(b, state, phys, tables, p, dt, rules, reward, contact, offtra
     for i in range(n_cars):
         before[i] = state[b, i, 0]
         x = state[b, i]
-        x0[i] = x
+        for q in range(6):  # element copies: no slice assignment (a cold race's compile)
+            x0[i, q] = x[q]
         k = _n_substeps(x[3], p, dt, rules[R_SUB_GAIN], max_sub)
         k_max = max(k_max, k)
         substeps[b, i] = k

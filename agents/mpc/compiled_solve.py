@@ -31,7 +31,7 @@ from .codegen import KernelSpec, private_handle, run_prediction, workspace_offse
 from .daqp_native import solve_qp
 from .prediction import _rollout, kappa_flat
 from .qp import ProblemConstants, linearised_qp, predicted_decrease, score_rollout
-from .sqp_step import StepCode, StepConstants, sqp_step
+from .sqp_step import StepCode, StepConstants, _write_inputs, sqp_step
 
 if TYPE_CHECKING:
     from .solver import MPC
@@ -127,9 +127,7 @@ def _plan(t, roll, traj, x0, u_vec, s_nom, has_nom):
     kap = kappa_flat(t.kappa_tab, _stage_nodes(s_nom, has_nom, x0, K, t.dt), m, t.ds, t.length)
     nodes = np.empty(K + 1)
     for _ in range(t.curvature_passes):
-        roll.ws[: o[1]] = x0
-        roll.ws[o[1] : o[2]] = u_vec
-        roll.ws[o[2] : o[3]] = kap
+        _write_inputs(roll.ws, x0, u_vec, kap, o[1], o[2])
         if run_prediction(roll, K, m):
             return False, np.empty((6, K)), np.empty((36, K)), np.empty((12, K))
         X = _states(roll, K, m)
@@ -138,9 +136,7 @@ def _plan(t, roll, traj, x0, u_vec, s_nom, has_nom):
         nodes[0] = x0[0]
         nodes[1:] = X[0]
         kap = kappa_flat(t.kappa_tab, nodes, m, t.ds, t.length)
-    traj.ws[: o[1]] = x0
-    traj.ws[o[1] : o[2]] = u_vec
-    traj.ws[o[2] : o[3]] = kap
+    _write_inputs(traj.ws, x0, u_vec, kap, o[1], o[2])
     if run_prediction(traj, K, m):
         return False, np.empty((6, K)), np.empty((36, K)), np.empty((12, K))
     X = _states(traj, K, m)

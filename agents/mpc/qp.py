@@ -69,7 +69,9 @@ def condense_states(A, B, K):
                         for q in range(6):
                             acc += A[r + 6 * q, k + 1] * M[q, c]
                         T[r, c] = acc
-                M[:, :] = T
+                for r in range(6):  # element copies: no slice assignment in kernels
+                    for c in range(2):
+                        M[r, c] = T[r, c]
     return G
 
 
@@ -208,7 +210,8 @@ def qp_arrays(G, s_pred, n_pred, u_vec, nlo, nhi, p):
         hi[k] = rate - d_now
     # track edges on n (soft)
     for k in range(K):
-        rows[K + k, :] = G[2 * k + 1, :]
+        for c in range(nv):
+            rows[K + k, c] = G[2 * k + 1, c]
         lo[K + k] = nlo[k] - n_pred[k]
         hi[K + k] = nhi[k] - n_pred[k]
         soft[K + k] = 8
@@ -235,9 +238,10 @@ def qp_arrays(G, s_pred, n_pred, u_vec, nlo, nhi, p):
     for i in range(nv):
         blo[i] = -1.0 - u_vec[i]
         bhi[i] = 1.0 - u_vec[i]
-    blo[nv:] = lo[:r]
-    bhi[nv:] = hi[:r]
-    sense[nv:] = soft[:r]
+    for i in range(r):
+        blo[nv + i] = lo[i]
+        bhi[nv + i] = hi[i]
+        sense[nv + i] = soft[i]
     return H, f, rows[:r].copy(), blo, bhi, sense
 
 

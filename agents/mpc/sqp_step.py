@@ -68,6 +68,19 @@ def trial_step(u_vec, du, alpha, s0, s_pred, ds_lin, kappa_tab, ds, length, m):
     return u_new, kappa_flat(kappa_tab, nodes, m, ds, length)
 
 
+@njit(cache=True, nogil=True)
+def _write_inputs(ws, x0, u_vec, kap, o_u, o_kap):
+    """A compiled prediction's inputs ``x0``, ``u_vec``, ``kap`` into its workspace ``ws`` at
+    their offsets, element by element (a slice assignment pulls numba's shape-error
+    formatting into the compile of a cold race)."""
+    for i in range(o_u):
+        ws[i] = x0[i]
+    for i in range(u_vec.shape[0]):
+        ws[o_u + i] = u_vec[i]
+    for i in range(kap.shape[0]):
+        ws[o_kap + i] = kap[i]
+
+
 @njit(cache=True)
 def sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, roll, traj):
     """The merit-checked step of one SQP iteration in one compiled call, for
@@ -96,9 +109,7 @@ def sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, roll, traj):
         ua, kap_a = trial_step(
             u_vec, du, c.step_sizes[a], c.x0[0], s_pred, ds_lin, c.kappa_tab, p.ds, p.length, m
         )
-        roll.ws[:o_u] = c.x0
-        roll.ws[o_u:o_kap] = ua
-        roll.ws[o_kap:o_x] = kap_a
+        _write_inputs(roll.ws, c.x0, ua, kap_a, o_u, o_kap)
         if run_prediction(roll, K, m):
             return StepResult(
                 StepCode.FAILED, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred
@@ -116,14 +127,15 @@ def sqp_step(c, u_vec, du, ds_lin, s_pred, J, relinearise, roll, traj):
         )
     s_nom = np.empty(K + 1)
     s_nom[0] = c.x0[0]
-    s_nom[1:] = best_X[0]
+    for k in range(K):
+        s_nom[k + 1] = best_X[0, k]
     if not relinearise:
         return StepResult(
             StepCode.ACCEPTED, best_J, best_u, best_X, empty, empty, best_lo, best_hi, s_nom
         )
-    traj.ws[:o_u] = c.x0
-    traj.ws[o_u:o_kap] = best_u
-    traj.ws[o_kap:o_x] = kappa_flat(c.kappa_tab, s_nom, m, p.ds, p.length)
+    _write_inputs(
+        traj.ws, c.x0, best_u, kappa_flat(c.kappa_tab, s_nom, m, p.ds, p.length), o_u, o_kap
+    )
     if run_prediction(traj, K, m):
         return StepResult(StepCode.FAILED, J, u_vec, best_X, empty, empty, best_lo, best_hi, s_pred)
     X = traj.ws[o_x:o_a].reshape(K, 6).T.copy()
