@@ -2,6 +2,7 @@
 Python solve bit for bit, alone or in batches of any size on one or two threads, and the
 Python solve kept where the compiled one does not apply."""
 
+import os
 from contextlib import contextmanager
 
 import numpy as np
@@ -96,3 +97,19 @@ def test_the_full_size_mpc_keeps_the_python_solve():
     agent = MPCAgent()
     with pytest.raises(RuntimeError, match=r"MPCAgent.act\(\) before reset"):
         MPCAgent.act_group([agent], np.zeros((1, 10), np.float32))
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+def test_a_forked_child_does_not_inherit_the_solve_threads():
+    """A pool worker forked after its parent split a batch over threads builds its own thread
+    pool (the parent's threads do not exist in the child: using them would wait for ever)."""
+    from agents.mpc import compiled_solve
+
+    compiled_solve._pool(2)
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child reports how many pools it inherited
+        os.write(write, str(len(compiled_solve._pools)).encode())
+        os._exit(0)
+    os.waitpid(pid, 0)
+    assert os.read(read, 16) == b"0"

@@ -22,6 +22,7 @@ full-size class (exact soft rows, throttle limits) and ``plan=damped`` keep the 
 
 from __future__ import annotations
 
+import os
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -409,6 +410,8 @@ def solve_many(mpcs: list[MPC], problems: list[tuple]) -> list[np.ndarray]:
 
 
 _pools: dict[int, Any] = {}
+# a forked child has none of its parent's threads: it builds its own pool when it needs one
+os.register_at_fork(after_in_child=_pools.clear)
 
 
 def _pool(threads: int):
