@@ -17,7 +17,7 @@ from racing_env.vehicles import FullSizeParams, vehicle_for_track
 
 from .base import median_p99, register_agent
 from .best_theta import best_theta
-from .mpc import MPC, PLANS, MPCConfig
+from .mpc import MPC, PLANS, MPCConfig, compiled_solve
 from .opponent_prediction import PREDICTIONS, LinePrediction
 from .reference import (
     THETA_HIGH,
@@ -333,7 +333,8 @@ class MPCAgent:
             for agent, obs in zip(agents, observations):
                 agent._before_solve(obs)
                 problems.append(agent._solve_args(obs))
-            inputs = MPC.solve_many([agent.mpc for agent in agents], problems)  # type: ignore[misc]
+            mpcs = [agent.mpc for agent in agents]
+            inputs = compiled_solve.solve_many(mpcs, problems)  # type: ignore[arg-type]
         out = np.empty((len(agents), 2), dtype=np.float32)
         for row, (agent, u) in enumerate(zip(agents, inputs)):
             agent._u_prev = u

@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import time
 from collections import Counter
+from contextlib import nullcontext
 
 GOAL_MIN = 15.0
 CONFIGS = {
@@ -68,26 +69,24 @@ def run_path(config, races: list[int], path: str) -> tuple[float, Counter, list]
     import daqp
 
     import agents.mpc.solver as solver
+    from agents.mpc import stepwise_solves
     from agents.mpc_agent import MPCAgent
     from experiments.potential.collect import simulate_race, simulate_races
 
     totals: Counter = Counter()
-    solver.MPC.compiled_solves = path != PATHS[0]
-    try:
-        with (
-            _Timed(MPCAgent, "act", "decisions", totals),
-            _Timed(solver, "sqp_step", "sqp", totals),
-            _Timed(solver.MPC, "_plan", "sqp", totals),
-            _Timed(daqp, "solve", "qp", totals),
-        ):
-            t0 = time.perf_counter()
-            if path == "lockstep":
-                out = simulate_races(config, races)
-            else:
-                out = [simulate_race(config, i) for i in races]
-            wall = time.perf_counter() - t0
-    finally:
-        solver.MPC.compiled_solves = True
+    with (
+        stepwise_solves() if path == PATHS[0] else nullcontext(),
+        _Timed(MPCAgent, "act", "decisions", totals),
+        _Timed(solver, "sqp_step", "sqp", totals),
+        _Timed(solver.MPC, "_plan", "sqp", totals),
+        _Timed(daqp, "solve", "qp", totals),
+    ):
+        t0 = time.perf_counter()
+        if path == "lockstep":
+            out = simulate_races(config, races)
+        else:
+            out = [simulate_race(config, i) for i in races]
+        wall = time.perf_counter() - t0
     return wall / len(races), totals, [r["states"] for r in out]
 
 

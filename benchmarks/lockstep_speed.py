@@ -27,22 +27,9 @@ import argparse
 import os
 import time
 from collections import Counter
-from contextlib import contextmanager
+from contextlib import nullcontext
 
 from collect_speed import _Timed  # the sibling benchmark's timer (benchmarks/ runs as scripts)
-
-
-@contextmanager
-def python_solve(on: bool):
-    """Inside the block, with ``on``, every MPC solves step by step from Python (the solve
-    before :mod:`agents.mpc.compiled_solve`: the baseline)."""
-    from agents.mpc.solver import MPC
-
-    MPC.compiled_solves = not on
-    try:
-        yield
-    finally:
-        MPC.compiled_solves = True
 
 
 def run_path(
@@ -51,13 +38,14 @@ def run_path(
     """Wall seconds to run ``races`` one by one (``batch`` None) or in lockstep batches of
     ``batch`` (with ``python``, every MPC solving from Python); the seconds in the decisions
     (act, act_group), core step and resets; the races' states."""
+    from agents.mpc import stepwise_solves
     from agents.mpc_agent import MPCAgent
     from experiments.potential.collect import simulate_race, simulate_races
     from racing_env import BatchedRaces
 
     totals: Counter = Counter()
     with (
-        python_solve(python),
+        stepwise_solves() if python else nullcontext(),
         _Timed(MPCAgent, "act", "act", totals),
         _Timed(MPCAgent, "act_group", "act", totals),
         _Timed(MPCAgent, "reset", "reset", totals),

@@ -3,7 +3,6 @@ Python solve bit for bit, alone or in batches of any size on one or two threads,
 Python solve kept where the compiled one does not apply."""
 
 import os
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -11,7 +10,7 @@ import pytest
 pytest.importorskip("daqp")
 
 from agents import make_agent_spec  # noqa: E402
-from agents.mpc import MPCConfig  # noqa: E402
+from agents.mpc import MPCConfig, compiled_solve, stepwise_solves  # noqa: E402
 from agents.mpc.solver import MPC  # noqa: E402
 from agents.mpc_agent import MPCAgent  # noqa: E402
 from agents.threads import limited_threads  # noqa: E402
@@ -21,16 +20,6 @@ from racing_env import make_track  # noqa: E402
 # three cars in traffic from the start regions: restarts, separations and the warm start
 SPECS = ["mpc:zeta=0.9", "mpc:zeta=1.0,s1=0.1,q=40", "mpc:zeta=0.95,s2=0.5"]
 ENV = {"n_cars": 3, "max_cycles": 40}
-
-
-@contextmanager
-def python_solve():
-    """Every MPC solves step by step from Python inside the block (the reference)."""
-    MPC.compiled_solves = False
-    try:
-        yield
-    finally:
-        MPC.compiled_solves = True
 
 
 def races(seeds, orders, batch_decisions=True):
@@ -53,7 +42,7 @@ def counters(stats):
 
 def test_the_compiled_solve_makes_the_python_solve_s_races_bit_for_bit():
     seeds, orders = [21, 22], [[0, 1, 2], [2, 1, 0]]
-    with python_solve():
+    with stepwise_solves():
         reference, ref_stats = races(seeds, orders, batch_decisions=False)
     alone, alone_stats = races(seeds, orders, batch_decisions=False)
     for a, b in zip(reference, alone):
@@ -85,8 +74,9 @@ def test_solve_many_mixes_compiled_and_python_solvers():
     s_ref = x0[0] + 1.6 * 0.1 * np.arange(1, K + 1)
     problem = (x0, s_ref, np.zeros(K), 20.0, np.array([[2.6, 0.05, 1.2]]), np.zeros(2))
     twins = [MPC(track), MPC(track, config=MPCConfig(step_damping=(1.0,)))]
-    alone = [m.solve(*problem) for m in twins]
-    many = MPC.solve_many([paper, damped], [problem, problem])
+    with stepwise_solves():  # the reference: both solved alone, step by step from Python
+        alone = [m.solve(*problem) for m in twins]
+    many = compiled_solve.solve_many([paper, damped], [problem, problem])
     assert all(np.array_equal(a, b) for a, b in zip(alone, many))
     assert paper.batch_key() == MPC(track).batch_key() != damped.batch_key()
 
@@ -113,3 +103,23 @@ def test_a_forked_child_does_not_inherit_the_solve_threads():
         os._exit(0)
     os.waitpid(pid, 0)
     assert os.read(read, 16) == b"0"
+
+
+def test_the_race_command_solves_step_by_step_and_leaves_the_setting(tmp_path):
+    """`alpha-racer race` races with the Python solve (no compile for one race) and leaves the
+    process's setting as it was, so a caller of main() races on with the compiled solve."""
+    from experiments.cli import main
+
+    seen = []
+    solve = MPC.solve
+
+    def spy(self, *args):
+        seen.append(self.compiled)
+        return solve(self, *args)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(MPC, "solve", spy)
+        args = ["race", "--agents", "mpc", "raceline", "--steps", "3", "--no-animation"]
+        assert main(args + ["--out", str(tmp_path)]) == 0
+    assert seen and not any(seen)
+    assert MPC.compiled_solves and MPC(make_track("default")).compiled

@@ -66,7 +66,7 @@ The whole solve (warm start, restart, SQP loop with DAQP's C solver, fallback) a
 one compiled call (:mod:`.compiled_solve`) where the MPC is the paper's (ORCA car, no damped
 steps, no second start): the same plans bit for bit, 1.3x faster per decision, and the
 MPC steps of many cars (a lockstep batch: ``MPCAgent.act_group``) in one call, split over
-threads (:meth:`MPC.solve_many`). The full-size MPC and ``plan=damped`` solve from Python.
+threads (:func:`.compiled_solve.solve_many`). The full-size MPC and ``plan=damped`` solve from Python.
 
 Modules, one job each: :mod:`.config` (:class:`MPCConfig`), :mod:`.codegen` (the prediction
 as C: generated, compiled, cached, called from Python and numba), :mod:`.prediction` (the
@@ -76,6 +76,10 @@ cost of a plan and its condensed QP), :mod:`.solver` (:class:`MPC` and the SQP s
 compiled code).
 """
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from . import compiled_solve
 from .config import PLANS, MPCConfig
 from .prediction import (
     follower_rollout,
@@ -106,6 +110,8 @@ from .solver import MPC
 from .sqp_step import StepCode, StepConstants, StepResult, sqp_step, trial_step
 
 __all__ = [
+    "compiled_solve",
+    "stepwise_solves",
     "MPC",
     "EdgeBounds",
     "MPCConfig",
@@ -135,3 +141,15 @@ __all__ = [
     "trial_step",
     "trajectory_function",
 ]
+
+
+@contextmanager
+def stepwise_solves() -> Iterator[None]:
+    """Inside the block every MPC solves step by step from Python (``MPC.compiled_solves``
+    False): the reference path the compiled solve is checked against (the same plans)."""
+    before = MPC.compiled_solves
+    MPC.compiled_solves = False
+    try:
+        yield
+    finally:
+        MPC.compiled_solves = before

@@ -23,6 +23,7 @@ full-size class (exact soft rows, throttle limits) and ``plan=damped`` keep the 
 from __future__ import annotations
 
 import os
+import time
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -30,7 +31,7 @@ from numba import njit
 
 from .codegen import KernelSpec, private_handle, run_prediction, workspace_offsets
 from .daqp_native import solve_qp
-from .prediction import _rollout, kappa_flat
+from .prediction import _rollout, kappa_flat, stage_nodes_of
 from .qp import ProblemConstants, linearised_qp, predicted_decrease, score_rollout
 from .sqp_step import StepCode, StepConstants, _write_inputs, sqp_step
 
@@ -102,17 +103,6 @@ def _follower(t, x0):
 
 
 @njit(cache=True, nogil=True)
-def _stage_nodes(s_nom, has_nom, x0, K, dt):
-    """:func:`~agents.mpc.prediction.stage_nodes` (``has_nom`` False: no nominal)."""
-    if not has_nom:
-        return x0[0] + max(x0[3], 0.5) * dt * np.arange(K + 1)
-    nodes = np.empty(K + 1)
-    nodes[:K] = s_nom[1:]
-    nodes[K] = 2 * s_nom[-1] - s_nom[-2]
-    return nodes - nodes[0] + x0[0]
-
-
-@njit(cache=True, nogil=True)
 def _states(h, K, m):
     o = workspace_offsets(K, m)
     return h.ws[o[3] : o[4]].reshape(K, 6).T.copy()
@@ -125,7 +115,7 @@ def _plan(t, roll, traj, x0, u_vec, s_nom, has_nom):
     failed."""
     K, m = t.K, t.m
     o = workspace_offsets(K, m)
-    kap = kappa_flat(t.kappa_tab, _stage_nodes(s_nom, has_nom, x0, K, t.dt), m, t.ds, t.length)
+    kap = kappa_flat(t.kappa_tab, stage_nodes_of(s_nom, has_nom, x0, K, t.dt), m, t.ds, t.length)
     nodes = np.empty(K + 1)
     for _ in range(t.curvature_passes):
         _write_inputs(roll.ws, x0, u_vec, kap, o[1], o[2])
@@ -135,7 +125,8 @@ def _plan(t, roll, traj, x0, u_vec, s_nom, has_nom):
         if not np.isfinite(X).all():
             break
         nodes[0] = x0[0]
-        nodes[1:] = X[0]
+        for k in range(K):  # element copies, as in the other kernels (a smaller compile)
+            nodes[k + 1] = X[0, k]
         kap = kappa_flat(t.kappa_tab, nodes, m, t.ds, t.length)
     _write_inputs(traj.ws, x0, u_vec, kap, o[1], o[2])
     if run_prediction(traj, K, m):
@@ -355,35 +346,6 @@ def tables_for(mpc: MPC, follower: Any) -> SolveTables:
     )
 
 
-def problem_args(
-    mpc: MPC,
-    x0: np.ndarray,
-    s_ref: np.ndarray,
-    n_ref: np.ndarray,
-    q: float,
-    opponents: np.ndarray | None,
-    u_prev: np.ndarray | None,
-) -> tuple:
-    """The per-problem arguments of :func:`solve_problem` for ``mpc.solve(x0, s_ref, n_ref, q,
-    opponents, u_prev)``: ``(x0, s_ref, n_ref, q, w_soft, rho, delta_applied, opp, fresh)``,
-    the weights with the Python solve's arithmetic (``MPC._problem`` and ``MPC._qp``)."""
-    from .qp import opponent_paths
-
-    cfg, ls2 = mpc.cfg, mpc._ls2
-    q_cost = float(q) / ls2
-    return (
-        np.asarray(x0, dtype=float),
-        np.ascontiguousarray(s_ref, dtype=float),
-        np.ascontiguousarray(n_ref, dtype=float),
-        q_cost,
-        0.5 / (cfg.soft_rho_at(q) * ls2),
-        cfg.soft_rho_at(q_cost * ls2) * ls2,
-        0.0 if u_prev is None else float(u_prev[1]),
-        opponent_paths(opponents, cfg.horizon, cfg.dt),
-        mpc._U is None,
-    )
-
-
 # ------------------------------------------------------------------ batches of MPCs
 def solve_many(mpcs: list[MPC], problems: list[tuple]) -> list[np.ndarray]:
     """``mpcs[i].solve(*problems[i])`` for every i (``problems[i]`` the arguments ``(x0,
@@ -391,8 +353,6 @@ def solve_many(mpcs: list[MPC], problems: list[tuple]) -> list[np.ndarray]:
     gives alone. MPCs of one ``batch_key`` whose solve is ``compiled`` are solved together
     (:func:`_solve_group`); the others one by one from Python. Each problem's ``solve_ms``
     is its group's time shared equally."""
-    import time
-
     out: list[Any] = [None] * len(mpcs)
     groups: dict[tuple, list[int]] = {}
     for i, mpc in enumerate(mpcs):

@@ -191,10 +191,22 @@ def _prediction_spec(
 
 def stage_nodes(s_nominal: np.ndarray | None, x0: np.ndarray, K: int, dt: float) -> np.ndarray:
     """Progress (K + 1,) at the stage boundaries to look curvature up at: the previous nominal
-    (K + 1,) shifted by one stage and re-anchored at ``x0``, or, without one, constant speed."""
-    if s_nominal is None:
-        return x0[0] + max(float(x0[3]), 0.5) * dt * np.arange(K + 1)
-    nodes = np.concatenate([s_nominal[1:], [2 * s_nominal[-1] - s_nominal[-2]]])
+    (K + 1,) shifted by one stage and re-anchored at ``x0``, or, without one, constant speed
+    (:func:`stage_nodes_of`)."""
+    has_nom = s_nominal is not None
+    nominal = np.asarray(s_nominal, dtype=float) if has_nom else np.zeros(K + 1)
+    return stage_nodes_of(nominal, has_nom, np.asarray(x0, dtype=float), K, dt)
+
+
+@njit(cache=True, nogil=True)
+def stage_nodes_of(s_nominal, has_nom, x0, K, dt):
+    """:func:`stage_nodes` in compiled code: ``s_nominal`` (K + 1,) read only if ``has_nom``."""
+    if not has_nom:
+        return x0[0] + max(x0[3], 0.5) * dt * np.arange(K + 1)
+    nodes = np.empty(K + 1)
+    for k in range(K):
+        nodes[k] = s_nominal[k + 1]
+    nodes[K] = 2 * s_nominal[-1] - s_nominal[-2]
     return nodes - nodes[0] + x0[0]
 
 

@@ -99,6 +99,7 @@ class MPC:
         self._exact_soft = exact_soft_on(self.cfg, self.vehicle)
         self._full = isinstance(self.vehicle, FullSizeParams)
         self._tables = None  # the compiled solve's constant tables, built on first use
+        self._key: tuple | None = None  # batch_key's, built on first use
         # counters and the solve times (a deque) by name
         self.stats: dict[str, Any] = {
             "solves": 0,
@@ -127,6 +128,7 @@ class MPC:
         "_bounds_n",
         "_DtD",
         "_tables",
+        "_key",
     )
 
     def __deepcopy__(self, memo: dict) -> MPC:
@@ -231,10 +233,11 @@ class MPC:
         the input ``u_prev`` (2,) applied
         last."""
         cfg, b, t = self.cfg, self._bounds_n, self.track
+        q_cost, w_soft = self._cost_weights(q)
         return ProblemConstants(
             s_ref,
             n_ref,
-            float(q) / self._ls2,
+            q_cost,
             self._DtD,
             float(u_prev[1]),
             self._rate,
@@ -247,9 +250,18 @@ class MPC:
             cfg.sep_s,
             cfg.sep_n,
             cfg.sep_window,
-            0.5 / (cfg.soft_rho_at(q) * self._ls2),
+            w_soft,
             *self._slip,
         )
+
+    def _cost_weights(self, q: float) -> tuple[float, float]:
+        """``(q_cost, w_soft)``: theta's tracking weight ``q`` in the cost's units (position
+        errors in ORCA-car widths) and the soft rows' weight ``1 / (2 rho)`` of the cost."""
+        return float(q) / self._ls2, 0.5 / (self.cfg.soft_rho_at(q) * self._ls2)
+
+    def _soft_rho(self, q_cost: float) -> float:
+        """DAQP's ``rho_soft`` for the cost's tracking weight ``q_cost``."""
+        return self.cfg.soft_rho_at(q_cost * self._ls2) * self._ls2
 
     @staticmethod
     def _score(X, U, p: ProblemConstants):
@@ -324,7 +336,7 @@ class MPC:
         cost's units: theta's ``q / k_wid^2``). With ``exact_soft`` (the full-size default)
         every soft row is charged as the cost charges it (:func:`~agents.mpc.qp.exact_soft_qp`);
         else DAQP weighs it by ``1 / |row|^2`` (the paper's MPC, as its races were stored)."""
-        rho = self.cfg.soft_rho_at(q * self._ls2) * self._ls2
+        rho = self._soft_rho(q)
         nv = f.shape[0]
         if self._exact_soft:
             exact = exact_soft_qp(H, f, Acon, blo, bhi, sense, rho)
@@ -421,16 +433,32 @@ class MPC:
 
     def batch_key(self) -> tuple:
         """Solvers with equal keys share their :meth:`_solve_tables` and can be solved in one
-        call (:meth:`solve_many`): the same track, car, config and warm-start line."""
+        call (:func:`~agents.mpc.compiled_solve.solve_many`): the same track, car, config and
+        warm-start line."""
         if not self.compiled:
             return (id(self),)
-        specs = (self._roll.kernel_spec().fn, self._traj.kernel_spec().fn)  # type: ignore[union-attr]
-        return (id(self.track), specs, repr(self.vehicle), repr(self.cfg), self.line)
+        if self._key is None:  # built once: its parts never change (11 us per decision)
+            specs = (self._roll.kernel_spec().fn, self._traj.kernel_spec().fn)  # type: ignore[union-attr]
+            self._key = (id(self.track), specs, repr(self.vehicle), repr(self.cfg), self.line)
+        return self._key
 
     def _compiled_args(self, x0, s_ref, n_ref, q, opponents, u_prev) -> tuple:
-        """The per-problem arguments of the compiled solve
-        (:func:`~agents.mpc.compiled_solve.problem_args`)."""
-        return compiled_solve.problem_args(self, x0, s_ref, n_ref, q, opponents, u_prev)
+        """The per-problem arguments of :func:`~agents.mpc.compiled_solve.solve_problem` for
+        ``solve(x0, s_ref, n_ref, q, opponents, u_prev)``: ``(x0, s_ref, n_ref, q_cost, w_soft,
+        rho, delta_applied, opp, fresh)``, the weights those of the Python solve."""
+        cfg = self.cfg
+        q_cost, w_soft = self._cost_weights(q)
+        return (
+            np.asarray(x0, dtype=float),
+            np.ascontiguousarray(s_ref, dtype=float),
+            np.ascontiguousarray(n_ref, dtype=float),
+            q_cost,
+            w_soft,
+            self._soft_rho(q_cost),
+            0.0 if u_prev is None else float(u_prev[1]),
+            opponent_paths(opponents, cfg.horizon, cfg.dt),
+            self._U is None,
+        )
 
     def _warm(self) -> tuple:
         """``(u_warm (2K,), s_nom (K + 1,), has_nom)``: this MPC's warm start for the compiled
@@ -442,9 +470,9 @@ class MPC:
 
     def _finish(self, x0, result, seconds: float) -> np.ndarray:
         """Apply one compiled solve's ``result`` (:func:`~agents.mpc.compiled_solve
-        .solve_problem`'s tuple) as :meth:`solve` ends: counters, fallback, shifted plan;
-        returns the input to apply now."""
-        from .compiled_solve import COUNTERS, NONFINITE, OK, PREDICTION_FAILED, QP_FAILED
+        .solve_problem`'s tuple): its counters and nominal, then :meth:`_conclude`; returns
+        the input to apply now."""
+        from .compiled_solve import COUNTERS, OK, PREDICTION_FAILED, QP_FAILED
 
         code, exitflag, u_vec, X, J, s_nom, has_nom, counters = result
         if code == PREDICTION_FAILED:
@@ -452,35 +480,11 @@ class MPC:
         for key, n in zip(COUNTERS, counters):
             self.stats[key] += int(n)
         self._s_nom = s_nom.copy() if has_nom else None
-        status = {OK: "ok", NONFINITE: "nonfinite prediction"}.get(int(code))
+        status = "ok" if code == OK else "nonfinite prediction"
         if code == QP_FAILED:
             status = f"qp exitflag {int(exitflag)}"
-        K = self.cfg.horizon
-        U = u_vec.reshape(K, 2).T
-        self.stats["solves"] += 1
-        if status != "ok":
-            self.stats["fallbacks"] += 1
-            if x0[3] < 2.0 * self.cfg.v_low:
-                U = self._follower_warm_start(x0)
-            else:
-                U = (U if self._U is None else self._U).copy()
-                U[0, :] = np.minimum(U[0, :], 0.0)
-            self._s_nom = None
-        u0 = U[:, 0].copy()
-        self._U = np.concatenate([U[:, 1:], U[:, -1:]], axis=1)
-        self.last_status = status
-        self.last_prediction = X if status == "ok" else None
-        self.last_plan = (U, J if status == "ok" else np.inf)
-        self.stats["solve_ms"].append(1e3 * seconds)
-        return u0
-
-    @staticmethod
-    def solve_many(mpcs: list[MPC], problems: list[tuple]) -> list[np.ndarray]:
-        """:meth:`solve` for many MPCs at once (:func:`~agents.mpc.compiled_solve.solve_many`):
-        ``problems[i]`` the arguments ``(x0, s_ref, n_ref, q, opponents, u_prev)`` of
-        ``mpcs[i]``; the inputs to apply, each exactly what ``mpcs[i].solve(*problems[i])``
-        returns."""
-        return compiled_solve.solve_many(mpcs, problems)
+        U = u_vec.reshape(self.cfg.horizon, 2).T
+        return self._conclude(x0, U, X, J, status, seconds)
 
     def solve(
         self,
@@ -567,10 +571,16 @@ class MPC:
             else:
                 (U, X, J, edges, _), self._s_nom = best
                 self.stats["second_starts"] += 1
+        return self._conclude(x0, U, X, J, status, time.perf_counter() - t0)
+
+    def _conclude(self, x0, U, X, J: float, status: str, seconds: float) -> np.ndarray:
+        """How every solve ends, from its plan ``U`` (2, K) with rollout ``X`` and cost ``J``
+        and its ``status``: the fallback where it failed, the shifted warm start, the
+        records (``last_*``, ``stats``); returns the input to apply now."""
         self.stats["solves"] += 1
         if status != "ok":
             self.stats["fallbacks"] += 1
-            if x0[3] < 2.0 * cfg.v_low:
+            if x0[3] < 2.0 * self.cfg.v_low:
                 # (nearly) stopped: lifting off would keep the car where it is, and the same
                 # failed solve would repeat at every step (Silverstone's grid: the QP hit its
                 # iteration limit, the car never left); drive the follower's rollout instead
@@ -586,5 +596,5 @@ class MPC:
         self.last_status = status
         self.last_prediction = X if status == "ok" else None
         self.last_plan = (U, J if status == "ok" else np.inf)  # inputs (2, K) and their cost
-        self.stats["solve_ms"].append(1e3 * (time.perf_counter() - t0))
+        self.stats["solve_ms"].append(1e3 * seconds)
         return u0

@@ -17,7 +17,7 @@ DEFAULT_AGENTS = ["alpha", "ibr", "ibr"]  # the paper's case IV: alpha against t
 
 
 def _cmd_race(args) -> int:
-    from agents.mpc.solver import MPC
+    from agents.mpc import stepwise_solves
     from experiments.evaluation.race import (
         check_animation_format,
         run_race,
@@ -25,24 +25,25 @@ def _cmd_race(args) -> int:
         write_outputs,
     )
 
-    # one race: the MPC's solve step by step (the same plans) saves the compiled solve's
-    # compile on a cold cache, about 10 s, for 0.2 s of a 500-step race
-    MPC.compiled_solves = False
     if not args.no_animation:
         check_animation_format(args.format)  # before the race, not after it
-    result, frames = run_race(
-        args.agents,
-        track=args.track,
-        seed=args.seed,
-        max_cycles=args.steps,
-        start=args.start,
-        laps=args.laps,
-        render=not args.no_animation,
-        order=start_order(args.regions, len(args.agents), args.start),
-        vehicle_class=args.vehicle_class,
-        wake=args.wake,
-        follow=args.follow,
-    )
+    # one race: the MPC's solve step by step (the same plans) saves the compiled solve's
+    # compile on a cold cache, about 10 s, for 0.2 s of a 500-step race; the block leaves
+    # the process's setting as it was (a caller of main() races on in the same process)
+    with stepwise_solves():
+        result, frames = run_race(
+            args.agents,
+            track=args.track,
+            seed=args.seed,
+            max_cycles=args.steps,
+            start=args.start,
+            laps=args.laps,
+            render=not args.no_animation,
+            order=start_order(args.regions, len(args.agents), args.start),
+            vehicle_class=args.vehicle_class,
+            wake=args.wake,
+            follow=args.follow,
+        )
     print(result.table())
     paths = write_outputs(result, frames, Path(args.out), animation=args.format)
     for kind, p in paths.items():

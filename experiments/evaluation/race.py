@@ -138,6 +138,11 @@ def start_order(regions, n_cars: int, start: str = "regions") -> list[int] | Non
     return [names.index(r) for r in regions]
 
 
+def agent_seed(seed: int, k: int) -> int:
+    """The seed of car k's agent in race ``seed`` (:func:`start_race`'s reset)."""
+    return seed + 1000 * (k + 1)
+
+
 def start_race(env: RacingParallelEnv, agents: list, seed: int, order=None) -> dict:
     """Reset ``env`` to the start of race ``seed`` (``order`` as :func:`run_race`'s) and
     every agent on its track, car k's agent with seed ``seed + 1000 (k + 1)``; returns the
@@ -145,7 +150,7 @@ def start_race(env: RacingParallelEnv, agents: list, seed: int, order=None) -> d
     here."""
     obs, _ = env.reset(seed=seed, options=None if order is None else {"order": list(order)})
     for k, (a, agent_id) in enumerate(zip(agents, env.possible_agents)):
-        a.reset(env.track, agent_id, seed + 1000 * (k + 1))
+        a.reset(env.track, agent_id, agent_seed(seed, k))
     return obs
 
 

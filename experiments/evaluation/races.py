@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from agents import check_field_size, make_agent_spec
+from experiments.evaluation.race import agent_seed
 from experiments.infra.lockstep import LockstepRace, LockstepResult, race_setup, run_lockstep
 from racing_env.config import RaceConfig
 
@@ -68,7 +69,7 @@ def run_races(specs: Sequence[RaceSpec]) -> list[RaceOutcome]:
             agents = [make_agent_spec(s) for s in spec.agents]
             for k, (agent, name) in enumerate(zip(agents, spec.agents)):
                 check_field_size(agent, len(agents), f"car_{k}", name)
-                agent.reset(track, f"car_{k}", spec.seed + 1000 * (k + 1))  # start_race's
+                agent.reset(track, f"car_{k}", agent_seed(spec.seed, k))
             order = None if spec.order is None else list(spec.order)
             races.append(LockstepRace(agents, track, config, spec.seed, order))
         for i, race, result in zip(rows, races, run_lockstep(races)):
