@@ -71,6 +71,24 @@ def test_compiled_together_equals_compiled_one_at_a_time(tmp_path, monkeypatch):
 
 
 @needs_cc
+def test_loaded_again_the_prediction_has_its_own_workspace(tmp_path):
+    """The second load of the same prediction reuses its generated code (no new graph) but
+    gets its own buffers, so that two MPCs never share a workspace; a library removed from
+    the cache is built again."""
+    first = trajectory_functions(VehicleParams(), CFG)
+    second = trajectory_functions(VehicleParams(), CFG)
+    for a, b in zip(first, second):
+        assert a is not b and not np.shares_memory(a.ws, b.ws)
+        x, y = a(*_inputs(CFG))[0].copy(), b(*_inputs(CFG))[0]
+        np.testing.assert_array_equal(x, y)
+    for lib in (tmp_path / "cache" / "mpc").iterdir():
+        lib.unlink()
+    third = trajectory_functions(VehicleParams(), CFG)
+    assert len(_files(tmp_path / "cache")) == 2
+    np.testing.assert_array_equal(third[0](*_inputs(CFG))[0], x)
+
+
+@needs_cc
 def test_the_compilers_run_at_the_same_time(tmp_path, monkeypatch):
     """Each compiler waits (up to 60 s) for the other one to start: both see the other."""
     log = tmp_path / "cc.log"

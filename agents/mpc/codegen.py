@@ -75,11 +75,14 @@ def load_predictions(
 
     libs: list[tuple[str, Path]] = []
     for spec in specs:
-        gen = ca.CodeGenerator(f"{spec.name}.c", {"with_header": False})
-        gen.add(spec.fn)
-        code = gen.dump()
-        key = hashlib.sha1("\n".join([code, *FLAGS, _platform()]).encode()).hexdigest()[:16]
-        libs.append((code, _cache_root() / f"{spec.name}_{key}.so"))
+        known = _CODE.get(id(spec.fn))
+        if known is None or known[0] is not spec.fn:
+            gen = ca.CodeGenerator(f"{spec.name}.c", {"with_header": False})
+            gen.add(spec.fn)
+            code = gen.dump()
+            key = hashlib.sha1("\n".join([code, *FLAGS, _platform()]).encode()).hexdigest()[:16]
+            known = _CODE[id(spec.fn)] = (spec.fn, code, f"{spec.name}_{key}.so")
+        libs.append((known[1], _cache_root() / known[2]))
     cc_env = os.environ.get("CC")
     todo = {  # failed before in this process: not retried per car
         lib: code for code, lib in libs if (lib, cc_env) not in _FAILED and not lib.exists()
@@ -105,6 +108,9 @@ def _platform() -> str:
     return f"{sys.platform}-{platform.machine()}"
 
 
+#: each function's generated C code and library name, by id of the function (held, so the id
+#: stays its own): a function loaded again is not generated and hashed again
+_CODE: dict[int, tuple[Any, str, str]] = {}
 _FAILED: set[tuple[Path, str | None]] = set()  # (library, $CC) that failed in this process
 _WARNED = False
 
