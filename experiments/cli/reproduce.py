@@ -8,6 +8,7 @@ from pathlib import Path
 from experiments.cli.analysis import analyze_config
 from experiments.cli.options import (
     ANALYZE_OPTIONS,
+    CLASS_OPTIONS,
     IMPORT_OPTION,
     PARALLEL_OPTIONS,
     RESUME_HELP,
@@ -73,6 +74,21 @@ def _reproduce_strategy(args, ego: str, control: str, track: str, out: Path, poo
     return out / "strategy" / "strategy.md"
 
 
+#: the strategy suite's races and steps per vehicle class (``--strategy-races``, ``--strategy-steps``
+#: unset): at full size 60 s races (a 20 s race ends before Monza's first braking zone) and
+#: fewer of them (a full-size race costs about 14 s of a core against the 1:43 car's 1 s)
+STRATEGY_DEFAULTS = {"orca": (99, 200), "fullsize": (24, 600)}
+
+
+def _class_defaults(args) -> None:
+    """Fill the unset ``--strategy-races`` and ``--strategy-steps`` with the class's."""
+    races, steps = STRATEGY_DEFAULTS[args.vehicle_class]
+    if args.strategy_races is None:
+        args.strategy_races = races
+    if args.strategy_steps is None:
+        args.strategy_steps = steps
+
+
 def _cmd_reproduce(args) -> int:
     """Every table and figure: the paper table, the same races with the best fixed theta (the
     control, selected first if the best-theta table lacks the track) and the extra fixed ego,
@@ -80,6 +96,15 @@ def _cmd_reproduce(args) -> int:
     on the extended policy space (ego, control, analyses and policy map), plus the strategy
     benchmark of the ego against the control."""
     import json
+
+    _class_defaults(args)
+    if args.vehicle_class == "fullsize":  # the full-size world's suites, not the paper's
+        from experiments.cli.reproduce_fullsize import reproduce_fullsize
+
+        readme = reproduce_fullsize(args, pool_from(args))
+        print(readme.read_text())
+        print(f"wrote {readme} and the folders beside it")
+        return 0
 
     from experiments.analysis.nash import analyze
     from experiments.evaluation.control import ControlConfig, best_fixed_spec, ensure_best_thetas
@@ -168,9 +193,9 @@ def add_reproduce(command) -> None:
     """``alpha-racer reproduce``."""
     from agents.theta import SPACES
     from experiments.analysis.nash import AnalyzeConfig
+    from experiments.cli.reproduce_fullsize import FULLSIZE_OUT, FULLSIZE_TRACKS
     from experiments.evaluation.control import ControlConfig
     from experiments.evaluation.policy_map import PolicyMapConfig
-    from experiments.evaluation.strategy import StrategyConfig
 
     rp = command(
         "reproduce",
@@ -178,7 +203,9 @@ def add_reproduce(command) -> None:
         "every table and figure of the paper into one folder: "
         "bench --paper-table, the same races with the best fixed theta "
         "(the control), then analyze, then the policy map (resumable); "
-        "--space extended: the same on the extended policy space, plus the strategy benchmark",
+        "--space extended: the same on the extended policy space, plus the strategy benchmark; "
+        "--vehicle-class fullsize: the full-size world's control, strategy suite, room and "
+        "pass ladder",
     )
     add_options(
         rp,
@@ -196,7 +223,7 @@ def add_reproduce(command) -> None:
             RESUME_HELP
             + " (default "
             + ", ".join(f"{v} for --space {k}" for k, v in REPRODUCE_OUT.items())
-            + ")",
+            + f", {FULLSIZE_OUT.format(space='SPACE')} for --vehicle-class fullsize)",
             {"default": None},
         ),
         ("--races", "races per paper case", {"default": 99}),
@@ -233,13 +260,33 @@ def add_reproduce(command) -> None:
         (
             "--strategy-races",
             "--space extended: races per bench of the strategy benchmark (alpha-racer "
-            "strategy, every scenario, on default; into OUT/strategy); 0 skips it",
-            {"default": StrategyConfig.races},
+            "strategy, every scenario, on default; into OUT/strategy); 0 skips it "
+            "(default: 99; 24 with --vehicle-class fullsize, where 0 is not allowed)",
+            {"type": int, "default": None},
         ),
         (
             "--strategy-steps",
-            "--space extended: steps of 0.1 s per strategy race",
-            {"default": StrategyConfig.steps},
+            "--space extended or --vehicle-class fullsize: steps of 0.1 s per strategy race "
+            "(default: 200; 600 with --vehicle-class fullsize)",
+            {"type": int, "default": None},
+        ),
+        *CLASS_OPTIONS,
+        (
+            "--fullsize-tracks",
+            "--vehicle-class fullsize: the circuits of the strategy suite, the first the "
+            "one the model was trained on (and the ladder's)",
+            {"nargs": "+", "default": list(FULLSIZE_TRACKS)},
+        ),
+        (
+            "--room-races",
+            "--vehicle-class fullsize: the oracle's races per bench and circuit (the first "
+            "of the suite's equal and defend races); 0 skips the room",
+            {"type": int, "default": 12},
+        ),
+        (
+            "--ladder-races",
+            "--vehicle-class fullsize: races per rung of the pass ladder; 0 skips it",
+            {"type": int, "default": 16},
         ),
         IMPORT_OPTION,
         *ANALYZE_OPTIONS,

@@ -1,0 +1,58 @@
+"""``alpha-racer reproduce --vehicle-class fullsize``: the full-size world's suites in one
+folder, and its clear refusals."""
+
+import json
+import math
+
+import pytest
+
+from experiments.cli import main
+from experiments.cli.reproduce_fullsize import FULLSIZE_MODELS, fullsize_ego
+
+
+@pytest.mark.parametrize(
+    "extra, says",
+    [
+        (["--space", "paper"], "extended or the wake policy space"),
+        (["--space", "wake"], "no shipped full-size model in that space"),
+        (["--space", "extended", "--strategy-races", "0"], "got 0"),
+    ],
+)
+def test_refuses_what_it_cannot_reproduce(extra, says, tmp_path, capsys):
+    with pytest.raises(SystemExit) as err:
+        main(["reproduce", "--vehicle-class", "fullsize", "--out", str(tmp_path), *extra])
+    assert says in str(err.value)
+    assert not any(tmp_path.iterdir())  # refused before anything ran
+
+
+def test_the_ego_is_the_spaces_shipped_model_or_the_named_one():
+    assert fullsize_ego("extended", None) == f"alpha:model={FULLSIZE_MODELS['extended']}"
+    assert fullsize_ego("wake", "my/model.npz") == "alpha:model=my/model.npz"
+
+
+@pytest.mark.slow
+def test_reproduce_fullsize_tiny_writes_suite_room_and_ladder(tmp_path, capsys):
+    """End to end, tiny, on Monza (the control from the shipped best-theta table): the
+    strategy suite of the full-size alpha against the class's best fixed theta, the room of
+    its equal and defend races and the ladder, joined in README.md; every margin finite."""
+    out = tmp_path / "fs"
+    tiny = ["--strategy-races", "1", "--strategy-steps", "8", "--room-races", "1"]
+    tiny += ["--ladder-races", "1", "--fullsize-tracks", "tumftm:Monza"]
+    argv = ["reproduce", "--vehicle-class", "fullsize", "--space", "extended", "--out", str(out)]
+    assert main([*argv, *tiny, "--workers", "1"]) == 0
+    strat = json.loads((out / "strategy" / "strategy.json").read_text())
+    cfg = strat["config"]
+    assert cfg["ego"] == "alpha:model=fullsize_monza"
+    assert cfg["control"] == "mpc:space=extended,theta=best"
+    assert cfg["vehicle_class"] == "fullsize" and cfg["steps"] == 8
+    assert cfg["scenarios"] == ["pass", "equal", "defend"]
+    room = json.loads(next((out / "strategy" / "room").glob("*/room.json")).read_text())
+    assert {r["bench"] for r in room["rows"]} == {"equal", "defend"}
+    for row in room["rows"]:
+        assert math.isfinite(row["room_m"]["mean"]) and row["races"] == 1
+    ladder = json.loads((out / "ladder" / "ladder.json").read_text())
+    assert ladder["config"]["egos"] == [cfg["ego"], cfg["control"]]
+    text = (out / "README.md").read_text()
+    assert "# Strategy benchmark" in text and "# The room" in text and "# Pass ladder" in text
+    assert "Table 1 for the full-size class" in text
+    assert not (out / "control").exists()  # Monza's control came from the table
