@@ -52,6 +52,8 @@ from .theta import Theta
 from .wake_moves import TOW_RANGE  # noqa: F401 (re-exported: the tow's geometry)
 from .wake_moves import wake_moves as _wake_moves
 
+_ORCA = VehicleParams()  # the default size (built once, not in every decision)
+
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
@@ -486,8 +488,8 @@ def in_a_wake(
     """Whether a car of ``opp`` (m, 6) is ahead of the ego ``x`` (6,) within ``reach``
     (default :data:`TOW_RANGE`: lengths and widths of ``vehicle``, the ORCA car's without
     one)."""
-    length = float(getattr(vehicle, "length", VehicleParams().length))
-    width = float(getattr(vehicle, "width", VehicleParams().width))
+    length = float(getattr(vehicle, "length", _ORCA.length))
+    width = float(getattr(vehicle, "width", _ORCA.width))
     gap = opp[:, 0] - float(x[0])
     side = np.abs(opp[:, 1] - float(x[1]))
     return bool(np.any((gap > 0) & (gap < reach[0] * length) & (side < reach[1] * width)))

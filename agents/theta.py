@@ -5,6 +5,7 @@ reference from a theta and re-exports these names."""
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -294,11 +295,20 @@ def theta_length_scales(vehicle: object | None) -> tuple[float, float, float]:
     of the top speed). ``(1, 1, 1)`` for the ORCA car or ``None``. The theta box itself is
     the same in every class, so a theta, a policy map or a potential names the same
     behaviour. (:func:`agents.mpc.config.class_scale` lists every length the class scales.)"""
-    from racing_env.scaling import size_ratios
     from racing_env.vehicle import VehicleParams
 
     if vehicle is None or isinstance(vehicle, VehicleParams):
         return 1.0, 1.0, 1.0
+    return _class_factors(vehicle)
+
+
+@functools.lru_cache(maxsize=16)
+def _class_factors(vehicle: object) -> tuple[float, float, float]:
+    """:func:`theta_length_scales` of a vehicle of another class than the ORCA car's (a
+    frozen dataclass: computed once per vehicle, not once per decision)."""
+    from racing_env.scaling import size_ratios
+    from racing_env.vehicle import VehicleParams
+
     k_len, k_wid = size_ratios(vehicle)  # type: ignore[arg-type]
     top = vehicle.top_speed  # type: ignore[attr-defined]
     top = top() if callable(top) else top

@@ -12,6 +12,8 @@ from racing_env.vehicle import VehicleParams
 from .reference_tables import _interp1, _Tables
 from .theta import Theta
 
+_ORCA = VehicleParams()  # the default size (built once, not in every decision)
+
 
 def wake_moves(
     th: Theta,
@@ -32,8 +34,8 @@ def wake_moves(
     ``ahead`` / ``behind`` (-1: none), the race line's tables ``tab`` (its braking points),
     the car ``vehicle`` (None: the ORCA car), half its width ``w_half`` [m] and its wrapped
     progress ``s_e_w`` [m] (:func:`~agents.reference.reference_trajectory`, step 6)."""
-    length = float(getattr(vehicle, "length", VehicleParams().length))
-    width = float(getattr(vehicle, "width", VehicleParams().width))
+    length = float(getattr(vehicle, "length", _ORCA.length))
+    width = float(getattr(vehicle, "width", _ORCA.width))
     s_e, n_e = float(x[0]), float(x[1])
     d_b, d_apex, side = tab.next_brake(s_e_w)
     pull = th.p * length
