@@ -142,3 +142,26 @@ class _Decision:
         if plan.ok:
             self.S[c] = plan.X[0]
             self.N[c] = plan.X[1]
+
+
+def ibr_class_weights(cfg: IBRConfig, vehicle) -> dict[str, float]:
+    """The IBR's weights and tolerances of :class:`IBRConfig`, given for the ORCA car, in
+    ``vehicle``'s class (its lengths already scaled, :data:`~agents.mpc.config.CLASS_SCALED_FIELDS`):
+    positions and position changes measured in car lengths and widths, speeds in shares of
+    the class's top speed, so that a best response weighs the same manoeuvre alike in every
+    class (the MPC's rule, :func:`~agents.mpc.config.class_scale`). The ORCA car's are
+    unchanged."""
+    from agents.theta import theta_length_scales
+
+    from .mpc.config import class_scale
+
+    k_len, k_wid = class_scale(vehicle)
+    k_v = 1.0 / theta_length_scales(vehicle)[2]  # the class's top speed over the ORCA car's
+    return {
+        "progress_weight": cfg.progress_weight / k_len,  # per car length of progress
+        "trust_weight": cfg.trust_weight / k_wid**2,  # per car width of moved position
+        "soft_rho": cfg.soft_rho * k_wid**2,  # soft violations in car widths
+        "slip_weight": cfg.slip_weight / k_v**2,  # lateral velocity in shares of top speed
+        "tol": cfg.tol * k_len,
+        "max_sensitivity": cfg.max_sensitivity * k_len,
+    }

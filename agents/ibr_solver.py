@@ -77,7 +77,7 @@ from racing_env.track import Track
 from racing_env.vehicle import VehicleParams
 from racing_env.vehicles import FullSizeParams
 
-from .ibr_data import IBRConfig, _Decision, _Plan
+from .ibr_data import IBRConfig, _Decision, _Plan, ibr_class_weights
 from .ibr_kernels import _assemble, _merit, _reach, _separation_pairs
 from .mpc import (
     EdgeBounds,
@@ -147,6 +147,7 @@ class IBR:
                     if hasattr(self.cfg, f)
                 },
             )
+            self.cfg = replace(self.cfg, **ibr_class_weights(self.cfg, self.vehicle))
         self._mcfg = self.cfg.mpc_config()
         K = self.cfg.horizon
         self._traj = trajectory_function(self.vehicle, self._mcfg)
