@@ -48,6 +48,9 @@ class IBRConfig:
     # their present side of the other while beside each other
     skip_independent: bool = True  # solve only cars whose plans reach the IBR car's through
     # plans within sep_window (the others cannot move its plan)
+    braking_bound: bool | None = None  # soft rows vx^k <= the race line's braking limit at
+    # the stage's progress (None: the class's, on at full size, where a 2 s horizon is shorter
+    # than a braking zone from top speed; off for the ORCA car, the paper's IBR)
 
     def __post_init__(self):
         if not (isinstance(self.horizon, (int, np.integer)) and 2 <= self.horizon <= 100):
@@ -82,6 +85,10 @@ class IBRConfig:
         if not (isinstance(self.qp_iter_limit, (int, np.integer)) and self.qp_iter_limit >= 1):
             raise ValueError(
                 f"IBRConfig.qp_iter_limit must be a positive integer, got {self.qp_iter_limit!r}"
+            )
+        if not (self.braking_bound is None or isinstance(self.braking_bound, bool)):
+            raise ValueError(
+                f"IBRConfig.braking_bound must be None, True or False, got {self.braking_bound!r}"
             )
         if not (isinstance(self.track_margin, (int, float)) and self.track_margin >= 0):
             raise ValueError(f"IBRConfig.track_margin must be >= 0, got {self.track_margin!r}")

@@ -156,6 +156,10 @@ class IBR:
         self._bounds_n = EdgeBounds(track, self.vehicle, self._mcfg)
         self._rate = self.vehicle.delta_rate_max * self.cfg.dt / self.vehicle.delta_max
         self._follower: RacelineFollower | None = None
+        bound = self.cfg.braking_bound
+        if bound is None:
+            bound = isinstance(self.vehicle, FullSizeParams)
+        self._vmax = self._braking_limit() if bound else None  # (M + 1,) on the track's grid
         # counters and the decision, best-response and round logs (deques) by name
         self.stats: dict[str, Any] = {
             "decisions": 0,
@@ -176,6 +180,35 @@ class IBR:
         """Forget the warm starts (call at the start of every race)."""
         # per car: (U (2, K), stage progress (K + 1,) or None)
         self._prev: list[tuple[np.ndarray, np.ndarray | None]] | None = None
+
+    def _braking_limit(self) -> np.ndarray:
+        """The race line's braking limit [m/s] on the track's uniform grid, closed (M + 1,):
+        the highest speed at each point from which the car still brakes for every corner
+        ahead (:func:`racing_env.raceline.speed.braking_limit`, the line's own grip, the
+        straights capped at the tow's cap, :data:`agents.reference_tables.TOW_SPEED_CAP`)."""
+        from racing_env.envelope import ggv
+        from racing_env.raceline.speed import braking_limit
+
+        from .reference_tables import TOW_SPEED_CAP
+
+        if self._follower is None:
+            self._follower = make_follower(self.track, self.vehicle)
+        line = self._follower.raceline
+        assert line is not None
+        s = np.asarray(line.s, dtype=float)
+        ds = np.diff(np.append(s, line.length))
+        cap = TOW_SPEED_CAP * ggv(self.vehicle).top_speed
+        vb = braking_limit(np.asarray(line.kappa), ds, float(line.mu_nominal), self.vehicle, cap)
+        return np.append(vb, vb[0])
+
+    def _speed_excess(self, plan: _Plan) -> np.ndarray:
+        """``vx^k - vmax(s^k)`` (K,) of the plan's stages (positive: too fast to brake in
+        time)."""
+        assert self._vmax is not None
+        M = len(self._vmax) - 1
+        L = float(self.track.length)
+        x = np.mod(plan.X[0], L) * (M / L)
+        return plan.X[3] - np.interp(x, np.arange(M + 1), self._vmax)
 
     # ------------------------------------------------------------------ plans
     def _evaluate(self, plan: _Plan) -> None:
@@ -233,6 +266,9 @@ class IBR:
         first = (
             0.0 if u_prev is None else cfg.rate_weight * float(np.sum((plan.U[:, 0] - u_prev) ** 2))
         )
+        if self._vmax is not None:  # the braking bound's soft rows, charged as the QP's
+            excess = np.maximum(self._speed_excess(plan), 0.0)
+            first += (0.5 / cfg.soft_rho) * float(excess @ excess)
         return first + _merit(
             plan.X[0],
             plan.X[1],
@@ -301,6 +337,13 @@ class IBR:
             np.zeros(2) if u_prev is None else u_prev,
             u_prev is not None,
         )
+        if self._vmax is not None:  # soft rows vx^k + (G_vx du)_k <= vmax(s^k)
+            nv = 2 * K
+            A = np.vstack([A, Gx[:, 3, :]])
+            bu = np.concatenate([bu, -self._speed_excess(p)])
+            bl = np.concatenate([bl, np.full(K, -1e30)])
+            sense = np.concatenate([sense, np.full(K, 8, dtype=sense.dtype)])
+            assert len(bu) == nv + A.shape[0]
         du, _, exitflag, _ = daqp.solve(
             H, f, A, bu, bl, sense, rho_soft=cfg.soft_rho, iter_limit=int(cfg.qp_iter_limit)
         )

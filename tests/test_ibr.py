@@ -312,6 +312,7 @@ def test_registered_and_built_by_spec():
         ({"rounds": 0}, "rounds must be an integer in 1..100, got 0"),
         ({"rounds": 2.5}, "rounds"),
         ({"horizon": 0}, "horizon must be an integer number of stages in 2..100, got 0"),
+        ({"braking_bound": 1}, "braking_bound must be None, True or False"),
         ({"horizon": 1}, "horizon"),
         ({"tol": -1.0}, "tol must be a positive number, got -1.0"),
         ({"dt": 0.0}, "dt"),
@@ -430,3 +431,24 @@ def test_the_full_size_ibr_weighs_lengths_and_speeds_in_its_class():
     st = agent.stats
     assert st["fallbacks"] == 0 and st["br_failures"] <= 2
     assert env.state()[3] > 20.0  # vx [m/s] after 6 s: launched, not stuck in fallbacks
+
+
+def test_the_full_size_ibr_plans_under_the_race_lines_braking_limit():
+    """At full size a 2 s horizon is shorter than a braking zone from top speed: the IBR's
+    braking bound keeps its plan's speed within the race line's braking limit where,
+    without it, the plan runs 5 m/s over it (80 m/s, 300 m before Monza's first chicane,
+    where the limit is 79.7 m/s); the ORCA car's IBR has no such rows."""
+    from agents.ibr_data import _Plan
+    from agents.ibr_solver import IBR as Solver
+
+    assert Solver(make_track("default"))._vmax is None
+    monza = make_track("tumftm:Monza", vehicle_class="fullsize")
+    excess = {}
+    for bound in (True, False):
+        solver = Solver(monza, config=IBRConfig(braking_bound=bound))
+        solver.solve(np.array([[600.0, 2.6, 0.0, 80.0, 0.0, 0.0]]))
+        assert not solver.last["fallback"]
+        plan = _Plan()
+        plan.X = solver.last["plans"][0]
+        excess[bound] = Solver(monza)._speed_excess(plan).max()
+    assert excess[True] < 0.5 and excess[False] > 3.0
