@@ -128,6 +128,29 @@ def test_paper_cases_of_the_extended_space_swap_only_the_learned_opponents():
         paper_cases("wide")
 
 
+def test_paper_cases_of_the_full_size_class_are_its_models_variants():
+    from agents.alpha_agent import CLASS_MODELS
+
+    full = paper_cases("paper", "fullsize")
+    base = CLASS_MODELS["fullsize"]
+    assert [c.opponents for c in full.values()] == [
+        f"alpha:model={base}_gamma0.98",
+        f"alpha:model={base}_gamma0.995",
+        f"alpha:model={base}_races400",
+        "ibr",
+        "ppo",
+    ]
+    assert "(alpha, fullsize, gamma 0.98)" in full["I"].title
+    with pytest.raises(ValueError, match="vehicle class 'f1': expected one of orca, fullsize"):
+        paper_cases("paper", "f1")
+
+
+def test_the_paper_tables_wake_is_for_the_full_size_class(tmp_path, capsys):
+    argv = ["bench", "--paper-table", "--wake", "0.5", "--out", str(tmp_path)]
+    assert main(argv) == 2
+    assert "--wake is for --vehicle-class fullsize" in capsys.readouterr().err
+
+
 def test_bench_space_needs_the_paper_table(capsys):
     assert main(["bench", "--space", "extended"]) == 2
     assert "--paper-table" in capsys.readouterr().err

@@ -31,19 +31,25 @@ def _cmd_bench(args) -> int:
     if args.paper_table:
         if args.cars != 3:
             raise ValueError(f"--paper-table is the paper's 3-car protocol; got --cars {args.cars}")
-        if args.vehicle_class != "orca" or args.wake is not None:
-            raise ValueError("--paper-table is the paper's world: no --vehicle-class or --wake")
-        out = args.out or "results/paper_table"
+        fullsize = args.vehicle_class == "fullsize"
+        if args.wake is not None and not fullsize:
+            raise ValueError("--paper-table --wake is for --vehicle-class fullsize")
+        track = args.track
+        if fullsize and track == "default":  # the class's circuit: its models' own
+            track = "tumftm:Monza"
+        out = args.out or ("results/paper_table_fullsize" if fullsize else "results/paper_table")
         t = paper_table(
             out,
             ego=args.ego,
             races=99 if args.races is None else args.races,
             steps=args.steps,
-            track=args.track,
+            track=track,
             seed=args.seed,
             cases=args.cases,
             pool=pool_from(args),
             space=args.space or "paper",
+            vehicle_class=args.vehicle_class,
+            wake=args.wake,
         )
         print((Path(out) / "paper_table.md").read_text())
         print(

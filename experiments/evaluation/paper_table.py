@@ -43,26 +43,37 @@ PAPER_CASES = {
 }
 
 
-def paper_cases(space: str = "paper") -> dict[str, PaperCase]:
+def paper_cases(space: str = "paper", vehicle_class: str = "orca") -> dict[str, PaperCase]:
     """The paper's five cases in policy space ``space``: :data:`PAPER_CASES` in the paper's
     space; in another, the learned opponents of cases I-III are that space's variants of the
     same kind (``alpha:model=gamma0.98`` becomes ``alpha:space=extended,model=
     extended_gamma0.98``: same discount or data, trained on the space's races), while IBR
-    and PPO stay as they are."""
+    and PPO stay as they are. For ``vehicle_class="fullsize"`` cases I-III are the variants
+    of the class's shipped model (``alpha:model=fullsize_monza_gamma0.98``, trained on its
+    races; its space is the model's own) and IBR and PPO race in the class (``ppo``: the
+    class's shipped checkpoint)."""
+    from agents.alpha_agent import CLASS_MODELS
     from agents.reference import policy_space
 
     space = policy_space(space).name  # names the choices if unknown
-    if space == "paper":
+    if vehicle_class not in ("orca", *CLASS_MODELS):
+        raise ValueError(
+            f"paper cases for vehicle class {vehicle_class!r}: expected one of "
+            f"{', '.join(('orca', *CLASS_MODELS))}"
+        )
+    if space == "paper" and vehicle_class == "orca":
         return dict(PAPER_CASES)
     prefix = "alpha:model="
     out = {}
     for name, case in PAPER_CASES.items():
         if case.opponents.startswith(prefix):
             model = case.opponents[len(prefix) :]
+            if vehicle_class == "orca":
+                spec, kind = f"alpha:space={space},model={space}_{model}", f"{space} space"
+            else:
+                spec, kind = f"alpha:model={CLASS_MODELS[vehicle_class]}_{model}", vehicle_class
             case = PaperCase(
-                f"alpha:space={space},model={space}_{model}",
-                case.title.replace("(alpha,", f"(alpha, {space} space,"),
-                case.paper_wins,
+                spec, case.title.replace("(alpha,", f"(alpha, {kind},"), case.paper_wins
             )
         out[name] = case
     return out
@@ -78,15 +89,18 @@ def paper_table(
     cases=None,
     pool: Pool = Pool(),
     space: str = "paper",
+    vehicle_class: str = "orca",
+    wake: float | None = None,
 ) -> dict:
     """The paper's five cases (or ``cases``, names of :data:`PAPER_CASES`) with the
-    opponents of policy space ``space`` (:func:`paper_cases`) in ``out_dir/case_<name>``, all
-    races in one pool; writes ``out_dir/paper_table.md`` and ``paper_table.json`` and returns
-    the latter's content."""
+    opponents of policy space ``space`` and ``vehicle_class`` (:func:`paper_cases`) in
+    ``out_dir/case_<name>``, all races in one pool, in that class's world (``wake``: its
+    strength, None the class's); writes ``out_dir/paper_table.md`` and ``paper_table.json``
+    and returns the latter's content."""
     from agents.reference import policy_space
 
     space = policy_space(space).name  # the name, as paper_table.json records it
-    table_cases = paper_cases(space)
+    table_cases = paper_cases(space, vehicle_class)
     cases = list(table_cases) if cases is None else list(cases)
     unknown = [c for c in cases if c not in table_cases]
     if unknown:
@@ -100,10 +114,12 @@ def paper_table(
             steps=steps,
             track=track,
             seed=seed,
+            vehicle_class=vehicle_class,
+            wake=wake,
         )
         for c in cases
     }
-    check_agent_specs([ego] + [cfg.opponents for cfg in configs.values()], [track])
+    check_agent_specs([ego] + [cfg.opponents for cfg in configs.values()], [track], vehicle_class)
     runs = {c: BenchRun(out / f"case_{c}", cfg) for c, cfg in configs.items()}
     todo = sum(len(run.missing()) for run in runs.values())
     t0 = time.perf_counter()
@@ -116,6 +132,7 @@ def paper_table(
     table = {
         "ego": ego,
         "space": space,
+        **({} if vehicle_class == "orca" else {"vehicle_class": vehicle_class}),
         "races": races,
         "steps": steps,
         "track": track,
@@ -147,7 +164,12 @@ def paper_table_markdown(table: dict) -> str:
         f"case of {table['steps']} steps ({table['steps'] / 10:.0f} s), the ego starting "
         f"from R1, R2, R3 in turn (race k from R(k mod 3 + 1)), O1 always ahead of O2; "
         f"won by the largest "
-        f"total progress. Wins with Wilson 95% intervals; `paper` is the paper's Table 1.",
+        f"total progress. Wins with Wilson 95% intervals; `paper` is the paper's Table 1."
+        + (
+            f" Class `{table['vehicle_class']}` on `{table['track']}`."
+            if "vehicle_class" in table
+            else ""
+        ),
         "",
         "| case | opponents | ego wins | O1 wins | O2 wins | paper (ego/O1/O2) "
         "| ego wins from R1 / R2 / R3 | ego margin m | contacts ego/opp | off-track ego/opp "
