@@ -369,7 +369,7 @@ class PPOAgent(FrozenPolicy):
                 f"PPO checkpoint {str(self.checkpoint)!r} was trained for the "
                 f"{self.vehicle_class!r} vehicle class; track {track.name!r} is sized for the "
                 f"{cls!r} class. Train a policy on races of the {cls!r} class "
-                f"(alpha-racer selfplay), or race mpc / ibr / raceline there"
+                f"(alpha-racer selfplay --vehicle-class {cls}), or race mpc / ibr / raceline there"
             )
         super().reset(track, agent_id, seed)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from experiments.cli.options import (
+    CLASS_OPTIONS,
     RESUME_HELP,
     add_options,
     config_from,
@@ -65,7 +66,11 @@ def add_selfplay(command) -> None:
         ("--lr", "PPO learning rate"),
         ("--gamma", "discount factor"),
         ("--n-steps", "rollout length per env"),
-        ("--track", "track spec (as for race)"),
+        (
+            "--track",
+            "track spec (as for race; built at the class's scale); with --vehicle-class "
+            "fullsize, default means tumftm:Monza",
+        ),
         ("--race-steps", "steps of 0.1 s per race (episode)"),
         ("--seed", "seed of the envs and the policies"),
         (
@@ -87,6 +92,7 @@ def add_selfplay(command) -> None:
         ("--bc-steps", "expert samples for --init bc"),
         ("--checkpoint-every", "rollouts between in-turn checkpoints"),
         ("--eval-races", "solo evaluation races after each turn"),
+        *CLASS_OPTIONS,
         renamed=_SELFPLAY_FIELDS,
     )
     sp.add_argument("--no-mpc-reference", action="store_true", help="skip measuring the MPC alone")

@@ -57,9 +57,13 @@ class SelfPlayConfig:
     bc_epochs: int = 10
     bc_noise: float = 0.3
     bc_log_std: float = -1.0
+    vehicle_class: str = "orca"  # "orca" (the paper's 1:43 cars) or "fullsize"
+    wake: float | None = None  # the wake's strength; None: the class's (0 orca, 1 fullsize),
+    # stored resolved
 
     def __post_init__(self):
         object.__setattr__(self, "net_arch", tuple(self.net_arch))
+        self._check_class()
         check_counts(
             self,
             (
@@ -127,6 +131,29 @@ class SelfPlayConfig:
                 f"SelfPlayConfig.start must be one of {START_MODES}, got {self.start!r}"
             )
 
+    def _check_class(self) -> None:
+        """Check ``vehicle_class`` and resolve ``wake`` (None: the class's) and, at full size,
+        the track ``"default"`` (the class's circuit, ``tumftm:Monza``) in place; a built-in
+        1:43 track at full size is refused."""
+        from experiments.evaluation.bench_config import class_wake
+        from racing_env.class_config import default_track
+        from racing_env.tracks import BUILTIN
+
+        try:
+            object.__setattr__(self, "wake", class_wake(self.vehicle_class, self.wake))
+        except ValueError as exc:
+            raise ValueError(f"SelfPlayConfig.{exc}") from None
+        if self.vehicle_class == "orca":
+            return
+        if self.track == "default":
+            object.__setattr__(self, "track", default_track(self.vehicle_class))
+        elif self.track in BUILTIN:
+            raise ValueError(
+                f"SelfPlayConfig.track {self.track!r} is a 1:43 track of the 'orca' class; "
+                f"vehicle_class {self.vehicle_class!r} races on full-scale circuits: "
+                f"tumftm:NAME or random:SEED (default {default_track(self.vehicle_class)!r})"
+            )
+
     @property
     def turns(self) -> int:
         return self.cycles * self.n_cars
@@ -141,9 +168,13 @@ class SelfPlayConfig:
         return math.ceil(self.steps_per_turn / self.rollout) * self.rollout
 
     def to_dict(self) -> dict:
+        """JSON-ready; ``vehicle_class`` and ``wake`` only when they are not the paper's world
+        (the 1:43 class without a wake), so an ORCA run's config is what it always was."""
+        from experiments.evaluation.bench_config import drop_default_class
+
         d = asdict(self)
         d["net_arch"] = list(self.net_arch)
-        return d
+        return drop_default_class(d)
 
     @classmethod
     def from_dict(cls, d: dict) -> SelfPlayConfig:
@@ -230,8 +261,15 @@ class SelfPlayState:
 
 
 def race_config(cfg: SelfPlayConfig):
-    from racing_env import RaceConfig, StartConfig
+    """The :class:`~racing_env.RaceConfig` of the run's races: the class's
+    (:func:`racing_env.class_config.race_config_for`: the paper's for ``"orca"``; the car,
+    rules and start scaled to the full-size car) with the run's wake, cars, steps and start
+    mode."""
+    from dataclasses import replace
 
-    return RaceConfig(
-        n_cars=cfg.n_cars, max_cycles=cfg.max_cycles, start=StartConfig(mode=cfg.start)
+    from racing_env.class_config import race_config_for
+
+    base = race_config_for(cfg.vehicle_class, wake=cfg.wake)
+    return base.with_(
+        n_cars=cfg.n_cars, max_cycles=cfg.max_cycles, start=replace(base.start, mode=cfg.start)
     )

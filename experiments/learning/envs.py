@@ -1,5 +1,8 @@
 """The races a self-play run learns in and is measured on: the learner's vectorised env,
-the frozen opponents, and the solo evaluation (the car alone on the track, beside the MPC)."""
+the frozen opponents, and the solo evaluation (the car alone on the track, beside the MPC).
+Every race is of the run's vehicle class and wake
+(:func:`~experiments.learning.config.race_config`; the raceline followers and the MPC take
+the class from the track)."""
 
 from __future__ import annotations
 
@@ -11,7 +14,8 @@ from experiments.learning.config import RACELINE_GRIP, SelfPlayConfig, SelfPlayS
 
 
 def make_learning_env(cfg: SelfPlayConfig, opponents: list, seed: int):
-    """The learner's vectorised env (before VecMonitor / VecNormalize), seeded."""
+    """The learner's vectorised env (before VecMonitor / VecNormalize), seeded; its races are
+    :func:`~experiments.learning.config.race_config`'s (the run's class and wake)."""
     import copy
 
     if cfg.vec_env == "batched":
@@ -84,11 +88,19 @@ def make_opponents(
 
 def evaluate_solo(agent, cfg: SelfPlayConfig, races: int | None = None) -> dict:
     """The agent alone on the track for ``max_cycles`` steps from ``races`` fixed starts
-    (seeds 0..races-1): mean distance [m] and fraction of steps off track."""
+    (seeds 0..races-1), in the run's vehicle class and wake: mean distance [m] and fraction
+    of steps off track."""
     from racing_env import RacingParallelEnv
 
     races = races or cfg.eval_races
-    env = RacingParallelEnv(track=cfg.track, n_cars=1, max_cycles=cfg.max_cycles, start=cfg.start)
+    env = RacingParallelEnv(
+        track=cfg.track,
+        n_cars=1,
+        max_cycles=cfg.max_cycles,
+        start=cfg.start,
+        vehicle_class=cfg.vehicle_class,
+        wake=cfg.wake,
+    )
     dist, off = [], []
     for seed in range(races):
         obs, _ = env.reset(seed=seed)

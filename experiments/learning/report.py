@@ -124,16 +124,19 @@ CLI_FLAGS = {
     "eval_races": "--eval-races",
     "init": "--init",
     "bc_steps": "--bc-steps",
+    "wake": "--wake",
 }
 
 
 def command_line(cfg: SelfPlayConfig, out: str) -> str:
     """The ``alpha-racer selfplay`` command that trains ``cfg`` (fields off their default)."""
-    default = SelfPlayConfig()
+    default = SelfPlayConfig(vehicle_class=cfg.vehicle_class)  # the class's track and wake
     parts = ["alpha-racer", "selfplay", "--out", str(out)]
+    if cfg.vehicle_class != SelfPlayConfig.vehicle_class:
+        parts += ["--vehicle-class", cfg.vehicle_class]
     for f in fields(cfg):
         v = getattr(cfg, f.name)
-        if v == getattr(default, f.name):
+        if f.name == "vehicle_class" or v == getattr(default, f.name):
             continue
         if f.name == "mpc_reference":
             parts.append("--no-mpc-reference")
@@ -184,7 +187,13 @@ def model_card(cfg: SelfPlayConfig, summary: dict, state: SelfPlayState) -> str:
             else ""
         ),
         "",
-        f"Alone on `{cfg.track}` for {cfg.max_cycles / 10:.0f} s ({cfg.eval_races} fixed starts):",
+        f"Alone on `{cfg.track}`"
+        + (
+            f" ({cfg.vehicle_class} class, wake {cfg.wake:g})"
+            if (cfg.vehicle_class, cfg.wake) != ("orca", 0.0)
+            else ""
+        )
+        + f" for {cfg.max_cycles / 10:.0f} s ({cfg.eval_races} fixed starts):",
         "",
     ]
     if ref:

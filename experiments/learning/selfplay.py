@@ -17,6 +17,14 @@ learning rate 5e-4, gamma 0.99, 8 parallel envs; the rest is SB3's standard PPO 
 ``n_steps = 2048`` per env, GAE 0.95, clip 0.2, a 64-64 tanh MLP). A turn trains whole
 rollouts, so it takes ``ceil(steps_per_turn / (n_steps n_envs))`` of them.
 
+Vehicle class (``vehicle_class``, ``wake``): the paper's 1:43 ``"orca"`` cars by default;
+``"fullsize"`` trains full-size single-seaters on a full-scale circuit (``tumftm:Monza``
+unless ``track`` names another) with the wake (strength 1 unless ``wake`` says otherwise).
+Every race of the run is of that class and wake: the learning env, behaviour cloning, the
+solo evaluations and the MPC reference; the raceline followers and the MPC take the class
+from the track. The checkpoints record both, and the ``ppo`` agent races a checkpoint on
+tracks of its class only.
+
 Curriculum (``warmup_opponent``): a car that has not had a turn yet has no policy worth
 racing; with ``"raceline"`` (default) it is driven by a raceline follower until its first
 turn (so car 0's first turn is against raceline followers, car 1's against car 0 and a
@@ -141,6 +149,8 @@ def _save(model, cfg, state, path: Path, car: int, turn: int, turn_steps: int, e
         "n_cars": cfg.n_cars,
         "n_preview": race_config(cfg).n_preview,
         "track": cfg.track,
+        "vehicle_class": cfg.vehicle_class,  # the ppo agent races it on tracks of this class only
+        "wake": cfg.wake,
         "car": car,
         "turn": turn,
         "cycle": turn // cfg.n_cars if turn >= 0 else -1,

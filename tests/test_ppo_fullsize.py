@@ -1,0 +1,225 @@
+"""PPO self-play for the full-size class: the config's class, wake and track, every race of a
+run in that class (learning env for each vec env, behaviour cloning, solo evaluation, MPC
+reference), the checkpoint's metadata, the ``ppo`` agent racing it on a full-size circuit,
+and the refusals of a track of another class."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+import racing_env
+import racing_env.vec_env
+from agents.ppo_agent import PPOAgent, default_checkpoint, read_checkpoint_meta
+from experiments.cli import main
+from experiments.learning.config import SelfPlayConfig, SelfPlayState, race_config
+from experiments.learning.envs import make_learning_env, make_opponents
+from racing_env import RaceConfig, StartConfig
+from racing_env.class_config import race_config_for
+from racing_env.tracks import make_track
+from racing_env.vec_env import HeadToHeadVecEnv
+
+torch.set_num_threads(1)
+
+TINY_ARGS = [
+    "--cars",
+    "2",
+    "--cycles",
+    "1",
+    "--steps-per-turn",
+    "128",
+    "--envs",
+    "2",
+    "--n-steps",
+    "64",
+    "--batch-size",
+    "64",
+    "--epochs",
+    "1",
+    "--race-steps",
+    "40",
+    "--eval-races",
+    "1",
+    "--init",
+    "bc",
+    "--bc-steps",
+    "96",
+]
+
+
+# ---------------------------------------------------------------------- the config
+def test_fullsize_config_takes_the_class_circuit_and_wake():
+    cfg = SelfPlayConfig(vehicle_class="fullsize")
+    assert (cfg.track, cfg.wake) == ("tumftm:Monza", 1.0)
+    rc = race_config(cfg)
+    full = race_config_for("fullsize")
+    assert rc.vehicle_class == "fullsize" and rc.wake == 1.0
+    assert rc == full.with_(n_cars=3, max_cycles=500, start=replace(full.start, mode="regions"))
+    assert race_config(SelfPlayConfig(vehicle_class="fullsize", wake=0.5)).wake == 0.5
+    other = SelfPlayConfig(vehicle_class="fullsize", track="tumftm:Spa", wake=0.0)
+    assert (other.track, other.wake) == ("tumftm:Spa", 0.0)
+    d = cfg.to_dict()
+    assert (d["vehicle_class"], d["wake"], d["track"]) == ("fullsize", 1.0, "tumftm:Monza")
+    assert SelfPlayConfig.from_dict(d) == cfg
+
+
+@pytest.mark.parametrize("start", ["regions", "grid", "random"])
+def test_orca_races_are_the_paper_races_as_before(start):
+    cfg = SelfPlayConfig(n_cars=2, max_cycles=77, start=start)
+    assert cfg.wake == 0.0 and cfg.track == "default"
+    old = RaceConfig(n_cars=2, max_cycles=77, start=StartConfig(mode=start))
+    assert race_config(cfg) == old and race_config(cfg).to_dict() == old.to_dict()
+    # an ORCA run's config (config.json, checkpoints) keeps the keys it always had
+    assert not {"vehicle_class", "wake"} & set(cfg.to_dict())
+    assert SelfPlayConfig(wake=0.5).to_dict()["wake"] == 0.5  # a wake is recorded
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"vehicle_class": "kart"}, "vehicle_class must be one of orca, fullsize, got 'kart'"),
+        ({"wake": -1.0}, "wake must be a finite number >= 0, got -1.0"),
+        ({"wake": "strong"}, "wake must be a finite number >= 0, got 'strong'"),
+        (
+            {"vehicle_class": "fullsize", "track": "oval"},
+            "track 'oval' is a 1:43 track of the 'orca' class; vehicle_class 'fullsize' races "
+            "on full-scale circuits",
+        ),
+    ],
+)
+def test_bad_class_wake_or_track_is_refused_naming_it(kw, match):
+    with pytest.raises(ValueError, match=match):
+        SelfPlayConfig(**kw)
+
+
+def test_cli_refuses_a_1_43_track_at_full_size(tmp_path, capsys):
+    out = tmp_path / "run"
+    args = ["selfplay", "--out", str(out), "--vehicle-class", "fullsize", "--track", "oval"]
+    assert main(args) == 2
+    assert "track 'oval' is a 1:43 track" in capsys.readouterr().err
+    assert not out.exists()
+
+
+# ---------------------------------------------------------------------- the races
+@pytest.mark.parametrize("vec_env", ["batched", "dummy", "subproc"])
+def test_learning_env_races_full_size_cars_with_the_wake(vec_env):
+    cfg = SelfPlayConfig(
+        vehicle_class="fullsize", n_cars=2, n_envs=2, max_cycles=30, vec_env=vec_env
+    )
+    opps, names = make_opponents(cfg, None, SelfPlayState.new(cfg), 0)
+    assert names == ["raceline:grip=0.75"]
+    env = make_learning_env(cfg, opps, seed=5)
+    ref = HeadToHeadVecEnv(
+        2,
+        opponents=make_opponents(cfg, None, SelfPlayState.new(cfg), 0)[0],
+        track="tumftm:Monza",
+        vehicle_class="fullsize",
+        wake=1.0,
+        max_cycles=30,
+    )
+    ref.seed(5)
+    assert ref.track.vehicle_class == "fullsize" and ref.config.wake == 1.0
+    try:
+        np.testing.assert_array_equal(env.reset(), ref.reset())
+        act = np.full((2, 2), [0.6, 0.05], np.float32)
+        for _ in range(5):
+            o1, r1, *_ = env.step(act)
+            o2, r2, *_ = ref.step(act)
+        np.testing.assert_array_equal(o1, o2)
+        np.testing.assert_allclose(r1, r2, rtol=0, atol=1e-6)
+    finally:
+        env.close()
+
+
+# ---------------------------------------------------------------------- a tiny run
+@pytest.fixture(scope="module")
+def fullsize_run(tmp_path_factory):
+    """A tiny full-size run through the CLI (behaviour-cloned start, the MPC reference), with
+    the class and wake of every env it built."""
+    built = []
+    mp = pytest.MonkeyPatch()
+
+    class SpyVecEnv(HeadToHeadVecEnv):
+        def _set_up(self):
+            built.append(("vec", self.config.vehicle_class, self.config.wake, self.track.name))
+            super()._set_up()
+
+    class SpyParallelEnv(racing_env.RacingParallelEnv):
+        def _set_agents(self):
+            built.append(("solo", self.config.vehicle_class, self.config.wake, self.track.name))
+            super()._set_agents()
+
+    mp.setattr(racing_env.vec_env, "HeadToHeadVecEnv", SpyVecEnv)
+    mp.setattr(racing_env, "RacingParallelEnv", SpyParallelEnv)
+    out = tmp_path_factory.mktemp("fullsize") / "run"
+    try:
+        code = main(["selfplay", "--out", str(out), "--vehicle-class", "fullsize"] + TINY_ARGS)
+    finally:
+        mp.undo()
+    assert code == 0
+    return out, built
+
+
+@pytest.mark.slow
+def test_fullsize_selfplay_trains_in_the_class_and_records_it(fullsize_run):
+    out, built = fullsize_run
+    # the BC model's env, the DAgger env, the learning env of each of 2 turns; the solo races
+    # of the MPC reference, the BC start and each turn
+    assert [b[0] for b in built].count("vec") == 4 and [b[0] for b in built].count("solo") == 4
+    assert {b[1:] for b in built} == {("fullsize", 1.0, "Monza")}
+    for name in ("best.zip", "final/car_1.zip", "checkpoints/bc_init.zip"):
+        meta = read_checkpoint_meta(out / name)
+        assert (meta["vehicle_class"], meta["wake"], meta["track"]) == (
+            "fullsize",
+            1.0,
+            "tumftm:Monza",
+        )
+        assert meta["selfplay_config"]["vehicle_class"] == "fullsize"
+        assert meta["race_config"]["wake"] == 1.0 and meta["race_config"]["vehicle"]["m"] > 100
+    assert json.loads((out / "config.json").read_text())["config"]["vehicle_class"] == "fullsize"
+    state = json.loads((out / "state.json").read_text())
+    assert state["mpc_reference"]["distance_m"] > 10.0  # full-size metres in 4 s
+    assert all(e["distance_vs_mpc"] is not None for e in state["evals"])
+    card = (out / "MODEL_CARD.md").read_text()
+    assert "--vehicle-class fullsize" in card and "(fullsize class, wake 1)" in card
+    assert "--track" not in card and "--wake" not in card  # the class's own
+
+
+@pytest.mark.slow
+def test_fullsize_checkpoint_races_on_a_full_size_circuit(fullsize_run, tmp_path):
+    out = fullsize_run[0]
+    race = tmp_path / "race"
+    argv = ["race", "--vehicle-class", "fullsize", "--track", "tumftm:Monza", "--agents"]
+    argv += [f"ppo:checkpoint={out / 'best.zip'}", "raceline", "--steps", "20"]
+    assert main(argv + ["--no-animation", "--out", str(race)]) == 0
+    result = json.loads((race / "result.json").read_text())
+    assert len(result["progress_m"]) == 2 and result["progress_m"][0] > 1.0
+
+
+@pytest.mark.slow
+def test_fullsize_checkpoint_refuses_a_1_43_track(fullsize_run, tmp_path, capsys):
+    agent = PPOAgent(checkpoint=fullsize_run[0] / "best.zip")
+    assert agent.vehicle_class == "fullsize"
+    with pytest.raises(
+        ValueError,
+        match="trained for the 'fullsize' vehicle class; track 'default' is sized for the "
+        "'orca' class",
+    ):
+        agent.reset(make_track("default"), "car_0", 0)
+    argv = ["race", "--agents", f"ppo:checkpoint={fullsize_run[0] / 'best.zip'}", "raceline"]
+    assert main(argv + ["--steps", "20", "--no-animation", "--out", str(tmp_path / "r")]) == 2
+    assert "trained for the 'fullsize' vehicle class" in capsys.readouterr().err
+
+
+def test_orca_checkpoint_refuses_a_full_size_track():
+    agent = PPOAgent(checkpoint=default_checkpoint())
+    assert agent.vehicle_class == "orca"
+    with pytest.raises(
+        ValueError,
+        match=r"trained for the 'orca' vehicle class; track 'Monza' is sized for the "
+        r"'fullsize' class\. Train a policy on races of the 'fullsize' class \(alpha-racer "
+        r"selfplay --vehicle-class fullsize\)",
+    ):
+        agent.reset(make_track("tumftm:Monza", vehicle_class="fullsize"), "car_0", 0)
