@@ -12,12 +12,15 @@ import torch
 
 import racing_env
 import racing_env.vec_env
-from agents.ppo_agent import PPOAgent, default_checkpoint, read_checkpoint_meta
+from agents.ppo_agent import PPOAgent, adapt_observation, default_checkpoint, read_checkpoint_meta
 from experiments.cli import main
 from experiments.learning.config import SelfPlayConfig, SelfPlayState, race_config
-from experiments.learning.envs import make_learning_env, make_opponents
+from experiments.learning.envs import evaluate_solo, make_learning_env, make_opponents
+from experiments.learning.imitation import _alone_view, alone_envs
+from experiments.learning.selfplay import _behaviour_cloned_init
 from racing_env import RaceConfig, StartConfig
 from racing_env.class_config import race_config_for
+from racing_env.controllers import RacelineFollower
 from racing_env.tracks import make_track
 from racing_env.vec_env import HeadToHeadVecEnv
 
@@ -165,9 +168,9 @@ def fullsize_run(tmp_path_factory):
 @pytest.mark.slow
 def test_fullsize_selfplay_trains_in_the_class_and_records_it(fullsize_run):
     out, built = fullsize_run
-    # the BC model's env, the DAgger env, the learning env of each of 2 turns; the solo races
-    # of the MPC reference, the BC start and each turn
-    assert [b[0] for b in built].count("vec") == 4 and [b[0] for b in built].count("solo") == 4
+    # the BC model's env, the DAgger envs (races with the others, races alone), the learning
+    # env of each of 2 turns; the solo races of the MPC reference, the BC start and each turn
+    assert [b[0] for b in built].count("vec") == 5 and [b[0] for b in built].count("solo") == 4
     assert {b[1:] for b in built} == {("fullsize", 1.0, "Monza")}
     for name in ("best.zip", "final/car_1.zip", "checkpoints/bc_init.zip"):
         meta = read_checkpoint_meta(out / name)
@@ -223,3 +226,74 @@ def test_orca_checkpoint_refuses_a_full_size_track():
         r"selfplay --vehicle-class fullsize\)",
     ):
         agent.reset(make_track("tumftm:Monza", vehicle_class="fullsize"), "car_0", 0)
+
+
+# ---------------------------------------------------------------------- the cloned start
+def test_bc_alone_is_resolved_per_class_and_recorded_at_full_size():
+    orca, full = SelfPlayConfig(), SelfPlayConfig(vehicle_class="fullsize")
+    assert (orca.bc_alone, full.bc_alone) == (0.0, 0.5)
+    assert "bc_alone" not in orca.to_dict()  # an ORCA run's config as it always was
+    assert full.to_dict()["bc_alone"] == 0.5 and SelfPlayConfig.from_dict(full.to_dict()) == full
+    assert SelfPlayConfig(bc_alone=0.25).to_dict()["bc_alone"] == 0.25
+    assert SelfPlayConfig(vehicle_class="fullsize", bc_alone=0.0).to_dict()["bc_alone"] == 0.0
+    for bad in (-0.1, 1.5, "half", True):
+        with pytest.raises(ValueError, match=f"bc_alone must be in \\[0, 1\\], got {bad!r}"):
+            SelfPlayConfig(bc_alone=bad)
+
+
+def test_alone_races_show_the_policy_the_solo_phantoms():
+    cfg = SelfPlayConfig(vehicle_class="fullsize", n_envs=4, n_cars=3)
+    assert alone_envs(cfg) == 2 and alone_envs(SelfPlayConfig(n_envs=4)) == 0
+    track = make_track("tumftm:Monza", vehicle_class="fullsize")
+    env = racing_env.RacingParallelEnv(track=track, n_cars=1, max_cycles=5)
+    obs, _ = env.reset(seed=0)
+    view = _alone_view(3, 10, track.length)(obs["car_0"][None])[0]
+    np.testing.assert_array_equal(view, adapt_observation(obs["car_0"], 3, 10, track.length))
+    assert view[6] == view[12] == np.float32(-0.5 * track.length)
+
+
+@pytest.mark.slow
+def test_fullsize_behaviour_cloned_start_drives_alone(tmp_path):
+    """The behaviour-cloned start of a full-size run (the pipeline's, default settings) alone
+    on Monza from the solo evaluation's starts for 50 s: at least 80% of the raceline expert's
+    distance with under 5% of steps off track; the phantoms of a race alone lie inside the
+    observation statistics it was fitted with (not at VecNormalize's clip)."""
+    cfg = SelfPlayConfig(vehicle_class="fullsize", mpc_reference=False)
+    state = SelfPlayState.new(cfg)
+
+    class Bar:
+        def write(self, text):
+            pass
+
+    path = tmp_path / _behaviour_cloned_init(cfg, tmp_path, state, Bar())
+    bc = state.evals[-1]
+    expert = evaluate_solo(RacelineFollower(grip=0.85), cfg)
+    assert expert["distance_m"] > 1500.0
+    assert bc["distance_m"] >= 0.8 * expert["distance_m"], (bc, expert)
+    assert bc["off_track_frac"] < 0.05
+    agent = PPOAgent(checkpoint=path)
+    env = racing_env.RacingParallelEnv(track=cfg.track, n_cars=1, vehicle_class="fullsize")
+    obs, _ = env.reset(seed=0)
+    agent.reset(env.track, "car_0", 0)
+    z = agent.normalize(adapt_observation(obs["car_0"], 3, 10, env.track.length))
+    assert np.all(np.abs(z[[6, 12]]) < 5.0)
+
+
+def test_orca_behaviour_cloning_is_as_before():
+    """The ORCA class clones with no race alone: the same data and fit as before
+    ``bc_alone`` existed (figures of that code on this tiny run)."""
+    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
+
+    from experiments.learning.config import RACELINE_GRIP
+    from experiments.learning.imitation import behaviour_cloning
+    from experiments.learning.selfplay import _Idle, _new_model
+
+    cfg = SelfPlayConfig(n_cars=2, n_envs=2, max_cycles=40, n_steps=64, batch_size=64)
+    cfg = replace(cfg, bc_steps=96, bc_rounds=2, bc_epochs=2)
+    rc = race_config(cfg)
+    env = HeadToHeadVecEnv(2, n_cars=2, track=cfg.track, config=rc, opponents=[_Idle()])
+    venv = VecNormalize(VecMonitor(env), gamma=cfg.gamma)
+    model = _new_model(cfg, venv, cfg.seed)
+    fit = behaviour_cloning(model, cfg, cfg.seed, rc, RACELINE_GRIP)
+    assert fit["mse"] == pytest.approx(0.4678463041782379, rel=1e-6)
+    assert venv.obs_rms.mean[0] == pytest.approx(3.9897859774063917, rel=1e-6)

@@ -22,6 +22,14 @@ RACELINE_GRIP = (0.75, 0.8, 0.85, 0.7, 0.9, 0.65, 0.95)
 RACELINE_MU = RACELINE_GRIP  # the old name (mu names the heading in the state)
 """Friction of the raceline followers standing in for untrained cars, by opponent slot."""
 OFFTRACK_BAR = 0.05
+BC_ALONE = {"orca": 0.0, "fullsize": 0.5}
+"""The fraction of behaviour cloning's races that the learner drives alone, by vehicle class
+(``SelfPlayConfig.bc_alone`` left unset). Alone, the policy sees the other cars as phantoms
+half a lap behind (:func:`agents.observations.adapt_observation`), as in the solo evaluation.
+On the 1:43 track those lie inside the range of progress differences the cars reach in a race
+(the field spreads over laps of a 39 m track); on a full-scale circuit a 50 s race covers
+under a third of a lap, so a policy cloned from races with others only has never seen them
+(normalised to -14 standard deviations, clipped at -10) and barely drives alone."""
 
 
 @dataclass(frozen=True)
@@ -57,6 +65,8 @@ class SelfPlayConfig:
     bc_epochs: int = 10
     bc_noise: float = 0.3
     bc_log_std: float = -1.0
+    bc_alone: float | None = None  # the fraction of BC races driven alone; None: the class's
+    # (BC_ALONE: 0 orca, 0.5 fullsize), stored resolved
     vehicle_class: str = "orca"  # "orca" (the paper's 1:43 cars) or "fullsize"
     wake: float | None = None  # the wake's strength; None: the class's (0 orca, 1 fullsize),
     # stored resolved
@@ -120,6 +130,12 @@ class SelfPlayConfig:
             raise ValueError(f"SelfPlayConfig.init must be one of {INITS}, got {self.init!r}")
         if not (isinstance(self.bc_noise, (int, float)) and 0 <= self.bc_noise <= 2):
             raise ValueError(f"SelfPlayConfig.bc_noise must be in [0, 2], got {self.bc_noise!r}")
+        if not (
+            isinstance(self.bc_alone, (int, float))
+            and not isinstance(self.bc_alone, bool)
+            and 0 <= self.bc_alone <= 1
+        ):
+            raise ValueError(f"SelfPlayConfig.bc_alone must be in [0, 1], got {self.bc_alone!r}")
         if not (isinstance(self.bc_log_std, (int, float)) and -5 <= self.bc_log_std <= 1):
             raise ValueError(
                 f"SelfPlayConfig.bc_log_std must be in [-5, 1], got {self.bc_log_std!r}"
@@ -143,6 +159,8 @@ class SelfPlayConfig:
             object.__setattr__(self, "wake", class_wake(self.vehicle_class, self.wake))
         except ValueError as exc:
             raise ValueError(f"SelfPlayConfig.{exc}") from None
+        if self.bc_alone is None:
+            object.__setattr__(self, "bc_alone", BC_ALONE[self.vehicle_class])
         if self.vehicle_class == "orca":
             return
         if self.track == "default":
@@ -169,11 +187,14 @@ class SelfPlayConfig:
 
     def to_dict(self) -> dict:
         """JSON-ready; ``vehicle_class`` and ``wake`` only when they are not the paper's world
-        (the 1:43 class without a wake), so an ORCA run's config is what it always was."""
+        (the 1:43 class without a wake), and ``bc_alone`` not when it is the ORCA class's
+        (0), so an ORCA run's config is what it always was."""
         from experiments.evaluation.bench_config import drop_default_class
 
         d = asdict(self)
         d["net_arch"] = list(self.net_arch)
+        if self.vehicle_class == "orca" and self.bc_alone == BC_ALONE["orca"]:
+            del d["bc_alone"]  # the ORCA class's, as every run before it was a setting
         return drop_default_class(d)
 
     @classmethod
