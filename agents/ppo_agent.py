@@ -44,11 +44,15 @@ META_NAME = "alpha_racer.json"
 VECNORM_NAME = "vecnormalize.pkl"
 DEFAULT_CHECKPOINT = "ppo_default.zip"
 """The shipped checkpoint, package data in ``agents/models/``."""
+CLASS_CHECKPOINTS = {"orca": DEFAULT_CHECKPOINT, "fullsize": "ppo_fullsize_monza.zip"}
+"""The shipped checkpoint of each vehicle class (its card: the same name with ``.md``)."""
 
 
-def default_checkpoint() -> Path:
-    """Path of the checkpoint shipped with the package (``agents/models/ppo_default.zip``)."""
-    return Path(str(resources.files("agents") / "models" / DEFAULT_CHECKPOINT))
+def default_checkpoint(vehicle_class: str = "orca") -> Path:
+    """Path of the checkpoint shipped with the package for ``vehicle_class``
+    (``agents/models/ppo_default.zip`` for the ORCA car, ``ppo_fullsize_monza.zip`` at full
+    size)."""
+    return Path(str(resources.files("agents") / "models" / CLASS_CHECKPOINTS[vehicle_class]))
 
 
 # ---------------------------------------------------------------------- checkpoint files
@@ -291,8 +295,10 @@ def _numpy_actor(policy):
 @register_agent("ppo")
 class PPOAgent(FrozenPolicy):
     """PPO self-play policy loaded from a checkpoint (default: the one shipped with the
-    package, ``agents/models/ppo_default.zip``; its model card ``ppo_default.md`` says how it
-    was trained). Runs on the CPU; deterministic actions.
+    package for the track's vehicle class, ``agents/models/ppo_default.zip`` for the ORCA car
+    and ``ppo_fullsize_monza.zip`` at full size, chosen at :meth:`reset`; their model cards,
+    the same names with ``.md``, say how they were trained). Runs on the CPU; deterministic
+    actions.
 
     ``checkpoint``: path of a checkpoint written by ``alpha-racer selfplay`` (files
     ``checkpoints/*.zip``, ``final/car_K.zip``, ``best.zip`` of its output folder) or by
@@ -311,6 +317,7 @@ class PPOAgent(FrozenPolicy):
     ):
         path = Path(checkpoint) if checkpoint else default_checkpoint()
         self.checkpoint = path
+        self._shipped = not checkpoint  # the class's shipped policy, chosen at reset
         self.vecnormalize = None
         if path.is_file() and is_sb3_zip(path) and not _has_meta(path):
             if vecnormalize is None:
@@ -364,6 +371,9 @@ class PPOAgent(FrozenPolicy):
 
         track = make_track(track)
         cls = track_class(track)
+        if self._shipped and cls != self.vehicle_class and cls in CLASS_CHECKPOINTS:
+            self.__init__(str(default_checkpoint(cls)))  # type: ignore[misc]
+            self._shipped = True
         if cls != self.vehicle_class:
             raise ValueError(
                 f"PPO checkpoint {str(self.checkpoint)!r} was trained for the "

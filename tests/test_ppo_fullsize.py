@@ -297,3 +297,23 @@ def test_orca_behaviour_cloning_is_as_before():
     fit = behaviour_cloning(model, cfg, cfg.seed, rc, RACELINE_GRIP)
     assert fit["mse"] == pytest.approx(0.4678463041782379, rel=1e-6)
     assert venv.obs_rms.mean[0] == pytest.approx(3.9897859774063917, rel=1e-6)
+
+
+def test_the_shipped_ppo_is_the_tracks_class_policy():
+    """``ppo`` without a checkpoint races the shipped policy of the track's class: the ORCA
+    car's on a 1:43 track, the full-size one on a full-size circuit (each with its card)."""
+    from agents import make_agent_spec
+    from agents.ppo_agent import CLASS_CHECKPOINTS, default_checkpoint
+    from racing_env import make_track
+
+    for cls, name in CLASS_CHECKPOINTS.items():
+        assert default_checkpoint(cls).is_file()
+        assert default_checkpoint(cls).with_suffix(".md").is_file(), name
+    orca, full = make_agent_spec("ppo"), make_agent_spec("ppo")
+    orca.reset(make_track("default"), "car_0", 0)
+    full.reset(make_track("tumftm:Monza", vehicle_class="fullsize"), "car_0", 0)
+    assert orca.vehicle_class == "orca" and orca.checkpoint == default_checkpoint("orca")
+    assert full.vehicle_class == "fullsize" and full.checkpoint == default_checkpoint("fullsize")
+    named = make_agent_spec(f"ppo:checkpoint={default_checkpoint('orca')}")
+    with pytest.raises(ValueError, match="trained for the 'orca' vehicle class"):
+        named.reset(make_track("tumftm:Monza", vehicle_class="fullsize"), "car_0", 0)

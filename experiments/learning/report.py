@@ -147,8 +147,11 @@ def command_line(cfg: SelfPlayConfig, out: str) -> str:
     return " ".join(parts)
 
 
-def model_card(cfg: SelfPlayConfig, summary: dict, state: SelfPlayState) -> str:
-    """Markdown description of the run's ``best.zip``: command, schedule, time, figures."""
+def model_card(
+    cfg: SelfPlayConfig, summary: dict, state: SelfPlayState, out: str = "runs/ppo_default"
+) -> str:
+    """Markdown description of the run's ``best.zip``: command (with ``--out out``), schedule,
+    time, figures."""
     b, ref = summary["best"], summary["mpc_reference"]
     lines = [
         f"# PPO self-play checkpoint (car {b['car']} of a {cfg.n_cars}-car run)",
@@ -156,7 +159,7 @@ def model_card(cfg: SelfPlayConfig, summary: dict, state: SelfPlayState) -> str:
         "Trained by",
         "",
         "```bash",
-        command_line(cfg, "runs/ppo_default")
+        command_line(cfg, str(out))
         + ("" if summary["done"] else f" --max-turns {summary['turns']}"),
         "```",
         "",
@@ -263,5 +266,5 @@ def finish(cfg: SelfPlayConfig, out: Path, state: SelfPlayState) -> dict:
     state.save(out / "state.json")
     write_json(out / "summary.json", summary)
     if summary["best"] is not None:
-        write_text(out / "MODEL_CARD.md", model_card(cfg, summary, state))
+        write_text(out / "MODEL_CARD.md", model_card(cfg, summary, state, out))
     return summary
