@@ -48,6 +48,19 @@ def test_manifests_record_version_commit_and_model_hashes(tmp_path, checkpoint):
     assert {p.name for p in auto} == {SHIPPED["default"], SHIPPED["general"]}
 
 
+def test_a_model_of_a_space_without_shipped_models_is_recorded(tmp_path):
+    """An alpha agent racing its own model of the wake space (which ships no model for
+    ``model=auto``) records that file, instead of failing to list the space's auto models."""
+    from types import SimpleNamespace
+
+    model = tmp_path / "model.npz"
+    model.write_bytes(b"weights")
+    agent = SimpleNamespace(model_name=str(model), space="wake")
+    assert artifacts.agent_model_files(f"alpha:model={model}", agent) == [model]
+    auto = SimpleNamespace(model_name="auto", space="wake")
+    assert artifacts.agent_model_files("alpha", auto) == []
+
+
 def _bench_config(checkpoint):
     return BenchConfig(ego=f"ppo:checkpoint={checkpoint}", opponents="raceline", races=3, steps=5)
 

@@ -160,8 +160,11 @@ def agent_model_files(spec: str, agent=None) -> list[Path]:
         from agents.alpha_agent import AUTO_MODELS
         from agents.potential import MODEL_DIR, SHIPPED
 
-        auto = [n for n in AUTO_MODELS[getattr(agent, "space", "paper")] if n is not None]
-        names = auto if name == "auto" else [name]
+        if name == "auto":  # a space without shipped models has none to list
+            space = getattr(agent, "space", "paper")
+            names = [n for n in AUTO_MODELS.get(space, ()) if n is not None]
+        else:
+            names = [name]
         files += [MODEL_DIR / SHIPPED[n] if n in SHIPPED else Path(n) for n in names]
     for item in filter(None, spec.partition(":")[2].split(",")):
         value = item.partition("=")[2].strip()
