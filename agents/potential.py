@@ -44,6 +44,10 @@ SHIPPED = {
     "extended_races400": "alpha_extended_races400.npz",
     "extended_general": "alpha_extended_general.npz",
     "fullsize_monza": "alpha_fullsize_monza.npz",
+    "fullsize_monza_gamma0.98": "alpha_fullsize_monza_gamma098.npz",
+    "fullsize_monza_gamma0.995": "alpha_fullsize_monza_gamma0995.npz",
+    "fullsize_monza_races400": "alpha_fullsize_monza_races400.npz",
+    "fullsize_monza_wake": "alpha_fullsize_monza_wake.npz",
 }
 #: How to make a shipped model that is missing (the general model is trained by the user).
 HOW_TO_TRAIN = {

@@ -329,3 +329,22 @@ def test_training_names_a_space_mismatch(extended_run, tmp_path):
         r"parameters\), the thetas have 6",
     ):
         train(bad, tmp_path / "b", cfg, progress_bar=False, log=lambda *a: None)
+
+
+def test_a_resumed_training_keeps_its_training_time(extended_run, tmp_path):
+    """Run again after both stages finished, ``train`` validates again but reports the
+    stages' time summed over its invocations, not the resume's own few seconds."""
+    import shutil
+
+    from experiments.cli import main
+
+    out = tmp_path / "model"
+    shutil.copytree(extended_run / "model", out)
+    first = json.loads((out / "metrics.json").read_text())
+    stored = json.loads((out / "timing.json").read_text())["train_seconds"]
+    assert stored == first["train_seconds"] > 0
+    argv = ["train", "--data", str(extended_run / "data"), "--out", str(out)]
+    assert main(argv + TRAIN_ARGS) == 0
+    again = json.loads((out / "metrics.json").read_text())
+    assert again["train_seconds"] >= first["train_seconds"]
+    assert again["total_seconds"] >= again["train_seconds"]

@@ -30,7 +30,12 @@ opponents of Table 1 in that space, `alpha-racer bench --paper-table --space ext
 `extended_general`, the extended space's track-general model (a family of tracks with 2 to 6
 cars, close starts and paces; `alpha:space=extended,model=extended_general`); and
 `fullsize_monza`, the full-size class's model (full-size cars with the wake on Monza at full
-scale, 3 cars, the extended space; `alpha:model=fullsize_monza`, refused on a 1:43 track).
+scale, 3 cars, the extended space; `alpha:model=fullsize_monza`, refused on a 1:43 track),
+with its variants of the paper's kinds, `fullsize_monza_gamma0.98`,
+`fullsize_monza_gamma0.995` and `fullsize_monza_races400` (the learned opponents of Table 1
+in the full-size world, `alpha-racer bench --paper-table --vehicle-class fullsize`), and
+`fullsize_monza_wake`, the same class in the wake space (hold the tow, pull out, cover;
+races with faster and slower cars, `--pace spread`).
 `agents.potential.load_model(NAME)` loads one. The `alpha` agent's default,
 `model="auto"`, races `default` on the track and field it was trained for (`default`, 3
 cars) and `general` everywhere else; with `space=extended` it races `extended` (which

@@ -208,6 +208,10 @@ def numpy_model(value, potential, meta: dict) -> PotentialModel:
     )
 
 
+#: the training stages' seconds so far, in the output folder (a resumed run adds its own)
+TIMING_FILE = "timing.json"
+
+
 def save_model(model: PotentialModel, metrics: dict, out: Path, card_text, command: str) -> None:
     """Record ``metrics`` and ``command`` in the model and write ``model.npz``,
     ``metrics.json`` and ``model_card.md`` (``card_text(meta)``) into ``out``."""
@@ -478,6 +482,7 @@ class TrainingRun:
     command: str
     t_start: float
     train_seconds: float = 0.0
+    _fitted_at: float = 0.0  # the clock when fit() ended
 
     @classmethod
     def open(
@@ -519,7 +524,13 @@ class TrainingRun:
         out, torch, bar, log = self.out, self.torch, self.progress_bar, self.log
         value = train_value(value_data, self.cfg, out, torch, bar, log)
         potential = train_potential(deviations, self.cfg, value, out, torch, bar, log)
-        self.train_seconds = time.perf_counter() - self.t_start
+        # the stages' seconds summed over the invocations that ran them: a run resumed after
+        # both stages finished adds only its loading, not a new (short) training time
+        timing = out / TIMING_FILE
+        before = json.loads(timing.read_text())["train_seconds"] if timing.exists() else 0.0
+        self.train_seconds = before + time.perf_counter() - self.t_start
+        write_json(timing, {"train_seconds": self.train_seconds})
+        self._fitted_at = time.perf_counter()
         return value, potential
 
     def finish(self, value, potential, meta: dict, data: dict, gaps, rollouts, card_text) -> dict:
@@ -543,7 +554,8 @@ class TrainingRun:
         metrics = {"train_seconds": self.train_seconds, **value.metrics, **gaps(model)}
         if cfg.rollout_pairs:
             metrics.update(rollouts(model, metrics["value_range"]))
-        metrics["total_seconds"] = time.perf_counter() - self.t_start
+        # training (over every invocation) plus this invocation's validation
+        metrics["total_seconds"] = self.train_seconds + time.perf_counter() - self._fitted_at
         save_model(model, metrics, self.out, card_text, self.command)
         self.log(summary_text(metrics))
         return metrics
