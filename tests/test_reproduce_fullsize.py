@@ -34,10 +34,11 @@ def test_the_ego_is_the_spaces_shipped_model_or_the_named_one():
 def test_reproduce_fullsize_tiny_writes_suite_room_and_ladder(tmp_path, capsys):
     """End to end, tiny, on Monza (the control from the shipped best-theta table): the
     strategy suite of the full-size alpha against the class's best fixed theta, the room of
-    its equal and defend races and the ladder, joined in README.md; every margin finite."""
+    its equal and defend races, the ladder and Table 1 of the class with alpha and with the
+    control as ego, joined in README.md; every margin finite."""
     out = tmp_path / "fs"
     tiny = ["--strategy-races", "1", "--strategy-steps", "8", "--room-races", "1"]
-    tiny += ["--ladder-races", "1", "--fullsize-tracks", "tumftm:Monza"]
+    tiny += ["--ladder-races", "1", "--fullsize-tracks", "tumftm:Monza", "--races", "1"]
     argv = ["reproduce", "--vehicle-class", "fullsize", "--space", "extended", "--out", str(out)]
     assert main([*argv, *tiny, "--workers", "1"]) == 0
     strat = json.loads((out / "strategy" / "strategy.json").read_text())
@@ -54,5 +55,11 @@ def test_reproduce_fullsize_tiny_writes_suite_room_and_ladder(tmp_path, capsys):
     assert ladder["config"]["egos"] == [cfg["ego"], cfg["control"]]
     text = (out / "README.md").read_text()
     assert "# Strategy benchmark" in text and "# The room" in text and "# Pass ladder" in text
-    assert "Table 1 for the full-size class" in text
+    assert "the paper's Table 1" in text and "what maximising the potential adds" in text
+    table1 = json.loads((out / "paper_table" / "paper_table.json").read_text())
+    control = json.loads((out / "paper_table_control" / "paper_table.json").read_text())
+    assert table1["vehicle_class"] == control["vehicle_class"] == "fullsize"
+    assert table1["ego"] == cfg["ego"] and control["ego"] == cfg["control"]
+    assert table1["cases"]["I"]["opponents"] == "alpha:model=fullsize_monza_gamma0.98"
+    assert table1["cases"]["V"]["opponents"] == "ppo"
     assert not (out / "control").exists()  # Monza's control came from the table

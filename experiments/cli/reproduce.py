@@ -78,10 +78,15 @@ def _reproduce_strategy(args, ego: str, control: str, track: str, out: Path, poo
 #: unset): at full size 60 s races (a 20 s race ends before Monza's first braking zone) and
 #: fewer of them (a full-size race costs about 14 s of a core against the 1:43 car's 1 s)
 STRATEGY_DEFAULTS = {"orca": (99, 200), "fullsize": (24, 600)}
+#: Table 1's races per case per vehicle class (``--races`` unset)
+TABLE1_RACES = {"orca": 99, "fullsize": 24}
 
 
 def _class_defaults(args) -> None:
-    """Fill the unset ``--strategy-races`` and ``--strategy-steps`` with the class's."""
+    """Fill the unset ``--races``, ``--strategy-races`` and ``--strategy-steps`` with the
+    class's."""
+    if args.races is None:
+        args.races = TABLE1_RACES[args.vehicle_class]
     races, steps = STRATEGY_DEFAULTS[args.vehicle_class]
     if args.strategy_races is None:
         args.strategy_races = races
@@ -226,7 +231,12 @@ def add_reproduce(command) -> None:
             + f", {FULLSIZE_OUT.format(space='SPACE')} for --vehicle-class fullsize)",
             {"default": None},
         ),
-        ("--races", "races per paper case", {"default": 99}),
+        (
+            "--races",
+            "races per paper case (default: 99; 24 with --vehicle-class fullsize, 0 skips "
+            "its Table 1)",
+            {"type": int, "default": None},
+        ),
         ("--steps", "steps per race (and per analysis race)", {"default": 500}),
         (
             "--control-ego",

@@ -8,11 +8,11 @@ into one folder. Each step is resumable (run the command again after a kill):
    control on the trained circuit and on circuits no model was trained on (``OUT/strategy``);
 3. the room (:mod:`experiments.evaluation.room`): the rollout oracle in the seats of the
    suite's ``equal`` and ``defend`` races (``OUT/strategy/room/...``);
-4. the pass ladder of alpha and the control on the trained circuit (``OUT/ladder``).
-
-The paper's Table 1 for the class needs the class's Table-1 opponents (potentials of other
-discount factors, ``ibr`` and ``ppo`` trained for the class); until they ship, the
-``README.md`` says so instead of a table.
+4. the pass ladder of alpha and the control on the trained circuit (``OUT/ladder``);
+5. the paper's Table 1 in the class's world (``bench --paper-table --vehicle-class
+   fullsize``: cases I-III the shipped variants of the class's model, IV ``ibr``, V the
+   class's ``ppo``) on the trained circuit with alpha as ego (``OUT/paper_table``) and the
+   same races with the control as ego (``OUT/paper_table_control``), and their comparison.
 """
 
 from __future__ import annotations
@@ -26,13 +26,6 @@ FULLSIZE_MODELS = {"extended": "fullsize_monza"}
 FULLSIZE_SCENARIOS = ("pass", "equal", "defend")
 FULLSIZE_OUT = "results/fullsize_{space}"
 """The default output folder (``{space}``: the policy space)."""
-
-TABLE1_NOTE = (
-    "## Table 1 for the full-size class\n\n"
-    "Not reproduced: the paper's five cases need the class's opponents (potentials trained "
-    "with gamma 0.98 and 0.995 and on 400 races, `ibr` and a `ppo` trained for the class), "
-    "which are not shipped yet.\n"
-)
 
 
 def fullsize_ego(space: str, model: str | None) -> str:
@@ -118,7 +111,35 @@ def reproduce_fullsize(args, pool) -> Path:
             pool,
         )
         parts.append(out / "ladder" / "ladder.md")
-    text = "\n".join([*(p.read_text() for p in parts), TABLE1_NOTE])
+    if args.races:
+        parts += _table1(args, ego, control, tracks[0], out, pool)
+    text = "\n".join(p.read_text() for p in parts)
     readme = out / "README.md"
     readme.write_text(text)
     return readme
+
+
+def _table1(args, ego: str, control: str, track: str, out: Path, pool) -> list[Path]:
+    """Step 5: Table 1 of the class with ``ego`` and with ``control`` as ego (``--races``
+    per case, ``--strategy-steps`` steps), and the comparison; returns their Markdown files."""
+    import json
+
+    from experiments.evaluation.paper_table import comparison_markdown, paper_table
+    from experiments.infra.artifacts import write_text
+
+    dirs = {"alpha": out / "paper_table", "best fixed": out / "paper_table_control"}
+    for label, who in (("alpha", ego), ("best fixed", control)):
+        paper_table(
+            dirs[label],
+            ego=who,
+            races=args.races,
+            steps=args.strategy_steps,
+            track=track,
+            pool=pool,
+            vehicle_class="fullsize",
+            wake=args.wake,
+        )
+    tables = {k: json.loads((d / "paper_table.json").read_text()) for k, d in dirs.items()}
+    note = f"The control is the class's best fixed theta on `{track}` (`{control}`)."
+    comparison = write_text(out / "comparison.md", comparison_markdown(tables, note))
+    return [dirs["alpha"] / "paper_table.md", comparison]
