@@ -152,7 +152,7 @@ class _Decision:
             self.N[c] = plan.X[1]
 
 
-def ibr_class_weights(cfg: IBRConfig, vehicle) -> dict[str, Any]:
+def ibr_class_weights(cfg: IBRConfig, vehicle: object) -> dict[str, Any]:
     """The IBR's weights and tolerances of :class:`IBRConfig`, given for the ORCA car, in
     ``vehicle``'s class (its lengths already scaled, :data:`~agents.mpc.config.CLASS_SCALED_FIELDS`):
     positions and position changes measured in car lengths and widths, speeds in shares of

@@ -404,7 +404,8 @@ def test_shipped_models_load_and_race():
         else:
             assert not m.general and m.n_cars == 3
         extended = name.startswith(("extended", "fullsize"))
-        assert m.space.name == ("extended" if extended else "paper")
+        space = "wake" if name.endswith("_wake") else "extended" if extended else "paper"
+        assert m.space.name == space
         full = name.startswith("fullsize")
         assert m.vehicle_class == ("fullsize" if full else "orca")
         assert m.zeta_ceiling == (1.0 if full else None)

@@ -174,8 +174,12 @@ def test_alpha_refuses_other_class(monza):
 
 
 def test_ppo_refuses_other_class(monza):
+    """A named checkpoint of one class refuses a track of the other (``ppo`` without one
+    races the track's class's shipped policy instead: tests/test_ppo_fullsize.py)."""
     pytest.importorskip("stable_baselines3")
-    agent = make_agent_spec("ppo")
+    from agents.ppo_agent import default_checkpoint
+
+    agent = make_agent_spec(f"ppo:checkpoint={default_checkpoint('orca')}")
     assert agent.vehicle_class == "orca"
     with pytest.raises(ValueError, match=r"'orca' vehicle class; track 'Monza' is sized for"):
         agent.reset(monza, "car_0", 0)
