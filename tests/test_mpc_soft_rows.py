@@ -122,3 +122,36 @@ def test_ipopt_solves_the_full_size_mpcs_problem():
     j_rti, j_ipopt = merit(U_rti), merit(ipopt.last_U)
     assert j_ipopt <= j_rti * (1.0 + 1e-3)
     assert ipopt.last_cost == pytest.approx(j_ipopt, rel=0.02)
+
+
+def test_a_blown_up_qp_goes_to_daqps_own_weighting_not_to_an_abort():
+    """A full-size QP from a blown-up linearisation (soft rows of norm 1.9e10, slip rows near
+    rest; recorded from the race that aborted, Monza, seed 77 of the defend bench) scales the
+    exact soft rows' rho to 8e-23, where DAQP broke its heap and the process aborted. The
+    MPC hands such a QP to DAQP's own weighting: in a fresh process, it returns a step or a
+    failure, and counts it."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from agents.mpc.qp import EXACT_RHO_FLOOR
+
+    path = Path(__file__).parent / "data" / "daqp_abort_qp.npz"
+    d = np.load(path)
+    args = [d[k] for k in ("H", "f", "A", "blo", "bhi", "sense")]
+    assert exact_soft_qp(*args, float(d["rho"]))[6] < EXACT_RHO_FLOOR
+    code = f"""
+import daqp, numpy as np
+from agents.mpc.solver import MPC
+d = np.load({str(path)!r})
+mpc = MPC.__new__(MPC)
+mpc._exact_soft, mpc.stats = True, {{"exact_failed": 0, "qp_iterations": 0}}
+mpc._soft_rho = lambda q: float(d["rho"])
+mpc.cfg = type("C", (), {{"qp_iter_limit": 300}})()
+du, flag = mpc._qp(daqp, *[d[k] for k in ("H", "f", "A", "blo", "bhi", "sense")], 5.0)
+assert mpc.stats["exact_failed"] == 1 and du.shape == (30,), (flag, mpc.stats)
+print("ok", flag)
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith("ok")

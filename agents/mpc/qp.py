@@ -245,6 +245,13 @@ def qp_arrays(G, s_pred, n_pred, u_vec, nlo, nhi, p):
     return H, f, rows[:r].copy(), blo, bhi, sense
 
 
+#: the smallest ``rho_soft`` of :func:`exact_soft_qp` handed to DAQP: it divides rho by the
+#: largest soft row's squared norm, and a blown-up linearisation (slip rows of norm 1e10
+#: near rest) gave 8e-23, where DAQP broke its heap and the process aborted ("free():
+#: invalid next size"); below the floor the MPC lets DAQP weigh the rows itself
+EXACT_RHO_FLOOR = 1e-15
+
+
 def exact_soft_qp(
     H: np.ndarray,
     f: np.ndarray,

@@ -29,6 +29,7 @@ from .prediction import (
     trajectory_functions,
 )
 from .qp import (
+    EXACT_RHO_FLOOR,
     EdgeBounds,
     ProblemConstants,
     exact_soft_qp,
@@ -338,22 +339,18 @@ class MPC:
         else DAQP weighs it by ``1 / |row|^2`` (the paper's MPC, as its races were stored)."""
         rho = self._soft_rho(q)
         nv = f.shape[0]
-        if self._exact_soft:
-            exact = exact_soft_qp(H, f, Acon, blo, bhi, sense, rho)
+        exact = exact_soft_qp(H, f, Acon, blo, bhi, sense, rho) if self._exact_soft else None
+        if exact is not None and exact[6] >= EXACT_RHO_FLOOR:
+            H2, f2, A2, lo2, hi2, sense2, rho2 = exact
             du, _, exitflag, info = daqp.solve(
-                *exact[:3],
-                exact[4],
-                exact[3],
-                exact[5],
-                rho_soft=exact[6],
-                iter_limit=self.cfg.qp_iter_limit,
+                H2, f2, A2, hi2, lo2, sense2, rho_soft=rho2, iter_limit=self.cfg.qp_iter_limit
             )
             self.stats["qp_iterations"] += int(info.get("iterations", 0))
             if exitflag >= 0:
                 return du[:nv], exitflag
-            # rows of very different norms (slip rows near rest) leave DAQP's tolerances
-            # too coarse for the scaled rows: DAQP's own weighting instead
-            self.stats["exact_failed"] += 1
+        if exact is not None:  # rows of very different norms (slip rows near rest) leave
+            # DAQP's tolerances too coarse for the scaled rows, or rho below its floor
+            self.stats["exact_failed"] += 1  # DAQP's own weighting instead
         du, _, exitflag, info = daqp.solve(
             H, f, Acon, bhi, blo, sense, rho_soft=rho, iter_limit=self.cfg.qp_iter_limit
         )
