@@ -160,6 +160,8 @@ class IBR:
         if bound is None:
             bound = isinstance(self.vehicle, FullSizeParams)
         self._vmax = self._braking_limit() if bound else None  # (M + 1,) on the track's grid
+        # the grid's indices, built once (a decision looks the limit up a dozen times)
+        self._vmax_at = None if self._vmax is None else np.arange(len(self._vmax), dtype=float)
         # counters and the decision, best-response and round logs (deques) by name
         self.stats: dict[str, Any] = {
             "decisions": 0,
@@ -204,11 +206,11 @@ class IBR:
     def _speed_excess(self, plan: _Plan) -> np.ndarray:
         """``vx^k - vmax(s^k)`` (K,) of the plan's stages (positive: too fast to brake in
         time)."""
-        assert self._vmax is not None
+        assert self._vmax is not None and self._vmax_at is not None
         M = len(self._vmax) - 1
         L = float(self.track.length)
         x = np.mod(plan.X[0], L) * (M / L)
-        return plan.X[3] - np.interp(x, np.arange(M + 1), self._vmax)
+        return plan.X[3] - np.interp(x, self._vmax_at, self._vmax)
 
     # ------------------------------------------------------------------ plans
     def _evaluate(self, plan: _Plan) -> None:
