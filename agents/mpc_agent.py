@@ -225,11 +225,11 @@ class MPCAgent:
 
     def _pass_side(self) -> str | None:
         """The overtake shift's side rule for :func:`reference_trajectory`: ``"room"`` in the
-        extended space (the side the car is on, unless the car ahead leaves too little room
-        there; chosen again at every step: a side held while the same car stays ahead kept
-        the car on the side where the track closes, docs "The extended policy space"),
-        ``None`` (the paper's rule) in the paper's space."""
-        return "room" if self.space == "extended" else None
+        extended space and the wake space, which keeps it (the side the car is on, unless the
+        car ahead leaves too little room there; chosen again at every step: a side held while
+        the same car stays ahead kept the car on the side where the track closes, docs "The
+        extended policy space"), ``None`` (the paper's rule) in the paper's space."""
+        return "room" if self.space in ("extended", "wake") else None
 
     def _blend_line(self, theta: Theta) -> Raceline | None:
         """The lap-time race line that ``theta.b`` blends in (None while ``b`` is 0)."""
