@@ -120,3 +120,20 @@ def test_the_space_and_its_bounds():
         make_agent_spec("mpc:space=extended,h=5")
     agent = make_agent_spec("mpc:space=wake,b=1,h=5,p=30,c=0.5")
     assert agent.theta.h == 5.0 and agent.space == "wake"
+
+
+def test_a_wake_agent_keeps_the_extended_space_s_pass_side(monza):
+    """The agents, not only the reference: a wake MPC with ``h = p = c = 0`` aims its overtake
+    shift at the side the extended MPC chooses by room (the ego 5 m left near the edge, the car
+    ahead 3 m left: room says right), where the paper's rule keeps it left."""
+    track, _ = monza
+    ego, ahead = car(300.0, 5.0), car(308.0, 3.0, 55.0)
+    refs = {}
+    for space in ("paper", "extended", "wake"):
+        b = "" if space == "paper" else ",b=0"
+        agent = make_agent_spec(f"mpc:space={space},q=5,zeta=1.0,s1=0.3,s2=0.5,s3=0{b}")
+        agent.reset(track, "car_0", 0)
+        obs = np.concatenate([ego, ahead - ego, np.zeros(agent.n_preview)]).astype(np.float32)
+        refs[space] = agent._solve_args(obs)[2]  # n_ref [m]
+    assert np.array_equal(refs["wake"], refs["extended"])
+    assert refs["extended"][-1] < 0.0 < refs["paper"][-1]  # right by room, left by the paper
