@@ -23,9 +23,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .base import median_p99, register_agent
-from .mpc_agent import MPCAgent, split_observation
+from .best_theta import best_theta
+from .mpc_agent import BEST, MPCAgent, split_observation
 from .potential import PotentialModel, cached_model
 from .reference import Theta, policy_space
+from .theta import check_moves, moved_thetas
 
 if TYPE_CHECKING:
     from racing_env.track import Track
@@ -87,6 +89,17 @@ class AlphaAgent(MPCAgent):
     capped there (the others' thetas keep the full box): the best theta the potential finds
     under the ceiling, not the unconstrained one clipped afterwards.
 
+    ``anchor="best"`` (default ``None``: the paper's agent) restricts the ego's own theta to a
+    few candidates: the track's best fixed theta of ``anchor_space`` (the agent's space by
+    default; the extended space's for a wake model racing the extended control, its thetas
+    taken into the wake space with ``h = p = c = 0``) and its first ``moves`` one-parameter
+    moves (:data:`agents.theta.MOVES`, 4 by default: the rollout oracle's candidates of
+    ``alpha-racer room``). Every decision still maximises Phi over the joint theta (the
+    others' part is the agent's model of their play), then drives the candidate of largest
+    Phi against the others' maximising thetas (:meth:`PotentialModel.best_candidate`): the
+    potential's choice where the oracle chooses by rollouts. Each candidate's zeta is capped
+    at ``zeta_max`` and the model's ceiling, as the MPC drives it.
+
     ``space``: the policy space maximised over and driven in (``"paper"`` or ``"extended"``,
     :data:`agents.theta.SPACES`); by default the model's (:attr:`PotentialModel.space
     <agents.potential.PotentialModel.space>`), the paper's with ``model="auto"``. A model of
@@ -102,6 +115,10 @@ class AlphaAgent(MPCAgent):
     param_notes = {
         **MPCAgent.param_notes,
         "space": "policy space maximised over: 'paper' or 'extended'; default: the model's",
+        "anchor": "'best': choose the ego's theta among the track's best fixed theta and its "
+        "moves by the potential (default: over the whole box)",
+        "anchor_space": "policy space of the anchor's best fixed theta (default: the agent's)",
+        "moves": "one-parameter moves of the anchor among the candidates (0..8, default 4)",
     }
 
     def __init__(
@@ -112,6 +129,9 @@ class AlphaAgent(MPCAgent):
         cold_restarts: int = 32,
         cold_iterations: int = 12,
         space: str | None = None,
+        anchor: str | None = None,
+        anchor_space: str | None = None,
+        moves: int = 4,
         **mpc_kwargs,
     ):
         if mpc_kwargs.get("theta") is not None:
@@ -147,6 +167,18 @@ class AlphaAgent(MPCAgent):
         self.cold_restarts, self.cold_iterations = cold_restarts, cold_iterations
         self._theta_joint: np.ndarray | None = None
         self._max_ms: deque = deque(maxlen=100_000)
+        if anchor not in (None, BEST):
+            raise ValueError(f"anchor must be {BEST!r} or left out, got {anchor!r}")
+        self.anchor = anchor
+        self.anchor_space = policy_space(anchor_space or space).name
+        if policy_space(self.anchor_space).dim > policy_space(space).dim:
+            raise ValueError(
+                f"anchor_space={self.anchor_space!r} has more parameters than the agent's "
+                f"space {space!r}: its best theta cannot be driven there"
+            )
+        self.moves = check_moves(moves)
+        self._candidates: np.ndarray | None = None  # (M, dim) with an anchor, after reset
+        self.choices: list[int] = []  # the candidate driven at each decision (anchor only)
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         from racing_env.tracks import make_track
@@ -161,6 +193,19 @@ class AlphaAgent(MPCAgent):
         self._rng = np.random.default_rng(seed)
         self._theta_joint = None
         self.last_potential = float("nan")
+        self.choices = []
+        if self.anchor is not None:
+            base = best_theta(track, space=self.anchor_space)
+            self._candidates = np.array(
+                [t.as_array(self.space) for t in moved_thetas(base, self.moves)]
+            )
+
+    def check_track(self, track: Track) -> None:
+        """Also the anchor's best theta (``anchor="best"``): a track without one fails before
+        its races."""
+        super().check_track(track)
+        if self.anchor is not None:
+            best_theta(track, space=self.anchor_space)
 
     def _model(self) -> PotentialModel:
         """The potential model (with model="auto", once a race's first decision chose it)."""
@@ -252,6 +297,9 @@ class AlphaAgent(MPCAgent):
                 ),
             }
         )
+        if self._candidates is not None:  # share of the decisions that drove each candidate
+            counts = np.bincount(self.choices, minlength=len(self._candidates))
+            st["candidate_share"] = (counts / max(1, len(self.choices))).round(4).tolist()
         return st
 
     def _before_solve(self, observation: np.ndarray) -> None:
@@ -290,4 +338,12 @@ class AlphaAgent(MPCAgent):
         self._theta_joint = theta
         self.theta = Theta.from_array(np.clip(theta[0], box.low, box.high))
         self.last_potential = phi
+        if self._candidates is not None:
+            candidates = self._candidates.copy()
+            if high is not None:  # the zeta the MPC drives
+                candidates[:, 1] = np.minimum(candidates[:, 1], high[0, 1])
+            k, phis = model.best_candidate(joint, track, theta, candidates)
+            self.theta = Theta.from_array(candidates[k])
+            self.last_potential = float(phis[k])
+            self.choices.append(k)
         self._max_ms.append(1e3 * (time.perf_counter() - t0))

@@ -294,6 +294,31 @@ class PotentialModel:
                 lr *= decay
         return unscale_theta(best_z.reshape(N, d), sp), best_val
 
+    def best_candidate(
+        self, state: np.ndarray, track: Track, theta: np.ndarray, candidates: np.ndarray
+    ) -> tuple[int, np.ndarray]:
+        """The ego's (car 0's) best reply among ``candidates`` by the potential: Phi(x, .) of
+        the joint theta ``theta`` (N, dim) with car 0's row replaced by each candidate
+        (M, dim), the other cars' thetas held. Returns ``(index of the largest Phi, Phi (M,))``
+        (the first of equals). In an alpha-potential game a unilateral change of theta moves
+        Phi as it moves the ego's value, up to alpha, so this is the candidate the ego's value
+        prefers against the others' ``theta``."""
+        sp = self.space
+        theta = np.asarray(theta, dtype=float)
+        candidates = np.asarray(candidates, dtype=float)
+        N = np.shape(state)[0]
+        if theta.shape != (N, sp.dim) or candidates.ndim != 2 or candidates.shape[1] != sp.dim:
+            raise ValueError(
+                f"best_candidate takes a joint theta ({N}, {sp.dim}) and candidates (M, "
+                f"{sp.dim}) of the {sp.name!r} space, got {theta.shape} and {candidates.shape}"
+            )
+        _, slots, base = self._ascent_setup(state, track, 1, 0, None)
+        Z = np.repeat(scale_theta(theta, sp)[None], len(candidates), axis=0)
+        Z[:, 0] = scale_theta(candidates, sp)
+        with single_blas_thread():
+            phi = self.potential_net.restricted(base, slots.ravel())(Z.reshape(len(Z), -1))
+        return int(np.argmax(phi)), np.asarray(phi)
+
     def maximise_reference(
         self,
         state: np.ndarray,

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -35,6 +35,9 @@ __all__ = [
     "space_of",
     "space_of_dim",
     "theta_length_scales",
+    "MOVES",
+    "check_moves",
+    "moved_thetas",
 ]
 
 # ====================================================================== theta
@@ -313,3 +316,29 @@ def _class_factors(vehicle: object) -> tuple[float, float, float]:
     top = vehicle.top_speed  # type: ignore[attr-defined]
     top = top() if callable(top) else top
     return k_wid, 1.0 / (k_len * k_len), VehicleParams().top_speed / float(top)
+
+
+# ====================================================================== one-parameter moves
+#: One-parameter moves of a theta, in the order :func:`moved_thetas` adds them (each a face or
+#: a step of the box): no overtaking shift, tight tracking, 5% under the limit, blocking, a
+#: sharper shift decay, the paper's line alone, a small shift, loose tracking. The rollout
+#: oracle's candidates (:mod:`experiments.evaluation.oracle`) and the anchored alpha's
+#: (:class:`agents.alpha_agent.AlphaAgent`, ``moves``) are a theta and its first few moves.
+MOVES = ("s1=0", "q=500", "zeta=0.95", "s3=5", "s2=2", "b=0", "s1=0.1", "q=50")
+
+
+def check_moves(moves) -> int:
+    """``moves`` if it is a number of :data:`MOVES` (0..len(MOVES)), else a ValueError."""
+    if isinstance(moves, bool) or not (isinstance(moves, int) and 0 <= moves <= len(MOVES)):
+        raise ValueError(f"moves must be an integer in 0..{len(MOVES)}, got {moves!r}")
+    return moves
+
+
+def moved_thetas(theta: Theta, moves: int) -> list[Theta]:
+    """``theta`` and ``theta`` with one parameter moved, for the first ``moves`` of
+    :data:`MOVES` (nested: the list of ``moves = m`` is the start of that of ``m + 1``)."""
+    out = [theta]
+    for move in MOVES[: check_moves(moves)]:
+        key, _, value = move.partition("=")
+        out.append(replace(theta, **{key: float(value)}))
+    return out

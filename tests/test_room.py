@@ -64,6 +64,38 @@ def test_a_killed_run_resumes_and_a_choice_is_recorded(suite):
     assert (folder / "room.md").read_text().startswith("# The room")
 
 
+def test_the_control_s_oracle_races_serve_another_ego_s_suite(suite, tmp_path):
+    """The oracle from the control races the control's seats: a suite of another ego with the
+    same control and seats reuses them (no new race), and a manifest that stored the old
+    suite's ego (made before they were shared) is read as the same run."""
+    import shutil
+
+    config = RoomConfig(moves=0, benches=("equal",))
+    room(suite, config, Pool(workers=1, progress_bar=False))
+    other = tmp_path / "other"
+    strategy(
+        StrategyConfig(
+            ego="mpc:q=50,zeta=0.9,s1=0.0,s2=4,s3=1",
+            control=CONTROL,
+            tracks=("default",),
+            scenarios=("equal",),
+            races=2,
+            steps=40,
+        ),
+        other,
+        Pool(workers=1, progress_bar=False),
+    )
+    shutil.copytree(suite / "room", other / "room")
+    manifest = other / "room" / config.folder_name() / "manifest.json"
+    meta = json.loads(manifest.read_text())
+    assert "ego" not in meta["suite"]
+    meta["suite"]["ego"] = EGO  # as a folder made before the sharing stored it
+    manifest.write_text(json.dumps(meta))
+    t = room(other, config, Pool(workers=1, progress_bar=False))
+    assert t["new_races"] == 0 and t["rows"][0]["races"] == 2
+    assert "ego" not in json.loads(manifest.read_text())["suite"]
+
+
 def test_candidates_move_one_parameter_each():
     cands = candidate_moves("mpc:space=extended,q=5,zeta=1.0,s1=0.3,s2=0.5,s3=0,b=1", 3)
     assert cands[1:] == [

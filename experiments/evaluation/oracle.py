@@ -24,21 +24,9 @@ import numpy as np
 from agents import make_agent_spec
 from agents.base import spec_with
 from agents.mpc_agent import MPCAgent
+from agents.theta import MOVES, check_moves
 from experiments.evaluation.race import start_race
 from racing_env import RacingParallelEnv
-
-#: One-parameter moves of a candidate theta, in the order :func:`candidate_moves` adds them
-#: (each a face or a step of the box): no overtaking shift, tight tracking, 5% under the
-#: limit, blocking, a sharper shift decay, the paper's line alone, a small shift, loose
-#: tracking. The first four are the room's first measurement's (docs/room.md).
-MOVES = ("s1=0", "q=500", "zeta=0.95", "s3=5", "s2=2", "b=0", "s1=0.1", "q=50")
-
-
-def check_moves(moves) -> int:
-    """``moves`` if it is a number of :data:`MOVES` (0..len(MOVES)), else a ValueError."""
-    if isinstance(moves, bool) or not (isinstance(moves, int) and 0 <= moves <= len(MOVES)):
-        raise ValueError(f"moves must be an integer in 0..{len(MOVES)}, got {moves!r}")
-    return moves
 
 
 def candidate_moves(spec: str, moves: int = 4) -> list[str]:

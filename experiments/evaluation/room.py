@@ -16,6 +16,11 @@ race: the oracle's progress, winner and choices) and ``room.md`` / ``room.json``
 and track, the wins from each start region and mean margin of the oracle, the suite's ego and
 its control in the same races, the room (the oracle's margin minus the base's, race by race)
 and the share of it the other agent takes (its margin minus the base's over the room).
+
+The oracle's races from the control (``base="control"``) depend on the control and the seats
+alone, not on the suite's ego: a suite of another ego with the same control and settings
+shares them (copy ``SUITE/room`` into its folder; its manifest does not name the ego), so a
+new ego's share of the room costs no oracle race.
 """
 
 from __future__ import annotations
@@ -183,7 +188,20 @@ class RoomRun(ResumableRun):
         super().__init__(Path(suite) / "room" / room.folder_name(), room)
         self.suite_config = config
         self.races = suite_races(suite, config, room)
-        self.claim({"room": asdict(room), "suite": config.to_dict()})
+        stored = config.to_dict()
+        if room.base == "control":  # the control's seats and opponents: any ego's suite
+            stored.pop("ego")  # of the same control shares these races
+            self._forget_ego()
+        self.claim({"room": asdict(room), "suite": stored})
+
+    def _forget_ego(self) -> None:
+        """A folder made before the oracle's races from the control were shared stored the
+        suite's ego too: drop it from its manifest (those races never depended on it)."""
+        path = self.manifest_path
+        if path.exists():
+            meta = json.loads(path.read_text())
+            if meta.get("suite", {}).pop("ego", None) is not None:
+                write_json(path, meta)
 
     def tasks(self) -> list[tuple]:
         return [

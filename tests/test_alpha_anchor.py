@@ -1,0 +1,103 @@
+"""The anchored alpha (issue 48, the room): ``alpha:anchor=best`` drives, at every decision,
+the candidate among the track's best fixed theta and its one-parameter moves that the
+potential ranks highest against the others' maximising thetas; the candidates are the rollout
+oracle's, so the two choose from the same set by different criteria."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agents import make_agent_spec
+from agents.best_theta import best_theta
+from agents.potential import cached_model
+from agents.theta import MOVES, Theta, moved_thetas
+from racing_env.tracks import make_track
+
+MODEL = "fullsize_monza"  # shipped, extended space, 3 cars
+
+
+@pytest.fixture(scope="module")
+def monza():
+    return make_track("tumftm:Monza", vehicle_class="fullsize")
+
+
+def _joint(rng, track):
+    """A 3-car full-size state near the start: (3, 6)."""
+    x = np.zeros((3, 6))
+    x[:, 0] = 200.0 + rng.uniform(0.0, 60.0, 3)
+    x[:, 1] = rng.uniform(-3.0, 3.0, 3)
+    x[:, 3] = rng.uniform(40.0, 70.0, 3)
+    return x
+
+
+def test_moved_thetas_are_nested_one_parameter_moves():
+    base = Theta(q=5.0, zeta=0.99, s1=0.3, s2=5.0, s3=2.0, b=0.8)
+    moved = moved_thetas(base, len(MOVES))
+    assert moved[0] == base and moved_thetas(base, 3) == moved[:4]
+    for theta, move in zip(moved[1:], MOVES):
+        key, _, value = move.partition("=")
+        changed = [
+            k for k in ("q", "zeta", "s1", "s2", "s3", "b") if getattr(theta, k) != getattr(base, k)
+        ]
+        assert getattr(theta, key) == float(value) and changed in ([key], [])
+    with pytest.raises(ValueError, match="moves must be an integer in 0..8, got 9"):
+        moved_thetas(base, 9)
+
+
+def test_best_candidate_is_the_argmax_of_the_full_potential(monza):
+    """The restricted network's ranking is the full network's: Phi of the joint theta with
+    car 0's row set to each candidate, from the features built from scratch."""
+    model = cached_model(MODEL)
+    rng = np.random.default_rng(3)
+    sp = model.space
+    for _ in range(5):
+        x = _joint(rng, monza)
+        joint = rng.uniform(sp.low, sp.high, (3, sp.dim))
+        cands = rng.uniform(sp.low, sp.high, (6, sp.dim))
+        k, phi = model.best_candidate(x, monza, joint, cands)
+        full = []
+        for c in cands:
+            th = joint.copy()
+            th[0] = c
+            full.append(float(model.potential(x[None], th[None], monza)[0]))
+        assert np.allclose(phi, full, rtol=1e-5, atol=1e-5)  # float32 networks
+        assert k == int(np.argmax(full))
+    with pytest.raises(ValueError, match=r"joint theta \(3, 6\) and candidates \(M, 6\)"):
+        model.best_candidate(x, monza, joint[:, :5], cands)
+
+
+def test_the_anchored_agent_drives_only_its_candidates(monza):
+    agent = make_agent_spec(f"alpha:model={MODEL},anchor=best,moves=4,zeta_max=0.95")
+    agent.reset(monza, "car_0", 0)
+    base = best_theta(monza, space="extended")
+    cands = [t.as_array("extended") for t in moved_thetas(base, 4)]
+    rng = np.random.default_rng(0)
+    x = _joint(rng, monza)
+    for _ in range(4):
+        obs = np.concatenate([x[0], (x[1:] - x[0]).ravel(), np.zeros(agent.n_preview)])
+        u = agent.act(obs.astype(np.float32))
+        assert np.all(np.isfinite(u))
+        driven = agent.theta.as_array("extended")
+        match = [np.array_equal(driven[[0, 2, 3, 4, 5]], c[[0, 2, 3, 4, 5]]) for c in cands]
+        assert any(match)
+        assert driven[1] == min(cands[match.index(True)][1], 0.95)  # zeta capped as driven
+        x[:, 0] += 5.0
+    share = agent.stats["candidate_share"]
+    assert len(share) == 5 and abs(sum(share) - 1.0) < 1e-3 and len(agent.choices) == 4
+
+
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ("alpha:model=fullsize_monza,anchor=worst", "anchor must be 'best' or left out"),
+        ("alpha:model=fullsize_monza,anchor=best,moves=12", "moves must be an integer in 0..8"),
+        (
+            "alpha:model=fullsize_monza,anchor=best,anchor_space=wake",
+            "anchor_space='wake' has more parameters than the agent's space 'extended'",
+        ),
+    ],
+)
+def test_bad_anchors_are_named(spec, message):
+    with pytest.raises(ValueError, match=message):
+        make_agent_spec(spec)
