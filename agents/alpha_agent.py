@@ -42,6 +42,9 @@ and the fixed theta at the limit (docs: the alpha-potential page); ``model=exten
 races it."""
 
 
+#: How an anchored alpha takes the others' thetas: the joint maximiser's, or the anchor's.
+OTHERS = ("maximise", "anchor")
+
 #: The shipped model of a vehicle class other than the paper's (named when ``alpha`` is
 #: asked to race a model of another class there).
 CLASS_MODELS = {"fullsize": "fullsize_monza"}
@@ -98,7 +101,10 @@ class AlphaAgent(MPCAgent):
     others' part is the agent's model of their play), then drives the candidate of largest
     Phi against the others' maximising thetas (:meth:`PotentialModel.best_candidate`): the
     potential's choice where the oracle chooses by rollouts. Each candidate's zeta is capped
-    at ``zeta_max`` and the model's ceiling, as the MPC drives it.
+    at ``zeta_max`` and the model's ceiling, as the MPC drives it. With ``others="anchor"``
+    the others' thetas are taken to be the anchor's instead of the maximiser's (what the
+    oracle knows when the opponents race the best fixed theta: a diagnostic of the agent's
+    model of their play, not the paper's agent).
 
     ``space``: the policy space maximised over and driven in (``"paper"`` or ``"extended"``,
     :data:`agents.theta.SPACES`); by default the model's (:attr:`PotentialModel.space
@@ -119,6 +125,8 @@ class AlphaAgent(MPCAgent):
         "moves by the potential (default: over the whole box)",
         "anchor_space": "policy space of the anchor's best fixed theta (default: the agent's)",
         "moves": "one-parameter moves of the anchor among the candidates (0..8, default 4)",
+        "others": "with an anchor, the others' thetas: 'maximise' (the maximiser's, default) "
+        "or 'anchor' (the anchor's)",
     }
 
     def __init__(
@@ -132,6 +140,7 @@ class AlphaAgent(MPCAgent):
         anchor: str | None = None,
         anchor_space: str | None = None,
         moves: int = 4,
+        others: str = "maximise",
         **mpc_kwargs,
     ):
         if mpc_kwargs.get("theta") is not None:
@@ -177,6 +186,9 @@ class AlphaAgent(MPCAgent):
                 f"space {space!r}: its best theta cannot be driven there"
             )
         self.moves = check_moves(moves)
+        if others not in OTHERS:
+            raise ValueError(f"others must be one of {OTHERS}, got {others!r}")
+        self.others = others
         self._candidates: np.ndarray | None = None  # (M, dim) with an anchor, after reset
         self.choices: list[int] = []  # the candidate driven at each decision (anchor only)
 
@@ -342,7 +354,10 @@ class AlphaAgent(MPCAgent):
             candidates = self._candidates.copy()
             if high is not None:  # the zeta the MPC drives
                 candidates[:, 1] = np.minimum(candidates[:, 1], high[0, 1])
-            k, phis = model.best_candidate(joint, track, theta, candidates)
+            held = theta
+            if self.others == "anchor":
+                held = np.tile(self._candidates[0], (len(joint), 1))
+            k, phis = model.best_candidate(joint, track, held, candidates)
             self.theta = Theta.from_array(candidates[k])
             self.last_potential = float(phis[k])
             self.choices.append(k)

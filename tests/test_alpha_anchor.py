@@ -87,9 +87,32 @@ def test_the_anchored_agent_drives_only_its_candidates(monza):
     assert len(share) == 5 and abs(sum(share) - 1.0) < 1e-3 and len(agent.choices) == 4
 
 
+def test_with_others_anchor_the_others_race_the_anchor(monza):
+    """``others="anchor"``: the candidate driven is the potential's best reply to the others
+    racing the anchor's theta (not the maximiser's thetas)."""
+    from agents.alpha_agent import split_observation
+
+    agent = make_agent_spec(f"alpha:model={MODEL},anchor=best,others=anchor")
+    agent.reset(monza, "car_0", 0)
+    model = cached_model(MODEL)
+    cands = np.array(
+        [t.as_array("extended") for t in moved_thetas(best_theta(monza, space="extended"), 4)]
+    )
+    cands[:, 1] = np.minimum(cands[:, 1], model.zeta_ceiling or np.inf)
+    x = _joint(np.random.default_rng(1), monza)
+    obs = np.concatenate([x[0], (x[1:] - x[0]).ravel(), np.zeros(agent.n_preview)])
+    agent.act(obs.astype(np.float32))
+    ego, others = split_observation(obs.astype(np.float32), agent.n_preview)
+    joint = np.vstack([ego[None], others])
+    k, _ = model.best_candidate(joint, monza, np.tile(cands[0], (3, 1)), cands)
+    assert agent.choices == [k]
+    assert np.array_equal(agent.theta.as_array("extended"), cands[k])
+
+
 @pytest.mark.parametrize(
     "spec, message",
     [
+        ("alpha:model=fullsize_monza,anchor=best,others=known", "others must be one of"),
         ("alpha:model=fullsize_monza,anchor=worst", "anchor must be 'best' or left out"),
         ("alpha:model=fullsize_monza,anchor=best,moves=12", "moves must be an integer in 0..8"),
         (
