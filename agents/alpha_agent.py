@@ -42,8 +42,9 @@ and the fixed theta at the limit (docs: the alpha-potential page); ``model=exten
 races it."""
 
 
-#: How an anchored alpha takes the others' thetas: the joint maximiser's, or the anchor's.
-OTHERS = ("maximise", "anchor")
+#: How alpha takes the others' thetas: maximised over with its own (the paper's), or held at
+#: the track's best fixed theta.
+OTHERS = ("maximise", "best")
 
 #: The shipped model of a vehicle class other than the paper's (named when ``alpha`` is
 #: asked to race a model of another class there).
@@ -101,10 +102,13 @@ class AlphaAgent(MPCAgent):
     others' part is the agent's model of their play), then drives the candidate of largest
     Phi against the others' maximising thetas (:meth:`PotentialModel.best_candidate`): the
     potential's choice where the oracle chooses by rollouts. Each candidate's zeta is capped
-    at ``zeta_max`` and the model's ceiling, as the MPC drives it. With ``others="anchor"``
-    the others' thetas are taken to be the anchor's instead of the maximiser's (what the
-    oracle knows when the opponents race the best fixed theta: a diagnostic of the agent's
-    model of their play, not the paper's agent).
+    at ``zeta_max`` and the model's ceiling, as the MPC drives it.
+
+    ``others="best"`` (default ``"maximise"``: the paper's joint maximisation) holds the other
+    cars' thetas at the track's best fixed theta of ``anchor_space`` (the published control,
+    :mod:`agents.best_theta`) and maximises over the ego's alone: the potential's best reply
+    to opponents taken to race that theta (a level-1 reasoner, not the paper's agent). With
+    an anchor it is the candidates' ranking that is made against them.
 
     ``space``: the policy space maximised over and driven in (``"paper"`` or ``"extended"``,
     :data:`agents.theta.SPACES`); by default the model's (:attr:`PotentialModel.space
@@ -125,8 +129,8 @@ class AlphaAgent(MPCAgent):
         "moves by the potential (default: over the whole box)",
         "anchor_space": "policy space of the anchor's best fixed theta (default: the agent's)",
         "moves": "one-parameter moves of the anchor among the candidates (0..8, default 4)",
-        "others": "with an anchor, the others' thetas: 'maximise' (the maximiser's, default) "
-        "or 'anchor' (the anchor's)",
+        "others": "the others' thetas: 'maximise' (with the ego's, default) or 'best' (held at "
+        "the track's best fixed theta)",
     }
 
     def __init__(
@@ -190,6 +194,7 @@ class AlphaAgent(MPCAgent):
             raise ValueError(f"others must be one of {OTHERS}, got {others!r}")
         self.others = others
         self._candidates: np.ndarray | None = None  # (M, dim) with an anchor, after reset
+        self._best_others: np.ndarray | None = None  # (dim,) with others="best", after reset
         self.choices: list[int] = []  # the candidate driven at each decision (anchor only)
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
@@ -206,8 +211,10 @@ class AlphaAgent(MPCAgent):
         self._theta_joint = None
         self.last_potential = float("nan")
         self.choices = []
-        if self.anchor is not None:
+        if self.anchor is not None or self.others == "best":
             base = best_theta(track, space=self.anchor_space)
+            self._best_others = base.as_array(self.space)
+        if self.anchor is not None:
             self._candidates = np.array(
                 [t.as_array(self.space) for t in moved_thetas(base, self.moves)]
             )
@@ -338,6 +345,12 @@ class AlphaAgent(MPCAgent):
                 high[:, 1] = np.minimum(high[:, 1], model.zeta_ceiling)
             if self.zeta_max is not None:  # the ego's zeta ceiling
                 high[0, 1] = min(high[0, 1], self.zeta_max)
+        low = held = None
+        if self.others == "best":  # the others' rows pinned: low = high = their theta
+            high = np.tile(box.high, (len(joint), 1)) if high is None else high
+            held = np.minimum(self._best_others, high[1:])
+            low = np.tile(box.low, (len(joint), 1))
+            low[1:] = high[1:] = held
         theta, phi = model.maximise(
             joint,
             track,
@@ -346,7 +359,10 @@ class AlphaAgent(MPCAgent):
             restarts=self.cold_restarts if cold else self.restarts,
             iterations=self.cold_iterations if cold else self.iterations,
             high=high,
+            low=low,
         )
+        if held is not None:  # exactly, not through the ascent's scaling
+            theta[1:] = held
         self._theta_joint = theta
         self.theta = Theta.from_array(np.clip(theta[0], box.low, box.high))
         self.last_potential = phi
@@ -354,10 +370,7 @@ class AlphaAgent(MPCAgent):
             candidates = self._candidates.copy()
             if high is not None:  # the zeta the MPC drives
                 candidates[:, 1] = np.minimum(candidates[:, 1], high[0, 1])
-            held = theta
-            if self.others == "anchor":
-                held = np.tile(self._candidates[0], (len(joint), 1))
-            k, phis = model.best_candidate(joint, track, held, candidates)
+            k, phis = model.best_candidate(joint, track, theta, candidates)
             self.theta = Theta.from_array(candidates[k])
             self.last_potential = float(phis[k])
             self.choices.append(k)

@@ -199,6 +199,23 @@ class PotentialModel:
         )
         return rng or np.random.default_rng(0), slots, base
 
+    def _scaled_bound(self, name: str, bound, N: int, default: float):
+        """Per-car bounds ``bound`` (N, dim) within the box, scaled to [-1, 1] and flattened
+        car-major; ``default`` when None; a ValueError naming ``name`` otherwise."""
+        if bound is None:
+            return default
+        sp = self.space
+        d = sp.dim
+        bound = np.asarray(bound, dtype=float)
+        if bound.shape != (N, d) or not (np.all(bound >= sp.low) and np.all(bound <= sp.high)):
+            raise ValueError(
+                f"{name} must be (N, {d}) = ({N}, {d}) {'upper' if name == 'high' else 'lower'} "
+                f"bounds within the theta box of the {sp.name!r} policy space "
+                f"{sp.low.tolist()}..{sp.high.tolist()}, got "
+                f"{bound.tolist() if bound.size <= 40 else bound.shape}"
+            )
+        return scale_theta(bound, sp).ravel()
+
     def maximise(
         self,
         state: np.ndarray,
@@ -211,6 +228,7 @@ class PotentialModel:
         warm_step: float = 0.15,
         decay: float = 0.8,
         high: np.ndarray | None = None,
+        low: np.ndarray | None = None,
     ) -> tuple[np.ndarray, float]:
         """Projected gradient ascent (Adam steps) of Phi(x, .) over the joint theta within its
         bounds (the box of the model's policy space, :attr:`space`, of ``dim`` parameters:
@@ -219,7 +237,9 @@ class PotentialModel:
 
         ``high`` (N, dim), optional: per-car upper bounds within the box (e.g. a car's zeta
         ceiling); every start and iterate is projected onto the lowered box. Without it the
-        ascent is the same, bit for bit.
+        ascent is the same, bit for bit. ``low`` (N, dim), optional: per-car lower bounds the
+        same way; a car with ``low = high`` keeps that theta (its row is not maximised over:
+        the ego's best reply to thetas the others are taken to race).
 
         ``state`` (N, 6) joint state; ``theta0`` (N, dim) warm start (e.g. the last step's
         maximiser), else the box centre; the other ``restarts - 1`` starts are uniform random
@@ -251,23 +271,14 @@ class PotentialModel:
         d = sp.dim
         rng, slots, base = self._ascent_setup(state, track, restarts, iterations, rng)
         slots = slots.ravel()  # car-major columns
-        top: float | np.ndarray = 1.0
-        if high is not None:
-            high = np.asarray(high, dtype=float)
-            if high.shape != (N, d) or not (np.all(high >= sp.low) and np.all(high <= sp.high)):
-                raise ValueError(
-                    f"high must be (N, {d}) = ({N}, {d}) upper bounds within the "
-                    f"theta box of the {sp.name!r} policy space {sp.low.tolist()}.."
-                    f"{sp.high.tolist()}, got "
-                    f"{high.tolist() if high.size <= 40 else high.shape}"
-                )
-            top = scale_theta(high, sp).ravel()
+        top = self._scaled_bound("high", high, N, 1.0)
+        bottom = self._scaled_bound("low", low, N, -1.0)
         Z = np.empty((restarts, N * d))
         Z[0] = 0.0 if theta0 is None else scale_theta(theta0, sp).ravel()
         for k in range(1, restarts):  # the draws of maximise_reference
             Z[k] = rng.uniform(-1.0, 1.0, (N, d)).ravel()
-        if high is not None:
-            Z = np.minimum(Z, top)
+        if high is not None or low is not None:
+            Z = np.clip(Z, bottom, top)
         lr = np.full((restarts, 1), step)
         if theta0 is not None:
             lr[0] = warm_step
@@ -290,7 +301,7 @@ class PotentialModel:
                 v = 0.9 * v + 0.1 * g * g
                 m_hat = m / (1.0 - 0.2 ** (it + 1))
                 v_hat = v / (1.0 - 0.9 ** (it + 1))
-                Z = np.clip(Z + lr * m_hat / (np.sqrt(v_hat) + 1e-12), -1.0, top)
+                Z = np.clip(Z + lr * m_hat / (np.sqrt(v_hat) + 1e-12), bottom, top)
                 lr *= decay
         return unscale_theta(best_z.reshape(N, d), sp), best_val
 

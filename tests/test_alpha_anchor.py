@@ -87,12 +87,12 @@ def test_the_anchored_agent_drives_only_its_candidates(monza):
     assert len(share) == 5 and abs(sum(share) - 1.0) < 1e-3 and len(agent.choices) == 4
 
 
-def test_with_others_anchor_the_others_race_the_anchor(monza):
-    """``others="anchor"``: the candidate driven is the potential's best reply to the others
+def test_with_others_best_the_candidates_face_the_best_theta(monza):
+    """``others="best"``: the candidate driven is the potential's best reply to the others
     racing the anchor's theta (not the maximiser's thetas)."""
     from agents.alpha_agent import split_observation
 
-    agent = make_agent_spec(f"alpha:model={MODEL},anchor=best,others=anchor")
+    agent = make_agent_spec(f"alpha:model={MODEL},anchor=best,others=best")
     agent.reset(monza, "car_0", 0)
     model = cached_model(MODEL)
     cands = np.array(
@@ -107,6 +107,45 @@ def test_with_others_anchor_the_others_race_the_anchor(monza):
     k, _ = model.best_candidate(joint, monza, np.tile(cands[0], (3, 1)), cands)
     assert agent.choices == [k]
     assert np.array_equal(agent.theta.as_array("extended"), cands[k])
+
+
+def test_with_others_best_alone_only_the_ego_s_theta_is_maximised(monza):
+    """Without an anchor, ``others="best"`` maximises over the ego's theta alone: the others'
+    rows are the best fixed theta exactly, and the ego's Phi is at least that of a dense
+    search's best of 200 random thetas of its own (the ascent does not leave the others' rows
+    to find more)."""
+    model = cached_model(MODEL)
+    agent = make_agent_spec(f"alpha:model={MODEL},others=best")
+    agent.reset(monza, "car_0", 0)
+    best = best_theta(monza, space="extended").as_array("extended")
+    x = _joint(np.random.default_rng(2), monza)
+    obs = np.concatenate([x[0], (x[1:] - x[0]).ravel(), np.zeros(agent.n_preview)])
+    agent.act(obs.astype(np.float32))
+    joint = agent._theta_joint
+    assert np.array_equal(joint[1:], np.tile(best, (2, 1)))
+    ego_state = obs[:6].astype(float)
+    state = np.vstack([ego_state, (obs[6:18].reshape(2, 6) + ego_state)])
+    state[1:, 2] = np.angle(np.exp(1j * state[1:, 2]))
+    rng = np.random.default_rng(0)
+    sp = model.space
+    draws = rng.uniform(sp.low, sp.high, (200, sp.dim))
+    draws[:, 1] = np.minimum(draws[:, 1], model.zeta_ceiling or sp.high[1])
+    _, phis = model.best_candidate(state, monza, joint, draws)
+    assert agent.last_potential >= phis.max() - 1e-6
+
+
+def test_low_bounds_pin_rows_and_are_checked(monza):
+    model = cached_model(MODEL)
+    sp = model.space
+    x = _joint(np.random.default_rng(4), monza)
+    fixed = np.tile(sp.low + 0.3 * (sp.high - sp.low), (3, 1))
+    low, high = np.tile(sp.low, (3, 1)), np.tile(sp.high, (3, 1))
+    low[1:] = high[1:] = fixed[1:]
+    theta, _ = model.maximise(x, monza, None, high=high, low=low)
+    assert np.allclose(theta[1:], fixed[1:], rtol=0, atol=1e-9)
+    assert np.all(theta[0] >= sp.low) and np.all(theta[0] <= sp.high)
+    with pytest.raises(ValueError, match=r"low must be \(N, 6\) = \(3, 6\) lower bounds"):
+        model.maximise(x, monza, None, low=np.zeros((3, 6)))
 
 
 @pytest.mark.parametrize(
