@@ -14,7 +14,6 @@ from experiments.cli.reproduce_fullsize import FULLSIZE_MODELS, fullsize_ego
     "extra, says",
     [
         (["--space", "paper"], "extended or the wake policy space"),
-        (["--space", "wake"], "no shipped full-size model in that space"),
         (["--space", "extended", "--strategy-races", "0"], "got 0"),
     ],
 )
@@ -27,6 +26,7 @@ def test_refuses_what_it_cannot_reproduce(extra, says, tmp_path, capsys):
 
 def test_the_ego_is_the_spaces_shipped_model_or_the_named_one():
     assert fullsize_ego("extended", None) == f"alpha:model={FULLSIZE_MODELS['extended']}"
+    assert fullsize_ego("wake", None) == "alpha:model=fullsize_monza_wake"
     assert fullsize_ego("wake", "my/model.npz") == "alpha:model=my/model.npz"
 
 

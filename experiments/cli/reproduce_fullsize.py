@@ -22,7 +22,7 @@ from pathlib import Path
 #: the circuits: the first is the one the shipped full-size models were trained on
 FULLSIZE_TRACKS = ("tumftm:Monza", "tumftm:Spielberg", "tumftm:Silverstone")
 #: the shipped full-size model of each policy space (``--model`` names another)
-FULLSIZE_MODELS = {"extended": "fullsize_monza"}
+FULLSIZE_MODELS = {"extended": "fullsize_monza", "wake": "fullsize_monza_wake"}
 FULLSIZE_SCENARIOS = ("pass", "equal", "defend")
 FULLSIZE_OUT = "results/fullsize_{space}"
 """The default output folder (``{space}``: the policy space)."""
