@@ -348,6 +348,7 @@ class AlphaAgent(MPCAgent):
         low = held = None
         if self.others == "best":  # the others' rows pinned: low = high = their theta
             high = np.tile(box.high, (len(joint), 1)) if high is None else high
+            assert self._best_others is not None  # reset() set it
             held = np.minimum(self._best_others, high[1:])
             low = np.tile(box.low, (len(joint), 1))
             low[1:] = high[1:] = held

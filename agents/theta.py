@@ -327,7 +327,7 @@ def _class_factors(vehicle: object) -> tuple[float, float, float]:
 MOVES = ("s1=0", "q=500", "zeta=0.95", "s3=5", "s2=2", "b=0", "s1=0.1", "q=50")
 
 
-def check_moves(moves) -> int:
+def check_moves(moves: object) -> int:
     """``moves`` if it is a number of :data:`MOVES` (0..len(MOVES)), else a ValueError."""
     if isinstance(moves, bool) or not (isinstance(moves, int) and 0 <= moves <= len(MOVES)):
         raise ValueError(f"moves must be an integer in 0..{len(MOVES)}, got {moves!r}")
