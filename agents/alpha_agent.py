@@ -193,6 +193,7 @@ class AlphaAgent(MPCAgent):
         if others not in OTHERS:
             raise ValueError(f"others must be one of {OTHERS}, got {others!r}")
         self.others = others
+        self._reads_best = anchor is not None or others == "best"  # the best-theta table
         self._candidates: np.ndarray | None = None  # (M, dim) with an anchor, after reset
         self._best_others: np.ndarray | None = None  # (dim,) with others="best", after reset
         self.choices: list[int] = []  # the candidate driven at each decision (anchor only)
@@ -211,7 +212,7 @@ class AlphaAgent(MPCAgent):
         self._theta_joint = None
         self.last_potential = float("nan")
         self.choices = []
-        if self.anchor is not None or self.others == "best":
+        if self._reads_best:
             base = best_theta(track, space=self.anchor_space)
             self._best_others = base.as_array(self.space)
         if self.anchor is not None:
@@ -352,18 +353,24 @@ class AlphaAgent(MPCAgent):
             held = np.minimum(self._best_others, high[1:])
             low = np.tile(box.low, (len(joint), 1))
             low[1:] = high[1:] = held
-        theta, phi = model.maximise(
-            joint,
-            track,
-            self._theta_joint,
-            rng=self._rng,
-            restarts=self.cold_restarts if cold else self.restarts,
-            iterations=self.cold_iterations if cold else self.iterations,
-            high=high,
-            low=low,
-        )
-        if held is not None:  # exactly, not through the ascent's scaling
-            theta[1:] = held
+        at = model.restricted_at(joint, track)  # Phi at this state: built once per decision
+        if self._candidates is not None and held is not None:
+            # the others are held and the ego picks among candidates: nothing to maximise
+            theta, phi = np.vstack([self._candidates[:1], held]), float("nan")
+        else:
+            theta, phi = model.maximise(
+                joint,
+                track,
+                self._theta_joint,
+                rng=self._rng,
+                restarts=self.cold_restarts if cold else self.restarts,
+                iterations=self.cold_iterations if cold else self.iterations,
+                high=high,
+                low=low,
+                at=at,
+            )
+            if held is not None:  # exactly, not through the ascent's scaling
+                theta[1:] = held
         self._theta_joint = theta
         self.theta = Theta.from_array(np.clip(theta[0], box.low, box.high))
         self.last_potential = phi
@@ -371,7 +378,7 @@ class AlphaAgent(MPCAgent):
             candidates = self._candidates.copy()
             if high is not None:  # the zeta the MPC drives
                 candidates[:, 1] = np.minimum(candidates[:, 1], high[0, 1])
-            k, phis = model.best_candidate(joint, track, theta, candidates)
+            k, phis = model.best_candidate(joint, track, theta, candidates, at=at)
             self.theta = Theta.from_array(candidates[k])
             self.last_potential = float(phis[k])
             self.choices.append(k)

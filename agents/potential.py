@@ -181,15 +181,19 @@ class PotentialModel:
             self.features.potential_features(states, thetas, track, space=self.space)
         )
 
+    @staticmethod
+    def _check_ascent(restarts: int, iterations: int) -> None:
+        if restarts < 1 or iterations < 0:
+            raise ValueError(
+                f"maximise needs restarts >= 1 and iterations >= 0, got {restarts}, {iterations}"
+            )
+
     def _ascent_setup(self, state, track, restarts: int, iterations: int, rng):
         """Shared by the ascents: checks, ``(rng, slots (N, dim), base features (D,))`` where
         ``slots[c]`` are the potential-feature columns of car c's theta (cars sorted by
         progress) and ``base`` the features at theta = 0 (their theta columns get overwritten)."""
         n = self._check_cars(np.asarray(state)[None])
-        if restarts < 1 or iterations < 0:
-            raise ValueError(
-                f"maximise needs restarts >= 1 and iterations >= 0, got {restarts}, {iterations}"
-            )
+        self._check_ascent(restarts, iterations)
         state = np.asarray(state, dtype=float)
         f = self.features
         order = f.progress_order(state)
@@ -198,6 +202,16 @@ class PotentialModel:
             state, np.zeros((n, self.space.dim)), track, order, space=self.space
         )
         return rng or np.random.default_rng(0), slots, base
+
+    def restricted_at(self, state: np.ndarray, track: Track) -> MLP:
+        """Phi(x, .) at the joint state ``state`` (N, 6) as a network of the joint theta alone,
+        scaled to [-1, 1] and car-major (inputs N * dim): the state's features and their share
+        of the first layer computed once (:meth:`agents.mlp.MLP.restricted`). What
+        :meth:`maximise` ascends and :meth:`best_candidate` ranks with; a decision that does
+        both passes it to each (``at``) so that it is built once."""
+        _, slots, base = self._ascent_setup(state, track, 1, 0, None)
+        with single_blas_thread():
+            return self.potential_net.restricted(base, slots.ravel())
 
     def _scaled_bound(self, name: str, bound, N: int, default: float):
         """Per-car bounds ``bound`` (N, dim) within the box, scaled to [-1, 1] and flattened
@@ -229,6 +243,7 @@ class PotentialModel:
         decay: float = 0.8,
         high: np.ndarray | None = None,
         low: np.ndarray | None = None,
+        at: MLP | None = None,
     ) -> tuple[np.ndarray, float]:
         """Projected gradient ascent (Adam steps) of Phi(x, .) over the joint theta within its
         bounds (the box of the model's policy space, :attr:`space`, of ``dim`` parameters:
@@ -239,7 +254,8 @@ class PotentialModel:
         ceiling); every start and iterate is projected onto the lowered box. Without it the
         ascent is the same, bit for bit. ``low`` (N, dim), optional: per-car lower bounds the
         same way; a car with ``low = high`` keeps that theta (its row is not maximised over:
-        the ego's best reply to thetas the others are taken to race).
+        the ego's best reply to thetas the others are taken to race). ``at``: Phi at ``state``
+        from :meth:`restricted_at`, when the caller has it already.
 
         ``state`` (N, 6) joint state; ``theta0`` (N, dim) warm start (e.g. the last step's
         maximiser), else the box centre; the other ``restarts - 1`` starts are uniform random
@@ -269,8 +285,9 @@ class PotentialModel:
         N = np.shape(state)[0]
         sp = self.space
         d = sp.dim
-        rng, slots, base = self._ascent_setup(state, track, restarts, iterations, rng)
-        slots = slots.ravel()  # car-major columns
+        self._check_ascent(restarts, iterations)
+        rng = rng or np.random.default_rng(0)
+        phi = self.restricted_at(state, track) if at is None else at
         top = self._scaled_bound("high", high, N, 1.0)
         bottom = self._scaled_bound("low", low, N, -1.0)
         Z = np.empty((restarts, N * d))
@@ -283,7 +300,6 @@ class PotentialModel:
         if theta0 is not None:
             lr[0] = warm_step
         with single_blas_thread():
-            phi = self.potential_net.restricted(base, slots)
             best_val, best_z = -np.inf, Z[0]
             m = np.zeros_like(Z)
             v = np.zeros_like(Z)
@@ -306,14 +322,19 @@ class PotentialModel:
         return unscale_theta(best_z.reshape(N, d), sp), best_val
 
     def best_candidate(
-        self, state: np.ndarray, track: Track, theta: np.ndarray, candidates: np.ndarray
+        self,
+        state: np.ndarray,
+        track: Track,
+        theta: np.ndarray,
+        candidates: np.ndarray,
+        at: MLP | None = None,
     ) -> tuple[int, np.ndarray]:
         """The ego's (car 0's) best reply among ``candidates`` by the potential: Phi(x, .) of
         the joint theta ``theta`` (N, dim) with car 0's row replaced by each candidate
         (M, dim), the other cars' thetas held. Returns ``(index of the largest Phi, Phi (M,))``
         (the first of equals). In an alpha-potential game a unilateral change of theta moves
         Phi as it moves the ego's value, up to alpha, so this is the candidate the ego's value
-        prefers against the others' ``theta``."""
+        prefers against the others' ``theta``. ``at``: as for :meth:`maximise`."""
         sp = self.space
         theta = np.asarray(theta, dtype=float)
         candidates = np.asarray(candidates, dtype=float)
@@ -323,11 +344,11 @@ class PotentialModel:
                 f"best_candidate takes a joint theta ({N}, {sp.dim}) and candidates (M, "
                 f"{sp.dim}) of the {sp.name!r} space, got {theta.shape} and {candidates.shape}"
             )
-        _, slots, base = self._ascent_setup(state, track, 1, 0, None)
+        net = self.restricted_at(state, track) if at is None else at
         Z = np.repeat(scale_theta(theta, sp)[None], len(candidates), axis=0)
         Z[:, 0] = scale_theta(candidates, sp)
         with single_blas_thread():
-            phi = self.potential_net.restricted(base, slots.ravel())(Z.reshape(len(Z), -1))
+            phi = net(Z.reshape(len(Z), -1))
         return int(np.argmax(phi)), np.asarray(phi)
 
     def maximise_reference(

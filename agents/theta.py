@@ -37,6 +37,7 @@ __all__ = [
     "theta_length_scales",
     "MOVES",
     "check_moves",
+    "move_items",
     "moved_thetas",
 ]
 
@@ -334,11 +335,13 @@ def check_moves(moves: object) -> int:
     return moves
 
 
+def move_items(moves: int) -> list[tuple[str, str]]:
+    """``(parameter, value)`` of each of the first ``moves`` of :data:`MOVES`, the value as
+    written (``("s1", "0")``); a ValueError for ``moves`` outside 0..len(MOVES)."""
+    return [(m.partition("=")[0], m.partition("=")[2]) for m in MOVES[: check_moves(moves)]]
+
+
 def moved_thetas(theta: Theta, moves: int) -> list[Theta]:
     """``theta`` and ``theta`` with one parameter moved, for the first ``moves`` of
     :data:`MOVES` (nested: the list of ``moves = m`` is the start of that of ``m + 1``)."""
-    out = [theta]
-    for move in MOVES[: check_moves(moves)]:
-        key, _, value = move.partition("=")
-        out.append(replace(theta, **{key: float(value)}))
-    return out
+    return [theta] + [replace(theta, **{k: float(v)}) for k, v in move_items(moves)]

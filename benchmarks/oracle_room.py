@@ -6,7 +6,7 @@ theta (the suite's own races, read from its ``races.jsonl``).
         --region R3 --races 4 --out /tmp/room_spa_r3.jsonl
 
 The first candidate is the suite's ego, then ``--moves M`` of its one-parameter moves
-(``experiments.evaluation.oracle.MOVES``, nested; default 4: no overtaking shift, tight
+(``agents.theta.MOVES``, nested; default 4: no overtaking shift, tight
 tracking, zeta 0.95, blocking); ``--candidates`` adds others (mpc specs of the same policy
 space). Prints per race the ego's margin raced fixed (the suite's record) and as
 the oracle, the winners, and the oracle's choices; ``--out`` keeps one JSON line per race
@@ -24,8 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.theta import MOVES
 from experiments.evaluation.bench_config import REGIONS
-from experiments.evaluation.oracle import MOVES, candidate_moves, oracle_race
+from experiments.evaluation.oracle import candidate_moves, oracle_race
 from experiments.evaluation.race import start_order
 from experiments.infra.artifacts import append_jsonl, read_jsonl, slug
 

@@ -8,8 +8,9 @@ import json
 import numpy as np
 import pytest
 
+from agents.theta import MOVES
 from experiments.cli import main
-from experiments.evaluation.oracle import MOVES, candidate_moves
+from experiments.evaluation.oracle import candidate_moves
 from experiments.evaluation.room import RoomConfig, explicit_theta, room
 from experiments.evaluation.strategy import StrategyConfig, strategy
 from experiments.infra.parallel import Pool

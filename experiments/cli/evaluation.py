@@ -355,7 +355,7 @@ def add_ladder(command) -> None:
 
 def add_room(command) -> None:
     """``alpha-racer room``."""
-    from experiments.evaluation.oracle import MOVES
+    from agents.theta import MOVES
     from experiments.evaluation.room import ROOM_BENCHES, RoomConfig
 
     rm = command(

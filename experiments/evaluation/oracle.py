@@ -24,20 +24,16 @@ import numpy as np
 from agents import make_agent_spec
 from agents.base import spec_with
 from agents.mpc_agent import MPCAgent
-from agents.theta import MOVES, check_moves
+from agents.theta import move_items
 from experiments.evaluation.race import start_race
 from racing_env import RacingParallelEnv
 
 
 def candidate_moves(spec: str, moves: int = 4) -> list[str]:
     """``spec`` (an ``mpc`` agent spec) and ``spec`` with one parameter moved, for the first
-    ``moves`` of :data:`MOVES` (nested: the candidates of ``moves = m`` are the first
+    ``moves`` of :data:`agents.theta.MOVES` (nested: the candidates of ``moves = m`` are the first
     ``m + 1`` of ``moves = m + 1``); a ValueError for ``moves`` outside 0..len(MOVES)."""
-    out = [spec]
-    for move in MOVES[: check_moves(moves)]:
-        key, _, value = move.partition("=")
-        out.append(spec_with(spec, **{key: value}))
-    return out
+    return [spec] + [spec_with(spec, **{k: v}) for k, v in move_items(moves)]
 
 
 @dataclass(frozen=True)

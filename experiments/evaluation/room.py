@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from agents.base import spec_params, spec_with
-from experiments.evaluation.oracle import MOVES, candidate_moves, check_moves, oracle_race
+from agents.theta import MOVES, check_moves
+from experiments.evaluation.oracle import candidate_moves, oracle_race
 from experiments.evaluation.race import start_order
 from experiments.evaluation.strategy import StrategyConfig, cells
 from experiments.infra.artifacts import ResumableRun, read_jsonl, write_json, write_text
