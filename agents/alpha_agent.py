@@ -221,10 +221,10 @@ class AlphaAgent(MPCAgent):
             )
 
     def check_track(self, track: Track) -> None:
-        """Also the anchor's best theta (``anchor="best"``): a track without one fails before
-        its races."""
+        """Also the best theta that ``anchor="best"`` or ``others="best"`` reads: a track
+        without one fails before its races."""
         super().check_track(track)
-        if self.anchor is not None:
+        if self._reads_best:
             best_theta(track, space=self.anchor_space)
 
     def _model(self) -> PotentialModel:

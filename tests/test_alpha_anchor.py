@@ -148,6 +148,17 @@ def test_low_bounds_pin_rows_and_are_checked(monza):
         model.maximise(x, monza, None, low=np.zeros((3, 6)))
 
 
+@pytest.mark.filterwarnings("ignore:track 'Spa'")  # its width narrowed at two points
+@pytest.mark.parametrize("extra", ["anchor=best", "others=best"])
+def test_a_track_without_a_best_theta_is_refused_before_the_races(extra):
+    """Both options read the best-theta table: a circuit without an entry fails at the
+    run's track check, naming the command that adds it."""
+    agent = make_agent_spec(f"alpha:model={MODEL},{extra}")
+    spa = make_track("tumftm:Spa", vehicle_class="fullsize")
+    with pytest.raises(ValueError, match="no best fixed theta of the 'extended' policy space for track 'Spa'"):
+        agent.check_track(spa)
+
+
 @pytest.mark.parametrize(
     "spec, message",
     [
