@@ -155,7 +155,9 @@ def test_a_track_without_a_best_theta_is_refused_before_the_races(extra):
     run's track check, naming the command that adds it."""
     agent = make_agent_spec(f"alpha:model={MODEL},{extra}")
     spa = make_track("tumftm:Spa", vehicle_class="fullsize")
-    with pytest.raises(ValueError, match="no best fixed theta of the 'extended' policy space for track 'Spa'"):
+    with pytest.raises(
+        ValueError, match="no best fixed theta of the 'extended' policy space for track 'Spa'"
+    ):
         agent.check_track(spa)
 
 
