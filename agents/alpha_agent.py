@@ -25,6 +25,7 @@ import numpy as np
 from .base import median_p99, register_agent
 from .best_theta import best_theta
 from .mpc_agent import BEST, MPCAgent, split_observation
+from .opponent_theta import ThetaEstimator
 from .potential import PotentialModel, cached_model
 from .reference import Theta, policy_space
 from .theta import check_moves, moved_thetas
@@ -42,9 +43,10 @@ and the fixed theta at the limit (docs: the alpha-potential page); ``model=exten
 races it."""
 
 
-#: How alpha takes the others' thetas: maximised over with its own (the paper's), or held at
-#: the track's best fixed theta.
-OTHERS = ("maximise", "best")
+#: How alpha takes the others' thetas: maximised over with its own (the paper's), held at
+#: the track's best fixed theta, or held at their estimates from their observed play
+#: (:class:`agents.opponent_theta.ThetaEstimator`).
+OTHERS = ("maximise", "best", "estimate")
 
 #: The shipped model of a vehicle class other than the paper's (named when ``alpha`` is
 #: asked to race a model of another class there).
@@ -67,6 +69,13 @@ def auto_model(track_name: str, n_cars: int, space: str = "paper") -> str:
     if general is not None and (MODEL_DIR / SHIPPED[general]).exists():
         return general
     return single_name
+
+
+def _agent_index(agent_id: str) -> int:
+    """The place of ``agent_id`` (``"car_<i>"``) in the field's agent order; 0 for another
+    name."""
+    head, _, tail = agent_id.rpartition("_")
+    return int(tail) if head and tail.isdigit() else 0
 
 
 def _spec_names(spec: str) -> set[str]:
@@ -108,7 +117,12 @@ class AlphaAgent(MPCAgent):
     cars' thetas at the track's best fixed theta of ``anchor_space`` (the published control,
     :mod:`agents.best_theta`) and maximises over the ego's alone: the potential's best reply
     to opponents taken to race that theta (a level-1 reasoner, not the paper's agent). With
-    an anchor it is the candidates' ranking that is made against them.
+    an anchor it is the candidates' ranking that is made against them. ``others="estimate"``
+    holds each other car at the type that best predicts its play so far, among the best fixed
+    theta of ``anchor_space`` and its first ``moves`` moves
+    (:class:`agents.opponent_theta.ThetaEstimator`: one MPC copy per opponent and type, scored
+    on its one-period predictions; the best fixed theta until the evidence parts them): the
+    others' thetas are no longer assumed but read from how they race.
 
     ``space``: the policy space maximised over and driven in (``"paper"`` or ``"extended"``,
     :data:`agents.theta.SPACES`); by default the model's (:attr:`PotentialModel.space
@@ -129,8 +143,9 @@ class AlphaAgent(MPCAgent):
         "moves by the potential (default: over the whole box)",
         "anchor_space": "policy space of the anchor's best fixed theta (default: the agent's)",
         "moves": "one-parameter moves of the anchor among the candidates (0..8, default 4)",
-        "others": "the others' thetas: 'maximise' (with the ego's, default) or 'best' (held at "
-        "the track's best fixed theta)",
+        "others": "the others' thetas: 'maximise' (with the ego's, default), 'best' (held at "
+        "the track's best fixed theta) or 'estimate' (held at the type among the best theta and "
+        "its moves that predicts their play best)",
     }
 
     def __init__(
@@ -180,6 +195,8 @@ class AlphaAgent(MPCAgent):
         self.cold_restarts, self.cold_iterations = cold_restarts, cold_iterations
         self._theta_joint: np.ndarray | None = None
         self._max_ms: deque = deque(maxlen=100_000)
+        self._estimate_ms: deque = deque(maxlen=100_000)
+        self._type_counts: np.ndarray | None = None  # others="estimate": decisions per type
         if anchor not in (None, BEST):
             raise ValueError(f"anchor must be {BEST!r} or left out, got {anchor!r}")
         self.anchor = anchor
@@ -193,7 +210,8 @@ class AlphaAgent(MPCAgent):
         if others not in OTHERS:
             raise ValueError(f"others must be one of {OTHERS}, got {others!r}")
         self.others = others
-        self._reads_best = anchor is not None or others == "best"  # the best-theta table
+        self._reads_best = anchor is not None or others != "maximise"  # the best-theta table
+        self.estimator: ThetaEstimator | None = None  # others="estimate": built at reset
         self._candidates: np.ndarray | None = None  # (M, dim) with an anchor, after reset
         self._best_others: np.ndarray | None = None  # (dim,) with others="best", after reset
         self.choices: list[int] = []  # the candidate driven at each decision (anchor only)
@@ -212,9 +230,16 @@ class AlphaAgent(MPCAgent):
         self._theta_joint = None
         self.last_potential = float("nan")
         self.choices = []
+        self._type_counts = None
         if self._reads_best:
             base = best_theta(track, space=self.anchor_space)
             self._best_others = base.as_array(self.space)
+        if self.others == "estimate":
+            types = moved_thetas(base, self.moves)
+            if self.estimator is None or self.estimator.types != types:
+                self.estimator = ThetaEstimator(types, self.anchor_space, self.n_preview)
+            self.estimator.reset(track, ego_index=_agent_index(agent_id))
+            self._type_arrays = np.array([t.as_array(self.space) for t in types])
         if self.anchor is not None:
             self._candidates = np.array(
                 [t.as_array(self.space) for t in moved_thetas(base, self.moves)]
@@ -320,6 +345,10 @@ class AlphaAgent(MPCAgent):
         if self._candidates is not None:  # share of the decisions that drove each candidate
             counts = np.bincount(self.choices, minlength=len(self._candidates))
             st["candidate_share"] = (counts / max(1, len(self.choices))).round(4).tolist()
+        if self._type_counts is not None:  # share of (decision, opponent) per estimated type
+            med, p99 = median_p99(self._estimate_ms)
+            st["estimate_ms_median"], st["estimate_ms_p99"] = med, p99
+            st["type_share"] = (self._type_counts / self._type_counts.sum()).round(4).tolist()
         return st
 
     def _before_solve(self, observation: np.ndarray) -> None:
@@ -347,10 +376,21 @@ class AlphaAgent(MPCAgent):
             if self.zeta_max is not None:  # the ego's zeta ceiling
                 high[0, 1] = min(high[0, 1], self.zeta_max)
         low = held = None
-        if self.others == "best":  # the others' rows pinned: low = high = their theta
+        if self.others != "maximise":  # the others' rows pinned: low = high = their theta
             high = np.tile(box.high, (len(joint), 1)) if high is None else high
-            assert self._best_others is not None  # reset() set it
-            held = np.minimum(self._best_others, high[1:])
+            if self.estimator is not None:  # each opponent's type, from its play so far
+                t1 = time.perf_counter()
+                index = self.estimator.update(ego, others)
+                spent = time.perf_counter() - t1
+                t0 += spent  # the maximisation's time is reported without the estimate's
+                self._estimate_ms.append(1e3 * spent)
+                self._type_counts = np.bincount(index, minlength=len(self._type_arrays)) + (
+                    0 if self._type_counts is None else self._type_counts
+                )
+                held = np.minimum(self._type_arrays[index], high[1:])
+            else:
+                assert self._best_others is not None  # reset() set it
+                held = np.minimum(self._best_others, high[1:])
             low = np.tile(box.low, (len(joint), 1))
             low[1:] = high[1:] = held
         at = model.restricted_at(joint, track)  # Phi at this state: built once per decision

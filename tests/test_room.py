@@ -97,6 +97,28 @@ def test_the_control_s_oracle_races_serve_another_ego_s_suite(suite, tmp_path):
     assert "ego" not in json.loads(manifest.read_text())["suite"]
 
 
+def test_a_bench_raced_again_without_its_states_counts_each_race_once(suite, tmp_path):
+    """A bench folder copied without its ``states/`` (they are not committed) races again
+    on resume and appends its races; the room reads each race once, its last line."""
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(suite, copy)
+    folder = copy / "equal" / "default" / "mpc_q_20_zeta_0.95_s1_0.1_s2_4_s3_1"
+    shutil.rmtree(folder / "states")
+    strategy(
+        StrategyConfig(
+            ego=EGO, control=CONTROL, tracks=("default",), scenarios=("equal",), races=2, steps=40
+        ),
+        copy,
+        Pool(workers=1, progress_bar=False),
+    )
+    lines = (folder / "races.jsonl").read_text().splitlines()
+    assert len(lines) == 4 and sorted(json.loads(x)["race"] for x in lines) == [0, 0, 1, 1]
+    t = room(copy, RoomConfig(moves=0, benches=("equal",)), Pool(workers=1, progress_bar=False))
+    assert t["rows"][0]["races"] == 2 and t["rows"][0]["room_m"]["mean"] == 0.0
+
+
 def test_candidates_move_one_parameter_each():
     cands = candidate_moves("mpc:space=extended,q=5,zeta=1.0,s1=0.3,s2=0.5,s3=0,b=1", 3)
     assert cands[1:] == [

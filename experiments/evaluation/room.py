@@ -103,7 +103,10 @@ def suite_races(suite, config: StrategyConfig, room: RoomConfig) -> dict:
         if cell.bench not in room.benches:
             continue
         path = cell.folder(suite) / "races.jsonl"
-        recs = sorted(read_jsonl(path), key=lambda r: r["race"])[: room.races]
+        # by race number, the last line of a race kept (a bench resumed where its states
+        # were not stored races again and appends, as its own reader keeps the last)
+        by_race = {r["race"]: r for r in read_jsonl(path)}
+        recs = [by_race[k] for k in sorted(by_race)][: room.races]
         if not recs:
             raise ValueError(f"{path}: no finished races of {cell.bench!r} on {cell.track!r}")
         out.setdefault((cell.bench, cell.track), {})[cell.role] = recs
