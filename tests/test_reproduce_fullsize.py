@@ -15,6 +15,7 @@ from experiments.cli.reproduce_fullsize import FULLSIZE_MODELS, fullsize_ego
     [
         (["--space", "paper"], "extended or the wake policy space"),
         (["--space", "extended", "--strategy-races", "0"], "got 0"),
+        (["--space", "extended", "--alpha-options", "others=guess"], "got 'guess'"),
     ],
 )
 def test_refuses_what_it_cannot_reproduce(extra, says, tmp_path, capsys):
@@ -24,10 +25,21 @@ def test_refuses_what_it_cannot_reproduce(extra, says, tmp_path, capsys):
     assert not any(tmp_path.iterdir())  # refused before anything ran
 
 
+def test_alpha_options_are_for_the_full_size_world(tmp_path):
+    with pytest.raises(SystemExit) as err:
+        main(["reproduce", "--alpha-options", "anchor=best", "--out", str(tmp_path)])
+    assert "is for --vehicle-class fullsize" in str(err.value)
+    assert not any(tmp_path.iterdir())
+
+
 def test_the_ego_is_the_spaces_shipped_model_or_the_named_one():
     assert fullsize_ego("extended", None) == f"alpha:model={FULLSIZE_MODELS['extended']}"
     assert fullsize_ego("wake", None) == "alpha:model=fullsize_monza_wake"
     assert fullsize_ego("wake", "my/model.npz") == "alpha:model=my/model.npz"
+    assert (
+        fullsize_ego("extended", None, "anchor=best,others=estimate")
+        == "alpha:model=fullsize_monza,anchor=best,others=estimate"
+    )
 
 
 @pytest.mark.slow

@@ -103,6 +103,11 @@ def _cmd_reproduce(args) -> int:
     import json
 
     _class_defaults(args)
+    if args.alpha_options and args.vehicle_class != "fullsize":
+        raise SystemExit(
+            f"--alpha-options {args.alpha_options!r} is for --vehicle-class fullsize (the "
+            f"paper's reproduction races the paper's agent)"
+        )
     if args.vehicle_class == "fullsize":  # the full-size world's suites, not the paper's
         from experiments.cli.reproduce_fullsize import reproduce_fullsize
 
@@ -286,6 +291,13 @@ def add_reproduce(command) -> None:
             "--vehicle-class fullsize: the circuits of the strategy suite, the first the "
             "one the model was trained on (and the ladder's)",
             {"nargs": "+", "default": list(FULLSIZE_TRACKS)},
+        ),
+        (
+            "--alpha-options",
+            "--vehicle-class fullsize: options added to the alpha ego's spec, e.g. "
+            "anchor=best,others=estimate (the potential's choice among the oracle's "
+            "candidates, the others' thetas read from their play); default none",
+            {"default": None},
         ),
         (
             "--room-races",

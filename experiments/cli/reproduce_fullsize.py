@@ -28,8 +28,10 @@ FULLSIZE_OUT = "results/fullsize_{space}"
 """The default output folder (``{space}``: the policy space)."""
 
 
-def fullsize_ego(space: str, model: str | None) -> str:
-    """The alpha agent of the full-size world: ``model`` or the space's shipped model."""
+def fullsize_ego(space: str, model: str | None, options: str | None = None) -> str:
+    """The alpha agent of the full-size world: ``model`` or the space's shipped model, with
+    ``options`` (``"anchor=best,others=estimate"``) added to its spec; an option the alpha
+    agent does not take is a ``SystemExit`` naming it."""
     if model is None:
         if space not in FULLSIZE_MODELS:
             raise SystemExit(
@@ -38,7 +40,16 @@ def fullsize_ego(space: str, model: str | None) -> str:
                 "name one with --model"
             )
         model = FULLSIZE_MODELS[space]
-    return f"alpha:model={model}"
+    spec = f"alpha:model={model}"
+    if options:
+        from agents.base import make_agent_spec
+
+        spec = f"{spec},{options}"
+        try:
+            make_agent_spec(spec)  # builds it: a bad option fails here, before any race
+        except ValueError as err:
+            raise SystemExit(f"--alpha-options {options!r}: {err}") from None
+    return spec
 
 
 def reproduce_fullsize(args, pool) -> Path:
@@ -60,7 +71,7 @@ def reproduce_fullsize(args, pool) -> Path:
             f"--strategy-races must be a positive number of races per bench with "
             f"--vehicle-class fullsize (the suite is the point), got {args.strategy_races!r}"
         )
-    ego = fullsize_ego(space, args.model)
+    ego = fullsize_ego(space, args.model, getattr(args, "alpha_options", None))
     out = Path(args.out or FULLSIZE_OUT.format(space=space))
     tracks = tuple(args.fullsize_tracks)
     ctl = ControlConfig(
