@@ -25,7 +25,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from racing_env.track import Track
+from racing_env.vehicles import vehicle_for_track
 
+from .mpc_agent import MPCAgent
 from .theta import Theta
 
 #: How far another type must predict better than the first (the published control) to be
@@ -64,7 +66,8 @@ class ThetaEstimator:
         self.n_preview = int(n_preview)
         self.forget = float(forget)
         self.track: Track | None = None
-        self.copies: list[list] = []  # [opponent][type] MPCAgent
+        self.copies: list[list[MPCAgent]] = []  # [opponent][type]
+        self._width = 1.0  # the cars' width [m], set at reset
         self.scores = np.zeros((0, len(self.types)))  # (N-1, K) discounted squared errors [w^2]
         self._predicted: np.ndarray | None = None  # (N-1, K, 4) (s, n, vx, vy) at the next period
         self.index = np.zeros(0, dtype=int)  # (N-1,) each opponent's estimated type
@@ -75,6 +78,7 @@ class ThetaEstimator:
         list the other cars in that order)."""
         self.track = track
         self.ego_index = int(ego_index)
+        self._width = float(vehicle_for_track(track, None, "ThetaEstimator").width)  # [m]
         for row in self.copies:
             for copy in row:
                 copy.reset(track)
@@ -83,13 +87,8 @@ class ThetaEstimator:
         self.index = np.zeros(len(self.copies), dtype=int)
 
     def _build(self, n_opponents: int) -> None:
-        from .mpc_agent import MPCAgent
-
         assert self.track is not None  # reset() first
         self.copies = []
-        from racing_env.vehicles import vehicle_for_track
-
-        self._width = float(vehicle_for_track(self.track, None, "ThetaEstimator").width)
         for _ in range(n_opponents):
             row = []
             for theta in self.types:
@@ -143,6 +142,7 @@ class ThetaEstimator:
             obs = self.observation_of(j, ego, others)
             for k, copy in enumerate(row):
                 copy.act(obs)
+                assert copy.mpc is not None  # act() checked reset()
                 X = copy.mpc.last_prediction
                 if X is not None:
                     predicted[j, k] = X[[0, 1, 3, 4], 0]  # the state one period on
