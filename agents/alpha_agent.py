@@ -196,7 +196,8 @@ class AlphaAgent(MPCAgent):
         self._theta_joint: np.ndarray | None = None
         self._max_ms: deque = deque(maxlen=100_000)
         self._estimate_ms: deque = deque(maxlen=100_000)
-        self._type_counts: np.ndarray | None = None  # others="estimate": decisions per type
+        self._type_counts: np.ndarray | None = None  # others="estimate": (K,) per type
+        self._type_arrays: np.ndarray | None = None  # others="estimate": (K, dim) the types
         if anchor not in (None, BEST):
             raise ValueError(f"anchor must be {BEST!r} or left out, got {anchor!r}")
         self.anchor = anchor
@@ -230,7 +231,6 @@ class AlphaAgent(MPCAgent):
         self._theta_joint = None
         self.last_potential = float("nan")
         self.choices = []
-        self._type_counts = None
         if self._reads_best:
             base = best_theta(track, space=self.anchor_space)
             self._best_others = base.as_array(self.space)
@@ -240,6 +240,7 @@ class AlphaAgent(MPCAgent):
                 self.estimator = ThetaEstimator(types, self.anchor_space, self.n_preview)
             self.estimator.reset(track, ego_index=_agent_index(agent_id))
             self._type_arrays = np.array([t.as_array(self.space) for t in types])
+            self._type_counts = np.zeros(len(types), dtype=int)
         if self.anchor is not None:
             self._candidates = np.array(
                 [t.as_array(self.space) for t in moved_thetas(base, self.moves)]
@@ -345,7 +346,7 @@ class AlphaAgent(MPCAgent):
         if self._candidates is not None:  # share of the decisions that drove each candidate
             counts = np.bincount(self.choices, minlength=len(self._candidates))
             st["candidate_share"] = (counts / max(1, len(self.choices))).round(4).tolist()
-        if self._type_counts is not None:  # share of (decision, opponent) per estimated type
+        if self._type_counts is not None and self._type_counts.any():  # per estimated type
             med, p99 = median_p99(self._estimate_ms)
             st["estimate_ms_median"], st["estimate_ms_p99"] = med, p99
             st["type_share"] = (self._type_counts / self._type_counts.sum()).round(4).tolist()
@@ -384,13 +385,13 @@ class AlphaAgent(MPCAgent):
                 spent = time.perf_counter() - t1
                 t0 += spent  # the maximisation's time is reported without the estimate's
                 self._estimate_ms.append(1e3 * spent)
-                self._type_counts = np.bincount(index, minlength=len(self._type_arrays)) + (
-                    0 if self._type_counts is None else self._type_counts
-                )
-                held = np.minimum(self._type_arrays[index], high[1:])
+                assert self._type_arrays is not None and self._type_counts is not None
+                self._type_counts += np.bincount(index, minlength=len(self._type_counts))
+                theirs = self._type_arrays[index]  # (N-1, dim)
             else:
                 assert self._best_others is not None  # reset() set it
-                held = np.minimum(self._best_others, high[1:])
+                theirs = self._best_others  # (dim,), every other car's
+            held = np.minimum(theirs, high[1:])
             low = np.tile(box.low, (len(joint), 1))
             low[1:] = high[1:] = held
         at = model.restricted_at(joint, track)  # Phi at this state: built once per decision
