@@ -200,7 +200,9 @@ def agent_parameters(name: str) -> tuple[list[AgentParameter], bool]:
     return list(params.values()), open_kwargs
 
 
-def _parse_value(text: str):
+def parse_value(text: str) -> int | float | bool | str:
+    """An agent spec's value as written (``"5"``, ``"0.3"``, ``"true"``, ``"general"``) parsed
+    as int, float, bool or else kept as str."""
     for cast in (int, float):
         try:
             return cast(text)
@@ -239,7 +241,7 @@ def make_agent_spec(spec: str) -> Agent:
         key, eq, value = item.partition("=")
         if not eq or not key:
             raise ValueError(f"bad agent parameter {item!r} in {spec!r}; expected key=value")
-        kwargs[key.strip()] = _parse_value(value.strip())
+        kwargs[key.strip()] = parse_value(value.strip())
     known, open_kwargs = agent_parameters(name)
     unknown = sorted(set(kwargs) - {p.name for p in known})
     if unknown and not open_kwargs:

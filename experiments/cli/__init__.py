@@ -24,6 +24,7 @@ COMMANDS = (
     potential.add_collect,
     potential.add_train,
     learning.add_selfplay,
+    learning.add_ranker,
     evaluation.add_bench,
     evaluation.add_league,
     evaluation.add_strategy,

@@ -1,4 +1,5 @@
-"""The learning command: ``selfplay`` (PPO agents by iterated self-play)."""
+"""The learning commands: ``selfplay`` (PPO agents by iterated self-play) and ``ranker`` (a
+ranker of a rollout oracle's candidates, from its kept choices)."""
 
 from __future__ import annotations
 
@@ -101,4 +102,44 @@ def add_selfplay(command) -> None:
         type=int,
         default=None,
         help="stop after this many turns (resumable; default: all)",
+    )
+
+
+def _cmd_ranker(args) -> int:
+    from experiments.learning.ranker import RankerConfig, train_ranker
+
+    cfg = RankerConfig(
+        hidden=args.hidden, layers=args.layers, epochs=args.epochs, holdout=args.holdout
+    )
+    f = train_ranker(args.folders, args.out, cfg)
+    v = f["validation"]
+    g = v["gain_m"]
+    print(
+        f"{f['races']['train']} training and {f['races']['validation']} validation races, "
+        f"{v['choices']} validation choices of {len(f['candidates'])} candidates"
+    )
+    print(
+        f"validation gain over the base per choice [m]: ranker {g['ranker']:+.2f}, oracle "
+        f"{g['oracle']:+.2f}, best fixed candidate (#{v['best_fixed_candidate']}) "
+        f"{g['best_fixed_candidate']:+.2f}; R^2 {v['r2']}"
+    )
+    print(f"-> {args.out} (race it as ranked:model={args.out})")
+    return 0
+
+
+def add_ranker(command) -> None:
+    """``alpha-racer ranker``."""
+    rk = command(
+        "ranker",
+        _cmd_ranker,
+        "train a ranker of a rollout oracle's candidates on the choices kept by alpha-racer "
+        "room (value targets from paired rollouts; race it as ranked:model=OUT)",
+    )
+    rk.add_argument("folders", nargs="+", help="room folders (SUITE/room/<setting>) of one setting")
+    rk.add_argument("--out", required=True, help="the ranker.npz to write (and OUT.json)")
+    rk.add_argument("--hidden", type=int, default=64, help="units per hidden layer")
+    rk.add_argument("--layers", type=int, default=2, help="hidden layers")
+    rk.add_argument("--epochs", type=int, default=600, help="full-batch epochs")
+    rk.add_argument(
+        "--holdout", type=int, default=4, help="every N-th race held out for validation"
     )

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents import make_agent_spec
-from agents.base import spec_with
+from agents.base import parse_value, spec_params, spec_with
 from agents.mpc_agent import MPCAgent
 from agents.theta import move_items
 from experiments.evaluation.race import start_race
@@ -32,8 +32,24 @@ from racing_env import RacingParallelEnv
 def candidate_moves(spec: str, moves: int = 4) -> list[str]:
     """``spec`` (an ``mpc`` agent spec) and ``spec`` with one parameter moved, for the first
     ``moves`` of :data:`agents.theta.MOVES` (nested: the candidates of ``moves = m`` are the first
-    ``m + 1`` of ``moves = m + 1``); a ValueError for ``moves`` outside 0..len(MOVES)."""
-    return [spec] + [spec_with(spec, **{k: v}) for k, v in move_items(moves)]
+    ``m + 1`` of ``moves = m + 1``); a move that leaves the theta as it was (``s1=0`` of a base
+    whose ``s1`` is 0) is left out, so no candidate is simulated twice. A ValueError for
+    ``moves`` outside 0..len(MOVES)."""
+    out = [spec]
+    seen = [_parsed(spec)]
+    for k, v in move_items(moves):
+        moved = spec_with(spec, **{k: v})
+        if _parsed(moved) not in seen:
+            out.append(moved)
+            seen.append(_parsed(moved))
+    return out
+
+
+def _parsed(spec: str) -> tuple[str, dict]:
+    """An agent spec's name and parsed values, the same for specs that differ only in order
+    or in how a number is written (``0`` and ``0.0``)."""
+    name, params = spec_params(spec)
+    return name, {k: parse_value(v) for k, v in params.items()}
 
 
 @dataclass(frozen=True)
@@ -41,12 +57,15 @@ class OracleResult:
     """One oracle race: ``progress`` (N,) [m] of every car from its start (the oracle is car
     0), ``winner`` (the car with the most progress), ``choices`` the candidate index kept at
     each choice, ``scores`` (choices, M) every candidate's relative progress [m] at the end of
-    its look-ahead (cut short where the race ends first)."""
+    its look-ahead (cut short where the race ends first), ``observations`` (choices, D)
+    float32: the oracle's env observation at each choice (what a policy choosing from the
+    state would see; :mod:`agents.ranked` learns the choice from them)."""
 
     progress: np.ndarray
     winner: int
     choices: list[int]
     scores: np.ndarray
+    observations: np.ndarray
 
 
 def relative_progress(env: RacingParallelEnv, car: int = 0) -> float:
@@ -111,6 +130,7 @@ def oracle_race(
     n_ahead = max(1, int(round(lookahead / env.config.dt)))
     choices: list[int] = []
     scores: list[np.ndarray] = []
+    seen: list[np.ndarray] = []
     step = 0
     while env.agents:
         if step % every == 0 and len(thetas) > 1:
@@ -118,6 +138,7 @@ def oracle_race(
             best = int(np.argmax(row))  # the first of equals
             choices.append(best)
             scores.append(row)
+            seen.append(np.array(obs[env.possible_agents[0]], dtype=np.float32))
             oracle.theta = thetas[best]
         obs = _step(env, agents, obs)
         step += 1
@@ -127,6 +148,9 @@ def oracle_race(
         winner=int(np.argmax(progress)),
         choices=choices,
         scores=np.array(scores).reshape(len(scores), len(thetas)),
+        observations=np.array(seen, dtype=np.float32).reshape(
+            len(seen), env.observation_space(env.possible_agents[0]).shape[0]
+        ),
     )
 
 

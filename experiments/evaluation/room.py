@@ -38,7 +38,13 @@ from agents.theta import MOVES, check_moves
 from experiments.evaluation.oracle import candidate_moves, oracle_race
 from experiments.evaluation.race import start_order
 from experiments.evaluation.strategy import StrategyConfig, cells
-from experiments.infra.artifacts import ResumableRun, read_jsonl, write_json, write_text
+from experiments.infra.artifacts import (
+    ResumableRun,
+    read_jsonl,
+    write_json,
+    write_npz,
+    write_text,
+)
 from experiments.infra.parallel import Pool
 
 #: Benches the room is measured in: the ego against fixed opponents. ``table1_*`` (IBR, PPO,
@@ -154,7 +160,9 @@ def room_race(
     vehicle_class: str,
     wake: float,
 ) -> dict:
-    """One oracle race in the seats of a suite's race (pure: no file access); its record."""
+    """One oracle race in the seats of a suite's race (pure: no file access): ``{"record":
+    its JSON record, "observations": (C, D) float32, "scores": (C, M)}``, the oracle's
+    observation and every candidate's look-ahead score at each of its C choices."""
     t0 = time.perf_counter()
     res = oracle_race(
         candidates,
@@ -168,7 +176,7 @@ def room_race(
         vehicle_class=vehicle_class,
         wake=wake,
     )
-    return {
+    record = {
         "bench": key[0],
         "track": key[1],
         "race": key[2],
@@ -180,6 +188,7 @@ def room_race(
         "choices": {str(k): v for k, v in sorted(Counter(res.choices).items())},
         "seconds": round(time.perf_counter() - t0, 2),
     }
+    return {"record": record, "observations": res.observations, "scores": res.scores}
 
 
 class RoomRun(ResumableRun):
@@ -216,6 +225,25 @@ class RoomRun(ResumableRun):
 
     def record_key(self, record: dict) -> tuple:
         return (record["bench"], record["track"], record["race"])
+
+    def add(self, result: dict) -> None:
+        """Store one oracle race: its choices first (``choices/``: the oracle's observations
+        and the candidates' scores, the data :mod:`experiments.learning.ranker` learns
+        from), then its JSON line (a line means a finished race). Folders written before the
+        choices were kept hold the lines alone."""
+        rec = result["record"]
+        write_npz(
+            self.choices_path(rec),
+            compressed=True,
+            observations=result["observations"],
+            scores=result["scores"],
+        )
+        super().add(rec)
+
+    def choices_path(self, record: dict) -> Path:
+        """Where the choices of the race of ``record`` are kept."""
+        track = record["track"].replace(":", "_")
+        return self.out / "choices" / f"{record['bench']}_{track}_{record['race']:05d}.npz"
 
     def task_args(self, task: tuple) -> tuple:
         bench, track, race = task
