@@ -129,8 +129,11 @@ def test_candidates_move_one_parameter_each():
     assert candidate_moves(EGO, 2)[:2] == candidate_moves(EGO, 1)  # nested
     # a move that changes nothing (s1=0 of a base without the shift) is not simulated twice
     no_shift = "mpc:space=extended,q=5,zeta=1.0,s1=0.0,s2=0.5,s3=0,b=1"
-    assert candidate_moves(no_shift, 3) == [no_shift, cands[2].replace("s1=0.3", "s1=0.0"),
-                                            cands[3].replace("s1=0.3", "s1=0.0")]
+    assert candidate_moves(no_shift, 3) == [
+        no_shift,
+        cands[2].replace("s1=0.3", "s1=0.0"),
+        cands[3].replace("s1=0.3", "s1=0.0"),
+    ]
     with pytest.raises(ValueError, match=f"moves must be an integer in 0..{len(MOVES)}"):
         candidate_moves(EGO, len(MOVES) + 1)
 
