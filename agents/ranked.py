@@ -22,7 +22,7 @@ import numpy as np
 
 from racing_env.track import Track
 
-from .base import register_agent
+from .base import make_agent_spec, register_agent
 from .mlp import MLP
 from .mpc_agent import MPCAgent
 
@@ -108,8 +108,6 @@ class RankedAgent(MPCAgent):
     ):
         if not model:
             raise ValueError("ranked needs model=PATH, a ranker.npz of alpha-racer ranker train")
-        from . import make_agent_spec
-
         self.model = RankerModel.load(model)
         bases = []
         for spec in self.model.candidates:
