@@ -127,8 +127,24 @@ class RankedAgent(MPCAgent):
         self._periods = 0
         self._counts = np.zeros(len(self.thetas), dtype=np.int64)
 
+    def check_track(self, track: Track) -> None:
+        """A ``ValueError`` on a track or class other than the ranker's (its features place
+        the car on the lap it learned)."""
+        super().check_track(track)
+        from racing_env.tracks import make_track
+
+        meta = self.model.meta
+        own = make_track(meta["track"], vehicle_class=meta["vehicle_class"])
+        if (track.name, track.vehicle_class) != (own.name, own.vehicle_class):
+            raise ValueError(
+                f"this ranker was trained on {meta['track']!r} ({meta['vehicle_class']}), "
+                f"not on {track.name!r} ({track.vehicle_class})"
+            )
+
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
         super().reset(track, agent_id, seed)
+        assert self.track is not None  # set by the MPC agent's reset
+        self.check_track(self.track)
         self.theta = self.thetas[0]
         self._periods = 0
         self._counts[:] = 0

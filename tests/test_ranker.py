@@ -110,6 +110,8 @@ def test_room_keeps_choices_and_the_ranked_agent_races(tmp_path):
     assert len(share) == 2 and sum(share) == pytest.approx(1.0)  # choices at periods 0, 10, 20
     agent = make_agent_spec(f"ranked:model={out},every=10")
     assert isinstance(agent, RankedAgent) and agent.every == 10
+    with pytest.raises(ValueError, match="trained on 'default' .orca., not on"):
+        agent.reset("random:5")
 
 
 def test_bad_settings_are_named(tmp_path):
