@@ -338,13 +338,19 @@ def room_markdown(run: RoomRun, rows: list[dict]) -> str:
     room, c = run.config, run.suite_config
     other = "ego" if room.base == "control" else "control"
     base_spec = c.control if room.base == "control" else c.ego
+    kept = next(iter(run.records().values()), None)  # a move that changes nothing is left out
+    moves = (
+        [_short(spec, kept["candidates"][0]) for spec in kept["candidates"][1:]]
+        if kept is not None
+        else list(MOVES[: room.moves])
+    )
     lines = [
         "# The room",
         "",
         f"The rollout oracle in the seats of the suite's races (ego `{c.ego}`, control "
         f"`{c.control}`, class `{c.vehicle_class}`, {c.steps} steps, seed {c.seed}): "
-        f"{room.moves + 1} candidates (`{base_spec}`, the {room.base}, and {room.moves} "
-        f"one-parameter moves of it: {', '.join(MOVES[: room.moves]) or 'none'}), "
+        f"{len(moves) + 1} candidates (`{base_spec}`, the {room.base}, and {len(moves)} "
+        f"one-parameter moves of it: {', '.join(moves) or 'none'}), "
         f"a choice every {room.every} periods with a look-ahead of {room.lookahead:g} s. "
         f"Margin: the car's progress minus the best opponent's; room: the oracle's margin "
         f"minus the {room.base}'s, race by race (mean, min, max); share: the {other}'s gain over "
