@@ -4,6 +4,7 @@ candidates move one parameter of the base (its best theta written out); bad sett
 named."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -63,6 +64,16 @@ def test_a_killed_run_resumes_and_a_choice_is_recorded(suite):
     again = room(suite, config, Pool(workers=1, progress_bar=False))
     assert again["new_races"] == 0
     assert (folder / "room.md").read_text().startswith("# The room")
+    # more races of the same oracle grow the folder, also one whose manifest (as older
+    # versions wrote it) names the benches and the number of races it was first run with
+    manifest = folder / "manifest.json"
+    meta = json.loads(manifest.read_text())
+    assert "races" not in meta["room"] and "benches" not in meta["room"]
+    meta["room"].update(races=1, benches=["equal"])
+    manifest.write_text(json.dumps(meta))
+    more = room(suite, replace(config, races=2), Pool(workers=1, progress_bar=False))
+    assert more["new_races"] == 1 and more["rows"][0]["races"] == 2
+    assert "races" not in json.loads(manifest.read_text())["room"]
 
 
 def test_the_control_s_oracle_races_serve_another_ego_s_suite(suite, tmp_path):

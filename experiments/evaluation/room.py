@@ -191,6 +191,10 @@ def room_race(
     return {"record": record, "observations": res.observations, "scores": res.scores}
 
 
+SELECTION = ("benches", "races")
+"""The :class:`RoomConfig` fields that select a room run's races but do not change them."""
+
+
 class RoomRun(ResumableRun):
     """The oracle's races of one :class:`RoomConfig` in a suite's folder."""
 
@@ -204,16 +208,23 @@ class RoomRun(ResumableRun):
         stored = config.to_dict()
         if room.base == "control":  # the control's seats and opponents: any ego's suite
             stored.pop("ego")  # of the same control shares these races
-            self._forget_ego()
-        self.claim({"room": asdict(room), "suite": stored})
+        self._forget(ego=room.base == "control")
+        # the benches and the number of races choose which races run, not how: a folder
+        # grows by more races or another bench of the same oracle
+        setting = {k: v for k, v in asdict(room).items() if k not in SELECTION}
+        self.claim({"room": setting, "suite": stored})
 
-    def _forget_ego(self) -> None:
-        """A folder made before the oracle's races from the control were shared stored the
-        suite's ego too: drop it from its manifest (those races never depended on it)."""
+    def _forget(self, ego: bool) -> None:
+        """Drop from a folder's manifest what older versions stored and the races never
+        depended on: the benches and the number of races, and (``ego``: the oracle's races
+        from the control, shared by every suite of that control) the suite's ego."""
         path = self.manifest_path
         if path.exists():
             meta = json.loads(path.read_text())
-            if meta.get("suite", {}).pop("ego", None) is not None:
+            dropped = [meta.get("room", {}).pop(k, None) for k in SELECTION]
+            if ego:
+                dropped.append(meta.get("suite", {}).pop("ego", None))
+            if any(d is not None for d in dropped):
                 write_json(path, meta)
 
     def tasks(self) -> list[tuple]:
