@@ -191,6 +191,13 @@ def room_race(
     return {"record": record, "observations": res.observations, "scores": res.scores}
 
 
+def choices_file(folder, record: dict) -> Path:
+    """The file of a room folder ``folder`` that keeps the oracle's choices in the race of
+    ``record`` (one of its ``races.jsonl``)."""
+    track = record["track"].replace(":", "_")
+    return Path(folder) / "choices" / f"{record['bench']}_{track}_{record['race']:05d}.npz"
+
+
 SELECTION = ("benches", "races")
 """The :class:`RoomConfig` fields that select a room run's races but do not change them."""
 
@@ -253,8 +260,7 @@ class RoomRun(ResumableRun):
 
     def choices_path(self, record: dict) -> Path:
         """Where the choices of the race of ``record`` are kept."""
-        track = record["track"].replace(":", "_")
-        return self.out / "choices" / f"{record['bench']}_{track}_{record['race']:05d}.npz"
+        return choices_file(self.out, record)
 
     def task_args(self, task: tuple) -> tuple:
         bench, track, race = task

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.ranked import RankerModel, ranker_features
+from experiments.evaluation.room import choices_file
 from experiments.infra.artifacts import read_jsonl, write_json, write_npz
 from racing_env.config import RaceConfig
 from racing_env.tracks import make_track
@@ -93,7 +94,7 @@ def load_choices(folders: list) -> Choices:
         }
         for key in sorted(records):
             rec = records[key]
-            path = folder / "choices" / f"{key[0]}_{key[1].replace(':', '_')}_{key[2]:05d}.npz"
+            path = choices_file(folder, rec)
             if not path.exists():
                 continue  # a race of a folder written before the choices were kept
             this = (tuple(rec["candidates"]), room["every"], room["lookahead"], key[1], vclass)
