@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from racing_env.agent_protocol import act_named, agent_label  # noqa: F401  (re-exported)
+from racing_env.observation import cars_in_observation
 
 if TYPE_CHECKING:
     from typing import Any
@@ -52,12 +53,7 @@ def adapt_observation(
         An observation length that is not ``6 M + n_preview`` for some M >= 1.
     """
     obs = np.asarray(obs, dtype=np.float32)
-    m, rest = divmod(obs.shape[-1] - n_preview, 6)
-    if rest or m < 1:
-        raise ValueError(
-            f"observation of length {obs.shape[-1]} does not fit 6 N + n_preview "
-            f"with n_preview = {n_preview}"
-        )
+    m = cars_in_observation(obs.shape[-1], n_preview)
     if m == n_cars:
         return obs
     own, preview = obs[..., :6], obs[..., 6 * m :]

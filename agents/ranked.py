@@ -17,12 +17,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from racing_env.observation import cars_in_observation
 from racing_env.track import Track
+from racing_env.tracks import make_track
 
-from .base import make_agent_spec, register_agent
+from .base import make_agent_spec, parse_value, register_agent, spec_params
 from .mlp import MLP
 from .mpc_agent import MPCAgent
 
@@ -36,12 +39,7 @@ def ranker_features(observation: np.ndarray, n_preview: int, track_length: float
     ``n, mu, vx, vy, omega``, the others' relative states sorted by relative progress (the
     car furthest ahead first, so car numbering does not matter), and the preview."""
     obs = np.asarray(observation, dtype=np.float64)
-    n_cars, rest = divmod(len(obs) - n_preview, 6)
-    if rest or n_cars < 1:
-        raise ValueError(
-            f"observation of length {len(obs)} does not fit 6 N + n_preview "
-            f"with n_preview = {n_preview}"
-        )
+    n_cars = cars_in_observation(len(obs), n_preview)
     if not track_length > 0:
         raise ValueError(f"track_length must be a positive length [m], got {track_length!r}")
     phase = 2.0 * np.pi * obs[0] / track_length
@@ -77,9 +75,7 @@ class RankerModel:
         if not path.exists():
             raise FileNotFoundError(f"ranker model {str(path)!r} does not exist (a ranker.npz)")
         with np.load(path) as z:
-            n_layers = int(z["n_layers"])
-            layers = [(z[f"W{i}"], z[f"b{i}"]) for i in range(n_layers)]
-            net = MLP(layers, z["mean"], z["std"], float(z["y_scale"]), float(z["y_shift"]))
+            net = MLP.from_arrays(z, "")
             meta = json.loads(str(z["meta"]))
         return cls(net, meta["candidates"], meta["every"], meta["lookahead"], meta)
 
@@ -115,9 +111,17 @@ class RankedAgent(MPCAgent):
             if type(agent) is not MPCAgent:
                 raise ValueError(f"ranker candidate {spec!r} is not an mpc agent spec")
             bases.append(agent)
-        first = bases[0]
-        super().__init__(space=first.space, zeta_max=zeta_max, **_theta_kwargs(first))
+        # the MPC the oracle drove: its first candidate's, all its settings, the theta swapped
+        settings: dict[str, Any] = {
+            k: parse_value(v) for k, v in spec_params(self.model.candidates[0])[1].items()
+        }
+        if zeta_max is not None:
+            settings["zeta_max"] = zeta_max
+        super().__init__(**settings)
         self.thetas = [b.theta for b in bases]
+        meta = self.model.meta
+        own = make_track(meta["track"], vehicle_class=meta["vehicle_class"])
+        self._own_track = (own.name, own.vehicle_class)
         if every is not None and not (isinstance(every, int) and every >= 1):
             raise ValueError(f"every must be a positive number of periods, got {every!r}")
         self.every = self.model.every if every is None else every
@@ -131,20 +135,17 @@ class RankedAgent(MPCAgent):
         """A ``ValueError`` on a track or class other than the ranker's (its features place
         the car on the lap it learned)."""
         super().check_track(track)
-        from racing_env.tracks import make_track
-
-        meta = self.model.meta
-        own = make_track(meta["track"], vehicle_class=meta["vehicle_class"])
-        if (track.name, track.vehicle_class) != (own.name, own.vehicle_class):
+        if (track.name, track.vehicle_class) != self._own_track:
+            meta = self.model.meta
             raise ValueError(
                 f"this ranker was trained on {meta['track']!r} ({meta['vehicle_class']}), "
                 f"not on {track.name!r} ({track.vehicle_class})"
             )
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
+        track = make_track(track)
+        self.check_track(track)  # before the MPC is built
         super().reset(track, agent_id, seed)
-        assert self.track is not None  # set by the MPC agent's reset
-        self.check_track(self.track)
         self.theta = self.thetas[0]
         self._periods = 0
         self._counts[:] = 0
@@ -165,10 +166,3 @@ class RankedAgent(MPCAgent):
     def stats(self) -> dict:
         total = max(1, int(self._counts.sum()))
         return {**super().stats, "candidate_share": [round(c / total, 4) for c in self._counts]}
-
-
-def _theta_kwargs(agent: MPCAgent) -> dict:
-    """An MPC agent's theta as keywords of its space."""
-    from .theta import policy_space
-
-    return {k: float(getattr(agent.theta, k)) for k in policy_space(agent.space).names}

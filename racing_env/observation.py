@@ -20,14 +20,20 @@ def joint_state_from_observation(obs: np.ndarray, n_cars: int) -> tuple[np.ndarr
     return ego, others
 
 
+def cars_in_observation(length: int, n_preview: int) -> int:
+    """The number of cars N of an observation of ``length`` values with a curvature preview of
+    ``n_preview``; ``ValueError`` when the length does not fit ``6 N + n_preview``, N >= 1."""
+    n_cars, rest = divmod(length - n_preview, 6)
+    if rest or n_cars < 1:
+        raise ValueError(
+            f"observation of length {length} does not fit 6 N + n_preview "
+            f"with n_preview = {n_preview}"
+        )
+    return n_cars
+
+
 def split_observation(observation: np.ndarray, n_preview: int) -> tuple[np.ndarray, np.ndarray]:
     """(ego (6,), others (N-1, 6)) from an env observation whose curvature preview has
     ``n_preview`` entries; ``ValueError`` when the length does not fit ``6 N + n_preview``."""
     obs = np.asarray(observation, dtype=float)
-    n_cars, rest = divmod(len(obs) - n_preview, 6)
-    if rest or n_cars < 1:
-        raise ValueError(
-            f"observation of length {len(obs)} does not fit 6 N + n_preview "
-            f"with n_preview = {n_preview}"
-        )
-    return joint_state_from_observation(obs, n_cars)
+    return joint_state_from_observation(obs, cars_in_observation(len(obs), n_preview))

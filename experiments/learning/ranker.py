@@ -28,6 +28,7 @@ import numpy as np
 from agents.ranked import RankerModel, ranker_features
 from experiments.evaluation.room import choices_file
 from experiments.infra.artifacts import read_jsonl, write_json, write_npz
+from experiments.potential.nets import to_numpy_mlp, torch_mlp
 from racing_env.config import RaceConfig
 from racing_env.tracks import make_track
 
@@ -49,10 +50,9 @@ class RankerConfig:
     seed: int = 0
 
     def __post_init__(self):
-        for name in ("hidden", "layers", "epochs", "holdout"):
+        for name, lo in (("hidden", 1), ("layers", 1), ("epochs", 1), ("holdout", 2)):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < (2 if name == "holdout" else 1):
-                lo = 2 if name == "holdout" else 1
+            if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
         for name in ("lr", "weight_decay"):
             v = getattr(self, name)
@@ -81,6 +81,8 @@ def load_choices(folders: list) -> Choices:
     ValueError when they hold none or differ in candidates, look-ahead, choice period, track
     or class."""
     rows, gains, race_ids, setting = [], [], [], None
+    n_preview = RaceConfig().n_preview
+    lengths: dict = {}  # (track, class) -> length [m]
     k = 0
     for folder in map(Path, folders):
         manifest = folder / "manifest.json"
@@ -107,9 +109,9 @@ def load_choices(folders: list) -> Choices:
                 )
             with np.load(path) as z:
                 obs, scores = z["observations"], z["scores"]
-            length = float(make_track(key[1], vehicle_class=vclass).length)
-            n_preview = RaceConfig().n_preview
-            rows += [ranker_features(o, n_preview, length) for o in obs]
+            if (key[1], vclass) not in lengths:
+                lengths[key[1], vclass] = float(make_track(key[1], vehicle_class=vclass).length)
+            rows += [ranker_features(o, n_preview, lengths[key[1], vclass]) for o in obs]
             gains.append(scores - scores[:, :1])
             race_ids += [k] * len(obs)
             k += 1
@@ -182,13 +184,7 @@ def train_ranker(folders: list, out, config: RankerConfig = RankerConfig()) -> d
     y_scale = float(max(np.std(y_tr), 1e-3))
 
     torch.manual_seed(config.seed)
-    dims = [x_tr.shape[1]] + [config.hidden] * config.layers + [1]
-    mods: list = []
-    for i in range(len(dims) - 1):
-        mods.append(torch.nn.Linear(dims[i], dims[i + 1]))
-        if i < len(dims) - 2:
-            mods.append(torch.nn.SiLU())
-    net = torch.nn.Sequential(*mods)
+    net = torch_mlp(x_tr.shape[1], (config.hidden,) * config.layers, torch)
     opt = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
 
     def tensor(x, y):
@@ -213,12 +209,7 @@ def train_ranker(folders: list, out, config: RankerConfig = RankerConfig()) -> d
             best_state = {k: t.detach().clone() for k, t in net.state_dict().items()}
     assert best_state is not None
     net.load_state_dict(best_state)
-    linears = [m for m in net if isinstance(m, torch.nn.Linear)]
-    layers = [(m.weight.detach().numpy().T.copy(), m.bias.detach().numpy().copy()) for m in linears]
-
-    from agents.mlp import MLP
-
-    mlp = MLP(layers, mean, std, y_scale, 0.0)
+    mlp = to_numpy_mlp(net, mean, std, y_scale, 0.0)
     m = len(data.candidates)
 
     def predict(features):
@@ -239,18 +230,7 @@ def train_ranker(folders: list, out, config: RankerConfig = RankerConfig()) -> d
         "validation": _figures(predict(data.features[val]), data.gains[val], fixed),
     }
     out = Path(out)
-    arrays = {f"W{i}": W for i, (W, _) in enumerate(layers)}
-    arrays.update({f"b{i}": b for i, (_, b) in enumerate(layers)})
-    write_npz(
-        out,
-        n_layers=np.array(len(layers)),
-        mean=mean.astype(np.float32),
-        std=std.astype(np.float32),
-        y_scale=np.array(y_scale),
-        y_shift=np.array(0.0),
-        meta=np.array(json.dumps(figures)),
-        **arrays,
-    )
+    write_npz(out, meta=np.array(json.dumps(figures)), **mlp.to_arrays(""))
     write_json(out.with_suffix(".json"), figures)
     RankerModel.load(out)  # what the agent will read
     return figures
