@@ -1,6 +1,7 @@
 """The rollout oracle (the room of issue 48): with one candidate it is the fixed-theta race,
 bit for bit; with a slow and a fast candidate it keeps the fast one and gains on the slow
-one raced fixed; bad candidates are named."""
+one raced fixed; driven by a model of the others it uses that model, and with their own specs
+as the model it is the oracle bit for bit; bad candidates are named."""
 
 import numpy as np
 import pytest
@@ -27,6 +28,20 @@ def test_the_oracle_keeps_the_faster_theta_and_gains_by_it():
     assert oracle.progress[0] > slow.progress[0]
 
 
+def test_a_model_of_the_others_is_what_the_rollouts_drive():
+    """The shadows act on the race's own observations, so with the others' own (stateful MPC)
+    specs as the model every score is the full-information oracle's; a wrong model (a
+    racing-line follower for an MPC car) changes the scores, not the race's rules."""
+    kw = dict(seed=5, order=[1, 0], steps=60, every=20, lookahead=1.0)
+    oracle = oracle_race([SLOW, FAST], [FAST], **kw)
+    own = oracle_race([SLOW, FAST], [FAST], model=[FAST], **kw)
+    assert np.array_equal(own.scores, oracle.scores) and own.choices == oracle.choices
+    assert np.array_equal(own.progress, oracle.progress)
+    wrong = oracle_race([SLOW, FAST], [FAST], model=["raceline"], **kw)
+    assert not np.array_equal(wrong.scores, oracle.scores)
+    assert wrong.choices == [int(np.argmax(row)) for row in wrong.scores]
+
+
 def test_bad_candidates_are_named():
     with pytest.raises(ValueError, match="at least one candidate"):
         oracle_race([], ["raceline"], steps=5)
@@ -36,3 +51,5 @@ def test_bad_candidates_are_named():
         oracle_race([FAST, "mpc:space=extended,b=1"], ["raceline"], steps=5)
     with pytest.raises(ValueError, match="every must be a positive"):
         oracle_race([FAST], ["raceline"], steps=5, every=0)
+    with pytest.raises(ValueError, match=r"one agent spec per opponent \(1\), got \[\]"):
+        oracle_race([FAST], ["raceline"], steps=5, model=[])

@@ -74,6 +74,9 @@ def test_a_killed_run_resumes_and_a_choice_is_recorded(suite):
     more = room(suite, replace(config, races=2), Pool(workers=1, progress_bar=False))
     assert more["new_races"] == 1 and more["rows"][0]["races"] == 2
     assert "races" not in json.loads(manifest.read_text())["room"]
+    # the tables show every race the folder holds, whatever this call selects
+    fewer = room(suite, config, Pool(workers=1, progress_bar=False))
+    assert fewer["new_races"] == 0 and fewer["rows"][0]["races"] == 2
 
 
 def test_the_control_s_oracle_races_serve_another_ego_s_suite(suite, tmp_path):
@@ -145,6 +148,10 @@ def test_candidates_move_one_parameter_each():
         cands[2].replace("s1=0.3", "s1=0.0"),
         cands[3].replace("s1=0.3", "s1=0.0"),
     ]
+    # nor one that a zeta ceiling makes the base again (both zetas capped at 0.88)
+    capped = "mpc:space=extended,q=5,zeta=1.0,s1=0.3,s2=0.5,s3=0,b=1,zeta_max=0.88"
+    assert [c.split(",")[-1] for c in candidate_moves(capped, 3)[1:]] == ["s1=0", "q=500"]
+    assert len(candidate_moves(capped.replace("0.88", "0.97"), 3)) == 4  # 0.95 is below it
     with pytest.raises(ValueError, match=f"moves must be an integer in 0..{len(MOVES)}"):
         candidate_moves(EGO, len(MOVES) + 1)
 
@@ -170,6 +177,7 @@ def test_best_theta_is_written_out():
             r"benches must be names of pass, equal, defend, got \['table1_ibr'\]",
         ),
         ({"races": 0}, "races must be a positive number or None, got 0"),
+        ({"model": "ibr"}, r"model must be one of \(None, 'self', 'control'\), got 'ibr'"),
     ],
 )
 def test_bad_settings_are_named(kw, match):
@@ -185,3 +193,12 @@ def test_a_folder_without_a_suite_or_bench_is_named(suite, tmp_path, capsys):
     argv = ["room", str(suite), "--benches", "equal", "--moves", "0", "--workers", "1"]
     assert main(argv) == 0 and main(argv) == 0  # the second resumes a finished run
     assert capsys.readouterr().out.rstrip().splitlines()[-1].startswith("0 new oracle races")
+
+
+def test_a_modelled_oracle_keeps_its_own_folder_and_names_its_model(suite):
+    config = RoomConfig(moves=1, lookahead=0.5, every=20, benches=("equal",), races=1, model="self")
+    t = room(suite, config, Pool(workers=1, progress_bar=False))
+    folder = suite / "room" / "control_T0.5_M2_k20_model-self"
+    assert t["folder"] == str(folder) and t["new_races"] == 1
+    (rec,) = [json.loads(line) for line in (folder / "races.jsonl").read_text().splitlines()]
+    assert rec["model"] == [rec["candidates"][0]] * (len(rec["progress_m"]) - 1)

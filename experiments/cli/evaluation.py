@@ -379,6 +379,12 @@ def add_room(command) -> None:
         ("--every", "control periods between the oracle's choices"),
         ("--benches", "benches of the suite", {"nargs": "+", "choices": list(ROOM_BENCHES)}),
         ("--races", "the first N races of each bench (default all)", {"type": int}),
+        (
+            "--model",
+            "drive the other cars in the rollouts by a model instead of their own agents: "
+            "'self' (the base's spec) or 'control' (the suite's control); default: their own",
+            {"choices": ["self", "control"]},
+        ),
         *PARALLEL_OPTIONS,
     )
 

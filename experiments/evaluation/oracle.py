@@ -10,6 +10,15 @@ policies, so it is an upper reference for what a state-dependent choice of theta
 a fixed one, not a racing agent: its margin over the fixed theta in the same seats is the
 room.
 
+With ``model`` the oracle keeps the exact state but not the other cars' policies: its
+rollouts drive them by a model (an agent spec per car, for example its own base theta),
+whose copies shadow the race, acting on the real observations at every period (their
+actions unused) so that they are warm where the real cars' agents are. The state is what
+every car's observation holds in full (each car's ``s, n, mu, vx, vy, omega``; the wake and
+the contact rule follow from it), so an oracle with a model uses only what a racing agent
+sees and what it assumes of the others: it measures how much of the room a look-ahead of
+one's own can take. With the others' own specs as the model it is the oracle, bit for bit.
+
 Cost: ``M`` candidates times ``lookahead / dt`` periods of every car at every choice, on top of
 the race: with 6 candidates, a 3 s look-ahead and a choice every second, 18 times the race.
 """
@@ -25,15 +34,16 @@ from agents import make_agent_spec
 from agents.base import parse_value, spec_params, spec_with
 from agents.mpc_agent import MPCAgent
 from agents.theta import move_items
-from experiments.evaluation.race import start_race
+from experiments.evaluation.race import agent_seed, start_race
 from racing_env import RacingParallelEnv
 
 
 def candidate_moves(spec: str, moves: int = 4) -> list[str]:
     """``spec`` (an ``mpc`` agent spec) and ``spec`` with one parameter moved, for the first
     ``moves`` of :data:`agents.theta.MOVES` (nested: the candidates of ``moves = m`` are the first
-    ``m + 1`` of ``moves = m + 1``); a move that leaves the theta as it was (``s1=0`` of a base
-    whose ``s1`` is 0) is left out, so no candidate is simulated twice. A ValueError for
+    ``m + 1`` of ``moves = m + 1``); a move that leaves the car as it was (``s1=0`` of a base
+    whose ``s1`` is 0, or ``zeta=0.95`` of a base capped at ``zeta_max=0.88``) is left out, so
+    no candidate is simulated twice. A ValueError for
     ``moves`` outside 0..len(MOVES)."""
     out = [spec]
     seen = [_parsed(spec)]
@@ -46,10 +56,15 @@ def candidate_moves(spec: str, moves: int = 4) -> list[str]:
 
 
 def _parsed(spec: str) -> tuple[str, dict]:
-    """An agent spec's name and parsed values, the same for specs that differ only in order
-    or in how a number is written (``0`` and ``0.0``)."""
+    """An agent spec's name and parsed values, the same for specs that differ only in order,
+    in how a number is written (``0`` and ``0.0``) or in a zeta above the spec's ``zeta_max``
+    (the MPC drives with ``min(zeta, zeta_max)``, so those are one car)."""
     name, params = spec_params(spec)
-    return name, {k: parse_value(v) for k, v in params.items()}
+    values = {k: parse_value(v) for k, v in params.items()}
+    cap, zeta = values.get("zeta_max"), values.get("zeta")
+    if isinstance(cap, (int, float)) and isinstance(zeta, (int, float)):
+        values["zeta"] = min(zeta, cap)
+    return name, values
 
 
 @dataclass(frozen=True)
@@ -105,6 +120,7 @@ def oracle_race(
     every: int = 10,
     vehicle_class: str | None = None,
     wake: float | None = None,
+    model: list[str] | None = None,
 ) -> OracleResult:
     """Race the oracle (car 0, choosing among the thetas of the ``candidates``, ``mpc`` agent
     specs of one policy space) against ``opponents`` (agent specs) on ``track`` for ``steps``
@@ -112,7 +128,9 @@ def oracle_race(
     seconds (module docstring). ``seed`` and ``order`` (each car's start region, 0 = R1) as
     for :func:`experiments.evaluation.race.run_race`, and started as it starts its races
     (:func:`~experiments.evaluation.race.start_race`), so that with one candidate the race is
-    ``run_race`` of that candidate, bit for bit."""
+    ``run_race`` of that candidate, bit for bit. ``model`` (one agent spec per opponent, or
+    None for their own agents' copies): how the rollouts drive the other cars (module
+    docstring)."""
     if not (isinstance(every, int) and every >= 1):
         raise ValueError(f"every must be a positive number of periods, got {every!r}")
     if not (np.isfinite(lookahead) and lookahead > 0):
@@ -126,7 +144,15 @@ def oracle_race(
         wake=wake,
     )
     agents = [oracle, *(make_agent_spec(spec) for spec in opponents)]
+    if model is not None and len(model) != len(opponents):
+        raise ValueError(
+            f"model must name one agent spec per opponent ({len(opponents)}), got {model!r}"
+        )
+    shadows = None if model is None else [make_agent_spec(spec) for spec in model]
     obs = start_race(env, agents, seed, order)
+    planners = agents if shadows is None else [oracle, *shadows]
+    for k, (shadow, aid) in enumerate(zip(shadows or [], env.possible_agents[1:]), start=1):
+        shadow.reset(env.track, aid, agent_seed(seed, k))
     n_ahead = max(1, int(round(lookahead / env.config.dt)))
     choices: list[int] = []
     scores: list[np.ndarray] = []
@@ -134,12 +160,14 @@ def oracle_race(
     step = 0
     while env.agents:
         if step % every == 0 and len(thetas) > 1:
-            row = np.array([_rollout(env, agents, obs, theta, n_ahead) for theta in thetas])
+            row = np.array([_rollout(env, planners, obs, theta, n_ahead) for theta in thetas])
             best = int(np.argmax(row))  # the first of equals
             choices.append(best)
             scores.append(row)
             seen.append(np.array(obs[env.possible_agents[0]], dtype=np.float32))
             oracle.theta = thetas[best]
+        for shadow, aid in zip(shadows or [], env.possible_agents[1:]):
+            shadow.act(obs[aid])  # kept warm on the real race; its action is not driven
         obs = _step(env, agents, obs)
         step += 1
     progress = env.core.state[0, :, 0] - env.core.s_line[0]
@@ -161,8 +189,9 @@ def _step(env: RacingParallelEnv, agents: list, obs: dict) -> dict:
 
 
 def _rollout(env, agents, obs, theta, n_steps: int) -> float:
-    """The oracle's relative progress after ``n_steps`` periods of a copy of the race with its
-    theta set to ``theta`` (fewer where the race ends first)."""
+    """The oracle's relative progress after ``n_steps`` periods of a copy of the race, driven
+    by copies of ``agents`` (the oracle first), with its theta set to ``theta`` (fewer where
+    the race ends first)."""
     env2, agents2, obs2 = copy.deepcopy((env, agents, obs))
     agents2[0].theta = theta
     for _ in range(n_steps):

@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -52,13 +52,20 @@ from experiments.infra.parallel import Pool
 #: is the fixed theta's.
 ROOM_BENCHES = ("pass", "equal", "defend")
 
+#: How the oracle's rollouts drive the other cars (:class:`RoomConfig`): their own agents'
+#: copies (None), the base's spec (``"self"``) or the suite's control (``"control"``).
+MODELS = (None, "self", "control")
+
 
 @dataclass(frozen=True)
 class RoomConfig:
     """The oracle's settings: ``base`` (``"control"`` or ``"ego"``, the suite's agent whose
     theta the candidates start from), ``moves`` (0..len(MOVES) one-parameter moves of it),
     ``lookahead`` [s], ``every`` (control periods between choices), the ``benches`` of the
-    suite to measure, and ``races`` (the first N races of each bench; None: all)."""
+    suite to measure, ``races`` (the first N races of each bench; None: all), and ``model``:
+    how the oracle's rollouts drive the other cars, by copies of their own agents (None, full
+    information: the room), or by a model of them, ``"self"`` (the base's own spec: the
+    oracle assumes nothing of them) or ``"control"`` (the suite's control spec)."""
 
     base: str = "control"
     moves: int = 4
@@ -66,6 +73,7 @@ class RoomConfig:
     every: int = 10
     benches: tuple[str, ...] = ROOM_BENCHES
     races: int | None = None
+    model: str | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "benches", tuple(self.benches))
@@ -85,9 +93,12 @@ class RoomConfig:
             isinstance(self.races, bool) or not isinstance(self.races, int) or self.races < 1
         ):
             raise ValueError(f"races must be a positive number or None, got {self.races!r}")
+        if self.model not in MODELS:
+            raise ValueError(f"model must be one of {MODELS}, got {self.model!r}")
 
     def folder_name(self) -> str:
-        return f"{self.base}_T{self.lookahead:g}_M{self.moves + 1}_k{self.every}"
+        name = f"{self.base}_T{self.lookahead:g}_M{self.moves + 1}_k{self.every}"
+        return name if self.model is None else f"{name}_model-{self.model}"
 
 
 def suite_config(suite) -> StrategyConfig:
@@ -159,10 +170,12 @@ def room_race(
     room: RoomConfig,
     vehicle_class: str,
     wake: float,
+    model: list[str] | None = None,
 ) -> dict:
     """One oracle race in the seats of a suite's race (pure: no file access): ``{"record":
     its JSON record, "observations": (C, D) float32, "scores": (C, M)}``, the oracle's
-    observation and every candidate's look-ahead score at each of its C choices."""
+    observation and every candidate's look-ahead score at each of its C choices. ``model``:
+    the agent specs the rollouts drive the opponents by (None: their own)."""
     t0 = time.perf_counter()
     res = oracle_race(
         candidates,
@@ -175,6 +188,7 @@ def room_race(
         every=room.every,
         vehicle_class=vehicle_class,
         wake=wake,
+        model=model,
     )
     record = {
         "bench": key[0],
@@ -183,6 +197,7 @@ def room_race(
         "seed": seed,
         "ego_region": regions[0],
         "candidates": list(candidates),
+        **({} if model is None else {"model": list(model)}),
         "progress_m": [round(float(p), 4) for p in res.progress],
         "winner": int(res.winner),
         "choices": {str(k): v for k, v in sorted(Counter(res.choices).items())},
@@ -219,6 +234,8 @@ class RoomRun(ResumableRun):
         # the benches and the number of races choose which races run, not how: a folder
         # grows by more races or another bench of the same oracle
         setting = {k: v for k, v in asdict(room).items() if k not in SELECTION}
+        if room.model is None:  # folders written before there was a model hold none
+            setting.pop("model")
         self.claim({"room": setting, "suite": stored})
 
     def _forget(self, ego: bool) -> None:
@@ -268,12 +285,15 @@ class RoomRun(ResumableRun):
         ego = next(r for r in roles["ego"] if r["race"] == race)
         base = next(r for r in roles[self.config.base] if r["race"] == race)
         c = self.suite_config
+        candidates = candidate_moves(
+            explicit_theta(base["agents"][0], track, c.vehicle_class), self.config.moves
+        )
+        opponents = ego["agents"][1:]
+        model = {None: None, "self": candidates[0], "control": c.control}[self.config.model]
         return (
             task,
-            candidate_moves(
-                explicit_theta(base["agents"][0], track, c.vehicle_class), self.config.moves
-            ),
-            ego["agents"][1:],
+            candidates,
+            opponents,
             track,
             ego["seed"],
             ego["start_regions"],
@@ -281,6 +301,7 @@ class RoomRun(ResumableRun):
             self.config,
             c.vehicle_class,
             float(c.wake or 0.0),
+            None if model is None else [model] * len(opponents),
         )
 
 
@@ -337,13 +358,19 @@ def room_table(run: RoomRun) -> list[dict]:
         row[f"{other}_share_of_room"] = (
             round(float(gain.mean() / room.mean()), 3) if room.mean() > 2.0 * se else None
         )
+        # by the candidate's move, not its index: races of one folder may hold other
+        # candidate lists (a duplicate left out by a later version)
         choices: Counter = Counter()
+        order: dict[str, int] = {}  # each move in the order of the candidates
         for r in recs:
-            choices.update({int(k): v for k, v in r["choices"].items()})
+            names = r["candidates"]
+            for i, name in enumerate(names):
+                order.setdefault(_short(name, names[0]), i)
+            for k, v in r["choices"].items():
+                choices[_short(names[int(k)], names[0])] += v
         total = sum(choices.values()) or 1
-        names = recs[0]["candidates"]
         row["choice_share"] = {
-            _short(names[k], names[0]): round(v / total, 3) for k, v in sorted(choices.items())
+            k: round(choices[k] / total, 3) for k in sorted(choices, key=order.__getitem__)
         }
         row["oracle_seconds_per_race"] = round(float(np.mean([r["seconds"] for r in recs])), 1)
         rows.append(row)
@@ -415,7 +442,10 @@ def room(suite, config: RoomConfig, pool: Pool = Pool()) -> dict:
     suite_cfg = suite_config(suite)
     run = RoomRun(suite, config, suite_cfg)
     new = run.run_missing(room_race, run.task_args, pool, desc="oracle", unit="race")
-    rows = room_table(run)
+    # the tables show every race the folder holds, of every bench, not only this call's
+    held = tuple(b for b in ROOM_BENCHES if any(key[0] == b for key in run.records()))
+    view = replace(config, benches=held, races=None) if held else config
+    rows = room_table(RoomRun(suite, view, suite_cfg))
     table = {"room": asdict(config), "suite": suite_cfg.to_dict(), "rows": rows}
     write_json(run.out / "room.json", table)
     write_text(run.out / "room.md", room_markdown(run, rows))
