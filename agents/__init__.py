@@ -7,7 +7,7 @@ agent = make_agent("raceline")
 import racing_env.cache  # noqa: F401  first: the cache folder, before numba compiles anything
 from racing_env import __version__
 
-from . import alpha_agent, ibr, mpc_agent, ppo_agent, ranked, simple  # noqa: F401  registers the built-in agents
+from . import alpha_agent, ibr, lookahead, mpc_agent, ppo_agent, ranked, simple  # noqa: F401  registers the built-in agents
 from .base import (
     ENTRY_POINT_GROUP,
     Agent,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
@@ -59,6 +59,26 @@ DEFAULT_THETA = Theta(q=20.0, zeta=0.9, s1=0.1, s2=4.0, s3=1.0)
 """The ``mpc`` agent's theta when none is given: mid-range and safe, 10% below the line's speed."""
 BEST = "best"
 """``theta=BEST``: race the track's best fixed theta (:mod:`agents.best_theta`)."""
+
+
+_T = TypeVar("_T")
+
+
+def copy_sharing_lines(obj: _T, agents: Sequence) -> _T:
+    """``copy.deepcopy(obj)`` that shares, rather than copies, the tracks, racing lines and
+    line predictions of the MPC agents among ``agents``: they are never changed in a race, and
+    the reference's tables are cached per line object (:mod:`agents.reference_tables`), so a
+    copy with its own lines would build them again. A copied race goes on as the original."""
+    import copy
+
+    memo: dict = {}
+    for agent in agents:
+        if isinstance(agent, MPCAgent):
+            for name in ("track", "raceline", "blend_line", "prediction"):
+                part = getattr(agent, name, None)  # None before the agent's first reset
+                if part is not None:
+                    memo[id(part)] = part
+    return copy.deepcopy(obj, memo)
 
 
 @register_agent("mpc")

@@ -25,14 +25,13 @@ the race: with 6 candidates, a 3 s look-ahead and a choice every second, 18 time
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 
 import numpy as np
 
 from agents import make_agent_spec
 from agents.base import parse_value, spec_params, spec_with
-from agents.mpc_agent import MPCAgent
+from agents.mpc_agent import MPCAgent, copy_sharing_lines
 from agents.theta import move_items
 from experiments.evaluation.race import agent_seed, start_race
 from racing_env import RacingParallelEnv
@@ -192,7 +191,7 @@ def _rollout(env, agents, obs, theta, n_steps: int) -> float:
     """The oracle's relative progress after ``n_steps`` periods of a copy of the race, driven
     by copies of ``agents`` (the oracle first), with its theta set to ``theta`` (fewer where
     the race ends first)."""
-    env2, agents2, obs2 = copy.deepcopy((env, agents, obs))
+    env2, agents2, obs2 = copy_sharing_lines((env, agents, obs), agents)
     agents2[0].theta = theta
     for _ in range(n_steps):
         if not env2.agents:
