@@ -20,7 +20,6 @@ the race: the oracle's, at the same settings.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -36,7 +35,7 @@ from .theta import Theta, check_moves, moved_thetas
 __all__ = ["LookaheadAgent", "MODELS", "world_state"]
 
 #: How the agent models the other cars: MPC cars of its own base theta (``"self"``: it
-#: assumes nothing of them) or of the track's best fixed theta (``"best"``: the published
+#: assumes they drive as it does) or of the track's best fixed theta (``"best"``: the published
 #: control of the track and class, ``alpha-racer control``).
 MODELS = ("self", "best")
 
@@ -110,7 +109,7 @@ class LookaheadAgent(MPCAgent):
         base = self.theta
         self.thetas = []
         for theta in moved_thetas(base, self.moves):
-            if all(self._driven(theta) != self._driven(t) for t in self.thetas):
+            if all(self.capped(theta) != self.capped(t) for t in self.thetas):
                 self.thetas.append(theta)
         self.theta = base
         self._seed = seed
@@ -119,12 +118,6 @@ class LookaheadAgent(MPCAgent):
         self._periods = 0
         self._counts = np.zeros(len(self.thetas), dtype=np.int64)
         self._choice_ms = []
-
-    def _driven(self, theta: Theta) -> Theta:
-        """``theta`` as the MPC drives it (its zeta capped at ``zeta_max``)."""
-        if self.zeta_max is None or theta.zeta <= self.zeta_max:
-            return theta
-        return replace(theta, zeta=self.zeta_max)
 
     def _build_world(self, n_cars: int) -> None:
         """The env it simulates in and the models of the other cars, reset on its track."""

@@ -268,9 +268,13 @@ class MPCAgent:
     @property
     def driven_theta(self) -> Theta:
         """The theta the MPC drives with: ``theta`` with its zeta capped at ``zeta_max``."""
-        if self.zeta_max is None or self.theta.zeta <= self.zeta_max:
-            return self.theta
-        return replace(self.theta, zeta=self.zeta_max)
+        return self.capped(self.theta)
+
+    def capped(self, theta: Theta) -> Theta:
+        """``theta`` as this MPC would drive it: its zeta capped at ``zeta_max``."""
+        if self.zeta_max is None or theta.zeta <= self.zeta_max:
+            return theta
+        return replace(theta, zeta=self.zeta_max)
 
     @property
     def line(self) -> str:
