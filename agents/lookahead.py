@@ -25,11 +25,12 @@ from typing import Any
 import numpy as np
 
 from racing_env.observation import cars_in_observation, split_observation
+from racing_env.parallel_env import RacingParallelEnv, relative_progress
 from racing_env.track import Track
-from racing_env.tracks import make_track
 
 from .base import median_p99, register_agent
 from .mpc_agent import MPCAgent, copy_sharing_lines
+from .reference import WAKE_NAMES
 from .theta import Theta, check_moves, moved_thetas
 
 __all__ = ["LookaheadAgent", "MODELS", "world_state"]
@@ -104,7 +105,6 @@ class LookaheadAgent(MPCAgent):
         self._choice_ms: list[float] = []
 
     def reset(self, track: Track | str, agent_id: str = "car_0", seed: int | None = None) -> None:
-        track = make_track(track)
         super().reset(track, agent_id, seed)
         base = self.theta
         self.thetas = []
@@ -121,8 +121,6 @@ class LookaheadAgent(MPCAgent):
 
     def _build_world(self, n_cars: int) -> None:
         """The env it simulates in and the models of the other cars, reset on its track."""
-        from racing_env import RacingParallelEnv
-
         assert self.track is not None  # reset() sets it
         self._world = RacingParallelEnv(
             track=self.track,
@@ -133,28 +131,28 @@ class LookaheadAgent(MPCAgent):
         )
         self._world.reset(seed=0)
         self._me = self._world.possible_agents.index(self.agent_id)
+        self._other_ids = [a for a in self._world.possible_agents if a != self.agent_id]
+        self._n_ahead = max(1, int(round(self.horizon / self._world.config.dt)))
         settings: dict[str, Any] = dict(self._settings)
         if self.model == "best":
-            for name in ("q", "zeta", "s1", "s2", "s3", "b", "h", "p", "c", "zeta_max"):
+            for name in (*WAKE_NAMES, "zeta_max"):
                 settings.pop(name, None)
             settings["theta"] = "best"
         else:  # its own base theta, without its own ceiling
             settings.pop("zeta_max", None)
         self._others = []
         for k, aid in enumerate(self._world.possible_agents):
-            if k != self._me:
+            if aid in self._other_ids:
                 other = MPCAgent(**settings)
                 other.reset(self.track, aid, None if self._seed is None else self._seed + k)
                 self._others.append(other)
 
     def _observe_world(self, observation: np.ndarray) -> dict:
-        """Put its world's cars where the observation says; every car's observation there."""
+        """Put its world's cars where the observation says; every car's observation there.
+        (The world itself never steps, its copies do: its clock and live agents stay as reset.)"""
         core = self._world.core
         core.state[0] = world_state(observation, self.n_preview, self._me)
-        core.start[0] = core.state[0]
         core.s_line[0] = core.state[0, :, 0].max()
-        core.t[0] = 0
-        self._world.agents = list(self._world.possible_agents)
         obs = core.observe()[0]
         return {aid: obs[k] for k, aid in enumerate(self._world.possible_agents)}
 
@@ -171,8 +169,7 @@ class LookaheadAgent(MPCAgent):
             self.theta = self.thetas[best]
             self._counts[best] += 1
             self._choice_ms.append(1e3 * (time.perf_counter() - t0))
-        ids = [a for k, a in enumerate(self._world.possible_agents) if k != self._me]
-        for other, aid in zip(self._others, ids):
+        for other, aid in zip(self._others, self._other_ids):
             other.act(seen[aid])  # kept warm on the race; its action is not driven
         self._periods += 1
 
@@ -190,12 +187,10 @@ class LookaheadAgent(MPCAgent):
         me._copy, me.theta = True, theta
         drivers = list(others2)
         drivers.insert(self._me, me)
-        for _ in range(max(1, int(round(self.horizon / world2.config.dt)))):
+        for _ in range(self._n_ahead):
             actions = {aid: d.act(obs[aid]) for d, aid in zip(drivers, world2.possible_agents)}
             obs = world2.step(actions)[0]
-        s = world2.core.state[0, :, 0]
-        rivals = np.delete(s, self._me)
-        return float(s[self._me] - (rivals.max() if rivals.size else 0.0))
+        return relative_progress(world2, self._me)
 
     @property
     def stats(self) -> dict:

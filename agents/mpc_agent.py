@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, TypeVar
@@ -69,8 +70,6 @@ def copy_sharing_lines(obj: _T, agents: Sequence) -> _T:
     line predictions of the MPC agents among ``agents``: they are never changed in a race, and
     the reference's tables are cached per line object (:mod:`agents.reference_tables`), so a
     copy with its own lines would build them again. A copied race goes on as the original."""
-    import copy
-
     memo: dict = {}
     for agent in agents:
         if isinstance(agent, MPCAgent):

@@ -509,6 +509,13 @@ class RacingParallelEnv(ParallelEnv):
             self._viewer = None
 
 
+def relative_progress(env: RacingParallelEnv, car: int = 0) -> float:
+    """Car ``car``'s progress [m] minus the best other car's (its own progress when alone)."""
+    s = env.core.state[0, :, 0] - env.core.s_line[0]
+    others = np.delete(s, car)
+    return float(s[car] - (others.max() if others.size else 0.0))
+
+
 def _check_reset_options(options: dict | None, core: BatchedRaces, known=RESET_OPTIONS):
     """``(n_cars, start, order)`` of a reset's ``options``, every one checked (by a dry run of
     the start on a throwaway generator) before the caller changes anything: a car count

@@ -35,6 +35,7 @@ from agents.mpc_agent import MPCAgent, copy_sharing_lines
 from agents.theta import move_items
 from experiments.evaluation.race import agent_seed, start_race
 from racing_env import RacingParallelEnv
+from racing_env.parallel_env import relative_progress
 
 
 def candidate_moves(spec: str, moves: int = 4) -> list[str]:
@@ -80,13 +81,6 @@ class OracleResult:
     choices: list[int]
     scores: np.ndarray
     observations: np.ndarray
-
-
-def relative_progress(env: RacingParallelEnv, car: int = 0) -> float:
-    """Car ``car``'s progress [m] minus the best other car's (its own progress when alone)."""
-    s = env.core.state[0, :, 0] - env.core.s_line[0]
-    others = np.delete(s, car)
-    return float(s[car] - (others.max() if others.size else 0.0))
 
 
 def _candidate_thetas(candidates: list[str]) -> tuple[MPCAgent, list]:

@@ -442,11 +442,14 @@ def room(suite, config: RoomConfig, pool: Pool = Pool()) -> dict:
     suite_cfg = suite_config(suite)
     run = RoomRun(suite, config, suite_cfg)
     new = run.run_missing(room_race, run.task_args, pool, desc="oracle", unit="race")
-    # the tables show every race the folder holds, of every bench, not only this call's
-    held = tuple(b for b in ROOM_BENCHES if any(key[0] == b for key in run.records()))
-    view = replace(config, benches=held, races=None) if held else config
+    # the tables show every race the folder holds, of every bench, not only this call's (as
+    # many of each bench's first races as cover them, so that a suite still racing its later
+    # races does not stop the table)
+    done = run.records()
+    held = tuple(b for b in ROOM_BENCHES if any(key[0] == b for key in done))
+    view = replace(config, benches=held, races=1 + max(k[2] for k in done)) if held else config
     rows = room_table(RoomRun(suite, view, suite_cfg))
-    table = {"room": asdict(config), "suite": suite_cfg.to_dict(), "rows": rows}
+    table = {"room": asdict(view), "suite": suite_cfg.to_dict(), "rows": rows}
     write_json(run.out / "room.json", table)
     write_text(run.out / "room.md", room_markdown(run, rows))
     return {**table, "new_races": new, "folder": str(run.out)}
