@@ -1,4 +1,5 @@
-"""The look-ahead agent (issue 48): its world is the race as its observation holds it; alone,
+"""The look-ahead agent (issue 48): its world is the race as its observation holds it, and from
+the exact state its rollouts are the oracle's, bit for bit; alone,
 its look-ahead picks the faster of its candidates and gains by it over the base raced fixed;
 its models of the others drive the theta it assumes; its choices cost what it reports; bad
 settings are named."""
@@ -6,9 +7,11 @@ settings are named."""
 import numpy as np
 import pytest
 
+import agents.lookahead
 from agents import make_agent_spec
 from agents.best_theta import best_theta
 from agents.lookahead import LookaheadAgent, world_state
+from experiments.evaluation.oracle import _rollout
 from experiments.evaluation.race import run_race, start_race
 from racing_env import RacingParallelEnv
 
@@ -31,6 +34,28 @@ def test_its_world_is_the_race_its_observation_holds():
         assert np.allclose(seen, state, atol=1e-3, rtol=1e-5)  # float32 observations
     with pytest.raises(ValueError, match="car must be an index of the 3 cars observed, got 3"):
         world_state(obs["car_0"], env.config.n_preview, 3)
+
+
+def test_from_the_exact_state_its_rollouts_are_the_oracle_s(monkeypatch):
+    """With the other car's own spec as its model and the exact state in place of the
+    observation's float32 one, each candidate scores what the room's oracle scores."""
+    race = dict(seed=5, order=[1, 0])
+    env = RacingParallelEnv(track="default", n_cars=2, max_cycles=60)
+    agent = make_agent_spec(f"lookahead:{SLOW},moves=3,horizon=1,every=20")
+    obs = start_race(env, [agent, make_agent_spec(f"mpc:{SLOW}")], **race)
+    exact = env.core.state[0].copy()
+    monkeypatch.setattr(agents.lookahead, "world_state", lambda *_: exact.copy())
+    scores: list[float] = []
+    rollout = LookaheadAgent._rollout
+    monkeypatch.setattr(
+        LookaheadAgent, "_rollout", lambda self, *a: scores.append(rollout(self, *a)) or scores[-1]
+    )
+    agent.act(obs["car_0"])
+    env2 = RacingParallelEnv(track="default", n_cars=2, max_cycles=60)
+    copies = [make_agent_spec(f"mpc:{SLOW}") for _ in range(2)]
+    obs2 = start_race(env2, copies, **race)
+    assert scores == [_rollout(env2, copies, obs2, theta, 10) for theta in agent.thetas]
+    assert len(set(scores)) > 1  # the candidates differ
 
 
 def test_alone_it_picks_the_faster_candidate_and_gains_by_it():
